@@ -1,0 +1,1 @@
+"""Automation sequences: polled until Complete or Fault; combinators; homing."""

@@ -1,0 +1,1 @@
+"""The ``usbmotion`` command: a thin layer over the library."""

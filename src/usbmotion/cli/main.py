@@ -1,0 +1,25 @@
+"""Entry point of the ``usbmotion`` command; each sub-command lives in its own module."""
+
+from __future__ import annotations
+
+import typer
+
+from usbmotion import __version__
+
+app = typer.Typer(
+    name="usbmotion",
+    help="Closed-loop DC servo motion over USB serial: simulate, drive and test devices.",
+    no_args_is_help=True,
+    add_completion=False,
+)
+
+
+@app.command()
+def version() -> None:
+    """Print the package version."""
+    typer.echo(__version__)
+
+
+def main() -> None:
+    """Run the command line."""
+    app()

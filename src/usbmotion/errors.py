@@ -1,0 +1,199 @@
+"""Every error the package raises.
+
+Each class also subclasses the builtin a caller would expect (a bad value is a
+``ValueError``, a timeout a ``TimeoutError``), and carries the context a caller
+needs to act on it: the call number, the G-code line, the axis.
+"""
+
+from __future__ import annotations
+
+
+class UsbMotionError(Exception):
+    """Base of every error raised by usbmotion."""
+
+
+# --- numbers -------------------------------------------------------------------------------
+
+
+class SciMathError(UsbMotionError, ValueError):
+    """A scientific-notation number could not be built or computed."""
+
+
+# --- the wire protocol ---------------------------------------------------------------------
+
+
+class ProtocolError(UsbMotionError, ValueError):
+    """A line on the wire is malformed.
+
+    ``call`` is the executive call number when it could be read, else ``None``;
+    ``reason`` is the short text the device puts in its ``ERR <call> <reason>`` reply.
+    """
+
+    def __init__(self, message: str, *, call: int | None = None, reason: str = "") -> None:
+        super().__init__(message)
+        self.call = call
+        self.reason = reason or message
+
+
+class EmptyLineError(ProtocolError):
+    """The line holds no tokens."""
+
+
+class LineTooLongError(ProtocolError):
+    """The line is longer than the device's line buffer."""
+
+
+class NonIntegerTokenError(ProtocolError):
+    """A token is not a decimal integer."""
+
+
+class UnknownCallError(ProtocolError):
+    """The executive call number is not in the command table."""
+
+
+class WrongCountError(ProtocolError):
+    """The call has the wrong number of supporting inputs."""
+
+
+class OutOfRangeError(ProtocolError):
+    """A supporting input is outside the range the call allows."""
+
+
+class UnexpectedReplyError(ProtocolError):
+    """A reply line does not match any reply the call can give."""
+
+
+# --- the device link -----------------------------------------------------------------------
+
+
+class DeviceError(UsbMotionError, RuntimeError):
+    """A device refused or failed a call.
+
+    ``device`` names the device (its name or URL), ``call`` the executive call.
+    """
+
+    def __init__(self, message: str, *, device: str = "", call: int | None = None) -> None:
+        super().__init__(message)
+        self.device = device
+        self.call = call
+
+
+class ErrReplyError(DeviceError):
+    """The device answered ``ERR <call> <reason>``."""
+
+
+class QueueFullError(DeviceError):
+    """The device refused setpoints or keyframes (``E0``, ``E1``, ``E25``)."""
+
+
+class DeviceFaultError(DeviceError):
+    """The device reports a fault (watchdog, following error, limit switch)."""
+
+
+class DeviceTimeoutError(UsbMotionError, TimeoutError):
+    """A device did not answer in time."""
+
+    def __init__(self, message: str, *, device: str = "", call: int | None = None) -> None:
+        super().__init__(message)
+        self.device = device
+        self.call = call
+
+
+class LinkLostError(UsbMotionError, ConnectionError):
+    """The serial link closed or vanished.
+
+    ``confirmed`` is how many setpoints the device had confirmed when it was lost.
+    """
+
+    def __init__(self, message: str, *, device: str = "", confirmed: int = 0) -> None:
+        super().__init__(message)
+        self.device = device
+        self.confirmed = confirmed
+
+
+class DeviceNotFoundError(UsbMotionError, LookupError):
+    """A configured device name was not found on any searched port."""
+
+    def __init__(self, message: str, *, name: str = "", searched: tuple[str, ...] = ()) -> None:
+        super().__init__(message)
+        self.name = name
+        self.searched = searched
+
+
+class FlashError(UsbMotionError, OSError):
+    """The device's flash store could not be read or written."""
+
+
+# --- configuration -------------------------------------------------------------------------
+
+
+class ConfigError(UsbMotionError, ValueError):
+    """A machine configuration file is invalid.
+
+    ``path`` is the file, ``key`` the dotted key, ``line`` the line (when known).
+    """
+
+    def __init__(
+        self, message: str, *, path: str = "", key: str = "", line: int | None = None
+    ) -> None:
+        super().__init__(message)
+        self.path = path
+        self.key = key
+        self.line = line
+
+
+# --- motion --------------------------------------------------------------------------------
+
+
+class GCodeError(UsbMotionError, ValueError):
+    """A G-code program could not be interpreted.
+
+    ``file``, ``line`` (1-based) and ``column`` (1-based, 0 when unknown) locate the
+    problem; ``word`` is the offending word when there is one.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        file: str = "<string>",
+        line: int = 0,
+        column: int = 0,
+        word: str = "",
+    ) -> None:
+        super().__init__(message)
+        self.message = message
+        self.file = file
+        self.line = line
+        self.column = column
+        self.word = word
+
+    def __str__(self) -> str:
+        where = f"{self.file}:{self.line}"
+        if self.column:
+            where += f":{self.column}"
+        return f"{where}: {self.message}"
+
+
+class UnsupportedGCodeError(GCodeError):
+    """A word that would change the geometry is not supported."""
+
+
+class PlanningError(UsbMotionError, ValueError):
+    """Moves could not be planned within the machine's limits."""
+
+
+class ProfileError(UsbMotionError, ValueError):
+    """A motion profile (trapezoid, jerk-limited, Hermite) could not be built."""
+
+
+# --- automation ----------------------------------------------------------------------------
+
+
+class SequenceFaultError(UsbMotionError, RuntimeError):
+    """An automation sequence ended in a fault. ``axis`` names the axis, when one did."""
+
+    def __init__(self, message: str, *, axis: str = "", reason: str = "") -> None:
+        super().__init__(message)
+        self.axis = axis
+        self.reason = reason or message

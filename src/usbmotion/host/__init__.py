@@ -1,0 +1,1 @@
+"""The host: transport, device client, streaming, machine, configuration, discovery."""
