@@ -14,6 +14,11 @@ app = typer.Typer(
 )
 
 
+@app.callback()
+def _root() -> None:
+    """Closed-loop DC servo motion over USB serial."""
+
+
 @app.command()
 def version() -> None:
     """Print the package version."""
