@@ -1,1 +1,53 @@
 """The wire protocol: the command table, defined once, and a line codec with no I/O."""
+
+from usbmotion.protocol.codec import (
+    Call,
+    LineSplitter,
+    Overlong,
+    Reply,
+    ReplyKind,
+    check_call,
+    encode_call,
+    format_err,
+    parse_call,
+    parse_reply,
+)
+from usbmotion.protocol.table import (
+    BY_NAME,
+    BY_NUMBER,
+    CALLS,
+    CURVE_BUFFER_CAPACITY,
+    DEFAULT_DEVICE_NAME,
+    DEVICE_NAME_MAX,
+    MAX_LINE_BYTES,
+    QUEUE_CAPACITY,
+    CallSpec,
+    Fault,
+    Param,
+    Template,
+)
+
+__all__ = [
+    "BY_NAME",
+    "BY_NUMBER",
+    "CALLS",
+    "CURVE_BUFFER_CAPACITY",
+    "DEFAULT_DEVICE_NAME",
+    "DEVICE_NAME_MAX",
+    "MAX_LINE_BYTES",
+    "QUEUE_CAPACITY",
+    "Call",
+    "CallSpec",
+    "Fault",
+    "LineSplitter",
+    "Overlong",
+    "Param",
+    "Reply",
+    "ReplyKind",
+    "Template",
+    "check_call",
+    "encode_call",
+    "format_err",
+    "parse_call",
+    "parse_reply",
+]

@@ -1,0 +1,337 @@
+"""The line codec: calls to bytes and lines to calls or replies. No I/O, no clocks.
+
+A line is ASCII: the executive call number, then its supporting inputs, all decimal
+integers separated by spaces or tabs, ended by ``\\n`` (a ``\\r`` before it is ignored).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from enum import Enum
+
+from usbmotion.errors import (
+    EmptyLineError,
+    LineTooLongError,
+    NonIntegerTokenError,
+    OutOfRangeError,
+    ProtocolError,
+    UnexpectedReplyError,
+    UnknownCallError,
+    WrongCountError,
+)
+from usbmotion.protocol.table import (
+    BY_NUMBER,
+    CALLS,
+    DIAGNOSTICS,
+    ERR,
+    MAX_LINE_BYTES,
+    REFUSALS,
+    REST_FIELDS,
+    CallSpec,
+    Template,
+)
+
+_INT = re.compile(r"[+-]?\d+\Z")
+
+
+@dataclass(frozen=True, slots=True)
+class Call:
+    """One executive call with its supporting inputs."""
+
+    number: int
+    args: tuple[int, ...]
+
+    @property
+    def spec(self) -> CallSpec:
+        """The table entry of this call."""
+        return BY_NUMBER[self.number]
+
+    @property
+    def is_query(self) -> bool:
+        """True when the inputs are the call's query form."""
+        return self.spec.is_query(self.args)
+
+    def encode(self) -> bytes:
+        """The call as one line of bytes, newline included."""
+        return encode_call(self.number, *self.args)
+
+
+def check_call(number: int, args: tuple[int, ...]) -> CallSpec:
+    """Validate a call against the table and return its spec.
+
+    Raises:
+        UnknownCallError: no such call number.
+        WrongCountError: wrong number of supporting inputs.
+        OutOfRangeError: an input outside its range (the message names it).
+    """
+    call_spec = BY_NUMBER.get(number)
+    if call_spec is None:
+        raise UnknownCallError(
+            f"unknown executive call {number!r}; known calls are {_known_calls()}",
+            call=number,
+            reason="unknown call",
+        )
+    problem = call_spec.problem(args)
+    if problem is not None:
+        kind, message = problem
+        if kind == "count":
+            raise WrongCountError(message, call=number, reason="wrong number of inputs")
+        raise OutOfRangeError(message, call=number, reason=message)
+    return call_spec
+
+
+def encode_call(number: int, *args: int) -> bytes:
+    """Validate a call and encode it as one ASCII line ending in ``\\n``.
+
+    Raises:
+        UnknownCallError, WrongCountError, OutOfRangeError: see :func:`check_call`.
+        NonIntegerTokenError: an input is not an ``int`` (``bool`` included).
+    """
+    for position, value in enumerate((number, *args)):
+        if type(value) is not int:
+            raise NonIntegerTokenError(
+                f"input {position} of call {number!r} is {value!r}; every input is an int",
+                call=number if type(number) is int else None,
+                reason="not an integer",
+            )
+    check_call(number, args)
+    if args:
+        return f"{number} {' '.join(map(str, args))}\n".encode("ascii")
+    return f"{number}\n".encode("ascii")
+
+
+def parse_call(line: bytes | str) -> Call:
+    """Parse one line (with or without its newline) into a validated :class:`Call`.
+
+    Never returns a half-parsed call: any problem raises.
+
+    Raises:
+        LineTooLongError: longer than :data:`MAX_LINE_BYTES`.
+        EmptyLineError: no tokens.
+        NonIntegerTokenError: a token is not a decimal integer (names it).
+        UnknownCallError, WrongCountError, OutOfRangeError: see :func:`check_call`.
+    """
+    if isinstance(line, bytes):
+        if len(line.rstrip(b"\r\n")) > MAX_LINE_BYTES:
+            raise LineTooLongError(
+                f"line of {len(line)} bytes is longer than {MAX_LINE_BYTES}",
+                reason=f"line longer than {MAX_LINE_BYTES} bytes",
+            )
+        text = line.decode("ascii", errors="replace")
+    else:
+        text = line
+        if len(text.rstrip("\r\n")) > MAX_LINE_BYTES:
+            raise LineTooLongError(
+                f"line of {len(text)} characters is longer than {MAX_LINE_BYTES}",
+                reason=f"line longer than {MAX_LINE_BYTES} bytes",
+            )
+    tokens = text.split()
+    if not tokens:
+        raise EmptyLineError("empty line", reason="empty line")
+    number = _to_int(tokens[0], None, 0)
+    args = tuple(_to_int(token, number, i) for i, token in enumerate(tokens[1:], start=1))
+    check_call(number, args)
+    return Call(number, args)
+
+
+def _to_int(token: str, call: int | None, position: int) -> int:
+    if _INT.match(token) is None:
+        shown = token if len(token) <= 24 else token[:21] + "..."
+        what = "executive call" if position == 0 else f"input {position}"
+        raise NonIntegerTokenError(
+            f"{what} {shown!r} is not a decimal integer",
+            call=call,
+            reason=f"{what} {shown!r} is not an integer",
+        )
+    return int(token)
+
+
+def _known_calls() -> str:
+    numbers = sorted(BY_NUMBER)
+    return f"{numbers[0]}..{numbers[-1]}"
+
+
+def format_err(error: ProtocolError) -> str:
+    """The device's one-line answer to a malformed line: ``ERR <call> <reason>``."""
+    call = "?" if error.call is None else str(error.call)
+    reason = " ".join(error.reason.split()) or "malformed line"
+    return ERR.format(call, reason)
+
+
+# --- replies -------------------------------------------------------------------------------
+
+
+class ReplyKind(Enum):
+    """What a line from the device is."""
+
+    QUERY = "query"
+    """The answer to a query (``SERVO_ENABLE 1``)."""
+    DEBUG = "debug"
+    """A debug-flag line (``SERVO ENABLE MODIFIED TO 1``)."""
+    REFUSAL = "refusal"
+    """``E0``, ``E1`` or ``E25``: values not taken."""
+    ERROR = "error"
+    """``ERR <call> <reason>``: a malformed or refused line."""
+    DIAGNOSTICS = "diagnostics"
+    """A ``D ...`` line printed every N servo ticks."""
+
+
+@dataclass(frozen=True, slots=True)
+class Reply:
+    """One parsed line from the device.
+
+    ``call`` is the executive call it belongs to (``None`` for diagnostics or an
+    ``ERR`` whose call could not be read); ``key`` is the reply's literal head
+    (``SERVO_ENABLE``, ``E0``, ``ERR``, ``D``); ``values`` are its integer fields in
+    order; ``text`` holds a text field (device name, error reason, call-1 values).
+    """
+
+    kind: ReplyKind
+    call: int | None
+    key: str
+    values: tuple[int, ...]
+    text: str
+    line: str
+
+
+@dataclass(frozen=True, slots=True)
+class _Matcher:
+    kind: ReplyKind
+    call: int | None
+    template: Template
+    pattern: re.Pattern[str]
+
+
+def _matchers() -> dict[str, list[_Matcher]]:
+    table: dict[str, list[_Matcher]] = {}
+
+    def add(kind: ReplyKind, call: int | None, template: Template) -> None:
+        first = template.text.split(" ", 1)[0]
+        table.setdefault(first, []).append(
+            _Matcher(kind, call, template, template.pattern())
+        )
+
+    for call_spec in CALLS:
+        if call_spec.query_reply is not None:
+            add(ReplyKind.QUERY, call_spec.number, call_spec.query_reply)
+        for template in call_spec.debug.values():
+            add(ReplyKind.DEBUG, call_spec.number, template)
+    add(ReplyKind.DIAGNOSTICS, None, DIAGNOSTICS)
+    return table
+
+
+_MATCHERS = _matchers()
+_ERR = re.compile(r"^ERR (\?|-?\d+) (.*)$")
+
+
+def parse_reply(line: bytes | str) -> Reply:
+    """Parse one line from the device.
+
+    Raises:
+        UnexpectedReplyError: the line matches no reply in the table.
+    """
+    text = line.decode("ascii", errors="replace") if isinstance(line, bytes) else line
+    text = text.rstrip("\r\n").strip()
+    refused = REFUSALS.get(text)
+    if refused is not None:
+        return Reply(ReplyKind.REFUSAL, refused, text, (), "", text)
+    first = text.split(" ", 1)[0]
+    if first == "ERR":
+        match = _ERR.match(text)
+        if match is not None:
+            call = None if match.group(1) == "?" else int(match.group(1))
+            return Reply(ReplyKind.ERROR, call, "ERR", (), match.group(2), text)
+    for matcher in _MATCHERS.get(first, ()):
+        match = matcher.pattern.match(text)
+        if match is None:
+            continue
+        values: list[int] = []
+        rest = ""
+        for name, group in zip(matcher.template.fields, match.groups(), strict=True):
+            if name in REST_FIELDS:
+                rest = group
+            else:
+                values.append(int(group))
+        return Reply(matcher.kind, matcher.call, matcher.template.head, tuple(values), rest, text)
+    shown = text if len(text) <= 60 else text[:57] + "..."
+    raise UnexpectedReplyError(f"unexpected line from device: {shown!r}")
+
+
+# --- framing -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Overlong:
+    """Marks a line that exceeded :data:`MAX_LINE_BYTES`; its bytes were discarded."""
+
+    length: int
+
+
+class LineSplitter:
+    """Cut a byte stream into lines, whatever the chunking. No I/O.
+
+    Bytes are buffered until a ``\\n``; a line that grows past ``max_bytes`` is
+    discarded up to its newline and reported once as :class:`Overlong`, so a garbage
+    stream can never grow the buffer without bound.
+    """
+
+    def __init__(self, *, max_bytes: int = MAX_LINE_BYTES) -> None:
+        self._max = max_bytes
+        self._buffer = bytearray()
+        self._discarding = 0
+
+    def feed(self, data: bytes) -> list[bytes | Overlong]:
+        """Take a chunk and return the whole lines it completes (without ``\\n``/``\\r``)."""
+        out: list[bytes | Overlong] = []
+        start = 0
+        while True:
+            end = data.find(b"\n", start)
+            if end < 0:
+                self._keep(data[start:])
+                return out
+            piece = data[start:end]
+            if self._discarding:
+                out.append(Overlong(self._discarding + len(piece)))
+                self._discarding = 0
+            elif len(self._buffer) + len(piece) > self._max + 1:
+                out.append(Overlong(len(self._buffer) + len(piece)))
+                self._buffer.clear()
+            else:
+                self._buffer += piece
+                line = bytes(self._buffer).rstrip(b"\r")
+                self._buffer.clear()
+                if len(line) > self._max:
+                    out.append(Overlong(len(line)))
+                else:
+                    out.append(line)
+            start = end + 1
+
+    def _keep(self, rest: bytes) -> None:
+        if self._discarding:
+            self._discarding += len(rest)
+        elif len(self._buffer) + len(rest) > self._max + 1:
+            self._discarding = len(self._buffer) + len(rest)
+            self._buffer.clear()
+        else:
+            self._buffer += rest
+
+    @property
+    def pending(self) -> int:
+        """Bytes held waiting for a newline."""
+        return len(self._buffer)
+
+    def reset(self) -> None:
+        """Drop any partial line."""
+        self._buffer.clear()
+        self._discarding = 0
+
+
+def iter_calls(lines: Iterable[bytes]) -> Iterator[Call | ProtocolError]:
+    """Parse lines into calls, yielding the error for each malformed line instead of raising."""
+    for line in lines:
+        try:
+            yield parse_call(line)
+        except ProtocolError as error:
+            yield error

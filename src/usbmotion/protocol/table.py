@@ -1,0 +1,523 @@
+"""The command table: every executive call, defined once for the device and the host.
+
+Each :class:`CallSpec` gives the call's number, name, supporting inputs with their allowed
+ranges, the token tuple that turns it into a query, the reply it answers a query with, the
+debug-flag strings of call 8, and the refusal it can answer. The device interprets lines
+through this table; the host validates and encodes through it; ``PROTOCOL.md`` is generated
+from it.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+INT32_MIN = -(2**31)
+INT32_MAX = 2**31 - 1
+MAX_LINE_BYTES = 16384
+"""Longest line the device buffers (bytes, no newline): a full queue fits in one call 1."""
+QUEUE_CAPACITY = 1000
+"""Motion queue capacity, in 32-bit values (seed 000)."""
+CURVE_BUFFER_CAPACITY = 8
+"""Keyframe buffer capacity (seed 001)."""
+DEVICE_NAME_MAX = 25
+"""Longest device name, in characters (seed 000)."""
+DEFAULT_DEVICE_NAME = "GENERIC USB MOTION DEVICE"
+
+_FIELD = re.compile(r"\{(\w+)\}")
+REST_FIELDS = frozenset({"text", "values"})
+"""Template fields that take the rest of the line rather than one integer."""
+
+
+@dataclass(frozen=True, slots=True)
+class Param:
+    """One supporting input: a name with its unit, an inclusive range, and what it means."""
+
+    name: str
+    minimum: int
+    maximum: int
+    doc: str
+
+    def check(self, value: int) -> str | None:
+        """Return why ``value`` is not allowed, or ``None`` when it is."""
+        if self.minimum <= value <= self.maximum:
+            return None
+        return f"{self.name} {value!r} is out of range {self.minimum}..{self.maximum}"
+
+
+@dataclass(frozen=True, slots=True)
+class Template:
+    """A reply or debug line: literal words with ``{field}`` placeholders.
+
+    A field named ``text`` or ``values`` takes the rest of the line (the device name,
+    the values of call 1); every other field is one integer.
+    """
+
+    text: str
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        """Names of the placeholders, in order."""
+        return tuple(_FIELD.findall(self.text))
+
+    @property
+    def head(self) -> str:
+        """The literal text before the first placeholder (the reply's key)."""
+        return self.text.split("{", 1)[0].rstrip()
+
+    def format(self, *values: int | str) -> str:
+        """Fill the placeholders in order."""
+        names = self.fields
+        if len(values) != len(names):
+            raise ValueError(
+                f"template {self.text!r} takes {len(names)} values, got {len(values)}"
+            )
+        out = self.text
+        for name, value in zip(names, values, strict=True):
+            out = out.replace("{" + name + "}", str(value), 1)
+        return out
+
+    def pattern(self) -> re.Pattern[str]:
+        """A regular expression matching a whole line of this template."""
+        parts: list[str] = []
+        pos = 0
+        for match in _FIELD.finditer(self.text):
+            parts.append(re.escape(self.text[pos : match.start()]))
+            parts.append("(.*)" if match.group(1) in REST_FIELDS else r"(-?\d+)")
+            pos = match.end()
+        parts.append(re.escape(self.text[pos:]))
+        return re.compile("^" + "".join(parts) + "$")
+
+
+@dataclass(frozen=True, slots=True)
+class CallSpec:
+    """One executive call.
+
+    ``params`` are the fixed supporting inputs. A *counted* call (1, 18) instead takes
+    a count ``N`` (``params[0]``) followed by ``N`` items each checked against ``item``.
+    ``query`` is the input tuple that queries the call's value instead of setting it
+    (``None`` in it matches any value), answered with ``query_reply``. ``debug`` maps a
+    call-8 flag to the line the device prints when the call executes with that flag set.
+    ``refusal`` is the line the device answers when the call cannot be carried out (queue
+    or buffer full).
+    """
+
+    number: int
+    name: str
+    summary: str
+    params: tuple[Param, ...]
+    item: Param | None = None
+    query: tuple[int | None, ...] | None = None
+    query_reply: Template | None = None
+    debug: Mapping[int, Template] = field(default_factory=dict)
+    refusal: str | None = None
+    notes: str = ""
+
+    @property
+    def counted(self) -> bool:
+        """True when the call takes a count followed by that many items."""
+        return self.item is not None
+
+    def is_query(self, args: tuple[int, ...]) -> bool:
+        """True when ``args`` is this call's query form."""
+        if self.query is None or len(args) != len(self.query):
+            return False
+        return all(q is None or q == a for q, a in zip(self.query, args, strict=True))
+
+    def problem(self, args: tuple[int, ...]) -> tuple[str, str] | None:
+        """Check ``args`` against the call: ``None`` if valid, else ``(kind, message)``.
+
+        ``kind`` is ``"count"`` for a wrong number of inputs and ``"range"`` for a
+        value outside its range.
+        """
+        if self.is_query(args):
+            assert self.query is not None
+            for wanted, param, value in zip(self.query, self.params, args, strict=False):
+                why = param.check(value) if wanted is None else None
+                if why is not None:
+                    return ("range", why)
+            return None
+        if self.counted:
+            assert self.item is not None
+            if not args:
+                return ("count", f"call {self.number} ({self.name}) needs a count first")
+            count = args[0]
+            why = self.params[0].check(count)
+            if why is not None:
+                return ("range", why)
+            if len(args) != count + 1:
+                return (
+                    "count",
+                    f"call {self.number} ({self.name}) announced {count} items"
+                    f" but carries {len(args) - 1}",
+                )
+            for value in args[1:]:
+                why = self.item.check(value)
+                if why is not None:
+                    return ("range", why)
+            return None
+        if len(args) != len(self.params):
+            want = len(self.params)
+            return (
+                "count",
+                f"call {self.number} ({self.name}) takes {want} input{'s' * (want != 1)},"
+                f" got {len(args)}",
+            )
+        for param, value in zip(self.params, args, strict=True):
+            why = param.check(value)
+            if why is not None:
+                return ("range", why)
+        return None
+
+
+def _p(name: str, minimum: int, maximum: int, doc: str) -> Param:
+    return Param(name, minimum, maximum, doc)
+
+
+def _t(text: str) -> Template:
+    return Template(text)
+
+
+_GAIN_C = (0, 999, "coefficient, up to 3 significant digits")
+_GAIN_E = (-12, 6, "decimal exponent")
+_SCI_C = (1, 9999, "coefficient, up to 4 significant digits")
+_SCI_E = (-12, 6, "decimal exponent")
+
+
+def _gain(number: int, word: str, unit: str) -> CallSpec:
+    key = word.upper() + "_GAIN"
+    return CallSpec(
+        number,
+        f"SET_{key}",
+        f"{word} gain of the PID, C*10^E {unit}; halts core1, copies it in, resumes.",
+        (_p("coefficient", *_GAIN_C), _p("exponent", *_GAIN_E)),
+        query=(-1, 0),
+        query_reply=_t(key + " {coefficient} {exponent}"),
+        debug={1: _t(f"{word.upper()} GAIN MODIFIED TO {{coefficient}} {{exponent}}")},
+    )
+
+
+def _sim_sci(number: int, key: str, what: str, unit: str, *, signed: bool = False) -> CallSpec:
+    low = -9999 if signed else _SCI_C[0]
+    return CallSpec(
+        number,
+        f"SET_SIM_{key}",
+        f"Simulated motor: {what}, C*10^E {unit}.",
+        (
+            _p("coefficient", low, _SCI_C[1], _SCI_C[2] + (", signed" if signed else "")),
+            _p("exponent", *_SCI_E),
+        ),
+        query=(-1, 0),
+        query_reply=_t(f"SIM_{key} {{coefficient}} {{exponent}}"),
+        debug={1: _t(f"SIM {key.replace('_', ' ')} MODIFIED TO {{coefficient}} {{exponent}}")},
+    )
+
+
+CALLS: tuple[CallSpec, ...] = (
+    CallSpec(
+        0,
+        "ADD_SINGLE",
+        "Add one integer (position in counts or velocity in counts/s) to the motion queue.",
+        (_p("value", INT32_MIN, INT32_MAX, "setpoint: counts (mode 1) or counts/s (mode 2)"),),
+        debug={1: _t("S0 {value}")},
+        refusal="E0",
+        notes="A full queue refuses the value with `E0` and keeps what it holds.",
+    ),
+    CallSpec(
+        1,
+        "ADD_MULTIPLE",
+        "Add N integers to the motion queue, all or none.",
+        (_p("count", 1, QUEUE_CAPACITY, "number of values that follow"),),
+        item=_p("value", INT32_MIN, INT32_MAX, "setpoint: counts (mode 1) or counts/s (mode 2)"),
+        debug={1: _t("S0 {count} {values}")},
+        refusal="E1",
+        notes="If the queue cannot take all N values it takes none and answers `E1`.",
+    ),
+    CallSpec(
+        2,
+        "MOTION_QUEUE",
+        "Motion queue status: values queued and free slots.",
+        (_p("query", -1, -1, "always -1"),),
+        query=(-1,),
+        query_reply=_t("MOTION_QUEUE {queued} {free}"),
+    ),
+    CallSpec(
+        3,
+        "SET_SERVO_ENABLE",
+        "Enable (1) or disable (0) the servo loop.",
+        (_p("enable", 0, 1, "1 enables, 0 disables"),),
+        query=(-1,),
+        query_reply=_t("SERVO_ENABLE {value}"),
+        debug={1: _t("SERVO ENABLE MODIFIED TO {value}")},
+        notes="Enabling while a fault is latched is refused with `ERR 3 fault ...`;"
+        " clear it with call 30 first.",
+    ),
+    CallSpec(
+        4,
+        "CLEAR_MOTION_QUEUE",
+        "Empty the motion queue; the last desired value is held.",
+        (_p("zero", 0, 0, "always 0"),),
+        debug={1: _t("MOTION QUEUE CLEARED")},
+    ),
+    CallSpec(
+        5,
+        "SET_SERVO_UPDATE_INTERVAL",
+        "Servo loop period in decimilliseconds (1 = 100 us = 10 kHz); clears the queue.",
+        (_p("interval_dms", 1, 10000, "servo period in tenths of a millisecond"),),
+        query=(-1,),
+        query_reply=_t("SERVO_UPDATE_INTERVAL_US {value}"),
+        debug={1: _t("SERVO LOOP INTERVAL MODIFIED TO {value} MICROSECONDS")},
+        notes="Set in decimilliseconds, answered in microseconds, as seed 000 writes it.",
+    ),
+    CallSpec(
+        6,
+        "SET_MOTION_UPDATE_INTERVAL_SCALAR",
+        "Servo ticks per motion-queue value; clears the queue.",
+        (_p("scalar", 1, 65535, "servo ticks between queue values"),),
+        query=(-1,),
+        query_reply=_t("MOTION_UPDATE_INTERVAL_SCALAR {value}"),
+        debug={1: _t("MOTION UPDATE INTERVAL SCALAR MODIFIED TO {value}")},
+    ),
+    CallSpec(
+        7,
+        "SET_CONTROL_MODE",
+        "Control mode: 1 position (counts), 2 velocity (counts/s), 3 Hermite keyframes;"
+        " clears the queue and the keyframe buffer.",
+        (_p("mode", 1, 3, "1 position, 2 velocity, 3 curve"),),
+        query=(-1,),
+        query_reply=_t("CONTROL_MODE {value}"),
+        debug={1: _t("Control Mode MODIFIED TO {value}")},
+        notes="Seed 000's example `7 0` names no mode; 0 is refused.",
+    ),
+    CallSpec(
+        8,
+        "SET_DEBUG_FLAG",
+        "Set the debug flag of an executive call (0 = quiet; undefined values act as 0).",
+        (
+            _p("call", 0, 63, "the executive call whose flag is set"),
+            _p("flag", -1, 255, "the flag value; -1 queries it"),
+        ),
+        query=(None, -1),
+        query_reply=_t("DEBUG_FLAG {call} {flag}"),
+        notes="`8 N -1` answers `DEBUG_FLAG N F`. Seed 000's example `6 0 1` means `8 0 1`.",
+    ),
+    _gain(9, "Proportional", "V per count"),
+    _gain(10, "Integral", "V per count-second"),
+    _gain(11, "Derivative", "V-seconds per count"),
+    CallSpec(
+        12,
+        "SET_SIM_UPDATE_INTERVAL",
+        "Simulated motor: integration step in decimilliseconds (at most one servo period).",
+        (_p("interval_dms", 1, 10000, "motor integration step in tenths of a millisecond"),),
+        query=(-1,),
+        query_reply=_t("SIM_UPDATE_INTERVAL_DMS {value}"),
+        debug={1: _t("SIM UPDATE INTERVAL MODIFIED TO {value} DMS")},
+    ),
+    _sim_sci(13, "SOURCE_VOLTAGE", "source voltage, the PID output ceiling", "V"),
+    _sim_sci(14, "TORQUE_CONSTANT", "torque constant (= back-EMF constant in SI)", "mNm/A"),
+    _sim_sci(15, "WINDING_RESISTANCE", "winding resistance", "ohm"),
+    CallSpec(
+        16,
+        "SET_SIM_COUNTS_PER_REVOLUTION",
+        "Simulated motor: encoder counts per output revolution (quadrature, x4).",
+        (_p("counts", 1, 1_000_000, "counts per revolution"),),
+        query=(-1,),
+        query_reply=_t("SIM_COUNTS_PER_REVOLUTION {value}"),
+        debug={1: _t("SIM COUNTS PER REVOLUTION MODIFIED TO {value}")},
+    ),
+    _sim_sci(17, "INERTIA", "rotor plus load inertia at the encoder shaft", "kg m^2"),
+    CallSpec(
+        18,
+        "SET_DEVICE_NAME",
+        "Device name as N ASCII codes (32..126), written to flash.",
+        (_p("length", 0, DEVICE_NAME_MAX, "number of characters"),),
+        item=_p("character", 32, 126, "printable ASCII code"),
+        query=(-1,),
+        query_reply=_t("DEVICE_NAME {text}"),
+        debug={1: _t("DEVICE NAME MODIFIED TO {text}")},
+        notes="`18 0` erases the name: the device answers to the default name again.",
+    ),
+    CallSpec(
+        19,
+        "SET_DEFAULT_CONTROL_MODE",
+        "Control mode at power-up, written to flash.",
+        (_p("mode", 1, 3, "1 position, 2 velocity, 3 curve"),),
+        query=(-1,),
+        query_reply=_t("DEFAULT_CONTROL_MODE {value}"),
+        debug={1: _t("DEFAULT CONTROL MODE MODIFIED TO {value}")},
+    ),
+    CallSpec(
+        20,
+        "STATUS",
+        "Status in one line.",
+        (_p("query", -1, -1, "always -1"),),
+        query=(-1,),
+        query_reply=_t(
+            "STATUS {clock} {actual} {desired} {velocity} {queued} {enable} {mode}"
+            " {limits} {fault}"
+        ),
+        notes="clock in servo ticks; actual, desired in counts; velocity in counts/s;"
+        " limits is a bit mask (1 lower, 2 upper); fault is a fault code (0 none).",
+    ),
+    CallSpec(
+        21,
+        "SET_DIAGNOSTICS_INTERVAL",
+        "Print a diagnostics line every N servo ticks (0 = off).",
+        (_p("ticks", 0, 1_000_000, "servo ticks between diagnostics lines"),),
+        query=(-1,),
+        query_reply=_t("DIAGNOSTICS_INTERVAL {value}"),
+        debug={1: _t("DIAGNOSTICS INTERVAL MODIFIED TO {value}")},
+        notes="Diagnostics line: `D <clock> <desired> <actual> <velocity> <output_mv> <queued>`.",
+    ),
+    CallSpec(
+        22,
+        "CLOCK",
+        "Zero the device clock (0) for time synchronisation, or query it (-1).",
+        (_p("zero", 0, 0, "0 zeroes the clock"),),
+        query=(-1,),
+        query_reply=_t("CLOCK {ticks}"),
+        debug={1: _t("CLOCK ZEROED")},
+    ),
+    CallSpec(
+        23,
+        "SET_POSITION",
+        "Set the actual (and desired) position counter, e.g. to 0 after homing.",
+        (_p("position", INT32_MIN, INT32_MAX, "counts"),),
+        debug={1: _t("POSITION SET TO {value}")},
+        notes="Clears the motion queue and the integrator; the servo holds the new position.",
+    ),
+    CallSpec(
+        24,
+        "LIMITS",
+        "Limit switches: 1 when pressed.",
+        (_p("query", -1, -1, "always -1"),),
+        query=(-1,),
+        query_reply=_t("LIMITS {lower} {upper}"),
+    ),
+    CallSpec(
+        25,
+        "APPEND_KEYFRAME",
+        "Append a Hermite keyframe (curve mode): duration, position, in and out tangents.",
+        (
+            _p("duration_ms", 1, 65535, "time from the previous keyframe, ms"),
+            _p("position", INT32_MIN, INT32_MAX, "counts"),
+            _p("tangent_in", -32768, 32767, "counts per ms, signed 6:10 fixed point"),
+            _p("tangent_out", -32768, 32767, "counts per ms, signed 6:10 fixed point"),
+        ),
+        debug={1: _t("KEYFRAME {duration_ms} {position} {tangent_in} {tangent_out}")},
+        refusal="E25",
+        notes="A full buffer refuses the keyframe with `E25` and keeps what it holds.",
+    ),
+    CallSpec(
+        26,
+        "CLEAR_KEYFRAMES",
+        "Empty the keyframe buffer; the curve holds its current position.",
+        (_p("zero", 0, 0, "always 0"),),
+        debug={1: _t("KEYFRAMES CLEARED")},
+    ),
+    CallSpec(
+        27,
+        "CURVE_BUFFER",
+        "Free keyframe slots.",
+        (_p("query", -1, -1, "always -1"),),
+        query=(-1,),
+        query_reply=_t("CURVE_BUFFER {free}"),
+    ),
+    CallSpec(
+        28,
+        "SET_WATCHDOG",
+        "Watchdog: no command for this long while enabled disables the servo (0 = off).",
+        (_p("timeout_ms", 0, 600_000, "milliseconds"),),
+        query=(-1,),
+        query_reply=_t("WATCHDOG_MS {value}"),
+        debug={1: _t("WATCHDOG MODIFIED TO {value} MS")},
+    ),
+    CallSpec(
+        29,
+        "SET_FOLLOWING_ERROR_LIMIT",
+        "Following-error limit: a larger error disables the servo and sets a fault (0 = off).",
+        (_p("counts", 0, INT32_MAX, "counts"),),
+        query=(-1,),
+        query_reply=_t("FOLLOWING_ERROR_LIMIT {value}"),
+        debug={1: _t("FOLLOWING ERROR LIMIT MODIFIED TO {value}")},
+    ),
+    CallSpec(
+        30,
+        "CLEAR_FAULT",
+        "Clear a latched fault (0), or query it (-1).",
+        (_p("zero", 0, 0, "0 clears the fault"),),
+        query=(-1,),
+        query_reply=_t("FAULT {code} {tick}"),
+        debug={1: _t("FAULT CLEARED")},
+        notes="Fault codes: 0 none, 1 watchdog, 2 following error, 3 limit switch.",
+    ),
+    CallSpec(
+        31,
+        "START_AT",
+        "Hold the motion queue until the device clock reaches tick T (synchronised start).",
+        (_p("tick", 0, INT32_MAX, "device clock tick"),),
+        query=(-1,),
+        query_reply=_t("START_TICK {value}"),
+        debug={1: _t("START TICK MODIFIED TO {value}")},
+        notes="The query answers -1 when no start is armed.",
+    ),
+    _sim_sci(32, "VISCOUS_FRICTION", "viscous friction at the encoder shaft", "uNm per rad/s"),
+    _sim_sci(33, "LOAD_TORQUE", "constant load torque opposing motion", "mNm", signed=True),
+    CallSpec(
+        34,
+        "SET_SIM_TRAVEL",
+        "Simulated axis: travel range in counts; a switch closes at each end.",
+        (
+            _p("lower", INT32_MIN, INT32_MAX, "lower switch position, counts"),
+            _p("upper", INT32_MIN, INT32_MAX, "upper switch position, counts"),
+        ),
+        query=(-1, -1),
+        query_reply=_t("SIM_TRAVEL {lower} {upper}"),
+        debug={1: _t("SIM TRAVEL MODIFIED TO {lower} {upper}")},
+        notes="The travel is measured in motor counts from power-up (call 23 does not move it);"
+        " lower must be below upper.",
+    ),
+)
+
+BY_NUMBER: Mapping[int, CallSpec] = {spec.number: spec for spec in CALLS}
+BY_NAME: Mapping[str, CallSpec] = {spec.name: spec for spec in CALLS}
+
+REFUSALS: Mapping[str, int] = {
+    spec.refusal: spec.number for spec in CALLS if spec.refusal is not None
+}
+"""Refusal line -> the call that gives it."""
+
+
+class Fault:
+    """Fault codes reported by call 20 (``STATUS``) and call 30's query."""
+
+    NONE = 0
+    WATCHDOG = 1
+    FOLLOWING_ERROR = 2
+    LIMIT_SWITCH = 3
+    INTERNAL = 4
+
+    NAMES: Mapping[int, str] = {
+        0: "none",
+        1: "watchdog",
+        2: "following error",
+        3: "limit switch",
+        4: "internal error",
+    }
+
+
+DIAGNOSTICS = Template("D {clock} {desired} {actual} {velocity} {output_mv} {queued}")
+"""The line call 21 prints every N servo ticks."""
+
+ERR = Template("ERR {call} {text}")
+"""The device's answer to a malformed line; ``call`` is ``?`` when it cannot be read."""
+
+
+def spec(number: int) -> CallSpec:
+    """The call with this number.
+
+    Raises:
+        KeyError: no such call.
+    """
+    return BY_NUMBER[number]

@@ -1,0 +1,272 @@
+"""The command table and the line codec: round trips, malformed lines, PROTOCOL.md."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from usbmotion.errors import (
+    EmptyLineError,
+    LineTooLongError,
+    NonIntegerTokenError,
+    OutOfRangeError,
+    ProtocolError,
+    UnexpectedReplyError,
+    UnknownCallError,
+    WrongCountError,
+)
+from usbmotion.protocol import (
+    CALLS,
+    MAX_LINE_BYTES,
+    Call,
+    CallSpec,
+    LineSplitter,
+    Overlong,
+    ReplyKind,
+    encode_call,
+    format_err,
+    parse_call,
+    parse_reply,
+)
+from usbmotion.protocol.reference import render_reference, splice
+from usbmotion.protocol.table import BY_NUMBER
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _valid_args(spec: CallSpec) -> tuple[int, ...]:
+    """A valid non-query input tuple for the call: every value at its minimum."""
+    if spec.counted:
+        assert spec.item is not None
+        count = max(spec.params[0].minimum, 2)
+        return (count, *([spec.item.minimum] * count))
+    args = tuple(p.minimum for p in spec.params)
+    if spec.number == 34:
+        return (-1000, 1000)
+    return args
+
+
+def _example_calls() -> list[tuple[int, tuple[int, ...]]]:
+    examples: list[tuple[int, tuple[int, ...]]] = []
+    for spec in CALLS:
+        examples.append((spec.number, _valid_args(spec)))
+        if not spec.counted:
+            examples.append((spec.number, tuple(p.maximum for p in spec.params)))
+        if spec.query is not None:
+            examples.append((spec.number, tuple(3 if q is None else q for q in spec.query)))
+    return examples
+
+
+@pytest.mark.parametrize(("number", "args"), _example_calls())
+def test_every_call_round_trips(number: int, args: tuple[int, ...]) -> None:
+    line = encode_call(number, *args)
+    assert line.endswith(b"\n")
+    assert parse_call(line) == Call(number, args)
+    assert parse_call(line.replace(b"\n", b"\r\n")) == Call(number, args)
+    assert Call(number, args).encode() == line
+
+
+def test_the_table_has_every_call_of_the_design() -> None:
+    assert sorted(BY_NUMBER) == list(range(35))
+    for spec in CALLS:
+        for template in spec.debug.values():
+            assert template.fields == tuple(template.fields)
+        if spec.query is not None:
+            assert spec.query_reply is not None, spec.name
+
+
+def test_seed_strings_are_to_the_letter() -> None:
+    def debug(call: int) -> str:
+        return BY_NUMBER[call].debug[1].text
+
+    def query(call: int) -> str:
+        template = BY_NUMBER[call].query_reply
+        assert template is not None
+        return template.text
+
+    assert debug(0) == "S0 {value}"
+    assert debug(1) == "S0 {count} {values}"
+    assert BY_NUMBER[0].refusal == "E0"
+    assert BY_NUMBER[1].refusal == "E1"
+    assert query(3) == "SERVO_ENABLE {value}"
+    assert debug(3) == "SERVO ENABLE MODIFIED TO {value}"
+    assert query(5) == "SERVO_UPDATE_INTERVAL_US {value}"
+    assert debug(5) == "SERVO LOOP INTERVAL MODIFIED TO {value} MICROSECONDS"
+    assert query(6) == "MOTION_UPDATE_INTERVAL_SCALAR {value}"
+    assert debug(6) == "MOTION UPDATE INTERVAL SCALAR MODIFIED TO {value}"
+    assert query(7) == "CONTROL_MODE {value}"
+    assert debug(7) == "Control Mode MODIFIED TO {value}"
+
+
+@given(st.integers(-(2**31), 2**31 - 1), st.lists(st.integers(-(2**31), 2**31 - 1),
+                                                   min_size=1, max_size=50))
+@settings(max_examples=200, deadline=None)
+def test_setpoint_calls_round_trip(single: int, values: list[int]) -> None:
+    assert parse_call(encode_call(0, single)) == Call(0, (single,))
+    call = parse_call(encode_call(1, len(values), *values))
+    assert call.args == (len(values), *values)
+
+
+def test_spaces_tabs_and_signs_are_accepted() -> None:
+    assert parse_call(b"  1\t2  +5 -7 \r\n") == Call(1, (2, 5, -7))
+
+
+@pytest.mark.parametrize(
+    ("line", "error", "words"),
+    [
+        (b"99 1", UnknownCallError, ["99", "unknown"]),
+        (b"-3 1", UnknownCallError, ["-3"]),
+        (b"3", WrongCountError, ["call 3", "1 input", "got 0"]),
+        (b"3 1 1", WrongCountError, ["got 2"]),
+        (b"1 3 1 2", WrongCountError, ["announced 3", "carries 2"]),
+        (b"1", WrongCountError, ["count"]),
+        (b"3 x", NonIntegerTokenError, ["input 1", "'x'"]),
+        (b"3 1.5", NonIntegerTokenError, ["'1.5'"]),
+        (b"abc 1", NonIntegerTokenError, ["executive call", "'abc'"]),
+        (b"3 2", OutOfRangeError, ["enable 2", "0..1"]),
+        (b"5 0", OutOfRangeError, ["interval_dms 0", "1..10000"]),
+        (b"6 -5", OutOfRangeError, ["scalar -5"]),
+        (b"7 0", OutOfRangeError, ["mode 0", "1..3"]),
+        (b"9 1234 0", OutOfRangeError, ["coefficient 1234", "0..999"]),
+        (b"0 2147483648", OutOfRangeError, ["value 2147483648"]),
+        (b"1 1001", OutOfRangeError, ["count 1001", "1..1000"]),
+        (b"18 2 65 10", OutOfRangeError, ["character 10", "32..126"]),
+        (b"18 26", OutOfRangeError, ["length 26", "0..25"]),
+        (b"8 99 1", OutOfRangeError, ["call 99"]),
+        (b"8 99 -1", OutOfRangeError, ["call 99"]),
+        (b"   ", EmptyLineError, ["empty"]),
+    ],
+)
+def test_malformed_lines_raise_the_typed_error(
+    line: bytes, error: type[ProtocolError], words: list[str]
+) -> None:
+    with pytest.raises(error) as caught:
+        parse_call(line)
+    message = str(caught.value)
+    for word in words:
+        assert word in message, (word, message)
+    answer = format_err(caught.value)
+    assert answer.startswith("ERR ")
+    assert "\n" not in answer
+    assert parse_reply(answer).kind is ReplyKind.ERROR
+
+
+def test_over_long_line_is_refused() -> None:
+    line = b"1 1 " + b"1" * MAX_LINE_BYTES
+    with pytest.raises(LineTooLongError, match="longer than"):
+        parse_call(line)
+
+
+def test_err_names_the_call_when_it_can() -> None:
+    with pytest.raises(ProtocolError) as caught:
+        parse_call(b"5 0")
+    assert format_err(caught.value) == "ERR 5 interval_dms 0 is out of range 1..10000"
+    with pytest.raises(ProtocolError) as caught:
+        parse_call(b"zz")
+    assert format_err(caught.value).startswith("ERR ? ")
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ((3, 1.0), "every input is an int"),
+        ((3, True), "every input is an int"),
+        ((3, "1"), "every input is an int"),
+        ((40, 1), "unknown executive call 40"),
+        ((3, 7), "enable 7 is out of range 0..1"),
+    ],
+)
+def test_encode_validates_before_anything_is_sent(
+    args: tuple[object, ...], message: str
+) -> None:
+    with pytest.raises(ProtocolError, match=message):
+        encode_call(*args)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("line", "kind", "call", "key", "values", "text"),
+    [
+        ("SERVO_ENABLE 0", ReplyKind.QUERY, 3, "SERVO_ENABLE", (0,), ""),
+        ("SERVO_ENABLE 1 \n", ReplyKind.QUERY, 3, "SERVO_ENABLE", (1,), ""),
+        ("SERVO ENABLE MODIFIED TO 1", ReplyKind.DEBUG, 3, "SERVO ENABLE MODIFIED TO", (1,), ""),
+        ("S0 3910", ReplyKind.DEBUG, 0, "S0", (3910,), ""),
+        ("S0 3 4929 2904 103049", ReplyKind.DEBUG, 1, "S0", (3,), "4929 2904 103049"),
+        ("E0", ReplyKind.REFUSAL, 0, "E0", (), ""),
+        ("E1", ReplyKind.REFUSAL, 1, "E1", (), ""),
+        ("E25", ReplyKind.REFUSAL, 25, "E25", (), ""),
+        ("MOTION_QUEUE 10 990", ReplyKind.QUERY, 2, "MOTION_QUEUE", (10, 990), ""),
+        ("Control Mode MODIFIED TO 2", ReplyKind.DEBUG, 7, "Control Mode MODIFIED TO", (2,), ""),
+        ("DEVICE_NAME ROBOT LEFT LEG", ReplyKind.QUERY, 18, "DEVICE_NAME", (), "ROBOT LEFT LEG"),
+        ("PROPORTIONAL_GAIN 12 -3", ReplyKind.QUERY, 9, "PROPORTIONAL_GAIN", (12, -3), ""),
+        ("STATUS 1 2 3 4 5 1 1 0 0", ReplyKind.QUERY, 20, "STATUS",
+         (1, 2, 3, 4, 5, 1, 1, 0, 0), ""),
+        ("D 10 5 4 100 -2500 7", ReplyKind.DIAGNOSTICS, None, "D", (10, 5, 4, 100, -2500, 7), ""),
+        ("ERR 5 interval_dms 0 is out of range", ReplyKind.ERROR, 5, "ERR", (),
+         "interval_dms 0 is out of range"),
+        ("ERR ? empty line", ReplyKind.ERROR, None, "ERR", (), "empty line"),
+    ],
+)
+def test_replies_parse(
+    line: str, kind: ReplyKind, call: int | None, key: str, values: tuple[int, ...], text: str
+) -> None:
+    reply = parse_reply(line)
+    assert (reply.kind, reply.call, reply.key, reply.values, reply.text) == (
+        kind, call, key, values, text
+    )
+
+
+def test_every_template_parses_back_to_its_call() -> None:
+    for spec in CALLS:
+        templates = [(ReplyKind.DEBUG, t) for t in spec.debug.values()]
+        if spec.query_reply is not None:
+            templates.append((ReplyKind.QUERY, spec.query_reply))
+        for kind, template in templates:
+            sample = [("NAME X" if f in ("text", "values") else 7) for f in template.fields]
+            reply = parse_reply(template.format(*sample))
+            assert (reply.kind, reply.call) == (kind, spec.number), template.text
+
+
+@pytest.mark.parametrize("line", ["", "HELLO", "SERVO_ENABLE x", "E9", "MOTION_QUEUE 1"])
+def test_unexpected_replies_raise(line: str) -> None:
+    with pytest.raises(UnexpectedReplyError):
+        parse_reply(line)
+
+
+@given(st.lists(st.binary(max_size=40), max_size=20), st.data())
+@settings(max_examples=300, deadline=None)
+def test_line_splitter_is_independent_of_chunking(chunks: list[bytes], data: st.DataObject) -> None:
+    stream = b"\n".join(chunks) + b"\n"
+    whole = LineSplitter(max_bytes=64).feed(stream)
+    cuts = sorted(data.draw(st.lists(st.integers(0, len(stream)), max_size=10)))
+    splitter = LineSplitter(max_bytes=64)
+    pieces: list[bytes | Overlong] = []
+    last = 0
+    for cut in [*cuts, len(stream)]:
+        pieces += splitter.feed(stream[last:cut])
+        last = cut
+    assert [p if isinstance(p, bytes) else "long" for p in pieces] == [
+        p if isinstance(p, bytes) else "long" for p in whole
+    ]
+    assert splitter.pending == 0
+
+
+def test_line_splitter_bounds_a_garbage_stream() -> None:
+    splitter = LineSplitter(max_bytes=16)
+    out = splitter.feed(b"x" * 1000)
+    assert out == []
+    assert splitter.pending == 0
+    out = splitter.feed(b"yy\n3 1\n")
+    assert isinstance(out[0], Overlong)
+    assert out[0].length == 1002
+    assert out[1] == b"3 1"
+
+
+def test_protocol_md_matches_the_table() -> None:
+    document = (ROOT / "PROTOCOL.md").read_text(encoding="utf-8")
+    assert splice(document, render_reference()) == document, (
+        "PROTOCOL.md disagrees with the command table; regenerate it with "
+        "`python -m usbmotion.protocol.reference --write PROTOCOL.md`"
+    )
