@@ -5,6 +5,7 @@ from __future__ import annotations
 import typer
 
 from usbmotion import __version__
+from usbmotion.cli.sim import sim
 
 app = typer.Typer(
     name="usbmotion",
@@ -23,6 +24,9 @@ def _root() -> None:
 def version() -> None:
     """Print the package version."""
     typer.echo(__version__)
+
+
+app.command()(sim)
 
 
 def main() -> None:

@@ -1,0 +1,102 @@
+"""``usbmotion sim``: serve simulated devices in real time on pseudo-terminals or TCP."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import sys
+import threading
+from pathlib import Path
+from types import FrameType
+from typing import Annotated
+
+import typer
+
+from usbmotion.sim.server import DeviceServer
+from usbmotion.sim.world import SimWorld
+
+
+def default_flash_dir() -> Path:
+    """Where simulated devices keep their flash: ``$XDG_STATE_HOME/usbmotion/flash``."""
+    state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(state) / "usbmotion" / "flash"
+
+
+def _slug(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9]+", "-", name).strip("-").lower() or "device"
+
+
+def build_world(names: list[str], count: int, flash_dir: Path) -> SimWorld:
+    """A world of ``count`` devices; the first ones take ``names`` (written to their flash)."""
+    from usbmotion.device import Device, FileFlash  # noqa: PLC0415 - keeps start-up light
+
+    flash_dir.mkdir(parents=True, exist_ok=True)
+    world = SimWorld()
+    for index in range(count):
+        wanted = names[index] if index < len(names) else None
+        stem = _slug(wanted) if wanted else f"device-{index + 1}"
+        device = Device(flash=FileFlash(flash_dir / f"{stem}.json"))
+        if wanted and device.name != wanted:
+            codes = " ".join(str(ord(c)) for c in wanted)
+            device.feed(f"18 {len(wanted)} {codes}\n".encode("ascii"))
+            device.take_output()
+        world.add(device, key=str(index))
+    return world
+
+
+def sim(
+    pty: Annotated[int, typer.Option("--pty", help="Serve N devices on pseudo-terminals.")] = 0,
+    tcp: Annotated[
+        int, typer.Option("--tcp", help="Serve on TCP from this port up, one port per device.")
+    ] = -1,
+    count: Annotated[
+        int, typer.Option("--count", help="Number of devices with --tcp (default: names or 1).")
+    ] = 0,
+    name: Annotated[
+        list[str] | None,
+        typer.Option("--name", help="Device name (repeat for several devices), max 25 chars."),
+    ] = None,
+    flash_dir: Annotated[
+        Path | None, typer.Option("--flash-dir", help="Folder of the devices' flash files.")
+    ] = None,
+) -> None:
+    """Serve simulated devices in real time until SIGINT or SIGTERM.
+
+    Prints one line per device: its name and its pseudo-terminal path (``--pty``) or its
+    ``socket://`` URL (``--tcp``).
+    """
+    names = list(name or [])
+    for each in names:
+        if not 0 < len(each) <= 25 or not all(32 <= ord(c) <= 126 for c in each):
+            raise typer.BadParameter(
+                f"device name {each!r} must be 1..25 printable ASCII characters",
+                param_hint="--name",
+            )
+    if (pty > 0) == (tcp >= 0):
+        raise typer.BadParameter("give exactly one of --pty N or --tcp PORT")
+    if pty < 0 or pty > 64:
+        raise typer.BadParameter(f"--pty {pty!r} must be 1..64")
+    if tcp > 65535:
+        raise typer.BadParameter(f"--tcp {tcp!r} must be a port number 0..65535")
+    devices = pty if pty > 0 else (count or max(1, len(names)))
+    if not 1 <= devices <= 64:
+        raise typer.BadParameter(f"--count {devices!r} must be 1..64")
+    world = build_world(names, devices, flash_dir or default_flash_dir())
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    with DeviceServer(world, pty=pty > 0, tcp_port=max(tcp, 0)) as server:
+        for endpoint in server.endpoints:
+            where = endpoint.path if pty > 0 else f"socket://127.0.0.1:{endpoint.port}"
+            sys.stdout.write(f"{endpoint.name} {where}\n")
+        sys.stdout.flush()
+        server.start()
+        while not stop.wait(0.2):
+            pass
+    sys.stdout.write("stopped\n")
+    sys.stdout.flush()

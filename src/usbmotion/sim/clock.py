@@ -1,0 +1,39 @@
+"""Clocks the host waits on: the wall clock, or a simulation's virtual clock.
+
+Host code never calls ``time.sleep`` directly: it asks its link's clock, so the same
+code waits in real time on hardware and advances the simulation in virtual time.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Protocol, runtime_checkable
+
+
+@runtime_checkable
+class Clock(Protocol):
+    """Something host code can read the time from and wait on."""
+
+    def now(self) -> float:
+        """Seconds on this clock (monotonic; the origin is arbitrary)."""
+        ...
+
+    def sleep(self, seconds: float) -> None:
+        """Wait ``seconds`` on this clock."""
+        ...
+
+
+class WallClock:
+    """The computer's monotonic clock."""
+
+    def now(self) -> float:
+        """Seconds from ``time.monotonic``."""
+        return time.monotonic()
+
+    def sleep(self, seconds: float) -> None:
+        """Sleep for real."""
+        if seconds > 0:
+            time.sleep(seconds)
+
+
+WALL_CLOCK = WallClock()

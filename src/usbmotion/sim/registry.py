@@ -1,0 +1,34 @@
+"""Named virtual-time worlds, so a ``sim://`` URL can find its device."""
+
+from __future__ import annotations
+
+import serial
+
+from usbmotion.sim.world import SimWorld
+
+_WORLDS: dict[str, SimWorld] = {}
+HANDLER_PACKAGE = "usbmotion.sim.urlhandler"
+
+
+def get_world(name: str = "default") -> SimWorld:
+    """The world of this name, made on first use."""
+    world = _WORLDS.get(name)
+    if world is None:
+        world = _WORLDS[name] = SimWorld()
+    return world
+
+
+def set_world(name: str, world: SimWorld) -> None:
+    """Make ``sim://...?world=name`` URLs open devices of ``world``."""
+    _WORLDS[name] = world
+
+
+def drop_world(name: str) -> None:
+    """Forget a world (its devices stop being reachable by URL)."""
+    _WORLDS.pop(name, None)
+
+
+def register_url_handler() -> None:
+    """Let ``serial.serial_for_url`` open ``sim://`` URLs (idempotent)."""
+    if HANDLER_PACKAGE not in serial.protocol_handler_packages:
+        serial.protocol_handler_packages.append(HANDLER_PACKAGE)

@@ -1,0 +1,2 @@
+"""pyserial URL handlers of usbmotion (``sim://``), found through
+``serial.protocol_handler_packages``."""

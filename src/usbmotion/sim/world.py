@@ -1,0 +1,313 @@
+"""A virtual-time world: simulated devices ticking in lock-step, and the links to them.
+
+All devices of a world share one clock, like devices wired to the seed's external clock
+line. Time only moves when something asks it to: :meth:`SimWorld.advance_to`, or a host
+waiting on a :class:`SimLink` (through :class:`VirtualClock`). Each device is run in
+blocks up to its next event, so a quiet device costs little per simulated second.
+
+With ``realtime=True`` the world never runs ahead of the wall clock: advancing sleeps
+until the wall clock catches up, so a simulated machine moves at the speed of a real one.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Protocol
+
+
+class SimulatedDevice(Protocol):
+    """What the world needs of a device (``usbmotion.device.Device`` provides it)."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def tick_us(self) -> int: ...
+
+    def feed(self, data: bytes) -> None: ...
+
+    def run(self, ticks: int) -> None: ...
+
+    def take_output(self) -> bytes: ...
+
+    def ticks_until_event(self) -> int | None: ...
+
+
+@dataclass(slots=True)
+class LinkFaults:
+    """Faults injected on a link, host to device and back (for reliability tests).
+
+    ``drop_every`` drops every Nth byte written by the host (0 = never); ``corrupt_every``
+    flips a bit of every Nth byte read by the host; ``stalled`` holds every byte in both
+    directions until cleared; ``disconnected`` makes the link raise on the next use.
+    """
+
+    drop_every: int = 0
+    corrupt_every: int = 0
+    stalled: bool = False
+    disconnected: bool = False
+    _written: int = 0
+    _read: int = 0
+
+    def outgoing(self, data: bytes) -> bytes:
+        """Host to device: drop what the fault says."""
+        if not self.drop_every:
+            return data
+        kept = bytearray()
+        for byte in data:
+            self._written += 1
+            if self._written % self.drop_every:
+                kept.append(byte)
+        return bytes(kept)
+
+    def incoming(self, data: bytes) -> bytes:
+        """Device to host: corrupt what the fault says."""
+        if not self.corrupt_every:
+            return data
+        out = bytearray(data)
+        for i in range(len(out)):
+            self._read += 1
+            if self._read % self.corrupt_every == 0:
+                out[i] ^= 0x20
+        return bytes(out)
+
+
+@dataclass(slots=True)
+class _Member:
+    device: SimulatedDevice
+    time_us: int = 0
+    inbox: deque[tuple[int, bytes]] = field(default_factory=deque)
+    links: list[SimLink] = field(default_factory=list)
+
+
+class SimLink:
+    """One host's connection to one device of a world: bytes with a latency each way.
+
+    Host to device bytes arrive ``latency_us`` later and are interpreted at the first
+    servo tick boundary at or after that time; device output reaches the host
+    ``latency_us`` after the tick it was printed on.
+    """
+
+    def __init__(self, world: SimWorld, key: str, *, latency_us: int = 0) -> None:
+        if latency_us < 0:
+            raise ValueError(f"latency_us {latency_us!r} is negative; it must be >= 0")
+        self.world = world
+        self.key = key
+        self.latency_us = latency_us
+        self.faults = LinkFaults()
+        self._outbox: deque[tuple[int, bytes]] = deque()
+        self.closed = False
+
+    @property
+    def device(self) -> SimulatedDevice:
+        """The device at the other end."""
+        return self.world.device(self.key)
+
+    def write(self, data: bytes) -> None:
+        """Send bytes to the device."""
+        data = self.faults.outgoing(data)
+        if data:
+            self.world._deliver(self.key, self.world.time_us + self.latency_us, data)
+
+    def _push(self, time_us: int, data: bytes) -> None:
+        self._outbox.append((time_us + self.latency_us, data))
+
+    def available(self) -> int:
+        """Bytes the host can read now."""
+        if self.faults.stalled:
+            return 0
+        now = self.world.time_us
+        return sum(len(d) for t, d in self._outbox if t <= now)
+
+    def receive(self, size: int) -> bytes:
+        """Take up to ``size`` bytes that have arrived by now."""
+        if self.faults.stalled:
+            return b""
+        now = self.world.time_us
+        out = bytearray()
+        while self._outbox and self._outbox[0][0] <= now and len(out) < size:
+            due, data = self._outbox.popleft()
+            room = size - len(out)
+            if len(data) > room:
+                self._outbox.appendleft((due, data[room:]))
+                data = data[:room]
+            out += data
+        return self.faults.incoming(bytes(out))
+
+    def discard_input(self) -> None:
+        """Drop everything the device sent that the host has not read."""
+        self._outbox.clear()
+
+    def next_arrival_us(self) -> int | None:
+        """When the next byte for the host arrives, if one is on its way."""
+        return self._outbox[0][0] if self._outbox else None
+
+    def close(self) -> None:
+        """Detach from the device (safe twice)."""
+        if not self.closed:
+            self.closed = True
+            self.world._detach(self)
+
+
+class SimWorld:
+    """Devices on one virtual clock, in microseconds since the world was made."""
+
+    def __init__(self, *, realtime: bool = False) -> None:
+        self._members: dict[str, _Member] = {}
+        self._time_us = 0
+        self.realtime = realtime
+        self._wall_origin = time.monotonic()
+
+    @property
+    def time_us(self) -> int:
+        """The world's clock, microseconds."""
+        return self._time_us
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        """The keys of the devices in this world."""
+        return tuple(self._members)
+
+    def add(self, device: SimulatedDevice, *, key: str | None = None) -> str:
+        """Put a device into the world (its clock starts now); returns its key.
+
+        Raises:
+            ValueError: the key (by default the device name) is taken.
+        """
+        key = device.name if key is None else key
+        if key in self._members:
+            raise ValueError(f"device key {key!r} is already in this world")
+        self._members[key] = _Member(device, time_us=self._time_us)
+        return key
+
+    def device(self, key: str) -> SimulatedDevice:
+        """The device with this key.
+
+        Raises:
+            KeyError: no such device (the message lists the keys there are).
+        """
+        member = self._members.get(key)
+        if member is None:
+            raise KeyError(f"no simulated device {key!r}; this world has {sorted(self._members)}")
+        return member.device
+
+    def connect(self, key: str, *, latency_us: int = 0) -> SimLink:
+        """Open a link to a device."""
+        member = self._members.get(key)
+        if member is None:
+            self.device(key)
+            raise AssertionError("unreachable")
+        link = SimLink(self, key, latency_us=latency_us)
+        member.links.append(link)
+        return link
+
+    def _detach(self, link: SimLink) -> None:
+        member = self._members.get(link.key)
+        if member is not None and link in member.links:
+            member.links.remove(link)
+
+    def _deliver(self, key: str, due_us: int, data: bytes) -> None:
+        member = self._members[key]
+        if due_us <= self._time_us and not member.inbox:
+            self._catch_up(member, self._time_us)
+            member.device.feed(data)
+            self._collect(member)
+        else:
+            member.inbox.append((due_us, data))
+
+    def _collect(self, member: _Member) -> None:
+        out = member.device.take_output()
+        if out:
+            for link in member.links:
+                link._push(member.time_us, out)
+
+    def _run(self, member: _Member, ticks: int) -> None:
+        device = member.device
+        while ticks > 0:
+            event = device.ticks_until_event()
+            step = ticks if event is None else max(1, min(ticks, event))
+            device.run(step)
+            member.time_us += step * device.tick_us
+            ticks -= step
+            self._collect(member)
+
+    def _catch_up(self, member: _Member, target_us: int) -> None:
+        """Run a device's whole ticks up to ``target_us``, delivering its inbox on time."""
+        while True:
+            tick = member.device.tick_us
+            if member.inbox and member.inbox[0][0] <= target_us:
+                due, data = member.inbox[0]
+                if due > member.time_us:
+                    self._run(member, -(-(due - member.time_us) // tick))
+                member.inbox.popleft()
+                member.device.feed(data)
+                self._collect(member)
+                continue
+            if target_us - member.time_us >= tick:
+                self._run(member, (target_us - member.time_us) // tick)
+            return
+
+    def advance_to(self, target_us: int) -> None:
+        """Move the world's clock forward to ``target_us`` (never back)."""
+        if target_us <= self._time_us:
+            return
+        if self.realtime:
+            lag = target_us / 1e6 - (time.monotonic() - self._wall_origin)
+            if lag > 0:
+                time.sleep(lag)
+        for member in self._members.values():
+            self._catch_up(member, target_us)
+        self._time_us = target_us
+
+    def advance(self, duration_us: int) -> None:
+        """Move the world's clock forward by ``duration_us``."""
+        self.advance_to(self._time_us + duration_us)
+
+    def next_output_us(self, key: str) -> int | None:
+        """The earliest time the device ``key`` may print or receive something, if any."""
+        member = self._members[key]
+        times: list[int] = []
+        if member.inbox:
+            times.append(member.inbox[0][0])
+        event = member.device.ticks_until_event()
+        if event is not None:
+            times.append(member.time_us + max(1, event) * member.device.tick_us)
+        return min(times) if times else None
+
+    def wait_for(self, link: SimLink, timeout_us: int) -> bool:
+        """Advance until ``link`` has bytes for the host or ``timeout_us`` passes.
+
+        Returns True when bytes are there.
+        """
+        deadline = self._time_us + timeout_us
+        while True:
+            if link.available():
+                return True
+            if self._time_us >= deadline:
+                return False
+            candidates = [deadline]
+            arrival = link.next_arrival_us()
+            if arrival is not None and not link.faults.stalled:
+                candidates.append(arrival)
+            event = self.next_output_us(link.key)
+            if event is not None:
+                candidates.append(event + link.latency_us)
+            self.advance_to(max(self._time_us + 1, min(candidates)))
+
+
+class VirtualClock:
+    """A :class:`~usbmotion.sim.clock.Clock` whose sleeping advances a world."""
+
+    def __init__(self, world: SimWorld) -> None:
+        self.world = world
+
+    def now(self) -> float:
+        """The world's time in seconds."""
+        return self.world.time_us / 1e6
+
+    def sleep(self, seconds: float) -> None:
+        """Advance the world by ``seconds`` (rounded up to a microsecond)."""
+        if seconds > 0:
+            self.world.advance(max(1, round(seconds * 1e6)))
