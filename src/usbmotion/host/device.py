@@ -1,0 +1,547 @@
+"""The device client: one typed, validated method per executive call.
+
+The firmware trusts its host and validates nothing (seed 000); this client is the safety.
+Every value is checked against the command table before a byte is sent, and an invalid
+one raises a ``ValueError`` subclass naming the parameter, the value and the range.
+Setters are confirmed: each is followed by a queue-status query, so an ``ERR`` the device
+answers is raised here, attached to the call that caused it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from enum import IntEnum
+
+from usbmotion.errors import (
+    DeviceTimeoutError,
+    ErrReplyError,
+    OutOfRangeError,
+    QueueFullError,
+    UnexpectedReplyError,
+)
+from usbmotion.hermite import Keyframe
+from usbmotion.host.transport import LineTransport
+from usbmotion.protocol import (
+    BY_NUMBER,
+    DEVICE_NAME_MAX,
+    Reply,
+    ReplyKind,
+    encode_call,
+    parse_reply,
+)
+from usbmotion.protocol.table import Fault
+
+
+class ControlMode(IntEnum):
+    """Control modes of call 7."""
+
+    POSITION = 1
+    VELOCITY = 2
+    CURVE = 3
+
+
+@dataclass(frozen=True, slots=True)
+class Status:
+    """The device's one-line status (call 20)."""
+
+    clock: int
+    actual_counts: int
+    desired_counts: int
+    velocity_counts_s: int
+    queued: int
+    enabled: bool
+    mode: ControlMode
+    lower_limit: bool
+    upper_limit: bool
+    fault: int
+
+    @property
+    def fault_name(self) -> str:
+        """The fault in words (``none`` when there is none)."""
+        return Fault.NAMES.get(self.fault, f"fault {self.fault}")
+
+
+@dataclass(frozen=True, slots=True)
+class Diagnostics:
+    """One diagnostics line (call 21)."""
+
+    clock: int
+    desired: int
+    actual_counts: int
+    velocity_counts_s: int
+    output_mv: int
+    queued: int
+
+
+def to_sci(value: float, *, digits: int, parameter: str) -> tuple[int, int]:
+    """``value`` as ``(coefficient, exponent)`` with at most ``digits`` significant digits.
+
+    The value is rounded to that many digits; zero is ``(0, 0)``.
+
+    Raises:
+        OutOfRangeError: NaN, infinite or negative where the table forbids it.
+    """
+    if not math.isfinite(value):
+        raise OutOfRangeError(f"{parameter} {value!r} is not a finite number", reason=parameter)
+    if value == 0:
+        return (0, 0)
+    exponent = math.floor(math.log10(abs(value))) - (digits - 1)
+    coefficient = round(value / 10.0**exponent)
+    if abs(coefficient) >= 10**digits:
+        coefficient = round(coefficient / 10)
+        exponent += 1
+    return (coefficient, exponent)
+
+
+def from_sci(coefficient: int, exponent: int) -> float:
+    """The float value of ``coefficient * 10**exponent``."""
+    return coefficient * 10.0**exponent
+
+
+@dataclass(frozen=True, slots=True)
+class AxisScale:
+    """Units at the boundary: how many encoder counts make one millimetre."""
+
+    counts_per_mm: float
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.counts_per_mm) and self.counts_per_mm > 0):
+            raise OutOfRangeError(
+                f"counts_per_mm {self.counts_per_mm!r} must be a finite number > 0",
+                reason="counts_per_mm",
+            )
+
+    def to_counts(self, mm: float) -> int:
+        """Millimetres to the nearest count."""
+        return round(mm * self.counts_per_mm)
+
+    def to_mm(self, counts: float) -> float:
+        """Counts to millimetres."""
+        return counts / self.counts_per_mm
+
+
+class DeviceClient:
+    """A USB Motion Device on a :class:`LineTransport`.
+
+    Parameters:
+        transport: the open link.
+        name: how errors name the device (defaults to the link's label).
+        timeout_s: how long to wait for a reply, on the link's clock.
+        scale: counts per mm, for the ``*_mm`` helpers.
+        on_diagnostics: called with each diagnostics line that arrives.
+    """
+
+    def __init__(
+        self,
+        transport: LineTransport,
+        *,
+        name: str = "",
+        timeout_s: float = 1.0,
+        scale: AxisScale | None = None,
+        on_diagnostics: Callable[[Diagnostics], None] | None = None,
+    ) -> None:
+        if not (math.isfinite(timeout_s) and timeout_s > 0):
+            raise OutOfRangeError(f"timeout_s {timeout_s!r} must be > 0", reason="timeout_s")
+        self.transport = transport
+        self.name = name or transport.label
+        self.timeout_s = timeout_s
+        self.scale = scale
+        self.on_diagnostics = on_diagnostics
+        self.refusals = 0
+        self.debug_lines: list[Reply] = []
+
+    @classmethod
+    def open(cls, url: str, *, timeout_s: float = 1.0, name: str = "") -> DeviceClient:
+        """Open a device by port path or URL (``sim://NAME`` included)."""
+        return cls(LineTransport.open(url, label=name or url), name=name, timeout_s=timeout_s)
+
+    # --- plumbing ------------------------------------------------------------------------
+
+    def send(self, number: int, *args: int) -> None:
+        """Validate and send one call without waiting for anything."""
+        self.transport.write(encode_call(number, *args))
+
+    def _handle_aside(self, reply: Reply) -> bool:
+        """Consume lines that are not answers (diagnostics, debug echoes); True if consumed."""
+        if reply.kind is ReplyKind.DIAGNOSTICS:
+            if self.on_diagnostics is not None:
+                self.on_diagnostics(Diagnostics(*reply.values))
+            return True
+        if reply.kind is ReplyKind.DEBUG:
+            self.debug_lines.append(reply)
+            return True
+        return False
+
+    def next_reply(self) -> Reply:
+        """The next line that is not a diagnostics or debug line.
+
+        Raises:
+            DeviceTimeoutError: nothing within the timeout.
+            UnexpectedReplyError: a line that is no reply of the protocol.
+        """
+        while True:
+            try:
+                line = self.transport.read_line(self.timeout_s)
+            except DeviceTimeoutError as error:
+                raise DeviceTimeoutError(str(error), device=self.name) from error
+            try:
+                reply = parse_reply(line)
+            except UnexpectedReplyError as error:
+                raise UnexpectedReplyError(f"{self.name}: {error}") from error
+            if not self._handle_aside(reply):
+                return reply
+
+    def query(self, number: int, *args: int) -> Reply:
+        """Send a query and return its answer.
+
+        Raises:
+            ErrReplyError: the device answered ``ERR``.
+            DeviceTimeoutError: no answer in time (names the device and the call).
+            UnexpectedReplyError: an answer that belongs to no query of this call.
+        """
+        self.send(number, *args)
+        return self._await_answer(number)
+
+    def _await_answer(self, number: int, *, after_error: bool = False) -> Reply:
+        """Read up to the answer of call ``number``.
+
+        With ``after_error`` the answer is known to follow an ``ERR`` or a refusal
+        (a setter sent with a sync query behind it): the first such line is raised
+        only once the answer has been read, so the link stays in step.
+        """
+        failure: Exception | None = None
+        while True:
+            try:
+                reply = self.next_reply()
+            except DeviceTimeoutError as error:
+                raise DeviceTimeoutError(
+                    f"{self.name}: no answer to call {number} within {self.timeout_s:g} s",
+                    device=self.name, call=number,
+                ) from error
+            problem: Exception | None = None
+            if reply.kind is ReplyKind.ERROR:
+                problem = ErrReplyError(
+                    f"{self.name}: device answered {reply.line!r}", device=self.name,
+                    call=reply.call if reply.call is not None else number,
+                )
+            elif reply.kind is ReplyKind.REFUSAL:
+                self.refusals += 1
+                problem = QueueFullError(
+                    f"{self.name}: device refused with {reply.key}", device=self.name,
+                    call=reply.call,
+                )
+            elif reply.kind is ReplyKind.QUERY and reply.call == number:
+                if failure is not None:
+                    raise failure
+                return reply
+            else:
+                problem = UnexpectedReplyError(
+                    f"{self.name}: expected the answer to call {number}, got {reply.line!r}"
+                )
+            if not after_error:
+                raise problem
+            failure = failure or problem
+
+    def command(self, number: int, *args: int) -> None:
+        """Send a setter and confirm the device took it (an ``ERR`` raises here)."""
+        self.transport.write(encode_call(number, *args) + encode_call(2, -1))
+        self._await_answer(2, after_error=True)
+
+    def sync(self) -> tuple[int, int]:
+        """Wait until every call sent so far has been executed; returns (queued, free)."""
+        return self.queue_status()
+
+    # --- the motion queue ------------------------------------------------------------------
+
+    def add_setpoint(self, value: int) -> None:
+        """Call 0: queue one setpoint (counts or counts/s).
+
+        Raises:
+            QueueFullError: the device answered ``E0``.
+        """
+        self.transport.write(encode_call(0, value) + encode_call(2, -1))
+        self._await_answer(2, after_error=True)
+
+    def add_setpoints(self, values: Sequence[int]) -> None:
+        """Call 1: queue several setpoints, all or none.
+
+        Raises:
+            QueueFullError: the device answered ``E1`` (nothing was queued).
+        """
+        self.transport.write(encode_call(1, len(values), *values) + encode_call(2, -1))
+        self._await_answer(2, after_error=True)
+
+    def queue_status(self) -> tuple[int, int]:
+        """Call 2: (values queued, free slots)."""
+        queued, free = self.query(2, -1).values
+        return queued, free
+
+    def clear_queue(self) -> None:
+        """Call 4: empty the motion queue."""
+        self.command(4, 0)
+
+    # --- RAM variables --------------------------------------------------------------------
+
+    def set_servo_enable(self, enable: bool) -> None:
+        """Call 3: enable or disable the servo loop."""
+        self.command(3, _flag(enable, "enable"))
+
+    def servo_enabled(self) -> bool:
+        """Call 3 query."""
+        return self.query(3, -1).values[0] == 1
+
+    def set_servo_interval_dms(self, interval_dms: int) -> None:
+        """Call 5: servo period in tenths of a millisecond (1 = 10 kHz); clears the queue."""
+        self.command(5, interval_dms)
+
+    def servo_interval_us(self) -> int:
+        """Call 5 query: servo period in microseconds."""
+        return self.query(5, -1).values[0]
+
+    def set_motion_scalar(self, scalar: int) -> None:
+        """Call 6: servo ticks per queue value; clears the queue."""
+        self.command(6, scalar)
+
+    def motion_scalar(self) -> int:
+        """Call 6 query."""
+        return self.query(6, -1).values[0]
+
+    def motion_period_s(self) -> float:
+        """Seconds between queue values: servo period times the scalar."""
+        return self.servo_interval_us() * self.motion_scalar() / 1e6
+
+    def set_control_mode(self, mode: ControlMode | int) -> None:
+        """Call 7: control mode; clears the queue and keyframes."""
+        self.command(7, int(_mode(mode, "mode")))
+
+    def control_mode(self) -> ControlMode:
+        """Call 7 query."""
+        return ControlMode(self.query(7, -1).values[0])
+
+    def set_debug_flag(self, call: int, flag: int) -> None:
+        """Call 8: set the debug flag of a call."""
+        self.command(8, call, flag)
+
+    def debug_flag(self, call: int) -> int:
+        """Call 8 query."""
+        return self.query(8, call, -1).values[1]
+
+    def set_gains(self, *, kp: float, ki: float, kd: float) -> None:
+        """Calls 9-11: PID gains (V/count, V/(count s), V s/count), 3 significant digits."""
+        for number, value, label in ((9, kp, "kp"), (10, ki, "ki"), (11, kd, "kd")):
+            if value < 0:
+                raise OutOfRangeError(f"{label} {value!r} is negative; gains are >= 0",
+                                      reason=label)
+            coefficient, exponent = to_sci(value, digits=3, parameter=label)
+            self._check_range(number, (coefficient, exponent), label)
+            self.command(number, coefficient, exponent)
+
+    def gains(self) -> tuple[float, float, float]:
+        """Calls 9-11 queries: (kp, ki, kd)."""
+        return tuple(  # type: ignore[return-value]
+            from_sci(*self.query(n, -1, 0).values) for n in (9, 10, 11)
+        )
+
+    def _check_range(self, number: int, args: tuple[int, ...], label: str) -> None:
+        problem = BY_NUMBER[number].problem(args)
+        if problem is not None:
+            raise OutOfRangeError(f"{label}: {problem[1]}", call=number, reason=problem[1])
+
+    def set_sim_interval_dms(self, interval_dms: int) -> None:
+        """Call 12: simulated motor integration step, tenths of a millisecond."""
+        self.command(12, interval_dms)
+
+    def set_sim_value(self, number: int, value: float, *, label: str) -> None:
+        """Calls 13-15, 17, 32, 33: a simulated-motor value as 4 significant digits."""
+        if number not in (13, 14, 15, 17, 32, 33):
+            raise OutOfRangeError(
+                f"call {number!r} is not a scientific simulated-motor call "
+                "(13, 14, 15, 17, 32, 33)", reason="call",
+            )
+        coefficient, exponent = to_sci(value, digits=4, parameter=label)
+        if coefficient == 0:
+            exponent = 0
+        self._check_range(number, (coefficient, exponent), label)
+        self.command(number, coefficient, exponent)
+
+    def sim_value(self, number: int) -> float:
+        """Query a scientific simulated-motor value."""
+        return from_sci(*self.query(number, -1, 0).values)
+
+    def set_sim_counts_per_revolution(self, counts: int) -> None:
+        """Call 16."""
+        self.command(16, counts)
+
+    def set_sim_travel(self, lower_counts: int, upper_counts: int) -> None:
+        """Call 34: travel range with a limit switch at each end."""
+        if lower_counts >= upper_counts:
+            raise OutOfRangeError(
+                f"travel lower {lower_counts!r} must be below upper {upper_counts!r}",
+                call=34, reason="travel",
+            )
+        self.command(34, lower_counts, upper_counts)
+
+    def sim_travel(self) -> tuple[int, int]:
+        """Call 34 query."""
+        lower, upper = self.query(34, -1, -1).values
+        return lower, upper
+
+    # --- flash ------------------------------------------------------------------------------
+
+    def set_name(self, name: str) -> None:
+        """Call 18: write the device name to flash (up to 25 printable ASCII characters)."""
+        if not isinstance(name, str) or len(name) > DEVICE_NAME_MAX:
+            raise OutOfRangeError(
+                f"device name {name!r} is longer than {DEVICE_NAME_MAX} characters",
+                call=18, reason="name",
+            )
+        bad = [c for c in name if not 32 <= ord(c) <= 126]
+        if bad:
+            raise OutOfRangeError(
+                f"device name {name!r} holds {bad[0]!r}; only printable ASCII (32..126)",
+                call=18, reason="name",
+            )
+        self.command(18, len(name), *(ord(c) for c in name))
+
+    def device_name(self) -> str:
+        """Call 18 query."""
+        return self.query(18, -1).text
+
+    def set_default_mode(self, mode: ControlMode | int) -> None:
+        """Call 19: control mode at power-up (flash)."""
+        self.command(19, int(_mode(mode, "default mode")))
+
+    def default_mode(self) -> ControlMode:
+        """Call 19 query."""
+        return ControlMode(self.query(19, -1).values[0])
+
+    # --- status, clock, faults -----------------------------------------------------------------
+
+    def status(self) -> Status:
+        """Call 20."""
+        v = self.query(20, -1).values
+        return Status(v[0], v[1], v[2], v[3], v[4], v[5] == 1, ControlMode(v[6]),
+                      bool(v[7] & 1), bool(v[7] & 2), v[8])
+
+    def set_diagnostics_interval(self, ticks: int) -> None:
+        """Call 21: a diagnostics line every ``ticks`` servo ticks (0 = off)."""
+        self.command(21, ticks)
+
+    def zero_clock(self) -> None:
+        """Call 22: zero the device clock (sent alone, not confirmed, for time sync)."""
+        self.send(22, 0)
+
+    def clock(self) -> int:
+        """Call 22 query: device clock in servo ticks."""
+        return self.query(22, -1).values[0]
+
+    def set_position(self, counts: int) -> None:
+        """Call 23: set the actual position counter (clears the queue)."""
+        self.command(23, counts)
+
+    def limits(self) -> tuple[bool, bool]:
+        """Call 24: (lower pressed, upper pressed)."""
+        lower, upper = self.query(24, -1).values
+        return lower == 1, upper == 1
+
+    def set_watchdog_ms(self, timeout_ms: int) -> None:
+        """Call 28: disable the servo after this long without a command (0 = off)."""
+        self.command(28, timeout_ms)
+
+    def set_following_error_limit(self, counts: int) -> None:
+        """Call 29: fault when |desired - actual| exceeds this (0 = off)."""
+        self.command(29, counts)
+
+    def clear_fault(self) -> None:
+        """Call 30."""
+        self.command(30, 0)
+
+    def fault(self) -> tuple[int, int]:
+        """Call 30 query: (fault code, tick it was set)."""
+        code, tick = self.query(30, -1).values
+        return code, tick
+
+    def start_at(self, tick: int) -> None:
+        """Call 31: hold the queue until the device clock reaches ``tick``."""
+        self.command(31, tick)
+
+    def start_tick(self) -> int:
+        """Call 31 query (-1 when no start is armed)."""
+        return self.query(31, -1).values[0]
+
+    # --- curve mode -----------------------------------------------------------------------------
+
+    def append_keyframe(self, keyframe: Keyframe) -> None:
+        """Call 25 (curve mode).
+
+        Raises:
+            QueueFullError: the device answered ``E25``.
+        """
+        self.transport.write(
+            encode_call(25, keyframe.duration_ms, keyframe.position_counts,
+                        keyframe.tangent_in, keyframe.tangent_out) + encode_call(27, -1)
+        )
+        self._await_answer(27, after_error=True)
+
+    def clear_keyframes(self) -> None:
+        """Call 26."""
+        self.command(26, 0)
+
+    def curve_free(self) -> int:
+        """Call 27: free keyframe slots."""
+        return self.query(27, -1).values[0]
+
+    # --- units ------------------------------------------------------------------------------------
+
+    def _scale(self) -> AxisScale:
+        if self.scale is None:
+            raise OutOfRangeError(
+                f"{self.name}: no axis scale set; give DeviceClient(scale=AxisScale(...))",
+                reason="scale",
+            )
+        return self.scale
+
+    def position_mm(self) -> float:
+        """Actual position in mm (through the axis scale)."""
+        return self._scale().to_mm(self.status().actual_counts)
+
+    def set_position_mm(self, mm: float) -> None:
+        """Set the actual position, in mm."""
+        self.set_position(self._scale().to_counts(mm))
+
+    def setpoints_from_mm(self, values_mm: Iterable[float]) -> list[int]:
+        """Positions in mm to counts (or speeds in mm/s to counts/s)."""
+        scale = self._scale()
+        return [scale.to_counts(v) for v in values_mm]
+
+    # --- lifetime ---------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Close the link (safe twice)."""
+        self.transport.close()
+
+    def __enter__(self) -> DeviceClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _flag(value: bool, label: str) -> int:
+    if not isinstance(value, bool):
+        raise OutOfRangeError(f"{label} {value!r} must be True or False", reason=label)
+    return int(value)
+
+
+def _mode(value: ControlMode | int, label: str) -> ControlMode:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise OutOfRangeError(f"{label} {value!r} must be a ControlMode (1, 2 or 3)", reason=label)
+    try:
+        return ControlMode(value)
+    except ValueError:
+        raise OutOfRangeError(
+            f"{label} {value!r} is not a control mode; allowed 1 (position), 2 (velocity),"
+            " 3 (curve)", reason=label,
+        ) from None

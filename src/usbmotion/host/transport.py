@@ -1,0 +1,158 @@
+"""One buffered line transport over any pyserial port: real, ``socket://``, ``loop://``, ``sim://``.
+
+pyserial's own ``readline`` reads a byte at a time; this transport reads whatever has
+arrived in one call and cuts it into lines itself, so a fast device is never throttled by
+the host. Waiting is done on the port's clock: the wall clock for real ports, the virtual
+clock of the simulation for ``sim://`` ports (where waiting advances the simulation).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections import deque
+from typing import Any
+
+import serial
+
+from usbmotion.errors import DeviceTimeoutError, LinkLostError
+from usbmotion.protocol import LineSplitter, Overlong
+from usbmotion.sim.clock import WALL_CLOCK, Clock
+from usbmotion.sim.registry import register_url_handler
+
+_MAX_REPLY_LINE = 1 << 16
+
+
+class LineTransport:
+    """Lines in and out of one serial port.
+
+    Parameters:
+        port: an open pyserial port (from :func:`serial.serial_for_url`).
+        label: how errors name this link (a device name or the URL).
+    """
+
+    def __init__(self, port: Any, *, label: str = "") -> None:
+        self.port = port
+        self.label = label or str(getattr(port, "port", "") or "serial port")
+        clock = getattr(port, "usbmotion_clock", None)
+        self.clock: Clock = clock if clock is not None else WALL_CLOCK
+        self._splitter = LineSplitter(max_bytes=_MAX_REPLY_LINE)
+        self._lines: deque[bytes] = deque()
+        self.bytes_written = 0
+        self.bytes_read = 0
+        self._closed = False
+
+    @classmethod
+    def open(cls, url: str, *, baudrate: int = 115200, label: str = "") -> LineTransport:
+        """Open ``url`` (a port path or any pyserial URL, ``sim://`` included).
+
+        Raises:
+            LinkLostError: the port cannot be opened (the message names it and why).
+        """
+        register_url_handler()
+        try:
+            port = serial.serial_for_url(url, baudrate=baudrate, timeout=0, write_timeout=5)
+        except (serial.SerialException, OSError, ValueError) as error:
+            raise LinkLostError(f"cannot open {url!r}: {error}", device=label or url) from error
+        return cls(port, label=label or url)
+
+    @property
+    def is_virtual(self) -> bool:
+        """True when waiting on this link advances a simulation rather than the wall clock."""
+        return self.clock is not WALL_CLOCK
+
+    def write(self, data: bytes) -> None:
+        """Send bytes.
+
+        Raises:
+            LinkLostError: the port is gone.
+        """
+        try:
+            self.port.write(data)
+        except (serial.SerialException, OSError) as error:
+            raise LinkLostError(
+                f"{self.label}: write failed: {error}", device=self.label
+            ) from error
+        self.bytes_written += len(data)
+
+    def _pull(self, timeout_s: float) -> bool:
+        """Read what has arrived, waiting up to ``timeout_s`` for the first byte."""
+        try:
+            waiting = self.port.in_waiting
+            if waiting:
+                chunk = self.port.read(waiting)
+            elif timeout_s <= 0:
+                return False
+            else:
+                self.port.timeout = timeout_s
+                try:
+                    chunk = self.port.read(1)
+                finally:
+                    self.port.timeout = 0
+                if chunk:
+                    more = self.port.in_waiting
+                    if more:
+                        chunk += self.port.read(more)
+        except (serial.SerialException, OSError) as error:
+            raise LinkLostError(f"{self.label}: read failed: {error}", device=self.label) from error
+        if not chunk:
+            return False
+        self.bytes_read += len(chunk)
+        for line in self._splitter.feed(chunk):
+            if isinstance(line, Overlong):
+                self._lines.append(b"<overlong line dropped>")
+            else:
+                self._lines.append(line)
+        return True
+
+    def poll_lines(self) -> list[bytes]:
+        """Every whole line that has arrived, without waiting."""
+        self._pull(0)
+        out = list(self._lines)
+        self._lines.clear()
+        return out
+
+    def read_line(self, timeout_s: float) -> bytes:
+        """The next line, waiting up to ``timeout_s`` on the link's clock.
+
+        Raises:
+            DeviceTimeoutError: no whole line arrived in time.
+            LinkLostError: the port is gone.
+        """
+        if self._lines:
+            return self._lines.popleft()
+        deadline = self.clock.now() + timeout_s
+        while True:
+            left = deadline - self.clock.now()
+            self._pull(max(left, 0.0))
+            if self._lines:
+                return self._lines.popleft()
+            if left <= 0:
+                raise DeviceTimeoutError(
+                    f"{self.label}: no reply within {timeout_s:g} s", device=self.label
+                )
+
+    def discard_input(self) -> None:
+        """Forget every line and byte received so far."""
+        self._lines.clear()
+        self._splitter.reset()
+        try:
+            self.port.reset_input_buffer()
+        except (serial.SerialException, OSError) as error:
+            raise LinkLostError(f"{self.label}: {error}", device=self.label) from error
+
+    def sleep(self, seconds: float) -> None:
+        """Wait on the link's clock."""
+        self.clock.sleep(seconds)
+
+    def close(self) -> None:
+        """Close the port (safe twice)."""
+        if not self._closed:
+            self._closed = True
+            with contextlib.suppress(serial.SerialException, OSError):
+                self.port.close()
+
+    def __enter__(self) -> LineTransport:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
