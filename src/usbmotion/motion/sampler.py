@@ -1,0 +1,320 @@
+"""Timed segments to setpoints: the position of every axis at every motion-update period.
+
+Sample ``k`` is at ``t_k = k * period_s``, computed from the integer index (never by
+accumulating the period), for ``k = 0 .. K`` with ``K = ceil(duration / period)``; so there
+are ``K + 1`` samples, the first at the start and the last at or after the end. When the
+duration is within 1 ns of a whole number of periods, ``K`` is that number (float noise in
+the duration never adds a sample). The last sample is the program's end, exactly, to the
+count. Segment start times are the planner's exact cumulative sums (``planner.exact_cumsum``),
+so a ten-hour program does not drift.
+
+Within segment ``i`` (found for all samples at once by ``searchsorted`` over the start
+times) the distance along the segment is the piecewise quadratic of its trapezoid; the
+accelerate and cruise phases are measured from the segment's start and the decelerate phase
+from its end, so a segment's last instant is its end vertex exactly. Counts are
+``rint(mm * counts_per_mm)`` (nearest, ties to even, which is symmetric in sign).
+
+Samples are computed in chunks, so memory stays bounded on long programs;
+``iter_sample_chunks`` hands the chunks out one by one for streaming.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from usbmotion.errors import PlanningError
+from usbmotion.motion.planner import Plan
+
+__all__ = [
+    "iter_sample_chunks",
+    "positions_at_mm",
+    "sample_axis",
+    "sample_count",
+    "sample_plan",
+    "sample_positions_mm",
+    "sample_times",
+]
+
+FloatArray = npt.NDArray[np.float64]
+DEFAULT_CHUNK_SAMPLES = 32768
+_SNAP_S = 1e-9
+_INT32_MAX = 2**31 - 1
+
+# Columns of the per-segment table gathered for every sample.
+_START, _T_ACCEL, _T_DECEL_AT, _T_END, _V_ENTRY, _V_CRUISE, _V_EXIT, _ACCEL, _S_ACCEL = range(9)
+_COLUMNS = 9
+
+
+@dataclass(frozen=True)
+class _Table:
+    scalars: FloatArray  # (n, _COLUMNS)
+    starts: FloatArray  # (n,) segment start times
+    origin: FloatArray  # (n, 3) start vertices
+    finish: FloatArray  # (n, 3) end vertices
+    unit: FloatArray  # (n, 3)
+    end: FloatArray  # (3,) the program's end
+
+
+def _table(plan: Plan) -> _Table:
+    if not isinstance(plan, Plan):
+        raise PlanningError(f"plan {plan!r} is not a Plan")
+    t_accel = plan.t_accel_s
+    v_entry = plan.v_entry_mm_s
+    scalars = np.empty((len(plan), _COLUMNS), dtype=np.float64)
+    scalars[:, _START] = plan.start_time_s
+    scalars[:, _T_ACCEL] = t_accel
+    scalars[:, _T_DECEL_AT] = t_accel + plan.t_cruise_s
+    scalars[:, _T_END] = plan.segment_duration_s
+    scalars[:, _V_ENTRY] = v_entry
+    scalars[:, _V_CRUISE] = plan.v_cruise_mm_s
+    scalars[:, _V_EXIT] = plan.v_exit_mm_s
+    scalars[:, _ACCEL] = plan.accel_mm_s2
+    scalars[:, _S_ACCEL] = v_entry * t_accel + 0.5 * plan.accel_mm_s2 * t_accel * t_accel
+    return _Table(
+        scalars=scalars,
+        starts=np.ascontiguousarray(plan.start_time_s),
+        origin=np.ascontiguousarray(plan.vertices_mm[:-1]),
+        finish=np.ascontiguousarray(plan.vertices_mm[1:]),
+        unit=np.ascontiguousarray(plan.unit),
+        end=np.array(plan.vertices_mm[-1], dtype=np.float64),
+    )
+
+
+def _check_period(period_s: float) -> float:
+    if isinstance(period_s, bool) or not isinstance(period_s, (int, float)):
+        raise PlanningError(f"period_s {period_s!r} is not a number; a positive time in s")
+    if not (math.isfinite(period_s) and period_s > 0.0):
+        raise PlanningError(f"period_s {period_s!r} must be positive and finite")
+    return float(period_s)
+
+
+def _check_counts_per_mm(counts_per_mm: Sequence[float]) -> FloatArray:
+    if isinstance(counts_per_mm, (str, bytes)) or len(counts_per_mm) != 3:
+        raise PlanningError(f"counts_per_mm {counts_per_mm!r} must be three numbers (X, Y, Z)")
+    for value in counts_per_mm:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise PlanningError(f"counts_per_mm {counts_per_mm!r} holds {value!r}: not a number")
+        if not (math.isfinite(value) and value != 0.0):
+            raise PlanningError(
+                f"counts_per_mm {counts_per_mm!r} holds {value!r}; each must be finite, non-zero"
+            )
+    return np.array(counts_per_mm, dtype=np.float64)
+
+
+def _check_range(plan: Plan, scale: FloatArray, axes: tuple[int, ...]) -> None:
+    extent = np.abs(plan.vertices_mm[:, list(axes)]).max(axis=0) * np.abs(scale)
+    worst = int(np.argmax(extent))
+    if extent[worst] + 0.5 > _INT32_MAX:
+        raise PlanningError(
+            f"axis {'XYZ'[axes[worst]]} reaches {float(extent[worst])!r} counts at "
+            f"{float(scale[worst])!r} counts/mm; setpoints must fit int32 (+-{_INT32_MAX})"
+        )
+
+
+def sample_count(plan: Plan, period_s: float) -> int:
+    """How many samples ``sample_plan`` returns: ``ceil(duration / period) + 1``.
+
+    Raises:
+        PlanningError: ``period_s`` is not positive and finite.
+    """
+    period = _check_period(period_s)
+    if not isinstance(plan, Plan):
+        raise PlanningError(f"plan {plan!r} is not a Plan")
+    ratio = plan.duration_s / period
+    nearest = round(ratio)
+    if abs(plan.duration_s - nearest * period) <= _SNAP_S:
+        return int(nearest) + 1
+    return math.ceil(ratio) + 1
+
+
+def sample_times(plan: Plan, period_s: float) -> FloatArray:
+    """Sample times ``k * period_s`` in seconds (for plotting against the samples).
+
+    Raises:
+        PlanningError: ``period_s`` is not positive and finite.
+    """
+    count = sample_count(plan, period_s)
+    return np.arange(count, dtype=np.float64) * float(period_s)
+
+
+def _distance(
+    table: _Table, times: FloatArray
+) -> tuple[npt.NDArray[np.intp], FloatArray, FloatArray, npt.NDArray[np.bool_]]:
+    """Segment index, distance from the start, distance to the end, decelerating flag."""
+    last = table.starts.shape[0] - 1
+    segment = np.searchsorted(table.starts, times, side="right") - 1
+    np.clip(segment, 0, last, out=segment)
+    rows = table.scalars[segment]
+    tau = np.maximum(times - rows[:, _START], 0.0)
+    t_accel = rows[:, _T_ACCEL]
+    accel = rows[:, _ACCEL]
+    half_a = 0.5 * accel
+    in_accel = tau < t_accel
+    decelerating = tau >= rows[:, _T_DECEL_AT]
+    from_start = np.where(
+        in_accel,
+        tau * (rows[:, _V_ENTRY] + half_a * tau),
+        rows[:, _S_ACCEL] + rows[:, _V_CRUISE] * (tau - t_accel),
+    )
+    remaining = np.maximum(rows[:, _T_END] - tau, 0.0)
+    to_end = remaining * (rows[:, _V_EXIT] + half_a * remaining)
+    return segment, from_start, to_end, decelerating
+
+
+def _positions(table: _Table, times: FloatArray, axes: tuple[int, ...]) -> FloatArray:
+    out = np.empty((times.shape[0], len(axes)), dtype=np.float64)
+    if table.starts.shape[0] == 0:
+        out[:] = table.end[list(axes)]
+        return out
+    segment, from_start, to_end, decelerating = _distance(table, times)
+    for column, axis in enumerate(axes):
+        direction = table.unit[segment, axis]
+        out[:, column] = np.where(
+            decelerating,
+            table.finish[segment, axis] - direction * to_end,
+            table.origin[segment, axis] + direction * from_start,
+        )
+    return out
+
+
+def positions_at_mm(plan: Plan, times_s: npt.ArrayLike) -> FloatArray:
+    """Positions (mm, shape ``(n, 3)``) at arbitrary times in seconds from the plan's start.
+
+    Times before 0 give the start, times after the end give the end.
+
+    Raises:
+        PlanningError: a time is NaN.
+    """
+    table = _table(plan)
+    times = np.atleast_1d(np.asarray(times_s, dtype=np.float64))
+    if np.isnan(times).any():
+        raise PlanningError(f"times_s {times_s!r} holds NaN")
+    return _positions(table, times.ravel(), (0, 1, 2))
+
+
+def _chunks(
+    plan: Plan, period_s: float, axes: tuple[int, ...], chunk_samples: int
+) -> Iterator[FloatArray]:
+    table = _table(plan)
+    count = sample_count(plan, period_s)
+    period = float(period_s)
+    for first in range(0, count, chunk_samples):
+        stop = min(count, first + chunk_samples)
+        times = np.arange(first, stop, dtype=np.float64) * period
+        positions = _positions(table, times, axes)
+        if stop == count:
+            positions[-1] = table.end[list(axes)]
+        yield positions
+
+
+def _check_chunk(chunk_samples: int) -> int:
+    if isinstance(chunk_samples, bool) or not isinstance(chunk_samples, int) or chunk_samples < 1:
+        raise PlanningError(f"chunk_samples {chunk_samples!r} must be a positive integer")
+    return chunk_samples
+
+
+def sample_positions_mm(
+    plan: Plan, *, period_s: float, chunk_samples: int = DEFAULT_CHUNK_SAMPLES
+) -> FloatArray:
+    """Positions in mm, shape ``(sample_count, 3)``, at every ``period_s`` (unrounded).
+
+    Raises:
+        PlanningError: a bad period or chunk size.
+    """
+    chunk = _check_chunk(chunk_samples)
+    out = np.empty((sample_count(plan, period_s), 3), dtype=np.float64)
+    first = 0
+    for block in _chunks(plan, period_s, (0, 1, 2), chunk):
+        out[first : first + block.shape[0]] = block
+        first += block.shape[0]
+    return out
+
+
+def iter_sample_chunks(
+    plan: Plan,
+    *,
+    period_s: float,
+    counts_per_mm: Sequence[float],
+    chunk_samples: int = DEFAULT_CHUNK_SAMPLES,
+) -> Iterator[npt.NDArray[np.int32]]:
+    """The setpoints of ``sample_plan`` in consecutive int32 blocks of ``chunk_samples`` rows.
+
+    Raises:
+        PlanningError: as ``sample_plan`` (checked before the first block).
+    """
+    scale = _check_counts_per_mm(counts_per_mm)
+    _check_period(period_s)
+    chunk = _check_chunk(chunk_samples)
+    _check_range(plan, scale, (0, 1, 2))
+    return (
+        np.rint(block * scale).astype(np.int32)
+        for block in _chunks(plan, period_s, (0, 1, 2), chunk)
+    )
+
+
+def sample_plan(
+    plan: Plan,
+    *,
+    period_s: float,
+    counts_per_mm: Sequence[float],
+    chunk_samples: int = DEFAULT_CHUNK_SAMPLES,
+) -> npt.NDArray[np.int32]:
+    """Integer setpoints of every axis at every ``period_s``: int32, shape ``(n, 3)``.
+
+    Parameters:
+        plan: the planned program.
+        period_s: the motion-update period, s.
+        counts_per_mm: encoder counts per mm of X, Y and Z (non-zero).
+        chunk_samples: samples computed per numpy pass (memory bound, not semantics).
+
+    Returns ``sample_count(plan, period_s)`` rows; row k is the position at ``k * period_s``
+    rounded to the nearest count, and the last row is the program's end.
+
+    Raises:
+        PlanningError: bad period, counts per mm or chunk size, or setpoints beyond int32.
+    """
+    scale = _check_counts_per_mm(counts_per_mm)
+    chunk = _check_chunk(chunk_samples)
+    _check_range(plan, scale, (0, 1, 2))
+    out = np.empty((sample_count(plan, period_s), 3), dtype=np.int32)
+    first = 0
+    for block in _chunks(plan, period_s, (0, 1, 2), chunk):
+        rows = block.shape[0]
+        np.rint(block * scale, out=block)
+        out[first : first + rows] = block
+        first += rows
+    return out
+
+
+def sample_axis(
+    plan: Plan,
+    axis: int,
+    *,
+    period_s: float,
+    counts_per_mm: float,
+    chunk_samples: int = DEFAULT_CHUNK_SAMPLES,
+) -> npt.NDArray[np.int32]:
+    """Integer setpoints of one axis (0 = X, 1 = Y, 2 = Z): int32, shape ``(n,)``.
+
+    Same samples as the matching column of ``sample_plan``.
+
+    Raises:
+        PlanningError: a bad axis, period, counts per mm or chunk size, or int32 overflow.
+    """
+    if isinstance(axis, bool) or axis not in (0, 1, 2):
+        raise PlanningError(f"axis {axis!r} must be 0 (X), 1 (Y) or 2 (Z)")
+    scale = _check_counts_per_mm((counts_per_mm, 1.0, 1.0))[:1]
+    chunk = _check_chunk(chunk_samples)
+    _check_range(plan, scale, (axis,))
+    out = np.empty(sample_count(plan, period_s), dtype=np.int32)
+    first = 0
+    for block in _chunks(plan, period_s, (axis,), chunk):
+        rows = block.shape[0]
+        out[first : first + rows] = np.rint(block[:, 0] * scale[0])
+        first += rows
+    return out
