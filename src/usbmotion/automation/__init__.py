@@ -1,1 +1,39 @@
 """Automation sequences: polled until Complete or Fault; combinators; homing."""
+
+from usbmotion.automation.homing import (
+    Home,
+    HomingInputs,
+    HomingOutputs,
+    LimitSwitchState,
+    MoveAxisHome,
+)
+from usbmotion.automation.sequence import (
+    All,
+    AutomationSequence,
+    Chain,
+    Complete,
+    Fault,
+    FaultKind,
+    Incomplete,
+    Transition,
+    at_end,
+    run_sequence,
+)
+
+__all__ = [
+    "All",
+    "AutomationSequence",
+    "Chain",
+    "Complete",
+    "Fault",
+    "FaultKind",
+    "Home",
+    "HomingInputs",
+    "HomingOutputs",
+    "Incomplete",
+    "LimitSwitchState",
+    "MoveAxisHome",
+    "Transition",
+    "at_end",
+    "run_sequence",
+]
