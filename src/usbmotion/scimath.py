@@ -80,7 +80,7 @@ import math
 import re
 import reprlib
 from fractions import Fraction
-from typing import Any, Final
+from typing import Any, Final, final
 
 from usbmotion.errors import SciMathError
 
@@ -114,10 +114,10 @@ _POW10: Final = tuple(10**k for k in range(19))
 
 def _tdiv(a: int, b: int) -> int:
     """Integer quotient ``a / b`` truncated toward zero, as C's ``/`` (``b != 0``)."""
-    q = a // b
-    if q < 0 and q * b != a:
-        q += 1
-    return q
+    magnitude = (-a if a < 0 else a) // (-b if b < 0 else b)
+    if (a < 0) != (b < 0):
+        return -magnitude
+    return magnitude
 
 
 def sci_normalize(c: int, e: int, digits: int) -> tuple[int, int]:
@@ -264,7 +264,7 @@ NUMBA_CORE: Final = (
 # --- the value type -----------------------------------------------------------------------
 
 
-_DECIMAL = re.compile(r"([+-]?)(?:(\d+)(?:\.(\d*))?|\.(\d+))(?:[eE]([+-]?\d+))?")
+_DECIMAL = re.compile(r"([+-]?)(?:([0-9]+)(?:\.([0-9]*))?|\.([0-9]+))(?:[eE]([+-]?[0-9]+))?")
 _FLOAT_EDGE_EXPONENT: Final = 400
 
 
@@ -285,6 +285,7 @@ def _check_int(name: str, value: object) -> int:
     return value
 
 
+@final
 class SciNumber:
     """An immutable scientific-notation integer number ``coefficient * 10**exponent``.
 
@@ -399,7 +400,7 @@ class SciNumber:
         """
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise SciMathError(
-                f"value {value!r} is a {type(value).__name__}; expected a finite float"
+                f"value {value!r} is a {type(value).__name__}; expected a finite float or an int"
             )
         if isinstance(value, int):
             return cls.from_int(value, digits=digits)
