@@ -5,6 +5,7 @@ from __future__ import annotations
 import typer
 
 from usbmotion import __version__
+from usbmotion.cli.gcode import gcode_app
 from usbmotion.cli.sim import sim
 
 app = typer.Typer(
@@ -27,6 +28,7 @@ def version() -> None:
 
 
 app.command()(sim)
+app.add_typer(gcode_app, name="gcode")
 
 
 def main() -> None:

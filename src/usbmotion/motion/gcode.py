@@ -1,0 +1,1048 @@
+"""G-code to typed moves, with RS274/NGC semantics as LinuxCNC implements them.
+
+The text is read by :mod:`usbmotion.motion.gcode_lexer` (words, comments, checksums) and
+interpreted here block by block into :data:`~usbmotion.motion.moves.Move` values, in mm,
+at absolute machine positions. LinuxCNC's interpreter is the reference; the conformance
+cases in ``shared/gcode-conformance`` are run by the tests.
+
+Start state (LinuxCNC's): G21 (mm), G17, G90, G91.1, G94, feed 0, no motion mode (so an
+axis word before any G0-G3 is an error), position 0, no offsets, G28/G30 positions 0
+(there is no parameter file).
+
+Supported: G0 G1 G2 G3 (I/J/K or R; P turns; helices), G4 (P seconds), G17 G18 G19,
+G20 G21, G90 G91, G90.1 G91.1, G28 G28.1 G30 G30.1, G80, G92 G92.1 G92.2 G92.3, F, N,
+comments, M2 M30, ``%`` delimiters, block delete, RepRap checksums.
+
+Decisions worth knowing, each LinuxCNC's:
+
+- Within a block, words act in LinuxCNC's order: F, then G4, plane, units, distance
+  modes, G28/G30/G92, motion, and M2/M30 last. So ``G20 F10`` sets 10 mm/min (F is read
+  before G20 takes effect), and a G20/G21 switch keeps the feed's physical speed.
+- A feed move (G1, G2, G3) with feed 0 is an error; G0 needs no feed.
+- Centre-format arcs: with r1, r2 the radii to start and end, the arc is refused when
+  ``|r2 - r1|`` exceeds 100 * t or exceeds t with a relative difference over 0.1 %, where
+  t = 2 * 0.01 * sqrt(2) mm (G21) or 2 * 0.001 * sqrt(2) inch (G20). An accepted arc
+  keeps the programmed centre (the path is a slight spiral).
+- R-format arcs: a radius shorter than half the chord by more than 0.00005 inch
+  (0.00127 mm) is refused; negative R takes the arc over 180 degrees.
+- G92 values are always absolute; G28/G30 go first to the intermediate point given by the
+  axis words (absolute or incremental per G90/G91), then, for the named axes only (all of
+  them when none is named), to the stored position.
+- Two words of the same letter, two G codes of one modal group, or words that nothing in
+  the block uses (I, J, K, R, P, Q) are errors.
+- A program must end with M2, M30 or ``%`` (when it opened with ``%``); the end of the
+  text without one is an error, and nothing after the end is read.
+
+Words that do not move the machine (S, T, D, H, M0 M1 M3-M9 M48-M53 M60 M61, G40 G49 G54
+G61 G61.1 G64 G94 G96 G97 G98 G99 and their P/Q) are accepted and listed in
+:attr:`GCodeProgram.ignored`. Words that would change the geometry and are not supported
+raise :class:`~usbmotion.errors.UnsupportedGCodeError` naming the word and the reason.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from usbmotion.errors import GCodeError, UnsupportedGCodeError
+from usbmotion.motion.gcode_lexer import Block, Word, parse_blocks, tokenize, word_columns
+from usbmotion.motion.moves import Arc, Dwell, Linear, Move, Plane, Rapid
+
+__all__ = [
+    "Block",
+    "GCodeProgram",
+    "IgnoredWord",
+    "Word",
+    "interpret_until_error",
+    "load_gcode",
+    "move_record",
+    "parse_blocks",
+    "parse_gcode",
+    "read_gcode_text",
+    "tokenize",
+]
+
+MM_PER_INCH = 25.4
+_SQRT2 = math.sqrt(2.0)
+_SPIRAL_ABS_MM = 2 * 0.01 * _SQRT2  # LinuxCNC CENTER_ARC_RADIUS_TOLERANCE_MM
+_SPIRAL_ABS_INCH = 2 * 0.001 * _SQRT2  # ..._INCH
+_SPIRAL_REL = 0.001  # SPIRAL_RELATIVE_TOLERANCE
+_RADIUS_TOL_MM = 0.00005 * MM_PER_INCH  # RADIUS_TOLERANCE_INCH, in mm
+_TINY = 1e-12  # arc_data_r: a chord this close to the diameter is a semicircle
+_LARGEST = 1e9  # magnitude limit of any number, in program units
+_MAX_M_CODES = 4
+
+# --- the code tables ----------------------------------------------------------------------
+# G codes are keyed by ten times their number (G90.1 -> 901), as LinuxCNC does.
+
+_MOTION, _DWELL, _PLANE, _UNITS, _DISTANCE, _ARC_DISTANCE, _HOME, _HOME_SET, _OFFSET = range(9)
+_IGNORED, _UNSUPPORTED = 9, 10
+
+# code -> (modal group, kind, meaning or reason)
+_G_CODES: dict[int, tuple[int, int, str]] = {
+    0: (1, _MOTION, "rapid"),
+    10: (1, _MOTION, "linear feed"),
+    20: (1, _MOTION, "clockwise arc"),
+    30: (1, _MOTION, "counter-clockwise arc"),
+    800: (1, _MOTION, "cancel motion mode"),
+    40: (0, _DWELL, "dwell"),
+    170: (2, _PLANE, "XY plane"),
+    180: (2, _PLANE, "XZ plane"),
+    190: (2, _PLANE, "YZ plane"),
+    200: (6, _UNITS, "inches"),
+    210: (6, _UNITS, "millimetres"),
+    900: (3, _DISTANCE, "absolute distances"),
+    910: (3, _DISTANCE, "incremental distances"),
+    901: (4, _ARC_DISTANCE, "absolute arc centres"),
+    911: (4, _ARC_DISTANCE, "incremental arc centres"),
+    280: (0, _HOME, "go to the G28 position"),
+    300: (0, _HOME, "go to the G30 position"),
+    281: (0, _HOME_SET, "store the G28 position"),
+    301: (0, _HOME_SET, "store the G30 position"),
+    920: (0, _OFFSET, "set the G92 offset"),
+    921: (0, _OFFSET, "reset the G92 offset and its stored value"),
+    922: (0, _OFFSET, "reset the G92 offset"),
+    923: (0, _OFFSET, "restore the stored G92 offset"),
+    400: (7, _IGNORED, "cutter radius compensation off (it is never on)"),
+    490: (8, _IGNORED, "tool length offset cancel (no offset is ever applied)"),
+    540: (12, _IGNORED, "coordinate system 1, the only one, with zero offset"),
+    610: (13, _IGNORED, "exact path mode (path blending belongs to the planner)"),
+    611: (13, _IGNORED, "exact stop mode (path blending belongs to the planner)"),
+    640: (13, _IGNORED, "path blending tolerance (path blending belongs to the planner)"),
+    940: (5, _IGNORED, "units-per-minute feed mode, the only one"),
+    960: (14, _IGNORED, "constant surface speed (spindle)"),
+    970: (14, _IGNORED, "spindle RPM mode"),
+    980: (10, _IGNORED, "canned cycle retract mode (no canned cycles)"),
+    990: (10, _IGNORED, "canned cycle retract mode (no canned cycles)"),
+}
+_G_UNSUPPORTED: dict[int, str] = {
+    50: "cubic spline moves are not supported",
+    51: "quadratic spline moves are not supported",
+    52: "NURBS moves are not supported",
+    53: "NURBS moves are not supported",
+    70: "lathe diameter mode is not supported",
+    80: "lathe radius mode is not supported",
+    100: "setting coordinate systems and tool data (G10) is not supported",
+    171: "the UV plane is not supported",
+    181: "the WU plane is not supported",
+    191: "the VW plane is not supported",
+    330: "spindle-synchronized motion is not supported",
+    331: "rigid tapping is not supported",
+    382: "probing is not supported",
+    383: "probing is not supported",
+    384: "probing is not supported",
+    385: "probing is not supported",
+    410: "cutter radius compensation is not supported",
+    411: "cutter radius compensation is not supported",
+    420: "cutter radius compensation is not supported",
+    421: "cutter radius compensation is not supported",
+    430: "tool length offsets are not supported",
+    431: "tool length offsets are not supported",
+    432: "tool length offsets are not supported",
+    520: "local coordinate offsets are not supported",
+    530: "moves in machine coordinates are not supported",
+    700: "lathe finishing cycles are not supported",
+    710: "lathe roughing cycles are not supported",
+    711: "lathe roughing cycles are not supported",
+    720: "lathe roughing cycles are not supported",
+    721: "lathe roughing cycles are not supported",
+    730: "canned cycles are not supported",
+    740: "canned cycles are not supported",
+    760: "threading cycles are not supported",
+    930: "inverse time feed is not supported",
+    950: "feed per revolution is not supported",
+}
+for _code in (550, 560, 570, 580, 590, 591, 592, 593):
+    _G_UNSUPPORTED[_code] = "coordinate systems other than G54 are not supported"
+for _code in range(810, 900, 10):
+    _G_UNSUPPORTED[_code] = "canned cycles are not supported"
+
+_M_END = {2: "M2", 30: "M30"}
+# code -> (modal group, meaning)
+_M_CODES: dict[int, tuple[int, str]] = {
+    0: (4, "program pause"),
+    1: (4, "optional program pause"),
+    2: (4, "program end"),
+    30: (4, "program end"),
+    60: (4, "pallet change pause"),
+    3: (7, "spindle on, clockwise"),
+    4: (7, "spindle on, counter-clockwise"),
+    5: (7, "spindle stop"),
+    6: (6, "tool change"),
+    61: (6, "set the current tool number"),
+    7: (8, "mist coolant on"),
+    8: (8, "flood coolant on"),
+    9: (8, "coolant off"),
+    48: (9, "enable speed and feed overrides"),
+    49: (9, "disable speed and feed overrides"),
+    50: (9, "feed override control"),
+    51: (9, "spindle speed override control"),
+    52: (9, "adaptive feed control"),
+    53: (9, "feed stop control"),
+}
+_M_UNSUPPORTED: dict[int, str] = {
+    19: "spindle orientation is not supported",
+    98: "subroutine calls are not supported",
+    99: "subroutine returns are not supported",
+}
+for _code in range(62, 69):
+    _M_UNSUPPORTED[_code] = "digital and analog I/O is not supported"
+for _code in range(70, 74):
+    _M_UNSUPPORTED[_code] = "modal state save and restore is not supported"
+
+_LETTERS_UNSUPPORTED = {
+    "A": "the rotary axis A is not supported (axes are X, Y, Z)",
+    "B": "the rotary axis B is not supported (axes are X, Y, Z)",
+    "C": "the rotary axis C is not supported (axes are X, Y, Z)",
+    "U": "the axis U is not supported (axes are X, Y, Z)",
+    "V": "the axis V is not supported (axes are X, Y, Z)",
+    "W": "the axis W is not supported (axes are X, Y, Z)",
+    "E": "E words (an extruder axis, G76 or M66) are not supported",
+    "L": "L words (G10, canned cycles, M66) are not supported",
+}
+_NOT_NEGATIVE = {"F": "feed rate", "S": "spindle speed", "T": "tool number"}
+_LETTERS_IGNORED = {
+    "S": "spindle speed",
+    "T": "tool select",
+    "D": "cutter compensation index (no cutter compensation)",
+    "H": "tool length offset index (no tool length offsets)",
+}
+# Common spellings of G codes, so that most need no arithmetic.
+_G_SPELLINGS: dict[str, int] = {}
+for _code in list(_G_CODES) + list(_G_UNSUPPORTED):
+    _whole, _tenth = divmod(_code, 10)
+    for _spelling in (f"{_whole}", f"{_whole:02d}"):
+        _G_SPELLINGS[_spelling + (f".{_tenth}" if _tenth else "")] = _code
+        if not _tenth:
+            _G_SPELLINGS[_spelling + "."] = _code
+            _G_SPELLINGS[_spelling + ".0"] = _code
+
+_PLANE_OF_CODE = {170: Plane.XY, 180: Plane.XZ, 190: Plane.YZ}
+# plane -> (letter of the first axis's centre offset, of the second's, the forbidden one)
+_CENTRE_LETTERS = {Plane.XY: ("I", "J", "K"), Plane.XZ: ("K", "I", "J"), Plane.YZ: ("J", "K", "I")}
+_AXIS_LETTERS = "XYZ"
+_GROUP_NAMES = {
+    0: "non-modal codes",
+    1: "motion",
+    2: "plane selection",
+    3: "distance mode",
+    4: "arc distance mode",
+    5: "feed mode",
+    6: "units",
+    7: "cutter compensation",
+    8: "tool length offset",
+    10: "retract mode",
+    12: "coordinate system",
+    13: "path control",
+    14: "spindle mode",
+}
+_M_GROUP_NAMES = {
+    4: "stopping",
+    6: "tool change",
+    7: "spindle",
+    8: "coolant",
+    9: "overrides",
+}
+
+
+# --- the result ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class IgnoredWord:
+    """A word that was accepted but does not move the machine.
+
+    ``word`` is the word as written (upper-case letter), ``line`` and ``column`` are
+    1-based, ``meaning`` says what the word is for.
+    """
+
+    word: str
+    line: int
+    column: int
+    meaning: str
+
+
+@dataclass(frozen=True, slots=True)
+class GCodeProgram:
+    """An interpreted G-code program.
+
+    ``moves`` are in program order, lengths in mm at absolute machine positions.
+    ``ignored`` lists the accepted words that do not move the machine. ``ended_by`` is
+    ``"M2"``, ``"M30"`` or ``"%"``, and ``end_line`` its line; a program returned with an
+    error by :func:`interpret_until_error` has ``ended_by == ""`` and ``end_line == 0``.
+    """
+
+    moves: tuple[Move, ...]
+    ignored: tuple[IgnoredWord, ...]
+    file: str
+    end_line: int
+    ended_by: str
+
+
+def parse_gcode(text: str, *, file: str = "<string>") -> GCodeProgram:
+    """Interpret a G-code program into moves.
+
+    Parameters:
+        text: the program.
+        file: the name used in errors and in the result.
+
+    Raises:
+        UnsupportedGCodeError: a word that would change the geometry is not supported.
+        GCodeError: the program is invalid (bad syntax, bad arc, no feed rate, no
+            program end, ...); ``file``, ``line``, ``column`` and ``word`` locate it.
+    """
+    program, error = interpret_until_error(text, file=file)
+    if error is not None:
+        raise error
+    return program
+
+
+def interpret_until_error(
+    text: str, *, file: str = "<string>"
+) -> tuple[GCodeProgram, GCodeError | None]:
+    """Interpret a G-code program, keeping the moves made before an error.
+
+    Returns the program (complete, or up to the block before the error) and the error,
+    or ``None`` when the program is valid. Never raises for bad G-code.
+    """
+    interpreter = _Interpreter(file)
+    error: GCodeError | None = None
+    try:
+        interpreter.run(tokenize(text, file=file), text)
+    except GCodeError as exc:
+        error = exc
+    return interpreter.result(), error
+
+
+def read_gcode_text(path: str | os.PathLike[str]) -> str:
+    """Read a G-code file as text: UTF-8, or Latin-1 when it is not valid UTF-8.
+
+    Raises:
+        OSError: the file cannot be read.
+    """
+    data = Path(path).read_bytes()
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        return data.decode("latin-1")
+
+
+def load_gcode(path: str | os.PathLike[str]) -> GCodeProgram:
+    """Read and interpret a G-code file (see :func:`parse_gcode`).
+
+    Raises:
+        OSError: the file cannot be read.
+        GCodeError: as :func:`parse_gcode`, with ``file`` set to ``path``.
+    """
+    return parse_gcode(read_gcode_text(path), file=os.fspath(path))
+
+
+def move_record(move: Move) -> dict[str, object]:
+    """A move as a JSON-ready record in the conformance schema (lengths in mm).
+
+    Rapid, linear and arc records have ``line``, ``type``, ``start`` and ``end``; linear
+    and arc add ``feed`` (mm/min); arcs add ``plane`` (``"XY"``, ``"XZ"``, ``"YZ"``),
+    ``direction`` (``"cw"``/``"ccw"``), ``rotation`` and ``centre`` (the coordinate
+    along the plane's normal is ``None``). Dwells have ``line``, ``type``, ``seconds``
+    and ``position``.
+    """
+    if isinstance(move, Rapid):
+        return {
+            "line": move.line,
+            "type": "rapid",
+            "start": list(move.start),
+            "end": list(move.end),
+        }
+    if isinstance(move, Linear):
+        return {
+            "line": move.line,
+            "type": "linear",
+            "start": list(move.start),
+            "end": list(move.end),
+            "feed": move.feed_mm_min,
+        }
+    if isinstance(move, Arc):
+        normal = move.plane.axes[2]
+        centre: list[float | None] = list(move.centre)
+        centre[normal] = None
+        return {
+            "line": move.line,
+            "type": "arc",
+            "start": list(move.start),
+            "end": list(move.end),
+            "plane": move.plane.value,
+            "direction": "cw" if move.rotation < 0 else "ccw",
+            "rotation": move.rotation,
+            "centre": centre,
+            "feed": move.feed_mm_min,
+        }
+    return {
+        "line": move.line,
+        "type": "dwell",
+        "seconds": move.seconds,
+        "position": list(move.position),
+    }
+
+
+# --- the interpreter -----------------------------------------------------------------------
+
+
+class _Interpreter:
+    """The machine state while a program is read; one instance per program."""
+
+    __slots__ = (
+        "arc_incremental",
+        "end_line",
+        "ended_by",
+        "feed_mm_min",
+        "file",
+        "homes",
+        "ignored",
+        "incremental",
+        "motion",
+        "moves",
+        "offset",
+        "plane",
+        "position",
+        "saved_offset",
+        "scale",
+    )
+
+    def __init__(self, file: str) -> None:
+        self.file = file
+        self.position = [0.0, 0.0, 0.0]  # machine, mm
+        self.offset = [0.0, 0.0, 0.0]  # G92, mm
+        self.saved_offset = [0.0, 0.0, 0.0]  # LinuxCNC parameters 5211-5213
+        self.homes = {280: (0.0, 0.0, 0.0), 300: (0.0, 0.0, 0.0)}  # machine, mm
+        self.scale = 1.0  # mm per program unit
+        self.incremental = False
+        self.arc_incremental = True
+        self.plane = Plane.XY
+        self.motion = -1  # G code x10 of the motion mode; -1: none (G80)
+        self.feed_mm_min = 0.0
+        self.moves: list[Move] = []
+        self.ignored: list[IgnoredWord] = []
+        self.ended_by = ""
+        self.end_line = 0
+
+    def result(self) -> GCodeProgram:
+        return GCodeProgram(
+            moves=tuple(self.moves),
+            ignored=tuple(self.ignored),
+            file=self.file,
+            end_line=self.end_line,
+            ended_by=self.ended_by,
+        )
+
+    def run(self, blocks: Iterable[Block], text: str) -> None:
+        percent = False
+        first = True
+        for block in blocks:
+            if block.delimiter:
+                if first:
+                    percent = True
+                    first = False
+                    continue
+                if percent:
+                    self.ended_by = "%"
+                    self.end_line = block.line
+                    return
+                raise GCodeError(
+                    "'%' ends a program only when the program also opens with a '%' line",
+                    file=self.file,
+                    line=block.line,
+                    column=block.source.index("%") + 1,
+                    word="%",
+                )
+            first = False
+            self.execute(block)
+            if self.ended_by:
+                return
+        last_line = max(1, text.count("\n") + (0 if text.endswith("\n") else 1))
+        if percent:
+            message = "the program opens with '%' but ends without a closing '%' line (or M2/M30)"
+        else:
+            message = "the program ends without M2, M30 or '%': end it with M2 or M30"
+        raise GCodeError(message, file=self.file, line=last_line, column=0)
+
+    # --- one block ---------------------------------------------------------------------
+
+    def error(
+        self, block: Block, index: int, message: str, *, unsupported: bool = False
+    ) -> GCodeError:
+        """The error for word ``index`` of ``block`` (its column and text)."""
+        column = word_columns(block)[index] if index >= 0 else 0
+        word = block.letters[index] + block.numbers[index] if index >= 0 else ""
+        kind = UnsupportedGCodeError if unsupported else GCodeError
+        return kind(message, file=self.file, line=block.line, column=column, word=word)
+
+    def execute(self, block: Block) -> None:
+        letters = block.letters
+        values = block.values
+        numbers = block.numbers
+        params: dict[str, float] = {}
+        where: dict[str, int] = {}
+        g_codes: dict[int, int] = {}  # modal group -> code x10
+        g_where: dict[int, int] = {}
+        m_codes: dict[int, int] = {}  # modal group -> code
+        m_where: dict[int, int] = {}
+        ignored: list[tuple[int, str]] = []  # (word index, meaning)
+
+        # Read the words in order, as LinuxCNC's read_items does.
+        for index, letter in enumerate(letters):
+            if letter == "G":
+                code = _G_SPELLINGS.get(numbers[index])
+                if code is None:
+                    code = self.g_code(block, index)
+                entry = _G_CODES.get(code)
+                if entry is None:
+                    reason = _G_UNSUPPORTED.get(code, "it is not a G code LinuxCNC knows")
+                    raise self.error(block, index, f"G{numbers[index]}: {reason}", unsupported=True)
+                group, kind, meaning = entry
+                previous = g_codes.get(group)
+                if previous is not None and code != 800 and previous != 800:
+                    raise self.error(
+                        block,
+                        index,
+                        f"G{numbers[index]} and G{_code_text(previous)} are both in the "
+                        f"{_GROUP_NAMES[group]} group; a line may hold one of each group",
+                    )
+                if previous is None or previous == 800:
+                    g_codes[group] = code
+                    g_where[group] = index
+                if kind == _IGNORED:
+                    ignored.append((index, meaning))
+            elif letter == "M":
+                code = self.m_code(block, index)
+                m_entry = _M_CODES.get(code)
+                if m_entry is None:
+                    raise self.error(
+                        block, index, f"M{numbers[index]}: {_m_reason(code)}", unsupported=True
+                    )
+                group, meaning = m_entry
+                if group in m_codes:
+                    raise self.error(
+                        block,
+                        index,
+                        f"M{numbers[index]} and M{m_codes[group]} are both in the "
+                        f"{_M_GROUP_NAMES[group]} group; a line may hold one of each group",
+                    )
+                if len(m_codes) == _MAX_M_CODES:
+                    raise self.error(block, index, f"more than {_MAX_M_CODES} M codes on one line")
+                m_codes[group] = code
+                m_where[group] = index
+                if code not in _M_END:
+                    ignored.append((index, meaning))
+            elif letter == "N":
+                continue
+            elif letter in params:
+                raise self.error(
+                    block,
+                    index,
+                    f"{letter} appears twice on this line ({letter}{numbers[where[letter]]} "
+                    f"and {letter}{numbers[index]}); a word may appear once per line",
+                )
+            else:
+                if letter in _LETTERS_UNSUPPORTED:
+                    raise self.error(
+                        block,
+                        index,
+                        f"{letter}{numbers[index]}: {_LETTERS_UNSUPPORTED[letter]}",
+                        unsupported=True,
+                    )
+                value = values[index]
+                if not -_LARGEST < value < _LARGEST:
+                    raise self.error(
+                        block,
+                        index,
+                        f"{letter}{numbers[index]} is out of range: at most {_LARGEST:g} "
+                        "in magnitude",
+                    )
+                if value < 0.0 and letter in _NOT_NEGATIVE:
+                    raise self.error(
+                        block,
+                        index,
+                        f"{letter}{numbers[index]}: a {_NOT_NEGATIVE[letter]} is not negative",
+                    )
+                params[letter] = value
+                where[letter] = index
+                letter_meaning = _LETTERS_IGNORED.get(letter)
+                if letter_meaning is not None:
+                    ignored.append((index, letter_meaning))
+
+        motion = self.check(block, params, where, g_codes, g_where, m_codes, m_where, ignored)
+
+        # Act, in LinuxCNC's order of execution.
+        if "F" in params:
+            self.feed_mm_min = params["F"] * self.scale
+        if g_codes.get(0) == 40:
+            self.dwell(block, params)
+        plane = g_codes.get(2)
+        if plane is not None:
+            self.plane = _PLANE_OF_CODE[plane]
+        units = g_codes.get(6)
+        if units is not None:
+            self.scale = MM_PER_INCH if units == 200 else 1.0
+        distance = g_codes.get(3)
+        if distance is not None:
+            self.incremental = distance == 910
+        arc_distance = g_codes.get(4)
+        if arc_distance is not None:
+            self.arc_incremental = arc_distance == 911
+        group0 = g_codes.get(0)
+        if group0 is not None and group0 != 40:
+            self.non_modal(block, group0, params)
+        if motion != -1:
+            self.move(block, motion, params, where, g_where.get(1, -1))
+        if ignored:
+            columns = word_columns(block)
+            self.ignored.extend(
+                IgnoredWord(letters[i] + numbers[i], block.line, columns[i], meaning)
+                for i, meaning in sorted(ignored)
+            )
+        stop = m_codes.get(4)
+        if stop in _M_END:
+            self.ended_by = _M_END[stop]
+            self.end_line = block.line
+
+    def g_code(self, block: Block, index: int) -> int:
+        """Ten times the G number (G90.1 -> 901), checked as LinuxCNC's read_g does."""
+        tenfold = block.values[index] * 10.0
+        code = math.floor(tenfold)
+        if tenfold - code > 0.999:
+            code = math.ceil(tenfold)
+        elif tenfold - code > 0.001:
+            raise self.error(
+                block,
+                index,
+                f"G{block.numbers[index]} is not a G code: G numbers have at most one "
+                "decimal (G90.1)",
+                unsupported=True,
+            )
+        if code < 0:
+            raise self.error(block, index, f"G{block.numbers[index]}: G codes are not negative")
+        return code
+
+    def m_code(self, block: Block, index: int) -> int:
+        """The M number, which must be a whole number (as LinuxCNC's read_m)."""
+        value = block.values[index]
+        code = math.floor(value)
+        if value - code > 0.9999:
+            code = math.ceil(value)
+        elif value - code > 0.0001:
+            raise self.error(block, index, f"M{block.numbers[index]}: M codes are whole numbers")
+        if code < 0:
+            raise self.error(block, index, f"M{block.numbers[index]}: M codes are not negative")
+        return code
+
+    def check(
+        self,
+        block: Block,
+        params: dict[str, float],
+        where: dict[str, int],
+        g_codes: dict[int, int],
+        g_where: dict[int, int],
+        m_codes: dict[int, int],
+        m_where: dict[int, int],
+        ignored: list[tuple[int, str]],
+    ) -> int:
+        """Check the block as a whole; return the motion it makes (G code x10, or -1)."""
+        group0 = g_codes.get(0, -1)
+        motion_word = g_codes.get(1, -1)
+        axis_index = min(
+            (where[letter] for letter in _AXIS_LETTERS if letter in params), default=-1
+        )
+        covets_axes = group0 in (280, 300, 920)
+        if motion_word != -1:
+            if motion_word == 800:
+                if axis_index >= 0 and not covets_axes:
+                    raise self.error(
+                        block,
+                        axis_index,
+                        "axis words cannot be used with G80, which cancels the motion mode",
+                    )
+            elif covets_axes:
+                raise self.error(
+                    block,
+                    g_where[1],
+                    f"G{_code_text(motion_word)} and G{_code_text(group0)} both use the "
+                    "axis words; put them on separate lines",
+                )
+            motion = motion_word
+        elif axis_index >= 0 and not covets_axes:
+            if self.motion == -1:
+                raise self.error(
+                    block,
+                    axis_index,
+                    "axis word with no motion mode: no G0, G1, G2 or G3 is active (a "
+                    "program starts with none, and G80 cancels it); add one to this line",
+                )
+            motion = self.motion
+        elif (
+            not covets_axes
+            and self.motion in (20, 30)
+            and ("I" in params or "J" in params or "K" in params)
+        ):
+            motion = self.motion  # a line such as "I1" continues the arc mode
+        else:
+            motion = -1
+        if group0 == 920 and axis_index < 0:
+            raise self.error(block, g_where[0], "G92 needs at least one axis word (X, Y or Z)")
+
+        arc = motion in (20, 30)
+        if group0 == 40:
+            if "P" not in params:
+                raise self.error(block, g_where[0], "G4 needs P, the dwell time in seconds")
+            if arc:
+                raise self.error(
+                    block, g_where[0], "G4 cannot share a line with G2 or G3: both use P"
+                )
+            if params["P"] < 0.0:
+                raise self.error(
+                    block,
+                    where["P"],
+                    f"G4 P{block.numbers[where['P']]}: a dwell time is not negative",
+                )
+        for letter in "IJK":
+            if letter in params and not arc:
+                raise self.error(block, where[letter], f"{letter} word with no G2 or G3 to use it")
+        if "R" in params and not arc:
+            raise self.error(block, where["R"], "R word with no G2 or G3 to use it")
+        path_control = g_codes.get(13)
+        override = m_codes.get(9)
+        if "P" in params:
+            index = where["P"]
+            if arc:
+                turns = round(params["P"])
+                if abs(turns - params["P"]) > 0.001 or turns < 1:
+                    raise self.error(
+                        block,
+                        index,
+                        f"P{block.numbers[index]} with G2/G3 is the number of turns: a whole "
+                        "number, 1 or more",
+                    )
+            elif group0 != 40:
+                if path_control != 640 and override not in (50, 51, 52, 53):
+                    raise self.error(
+                        block, index, "P word with no G2, G3, G4, G64 or M50-M53 to use it"
+                    )
+                ignored.append((index, "parameter of an ignored code (G64, M50-M53)"))
+        if "Q" in params:
+            if path_control != 640 and m_codes.get(6) != 61:
+                raise self.error(block, where["Q"], "Q word with no G64 or M61 to use it")
+            ignored.append((where["Q"], "parameter of an ignored code (G64, M61)"))
+        if m_codes.get(6) == 61 and "Q" not in params:
+            raise self.error(block, m_where[6], "M61 needs Q, the tool number")
+        if g_codes.get(14) == 960 and "S" not in params:
+            raise self.error(block, g_where[14], "G96 needs S, the surface speed")
+        if "T" in params and params["T"] != round(params["T"]):
+            raise self.error(
+                block, where["T"], f"T{block.numbers[where['T']]}: a tool number is whole"
+            )
+        return motion
+
+    def dwell(self, block: Block, params: dict[str, float]) -> None:
+        position = self.position
+        self.moves.append(Dwell(block.line, (position[0], position[1], position[2]), params["P"]))
+
+    def non_modal(self, block: Block, code: int, params: dict[str, float]) -> None:
+        if code in (280, 300):
+            self.traverse(block.line, self.ends(params))
+            home = self.homes[code]
+            named = [axis for axis, letter in enumerate(_AXIS_LETTERS) if letter in params]
+            end = list(self.position)
+            for axis in named or (0, 1, 2):
+                end[axis] = home[axis]
+            self.traverse(block.line, end)
+        elif code in (281, 301):
+            position = self.position
+            self.homes[code - 1] = (position[0], position[1], position[2])
+        elif code == 920:
+            for axis, letter in enumerate(_AXIS_LETTERS):
+                if letter in params:
+                    self.offset[axis] = self.position[axis] - params[letter] * self.scale
+            self.saved_offset = list(self.offset)
+        elif code == 921:
+            self.offset = [0.0, 0.0, 0.0]
+            self.saved_offset = [0.0, 0.0, 0.0]
+        elif code == 922:
+            self.offset = [0.0, 0.0, 0.0]
+        else:  # 923
+            self.offset = list(self.saved_offset)
+
+    def ends(self, params: dict[str, float]) -> list[float]:
+        """The end point named by the axis words (absolute or incremental), in mm."""
+        end = list(self.position)
+        scale = self.scale
+        for axis, letter in enumerate(_AXIS_LETTERS):
+            value = params.get(letter)
+            if value is not None:
+                if self.incremental:
+                    end[axis] += value * scale
+                else:
+                    end[axis] = value * scale + self.offset[axis]
+        return end
+
+    def traverse(self, line: int, end: list[float]) -> None:
+        start = self.position
+        self.moves.append(Rapid(line, (start[0], start[1], start[2]), (end[0], end[1], end[2])))
+        self.position = end
+
+    def move(
+        self,
+        block: Block,
+        motion: int,
+        params: dict[str, float],
+        where: dict[str, int],
+        motion_index: int,
+    ) -> None:
+        if motion == 800:
+            self.motion = -1
+            return
+        self.motion = motion
+        # The word to blame: the motion G code, or the first word of a modal motion line.
+        blame = motion_index if motion_index >= 0 else 0
+        if motion == 0:
+            self.traverse(block.line, self.ends(params))
+            return
+        if motion == 10:
+            if self.feed_mm_min == 0.0:
+                raise self.error(
+                    block,
+                    blame,
+                    "G1 with feed rate 0: set a feed rate with F (units per minute) before "
+                    "or on this line",
+                )
+            start = self.position
+            end = self.ends(params)
+            self.moves.append(
+                Linear(
+                    block.line,
+                    (start[0], start[1], start[2]),
+                    (end[0], end[1], end[2]),
+                    self.feed_mm_min,
+                )
+            )
+            self.position = end
+            return
+        self.arc(block, motion, params, where, blame)
+
+    def arc(
+        self,
+        block: Block,
+        motion: int,
+        params: dict[str, float],
+        where: dict[str, int],
+        blame: int,
+    ) -> None:
+        name = "G2" if motion == 20 else "G3"
+        plane = self.plane
+        first, second, normal = plane.axes
+        first_letter, second_letter, other_letter = _CENTRE_LETTERS[plane]
+        radius_format = "R" in params
+        centre_format = "I" in params or "J" in params or "K" in params
+        if not radius_format and not centre_format:
+            raise self.error(
+                block,
+                blame,
+                f"{name} arc with no centre: R, I, J and K are all missing (give "
+                f"{first_letter}/{second_letter} offsets to the centre in the "
+                f"{plane.value} plane, or R, the radius)",
+            )
+        if radius_format and centre_format:
+            raise self.error(block, where["R"], f"{name} arc with both R and I/J/K: use one form")
+        if self.feed_mm_min == 0.0:
+            raise self.error(
+                block,
+                blame,
+                f"{name} with feed rate 0: set a feed rate with F (units per minute) before "
+                "or on this line",
+            )
+        first_axis, second_axis = _AXIS_LETTERS[first], _AXIS_LETTERS[second]
+        if centre_format:
+            if other_letter in params:
+                raise self.error(
+                    block,
+                    where[other_letter],
+                    f"{other_letter} word given for an arc in the {plane.value} plane "
+                    f"(G{_plane_code(plane)}), which uses {first_letter} and {second_letter}",
+                )
+            if not self.arc_incremental:
+                for letter in (first_letter, second_letter):
+                    if letter not in params:
+                        raise self.error(
+                            block,
+                            blame,
+                            f"{letter} word missing for an arc with absolute centres (G90.1)",
+                        )
+        elif first_axis not in params and second_axis not in params:
+            raise self.error(
+                block,
+                where["R"],
+                f"{name} R arc with no {first_axis} or {second_axis} end point: an R arc "
+                "cannot be a full circle",
+            )
+        end = self.ends(params)
+        start = self.position
+        scale = self.scale
+        start1, start2 = start[first], start[second]
+        end1, end2 = end[first], end[second]
+        if radius_format:
+            centre1, centre2 = self.radius_centre(
+                block, motion, where["R"], params["R"], start1, start2, end1, end2
+            )
+        else:
+            offset1 = params.get(first_letter, 0.0) * scale
+            offset2 = params.get(second_letter, 0.0) * scale
+            if self.arc_incremental:
+                centre1, centre2 = start1 + offset1, start2 + offset2
+            else:
+                centre1 = offset1 + self.offset[first]
+                centre2 = offset2 + self.offset[second]
+            self.check_radii(block, blame, plane, start1, start2, centre1, centre2, end1, end2)
+        turns = round(params["P"]) if "P" in params else 1
+        centre = [0.0, 0.0, 0.0]
+        centre[first] = centre1
+        centre[second] = centre2
+        centre[normal] = start[normal]
+        self.moves.append(
+            Arc(
+                block.line,
+                (start[0], start[1], start[2]),
+                (end[0], end[1], end[2]),
+                (centre[0], centre[1], centre[2]),
+                plane,
+                -turns if motion == 20 else turns,
+                self.feed_mm_min,
+            )
+        )
+        self.position = end
+
+    def check_radii(
+        self,
+        block: Block,
+        blame: int,
+        plane: Plane,
+        start1: float,
+        start2: float,
+        centre1: float,
+        centre2: float,
+        end1: float,
+        end2: float,
+    ) -> None:
+        """Refuse a centre-format arc as LinuxCNC's arc_data_ijk does (in mm here)."""
+        radius1 = math.hypot(centre1 - start1, centre2 - start2)
+        radius2 = math.hypot(centre1 - end1, centre2 - end2)
+        inch = self.scale != 1.0
+        unit = "inch" if inch else "mm"
+        if radius1 < _RADIUS_TOL_MM or radius2 < _RADIUS_TOL_MM:
+            raise self.error(
+                block,
+                blame,
+                "zero-radius arc: the centre is on the start or the end point "
+                + self.arc_points(plane, start1, start2, centre1, centre2, end1, end2)
+                + f" r1={radius1 / self.scale:.4f} r2={radius2 / self.scale:.4f} {unit}",
+            )
+        spiral_abs = _SPIRAL_ABS_INCH * MM_PER_INCH if inch else _SPIRAL_ABS_MM
+        difference = abs(radius1 - radius2)
+        relative = difference / max(radius1, radius2)
+        if difference > 100.0 * spiral_abs or (difference > spiral_abs and relative > _SPIRAL_REL):
+            scale = self.scale
+            raise self.error(
+                block,
+                blame,
+                "radius to the end of the arc differs from the radius to its start: "
+                + self.arc_points(plane, start1, start2, centre1, centre2, end1, end2)
+                + f" r1={radius1 / scale:.4f} r2={radius2 / scale:.4f} {unit}, "
+                f"difference {difference / scale:.4g} {unit} ({relative * 100:.4f}%); "
+                f"allowed {spiral_abs / scale:.4g} {unit}, or up to "
+                f"{100 * spiral_abs / scale:.4g} {unit} within {_SPIRAL_REL * 100:g}%",
+            )
+
+    def arc_points(
+        self,
+        plane: Plane,
+        start1: float,
+        start2: float,
+        centre1: float,
+        centre2: float,
+        end1: float,
+        end2: float,
+    ) -> str:
+        """``start=(X..,Y..) centre=(..) end=(..)`` in program coordinates."""
+        first, second, _normal = plane.axes
+        a, b = _AXIS_LETTERS[first], _AXIS_LETTERS[second]
+        offset1, offset2 = self.offset[first], self.offset[second]
+        scale = self.scale
+
+        def point(value1: float, value2: float) -> str:
+            return f"({a}{(value1 - offset1) / scale:.4f},{b}{(value2 - offset2) / scale:.4f})"
+
+        return (
+            f"start={point(start1, start2)} centre={point(centre1, centre2)} "
+            f"end={point(end1, end2)}"
+        )
+
+    def radius_centre(
+        self,
+        block: Block,
+        motion: int,
+        index: int,
+        radius: float,
+        start1: float,
+        start2: float,
+        end1: float,
+        end2: float,
+    ) -> tuple[float, float]:
+        """The centre of an R-format arc, as LinuxCNC's arc_data_r finds it (in mm)."""
+        if end1 == start1 and end2 == start2:
+            raise self.error(
+                block,
+                index,
+                "R arc whose end point is its start point: a full circle needs I/J/K "
+                "offsets to the centre",
+            )
+        if radius == 0.0:
+            raise self.error(block, index, "R0: an arc radius cannot be zero")
+        abs_radius = abs(radius) * self.scale
+        mid1 = (end1 + start1) / 2.0
+        mid2 = (end2 + start2) / 2.0
+        half_length = math.hypot(mid1 - end1, mid2 - end2)
+        if half_length - abs_radius > _RADIUS_TOL_MM:
+            unit = "inch" if self.scale != 1.0 else "mm"
+            raise self.error(
+                block,
+                index,
+                f"arc radius R{block.numbers[index]} is too small to reach the end point: "
+                f"half the distance to it is {half_length / self.scale:.4f} {unit}",
+            )
+        if half_length / abs_radius > 1.0 - _TINY:
+            half_length = abs_radius
+        direction = math.atan2(end2 - start2, end1 - start1)
+        if (motion == 20) == (radius > 0.0):
+            theta = direction - math.pi / 2.0
+        else:
+            theta = direction + math.pi / 2.0
+        offset = abs_radius * math.cos(math.asin(half_length / abs_radius))
+        return mid1 + offset * math.cos(theta), mid2 + offset * math.sin(theta)
+
+
+def _m_reason(code: int) -> str:
+    reason = _M_UNSUPPORTED.get(code)
+    if reason is not None:
+        return reason
+    if 100 <= code <= 199:
+        return "user-defined M codes (M100-M199) are not supported"
+    return "it is not an M code LinuxCNC knows"
+
+
+def _code_text(code: int) -> str:
+    whole, tenth = divmod(code, 10)
+    return f"{whole}.{tenth}" if tenth else f"{whole}"
+
+
+def _plane_code(plane: Plane) -> int:
+    return {Plane.XY: 17, Plane.XZ: 18, Plane.YZ: 19}[plane]

@@ -1,0 +1,356 @@
+"""The lexical stage of G-code: text to blocks of words, with no machine semantics.
+
+A line is split by one compiled regular expression into words (a letter and a number),
+comments ``( )`` and ``;``, and anything else, which is an error. As in LinuxCNC, letters
+are case-insensitive and blanks (space, tab, carriage return) outside comments carry no
+meaning, even inside a number (``X1 2.5`` is ``X12.5``). Also handled here, because they
+are about characters rather than machine state:
+
+- a line whose first character is ``/`` is deleted (block delete: not read at all);
+- a line holding only ``%`` is a program delimiter (:attr:`Block.delimiter`);
+- a RepRap checksum ``*NN`` ending the line must equal the XOR of the line's UTF-8 bytes
+  before the ``*``; it is then dropped;
+- an ``N`` word (line number, also decimal such as ``N4567.789``) may only start a line;
+- number forms ``1``, ``-1.5``, ``+2``, ``I0.``, ``J.103``; anything else is malformed.
+
+Expressions (``[``), parameters (``#``), O-words and polar coordinates (``@``, ``^``) are
+rejected with :class:`~usbmotion.errors.UnsupportedGCodeError`; every other problem is a
+:class:`~usbmotion.errors.GCodeError`. Errors carry the file, the 1-based line and column.
+
+Lines are read lazily by :func:`tokenize`, so an interpreter that stops at ``M2`` never
+reads what follows, as LinuxCNC does.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Iterator
+from functools import reduce
+from operator import xor
+from typing import NamedTuple
+
+from usbmotion.errors import GCodeError, UnsupportedGCodeError
+
+__all__ = ["Block", "Word", "parse_blocks", "tokenize", "word_columns"]
+
+
+class Word(NamedTuple):
+    """One word of a block: an upper-case letter and its number.
+
+    ``number`` is the number as written (blanks removed, sign and dots kept, such as
+    ``"-.5"`` or ``"90.1"``); ``value`` is its value.
+    """
+
+    letter: str
+    value: float
+    number: str
+
+    @property
+    def text(self) -> str:
+        """The word as written, with an upper-case letter: ``"G90.1"``, ``"X-.5"``."""
+        return self.letter + self.number
+
+
+class Block(NamedTuple):
+    """One line of G-code that holds words, comments or a ``%`` delimiter.
+
+    The words are stored column-wise, which is how the lexer stays fast: word ``i`` is
+    ``letters[i]`` (upper case), ``values[i]`` and ``numbers[i]`` (see :class:`Word`;
+    :attr:`words` gives them as :class:`Word` tuples). ``line`` is the 1-based line in
+    the text, ``comments`` are the texts of ``( )`` and ``;`` comments, ``source`` is the
+    line as written (without its line break) and ``delimiter`` is true for a ``%`` line.
+    """
+
+    line: int
+    letters: str
+    values: tuple[float, ...]
+    numbers: tuple[str, ...]
+    comments: tuple[str, ...]
+    source: str
+    delimiter: bool
+
+    @property
+    def words(self) -> tuple[Word, ...]:
+        """The words in the order written."""
+        return tuple(map(Word, self.letters, self.values, self.numbers))
+
+
+# One token per match: blanks, then a word (letter, number), a ( ) comment, a ; comment,
+# or one character that is none of these. The number may be empty or malformed here; it
+# is checked by float() on the fast path and by _word_value() on the careful one.
+_TOKEN = re.compile(
+    r"[ \t\r]*(?:"
+    r"([A-Za-z])[ \t\r]*([-+]?[0-9.]*(?:[ \t\r]+[0-9.]+)*)"
+    r"|\(([^()]*)\)"
+    r"|;(.*)"
+    r"|([^ \t\r])"
+    r")"
+)
+# Anything that needs the careful path: comments, block delete, delimiter, checksum,
+# line numbers (N) and O-words.
+_SPECIAL = re.compile(r"[();/%*NnOo]")
+_LINE_NUMBER = re.compile(r"[0-9]+(?:\.[0-9]+)?")
+_CHECKSUM_DIGITS = re.compile(r"[0-9]+")
+_BLANKS = " \t\r"
+_LONGEST_FAST_LINE = 256  # longer lines take the careful path, which also checks magnitude
+_NOTHING: tuple[str, ...] = ()
+_new = tuple.__new__
+
+
+def tokenize(text: str, *, file: str = "<string>") -> Iterator[Block]:
+    """Read G-code text lazily into blocks, one per line that holds anything.
+
+    Blank lines and block-deleted lines (first character ``/``) yield nothing.
+
+    Parameters:
+        text: the program; ``\\n`` or ``\\r\\n`` line breaks; a leading BOM is skipped.
+        file: the name used in errors.
+
+    Raises:
+        GCodeError: a malformed number, an unclosed or nested comment, a checksum
+            mismatch, an ``N`` word that is not first, an unexpected character.
+        UnsupportedGCodeError: expressions, parameters, O-words, polar coordinates.
+    """
+    if "\r" in text:
+        text = text.replace("\r\n", "\n")
+    if text.startswith("\ufeff"):
+        text = text[1:]
+    findall = _TOKEN.findall
+    special = _SPECIAL.search
+    line_number_ok = _LINE_NUMBER.fullmatch
+    new = _new
+    block_type = Block
+    nothing = _NOTHING
+    for number, raw in enumerate(text.split("\n"), 1):
+        if not raw:
+            continue
+        first = special(raw)
+        if len(raw) <= _LONGEST_FAST_LINE and (
+            first is None or (first.start() == 0 and raw[0] in "Nn" and special(raw, 1) is None)
+        ):
+            tokens = findall(raw)
+            if not tokens:
+                continue
+            letters, numbers, _paren, _semicolon, _other = zip(*tokens, strict=True)
+            try:
+                # A token that is not a word has an empty number, and float("") fails.
+                values = tuple(map(float, numbers))
+            except ValueError:
+                pass
+            else:
+                if first is None or line_number_ok(numbers[0]) is not None:
+                    yield new(
+                        block_type,
+                        (number, "".join(letters).upper(), values, numbers, nothing, raw, False),
+                    )
+                    continue
+        block = _read_line_carefully(raw, number, file)
+        if block is not None:
+            yield block
+
+
+def parse_blocks(text: str, *, file: str = "<string>") -> list[Block]:
+    """Read the whole of a G-code text into blocks (see :func:`tokenize`).
+
+    Raises:
+        GCodeError: as :func:`tokenize`, for the first bad line in the text.
+    """
+    return list(tokenize(text, file=file))
+
+
+def word_columns(block: Block) -> tuple[int, ...]:
+    """The 1-based column of each word's letter in ``block.source``, in word order."""
+    code = _without_checksum(block.source)
+    return tuple(match.start(1) + 1 for match in _TOKEN.finditer(code) if match.group(1))
+
+
+def _read_line_carefully(raw: str, number: int, file: str) -> Block | None:
+    stripped = raw.strip(_BLANKS)
+    if not stripped or stripped[0] == "/":
+        return None
+    if stripped == "%":
+        return Block(number, "", (), (), (), raw, True)
+    code = _checked_code(raw, number, file)
+    letters: list[str] = []
+    values: list[float] = []
+    numbers: list[str] = []
+    comments: list[str] = []
+    for match in _TOKEN.finditer(code):
+        letter, digits, paren, semicolon, other = match.groups()
+        if letter is not None:
+            column = match.start(1) + 1
+            upper = letter.upper()
+            if upper == "O":
+                raise UnsupportedGCodeError(
+                    "O-word: subroutines and control flow (O-words) are not supported",
+                    file=file,
+                    line=number,
+                    column=column,
+                    word=upper + digits.strip(_BLANKS),
+                )
+            value, text = _word_value(upper, digits, code, match.end(), number, column, file)
+            if upper == "N":
+                if letters:
+                    raise GCodeError(
+                        f"line number N{text} must be the first word of the line",
+                        file=file,
+                        line=number,
+                        column=column,
+                        word="N" + text,
+                    )
+                if _LINE_NUMBER.fullmatch(text) is None:
+                    raise GCodeError(
+                        f"line number N{text} is malformed: expected digits, optionally "
+                        "with a decimal part, such as N120 or N4567.789",
+                        file=file,
+                        line=number,
+                        column=column,
+                        word="N" + text,
+                    )
+            letters.append(upper)
+            values.append(value)
+            numbers.append(text)
+        elif other is not None:
+            raise _bad_character(other, code, match.start(5), number, file)
+        else:
+            comments.append(paren if paren is not None else semicolon)
+    if not letters and not comments:
+        return None
+    return Block(
+        number, "".join(letters), tuple(values), tuple(numbers), tuple(comments), raw, False
+    )
+
+
+def _word_value(
+    letter: str, digits: str, code: str, end: int, line: int, column: int, file: str
+) -> tuple[float, str]:
+    text = digits
+    if " " in text or "\t" in text or "\r" in text:
+        text = "".join(text.split())
+    if not text:
+        following = code[end : end + 1]
+        if following == "[":
+            raise UnsupportedGCodeError(
+                f"{letter}[...]: expressions in brackets are not "
+                "supported; write the number itself",
+                file=file,
+                line=line,
+                column=column,
+                word=letter + "[",
+            )
+        if following == "#":
+            raise UnsupportedGCodeError(
+                f"{letter}#...: parameters (#) are not supported; write the number itself",
+                file=file,
+                line=line,
+                column=column,
+                word=letter + "#",
+            )
+        raise GCodeError(
+            f"{letter} has no number: a word is a letter followed by a number, such as {letter}1.5",
+            file=file,
+            line=line,
+            column=column,
+            word=letter,
+        )
+    try:
+        value = float(text)
+    except ValueError:
+        raise GCodeError(
+            f"malformed number {text!r} in {letter}{text}: expected "
+            "digits with at most one '.', optionally signed, such as 1.5, -.5, +2 or 3.",
+            file=file,
+            line=line,
+            column=column,
+            word=letter + text,
+        ) from None
+    if not math.isfinite(value):
+        raise GCodeError(
+            f"number {letter}{text} is too large to represent",
+            file=file,
+            line=line,
+            column=column,
+            word=letter + text,
+        )
+    return value, text
+
+
+def _checksum_split(raw: str) -> tuple[str, str] | None:
+    """``(code, digits)`` if the line ends with a checksum ``*NN``, else ``None``."""
+    star = raw.rfind("*")
+    if star < 0:
+        return None
+    digits = raw[star + 1 :].strip(_BLANKS)
+    code = raw[:star]
+    if _CHECKSUM_DIGITS.fullmatch(digits) is None:
+        return None
+    if ";" in code or code.count("(") > code.count(")"):
+        return None  # the '*' is inside a comment
+    return code, digits
+
+
+def _without_checksum(raw: str) -> str:
+    split = _checksum_split(raw)
+    return raw if split is None else split[0]
+
+
+def _checked_code(raw: str, line: int, file: str) -> str:
+    split = _checksum_split(raw)
+    if split is None:
+        return raw
+    code, digits = split
+    actual = reduce(xor, code.encode("utf-8"), 0)
+    if actual != int(digits):
+        column = len(code) + 1
+        raise GCodeError(
+            f"checksum mismatch: the line ends with *{digits} but the XOR of its bytes "
+            f"before '*' is {actual}",
+            file=file,
+            line=line,
+            column=column,
+            word="*" + digits,
+        )
+    return code
+
+
+def _bad_character(char: str, code: str, index: int, line: int, file: str) -> GCodeError:
+    column = index + 1
+
+    def error(message: str, *, at: int = column, unsupported: bool = False) -> GCodeError:
+        kind = UnsupportedGCodeError if unsupported else GCodeError
+        return kind(message, file=file, line=line, column=at, word=char)
+
+    if char == "(":
+        close = code.find(")", index + 1)
+        if close < 0:
+            return error("unclosed comment: '(' has no ')' on this line")
+        nested = code.find("(", index + 1, close)
+        return error(
+            f"nested comment: '(' is inside the comment opened at "
+            f"column {column}; comments cannot nest",
+            at=nested + 1,
+        )
+    if char == ")":
+        return error("')' closes no comment")
+    if char == "#":
+        return error("'#': parameters are not supported", unsupported=True)
+    if char == "[":
+        return error(
+            "'[': expressions in brackets are not supported",
+            unsupported=True,
+        )
+    if char in "@^":
+        return error(
+            f"{char!r}: polar coordinates are not supported",
+            unsupported=True,
+        )
+    if char == "%":
+        return error("'%': a program delimiter must stand alone on its line")
+    if char == "/":
+        return error("'/': block delete is only allowed as the first character of a line")
+    if char == "*":
+        return error("'*': a checksum is '*' followed by digits at the end of the line")
+    if char.isalpha():
+        return error(f"unknown word letter {char!r}: words start with A-Z")
+    return error(f"unexpected character {char!r}")
