@@ -164,6 +164,9 @@ class Plan:
         line: (n,) G-code lines.
         length_mm, v_entry_mm_s, v_cruise_mm_s, v_exit_mm_s, accel_mm_s2, t_accel_s,
             t_cruise_s, t_decel_s, start_time_s: (n,) per-segment values.
+        v_junction_max_mm_s: (n + 1,) the speed limit at each vertex before the passes
+            (junction deviation, centripetal and nominal caps; 0 at stops): why a corner is
+            as slow as it is.
         duration_s: total time of the program.
         move_count: how many input moves were planned.
     """
@@ -181,6 +184,7 @@ class Plan:
     t_cruise_s: FloatArray
     t_decel_s: FloatArray
     start_time_s: FloatArray
+    v_junction_max_mm_s: FloatArray
     duration_s: float
     move_count: int
 
@@ -277,6 +281,13 @@ def _check_limits(limits: Sequence[AxisLimits]) -> tuple[AxisLimits, AxisLimits,
     return (limits[0], limits[1], limits[2])
 
 
+def _as_float(value: object) -> float:
+    """A feed as a float, or NaN when it is not a number (reported with its line)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return math.nan
+    return float(value)
+
+
 def _gap_error(move: Move, where: Vec3, expected: Vec3, tolerance: float) -> PlanningError:
     return PlanningError(
         f"line {move.line}: move starts at {where!r} but the previous move ended at "
@@ -335,7 +346,7 @@ def plan_moves(
 
     item_kind: list[int] = []
     item_line: list[int] = []
-    item_speed: list[float] = []
+    item_feed: list[float] = []
     item_dwell: list[float] = []
     item_count: list[int] = []
     end_x: list[float] = []
@@ -372,10 +383,10 @@ def plan_moves(
                 continue
             if cls is Linear:
                 item_kind.append(1)
-                item_speed.append(line_move.feed_mm_min / 60.0)  # type: ignore[union-attr]
+                item_feed.append(line_move.feed_mm_min)  # type: ignore[union-attr]
             else:
                 item_kind.append(0)
-                item_speed.append(inf)
+                item_feed.append(inf)
             item_line.append(move.line)
             item_dwell.append(0.0)
             item_count.append(1)
@@ -424,7 +435,7 @@ def plan_moves(
             shortest = 0.8 * math.hypot(abs(sweep) * r_min, normal_travel)
             chords = max(1, min(chords, int(shortest / min_segment)))
             item_kind.append(2)
-            item_speed.append(arc.feed_mm_min / 60.0)
+            item_feed.append(arc.feed_mm_min)
             item_line.append(arc.line)
             item_dwell.append(0.0)
             item_count.append(chords)
@@ -467,7 +478,7 @@ def plan_moves(
                     f"line {dwell.line}: dwell {seconds!r} s must be finite and >= 0"
                 )
             item_kind.append(3)
-            item_speed.append(0.0)
+            item_feed.append(0.0)
             item_line.append(dwell.line)
             item_dwell.append(float(seconds))
             item_count.append(1)
@@ -486,7 +497,7 @@ def plan_moves(
         total=total,
         item_kind=item_kind,
         item_line=item_line,
-        item_speed=item_speed,
+        item_feed=item_feed,
         item_dwell=item_dwell,
         item_count=item_count,
         ends=(end_x, end_y, end_z),
@@ -504,7 +515,7 @@ def _plan_columns(
     total: int,
     item_kind: list[int],
     item_line: list[int],
-    item_speed: list[float],
+    item_feed: list[float],
     item_dwell: list[float],
     item_count: list[int],
     ends: tuple[list[float], list[float], list[float]],
@@ -514,16 +525,19 @@ def _plan_columns(
     counts = np.array(item_count, dtype=np.int64)
     kinds_item = np.array(item_kind, dtype=np.int8)
     lines_item = np.array(item_line, dtype=np.int64)
-    speed_item = np.array(item_speed, dtype=np.float64)
-
+    try:
+        feed_item = np.array(item_feed, dtype=np.float64)
+    except (TypeError, ValueError):
+        feed_item = np.array([_as_float(feed) for feed in item_feed], dtype=np.float64)
     feed_moves = (kinds_item == SegmentKind.LINEAR) | (kinds_item == SegmentKind.ARC)
-    bad_feed = feed_moves & ~(np.isfinite(speed_item) & (speed_item > 0.0))
+    bad_feed = feed_moves & ~(np.isfinite(feed_item) & (feed_item > 0.0))
     if bad_feed.any():
         index = int(np.flatnonzero(bad_feed)[0])
         raise PlanningError(
-            f"line {int(lines_item[index])}: feed {speed_item[index] * 60.0!r} mm/min must "
+            f"line {int(lines_item[index])}: feed {item_feed[index]!r} mm/min must "
             "be positive and finite"
         )
+    speed_item = feed_item / 60.0
 
     vertices = np.empty((total + 1, 3), dtype=np.float64)
     vertices[0] = origin
@@ -573,8 +587,13 @@ def _plan_columns(
 
     reach = 2.0 * accel * length
     prefix = np.concatenate(([0.0], np.cumsum(reach)))
-    backward = np.minimum.accumulate((junction_sq + prefix)[::-1])[::-1] - prefix
-    speed_sq = np.maximum(prefix + np.minimum.accumulate(backward - prefix), 0.0)
+    # The j == i term of each minimum is taken exactly (``np.minimum`` with the limit itself),
+    # so rounding in the prefix sums never nudges a speed that no pass had to lower.
+    backward = np.minimum(
+        junction_sq, np.minimum.accumulate((junction_sq + prefix)[::-1])[::-1] - prefix
+    )
+    forward = prefix + np.minimum.accumulate(backward - prefix)
+    speed_sq = np.maximum(np.minimum(backward, forward), 0.0)
 
     entry_sq = speed_sq[:-1]
     exit_sq = speed_sq[1:]
@@ -608,6 +627,7 @@ def _plan_columns(
         t_cruise_s=_readonly(t_cruise),  # type: ignore[arg-type]
         t_decel_s=_readonly(t_decel),  # type: ignore[arg-type]
         start_time_s=_readonly(start_time),  # type: ignore[arg-type]
+        v_junction_max_mm_s=_readonly(np.sqrt(junction_sq)),  # type: ignore[arg-type]
         duration_s=duration,
         move_count=move_count,
     )

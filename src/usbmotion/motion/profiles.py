@@ -325,7 +325,9 @@ def jerk_limited_profile(
     try:
         result = Ruckig(dofs).calculate(parameters, trajectory)
     except RuckigError as error:
-        raise ProfileError(f"ruckig rejected the move ({described}): {error}") from error
+        raise ProfileError(
+            f"ruckig rejected the move ({described}): {str(error).strip()}"
+        ) from error
     if result not in (Result.Working, Result.Finished):
         raise ProfileError(f"ruckig could not compute the move ({described}): {result.name}")
     return JerkLimitedProfile(
