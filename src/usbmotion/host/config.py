@@ -1,0 +1,747 @@
+"""The machine configuration: one TOML file read into frozen, validated dataclasses.
+
+A file names the machine-wide settings at its top level and one ``[axes.<LETTER>]`` table
+per axis, with optional ``gains``, ``homing`` and ``sim`` sub-tables (see
+``examples/machine.toml`` and ``examples/real-machine.toml``). Every key is checked: an
+unknown key, a value of the wrong type or out of its range, and a missing required key
+are :class:`~usbmotion.errors.ConfigError` s naming the file, the dotted key
+(``axes.X.max_accel_mm_s2``), the line when it can be found, and what is allowed.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NoReturn
+
+from usbmotion.errors import ConfigError
+from usbmotion.host.device import AxisScale, to_sci
+from usbmotion.protocol import BY_NUMBER, DEVICE_NAME_MAX, QUEUE_CAPACITY
+from usbmotion.protocol.table import INT32_MAX, INT32_MIN
+
+AXIS_LETTERS = ("X", "Y", "Z", "A", "B", "C", "U", "V", "W")
+"""Axis names a machine may use: the RS274/NGC axis letters."""
+
+SIM_SCHEME = "sim://"
+
+_WATCHDOG_SLACK_MS = 250
+"""Watchdog headroom over the time a full motion queue lasts (a host may be quiet that long)."""
+
+
+# --- the dataclasses -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class PidGains:
+    """The PID gains of one axis's position loop (calls 9-11; 3 significant digits each).
+
+    Fields:
+        kp: proportional gain, volts per count of following error.
+        ki: integral gain, volts per count-second.
+        kd: derivative gain, volt-seconds per count.
+    """
+
+    kp: float
+    ki: float
+    kd: float
+
+
+@dataclass(frozen=True, slots=True)
+class HomingConfig:
+    """How one axis finds its reference switch.
+
+    Fields:
+        direction: ``-1`` homes onto the lower limit switch (the seed's way), ``+1`` onto
+            the upper one.
+        speed_mm_s: approach speed toward the switch, mm/s.
+        slow_speed_mm_s: back-off and slow re-approach speed, mm/s.
+        backoff_mm: distance to back off the switch before the slow re-approach, mm
+            (0: take the zero on the first touch).
+        position_mm: the machine position of the switch, assigned to the axis once homed
+            (by default the end of ``travel_mm`` the switch sits at).
+    """
+
+    direction: int
+    speed_mm_s: float
+    slow_speed_mm_s: float
+    backoff_mm: float
+    position_mm: float
+
+
+@dataclass(frozen=True, slots=True)
+class SimMotorConfig:
+    """The simulated motor behind a simulated axis (calls 12-17, 32, 33 and 34).
+
+    Fields:
+        update_interval_dms: motor integration step, tenths of a millisecond (at most the
+            servo period).
+        source_voltage_v: supply voltage, the ceiling of the PID output, volts.
+        torque_constant_mnm_per_a: torque constant, mNm per ampere (equal to the back-EMF
+            constant in SI units).
+        winding_resistance_ohm: winding resistance, ohms.
+        counts_per_revolution: encoder counts per output-shaft revolution (quadrature x4).
+        inertia_kg_m2: rotor plus load inertia at the encoder shaft, kg m^2.
+        viscous_friction_unm_per_rad_s: viscous friction at the encoder shaft, micro-newton-metres
+            per rad/s.
+        load_torque_mnm: constant load torque opposing motion, mNm.
+        start_mm: where the carriage stands at power-up, in machine millimetres; the
+            simulated limit switches are placed at the ends of the axis's ``travel_mm``
+            relative to it.
+    """
+
+    update_interval_dms: int
+    source_voltage_v: float
+    torque_constant_mnm_per_a: float
+    winding_resistance_ohm: float
+    counts_per_revolution: int
+    inertia_kg_m2: float
+    viscous_friction_unm_per_rad_s: float
+    load_torque_mnm: float
+    start_mm: float
+
+
+SIM_MOTOR_DEFAULTS: Mapping[str, float] = {
+    "update_interval_dms": 10,
+    "source_voltage_v": 12.0,
+    "torque_constant_mnm_per_a": 334.6,
+    "winding_resistance_ohm": 2.182,
+    "counts_per_revolution": 1920,
+    "inertia_kg_m2": 1.1e-3,
+    "viscous_friction_unm_per_rad_s": 500.0,
+    "load_torque_mnm": 50.0,
+}
+"""The simulated motor of a ``sim`` table's omitted keys: the device's own power-up
+defaults (``usbmotion.device.motor.MotorParams``), a 12 V 30:1 gearmotor with a 64 CPR
+encoder (1920 counts per output revolution)."""
+
+
+@dataclass(frozen=True, slots=True)
+class AxisConfig:
+    """One axis: which device drives it, its scale, limits, gains and homing.
+
+    Fields:
+        name: the axis letter (``X``, ``Y``, ``Z``, ``A``, ...).
+        device: the device name written in the device's flash (call 18), by which
+            discovery finds it among the serial ports; ``None`` when ``url`` is given alone.
+        url: where the device is, when known: ``sim://X`` (an in-process simulated
+            device), ``/dev/ttyACM0``, ``COM3``, ``socket://host:port``; ``None`` to find
+            ``device`` by discovery.
+        counts_per_mm: encoder counts per millimetre of axis travel (> 0).
+        max_velocity_mm_s: the fastest the axis may move, mm/s.
+        max_accel_mm_s2: the largest acceleration of the axis, mm/s^2.
+        max_jerk_mm_s3: the largest jerk of jerk-limited profiles, mm/s^3.
+        travel_mm: (lowest, highest) machine position of the axis, mm.
+        gains: the PID gains.
+        following_error_limit_mm: a larger |desired - actual| disables the servo and
+            latches a fault on the device, mm (0: no limit).
+        homing: how the axis homes.
+        sim: the simulated motor, for simulated axes (always set for ``sim://`` axes;
+            ``None`` on real hardware unless the file gives a ``sim`` table).
+    """
+
+    name: str
+    device: str | None
+    url: str | None
+    counts_per_mm: float
+    max_velocity_mm_s: float
+    max_accel_mm_s2: float
+    max_jerk_mm_s3: float
+    travel_mm: tuple[float, float]
+    gains: PidGains
+    following_error_limit_mm: float
+    homing: HomingConfig
+    sim: SimMotorConfig | None
+
+    @property
+    def scale(self) -> AxisScale:
+        """Millimetres to counts for this axis."""
+        return AxisScale(self.counts_per_mm)
+
+    @property
+    def is_simulated(self) -> bool:
+        """True when the axis is an in-process simulated device (a ``sim://`` URL)."""
+        return self.url is not None and self.url.lower().startswith(SIM_SCHEME)
+
+    @property
+    def label(self) -> str:
+        """How messages name the axis's device: ``X (sim://X)``, ``Y (Y AXIS)``."""
+        return f"{self.name} ({self.device or self.url})"
+
+    @property
+    def following_error_limit_counts(self) -> int:
+        """The following-error limit in counts (0: no limit)."""
+        return round(self.following_error_limit_mm * self.counts_per_mm)
+
+    @property
+    def sim_travel_counts(self) -> tuple[int, int] | None:
+        """The simulated switch positions in counts from power-up (call 34), if simulated."""
+        if self.sim is None:
+            return None
+        low, high = self.travel_mm
+        return (
+            round((low - self.sim.start_mm) * self.counts_per_mm),
+            round((high - self.sim.start_mm) * self.counts_per_mm),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class MachineConfig:
+    """A machine: several axes, each a device, with settings they share.
+
+    Fields:
+        path: the file the configuration was read from.
+        name: a label for the machine (default: the file's stem).
+        axes: the axes, in the order the file lists them.
+        servo_interval_dms: servo period of every device, tenths of a millisecond (call 5).
+        motion_scalar: servo ticks per motion-queue value (call 6); the motion period is
+            ``servo_interval_dms / 10`` ms times this.
+        junction_deviation_mm: the planner's cornering tolerance (grbl/Klipper model), mm.
+        arc_tolerance_mm: the largest distance between an arc and its chords, mm.
+        homing_order: groups of axes homed together, in order: ``(("Z",), ("X", "Y"))``
+            homes Z first, then X and Y together. Every axis is in exactly one group.
+        watchdog_ms: a device that hears nothing for this long while enabled disables its
+            servo and latches a fault (call 28; 0: off). It must outlast a full motion queue.
+        reply_timeout_s: how long the host waits for a device's answer, seconds.
+        ports: extra ports or URLs discovery searches for device names, besides the
+            computer's serial ports (``socket://host:port`` of a ``usbmotion sim --tcp``).
+    """
+
+    path: Path
+    name: str
+    axes: tuple[AxisConfig, ...]
+    servo_interval_dms: int
+    motion_scalar: int
+    junction_deviation_mm: float
+    arc_tolerance_mm: float
+    homing_order: tuple[tuple[str, ...], ...]
+    watchdog_ms: int
+    reply_timeout_s: float
+    ports: tuple[str, ...]
+
+    @property
+    def axis_names(self) -> tuple[str, ...]:
+        """The axis letters, in file order."""
+        return tuple(axis.name for axis in self.axes)
+
+    def axis(self, name: str) -> AxisConfig:
+        """The axis with this letter.
+
+        Raises:
+            KeyError: no such axis (the message lists the axes there are).
+        """
+        for axis in self.axes:
+            if axis.name == name:
+                return axis
+        raise KeyError(f"no axis {name!r}; this machine has {', '.join(self.axis_names)}")
+
+    @property
+    def servo_period_s(self) -> float:
+        """Servo period, seconds."""
+        return self.servo_interval_dms * 1e-4
+
+    @property
+    def motion_period_s(self) -> float:
+        """Seconds between motion-queue values: servo period times the scalar."""
+        return self.servo_period_s * self.motion_scalar
+
+    @property
+    def is_simulated(self) -> bool:
+        """True when every axis is an in-process simulated device."""
+        return all(axis.is_simulated for axis in self.axes)
+
+
+# --- loading ---------------------------------------------------------------------------------
+
+
+def load_config(path: str | Path) -> MachineConfig:
+    """Read and validate a machine configuration file.
+
+    Raises:
+        ConfigError: the file cannot be read, is not valid TOML, or holds an unknown key,
+            a bad value or lacks a required one (the message names the file, the dotted
+            key, the line and what is allowed).
+    """
+    file = Path(path)
+    try:
+        text = file.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as error:
+        raise ConfigError(f"{file}: cannot read the machine configuration: {error}",
+                          path=str(file)) from error
+    return parse_config(text, path=file)
+
+
+def parse_config(text: str, *, path: str | Path = "<string>") -> MachineConfig:
+    """Validate a machine configuration given as TOML text.
+
+    Parameters:
+        text: the TOML document.
+        path: the file it came from, for messages and ``MachineConfig.path``.
+
+    Raises:
+        ConfigError: as :func:`load_config`.
+    """
+    source = _Source(Path(path), text)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        detail = str(error)
+        match = re.search(r"at line (\d+), column (\d+)", detail)
+        line = int(match.group(1)) if match else max(1, len(text.splitlines()))
+        raise ConfigError(
+            f"{source.path}:{line}: TOML syntax error: {detail}", path=str(source.path),
+            line=line,
+        ) from None
+    return _machine(_Reader(source, data, ()))
+
+
+# --- reading with messages that locate the problem -----------------------------------------
+
+
+_REQUIRED: Any = object()
+_HEADER = re.compile(r"^\s*\[\[?\s*([^\[\]]+?)\s*\]\]?\s*(#.*)?$")
+_BARE_OR_QUOTED = r"""(?:[A-Za-z0-9_-]+|"[^"]*"|'[^']*')"""
+_KEY_LINE = re.compile(rf"^\s*({_BARE_OR_QUOTED}(?:\s*\.\s*{_BARE_OR_QUOTED})*)\s*=")
+
+
+def _key_path(dotted: str) -> tuple[str, ...]:
+    return tuple(part.strip().strip("\"'") for part in dotted.split("."))
+
+
+class _Source:
+    """The text of a configuration file, for finding the line a key is written on."""
+
+    def __init__(self, path: Path, text: str) -> None:
+        self.path = path
+        self._entries: list[tuple[int, tuple[str, ...], bool]] = []
+        table: tuple[str, ...] = ()
+        for number, line in enumerate(text.splitlines(), start=1):
+            header = _HEADER.match(line)
+            if header is not None:
+                table = _key_path(header.group(1))
+                self._entries.append((number, table, True))
+                continue
+            key = _KEY_LINE.match(line)
+            if key is not None:
+                self._entries.append((number, table + _key_path(key.group(1)), False))
+
+    def line_of(self, key: tuple[str, ...]) -> int | None:
+        """The line that writes ``key``: the key itself, its table's header, or the inline
+        table or dotted key that holds it; ``None`` when none can be found."""
+        exact = [n for n, k, _ in self._entries if k == key]
+        if exact:
+            return exact[0]
+        holders = [(len(k), n) for n, k, _ in self._entries if k == key[: len(k)] and k]
+        if holders:
+            return max(holders)[1]
+        inside = [n for n, k, _ in self._entries if k[: len(key)] == key]
+        return inside[0] if inside else None
+
+    def fail(self, key: tuple[str, ...], problem: str) -> NoReturn:
+        dotted = ".".join(key) if key else "(top level)"
+        line = self.line_of(key) if key else None
+        where = f"{self.path}:{line}" if line is not None else f"{self.path}"
+        raise ConfigError(f"{where}: {dotted}: {problem}", path=str(self.path), key=dotted,
+                          line=line)
+
+
+def _show(value: object) -> str:
+    return f"{value!r} ({type(value).__name__})" if not isinstance(value, str) else repr(value)
+
+
+class _Reader:
+    """One table of the file: typed getters that record which keys were read."""
+
+    def __init__(self, source: _Source, data: Mapping[str, Any], prefix: tuple[str, ...]) -> None:
+        self.source = source
+        self.data = data
+        self.prefix = prefix
+        self._read: set[str] = set()
+
+    def key(self, name: str) -> tuple[str, ...]:
+        return (*self.prefix, name)
+
+    def fail(self, name: str | None, problem: str) -> NoReturn:
+        self.source.fail(self.key(name) if name is not None else self.prefix, problem)
+
+    def has(self, name: str) -> bool:
+        return name in self.data
+
+    def _get(self, name: str, default: Any, allowed: str) -> Any:
+        self._read.add(name)
+        if name in self.data:
+            return self.data[name]
+        if default is _REQUIRED:
+            self.fail(name, f"missing required key {name!r}; allowed: {allowed}")
+        return default
+
+    def number(self, name: str, *, default: Any = _REQUIRED, minimum: float | None = None,
+               maximum: float | None = None, above: float | None = None, unit: str) -> float:
+        """A float (an integer is accepted) within the given bounds."""
+        bounds = []
+        if above is not None:
+            bounds.append(f"> {above:g}")
+        if minimum is not None:
+            bounds.append(f">= {minimum:g}")
+        if maximum is not None:
+            bounds.append(f"<= {maximum:g}")
+        allowed = f"a number {' and '.join(bounds)} ({unit})" if bounds else f"a number ({unit})"
+        value = self._get(name, default, allowed)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            self.fail(name, f"{_show(value)} is not a number; allowed: {allowed}")
+        number = float(value)
+        out_of_range = (
+            not math.isfinite(number)
+            or (above is not None and number <= above)
+            or (minimum is not None and number < minimum)
+            or (maximum is not None and number > maximum)
+        )
+        if out_of_range:
+            self.fail(name, f"{value!r} is out of range; allowed: {allowed}")
+        return number
+
+    def integer(self, name: str, *, default: Any = _REQUIRED, minimum: int, maximum: int,
+                unit: str) -> int:
+        """An integer within ``minimum..maximum``."""
+        allowed = f"an integer {minimum}..{maximum} ({unit})"
+        value = self._get(name, default, allowed)
+        if isinstance(value, bool) or not isinstance(value, int):
+            self.fail(name, f"{_show(value)} is not an integer; allowed: {allowed}")
+        if not minimum <= value <= maximum:
+            self.fail(name, f"{value!r} is out of range; allowed: {allowed}")
+        return value
+
+    def string(self, name: str, *, default: Any = _REQUIRED, allowed: str) -> Any:
+        """A string (or ``default`` when absent)."""
+        value = self._get(name, default, allowed)
+        if value is not default and not isinstance(value, str):
+            self.fail(name, f"{_show(value)} is not a string; allowed: {allowed}")
+        return value
+
+    def table(self, name: str, *, required: bool = False, allowed: str) -> _Reader | None:
+        """A sub-table, or ``None`` when it is absent and optional."""
+        value = self._get(name, _REQUIRED if required else None, allowed)
+        if value is None:
+            return None
+        if not isinstance(value, dict):
+            self.fail(name, f"{_show(value)} is not a table; allowed: {allowed}")
+        return _Reader(self.source, value, self.key(name))
+
+    def raw(self, name: str, *, default: Any = _REQUIRED, allowed: str) -> Any:
+        """A value of any type, for the caller to check."""
+        return self._get(name, default, allowed)
+
+    def finish(self, known: tuple[str, ...] | None = None) -> None:
+        """Reject every key that was not read."""
+        for name in self.data:
+            if name not in self._read:
+                listed = ", ".join(sorted(known if known is not None else self._read))
+                self.fail(name, f"unknown key {name!r}; allowed keys here: {listed}")
+
+
+# --- the schema ------------------------------------------------------------------------------
+
+
+def _machine(top: _Reader) -> MachineConfig:
+    path = top.source.path
+    name = top.string("name", default=path.stem, allowed="a string, a label for the machine")
+    servo_interval_dms = top.integer(
+        "servo_interval_dms", default=10, minimum=1, maximum=10000,
+        unit="servo period in tenths of a millisecond; 10 = 1 ms",
+    )
+    motion_scalar = top.integer(
+        "motion_scalar", default=1, minimum=1, maximum=65535,
+        unit="servo ticks per motion-queue value",
+    )
+    junction_deviation_mm = top.number(
+        "junction_deviation_mm", default=0.01, above=0, maximum=10, unit="mm"
+    )
+    arc_tolerance_mm = top.number("arc_tolerance_mm", default=0.002, above=0, maximum=1,
+                                  unit="mm")
+    queue_ms = QUEUE_CAPACITY * servo_interval_dms * motion_scalar / 10
+    watchdog_ms = top.integer(
+        "watchdog_ms", default=max(2000, math.ceil(queue_ms) + _WATCHDOG_SLACK_MS), minimum=0,
+        maximum=600_000, unit="milliseconds; 0 turns the watchdog off",
+    )
+    if 0 < watchdog_ms < queue_ms + _WATCHDOG_SLACK_MS:
+        top.fail(
+            "watchdog_ms",
+            f"{watchdog_ms!r} ms is shorter than a full motion queue lasts"
+            f" ({QUEUE_CAPACITY} values x {queue_ms / QUEUE_CAPACITY:g} ms = {queue_ms:g} ms)"
+            f" plus {_WATCHDOG_SLACK_MS} ms, so a host waiting on a full queue would trip it;"
+            f" allowed: 0 (off) or >= {math.ceil(queue_ms) + _WATCHDOG_SLACK_MS}",
+        )
+    reply_timeout_s = top.number("reply_timeout_s", default=1.0, above=0, maximum=60,
+                                 unit="seconds")
+    ports = _string_list(top, "ports", "a list of port paths or URLs to search for devices")
+    axes_table = top.table(
+        "axes", required=True,
+        allowed=f"a table of axes, [axes.X], [axes.Y], ... (letters {', '.join(AXIS_LETTERS)})",
+    )
+    assert axes_table is not None
+    axes = _axes(axes_table, servo_interval_dms)
+    order = _homing_order(top, axes)
+    top.finish((
+        "name", "servo_interval_dms", "motion_scalar", "junction_deviation_mm",
+        "arc_tolerance_mm", "watchdog_ms", "reply_timeout_s", "ports", "homing_order", "axes",
+    ))
+    return MachineConfig(
+        path=path, name=name, axes=axes, servo_interval_dms=servo_interval_dms,
+        motion_scalar=motion_scalar, junction_deviation_mm=junction_deviation_mm,
+        arc_tolerance_mm=arc_tolerance_mm, homing_order=order, watchdog_ms=watchdog_ms,
+        reply_timeout_s=reply_timeout_s, ports=ports,
+    )
+
+
+def _string_list(reader: _Reader, name: str, allowed: str) -> tuple[str, ...]:
+    value = reader.raw(name, default=[], allowed=allowed)
+    if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
+        reader.fail(name, f"{_show(value)} is not a list of non-empty strings; allowed: {allowed}")
+    return tuple(value)
+
+
+def _axes(table: _Reader, servo_interval_dms: int) -> tuple[AxisConfig, ...]:
+    letters = ", ".join(AXIS_LETTERS)
+    if not table.data:
+        table.fail(None, f"no axes; add at least one [axes.<LETTER>] table ({letters})")
+    axes: list[AxisConfig] = []
+    for name in table.data:
+        if name not in AXIS_LETTERS:
+            table.fail(name, f"{name!r} is not an axis name; allowed: {letters}")
+        reader = table.table(name, required=True, allowed="a table of axis settings")
+        assert reader is not None
+        axes.append(_axis(name, reader, servo_interval_dms))
+    for key in ("device", "url"):
+        seen: dict[str, str] = {}
+        for axis in axes:
+            value = getattr(axis, key)
+            if value is None:
+                continue
+            if value in seen:
+                table.fail(
+                    f"{axis.name}", f"{key} {value!r} is also axis {seen[value]}'s;"
+                    f" allowed: a {key} used by one axis only",
+                )
+            seen[value] = axis.name
+    return tuple(axes)
+
+
+def _device_name(reader: _Reader) -> str | None:
+    allowed = f"1..{DEVICE_NAME_MAX} printable ASCII characters, the name in the device's flash"
+    name = reader.string("device", default=None, allowed=allowed)
+    if name is None:
+        return None
+    assert isinstance(name, str)
+    if not 0 < len(name) <= DEVICE_NAME_MAX or not all(32 <= ord(c) <= 126 for c in name):
+        reader.fail("device", f"{name!r} is not a device name; allowed: {allowed}")
+    return name
+
+
+def _url(reader: _Reader) -> str | None:
+    allowed = "a port or URL: sim://NAME[?latency_us=N], /dev/ttyACM0, COM3, socket://host:port"
+    url = reader.string("url", default=None, allowed=allowed)
+    if url is None:
+        return None
+    assert isinstance(url, str)
+    if not url.strip():
+        reader.fail("url", f"{url!r} is empty; allowed: {allowed}")
+    if url.lower().startswith(SIM_SCHEME):
+        from usbmotion.sim.urlhandler.protocol_sim import parse_sim_url  # noqa: PLC0415
+
+        try:
+            parse_sim_url(url)
+        except Exception as error:  # pyserial's SerialException names the problem
+            reader.fail("url", f"{error}; allowed: {allowed}")
+        if "world=" in url.split("?", 1)[-1]:
+            reader.fail(
+                "url", f"{url!r} names a world; the machine chooses the world its simulated"
+                " devices live in (Machine.connect(world=...)); allowed: sim://NAME"
+                "[?latency_us=N]",
+            )
+    return url
+
+
+def _axis(name: str, reader: _Reader, servo_interval_dms: int) -> AxisConfig:
+    device = _device_name(reader)
+    url = _url(reader)
+    if device is None and url is None:
+        reader.fail(
+            "device", "missing required key 'device' or 'url'; allowed: give the device name"
+            " written in its flash (found by discovery) or its port/URL (sim://X, /dev/ttyACM0,"
+            " socket://host:port)",
+        )
+    counts_per_mm = reader.number("counts_per_mm", above=0, maximum=1e7,
+                                  unit="encoder counts per mm")
+    max_velocity = reader.number("max_velocity_mm_s", above=0, maximum=1e5, unit="mm/s")
+    max_accel = reader.number("max_accel_mm_s2", above=0, maximum=1e7, unit="mm/s^2")
+    max_jerk = reader.number("max_jerk_mm_s3", default=20 * max_accel, above=0, maximum=1e10,
+                             unit="mm/s^3; default 20 x max_accel_mm_s2")
+    travel = _travel(reader, counts_per_mm)
+    gains = _gains(reader)
+    fe_limit = reader.number(
+        "following_error_limit_mm", default=2.0, minimum=0,
+        maximum=min(travel[1] - travel[0], INT32_MAX / counts_per_mm),
+        unit="mm; 0 turns the limit off",
+    )
+    homing = _homing(reader, travel, max_velocity)
+    simulated = url is not None and url.lower().startswith(SIM_SCHEME)
+    sim = _sim(reader, travel, counts_per_mm, servo_interval_dms, simulated=simulated)
+    reader.finish((
+        "device", "url", "counts_per_mm", "max_velocity_mm_s", "max_accel_mm_s2",
+        "max_jerk_mm_s3", "travel_mm", "gains", "following_error_limit_mm", "homing", "sim",
+    ))
+    return AxisConfig(
+        name=name, device=device, url=url, counts_per_mm=counts_per_mm,
+        max_velocity_mm_s=max_velocity, max_accel_mm_s2=max_accel, max_jerk_mm_s3=max_jerk,
+        travel_mm=travel, gains=gains, following_error_limit_mm=fe_limit, homing=homing,
+        sim=sim,
+    )
+
+
+def _travel(reader: _Reader, counts_per_mm: float) -> tuple[float, float]:
+    allowed = "[lowest, highest] machine position in mm, lowest < highest, within int32 counts"
+    value = reader.raw("travel_mm", allowed=allowed)
+    if (
+        not isinstance(value, list) or len(value) != 2
+        or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+    ):
+        reader.fail("travel_mm", f"{_show(value)} is not a pair of numbers; allowed: {allowed}")
+    low, high = float(value[0]), float(value[1])
+    reach = max(abs(low), abs(high), high - low) * counts_per_mm
+    if not (math.isfinite(low) and math.isfinite(high) and low < high) or reach > INT32_MAX // 2:
+        reader.fail("travel_mm", f"{value!r} is out of range; allowed: {allowed}")
+    return (low, high)
+
+
+def _sci(reader: _Reader, name: str, value: float, *, call: int, digits: int) -> None:
+    """Check that ``value`` can be sent to the device as call ``call``'s ``C E`` pair."""
+    coefficient, exponent = to_sci(value, digits=digits, parameter=name)
+    if coefficient == 0:
+        exponent = 0
+    problem = BY_NUMBER[call].problem((coefficient, exponent))
+    if problem is not None:
+        spec = BY_NUMBER[call]
+        low = spec.params[0].minimum * 10.0 ** spec.params[1].minimum
+        high = spec.params[0].maximum * 10.0 ** spec.params[1].maximum
+        reader.fail(
+            name, f"{value!r} cannot be sent to the device (call {call}: {problem[1]});"
+            f" allowed: {'0 or ' if spec.params[0].minimum <= 0 else ''}{low:g}..{high:g}",
+        )
+
+
+def _gains(reader: _Reader) -> PidGains:
+    table = reader.table("gains", required=True,
+                         allowed="a table with kp, ki, kd (PID gains, numbers >= 0)")
+    assert table is not None
+    values: dict[str, float] = {}
+    for key, call, unit in (("kp", 9, "V per count"), ("ki", 10, "V per count-second"),
+                            ("kd", 11, "V-seconds per count")):
+        values[key] = table.number(key, minimum=0, unit=unit)
+        _sci(table, key, values[key], call=call, digits=3)
+    table.finish(("kp", "ki", "kd"))
+    return PidGains(**values)
+
+
+def _homing(reader: _Reader, travel: tuple[float, float], max_velocity: float) -> HomingConfig:
+    table = reader.table("homing", allowed="a table: direction, speed_mm_s, slow_speed_mm_s,"
+                         " backoff_mm, position_mm")
+    table = table if table is not None else _Reader(reader.source, {}, reader.key("homing"))
+    allowed = "-1 (home onto the lower limit switch) or 1 (the upper one)"
+    direction = table.raw("direction", default=-1, allowed=allowed)
+    if isinstance(direction, bool) or direction not in (-1, 1):
+        table.fail("direction", f"{_show(direction)} is not a homing direction; allowed: {allowed}")
+    speed = table.number("speed_mm_s", default=min(max_velocity / 4, 20.0), above=0,
+                         maximum=max_velocity, unit="mm/s, at most max_velocity_mm_s")
+    slow = table.number("slow_speed_mm_s", default=speed / 10, above=0, maximum=speed,
+                        unit="mm/s, at most speed_mm_s")
+    length = travel[1] - travel[0]
+    backoff = table.number("backoff_mm", default=min(2.0, length / 4), minimum=0,
+                           maximum=length / 2, unit="mm, at most half the travel")
+    position = table.number(
+        "position_mm", default=travel[0] if direction == -1 else travel[1],
+        minimum=travel[0], maximum=travel[1], unit="mm, within travel_mm",
+    )
+    table.finish(("direction", "speed_mm_s", "slow_speed_mm_s", "backoff_mm", "position_mm"))
+    return HomingConfig(int(direction), speed, slow, backoff, position)
+
+
+def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
+         servo_interval_dms: int, *, simulated: bool) -> SimMotorConfig | None:
+    table = reader.table("sim", allowed="a table describing the simulated motor")
+    if table is None:
+        if not simulated:
+            return None
+        table = _Reader(reader.source, {}, reader.key("sim"))
+    d = SIM_MOTOR_DEFAULTS
+    interval = table.integer(
+        "update_interval_dms", default=min(int(d["update_interval_dms"]), servo_interval_dms),
+        minimum=1,
+        maximum=servo_interval_dms, unit="tenths of a millisecond, at most servo_interval_dms",
+    )
+    values: dict[str, float] = {}
+    for key, call, unit, signed in (
+        ("source_voltage_v", 13, "volts", False),
+        ("torque_constant_mnm_per_a", 14, "mNm per ampere", False),
+        ("winding_resistance_ohm", 15, "ohms", False),
+        ("inertia_kg_m2", 17, "kg m^2", False),
+        ("viscous_friction_unm_per_rad_s", 32, "uNm per rad/s", False),
+        ("load_torque_mnm", 33, "mNm", True),
+    ):
+        if signed:
+            values[key] = table.number(key, default=d[key], unit=unit)
+        else:
+            values[key] = table.number(key, default=d[key], above=0, unit=unit)
+        _sci(table, key, values[key], call=call, digits=4)
+    counts_per_rev = table.integer(
+        "counts_per_revolution", default=int(d["counts_per_revolution"]), minimum=1,
+        maximum=BY_NUMBER[16].params[0].maximum, unit="encoder counts per revolution",
+    )
+    start = table.number("start_mm", default=(travel[0] + travel[1]) / 2, minimum=travel[0],
+                         maximum=travel[1], unit="mm, within travel_mm; default mid-travel")
+    for end in travel:
+        if not INT32_MIN <= round((end - start) * counts_per_mm) <= INT32_MAX:
+            table.fail("start_mm", f"{start!r} puts a switch outside int32 counts")
+    table.finish((
+        "update_interval_dms", "source_voltage_v", "torque_constant_mnm_per_a",
+        "winding_resistance_ohm", "counts_per_revolution", "inertia_kg_m2",
+        "viscous_friction_unm_per_rad_s", "load_torque_mnm", "start_mm",
+    ))
+    return SimMotorConfig(
+        update_interval_dms=interval, counts_per_revolution=counts_per_rev, start_mm=start,
+        **values,
+    )
+
+
+def _homing_order(top: _Reader, axes: tuple[AxisConfig, ...]) -> tuple[tuple[str, ...], ...]:
+    names = [axis.name for axis in axes]
+    allowed = (
+        'a list of axis names or lists of names homed together, e.g. ["Z", ["X", "Y"]],'
+        f" naming each axis ({', '.join(names)}) once"
+    )
+    if "Z" in names and len(names) > 1:
+        default: list[Any] = ["Z", [n for n in names if n != "Z"]]
+    else:
+        default = [names]
+    value = top.raw("homing_order", default=default, allowed=allowed)
+    if not isinstance(value, list) or not value:
+        top.fail("homing_order", f"{_show(value)} is not a list; allowed: {allowed}")
+    groups: list[tuple[str, ...]] = []
+    for item in value:
+        group = [item] if isinstance(item, str) else item
+        if not isinstance(group, list) or not group or not all(isinstance(g, str) for g in group):
+            top.fail("homing_order", f"{_show(item)} is not an axis name or a list of them;"
+                     f" allowed: {allowed}")
+        groups.append(tuple(group))
+    listed = [name for group in groups for name in group]
+    for name in listed:
+        if name not in names:
+            top.fail("homing_order", f"{name!r} is not an axis of this machine; allowed: {allowed}")
+        if listed.count(name) > 1:
+            top.fail("homing_order", f"{name!r} is listed twice; allowed: {allowed}")
+    missing = [name for name in names if name not in listed]
+    if missing:
+        top.fail("homing_order", f"{', '.join(missing)} never homed; allowed: {allowed}")
+    return tuple(groups)
