@@ -433,6 +433,17 @@ def test_bad_limits_and_config_are_rejected(build: object, text: str) -> None:
         ([Linear(7, (0, 0, 0), (1, 0, 0), math.nan)], "line 7: feed nan"),
         ([Linear(3, (0, 0, 0), (math.nan, 0, 0), 100.0)], "line 3: position"),
         ([Linear(4, (1, 0, 0), (2, 0, 0), 100.0)], "line 4: move starts at"),
+        (
+            [Linear(3, (0, 0, 0), (math.nan, 0, 0), 100.0), Rapid(4, (math.nan, 0, 0), (0, 0, 0))],
+            r"line 3: position \(nan, 0.0, 0.0\) is not finite",
+        ),
+        (
+            [
+                Linear(3, (0, 0, 0), (float("nan"), 0, 0), 100.0),
+                Rapid(4, (float("nan"), 0, 0), (0, 0, 0)),
+            ],
+            "line 4: position .* not finite",
+        ),
         ([Dwell(5, (0, 0, 0), -1.0)], "line 5: dwell -1.0"),
         ([Arc(6, (0, 0, 0), (0, 0, 0), (0, 0, 0), Plane.XY, 1, 100.0)], "line 6: arc"),
         ([Arc(8, (0, 0, 0), (2, 0, 0), (1, 0, 0), Plane.XY, 0, 100.0)], "rotation 0"),

@@ -69,7 +69,8 @@ _FULL_CIRCLE_FUZZ_MM = 1e-8
 _MAX_THETA_PER_CHORD = 2.0 * math.pi / 3.0
 _SPLIT_SCALE = 2.0**20
 
-_ArcRow = tuple[int, int, float, float, float, float, float, float, float, float, int]
+_ArcRow = tuple[int, int, float, float, float, float, float, float, float, float]
+_AXES_BY_FIRST = {plane.axes[0]: plane.axes for plane in Plane}
 
 
 class SegmentKind(IntEnum):
@@ -289,6 +290,10 @@ def _as_float(value: object) -> float:
 
 
 def _gap_error(move: Move, where: Vec3, expected: Vec3, tolerance: float) -> PlanningError:
+    if not all(math.isfinite(value) for value in (*where, *expected)):
+        return PlanningError(
+            f"line {move.line}: position {where!r} (after {expected!r}) is not finite"
+        )
     return PlanningError(
         f"line {move.line}: move starts at {where!r} but the previous move ended at "
         f"{expected!r}; moves must join within {tolerance!r} mm"
@@ -455,7 +460,6 @@ def plan_moves(
                         sweep,
                         s[an],
                         normal_travel,
-                        len(item_kind) - 1,
                     )
                 )
                 arc_planes.append((a1, a2, an))
@@ -638,21 +642,26 @@ def _fill_arc_vertices(
     arc_rows: list[_ArcRow],
     arc_planes: list[tuple[int, int, int]],
 ) -> None:
+    """Write the inner chord vertices of every arc, one numpy pass per plane."""
     rows = np.array(arc_rows, dtype=np.float64)
-    planes = np.array(arc_planes, dtype=np.int64)
-    first = rows[:, 0].astype(np.int64)
-    chords = rows[:, 1].astype(np.int64)
-    inner = chords - 1
-    arc_of = np.repeat(np.arange(len(arc_rows)), inner)
-    offsets = np.cumsum(inner) - inner
-    step = np.arange(int(inner.sum()), dtype=np.int64) - np.repeat(offsets, inner) + 1
-    fraction = step / chords[arc_of]
-    angle = rows[arc_of, 6] + rows[arc_of, 7] * fraction
-    radius = rows[arc_of, 4] + rows[arc_of, 5] * fraction
-    index = first[arc_of] + step
-    vertices[index, planes[arc_of, 0]] = rows[arc_of, 2] + radius * np.cos(angle)
-    vertices[index, planes[arc_of, 1]] = rows[arc_of, 3] + radius * np.sin(angle)
-    vertices[index, planes[arc_of, 2]] = rows[arc_of, 8] + rows[arc_of, 9] * fraction
+    plane_of = np.array([axes[0] for axes in arc_planes], dtype=np.int64)
+    for first_axis in np.unique(plane_of).tolist():
+        selected = rows[plane_of == first_axis]
+        axis1, axis2, normal = _AXES_BY_FIRST[first_axis]
+        first = selected[:, 0].astype(np.int64)
+        chords = selected[:, 1].astype(np.int64)
+        inner = chords - 1
+        offsets = np.cumsum(inner) - inner
+        step = np.arange(int(inner.sum()), dtype=np.int64) - np.repeat(offsets, inner) + 1
+        fraction = step / np.repeat(chords, inner)
+        angle = np.repeat(selected[:, 6], inner) + np.repeat(selected[:, 7], inner) * fraction
+        radius = np.repeat(selected[:, 4], inner) + np.repeat(selected[:, 5], inner) * fraction
+        index = np.repeat(first, inner) + step
+        vertices[index, axis1] = np.repeat(selected[:, 2], inner) + radius * np.cos(angle)
+        vertices[index, axis2] = np.repeat(selected[:, 3], inner) + radius * np.sin(angle)
+        vertices[index, normal] = (
+            np.repeat(selected[:, 8], inner) + np.repeat(selected[:, 9], inner) * fraction
+        )
 
 
 def _junction_limits(

@@ -1,0 +1,264 @@
+"""Speed of the motion planner, the sampler and the Hermite tick evaluation.
+
+A seeded random program of G0-G3 moves (``Move`` objects: 10% rapids, 50% lines, 40% arcs
+in all three planes, a fifth of them helical, radii 0.5-20 mm, sweeps 10-270 degrees) is
+planned with ``plan_moves``; the figure is input moves per second (and the chords they
+become). A lines-only program of the same length shows the per-move Python cost alone.
+
+The plan of the first ``--sample-moves`` moves is sampled with ``sample_plan`` at 1 ms and
+at 0.1 ms; the figure is axis-setpoints per second (3 axes). The same-run reference is
+``numpy.interp`` over the same sample times and the plan's vertices (piecewise-linear
+interpolation of each axis, no rounding): the cheapest vectorised interpolation there is.
+
+Hermite: ``sample_keyframes`` against one ``hermite_position`` call per tick (how the
+device's curve mode evaluates), in ticks per second.
+
+Every figure is the median of ``--runs`` runs (5 by default).
+
+Run: ``python benchmarks/planner_speed.py [--json] [--runs 5] [--moves 100000]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from functools import partial
+from typing import Any
+
+import numpy as np
+
+from usbmotion.hermite import Keyframe, hermite_position, sample_keyframes
+from usbmotion.motion.moves import Arc, Linear, Move, Plane, Rapid, Vec3
+from usbmotion.motion.planner import AxisLimits, Plan, PlannerConfig, plan_moves
+from usbmotion.motion.sampler import sample_plan, sample_times
+
+LIMITS = (AxisLimits(250.0, 2000.0), AxisLimits(250.0, 2000.0), AxisLimits(80.0, 800.0))
+COUNTS_PER_MM = (1000.0, 1000.0, 2000.0)
+PLANES = (Plane.XY, Plane.XZ, Plane.YZ)
+
+
+def random_program(count: int, *, seed: int, arcs: bool = True) -> list[Move]:
+    """``count`` connected moves from the origin (see the module docstring for the mix)."""
+    rng = np.random.default_rng(seed)
+    kind = rng.random(count)
+    unit = rng.random((count, 8))
+    moves: list[Move] = []
+    position: Vec3 = (0.0, 0.0, 0.0)
+    for i in range(count):
+        u = unit[i]
+        roll = kind[i]
+        line = i + 1
+        if roll < 0.1:
+            end = (200.0 * u[0] - 100.0, 200.0 * u[1] - 100.0, 20.0 * u[2])
+            moves.append(Rapid(line, position, end))
+        elif roll < 0.6 or not arcs:
+            length = 0.1 + 20.0 * u[0]
+            heading = 2.0 * math.pi * u[1]
+            end = (
+                position[0] + length * math.cos(heading),
+                position[1] + length * math.sin(heading),
+                min(20.0, max(0.0, position[2] + 2.0 * u[2] - 1.0)),
+            )
+            moves.append(Linear(line, position, end, 300.0 + 5700.0 * u[3]))
+        else:
+            plane = PLANES[0 if u[0] < 0.7 else (1 if u[0] < 0.85 else 2)]
+            first, second, normal = plane.axes
+            radius = 0.5 + 19.5 * u[1]
+            start_angle = 2.0 * math.pi * u[2]
+            sweep = math.radians(10.0 + 260.0 * u[3])
+            rotation = 1 if u[4] < 0.5 else -1
+            centre = list(position)
+            centre[first] -= radius * math.cos(start_angle)
+            centre[second] -= radius * math.sin(start_angle)
+            end_angle = start_angle + rotation * sweep
+            end_list = list(position)
+            end_list[first] = centre[first] + radius * math.cos(end_angle)
+            end_list[second] = centre[second] + radius * math.sin(end_angle)
+            if u[5] < 0.2:
+                end_list[normal] += 4.0 * u[6] - 2.0
+            end = (end_list[0], end_list[1], end_list[2])
+            moves.append(
+                Arc(
+                    line,
+                    position,
+                    end,
+                    (centre[0], centre[1], centre[2]),
+                    plane,
+                    rotation,
+                    300.0 + 3700.0 * u[7],
+                )
+            )
+        position = end
+    return moves
+
+
+def median_time(action: Callable[[], object], runs: int) -> float:
+    """Median wall time of ``runs`` calls of ``action``, seconds."""
+    times = []
+    for _ in range(runs):
+        started = time.perf_counter()
+        action()
+        times.append(time.perf_counter() - started)
+    return statistics.median(times)
+
+
+def interp_reference(plan: Plan, period_s: float) -> np.ndarray:
+    """Piecewise-linear positions at the same sample times by ``numpy.interp`` (reference)."""
+    times = sample_times(plan, period_s)
+    knots = np.concatenate((plan.start_time_s, [plan.duration_s]))
+    return np.stack(
+        [np.interp(times, knots, plan.vertices_mm[:, axis]) for axis in range(3)], axis=1
+    )
+
+
+def hermite_keyframes(count: int, *, seed: int) -> list[Keyframe]:
+    """``count`` random keyframes of 20-200 ms."""
+    rng = np.random.default_rng(seed)
+    return [
+        Keyframe(
+            int(rng.integers(20, 200)),
+            int(rng.integers(-100_000, 100_000)),
+            int(rng.integers(-20_000, 20_000)),
+            int(rng.integers(-20_000, 20_000)),
+        )
+        for _ in range(count)
+    ]
+
+
+def hermite_loop(start: int, keyframes: list[Keyframe], tick_us: int) -> list[int]:
+    """One ``hermite_position`` call per tick, as the device evaluates (reference)."""
+    values = []
+    previous_position, previous_tangent = start, 0
+    for keyframe in keyframes:
+        span_us = keyframe.duration_ms * 1000
+        for elapsed in range(tick_us, span_us + 1, tick_us):
+            values.append(
+                hermite_position(
+                    previous_position,
+                    keyframe.position_counts,
+                    previous_tangent,
+                    keyframe.tangent_in,
+                    keyframe.duration_ms,
+                    elapsed,
+                )
+            )
+        previous_position, previous_tangent = keyframe.position_counts, keyframe.tangent_out
+    return values
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """Run the benchmark, print a table (or JSON with ``--json``), return the figures."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    parser.add_argument("--runs", type=int, default=5, help="runs per figure (median)")
+    parser.add_argument("--moves", type=int, default=100_000, help="moves in the program")
+    parser.add_argument(
+        "--sample-moves", type=int, default=3_000, help="moves of the program to sample"
+    )
+    parser.add_argument("--seed", type=int, default=20260101)
+    args = parser.parse_args(argv)
+    runs = max(1, args.runs)
+
+    config = PlannerConfig()
+    program = random_program(args.moves, seed=args.seed)
+    plan = plan_moves(program, LIMITS, config)
+    plan_s = median_time(lambda: plan_moves(program, LIMITS, config), runs)
+    lines = random_program(args.moves, seed=args.seed, arcs=False)
+    lines_s = median_time(lambda: plan_moves(lines, LIMITS, config), runs)
+
+    figures: dict[str, Any] = {
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "machine": platform.machine(),
+        "runs": runs,
+        "moves": args.moves,
+        "arc_moves": sum(isinstance(m, Arc) for m in program),
+        "segments": len(plan),
+        "program_duration_s": plan.duration_s,
+        "plan_moves_per_s": args.moves / plan_s,
+        "plan_segments_per_s": len(plan) / plan_s,
+        "plan_lines_only_moves_per_s": args.moves / lines_s,
+        "sampling": [],
+    }
+
+    part = plan_moves(program[: args.sample_moves], LIMITS, config)
+    for period_s in (0.001, 0.0001):
+        setpoints = sample_plan(part, period_s=period_s, counts_per_mm=COUNTS_PER_MM)
+        sample_s = median_time(
+            partial(sample_plan, part, period_s=period_s, counts_per_mm=COUNTS_PER_MM), runs
+        )
+        interp_s = median_time(partial(interp_reference, part, period_s), runs)
+        figures["sampling"].append(
+            {
+                "period_s": period_s,
+                "program_duration_s": part.duration_s,
+                "axis_setpoints": int(setpoints.size),
+                "axis_setpoints_per_s": setpoints.size / sample_s,
+                "interp_axis_setpoints_per_s": setpoints.size / interp_s,
+                "ratio_to_interp": interp_s / sample_s,
+            }
+        )
+
+    keyframes = hermite_keyframes(200, seed=args.seed)
+    tick_us = 1000
+    ticks = len(sample_keyframes(0, keyframes, tick_us=tick_us))
+    vector_s = median_time(lambda: sample_keyframes(0, keyframes, tick_us=tick_us), runs)
+    loop_s = median_time(lambda: hermite_loop(0, keyframes, tick_us), max(1, runs // 2))
+    figures["hermite"] = {
+        "ticks": ticks,
+        "sample_keyframes_ticks_per_s": ticks / vector_s,
+        "hermite_position_loop_ticks_per_s": ticks / loop_s,
+        "ratio": loop_s / vector_s,
+    }
+
+    if args.json:
+        print(json.dumps(figures, indent=2))
+    else:
+        print_table(figures)
+    return figures
+
+
+def print_table(figures: dict[str, Any]) -> None:
+    """The figures as a plain table."""
+    print(
+        f"planner_speed: Python {figures['python']}, numpy {figures['numpy']}, "
+        f"{figures['machine']}, median of {figures['runs']} runs"
+    )
+    print(
+        f"program: {figures['moves']:,} moves ({figures['arc_moves']:,} arcs) -> "
+        f"{figures['segments']:,} segments, {figures['program_duration_s']:,.0f} s of motion"
+    )
+    print()
+    print(f"{'figure':<44}{'value':>16}  target")
+    print(
+        f"{'plan_moves, mixed program (moves/s)':<44}{figures['plan_moves_per_s']:>16,.0f}  100,000"
+    )
+    print(f"{'plan_moves, mixed program (segments/s)':<44}{figures['plan_segments_per_s']:>16,.0f}")
+    print(
+        f"{'plan_moves, lines only (moves/s)':<44}{figures['plan_lines_only_moves_per_s']:>16,.0f}"
+    )
+    for row in figures["sampling"]:
+        label = f"sample_plan at {row['period_s'] * 1000:g} ms (axis-setpoints/s)"
+        print(f"{label:<44}{row['axis_setpoints_per_s']:>16,.0f}  5,000,000")
+        reference = "  numpy.interp, same times (axis-setpoints/s)"
+        print(
+            f"{reference:<44}{row['interp_axis_setpoints_per_s']:>16,.0f}"
+            f"  (sample_plan is {row['ratio_to_interp']:.2f}x its speed)"
+        )
+    hermite = figures["hermite"]
+    print(f"{'sample_keyframes (ticks/s)':<44}{hermite['sample_keyframes_ticks_per_s']:>16,.0f}")
+    print(
+        f"{'  hermite_position per tick (ticks/s)':<44}"
+        f"{hermite['hermite_position_loop_ticks_per_s']:>16,.0f}"
+        f"  (sample_keyframes is {hermite['ratio']:.1f}x faster)"
+    )
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
