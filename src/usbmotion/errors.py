@@ -124,6 +124,10 @@ class FlashError(UsbMotionError, OSError):
     """The device's flash store could not be read or written."""
 
 
+class DeviceParameterError(UsbMotionError, ValueError):
+    """A simulated device was built with a parameter outside its range (names the field)."""
+
+
 # --- configuration -------------------------------------------------------------------------
 
 

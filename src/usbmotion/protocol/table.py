@@ -198,14 +198,14 @@ def _gain(number: int, word: str, unit: str) -> CallSpec:
     )
 
 
-def _sim_sci(number: int, key: str, what: str, unit: str, *, signed: bool = False) -> CallSpec:
-    low = -9999 if signed else _SCI_C[0]
+def _sim_sci(number: int, key: str, what: str, unit: str, *, zero: bool = False) -> CallSpec:
+    low = 0 if zero else _SCI_C[0]
     return CallSpec(
         number,
         f"SET_SIM_{key}",
         f"Simulated motor: {what}, C*10^E {unit}.",
         (
-            _p("coefficient", low, _SCI_C[1], _SCI_C[2] + (", signed" if signed else "")),
+            _p("coefficient", low, _SCI_C[1], _SCI_C[2] + (", 0 for none" if zero else "")),
             _p("exponent", *_SCI_E),
         ),
         query=(-1, 0),
@@ -463,7 +463,7 @@ CALLS: tuple[CallSpec, ...] = (
         notes="The query answers -1 when no start is armed.",
     ),
     _sim_sci(32, "VISCOUS_FRICTION", "viscous friction at the encoder shaft", "uNm per rad/s"),
-    _sim_sci(33, "LOAD_TORQUE", "constant load torque opposing motion", "mNm", signed=True),
+    _sim_sci(33, "LOAD_TORQUE", "constant load torque opposing motion", "mNm", zero=True),
     CallSpec(
         34,
         "SET_SIM_TRAVEL",

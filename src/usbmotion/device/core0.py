@@ -1,0 +1,897 @@
+"""core0 and the device as a whole: the command interpreter over a virtual-time servo loop.
+
+:class:`Device` is one USB Motion Device. Bytes from USB go in through :meth:`Device.feed`
+(any split); each complete line is interpreted at once, at the current servo tick, through
+the protocol table, and its replies are queued for :meth:`Device.take_output`. Time only
+moves in :meth:`Device.run`, by whole servo ticks of core1, so a test or a simulation
+decides every tick.
+
+Error policy (STYLE.md rule 6): a malformed line is answered with one ``ERR <call>
+<reason>`` line and changes nothing; a call the table accepts but the device state refuses
+(travel ends crossed, enabling with a fault latched, a flash write failing) answers ``ERR
+<call> <reason>`` and changes nothing; an unexpected exception while carrying out a call is
+answered ``ERR <call> internal error ...``, latches fault 4 and disables the servo, and the
+device keeps serving. Nothing escapes :meth:`Device.feed`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from usbmotion.device import core1
+from usbmotion.device.core1 import (
+    DYNAMIC_FIELDS,
+    EVENT_DIAGNOSTICS,
+    MODE_CURVE,
+    MODE_POSITION,
+    MODE_VELOCITY,
+    IntArray,
+    idle_advance,
+    running,
+    servo_block,
+    ticks_to_scheduled_event,
+    wrap_int32,
+)
+from usbmotion.device.curve import CurvePlayer
+from usbmotion.device.flash import Flash, FlashContents, MemoryFlash
+from usbmotion.device.motor import (
+    DIGITS,
+    MICRO,
+    MotorConstants,
+    MotorParams,
+    SciPair,
+    derive_constants,
+    sci_value,
+)
+from usbmotion.errors import DeviceParameterError, EmptyLineError, FlashError, ProtocolError
+from usbmotion.hermite import Keyframe
+from usbmotion.protocol.codec import Call, LineSplitter, Overlong, format_err, parse_call
+from usbmotion.protocol.table import (
+    BY_NUMBER,
+    DIAGNOSTICS,
+    ERR,
+    MAX_LINE_BYTES,
+    QUEUE_CAPACITY,
+    Fault,
+)
+from usbmotion.scimath import SciNumber, sci_to_int
+
+DEFAULT_INTERVAL_DMS = 10
+"""Servo period at power-up: 10 dms = 1000 us (seed 000)."""
+DEFAULT_SCALAR = 1
+"""Motion update interval scalar at power-up (seed 000)."""
+_CURVE_CHUNK = 4096
+_SETTLE_CHUNK = 256
+_INTEGRAL_CAP = 1 << 62
+
+
+def _check_gain(call: int, field_name: str, value: object) -> SciPair:
+    if not (isinstance(value, tuple) and len(value) == 2):
+        raise DeviceParameterError(
+            f"{field_name} {value!r} is not a (coefficient, exponent) pair of ints"
+        )
+    for param, item in zip(BY_NUMBER[call].params, value, strict=True):
+        if isinstance(item, bool) or not isinstance(item, int):
+            raise DeviceParameterError(f"{field_name} {param.name} {item!r} is not an int")
+        why = param.check(item)
+        if why is not None:
+            raise DeviceParameterError(f"{field_name}: {why}")
+    return value
+
+
+@dataclass(frozen=True, slots=True)
+class Gains:
+    """PID gains as the protocol carries them: ``(coefficient, exponent)``, value C*10**E.
+
+    The defaults give a well-damped position loop on the default motor (PROTOCOL.md,
+    "The simulated motor"). Coefficients 0..999 (3 significant digits), exponents -12..6.
+
+    Raises:
+        DeviceParameterError: a gain outside the range of its call (9, 10 or 11).
+    """
+
+    kp: SciPair = (1, 0)
+    """Proportional gain, V per count (mode 2: V per count/s)."""
+    ki: SciPair = (1, 0)
+    """Integral gain, V per count-second (mode 2: V per count)."""
+    kd: SciPair = (7, -3)
+    """Derivative gain, V-seconds per count (mode 2: V-s per count/s)."""
+
+    def __post_init__(self) -> None:
+        _check_gain(9, "kp", self.kp)
+        _check_gain(10, "ki", self.ki)
+        _check_gain(11, "kd", self.kd)
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceState:
+    """A snapshot of the device for tests and tools (read :attr:`Device.state`)."""
+
+    clock: int
+    """Servo ticks since power-up or the last ``22 0``."""
+    actual: int
+    """Encoder counter, counts (int32)."""
+    desired: int
+    """Desired position, counts (modes 1 and 3)."""
+    desired_velocity: int
+    """Desired velocity, counts/s (mode 2)."""
+    velocity: int
+    """Encoder counts over the last tick, counts/s."""
+    queued: int
+    """Values in the motion queue."""
+    keyframes: int
+    """Keyframes in the curve buffer."""
+    enable: int
+    mode: int
+    limits: int
+    """Bit 1: lower switch closed; bit 2: upper switch closed."""
+    fault: int
+    fault_tick: int
+    integrator: int
+    """The PID's integral sum, error units times ticks."""
+    output_mv: int
+    """Last PID output, millivolts."""
+    shaft_micro_counts: int
+    """Motor shaft position from power-up, micro-counts (not wrapped)."""
+    shaft_speed_micro_counts_s: int
+    """Motor shaft speed, micro-counts/s."""
+    start_tick: int
+    """Armed start tick, or -1."""
+    tick_us: int
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceSettings:
+    """Every variable a call sets: the RAM variables, the flash variables and debug flags."""
+
+    servo_update_interval_us: int
+    motion_update_interval_scalar: int
+    control_mode: int
+    gains: Gains
+    motor: MotorParams
+    diagnostics_interval: int
+    watchdog_ms: int
+    following_error_limit: int
+    start_tick: int
+    debug_flags: tuple[tuple[int, int], ...]
+    """``(call, flag)`` for every flag that is not 0, by call."""
+    name: str
+    default_control_mode: int
+    flash_writes: int
+
+
+class _RefusedError(Exception):
+    """A call the table accepts but the device state refuses: answered ``ERR <call> ...``."""
+
+
+class Device:
+    """One simulated USB Motion Device, advanced in virtual time.
+
+    Parameters:
+        flash: where the flash variables persist (default: a fresh :class:`MemoryFlash`).
+        motor: the simulated motor's power-up parameters (default :class:`MotorParams`).
+        gains: the PID gains at power-up (default :class:`Gains`).
+
+    The device powers up as the seed says: position 0, RAM defaults (servo period 1000 us,
+    scalar 1, servo disabled), control mode from flash.
+    """
+
+    def __init__(
+        self,
+        *,
+        flash: Flash | None = None,
+        motor: MotorParams | None = None,
+        gains: Gains | None = None,
+    ) -> None:
+        if flash is not None and not isinstance(flash, Flash):
+            raise DeviceParameterError(f"flash {flash!r} is not a Flash")
+        if motor is not None and not isinstance(motor, MotorParams):
+            raise DeviceParameterError(f"motor {motor!r} is not a MotorParams")
+        if gains is not None and not isinstance(gains, Gains):
+            raise DeviceParameterError(f"gains {gains!r} is not a Gains")
+        self._flash: Flash = flash if flash is not None else MemoryFlash()
+        self._power_up_motor = motor if motor is not None else MotorParams()
+        self._power_up_gains = gains if gains is not None else Gains()
+        self._splitter = LineSplitter(max_bytes=MAX_LINE_BYTES)
+        self._output = bytearray()
+        self._handlers: dict[int, Callable[[Call], None]] = {
+            number: getattr(self, f"_call_{number}") for number in BY_NUMBER
+        }
+        self._empty = np.zeros(0, dtype=np.int64)
+        self._power_up()
+
+    # --- power -------------------------------------------------------------------------
+
+    def _power_up(self) -> None:
+        contents = self._flash.read()
+        self._state: IntArray = core1.new_state()
+        self._params: IntArray = core1.new_params()
+        self._queue: IntArray = np.zeros(QUEUE_CAPACITY, dtype=np.int64)
+        self._curve = CurvePlayer()
+        self._debug: dict[int, int] = {}
+        self._interval_dms = DEFAULT_INTERVAL_DMS
+        self._scalar = DEFAULT_SCALAR
+        self._gains = self._power_up_gains
+        self._motor = self._power_up_motor
+        self._diag_n = 0
+        self._watchdog_ms = 0
+        self._fe_limit = 0
+        self._state[core1.S_MODE] = contents.default_control_mode
+        self._settle_left = 0
+        self._copy_in()
+        self._state[core1.S_LIMITS] = self._switches()
+
+    def restart(self) -> None:
+        """Power cycle: RAM defaults, position 0, servo disabled; flash is kept.
+
+        Unread output and any partial input line are lost, as when USB drops.
+        """
+        self._output.clear()
+        self._splitter.reset()
+        self._power_up()
+
+    # --- public API ----------------------------------------------------------------------
+
+    @property
+    def name(self) -> str:
+        """The device name (from flash, or the default name)."""
+        return self._flash.read().device_name
+
+    @property
+    def clock(self) -> int:
+        """The device clock: servo ticks since power-up or the last ``22 0``."""
+        return int(self._state[core1.S_CLOCK])
+
+    @property
+    def tick_us(self) -> int:
+        """The servo period (``servo_update_interval_us``), microseconds."""
+        return self._interval_dms * 100
+
+    @property
+    def flash(self) -> Flash:
+        """The device's flash store."""
+        return self._flash
+
+    @property
+    def motor_constants(self) -> MotorConstants:
+        """The motor integration constants core1 runs with now."""
+        return self._motor_constants
+
+    def feed(self, data: bytes) -> None:
+        """Take bytes from USB; complete lines are interpreted at once, at this tick.
+
+        Never raises for any content: malformed lines are answered ``ERR``.
+
+        Raises:
+            TypeError: ``data`` is not bytes-like.
+        """
+        if not isinstance(data, bytes | bytearray | memoryview):
+            raise TypeError(f"data {data!r} is not bytes")
+        for line in self._splitter.feed(bytes(data)):
+            if isinstance(line, Overlong):
+                self._print(
+                    ERR.format("?", f"line longer than {MAX_LINE_BYTES} bytes")
+                )
+            else:
+                self._interpret(line)
+
+    def run(self, ticks: int) -> None:
+        """Advance core1 by exactly ``ticks`` servo ticks.
+
+        Raises:
+            DeviceParameterError: ``ticks`` is not an int >= 0.
+        """
+        if isinstance(ticks, bool) or not isinstance(ticks, int) or ticks < 0:
+            raise DeviceParameterError(f"ticks {ticks!r} is not an int >= 0")
+        remaining = ticks
+        while remaining > 0:
+            try:
+                done = self._run_some(remaining)
+            except Exception as error:
+                self._internal_fault("?", "in the servo loop", error)
+                idle_advance(self._state, self._params, remaining)
+                return
+            remaining -= done
+
+    def take_output(self) -> bytes:
+        """Everything the device printed since the last call (ASCII lines ending in ``\\n``)."""
+        data = bytes(self._output)
+        self._output.clear()
+        return data
+
+    def ticks_until_event(self) -> int | None:
+        """Ticks until the device next prints or changes state on its own, or None.
+
+        ``run(n)`` with ``n`` below the answer prints nothing and changes no variable a
+        query reports except the clock, the motion of the servo and the queue being drawn
+        down. Counted: the next diagnostics line, the watchdog expiring, an armed start
+        being reached, the motion queue running dry, a keyframe being reached (its slot
+        frees), the velocity-mode counter reset. Faults that the motion itself causes
+        (following error, a limit switch closing) are not predicted.
+        """
+        event = ticks_to_scheduled_event(self._state, self._params)
+        if self._state[core1.S_MODE] == MODE_CURVE and self._state[core1.S_ENABLE] == 1:
+            reach = self._curve.ticks_until_reached(self.tick_us)
+            if reach is not None:
+                start = int(self._state[core1.S_START])
+                delay = max(0, start - self.clock) if start >= 0 else 0
+                reach += delay
+                event = reach if event is None else min(event, reach)
+        return event
+
+    @property
+    def state(self) -> DeviceState:
+        """A snapshot of the device now."""
+        s = self._state
+        return DeviceState(
+            clock=int(s[core1.S_CLOCK]),
+            actual=int(s[core1.S_ACTUAL]),
+            desired=int(s[core1.S_DESIRED]),
+            desired_velocity=int(s[core1.S_DESIRED_VEL]),
+            velocity=int(s[core1.S_VELOCITY]),
+            queued=int(s[core1.S_QUEUE_COUNT]),
+            keyframes=self._curve.queued,
+            enable=int(s[core1.S_ENABLE]),
+            mode=int(s[core1.S_MODE]),
+            limits=int(s[core1.S_LIMITS]),
+            fault=int(s[core1.S_FAULT]),
+            fault_tick=int(s[core1.S_FAULT_TICK]),
+            integrator=int(s[core1.S_INTEGRAL]),
+            output_mv=self._output_mv(),
+            shaft_micro_counts=int(s[core1.S_THETA]),
+            shaft_speed_micro_counts_s=int(s[core1.S_OMEGA]),
+            start_tick=int(s[core1.S_START]),
+            tick_us=self.tick_us,
+        )
+
+    @property
+    def settings(self) -> DeviceSettings:
+        """Every variable the calls set, now."""
+        contents = self._flash.read()
+        return DeviceSettings(
+            servo_update_interval_us=self.tick_us,
+            motion_update_interval_scalar=self._scalar,
+            control_mode=int(self._state[core1.S_MODE]),
+            gains=self._gains,
+            motor=self._motor,
+            diagnostics_interval=self._diag_n,
+            watchdog_ms=self._watchdog_ms,
+            following_error_limit=self._fe_limit,
+            start_tick=int(self._state[core1.S_START]),
+            debug_flags=tuple(sorted((c, f) for c, f in self._debug.items() if f != 0)),
+            name=contents.device_name,
+            default_control_mode=contents.default_control_mode,
+            flash_writes=contents.writes,
+        )
+
+    def queue_values(self) -> tuple[int, ...]:
+        """The values in the motion queue, oldest first."""
+        head = int(self._state[core1.S_QUEUE_HEAD])
+        count = int(self._state[core1.S_QUEUE_COUNT])
+        return tuple(int(self._queue[(head + i) % QUEUE_CAPACITY]) for i in range(count))
+
+    def keyframes(self) -> tuple[Keyframe, ...]:
+        """The keyframes in the curve buffer, oldest first."""
+        return self._curve.snapshot().buffer
+
+    # --- core1 ---------------------------------------------------------------------------
+
+    def _run_some(self, limit: int) -> int:
+        state = self._state
+        tick_us = self.tick_us
+        start = int(state[core1.S_START])
+        clock = int(state[core1.S_CLOCK])
+        enabled = state[core1.S_ENABLE] == 1
+        if enabled and start > clock:
+            limit = min(limit, start - clock)
+        mode = int(state[core1.S_MODE])
+        consuming = running(state)
+        if mode == MODE_CURVE and consuming and (self._curve.playing or self._curve.queued):
+            return self._run_curve(min(limit, _CURVE_CHUNK), tick_us)
+        busy = consuming and mode != MODE_CURVE and state[core1.S_QUEUE_COUNT] > 0
+        if busy or self._settle_left > 0:
+            n = min(limit, self._settle_left)
+            if busy:
+                n = min(limit, ticks_to_scheduled_event(state, self._params) or limit)
+            done = servo_block(state, self._params, self._queue, self._empty, n)
+            self._settle_left = max(0, self._settle_left - done)
+            self._after_block()
+            return done
+        before = state[list(DYNAMIC_FIELDS)].copy()
+        done = servo_block(state, self._params, self._queue, self._empty, 1)
+        events = int(state[core1.S_EVENTS])
+        self._after_block()
+        if events != 0 or not np.array_equal(before, state[list(DYNAMIC_FIELDS)]):
+            self._settle_left = _SETTLE_CHUNK
+            return done
+        quiet = limit - done
+        event = ticks_to_scheduled_event(state, self._params)
+        if event is not None:
+            quiet = min(quiet, event - 1)
+        if quiet > 0:
+            idle_advance(state, self._params, quiet)
+            done += quiet
+        return done
+
+    def _run_curve(self, n: int, tick_us: int) -> int:
+        curve = self._curve
+        snapshot = curve.snapshot()
+        first_desired = int(self._state[core1.S_DESIRED])
+        desired = first_desired
+        values = np.empty(n, dtype=np.int64)
+        for i in range(n):
+            position = curve.next_position(desired, tick_us)
+            values[i] = position
+            desired = wrap_int32(position)
+        done = servo_block(self._state, self._params, self._queue, values, n)
+        if done < n:
+            curve.restore(snapshot)
+            desired = first_desired
+            for i in range(done):
+                curve.next_position(desired, tick_us)
+                desired = wrap_int32(int(values[i]))
+        self._after_block()
+        return done
+
+    def _after_block(self) -> None:
+        state = self._state
+        events = int(state[core1.S_EVENTS])
+        state[core1.S_EVENTS] = 0
+        if events & EVENT_DIAGNOSTICS:
+            self._print(
+                DIAGNOSTICS.format(
+                    int(state[core1.S_CLOCK]),
+                    self._desired_reported(),
+                    int(state[core1.S_ACTUAL]),
+                    int(state[core1.S_VELOCITY]),
+                    self._output_mv(),
+                    self._queued_reported(),
+                )
+            )
+
+    # --- core0: lines --------------------------------------------------------------------
+
+    def _print(self, line: str) -> None:
+        self._output += line.encode("ascii", errors="backslashreplace") + b"\n"
+
+    def _interpret(self, line: bytes) -> None:
+        try:
+            call = parse_call(line)
+        except EmptyLineError:
+            return
+        except ProtocolError as error:
+            self._print(format_err(error))
+            return
+        except Exception as error:
+            self._internal_fault("?", "while parsing", error)
+            return
+        self._state[core1.S_SINCE_COMMAND_US] = 0
+        try:
+            self._handlers[call.number](call)
+        except _RefusedError as refusal:
+            self._print(ERR.format(call.number, str(refusal)))
+        except Exception as error:
+            self._internal_fault(str(call.number), "", error)
+
+    def _internal_fault(self, call: str, where: str, error: BaseException) -> None:
+        state = self._state
+        state[core1.S_FAULT] = Fault.INTERNAL
+        state[core1.S_FAULT_TICK] = state[core1.S_CLOCK]
+        state[core1.S_ENABLE] = 0
+        state[core1.S_OUT_C] = 0
+        state[core1.S_OUT_E] = 0
+        detail = " ".join(f"{type(error).__name__}: {error}".split())[:200]
+        reason = f"internal error{' ' + where if where else ''} ({detail}); fault 4 latched"
+        self._print(ERR.format(call, reason))
+
+    def _debug_line(self, number: int, *values: int | str) -> None:
+        template = BY_NUMBER[number].debug.get(self._debug.get(number, 0))
+        if template is not None:
+            self._print(template.format(*values))
+
+    def _reply(self, number: int, *values: int | str) -> None:
+        template = BY_NUMBER[number].query_reply
+        assert template is not None
+        self._print(template.format(*values))
+
+    # --- core0: copying variables into core1 ---------------------------------------------
+
+    def _copy_in(self) -> None:
+        """Halt core1, copy every RAM variable it uses into its params, resume."""
+        params = self._params
+        tick_us = self.tick_us
+        dt_s = SciNumber.from_int(tick_us, digits=DIGITS) * SciNumber(1, -6)
+        kp = sci_value(self._gains.kp)
+        ki_dt = sci_value(self._gains.ki) * dt_s
+        window = min(core1.HISTORY_SLOTS, max(1, 1000 // tick_us))
+        kd_dt = sci_value(self._gains.kd) / (dt_s * SciNumber.from_int(window, digits=DIGITS))
+        vs = sci_value(self._motor.source_voltage_v)
+        if ki_dt.coefficient == 0:
+            integral_limit = 0
+        else:
+            integral_limit = max(1, min(_INTEGRAL_CAP, int(vs / ki_dt)))
+        constants = derive_constants(self._motor, tick_us=tick_us)
+        self._motor_constants = constants
+        values = {
+            core1.P_TICK_US: tick_us,
+            core1.P_SCALAR: self._scalar,
+            core1.P_KP_C: kp.coefficient,
+            core1.P_KP_E: kp.exponent,
+            core1.P_KI_C: ki_dt.coefficient,
+            core1.P_KI_E: ki_dt.exponent,
+            core1.P_KD_C: kd_dt.coefficient,
+            core1.P_KD_E: kd_dt.exponent,
+            core1.P_VS_C: vs.coefficient,
+            core1.P_VS_E: vs.exponent,
+            core1.P_INTEGRAL_LIMIT: integral_limit,
+            core1.P_WATCHDOG_US: self._watchdog_ms * 1000,
+            core1.P_FE_LIMIT: self._fe_limit,
+            core1.P_DIAG_N: self._diag_n,
+            core1.P_STEPS: constants.steps,
+            core1.P_DRIVE_C: constants.drive[0],
+            core1.P_DRIVE_E: constants.drive[1],
+            core1.P_FRICTION_C: constants.friction_speed[0],
+            core1.P_FRICTION_E: constants.friction_speed[1],
+            core1.P_DECAY_C: constants.decay[0],
+            core1.P_DECAY_E: constants.decay[1],
+            core1.P_LAG_C: constants.lag_s[0],
+            core1.P_LAG_E: constants.lag_s[1],
+            core1.P_LOWER: self._motor.travel_lower_counts,
+            core1.P_UPPER: self._motor.travel_upper_counts,
+            core1.P_STOP_LOW: constants.stop_low_micro,
+            core1.P_STOP_HIGH: constants.stop_high_micro,
+            core1.P_WINDOW: window,
+        }
+        for index, value in values.items():
+            params[index] = value
+
+    def _switches(self) -> int:
+        count = int(self._state[core1.S_THETA]) // MICRO
+        bits = 0
+        if count <= self._motor.travel_lower_counts:
+            bits |= 1
+        if count >= self._motor.travel_upper_counts:
+            bits |= 2
+        return bits
+
+    # --- core0: shared actions -----------------------------------------------------------
+
+    def _clear_queue(self) -> None:
+        self._state[core1.S_QUEUE_HEAD] = 0
+        self._state[core1.S_QUEUE_COUNT] = 0
+
+    def _clear_curve(self) -> None:
+        self._curve.clear(int(self._state[core1.S_DESIRED]))
+
+    def _reset_controller(self) -> None:
+        """Start the PID afresh from where the shaft is: integrator 0, no derivative kick."""
+        state = self._state
+        state[core1.S_INTEGRAL] = 0
+        state[core1.S_FRESH] = 1
+        state[core1.S_MOTION_LEFT] = 0
+        state[core1.S_DESIRED] = state[core1.S_ACTUAL]
+        state[core1.S_DESIRED_VEL] = 0
+        self._curve.interrupt(int(state[core1.S_ACTUAL]))
+
+    def _push(self, values: tuple[int, ...]) -> None:
+        state = self._state
+        head = int(state[core1.S_QUEUE_HEAD])
+        count = int(state[core1.S_QUEUE_COUNT])
+        for value in values:
+            self._queue[(head + count) % QUEUE_CAPACITY] = value
+            count += 1
+        state[core1.S_QUEUE_COUNT] = count
+
+    def _refuse_in_curve_mode(self) -> None:
+        if self._state[core1.S_MODE] == MODE_CURVE:
+            raise _RefusedError(
+                "curve mode (3) plays keyframes (call 25), not queue values;"
+                " change the mode with call 7"
+            )
+
+    def _desired_reported(self) -> int:
+        if self._state[core1.S_MODE] == MODE_VELOCITY:
+            return int(self._state[core1.S_DESIRED_VEL])
+        return int(self._state[core1.S_DESIRED])
+
+    def _queued_reported(self) -> int:
+        if self._state[core1.S_MODE] == MODE_CURVE:
+            return self._curve.queued
+        return int(self._state[core1.S_QUEUE_COUNT])
+
+    def _output_mv(self) -> int:
+        return sci_to_int(int(self._state[core1.S_OUT_C]), int(self._state[core1.S_OUT_E]) + 3)
+
+    def _set_motor(self, **changes: object) -> None:
+        try:
+            motor = replace(self._motor, **changes)  # type: ignore[arg-type]
+        except DeviceParameterError as error:
+            raise _RefusedError(str(error)) from error
+        self._motor = motor
+        self._copy_in()
+
+    # --- the calls -----------------------------------------------------------------------
+
+    def _call_0(self, call: Call) -> None:
+        self._refuse_in_curve_mode()
+        if self._state[core1.S_QUEUE_COUNT] >= QUEUE_CAPACITY:
+            self._print("E0")
+            return
+        self._push(call.args)
+        self._debug_line(0, call.args[0])
+
+    def _call_1(self, call: Call) -> None:
+        self._refuse_in_curve_mode()
+        values = call.args[1:]
+        if int(self._state[core1.S_QUEUE_COUNT]) + len(values) > QUEUE_CAPACITY:
+            self._print("E1")
+            return
+        self._push(values)
+        self._debug_line(1, len(values), " ".join(map(str, values)))
+
+    def _call_2(self, call: Call) -> None:
+        queued = int(self._state[core1.S_QUEUE_COUNT])
+        self._reply(2, queued, QUEUE_CAPACITY - queued)
+
+    def _call_3(self, call: Call) -> None:
+        state = self._state
+        if call.is_query:
+            self._reply(3, int(state[core1.S_ENABLE]))
+            return
+        enable = call.args[0]
+        if enable == 1 and state[core1.S_ENABLE] == 0:
+            fault = int(state[core1.S_FAULT])
+            if fault != Fault.NONE:
+                raise _RefusedError(
+                    f"fault {fault} ({Fault.NAMES[fault]}) is latched;"
+                    " clear it with call 30 before enabling"
+                )
+            self._reset_controller()
+            state[core1.S_ENABLE] = 1
+        elif enable == 0:
+            state[core1.S_ENABLE] = 0
+            state[core1.S_OUT_C] = 0
+            state[core1.S_OUT_E] = 0
+        self._debug_line(3, enable)
+
+    def _call_4(self, call: Call) -> None:
+        self._clear_queue()
+        self._debug_line(4)
+
+    def _call_5(self, call: Call) -> None:
+        if call.is_query:
+            self._reply(5, self.tick_us)
+            return
+        self._interval_dms = call.args[0]
+        self._clear_queue()
+        self._clear_curve()
+        self._state[core1.S_FRESH] = 1
+        self._copy_in()
+        self._debug_line(5, self.tick_us)
+
+    def _call_6(self, call: Call) -> None:
+        if call.is_query:
+            self._reply(6, self._scalar)
+            return
+        self._scalar = call.args[0]
+        self._clear_queue()
+        self._state[core1.S_MOTION_LEFT] = 0
+        self._copy_in()
+        self._debug_line(6, self._scalar)
+
+    def _call_7(self, call: Call) -> None:
+        state = self._state
+        if call.is_query:
+            self._reply(7, int(state[core1.S_MODE]))
+            return
+        mode = call.args[0]
+        self._clear_queue()
+        state[core1.S_MODE] = mode
+        state[core1.S_VELOCITY_MODE_US] = 0
+        self._reset_controller()
+        self._clear_curve()
+        self._debug_line(7, mode)
+
+    def _call_8(self, call: Call) -> None:
+        number, flag = call.args
+        if call.is_query:
+            self._reply(8, number, self._debug.get(number, 0))
+            return
+        self._debug[number] = flag
+
+    def _gain_call(self, call: Call, field_name: str) -> None:
+        number = call.number
+        if call.is_query:
+            self._reply(number, *getattr(self._gains, field_name))
+            return
+        coefficient, exponent = call.args
+        self._gains = replace(self._gains, **{field_name: (coefficient, exponent)})
+        self._copy_in()
+        self._debug_line(number, coefficient, exponent)
+
+    def _call_9(self, call: Call) -> None:
+        self._gain_call(call, "kp")
+
+    def _call_10(self, call: Call) -> None:
+        self._gain_call(call, "ki")
+
+    def _call_11(self, call: Call) -> None:
+        self._gain_call(call, "kd")
+
+    def _motor_call(self, call: Call, field_name: str) -> None:
+        number = call.number
+        if call.is_query:
+            value = getattr(self._motor, field_name)
+            if isinstance(value, tuple):
+                self._reply(number, *value)
+            else:
+                self._reply(number, value)
+            return
+        value = call.args if len(call.args) == 2 else call.args[0]
+        self._set_motor(**{field_name: value})
+        self._debug_line(number, *call.args)
+
+    def _call_12(self, call: Call) -> None:
+        self._motor_call(call, "sim_update_interval_dms")
+
+    def _call_13(self, call: Call) -> None:
+        self._motor_call(call, "source_voltage_v")
+
+    def _call_14(self, call: Call) -> None:
+        self._motor_call(call, "torque_constant_mnm_per_a")
+
+    def _call_15(self, call: Call) -> None:
+        self._motor_call(call, "winding_resistance_ohm")
+
+    def _call_16(self, call: Call) -> None:
+        self._motor_call(call, "counts_per_revolution")
+
+    def _call_17(self, call: Call) -> None:
+        self._motor_call(call, "inertia_kg_m2")
+
+    def _call_18(self, call: Call) -> None:
+        if call.is_query:
+            self._reply(18, self.name)
+            return
+        name = "".join(chr(code) for code in call.args[1:])
+        self._write_flash(name=name)
+        self._debug_line(18, self.name)
+
+    def _call_19(self, call: Call) -> None:
+        if call.is_query:
+            self._reply(19, self._flash.read().default_control_mode)
+            return
+        self._write_flash(default_control_mode=call.args[0])
+        self._debug_line(19, call.args[0])
+
+    def _write_flash(self, **changes: str | int) -> FlashContents:
+        try:
+            return self._flash.write(**changes)  # type: ignore[arg-type]
+        except FlashError as error:
+            raise _RefusedError(f"flash write failed, value unchanged: {error}") from error
+
+    def _call_20(self, call: Call) -> None:
+        s = self._state
+        self._reply(
+            20,
+            int(s[core1.S_CLOCK]),
+            int(s[core1.S_ACTUAL]),
+            self._desired_reported(),
+            int(s[core1.S_VELOCITY]),
+            self._queued_reported(),
+            int(s[core1.S_ENABLE]),
+            int(s[core1.S_MODE]),
+            int(s[core1.S_LIMITS]),
+            int(s[core1.S_FAULT]),
+        )
+
+    def _call_21(self, call: Call) -> None:
+        if call.is_query:
+            self._reply(21, self._diag_n)
+            return
+        self._diag_n = call.args[0]
+        self._state[core1.S_DIAG_LEFT] = self._diag_n
+        self._copy_in()
+        self._debug_line(21, self._diag_n)
+
+    def _call_22(self, call: Call) -> None:
+        if call.is_query:
+            self._reply(22, self.clock)
+            return
+        self._state[core1.S_CLOCK] = 0
+        self._debug_line(22)
+
+    def _call_23(self, call: Call) -> None:
+        state = self._state
+        position = call.args[0]
+        count = int(state[core1.S_THETA]) // MICRO
+        state[core1.S_OFFSET] = wrap_int32(position - count)
+        state[core1.S_ACTUAL] = position
+        state[core1.S_PREV_ACTUAL] = position
+        self._clear_queue()
+        self._reset_controller()
+        self._clear_curve()
+        self._debug_line(23, position)
+
+    def _call_24(self, call: Call) -> None:
+        limits = int(self._state[core1.S_LIMITS])
+        self._reply(24, limits & 1, (limits >> 1) & 1)
+
+    def _call_25(self, call: Call) -> None:
+        if self._state[core1.S_MODE] != MODE_CURVE:
+            raise _RefusedError("keyframes play in curve mode only; select it with call 7 3")
+        duration_ms, position, tangent_in, tangent_out = call.args
+        if not self._curve.append(Keyframe(duration_ms, position, tangent_in, tangent_out)):
+            self._print("E25")
+            return
+        self._debug_line(25, duration_ms, position, tangent_in, tangent_out)
+
+    def _call_26(self, call: Call) -> None:
+        self._clear_curve()
+        self._debug_line(26)
+
+    def _call_27(self, call: Call) -> None:
+        self._reply(27, self._curve.free)
+
+    def _call_28(self, call: Call) -> None:
+        if call.is_query:
+            self._reply(28, self._watchdog_ms)
+            return
+        self._watchdog_ms = call.args[0]
+        self._copy_in()
+        self._debug_line(28, self._watchdog_ms)
+
+    def _call_29(self, call: Call) -> None:
+        if call.is_query:
+            self._reply(29, self._fe_limit)
+            return
+        self._fe_limit = call.args[0]
+        self._copy_in()
+        self._debug_line(29, self._fe_limit)
+
+    def _call_30(self, call: Call) -> None:
+        state = self._state
+        if call.is_query:
+            self._reply(30, int(state[core1.S_FAULT]), int(state[core1.S_FAULT_TICK]))
+            return
+        state[core1.S_FAULT] = Fault.NONE
+        state[core1.S_FAULT_TICK] = 0
+        self._debug_line(30)
+
+    def _call_31(self, call: Call) -> None:
+        if call.is_query:
+            self._reply(31, int(self._state[core1.S_START]))
+            return
+        self._state[core1.S_START] = call.args[0]
+        self._debug_line(31, call.args[0])
+
+    def _call_32(self, call: Call) -> None:
+        self._motor_call(call, "viscous_friction_unm_per_rad_s")
+
+    def _call_33(self, call: Call) -> None:
+        self._motor_call(call, "load_torque_mnm")
+
+    def _call_34(self, call: Call) -> None:
+        if call.is_query:
+            self._reply(34, self._motor.travel_lower_counts, self._motor.travel_upper_counts)
+            return
+        lower, upper = call.args
+        if lower >= upper:
+            raise _RefusedError(f"lower end {lower} must be below upper end {upper}")
+        self._set_motor(travel_lower_counts=lower, travel_upper_counts=upper)
+        self._state[core1.S_LIMITS] = self._switches()
+        self._debug_line(34, lower, upper)
+
+
+__all__ = [
+    "MODE_CURVE",
+    "MODE_POSITION",
+    "MODE_VELOCITY",
+    "Device",
+    "DeviceSettings",
+    "DeviceState",
+    "Gains",
+]

@@ -1,0 +1,512 @@
+"""core1: the servo loop, as plain functions over flat integer state.
+
+Everything core1 knows lives in two ``numpy.int64`` arrays indexed by the ``S_*`` and
+``P_*`` constants below: ``state`` (what the loop changes) and ``params`` (what core0 copies
+in when a variable changes). The motion queue is a ring buffer array owned by core0 whose
+head and length live in ``state``. :func:`servo_block` runs servo ticks over them using only
+ints, tuples, arrays, ``if``/``while`` and the ``usbmotion.scimath`` core, so the same
+source compiles unchanged with ``numba.njit`` and stays bit-for-bit equal to this
+reference: every value stays within int64 and the encoder counter wraps as an int32
+explicitly.
+
+One servo tick, in order:
+
+1. motion update (servo enabled only): an armed start tick holds everything until the clock
+   reaches it; then every ``scalar`` ticks, starting with the first, the next queue value
+   becomes the desired position (mode 1) or velocity (mode 2). An empty queue holds the
+   desired position, and sets the desired velocity to 0 (the loop brakes to a stop). In
+   curve mode (3) core0 supplies the desired position of each running tick.
+2. PID (servo enabled) on the error of the active mode, in volts, saturated to the source
+   voltage, with conditional integration and a clamped integrator; the derivative is the
+   error change over the last millisecond (``window`` ticks); 0 V when disabled.
+3. the motor over the tick, in ``steps`` equal integration steps.
+4. encoder: counter, velocity over the tick (counts/s), limit switches; in velocity mode
+   the counter is reset to 0 after every 60 s of device time spent in that mode.
+5. faults (servo enabled): limit switch closing in mode 1 or 3, following error in mode 1
+   or 3, then watchdog; a fault disables the servo.
+6. clock + 1, diagnostics countdown.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from usbmotion.device.motor import DIGITS, MICRO, motor_step
+from usbmotion.protocol.table import QUEUE_CAPACITY, Fault
+from usbmotion.scimath import sci_add, sci_compare, sci_from_int, sci_mul
+
+IntArray = npt.NDArray[np.int64]
+
+MODE_POSITION = 1
+MODE_VELOCITY = 2
+MODE_CURVE = 3
+
+VELOCITY_RESET_US = 60_000_000
+"""Velocity mode resets the encoder counter after this much device time in the mode."""
+TIMER_CAP_US = 1 << 62
+"""The time-since-last-command timer stops here instead of overflowing."""
+
+EVENT_DIAGNOSTICS = 1
+"""``state[S_EVENTS]`` bit: a diagnostics line is due (printed by core0)."""
+EVENT_FAULT = 2
+"""``state[S_EVENTS]`` bit: a fault latched during the block."""
+
+# --- state: what core1 changes ---------------------------------------------------------
+S_CLOCK = 0
+S_ENABLE = 1
+S_MODE = 2
+S_FAULT = 3
+S_FAULT_TICK = 4
+S_THETA = 5
+"""Motor shaft position, micro-counts from power-up (not wrapped)."""
+S_OMEGA = 6
+"""Motor shaft speed, micro-counts/s."""
+S_OFFSET = 7
+"""Encoder counter minus shaft count (call 23 and the velocity-mode reset change it)."""
+S_ACTUAL = 8
+S_PREV_ACTUAL = 9
+S_VELOCITY = 10
+"""Encoder counts over the last tick, as counts/s."""
+S_DESIRED = 11
+S_DESIRED_VEL = 12
+S_INTEGRAL = 13
+"""Sum of the error over the ticks it was integrated (error units x ticks)."""
+S_HISTORY_POS = 14
+"""Slot of the error history holding the error of ``window`` ticks ago."""
+S_FRESH = 15
+"""1 until the first controlled tick after enabling (the history starts full of the first
+error: no derivative kick from stale data)."""
+S_OUT_C = 16
+S_OUT_E = 17
+S_QUEUE_HEAD = 18
+S_QUEUE_COUNT = 19
+S_MOTION_LEFT = 20
+"""Ticks until the next motion update (0: the next running tick pops)."""
+S_START = 21
+"""Armed start tick, or -1."""
+S_SINCE_COMMAND_US = 22
+S_VELOCITY_MODE_US = 23
+S_DIAG_LEFT = 24
+S_LIMITS = 25
+S_EVENTS = 26
+S_HISTORY = 27
+"""First of ``HISTORY_SLOTS`` entries: the errors of the last ``window`` ticks (a ring)."""
+HISTORY_SLOTS = 10
+STATE_SIZE = S_HISTORY + HISTORY_SLOTS
+
+# --- params: what core0 copies in -------------------------------------------------------
+P_TICK_US = 0
+P_SCALAR = 1
+P_KP_C = 2
+P_KP_E = 3
+P_KI_C = 4
+"""Integral gain times the servo period, V per error-tick."""
+P_KI_E = 5
+P_KD_C = 6
+"""Derivative gain over the derivative window, V per error change across the window."""
+P_KD_E = 7
+P_VS_C = 8
+P_VS_E = 9
+P_INTEGRAL_LIMIT = 10
+"""Largest integral sum (0: the integrator is off)."""
+P_WATCHDOG_US = 11
+P_FE_LIMIT = 12
+P_DIAG_N = 13
+P_STEPS = 14
+P_DRIVE_C = 15
+P_DRIVE_E = 16
+P_FRICTION_C = 17
+P_FRICTION_E = 18
+P_DECAY_C = 19
+P_DECAY_E = 20
+P_LAG_C = 21
+P_LAG_E = 22
+P_LOWER = 23
+P_UPPER = 24
+P_STOP_LOW = 25
+P_STOP_HIGH = 26
+P_WINDOW = 27
+"""Derivative window, ticks: the error change is taken over the last millisecond (at least
+one tick, at most ``HISTORY_SLOTS``), so encoder quantisation does not grow with the rate."""
+PARAMS_SIZE = 28
+
+_DYNAMIC = (
+    S_ENABLE,
+    S_MODE,
+    S_FAULT,
+    S_THETA,
+    S_OMEGA,
+    S_OFFSET,
+    S_ACTUAL,
+    S_PREV_ACTUAL,
+    S_VELOCITY,
+    S_DESIRED,
+    S_DESIRED_VEL,
+    S_INTEGRAL,
+    S_FRESH,
+    S_OUT_C,
+    S_OUT_E,
+    S_QUEUE_HEAD,
+    S_QUEUE_COUNT,
+    S_START,
+    S_LIMITS,
+    *range(S_HISTORY, S_HISTORY + HISTORY_SLOTS),
+)
+DYNAMIC_FIELDS: tuple[int, ...] = _DYNAMIC
+"""State entries that a tick may change other than the clocks and countdowns: when one
+tick leaves all of them as they were (and nothing is queued), every following tick does
+too until an event, which lets :func:`idle_advance` skip ticks."""
+
+
+def new_state() -> IntArray:
+    """A zeroed state array."""
+    state = np.zeros(STATE_SIZE, dtype=np.int64)
+    state[S_START] = -1
+    state[S_MODE] = MODE_POSITION
+    return state
+
+
+def new_params() -> IntArray:
+    """A zeroed params array."""
+    return np.zeros(PARAMS_SIZE, dtype=np.int64)
+
+
+def wrap_int32(value: int) -> int:
+    """``value`` as the int32 the hardware counter holds (two's complement wrap)."""
+    return ((value + 2147483648) & 0xFFFFFFFF) - 2147483648
+
+
+def trunc_div(numerator: int, denominator: int) -> int:
+    """``numerator / denominator`` truncated toward zero (C semantics; ``denominator > 0``)."""
+    if numerator >= 0:
+        return numerator // denominator
+    return -((-numerator) // denominator)
+
+
+def servo_block(
+    state: IntArray,
+    params: IntArray,
+    queue: IntArray,
+    curve: IntArray,
+    n_ticks: int,
+) -> int:
+    """Run up to ``n_ticks`` servo ticks; stop early after a tick that raised an event.
+
+    Parameters:
+        state: the ``S_*`` array, updated in place (``S_EVENTS`` says why it stopped).
+        params: the ``P_*`` array.
+        queue: the motion queue ring buffer (capacity ``QUEUE_CAPACITY``); head and
+            length are ``state[S_QUEUE_HEAD]`` and ``state[S_QUEUE_COUNT]``.
+        curve: in curve mode, the desired position of each running tick of this block
+            (entry ``i`` for the ``i``-th tick); ticks beyond its end hold the desired
+            position. Ignored in the other modes.
+        n_ticks: ticks to run.
+
+    Returns the number of ticks run (``n_ticks`` unless an event stopped the block).
+    """
+    tick_us = int(params[P_TICK_US])
+    scalar = int(params[P_SCALAR])
+    kp_c = int(params[P_KP_C])
+    kp_e = int(params[P_KP_E])
+    ki_c = int(params[P_KI_C])
+    ki_e = int(params[P_KI_E])
+    kd_c = int(params[P_KD_C])
+    kd_e = int(params[P_KD_E])
+    vs_c = int(params[P_VS_C])
+    vs_e = int(params[P_VS_E])
+    integral_limit = int(params[P_INTEGRAL_LIMIT])
+    watchdog_us = int(params[P_WATCHDOG_US])
+    fe_limit = int(params[P_FE_LIMIT])
+    diag_n = int(params[P_DIAG_N])
+    steps = int(params[P_STEPS])
+    drive_gain_c = int(params[P_DRIVE_C])
+    drive_gain_e = int(params[P_DRIVE_E])
+    friction_c = int(params[P_FRICTION_C])
+    friction_e = int(params[P_FRICTION_E])
+    decay_c = int(params[P_DECAY_C])
+    decay_e = int(params[P_DECAY_E])
+    lag_c = int(params[P_LAG_C])
+    lag_e = int(params[P_LAG_E])
+    lower = int(params[P_LOWER])
+    upper = int(params[P_UPPER])
+    stop_low = int(params[P_STOP_LOW])
+    stop_high = int(params[P_STOP_HIGH])
+    window = int(params[P_WINDOW])
+
+    clock = int(state[S_CLOCK])
+    enable = int(state[S_ENABLE])
+    mode = int(state[S_MODE])
+    fault = int(state[S_FAULT])
+    fault_tick = int(state[S_FAULT_TICK])
+    theta = int(state[S_THETA])
+    omega = int(state[S_OMEGA])
+    offset = int(state[S_OFFSET])
+    actual = int(state[S_ACTUAL])
+    prev_actual = int(state[S_PREV_ACTUAL])
+    velocity = int(state[S_VELOCITY])
+    desired = int(state[S_DESIRED])
+    desired_vel = int(state[S_DESIRED_VEL])
+    integral = int(state[S_INTEGRAL])
+    history_pos = int(state[S_HISTORY_POS])
+    fresh = int(state[S_FRESH])
+    out_c = int(state[S_OUT_C])
+    out_e = int(state[S_OUT_E])
+    queue_head = int(state[S_QUEUE_HEAD])
+    queue_count = int(state[S_QUEUE_COUNT])
+    motion_left = int(state[S_MOTION_LEFT])
+    start = int(state[S_START])
+    since_command = int(state[S_SINCE_COMMAND_US])
+    velocity_mode_us = int(state[S_VELOCITY_MODE_US])
+    diag_left = int(state[S_DIAG_LEFT])
+    limits = int(state[S_LIMITS])
+
+    curve_len = len(curve)
+    events = 0
+    executed = 0
+    while executed < n_ticks:
+        # 1. motion update
+        if enable == 1:
+            if start >= 0 and clock >= start:
+                start = -1
+                motion_left = 0
+            if start < 0:
+                if mode == MODE_CURVE:
+                    if executed < curve_len:
+                        desired = wrap_int32(int(curve[executed]))
+                else:
+                    if motion_left <= 0:
+                        if queue_count > 0:
+                            value = int(queue[queue_head])
+                            queue_head += 1
+                            if queue_head == QUEUE_CAPACITY:
+                                queue_head = 0
+                            queue_count -= 1
+                            if mode == MODE_VELOCITY:
+                                desired_vel = value
+                            else:
+                                desired = value
+                        elif mode == MODE_VELOCITY:
+                            desired_vel = 0
+                        motion_left = scalar
+                    motion_left -= 1
+
+        # 2. PID
+        if enable == 1:
+            if mode == MODE_VELOCITY:
+                error = desired_vel - velocity
+            else:
+                error = wrap_int32(desired - actual)
+            if fresh == 1:
+                for slot in range(window):
+                    state[S_HISTORY + slot] = error
+                history_pos = 0
+                fresh = 0
+            change = error - int(state[S_HISTORY + history_pos])
+            state[S_HISTORY + history_pos] = error
+            history_pos += 1
+            if history_pos >= window:
+                history_pos = 0
+            e_c, e_e = sci_from_int(error, DIGITS)
+            p_c, p_e = sci_mul(kp_c, kp_e, e_c, e_e, DIGITS)
+            c_c, c_e = sci_from_int(change, DIGITS)
+            d_c, d_e = sci_mul(kd_c, kd_e, c_c, c_e, DIGITS)
+            candidate = 0
+            if integral_limit > 0:
+                candidate = integral + error
+                if candidate > integral_limit:
+                    candidate = integral_limit
+                elif candidate < -integral_limit:
+                    candidate = -integral_limit
+            s_c, s_e = sci_from_int(candidate, DIGITS)
+            i_c, i_e = sci_mul(ki_c, ki_e, s_c, s_e, DIGITS)
+            u_c, u_e = sci_add(p_c, p_e, i_c, i_e, DIGITS)
+            u_c, u_e = sci_add(u_c, u_e, d_c, d_e, DIGITS)
+            if sci_compare(u_c, u_e, vs_c, vs_e) > 0:
+                u_c = vs_c
+                u_e = vs_e
+                if error <= 0:
+                    integral = candidate
+            elif sci_compare(u_c, u_e, -vs_c, vs_e) < 0:
+                u_c = -vs_c
+                u_e = vs_e
+                if error >= 0:
+                    integral = candidate
+            else:
+                integral = candidate
+            out_c = u_c
+            out_e = u_e
+        else:
+            out_c = 0
+            out_e = 0
+
+        # 3. motor
+        drive_c, drive_e = sci_mul(out_c, out_e, drive_gain_c, drive_gain_e, DIGITS)
+        for _ in range(steps):
+            theta, omega = motor_step(
+                theta,
+                omega,
+                drive_c,
+                drive_e,
+                friction_c,
+                friction_e,
+                decay_c,
+                decay_e,
+                lag_c,
+                lag_e,
+                tick_us,
+                steps,
+                stop_low,
+                stop_high,
+            )
+
+        # 4. encoder and switches
+        count = theta // MICRO
+        actual = wrap_int32(count + offset)
+        velocity = trunc_div(wrap_int32(actual - prev_actual) * MICRO, tick_us)
+        prev_actual = actual
+        new_limits = 0
+        if count <= lower:
+            new_limits = 1
+        if count >= upper:
+            new_limits |= 2
+        closing = new_limits & ~limits
+        limits = new_limits
+        if mode == MODE_VELOCITY:
+            velocity_mode_us += tick_us
+            if velocity_mode_us >= VELOCITY_RESET_US:
+                velocity_mode_us -= VELOCITY_RESET_US
+                offset = wrap_int32(-count)
+                actual = 0
+                prev_actual = 0
+
+        # 5. faults
+        since_command += tick_us
+        since_command = min(since_command, TIMER_CAP_US)
+        new_fault = Fault.NONE
+        if enable == 1:
+            if mode != MODE_VELOCITY:
+                if closing != 0:
+                    new_fault = Fault.LIMIT_SWITCH
+                elif fe_limit > 0:
+                    following = wrap_int32(desired - actual)
+                    if following > fe_limit or -following > fe_limit:
+                        new_fault = Fault.FOLLOWING_ERROR
+            if new_fault == Fault.NONE and watchdog_us > 0 and since_command >= watchdog_us:
+                new_fault = Fault.WATCHDOG
+
+        # 6. clock and diagnostics
+        clock += 1
+        executed += 1
+        if new_fault != Fault.NONE:
+            fault = new_fault
+            fault_tick = clock
+            enable = 0
+            events |= EVENT_FAULT
+        if diag_n > 0:
+            diag_left -= 1
+            if diag_left <= 0:
+                diag_left = diag_n
+                events |= EVENT_DIAGNOSTICS
+        if events != 0:
+            break
+
+    state[S_CLOCK] = clock
+    state[S_ENABLE] = enable
+    state[S_MODE] = mode
+    state[S_FAULT] = fault
+    state[S_FAULT_TICK] = fault_tick
+    state[S_THETA] = theta
+    state[S_OMEGA] = omega
+    state[S_OFFSET] = offset
+    state[S_ACTUAL] = actual
+    state[S_PREV_ACTUAL] = prev_actual
+    state[S_VELOCITY] = velocity
+    state[S_DESIRED] = desired
+    state[S_DESIRED_VEL] = desired_vel
+    state[S_INTEGRAL] = integral
+    state[S_HISTORY_POS] = history_pos
+    state[S_FRESH] = fresh
+    state[S_OUT_C] = out_c
+    state[S_OUT_E] = out_e
+    state[S_QUEUE_HEAD] = queue_head
+    state[S_QUEUE_COUNT] = queue_count
+    state[S_MOTION_LEFT] = motion_left
+    state[S_START] = start
+    state[S_SINCE_COMMAND_US] = since_command
+    state[S_VELOCITY_MODE_US] = velocity_mode_us
+    state[S_DIAG_LEFT] = diag_left
+    state[S_LIMITS] = limits
+    state[S_EVENTS] = events
+    return executed
+
+
+def running(state: IntArray) -> bool:
+    """True when the next tick consumes motion (enabled, and any armed start reached)."""
+    if state[S_ENABLE] != 1:
+        return False
+    start = int(state[S_START])
+    return start < 0 or int(state[S_CLOCK]) >= start
+
+
+def ticks_to_scheduled_event(state: IntArray, params: IntArray) -> int | None:
+    """Ticks until the next event of the clocks and countdowns alone, 1-based, or None.
+
+    Counts a diagnostics line, the watchdog expiring, an armed start being reached, the
+    queue running dry (its last value taken, or a velocity-mode motion update that finds
+    it empty while a non-zero velocity is desired) and the velocity-mode counter reset.
+    Faults that the motion itself causes (following error, limit switch) are not
+    scheduled: they happen when the physics says.
+    """
+    tick_us = int(params[P_TICK_US])
+    candidates: list[int] = []
+    diag_n = int(params[P_DIAG_N])
+    if diag_n > 0:
+        candidates.append(max(1, int(state[S_DIAG_LEFT])))
+    enabled = state[S_ENABLE] == 1
+    watchdog_us = int(params[P_WATCHDOG_US])
+    if enabled and watchdog_us > 0:
+        left_us = watchdog_us - int(state[S_SINCE_COMMAND_US])
+        candidates.append(max(1, -(-left_us // tick_us)))
+    start = int(state[S_START])
+    clock = int(state[S_CLOCK])
+    if enabled and start >= 0 and clock < start:
+        candidates.append(start - clock + 1)
+    mode = int(state[S_MODE])
+    if running(state) and mode != MODE_CURVE:
+        first = int(state[S_MOTION_LEFT]) + 1
+        count = int(state[S_QUEUE_COUNT])
+        scalar = int(params[P_SCALAR])
+        if count > 0:
+            candidates.append(first + (count - 1) * scalar)
+        elif mode == MODE_VELOCITY and state[S_DESIRED_VEL] != 0:
+            candidates.append(first)
+    if mode == MODE_VELOCITY:
+        left_us = VELOCITY_RESET_US - int(state[S_VELOCITY_MODE_US])
+        candidates.append(max(1, -(-left_us // tick_us)))
+    return min(candidates) if candidates else None
+
+
+def idle_advance(state: IntArray, params: IntArray, n_ticks: int) -> None:
+    """Advance the clocks and countdowns by ``n_ticks`` ticks of a state at rest.
+
+    Valid when one servo tick leaves every :data:`DYNAMIC_FIELDS` entry unchanged, no
+    queue value or curve position is due, and ``n_ticks`` is below
+    :func:`ticks_to_scheduled_event`: then each of these ticks changes only the clocks and
+    countdowns, and this gives the same state as running them.
+    """
+    tick_us = int(params[P_TICK_US])
+    consuming = running(state) and state[S_MODE] != MODE_CURVE
+    state[S_CLOCK] += n_ticks
+    state[S_SINCE_COMMAND_US] = min(
+        TIMER_CAP_US, int(state[S_SINCE_COMMAND_US]) + n_ticks * tick_us
+    )
+    if state[S_MODE] == MODE_VELOCITY:
+        state[S_VELOCITY_MODE_US] += n_ticks * tick_us
+    if params[P_DIAG_N] > 0:
+        state[S_DIAG_LEFT] -= n_ticks
+    if state[S_ENABLE] == 1:
+        state[S_HISTORY_POS] = (int(state[S_HISTORY_POS]) + n_ticks) % int(params[P_WINDOW])
+    if consuming:
+        scalar = int(params[P_SCALAR])
+        state[S_MOTION_LEFT] = (int(state[S_MOTION_LEFT]) - n_ticks) % scalar
