@@ -6,6 +6,7 @@ import typer
 
 from usbmotion import __version__
 from usbmotion.cli.gcode import gcode_app
+from usbmotion.cli.run import run
 from usbmotion.cli.sim import sim
 
 app = typer.Typer(
@@ -27,6 +28,7 @@ def version() -> None:
     typer.echo(__version__)
 
 
+app.command()(run)
 app.command()(sim)
 app.add_typer(gcode_app, name="gcode")
 

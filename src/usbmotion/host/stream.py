@@ -133,6 +133,11 @@ class SetpointStream:
         """True once every value is confirmed queued on the device."""
         return self.sent >= self.total
 
+    @property
+    def consumed_estimate(self) -> int:
+        """Values the device has probably executed by now (sent minus predicted queue)."""
+        return self.sent - self._predicted(self._now())
+
     def _now(self) -> float:
         return self.client.transport.clock.now()
 

@@ -1,0 +1,420 @@
+"""The main job: run a G-code program on a machine and report how it went.
+
+Parse and plan first (a program that does not parse or plan stops before anything moves),
+then connect, configure, home, start every axis on the same device tick, stream the
+setpoints with flow control, wait for the end, and measure: planned and executed time,
+per-axis following error from the devices' own diagnostics, faults, and the G-code words
+that were ignored. A fault on any axis stops every axis.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from usbmotion.automation.device_io import DeviceHomingIO
+from usbmotion.automation.homing import Home, LimitSwitchState, MoveAxisHome
+from usbmotion.automation.sequence import run_sequence
+from usbmotion.errors import ConfigError, UsbMotionError
+from usbmotion.host.config import MachineConfig
+from usbmotion.host.device import ControlMode, Diagnostics
+from usbmotion.host.machine import Machine
+from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams, wait_until_drained
+from usbmotion.motion.gcode import GCodeProgram
+from usbmotion.motion.limits import AxisLimits, PlannerConfig
+from usbmotion.motion.planner import Plan, plan_moves
+from usbmotion.motion.sampler import sample_plan
+from usbmotion.protocol.table import Fault as FaultCode
+
+PLAN_AXES = ("X", "Y", "Z")
+HOMING_POLL_HZ = 50.0
+DIAGNOSTICS_PERIOD_S = 0.002
+SETTLE_COUNTS = 2
+START_MARGIN_S = 0.2
+FAULT_CHECK_S = 0.1
+
+
+def planner_inputs(config: MachineConfig) -> tuple[list[AxisLimits], PlannerConfig, list[float]]:
+    """Per-axis limits, planner settings and counts per mm of X, Y, Z from a machine config.
+
+    Raises:
+        ConfigError: the machine lacks an X, Y or Z axis.
+    """
+    missing = [name for name in PLAN_AXES if name not in config.axis_names]
+    if missing:
+        raise ConfigError(
+            f"{config.path}: G-code programs need axes X, Y and Z; missing {', '.join(missing)}",
+            path=str(config.path), key="axes",
+        )
+    axes = [config.axis(name) for name in PLAN_AXES]
+    limits = [AxisLimits(a.max_velocity_mm_s, a.max_accel_mm_s2) for a in axes]
+    planner = PlannerConfig(
+        junction_deviation_mm=config.junction_deviation_mm,
+        arc_tolerance_mm=config.arc_tolerance_mm,
+    )
+    return limits, planner, [a.counts_per_mm for a in axes]
+
+
+def plan_program(program: GCodeProgram, config: MachineConfig) -> Plan:
+    """Plan a program for a machine, from its home position (every axis at 0).
+
+    Raises:
+        PlanningError: a move the machine cannot make (names the line).
+        ConfigError: the machine lacks an X, Y or Z axis.
+    """
+    limits, planner, _ = planner_inputs(config)
+    origin = tuple(config.axis(n).homing.position_mm for n in PLAN_AXES)
+    return plan_moves(program.moves, limits, planner, start=(origin[0], origin[1], origin[2]))
+
+
+@dataclass(frozen=True, slots=True)
+class AxisResult:
+    """How one axis followed the program (from its diagnostics lines)."""
+
+    name: str
+    max_error_counts: int
+    rms_error_counts: float
+    max_error_mm: float
+    rms_error_mm: float
+    final_error_counts: int
+    samples: int
+
+
+@dataclass(frozen=True, slots=True)
+class FaultRecord:
+    """A fault seen during the run: which axis, what, when, and at which program line."""
+
+    axis: str
+    fault: str
+    time_s: float
+    line: int
+
+
+@dataclass(frozen=True, slots=True)
+class RunReport:
+    """The figures of one run. ``completed`` is False after a fault or an interruption."""
+
+    program: str
+    machine: str
+    moves: int
+    setpoints_per_axis: int
+    planned_time_s: float
+    executed_time_s: float
+    settle_time_s: float
+    homing_time_s: float
+    axes: tuple[AxisResult, ...]
+    faults: tuple[FaultRecord, ...]
+    ignored_words: tuple[str, ...]
+    end_position_mm: Mapping[str, float]
+    completed: bool
+    stopped_at_line: int = 0
+    stopped_at_setpoint: int = 0
+    skew_estimate_s: float = 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        """The report as plain JSON-ready data."""
+        data = asdict(self)
+        data["end_position_mm"] = dict(self.end_position_mm)
+        return data
+
+
+@dataclass(slots=True)
+class Trace:
+    """What the run recorded, for plots: device diagnostics per axis, in device ticks."""
+
+    tick_s: float
+    start_tick: int
+    clock: dict[str, list[int]] = field(default_factory=dict)
+    desired: dict[str, list[int]] = field(default_factory=dict)
+    actual: dict[str, list[int]] = field(default_factory=dict)
+    queued: dict[str, list[int]] = field(default_factory=dict)
+    counts_per_mm: dict[str, float] = field(default_factory=dict)
+
+    def record(self, axis: str) -> Callable[[Diagnostics], None]:
+        """A diagnostics callback that appends to this trace."""
+        for store in (self.clock, self.desired, self.actual, self.queued):
+            store.setdefault(axis, [])
+
+        def on_line(line: Diagnostics) -> None:
+            self.clock[axis].append(line.clock)
+            self.desired[axis].append(line.desired)
+            self.actual[axis].append(line.actual_counts)
+            self.queued[axis].append(line.queued)
+
+        return on_line
+
+    def arrays(self, axis: str) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64],
+                                         npt.NDArray[np.int64]]:
+        """(time since start s, desired counts, actual counts) of one axis."""
+        clock = np.asarray(self.clock.get(axis, []), dtype=np.int64)
+        return ((clock - self.start_tick).astype(np.float64) * self.tick_s,
+                np.asarray(self.desired.get(axis, []), dtype=np.int64),
+                np.asarray(self.actual.get(axis, []), dtype=np.int64))
+
+
+class _Mirror:
+    """Homing toward the upper switch as if it were the lower one: swap switches, negate moves."""
+
+    def __init__(self, inner: DeviceHomingIO, upward: set[str]) -> None:
+        self.inner = inner
+        self.upward = upward
+
+    def limit_switches(self, axis: str) -> LimitSwitchState | None:
+        state = self.inner.limit_switches(axis)
+        if state is None or axis not in self.upward:
+            return state
+        return LimitSwitchState(state.at_upper_limit, state.at_lower_limit)
+
+    def position_mm(self, axis: str) -> float:
+        sign = -1.0 if axis in self.upward else 1.0
+        return sign * self.inner.position_mm(axis)
+
+    def set_target_velocity(self, axis: str, velocity_mm_s: float) -> None:
+        sign = -1.0 if axis in self.upward else 1.0
+        self.inner.set_target_velocity(axis, sign * velocity_mm_s)
+
+    def zero_position(self, axis: str) -> None:
+        self.inner.zero_position(axis)
+
+
+def home_machine(machine: Machine) -> float:
+    """Home every axis in the configured order; returns the time it took, seconds.
+
+    Every axis ends in position mode, servo enabled, at its configured home position.
+
+    Raises:
+        SequenceFaultError: a switch closed the wrong way round, or homing timed out
+            (the axis and the reason are in the error); every axis is stopped first.
+    """
+    config = machine.config
+    clock = machine.clock
+    started = clock.now()
+    io = DeviceHomingIO(
+        {name: axis.client for name, axis in machine.axes.items()},
+        {name: axis.scale for name, axis in machine.axes.items()},
+        poll_period_s=1.0 / HOMING_POLL_HZ,
+        motion_period_s=dict.fromkeys(machine.axes, config.motion_period_s),
+    )
+    upward = {name for name, axis in machine.axes.items() if axis.config.homing.direction > 0}
+    outputs = _Mirror(io, upward)
+
+    def make(name: str) -> MoveAxisHome:
+        homing = machine.axis(name).config.homing
+        return MoveAxisHome(name, homing.speed_mm_s, slow_speed_mm_s=homing.slow_speed_mm_s,
+                            backoff_mm=homing.backoff_mm)
+
+    order = [list(group) for group in config.homing_order] or None
+    sequence = Home(list(machine.axes), make, order=order)
+    io.enter_velocity_mode()
+    try:
+        run_sequence(sequence, outputs, outputs, clock=clock, rate_hz=HOMING_POLL_HZ,
+                     timeout_s=300.0)
+    except UsbMotionError:
+        machine.stop()
+        raise
+    for axis in machine.axes.values():
+        client = axis.client
+        client.set_control_mode(ControlMode.POSITION)
+        client.set_position(axis.scale.to_counts(axis.config.homing.position_mm))
+        client.set_servo_enable(True)
+    return clock.now() - started
+
+
+def run_program(
+    machine: Machine,
+    program: GCodeProgram,
+    plan: Plan,
+    *,
+    home: bool = True,
+    on_progress: Callable[[float, float], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> tuple[RunReport, Trace]:
+    """Run a planned program on a connected machine; returns the report and the trace.
+
+    ``on_progress(done_s, total_s)`` is called as setpoints are confirmed.
+    A device fault stops every axis and is reported (``completed`` False, ``faults`` set);
+    so is a ``should_stop`` that answers True (Ctrl-C): the report then says where the
+    program was.
+    """
+    config = machine.config
+    _, _, counts_per_mm = planner_inputs(config)
+    period_s = config.motion_period_s
+    setpoints = sample_plan(plan, period_s=period_s, counts_per_mm=counts_per_mm)
+    machine.configure()
+    homing_s = home_machine(machine) if home else 0.0
+    if not home:
+        for axis in machine.axes.values():
+            axis.client.set_servo_enable(True)
+    tick_s = config.servo_period_s
+    diag_ticks = max(1, round(DIAGNOSTICS_PERIOD_S / tick_s))
+    trace = Trace(tick_s=tick_s, start_tick=0,
+                  counts_per_mm={n: machine.axis(n).config.counts_per_mm for n in machine.axes})
+    for name, axis in machine.axes.items():
+        axis.client.on_diagnostics = trace.record(name)
+    sync = machine.synchronise(margin_s=START_MARGIN_S, axes=PLAN_AXES)
+    trace.start_tick = sync.devices[0].start_tick
+    for name in PLAN_AXES:
+        machine.axis(name).client.set_diagnostics_interval(diag_ticks)
+    streams: dict[str, SetpointStream] = {}
+
+    def progress(update: StreamProgress) -> None:
+        if on_progress is not None:
+            done = min(s.consumed_estimate for s in streams.values())
+            on_progress(min(done * period_s, plan.duration_s), plan.duration_s)
+
+    for index, name in enumerate(PLAN_AXES):
+        streams[name] = SetpointStream(machine.axis(name).client, setpoints[:, index],
+                                       period_s=period_s, on_progress=progress)
+    faults: list[FaultRecord] = []
+    clock = machine.clock
+    last_check = [clock.now()]
+
+    def check() -> bool:
+        if should_stop is not None and should_stop():
+            return True
+        if clock.now() - last_check[0] < FAULT_CHECK_S:
+            return False
+        last_check[0] = clock.now()
+        for name, axis in machine.axes.items():
+            status = axis.client.status()
+            if status.fault != FaultCode.NONE:
+                elapsed = (status.clock - trace.start_tick) * tick_s
+                faults.append(FaultRecord(name, status.fault_name, elapsed,
+                                          _line_at(plan, elapsed)))
+        return bool(faults)
+
+    stopped = False
+    try:
+        run_streams(list(streams.values()), should_stop=check)
+        stopped = bool(faults) or (should_stop is not None and should_stop())
+        if not stopped:
+            wait_until_drained([machine.axis(n).client for n in PLAN_AXES], period_s=period_s,
+                               should_stop=check)
+            stopped = bool(faults) or (should_stop is not None and should_stop())
+        if not stopped:
+            _settle(machine, counts=SETTLE_COUNTS, timeout_s=1.0)
+    except KeyboardInterrupt:
+        stopped = True
+    if stopped:
+        machine.stop()
+    statuses = machine.status()
+    consumed = min(streams[n].sent - statuses[n].queued for n in PLAN_AXES)
+    for name in PLAN_AXES:
+        machine.axis(name).client.set_diagnostics_interval(0)
+    end_clock = max(s.clock for s in statuses.values())
+    report = _report(
+        program, machine, plan, setpoints.shape[0], trace, homing_s, end_clock,
+        faults, completed=not stopped, consumed=consumed, skew_s=sync.estimated_skew_s,
+    )
+    return report, trace
+
+
+def _settle(machine: Machine, *, counts: int, timeout_s: float) -> None:
+    clock = machine.clock
+    deadline = clock.now() + timeout_s
+    while clock.now() < deadline:
+        statuses = machine.status()
+        if all(abs(s.desired_counts - s.actual_counts) <= counts for s in statuses.values()):
+            return
+        clock.sleep(0.005)
+
+
+def _line_at(plan: Plan, time_s: float) -> int:
+    if len(plan) == 0:
+        return 0
+    index = int(np.searchsorted(plan.start_time_s, time_s, side="right")) - 1
+    return int(plan.line[min(max(index, 0), len(plan) - 1)])
+
+
+def _report(
+    program: GCodeProgram,
+    machine: Machine,
+    plan: Plan,
+    setpoint_count: int,
+    trace: Trace,
+    homing_s: float,
+    end_clock: int,
+    faults: list[FaultRecord],
+    *,
+    completed: bool,
+    consumed: int,
+    skew_s: float,
+) -> RunReport:
+    config = machine.config
+    period_s = config.motion_period_s
+    results: list[AxisResult] = []
+    executed_s = 0.0
+    settle_s = 0.0
+    for name in PLAN_AXES:
+        times, desired, actual = trace.arrays(name)
+        in_run = times >= 0
+        error = (desired - actual)[in_run]
+        queued = np.asarray(trace.queued.get(name, []), dtype=np.int64)[in_run]
+        t_run = times[in_run]
+        if error.size:
+            busy = np.nonzero(queued > 0)[0]
+            if busy.size:
+                executed_s = max(executed_s, float(t_run[busy[-1]]) + period_s)
+            within = np.abs(error) <= SETTLE_COUNTS
+            late = np.nonzero(~within)[0]
+            settle_s = max(settle_s, float(t_run[late[-1]]) if late.size else 0.0)
+        scale = machine.axis(name).config.counts_per_mm
+        max_counts = int(np.max(np.abs(error))) if error.size else 0
+        rms_counts = float(np.sqrt(np.mean(error.astype(np.float64) ** 2))) if error.size else 0.0
+        results.append(AxisResult(
+            name, max_counts, rms_counts, max_counts / scale, rms_counts / scale,
+            int(error[-1]) if error.size else 0, int(error.size),
+        ))
+    end_positions = machine.positions_mm()
+    stopped_time = consumed * period_s
+    return RunReport(
+        program=program.file,
+        machine=config.name,
+        moves=len(program.moves),
+        setpoints_per_axis=setpoint_count,
+        planned_time_s=plan.duration_s,
+        executed_time_s=executed_s if completed else stopped_time,
+        settle_time_s=max(settle_s, executed_s) if completed else stopped_time,
+        homing_time_s=homing_s,
+        axes=tuple(results),
+        faults=tuple(faults),
+        ignored_words=tuple(f"{w.word} (line {w.line})" for w in program.ignored),
+        end_position_mm=end_positions,
+        completed=completed and not faults,
+        stopped_at_line=0 if completed else _line_at(plan, stopped_time),
+        stopped_at_setpoint=0 if completed else consumed,
+        skew_estimate_s=skew_s,
+    )
+
+
+def describe(report: RunReport) -> str:
+    """The report as a few lines of text for a person."""
+    lines = [
+        f"program        {Path(report.program).name} ({report.moves} moves,"
+        f" {report.setpoints_per_axis} setpoints per axis)",
+        f"machine        {report.machine}",
+        f"homing         {report.homing_time_s:.3f} s",
+        f"planned time   {report.planned_time_s:.3f} s",
+        f"executed time  {report.executed_time_s:.3f} s (settled at {report.settle_time_s:.3f} s)",
+        "following error (device diagnostics, desired - actual):",
+    ]
+    for axis in report.axes:
+        lines.append(
+            f"  {axis.name}  max {axis.max_error_mm:8.4f} mm ({axis.max_error_counts:5d} counts)"
+            f"   rms {axis.rms_error_mm:8.4f} mm ({axis.rms_error_counts:8.2f} counts)"
+        )
+    position = "  ".join(f"{k} {v:.3f}" for k, v in report.end_position_mm.items())
+    lines.append(f"end position   {position} mm")
+    lines.append("faults         " + ("; ".join(
+        f"axis {f.axis}: {f.fault} at {f.time_s:.3f} s, line {f.line}" for f in report.faults
+    ) or "none"))
+    lines.append("ignored words  " + (", ".join(report.ignored_words) or "none"))
+    if not report.completed:
+        lines.append(f"STOPPED at program line {report.stopped_at_line}, setpoint"
+                     f" {report.stopped_at_setpoint} of {report.setpoints_per_axis}")
+    return "\n".join(lines)
