@@ -620,7 +620,6 @@ class _Interpreter:
                 index,
                 f"G{block.numbers[index]} is not a G code: G numbers have at most one "
                 "decimal (G90.1)",
-                unsupported=True,
             )
         if code < 0:
             raise self.error(block, index, f"G{block.numbers[index]}: G codes are not negative")
@@ -803,8 +802,10 @@ class _Interpreter:
             self.motion = -1
             return
         self.motion = motion
-        # The word to blame: the motion G code, or the first word of a modal motion line.
-        blame = motion_index if motion_index >= 0 else 0
+        # The word to blame: the motion G code, else the first axis or centre word.
+        blame = motion_index
+        if blame < 0:
+            blame = min((where[letter] for letter in "XYZIJK" if letter in where), default=0)
         if motion == 0:
             self.traverse(block.line, self.ends(params))
             return

@@ -81,12 +81,16 @@ class Block(NamedTuple):
 # is checked by float() on the fast path and by _word_value() on the careful one.
 _TOKEN = re.compile(
     r"[ \t\r]*(?:"
-    r"([A-Za-z])[ \t\r]*([-+]?[0-9.]*(?:[ \t\r]+[0-9.]+)*)"
+    r"([A-Za-z])[ \t\r]*([-+0-9.]*(?:[ \t\r]+[-+0-9.]+)*)"
     r"|\(([^()]*)\)"
     r"|;(.*)"
     r"|([^ \t\r])"
     r")"
 )
+# The fast path's token: a word, or one character that is not part of a word (which
+# makes float("") fail and sends the line to the careful path). Blanks between tokens are
+# skipped by findall.
+_FAST_TOKEN = re.compile(r"([A-Za-z])[ \t\r]*([-+0-9.]*(?:[ \t\r]+[-+0-9.]+)*)|([^ \t\r])")
 # Anything that needs the careful path: comments, block delete, delimiter, checksum,
 # line numbers (N) and O-words.
 _SPECIAL = re.compile(r"[();/%*NnOo]")
@@ -116,7 +120,7 @@ def tokenize(text: str, *, file: str = "<string>") -> Iterator[Block]:
         text = text.replace("\r\n", "\n")
     if text.startswith("\ufeff"):
         text = text[1:]
-    findall = _TOKEN.findall
+    findall = _FAST_TOKEN.findall
     special = _SPECIAL.search
     line_number_ok = _LINE_NUMBER.fullmatch
     new = _new
@@ -132,7 +136,7 @@ def tokenize(text: str, *, file: str = "<string>") -> Iterator[Block]:
             tokens = findall(raw)
             if not tokens:
                 continue
-            letters, numbers, _paren, _semicolon, _other = zip(*tokens, strict=True)
+            letters, numbers, _others = zip(*tokens, strict=True)
             try:
                 # A token that is not a word has an empty number, and float("") fails.
                 values = tuple(map(float, numbers))

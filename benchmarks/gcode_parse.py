@@ -1,0 +1,222 @@
+"""G-code parsing and interpreting speed, against gcodeparser and pygcode in the same run.
+
+    python benchmarks/gcode_parse.py [--lines N] [--runs N] [--seed N] [--json]
+
+A deterministic program of G0-G3 moves (every arc valid, every line with its G word, no
+comments, so that every parser reads every word) is timed:
+
+- parsing (text to blocks of words): ours (``parse_blocks``), gcodeparser
+  (``GcodeParser(text)``) and pygcode (``Line(text)`` for each line; pygcode is slow, so
+  it is timed on the first 10,000 lines and its rate scaled to lines/s);
+- interpreting (text to typed moves): ours (``parse_gcode``).
+
+Each figure is the median of ``--runs`` runs, the tools taking turns within each run.
+Targets: parsing at least 1.5x gcodeparser and 5x pygcode. A peer that is not installed
+is skipped (``pip install -r benchmarks/requirements.txt``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import random
+import statistics
+import sys
+import time
+import warnings
+from collections.abc import Callable
+
+from usbmotion.motion.gcode import parse_blocks, parse_gcode
+
+PYGCODE_SLICE_LINES = 10_000
+TARGET_VS_GCODEPARSER = 1.5
+TARGET_VS_PYGCODE = 5.0
+INSTALL_HINT = "pip install -r benchmarks/requirements.txt"
+
+
+def make_program(lines: int, *, seed: int = 2024) -> str:
+    """A valid program of ``lines`` lines: G0/G1/G2/G3 moves in mm, ending with M2.
+
+    Arc centres are given as I/J offsets rounded to 3 decimals and end points on the same
+    circle rounded to 3 decimals, so every arc is within LinuxCNC's radius tolerance.
+    """
+    if lines < 3:
+        raise ValueError(f"lines={lines!r} is too few; at least 3 (header, moves, M2)")
+    rng = random.Random(seed)
+    out = ["G21 G90 G17 G0 X0 Y0 Z1", "G1 Z0 F600"]
+    x = y = 0.0
+    z = 0.0
+    for _ in range(lines - 3):
+        kind = rng.random()
+        if kind < 0.15 or abs(x) > 150.0 or abs(y) > 150.0:
+            x = round(rng.uniform(-100.0, 100.0), 3)
+            y = round(rng.uniform(-100.0, 100.0), 3)
+            z = round(rng.uniform(0.0, 5.0), 3)
+            out.append(f"G0 X{x:.3f} Y{y:.3f} Z{z:.3f}")
+        elif kind < 0.55:
+            x = round(x + rng.uniform(-20.0, 20.0), 3)
+            y = round(y + rng.uniform(-20.0, 20.0), 3)
+            out.append(f"G1 X{x:.3f} Y{y:.3f} F{rng.choice((300, 600, 900, 1200))}")
+        else:
+            radius = rng.uniform(1.0, 20.0)
+            towards = rng.uniform(-math.pi, math.pi)
+            i = round(radius * math.cos(towards), 3)
+            j = round(radius * math.sin(towards), 3)
+            cx, cy = x + i, y + j
+            radius = math.hypot(i, j)
+            start = math.atan2(y - cy, x - cx)
+            clockwise = rng.random() < 0.5
+            sweep = rng.uniform(0.2, 5.5)
+            end = start - sweep if clockwise else start + sweep
+            x = round(cx + radius * math.cos(end), 3)
+            y = round(cy + radius * math.sin(end), 3)
+            out.append(f"G{2 if clockwise else 3} X{x:.3f} Y{y:.3f} I{i:.3f} J{j:.3f}")
+    out.append("M2")
+    return "\n".join(out) + "\n"
+
+
+def _median_seconds(samples: list[float]) -> float:
+    return statistics.median(samples)
+
+
+def _gcodeparser() -> Callable[[str], int] | None:
+    try:
+        from gcodeparser import GcodeParser  # noqa: PLC0415 - an optional peer
+    except ImportError:
+        return None
+
+    def run(text: str) -> int:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            return len(GcodeParser(text).lines)
+
+    return run
+
+
+def _pygcode() -> Callable[[list[str]], int] | None:
+    try:
+        from pygcode import Line  # noqa: PLC0415 - an optional peer
+    except ImportError:
+        return None
+
+    def run(lines: list[str]) -> int:
+        return len([Line(line) for line in lines])
+
+    return run
+
+
+def main(argv: list[str] | None = None) -> dict[str, object]:
+    """Run the benchmark, print the figures and return them.
+
+    Parameters:
+        argv: command-line arguments (``--lines``, ``--runs``, ``--seed``, ``--json``);
+            ``None`` reads ``sys.argv``.
+    """
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--lines", type=int, default=100_000, help="program length")
+    parser.add_argument("--runs", type=int, default=5, help="runs per figure (median)")
+    parser.add_argument("--seed", type=int, default=2024, help="program generator seed")
+    parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+    args = parser.parse_args(argv)
+    if args.runs < 1:
+        parser.error(f"--runs {args.runs!r}: at least 1")
+
+    text = make_program(args.lines, seed=args.seed)
+    lines = text.splitlines()
+    pygcode_lines = lines[:PYGCODE_SLICE_LINES]
+    gcodeparser = _gcodeparser()
+    pygcode = _pygcode()
+
+    ours_parse: list[float] = []
+    ours_interpret: list[float] = []
+    peer_gcodeparser: list[float] = []
+    peer_pygcode: list[float] = []
+    blocks = moves = parsed_gcodeparser = parsed_pygcode = 0
+    for _ in range(args.runs):
+        start = time.perf_counter()
+        blocks = len(parse_blocks(text))
+        ours_parse.append(time.perf_counter() - start)
+        if gcodeparser is not None:
+            start = time.perf_counter()
+            parsed_gcodeparser = gcodeparser(text)
+            peer_gcodeparser.append(time.perf_counter() - start)
+        if pygcode is not None:
+            start = time.perf_counter()
+            parsed_pygcode = pygcode(pygcode_lines)
+            peer_pygcode.append(time.perf_counter() - start)
+        start = time.perf_counter()
+        moves = len(parse_gcode(text, file="<benchmark>").moves)
+        ours_interpret.append(time.perf_counter() - start)
+
+    count = len(lines)
+    ours_rate = count / _median_seconds(ours_parse)
+    result: dict[str, object] = {
+        "lines": count,
+        "runs": args.runs,
+        "seed": args.seed,
+        "python": sys.version.split()[0],
+        "parse_lines_per_s": {"ours": ours_rate},
+        "parse_ratio": {},
+        "interpret_lines_per_s": count / _median_seconds(ours_interpret),
+        "moves": moves,
+        "blocks": blocks,
+        "skipped": {},
+    }
+    rates: dict[str, float] = result["parse_lines_per_s"]  # type: ignore[assignment]
+    ratios: dict[str, float] = result["parse_ratio"]  # type: ignore[assignment]
+    skipped: dict[str, str] = result["skipped"]  # type: ignore[assignment]
+    if gcodeparser is not None:
+        rates["gcodeparser"] = count / _median_seconds(peer_gcodeparser)
+        ratios["gcodeparser"] = ours_rate / rates["gcodeparser"]
+        result["gcodeparser_lines_parsed"] = parsed_gcodeparser
+    else:
+        skipped["gcodeparser"] = f"not installed ({INSTALL_HINT})"
+    if pygcode is not None:
+        rates["pygcode"] = len(pygcode_lines) / _median_seconds(peer_pygcode)
+        ratios["pygcode"] = ours_rate / rates["pygcode"]
+        result["pygcode_lines_parsed"] = parsed_pygcode
+    else:
+        skipped["pygcode"] = f"not installed ({INSTALL_HINT})"
+
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        _print_report(result, ratios, rates, skipped, len(pygcode_lines))
+    return result
+
+
+def _print_report(
+    result: dict[str, object],
+    ratios: dict[str, float],
+    rates: dict[str, float],
+    skipped: dict[str, str],
+    pygcode_lines: int,
+) -> None:
+    print(
+        f"G-code program: {result['lines']:,} lines of G0-G3 (seed {result['seed']}), "
+        f"median of {result['runs']} runs, Python {result['python']}"
+    )
+    print("parsing (text to blocks of words), lines/s:")
+    print(f"  ours         {rates['ours']:>12,.0f}")
+    targets = {"gcodeparser": TARGET_VS_GCODEPARSER, "pygcode": TARGET_VS_PYGCODE}
+    for peer in ("gcodeparser", "pygcode"):
+        if peer in rates:
+            note = (
+                f" (timed on the first {pygcode_lines:,} lines, scaled)"
+                if peer == "pygcode"
+                else ""
+            )
+            verdict = "meets" if ratios[peer] >= targets[peer] else "MISSES"
+            print(
+                f"  {peer:<12} {rates[peer]:>12,.0f}   ours/{peer} = {ratios[peer]:.2f}x "
+                f"({verdict} the {targets[peer]:g}x target){note}"
+            )
+        else:
+            print(f"  {peer:<12} skipped: {skipped[peer]}")
+    print("interpreting (text to typed moves), lines/s:")
+    print(f"  ours         {result['interpret_lines_per_s']:>12,.0f}   ({result['moves']:,} moves)")
+
+
+if __name__ == "__main__":
+    main()
