@@ -184,7 +184,7 @@ def test_unsupported_syntax(line: str, word: str, what: str) -> None:
     error = rejected(f"G0 X0\n{line}\nM2\n")
     assert isinstance(error, UnsupportedGCodeError)
     assert (error.line, error.word) == (2, word)
-    assert what in error.message
+    assert what in error.message and what in error.reason
 
 
 def test_tokenize_is_lazy() -> None:
@@ -613,7 +613,8 @@ def test_unsupported_words(line: str, word: str, what: str) -> None:
     assert isinstance(error, UnsupportedGCodeError)
     assert (error.file, error.line, error.word) == ("u.ngc", 2, word)
     assert error.column == line.upper().index(word) + 1
-    assert what in error.message
+    assert what in error.message and what in error.reason
+    assert error.message == f"{word}: {error.reason}"
     assert len(program.moves) == 1
 
 

@@ -180,7 +180,20 @@ class GCodeError(UsbMotionError, ValueError):
 
 
 class UnsupportedGCodeError(GCodeError):
-    """A word that would change the geometry is not supported."""
+    """A word that would change the geometry is not supported; ``reason`` says why."""
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        file: str = "<string>",
+        line: int = 0,
+        column: int = 0,
+        word: str = "",
+        reason: str = "",
+    ) -> None:
+        super().__init__(message, file=file, line=line, column=column, word=word)
+        self.reason = reason or message
 
 
 class PlanningError(UsbMotionError, ValueError):

@@ -470,14 +470,23 @@ class _Interpreter:
 
     # --- one block ---------------------------------------------------------------------
 
-    def error(
-        self, block: Block, index: int, message: str, *, unsupported: bool = False
-    ) -> GCodeError:
+    def error(self, block: Block, index: int, message: str) -> GCodeError:
         """The error for word ``index`` of ``block`` (its column and text)."""
-        column = word_columns(block)[index] if index >= 0 else 0
-        word = block.letters[index] + block.numbers[index] if index >= 0 else ""
-        kind = UnsupportedGCodeError if unsupported else GCodeError
-        return kind(message, file=self.file, line=block.line, column=column, word=word)
+        column = word_columns(block)[index]
+        word = block.letters[index] + block.numbers[index]
+        return GCodeError(message, file=self.file, line=block.line, column=column, word=word)
+
+    def unsupported(self, block: Block, index: int, reason: str) -> UnsupportedGCodeError:
+        """The error for word ``index`` of ``block``, which is not supported for ``reason``."""
+        word = block.letters[index] + block.numbers[index]
+        return UnsupportedGCodeError(
+            f"{word}: {reason}",
+            file=self.file,
+            line=block.line,
+            column=word_columns(block)[index],
+            word=word,
+            reason=reason,
+        )
 
     def execute(self, block: Block) -> None:
         letters = block.letters
@@ -500,7 +509,7 @@ class _Interpreter:
                 entry = _G_CODES.get(code)
                 if entry is None:
                     reason = _G_UNSUPPORTED.get(code, "it is not a G code LinuxCNC knows")
-                    raise self.error(block, index, f"G{numbers[index]}: {reason}", unsupported=True)
+                    raise self.unsupported(block, index, reason)
                 group, kind, meaning = entry
                 previous = g_codes.get(group)
                 if previous is not None and code != 800 and previous != 800:
@@ -519,9 +528,7 @@ class _Interpreter:
                 code = self.m_code(block, index)
                 m_entry = _M_CODES.get(code)
                 if m_entry is None:
-                    raise self.error(
-                        block, index, f"M{numbers[index]}: {_m_reason(code)}", unsupported=True
-                    )
+                    raise self.unsupported(block, index, _m_reason(code))
                 group, meaning = m_entry
                 if group in m_codes:
                     raise self.error(
@@ -547,12 +554,7 @@ class _Interpreter:
                 )
             else:
                 if letter in _LETTERS_UNSUPPORTED:
-                    raise self.error(
-                        block,
-                        index,
-                        f"{letter}{numbers[index]}: {_LETTERS_UNSUPPORTED[letter]}",
-                        unsupported=True,
-                    )
+                    raise self.unsupported(block, index, _LETTERS_UNSUPPORTED[letter])
                 value = values[index]
                 if not -_LARGEST < value < _LARGEST:
                     raise self.error(

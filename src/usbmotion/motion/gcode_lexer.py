@@ -186,12 +186,15 @@ def _read_line_carefully(raw: str, number: int, file: str) -> Block | None:
             column = match.start(1) + 1
             upper = letter.upper()
             if upper == "O":
+                word = upper + "".join(digits.split())
+                reason = "subroutines and control flow (O-words) are not supported"
                 raise UnsupportedGCodeError(
-                    "O-word: subroutines and control flow (O-words) are not supported",
+                    f"{word}: {reason}",
                     file=file,
                     line=number,
                     column=column,
-                    word=upper + digits.strip(_BLANKS),
+                    word=word,
+                    reason=reason,
                 )
             value, text = _word_value(upper, digits, code, match.end(), number, column, file)
             if upper == "N":
@@ -234,22 +237,19 @@ def _word_value(
         text = "".join(text.split())
     if not text:
         following = code[end : end + 1]
-        if following == "[":
-            raise UnsupportedGCodeError(
-                f"{letter}[...]: expressions in brackets are not "
-                "supported; write the number itself",
-                file=file,
-                line=line,
-                column=column,
-                word=letter + "[",
+        if following in ("[", "#"):
+            reason = (
+                "expressions in brackets are not supported"
+                if following == "["
+                else "parameters (#) are not supported"
             )
-        if following == "#":
             raise UnsupportedGCodeError(
-                f"{letter}#...: parameters (#) are not supported; write the number itself",
+                f"{letter}{following}...: {reason}; write the number itself",
                 file=file,
                 line=line,
                 column=column,
-                word=letter + "#",
+                word=letter + following,
+                reason=reason,
             )
         raise GCodeError(
             f"{letter} has no number: a word is a letter followed by a number, such as {letter}1.5",
@@ -321,9 +321,13 @@ def _checked_code(raw: str, line: int, file: str) -> str:
 def _bad_character(char: str, code: str, index: int, line: int, file: str) -> GCodeError:
     column = index + 1
 
-    def error(message: str, *, at: int = column, unsupported: bool = False) -> GCodeError:
-        kind = UnsupportedGCodeError if unsupported else GCodeError
-        return kind(message, file=file, line=line, column=at, word=char)
+    def error(message: str, *, at: int = column) -> GCodeError:
+        return GCodeError(message, file=file, line=line, column=at, word=char)
+
+    def unsupported(reason: str) -> UnsupportedGCodeError:
+        return UnsupportedGCodeError(
+            f"{char!r}: {reason}", file=file, line=line, column=column, word=char, reason=reason
+        )
 
     if char == "(":
         close = code.find(")", index + 1)
@@ -338,17 +342,11 @@ def _bad_character(char: str, code: str, index: int, line: int, file: str) -> GC
     if char == ")":
         return error("')' closes no comment")
     if char == "#":
-        return error("'#': parameters are not supported", unsupported=True)
+        return unsupported("parameters (#) are not supported")
     if char == "[":
-        return error(
-            "'[': expressions in brackets are not supported",
-            unsupported=True,
-        )
+        return unsupported("expressions in brackets are not supported")
     if char in "@^":
-        return error(
-            f"{char!r}: polar coordinates are not supported",
-            unsupported=True,
-        )
+        return unsupported("polar coordinates are not supported")
     if char == "%":
         return error("'%': a program delimiter must stand alone on its line")
     if char == "/":
