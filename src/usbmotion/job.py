@@ -231,12 +231,14 @@ def run_program(
     plan: Plan,
     *,
     home: bool = True,
+    configure: bool = True,
     on_progress: Callable[[float, float], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
 ) -> tuple[RunReport, Trace]:
     """Run a planned program on a connected machine; returns the report and the trace.
 
-    ``on_progress(done_s, total_s)`` is called as setpoints are confirmed.
+    ``on_progress(done_s, total_s)`` is called as setpoints are confirmed. With
+    ``configure`` the machine's configuration is sent first; with ``home`` it is homed.
     A device fault stops every axis and is reported (``completed`` False, ``faults`` set);
     so is a ``should_stop`` that answers True (Ctrl-C): the report then says where the
     program was.
@@ -245,7 +247,8 @@ def run_program(
     _, _, counts_per_mm = planner_inputs(config)
     period_s = config.motion_period_s
     setpoints = sample_plan(plan, period_s=period_s, counts_per_mm=counts_per_mm)
-    machine.configure()
+    if configure:
+        machine.configure()
     homing_s = home_machine(machine) if home else 0.0
     if not home:
         for axis in machine.axes.values():

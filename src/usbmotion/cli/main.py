@@ -5,9 +5,11 @@ from __future__ import annotations
 import typer
 
 from usbmotion import __version__
+from usbmotion.cli.console import console
 from usbmotion.cli.gcode import gcode_app
 from usbmotion.cli.run import run
 from usbmotion.cli.sim import sim
+from usbmotion.cli.tune import tune
 
 app = typer.Typer(
     name="usbmotion",
@@ -29,6 +31,8 @@ def version() -> None:
 
 
 app.command()(run)
+app.command()(console)
+app.command()(tune)
 app.command()(sim)
 app.add_typer(gcode_app, name="gcode")
 

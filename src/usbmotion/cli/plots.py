@@ -10,6 +10,7 @@ import numpy as np
 if TYPE_CHECKING:
     from usbmotion.job import RunReport, Trace
     from usbmotion.motion.planner import Plan
+    from usbmotion.tuning import StepResponse
 
 
 def _pyplot() -> Any:
@@ -56,6 +57,29 @@ def plot_run(path: Path, plan: Plan, trace: Trace, report: RunReport) -> Path:
     ax_error.legend(loc="best")
     fig.suptitle(f"{Path(report.program).name} on {report.machine}: planned"
                  f" {report.planned_time_s:.2f} s, executed {report.executed_time_s:.2f} s")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def plot_step(path: Path, response: StepResponse) -> Path:
+    """Desired and actual position around a step, with the settling band."""
+    plt = _pyplot()
+    m = response.metrics
+    fig, ax = plt.subplots(figsize=(9, 5), dpi=100)
+    ax.plot(response.times_s * 1000, response.desired, color="0.5", lw=1.5, label="desired")
+    ax.plot(response.times_s * 1000, response.actual, color="tab:red", lw=1.0, label="actual")
+    target = response.desired[-1]
+    ax.axhspan(target - m.settling_band_counts, target + m.settling_band_counts,
+               color="tab:green", alpha=0.15, label="settling band")
+    ax.set_xlabel("time since the step (ms)")
+    ax.set_ylabel("position (counts)")
+    ax.set_title(f"axis {response.axis}: step {m.step_counts} counts, overshoot"
+                 f" {m.overshoot_pct:.1f} %, settling {m.settling_time_s * 1000:.0f} ms")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)

@@ -1,0 +1,59 @@
+"""``usbmotion console``: seed 003's serial console, interactive or with piped input."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, default_machine
+from usbmotion.errors import ConfigError, UsbMotionError
+
+
+def console(
+    machine: Annotated[
+        Path | None,
+        typer.Option("--machine", "-m", help="Machine configuration (default: the built-in"
+                     " simulated XYZ machine)."),
+    ] = None,
+) -> None:
+    """Drive the machine from a console: $c cycle start, $r reset and home, $d N demo.
+
+    Reads one command per line from standard input (a prompt is shown on a terminal)
+    until end of input or $q. $h lists the commands.
+    """
+    from usbmotion.console import Console  # noqa: PLC0415 - keep --help fast
+    from usbmotion.host.config import load_config  # noqa: PLC0415
+    from usbmotion.host.machine import Machine  # noqa: PLC0415
+
+    try:
+        config = load_config(machine or default_machine())
+    except ConfigError as error:
+        typer.echo(f"usbmotion console: {error}", err=True)
+        raise typer.Exit(EXIT_BAD_INPUT) from None
+    interactive = sys.stdin.isatty()
+
+    def write(line: str) -> None:
+        sys.stdout.write(line + "\n")
+        sys.stdout.flush()
+
+    try:
+        with Machine.connect(config) as connected:
+            session = Console(connected, write)
+            write(f"usbmotion console on {config.name}: $h for help")
+            while True:
+                if interactive:
+                    sys.stdout.write("> ")
+                    sys.stdout.flush()
+                line = sys.stdin.readline()
+                if not line or not session.handle(line):
+                    break
+            try:
+                connected.stop()
+            except UsbMotionError as error:
+                write(f"error: stopping the machine: {error}")
+    except UsbMotionError as error:
+        typer.echo(f"usbmotion console: {error}", err=True)
+        raise typer.Exit(EXIT_FAULT) from None
