@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import json
 import math
 from functools import reduce
@@ -185,6 +186,21 @@ def test_unsupported_syntax(line: str, word: str, what: str) -> None:
     assert isinstance(error, UnsupportedGCodeError)
     assert (error.line, error.word) == (2, word)
     assert what in error.message and what in error.reason
+
+
+def test_parse_blocks_restores_the_garbage_collector() -> None:
+    assert gc.isenabled()
+    parse_blocks("G0 X1\n")
+    assert gc.isenabled()
+    with pytest.raises(GCodeError):
+        parse_blocks("G0 X(\n")
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        parse_blocks("G0 X1\n")
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
 
 
 def test_tokenize_is_lazy() -> None:

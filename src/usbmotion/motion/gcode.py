@@ -471,7 +471,13 @@ class _Interpreter:
     # --- one block ---------------------------------------------------------------------
 
     def error(self, block: Block, index: int, message: str) -> GCodeError:
-        """The error for word ``index`` of ``block`` (its column and text)."""
+        """The error for word ``index`` of ``block`` (its column and text).
+
+        ``index`` -1 stands for the block's first axis or arc centre word (the motion of a
+        line that has no motion G code), or its first word.
+        """
+        if index < 0:
+            index = next((i for i, c in enumerate(block.letters) if c in "XYZIJK"), 0)
         column = word_columns(block)[index]
         word = block.letters[index] + block.numbers[index]
         return GCodeError(message, file=self.file, line=block.line, column=column, word=word)
@@ -580,6 +586,23 @@ class _Interpreter:
         # Act, in LinuxCNC's order of execution.
         if "F" in params:
             self.feed_mm_min = params["F"] * self.scale
+        if len(g_codes) > (1 in g_codes):  # G codes besides the motion one
+            self.set_modes(block, g_codes, params)
+        if motion != -1:
+            self.move(block, motion, params, where, g_where.get(1, -1))
+        if ignored:
+            columns = word_columns(block)
+            self.ignored.extend(
+                IgnoredWord(letters[i] + numbers[i], block.line, columns[i], meaning)
+                for i, meaning in sorted(ignored)
+            )
+        stop = m_codes.get(4)
+        if stop in _M_END:
+            self.ended_by = _M_END[stop]
+            self.end_line = block.line
+
+    def set_modes(self, block: Block, g_codes: dict[int, int], params: dict[str, float]) -> None:
+        """Apply the block's G codes other than motion, in LinuxCNC's order."""
         if g_codes.get(0) == 40:
             self.dwell(block, params)
         plane = g_codes.get(2)
@@ -597,18 +620,6 @@ class _Interpreter:
         group0 = g_codes.get(0)
         if group0 is not None and group0 != 40:
             self.non_modal(block, group0, params)
-        if motion != -1:
-            self.move(block, motion, params, where, g_where.get(1, -1))
-        if ignored:
-            columns = word_columns(block)
-            self.ignored.extend(
-                IgnoredWord(letters[i] + numbers[i], block.line, columns[i], meaning)
-                for i, meaning in sorted(ignored)
-            )
-        stop = m_codes.get(4)
-        if stop in _M_END:
-            self.ended_by = _M_END[stop]
-            self.end_line = block.line
 
     def g_code(self, block: Block, index: int) -> int:
         """Ten times the G number (G90.1 -> 901), checked as LinuxCNC's read_g does."""
@@ -653,16 +664,14 @@ class _Interpreter:
         """Check the block as a whole; return the motion it makes (G code x10, or -1)."""
         group0 = g_codes.get(0, -1)
         motion_word = g_codes.get(1, -1)
-        axis_index = min(
-            (where[letter] for letter in _AXIS_LETTERS if letter in params), default=-1
-        )
+        has_axis = "X" in params or "Y" in params or "Z" in params
         covets_axes = group0 in (280, 300, 920)
         if motion_word != -1:
             if motion_word == 800:
-                if axis_index >= 0 and not covets_axes:
+                if has_axis and not covets_axes:
                     raise self.error(
                         block,
-                        axis_index,
+                        _first_of(where, _AXIS_LETTERS),
                         "axis words cannot be used with G80, which cancels the motion mode",
                     )
             elif covets_axes:
@@ -673,11 +682,11 @@ class _Interpreter:
                     "axis words; put them on separate lines",
                 )
             motion = motion_word
-        elif axis_index >= 0 and not covets_axes:
+        elif has_axis and not covets_axes:
             if self.motion == -1:
                 raise self.error(
                     block,
-                    axis_index,
+                    _first_of(where, _AXIS_LETTERS),
                     "axis word with no motion mode: no G0, G1, G2 or G3 is active (a "
                     "program starts with none, and G80 cancels it); add one to this line",
                 )
@@ -690,7 +699,7 @@ class _Interpreter:
             motion = self.motion  # a line such as "I1" continues the arc mode
         else:
             motion = -1
-        if group0 == 920 and axis_index < 0:
+        if group0 == 920 and not has_axis:
             raise self.error(block, g_where[0], "G92 needs at least one axis word (X, Y or Z)")
 
         arc = motion in (20, 30)
@@ -707,11 +716,12 @@ class _Interpreter:
                     where["P"],
                     f"G4 P{block.numbers[where['P']]}: a dwell time is not negative",
                 )
-        for letter in "IJK":
-            if letter in params and not arc:
-                raise self.error(block, where[letter], f"{letter} word with no G2 or G3 to use it")
-        if "R" in params and not arc:
-            raise self.error(block, where["R"], "R word with no G2 or G3 to use it")
+        if not arc:
+            for letter in "IJKR":
+                if letter in params:
+                    raise self.error(
+                        block, where[letter], f"{letter} word with no G2 or G3 to use it"
+                    )
         path_control = g_codes.get(13)
         override = m_codes.get(9)
         if "P" in params:
@@ -804,10 +814,8 @@ class _Interpreter:
             self.motion = -1
             return
         self.motion = motion
-        # The word to blame: the motion G code, else the first axis or centre word.
+        # The word to blame: the motion G code, else (-1) the first axis or centre word.
         blame = motion_index
-        if blame < 0:
-            blame = min((where[letter] for letter in "XYZIJK" if letter in where), default=0)
         if motion == 0:
             self.traverse(block.line, self.ends(params))
             return
@@ -1031,6 +1039,11 @@ class _Interpreter:
             theta = direction + math.pi / 2.0
         offset = abs_radius * math.cos(math.asin(half_length / abs_radius))
         return mid1 + offset * math.cos(theta), mid2 + offset * math.sin(theta)
+
+
+def _first_of(where: dict[str, int], letters: str) -> int:
+    """The index of the first word in the block among ``letters``; -1 when none."""
+    return min((where[letter] for letter in letters if letter in where), default=-1)
 
 
 def _m_reason(code: int) -> str:

@@ -23,9 +23,11 @@ reads what follows, as LinuxCNC does.
 
 from __future__ import annotations
 
+import gc
 import math
 import re
 from collections.abc import Iterator
+from contextlib import contextmanager
 from functools import reduce
 from operator import xor
 from typing import NamedTuple
@@ -157,10 +159,27 @@ def tokenize(text: str, *, file: str = "<string>") -> Iterator[Block]:
 def parse_blocks(text: str, *, file: str = "<string>") -> list[Block]:
     """Read the whole of a G-code text into blocks (see :func:`tokenize`).
 
+    The cyclic garbage collector is paused meanwhile: blocks hold no reference cycles,
+    and with it running, its full collections over a growing list of long-lived blocks
+    take about a third of the time. It is resumed (if it was enabled) before returning.
+
     Raises:
         GCodeError: as :func:`tokenize`, for the first bad line in the text.
     """
-    return list(tokenize(text, file=file))
+    with _collector_paused():
+        return list(tokenize(text, file=file))
+
+
+@contextmanager
+def _collector_paused() -> Iterator[None]:
+    if not gc.isenabled():
+        yield
+        return
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.enable()
 
 
 def word_columns(block: Block) -> tuple[int, ...]:
