@@ -11,6 +11,8 @@ comments, so that every parser reads every word) is timed:
 - interpreting (text to typed moves): ours (``parse_gcode``).
 
 Each figure is the median of ``--runs`` runs, the tools taking turns within each run.
+``items_parsed`` is a sanity check: our blocks, gcodeparser's GcodeLine commands (a line
+with several G codes makes several), pygcode's Line objects.
 Targets: parsing at least 1.5x gcodeparser and 5x pygcode. A peer that is not installed
 is skipped (``pip install -r benchmarks/requirements.txt``).
 """
@@ -74,10 +76,6 @@ def make_program(lines: int, *, seed: int = 2024) -> str:
             out.append(f"G{2 if clockwise else 3} X{x:.3f} Y{y:.3f} I{i:.3f} J{j:.3f}")
     out.append("M2")
     return "\n".join(out) + "\n"
-
-
-def _median_seconds(samples: list[float]) -> float:
-    return statistics.median(samples)
 
 
 def _gcodeparser() -> Callable[[str], int] | None:
@@ -150,34 +148,37 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
         ours_interpret.append(time.perf_counter() - start)
 
     count = len(lines)
-    ours_rate = count / _median_seconds(ours_parse)
+    ours_rate = count / statistics.median(ours_parse)
+    rates: dict[str, float] = {"ours": ours_rate}
+    ratios: dict[str, float] = {}
+    skipped: dict[str, str] = {}
+    parsed: dict[str, int] = {"ours": blocks}
+    if gcodeparser is not None:
+        rates["gcodeparser"] = count / statistics.median(peer_gcodeparser)
+        ratios["gcodeparser"] = ours_rate / rates["gcodeparser"]
+        parsed["gcodeparser"] = parsed_gcodeparser
+    else:
+        skipped["gcodeparser"] = f"not installed ({INSTALL_HINT})"
+    if pygcode is not None:
+        rates["pygcode"] = len(pygcode_lines) / statistics.median(peer_pygcode)
+        ratios["pygcode"] = ours_rate / rates["pygcode"]
+        parsed["pygcode"] = parsed_pygcode
+    else:
+        skipped["pygcode"] = f"not installed ({INSTALL_HINT})"
     result: dict[str, object] = {
         "lines": count,
         "runs": args.runs,
         "seed": args.seed,
         "python": sys.version.split()[0],
-        "parse_lines_per_s": {"ours": ours_rate},
-        "parse_ratio": {},
-        "interpret_lines_per_s": count / _median_seconds(ours_interpret),
+        "parse_lines_per_s": rates,
+        "parse_ratio": ratios,
+        "parse_targets": {"gcodeparser": TARGET_VS_GCODEPARSER, "pygcode": TARGET_VS_PYGCODE},
+        "pygcode_timed_lines": len(pygcode_lines),
+        "items_parsed": parsed,
+        "interpret_lines_per_s": count / statistics.median(ours_interpret),
         "moves": moves,
-        "blocks": blocks,
-        "skipped": {},
+        "skipped": skipped,
     }
-    rates: dict[str, float] = result["parse_lines_per_s"]  # type: ignore[assignment]
-    ratios: dict[str, float] = result["parse_ratio"]  # type: ignore[assignment]
-    skipped: dict[str, str] = result["skipped"]  # type: ignore[assignment]
-    if gcodeparser is not None:
-        rates["gcodeparser"] = count / _median_seconds(peer_gcodeparser)
-        ratios["gcodeparser"] = ours_rate / rates["gcodeparser"]
-        result["gcodeparser_lines_parsed"] = parsed_gcodeparser
-    else:
-        skipped["gcodeparser"] = f"not installed ({INSTALL_HINT})"
-    if pygcode is not None:
-        rates["pygcode"] = len(pygcode_lines) / _median_seconds(peer_pygcode)
-        ratios["pygcode"] = ours_rate / rates["pygcode"]
-        result["pygcode_lines_parsed"] = parsed_pygcode
-    else:
-        skipped["pygcode"] = f"not installed ({INSTALL_HINT})"
 
     if args.json:
         print(json.dumps(result, indent=2))

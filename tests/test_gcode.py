@@ -40,6 +40,8 @@ def run(text: str) -> tuple[Move, ...]:
 def rejected(text: str) -> GCodeError:
     with pytest.raises(GCodeError) as info:
         parse_gcode(text, file="t.ngc")
+    assert info.value.file == "t.ngc"
+    assert str(info.value).startswith(f"t.ngc:{info.value.line}")
     return info.value
 
 
