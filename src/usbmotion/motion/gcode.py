@@ -17,7 +17,9 @@ Decisions worth knowing, each LinuxCNC's:
 
 - Within a block, words act in LinuxCNC's order: F, then G4, plane, units, distance
   modes, G28/G30/G92, motion, and M2/M30 last. So ``G20 F10`` sets 10 mm/min (F is read
-  before G20 takes effect), and a G20/G21 switch keeps the feed's physical speed.
+  before G20 takes effect). A G20/G21 switch keeps the feed's physical speed, as
+  LinuxCNC's task does (its stand-alone ``rs274`` keeps the number instead).
+- G80 cancels the motion mode: after it, axis words need a G0-G3 again.
 - A feed move (G1, G2, G3) with feed 0 is an error; G0 needs no feed.
 - Centre-format arcs: with r1, r2 the radii to start and end, the arc is refused when
   ``|r2 - r1|`` exceeds 100 * t or exceeds t with a relative difference over 0.1 %, where
@@ -155,10 +157,11 @@ _G_UNSUPPORTED: dict[int, str] = {
     930: "inverse time feed is not supported",
     950: "feed per revolution is not supported",
 }
-for _code in (550, 560, 570, 580, 590, 591, 592, 593):
-    _G_UNSUPPORTED[_code] = "coordinate systems other than G54 are not supported"
-for _code in range(810, 900, 10):
-    _G_UNSUPPORTED[_code] = "canned cycles are not supported"
+_G_UNSUPPORTED |= dict.fromkeys(
+    (550, 560, 570, 580, 590, 591, 592, 593),
+    "coordinate systems other than G54 are not supported",
+)
+_G_UNSUPPORTED |= dict.fromkeys(range(810, 900, 10), "canned cycles are not supported")
 
 _M_END = {2: "M2", 30: "M30"}
 # code -> (modal group, meaning)
@@ -188,10 +191,8 @@ _M_UNSUPPORTED: dict[int, str] = {
     98: "subroutine calls are not supported",
     99: "subroutine returns are not supported",
 }
-for _code in range(62, 69):
-    _M_UNSUPPORTED[_code] = "digital and analog I/O is not supported"
-for _code in range(70, 74):
-    _M_UNSUPPORTED[_code] = "modal state save and restore is not supported"
+_M_UNSUPPORTED |= dict.fromkeys(range(62, 69), "digital and analog I/O is not supported")
+_M_UNSUPPORTED |= dict.fromkeys(range(70, 74), "modal state save and restore is not supported")
 
 _LETTERS_UNSUPPORTED = {
     "A": "the rotary axis A is not supported (axes are X, Y, Z)",
@@ -210,15 +211,23 @@ _LETTERS_IGNORED = {
     "D": "cutter compensation index (no cutter compensation)",
     "H": "tool length offset index (no tool length offsets)",
 }
-# Common spellings of G codes, so that most need no arithmetic.
-_G_SPELLINGS: dict[str, int] = {}
-for _code in list(_G_CODES) + list(_G_UNSUPPORTED):
-    _whole, _tenth = divmod(_code, 10)
-    for _spelling in (f"{_whole}", f"{_whole:02d}"):
-        _G_SPELLINGS[_spelling + (f".{_tenth}" if _tenth else "")] = _code
-        if not _tenth:
-            _G_SPELLINGS[_spelling + "."] = _code
-            _G_SPELLINGS[_spelling + ".0"] = _code
+
+
+def _spellings(codes: Iterable[int]) -> dict[str, int]:
+    """Common spellings of G codes (``1``, ``01``, ``1.``, ``1.0``, ``90.1``) to codes x10."""
+    spellings: dict[str, int] = {}
+    for code in codes:
+        whole, tenth = divmod(code, 10)
+        for number in (f"{whole}", f"{whole:02d}"):
+            if tenth:
+                spellings[f"{number}.{tenth}"] = code
+            else:
+                spellings.update(dict.fromkeys((number, f"{number}.", f"{number}.0"), code))
+    return spellings
+
+
+# So that most G codes need no arithmetic.
+_G_SPELLINGS = _spellings([*_G_CODES, *_G_UNSUPPORTED])
 
 _PLANE_OF_CODE = {170: Plane.XY, 180: Plane.XZ, 190: Plane.YZ}
 # plane -> (letter of the first axis's centre offset, of the second's, the forbidden one)
