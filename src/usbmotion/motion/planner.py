@@ -68,6 +68,8 @@ _TWO_PI = 2.0 * math.pi
 _FULL_CIRCLE_FUZZ_MM = 1e-8
 _MAX_THETA_PER_CHORD = 2.0 * math.pi / 3.0
 _SPLIT_SCALE = 2.0**20
+_SPLIT_SHIFT = 2.0**32
+_BLOCK = 32768
 
 _ArcRow = tuple[int, int, float, float, float, float, float, float, float, float]
 _AXES_BY_FIRST = {plane.axes[0]: plane.axes for plane in Plane}
@@ -138,11 +140,14 @@ def exact_cumsum(values: FloatArray) -> tuple[FloatArray, float]:
     up to 2**33) and a remainder below 2**-21; the sums of the two parts are added once, so
     each offset is within a few ulps of the exact sum, with no drift over millions of terms.
     """
-    high = np.round(values * _SPLIT_SCALE) / _SPLIT_SCALE
+    if values.size and float(values.max()) < _SPLIT_SHIFT:
+        high = (values + _SPLIT_SHIFT) - _SPLIT_SHIFT  # rounds to the 2**-20 grid
+    else:
+        high = np.round(values * _SPLIT_SCALE) / _SPLIT_SCALE
     low = values - high
-    high_sum = np.concatenate(([0.0], np.cumsum(high)))
-    low_sum = np.concatenate(([0.0], np.cumsum(low)))
-    sums = high_sum + low_sum
+    sums = np.zeros(values.shape[0] + 1, dtype=np.float64)
+    np.cumsum(high, out=sums[1:])
+    sums[1:] += np.cumsum(low)
     return sums[:-1], float(sums[-1])
 
 
@@ -366,6 +371,9 @@ def plan_moves(
     inf = math.inf
     hypot = math.hypot
     atan2 = math.atan2
+    acos = math.acos
+    ceil = math.ceil
+    plane_axes = {plane: plane.axes for plane in Plane}
 
     for move in moves:
         cls = type(move)
@@ -411,9 +419,10 @@ def plan_moves(
                 raise _gap_error(move, s, expected, tolerance)
             e = arc.end
             expected = e
-            if not isinstance(arc.plane, Plane):
+            axes = plane_axes.get(arc.plane)
+            if axes is None:
                 raise PlanningError(f"line {arc.line}: arc plane {arc.plane!r} is not a Plane")
-            a1, a2, an = arc.plane.axes
+            a1, a2, an = axes
             c = arc.centre
             sx = s[a1] - c[a1]
             sy = s[a2] - c[a2]
@@ -430,15 +439,15 @@ def plan_moves(
             theta0 = atan2(sy, sx)
             sweep = _arc_sweep(arc, theta0, atan2(ey, ex), hypot(ex - sx, ey - sy))
             normal_travel = e[an] - s[an]
-            r_min = min(r0, r1)
-            r_max = max(r0, r1)
-            planar = abs(sweep) * 0.5 * (r0 + r1)
+            turn = sweep if sweep > 0.0 else -sweep
+            r_min, r_max = (r0, r1) if r0 < r1 else (r1, r0)
+            planar = turn * 0.5 * (r0 + r1)
             if planar * planar + normal_travel * normal_travel < min_segment_sq:
                 continue
-            theta_chord = 2.0 * math.acos(max(0.5, 1.0 - arc_tolerance / r_max))
-            chords = max(1, math.ceil(abs(sweep) / theta_chord))
-            shortest = 0.8 * math.hypot(abs(sweep) * r_min, normal_travel)
-            chords = max(1, min(chords, int(shortest / min_segment)))
+            cosine = 1.0 - arc_tolerance / r_max
+            chords = ceil(turn / (2.0 * acos(cosine if cosine > 0.5 else 0.5)))
+            shortest = int(0.8 * hypot(turn * r_min, normal_travel) / min_segment)
+            chords = max(1, min(chords, shortest))
             item_kind.append(2)
             item_feed.append(arc.feed_mm_min)
             item_line.append(arc.line)
@@ -543,51 +552,59 @@ def _plan_columns(
         )
     speed_item = feed_item / 60.0
 
-    vertices = np.empty((total + 1, 3), dtype=np.float64)
-    vertices[0] = origin
+    # Columns: vertices[axis, i]; the Plan exposes the (n + 1, 3) transpose.
+    vertices = np.empty((3, total + 1), dtype=np.float64)
+    vertices[:, 0] = origin
     last_vertex = np.cumsum(counts)
-    vertices[last_vertex, 0] = ends[0]
-    vertices[last_vertex, 1] = ends[1]
-    vertices[last_vertex, 2] = ends[2]
+    vertices[0, last_vertex] = ends[0]
+    vertices[1, last_vertex] = ends[1]
+    vertices[2, last_vertex] = ends[2]
     if arc_rows:
         _fill_arc_vertices(vertices, arc_rows, arc_planes)
 
     if not np.isfinite(vertices).all():
-        bad_vertex = int(np.flatnonzero(~np.isfinite(vertices).all(axis=1))[0])
+        bad_vertex = int(np.flatnonzero(~np.isfinite(vertices).all(axis=0))[0])
         index = int(np.searchsorted(last_vertex, bad_vertex, side="left"))
         raise PlanningError(
-            f"line {int(lines_item[index])}: position {tuple(vertices[bad_vertex].tolist())!r} "
-            "is not finite"
+            f"line {int(lines_item[index])}: position "
+            f"{tuple(vertices[:, bad_vertex].tolist())!r} is not finite"
         )
 
     kind = np.repeat(kinds_item, counts)
     line = np.repeat(lines_item, counts)
     speed = np.repeat(speed_item, counts)
-    dwell_s = np.repeat(np.array(item_dwell, dtype=np.float64), counts)
-    moving = kind != SegmentKind.DWELL
-
-    delta = np.diff(vertices, axis=0)
-    dx = np.ascontiguousarray(delta[:, 0])
-    dy = np.ascontiguousarray(delta[:, 1])
-    dz = np.ascontiguousarray(delta[:, 2])
-    length = np.sqrt(dx * dx + dy * dy + dz * dz)
-    safe_length = np.where(moving, length, 1.0)
-    ux = np.where(moving, dx / safe_length, 0.0)
-    uy = np.where(moving, dy / safe_length, 0.0)
-    uz = np.where(moving, dz / safe_length, 0.0)
-
+    dwells = np.flatnonzero(kind == SegmentKind.DWELL)
     inv_v = [1.0 / axis.velocity_mm_s for axis in limits]
     inv_a = [1.0 / axis.accel_mm_s2 for axis in limits]
-    ax, ay, az = np.abs(ux), np.abs(uy), np.abs(uz)
-    v_share = np.maximum(np.maximum(ax * inv_v[0], ay * inv_v[1]), az * inv_v[2])
-    a_share = np.maximum(np.maximum(ax * inv_a[0], ay * inv_a[1]), az * inv_a[2])
-    v_nominal = np.where(moving, np.minimum(speed, 1.0 / np.where(moving, v_share, 1.0)), 0.0)
-    accel = np.where(moving, 1.0 / np.where(moving, a_share, 1.0), 0.0)
-    v_nominal_sq = v_nominal * v_nominal
 
-    junction_sq = _junction_limits(
-        ux, uy, uz, length, moving, v_nominal_sq, accel, inv_a, config.junction_deviation_mm
-    )
+    # Elementwise work runs in blocks that stay in cache; only the passes span the program.
+    # Dwells (zero length) divide by zero in the blocks and are set right afterwards.
+    unit = np.empty((3, total), dtype=np.float64)
+    length = np.empty(total, dtype=np.float64)
+    v_nominal_sq = np.empty(total, dtype=np.float64)
+    accel = np.empty(total, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for lo in range(0, total, _BLOCK):
+            hi = min(total, lo + _BLOCK)
+            unit[:, lo:hi], length[lo:hi], v_nominal_sq[lo:hi], accel[lo:hi] = _geometry(
+                vertices[:, lo : hi + 1], speed[lo:hi], inv_v, inv_a
+            )
+        unit[:, dwells] = 0.0
+        v_nominal_sq[dwells] = 0.0
+        accel[dwells] = 0.0
+        junction_sq = np.zeros(total + 1, dtype=np.float64)
+        for lo in range(0, total - 1, _BLOCK):
+            hi = min(total - 1, lo + _BLOCK)
+            junction_sq[lo + 1 : hi + 1] = _junction_limits(
+                unit[:, lo : hi + 1],
+                length[lo : hi + 1],
+                v_nominal_sq[lo : hi + 1],
+                accel[lo : hi + 1],
+                inv_a,
+                config.junction_deviation_mm,
+            )
+    junction_sq[dwells] = 0.0
+    junction_sq[dwells + 1] = 0.0
 
     reach = 2.0 * accel * length
     prefix = np.concatenate(([0.0], np.cumsum(reach)))
@@ -599,32 +616,35 @@ def _plan_columns(
     forward = prefix + np.minimum.accumulate(backward - prefix)
     speed_sq = np.maximum(np.minimum(backward, forward), 0.0)
 
-    entry_sq = speed_sq[:-1]
-    exit_sq = speed_sq[1:]
-    peak_sq = 0.5 * (entry_sq + exit_sq + reach)
-    cruise_sq = np.maximum(np.minimum(v_nominal_sq, peak_sq), np.maximum(entry_sq, exit_sq))
-    v_entry = np.sqrt(entry_sq)
-    v_exit = np.sqrt(exit_sq)
-    v_cruise = np.sqrt(cruise_sq)
-    safe_accel = np.where(moving, accel, 1.0)
-    s_accel = (cruise_sq - entry_sq) / (2.0 * safe_accel)
-    s_decel = (cruise_sq - exit_sq) / (2.0 * safe_accel)
-    safe_cruise = np.where(moving, v_cruise, 1.0)
-    t_accel = np.where(moving, 2.0 * s_accel / np.where(moving, v_cruise + v_entry, 1.0), 0.0)
-    t_decel = np.where(moving, 2.0 * s_decel / np.where(moving, v_cruise + v_exit, 1.0), 0.0)
-    s_cruise = np.maximum(length - s_accel - s_decel, 0.0)
-    t_cruise = np.where(moving, s_cruise / safe_cruise, dwell_s)
+    profile = np.empty((6, total), dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for lo in range(0, total, _BLOCK):
+            hi = min(total, lo + _BLOCK)
+            profile[:, lo:hi] = _trapezoids(
+                speed_sq[lo:hi],
+                speed_sq[lo + 1 : hi + 1],
+                reach[lo:hi],
+                v_nominal_sq[lo:hi],
+                accel[lo:hi],
+                length[lo:hi],
+            )
+    v_entry, v_cruise, v_exit, t_accel, t_cruise, t_decel = profile
+    if dwells.size:
+        v_cruise[dwells] = 0.0
+        t_accel[dwells] = 0.0
+        t_decel[dwells] = 0.0
+        dwell_item = np.flatnonzero(kinds_item == SegmentKind.DWELL)
+        t_cruise[dwells] = np.array(item_dwell, dtype=np.float64)[dwell_item]
 
     start_time, duration = exact_cumsum(t_accel + t_cruise + t_decel)
-    unit = np.stack((ux, uy, uz), axis=1)
     return Plan(
-        vertices_mm=_readonly(vertices),  # type: ignore[arg-type]
-        unit=_readonly(unit),  # type: ignore[arg-type]
+        vertices_mm=_readonly(vertices.T),  # type: ignore[arg-type]
+        unit=_readonly(unit.T),  # type: ignore[arg-type]
         kind=_readonly(kind),  # type: ignore[arg-type]
         line=_readonly(line),  # type: ignore[arg-type]
-        length_mm=_readonly(np.where(moving, length, 0.0)),  # type: ignore[arg-type]
+        length_mm=_readonly(length),  # type: ignore[arg-type]
         v_entry_mm_s=_readonly(v_entry),  # type: ignore[arg-type]
-        v_cruise_mm_s=_readonly(np.where(moving, v_cruise, 0.0)),  # type: ignore[arg-type]
+        v_cruise_mm_s=_readonly(v_cruise),  # type: ignore[arg-type]
         v_exit_mm_s=_readonly(v_exit),  # type: ignore[arg-type]
         accel_mm_s2=_readonly(accel),  # type: ignore[arg-type]
         t_accel_s=_readonly(t_accel),  # type: ignore[arg-type]
@@ -637,45 +657,99 @@ def _plan_columns(
     )
 
 
+def _geometry(
+    vertices: FloatArray, speed: FloatArray, inv_v: list[float], inv_a: list[float]
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Unit directions (3, m), lengths, squared nominal speeds and accelerations of a block."""
+    delta = vertices[:, 1:] - vertices[:, :-1]
+    dx, dy, dz = delta
+    length = np.sqrt(dx * dx + dy * dy + dz * dz)
+    unit = delta / length
+    ax, ay, az = np.abs(unit)
+    v_share = np.maximum(np.maximum(ax * inv_v[0], ay * inv_v[1]), az * inv_v[2])
+    a_share = np.maximum(np.maximum(ax * inv_a[0], ay * inv_a[1]), az * inv_a[2])
+    v_nominal = np.minimum(speed, 1.0 / v_share)
+    return unit, length, v_nominal * v_nominal, 1.0 / a_share
+
+
+def _trapezoids(
+    entry_sq: FloatArray,
+    exit_sq: FloatArray,
+    reach: FloatArray,
+    v_nominal_sq: FloatArray,
+    accel: FloatArray,
+    length: FloatArray,
+) -> FloatArray:
+    """Rows v_entry, v_cruise, v_exit, t_accel, t_cruise, t_decel of a block."""
+    peak_sq = 0.5 * (entry_sq + exit_sq + reach)
+    cruise_sq = np.maximum(np.minimum(v_nominal_sq, peak_sq), np.maximum(entry_sq, exit_sq))
+    out = np.empty((6, entry_sq.shape[0]), dtype=np.float64)
+    v_entry, v_cruise, v_exit, t_accel, t_cruise, t_decel = out
+    np.sqrt(entry_sq, out=v_entry)
+    np.sqrt(cruise_sq, out=v_cruise)
+    np.sqrt(exit_sq, out=v_exit)
+    half_inv_accel = 0.5 / accel
+    s_accel = (cruise_sq - entry_sq) * half_inv_accel
+    s_decel = (cruise_sq - exit_sq) * half_inv_accel
+    np.divide(2.0 * s_accel, v_cruise + v_entry, out=t_accel)
+    np.divide(2.0 * s_decel, v_cruise + v_exit, out=t_decel)
+    length = length - s_accel
+    length -= s_decel
+    np.maximum(length, 0.0, out=length)
+    np.divide(length, v_cruise, out=t_cruise)
+    return out
+
+
 def _fill_arc_vertices(
     vertices: FloatArray,
     arc_rows: list[_ArcRow],
     arc_planes: list[tuple[int, int, int]],
 ) -> None:
-    """Write the inner chord vertices of every arc, one numpy pass per plane."""
+    """Write the inner chord vertices of every arc: per plane, in blocks of about
+    ``_BLOCK`` vertices."""
     rows = np.array(arc_rows, dtype=np.float64)
     plane_of = np.array([axes[0] for axes in arc_planes], dtype=np.int64)
     for first_axis in np.unique(plane_of).tolist():
         selected = rows[plane_of == first_axis]
-        axis1, axis2, normal = _AXES_BY_FIRST[first_axis]
-        first = selected[:, 0].astype(np.int64)
-        chords = selected[:, 1].astype(np.int64)
-        inner = chords - 1
-        offsets = np.cumsum(inner) - inner
-        step = np.arange(int(inner.sum()), dtype=np.int64) - np.repeat(offsets, inner) + 1
-        fraction = step / np.repeat(chords, inner)
-        angle = np.repeat(selected[:, 6], inner) + np.repeat(selected[:, 7], inner) * fraction
-        radius = np.repeat(selected[:, 4], inner) + np.repeat(selected[:, 5], inner) * fraction
-        index = np.repeat(first, inner) + step
-        vertices[index, axis1] = np.repeat(selected[:, 2], inner) + radius * np.cos(angle)
-        vertices[index, axis2] = np.repeat(selected[:, 3], inner) + radius * np.sin(angle)
-        vertices[index, normal] = (
-            np.repeat(selected[:, 8], inner) + np.repeat(selected[:, 9], inner) * fraction
-        )
+        inner = selected[:, 1].astype(np.int64) - 1
+        ends = np.cumsum(inner)
+        begin = 0
+        while begin < len(selected):
+            stop = max(begin + 1, int(np.searchsorted(ends, ends[begin] + _BLOCK, side="left")))
+            _arc_block(vertices, selected[begin:stop], _AXES_BY_FIRST[first_axis])
+            begin = stop
+
+
+def _arc_block(vertices: FloatArray, rows: FloatArray, axes: tuple[int, int, int]) -> None:
+    axis1, axis2, normal = axes
+    first = rows[:, 0].astype(np.int64)
+    chords = rows[:, 1].astype(np.int64)
+    inner = chords - 1
+    offsets = np.cumsum(inner) - inner
+    step = np.arange(int(inner.sum()), dtype=np.int64) - np.repeat(offsets, inner) + 1
+    fraction = step / np.repeat(chords, inner)
+    angle = np.repeat(rows[:, 6], inner) + np.repeat(rows[:, 7], inner) * fraction
+    radius = np.repeat(rows[:, 4], inner) + np.repeat(rows[:, 5], inner) * fraction
+    index = np.repeat(first, inner) + step
+    vertices[axis1, index] = np.repeat(rows[:, 2], inner) + radius * np.cos(angle)
+    vertices[axis2, index] = np.repeat(rows[:, 3], inner) + radius * np.sin(angle)
+    vertices[normal, index] = np.repeat(rows[:, 8], inner) + np.repeat(rows[:, 9], inner) * fraction
 
 
 def _junction_limits(
-    ux: FloatArray,
-    uy: FloatArray,
-    uz: FloatArray,
+    unit: FloatArray,
     length: FloatArray,
-    moving: npt.NDArray[np.bool_],
     v_nominal_sq: FloatArray,
     accel: FloatArray,
     inv_a: list[float],
     deviation_mm: float,
 ) -> FloatArray:
-    """Squared speed limits at every vertex: 0 at both ends and around dwells."""
+    """Squared speed limits at the m - 1 junctions of a block of m segments.
+
+    A straight continuation (``cos_half == 0``) divides by zero to an infinite limit, and its
+    undefined junction direction (0 / 0) is skipped by ``fmin``: the nominal speeds rule.
+    """
+    ux, uy, uz = unit
     wx = ux[1:] - ux[:-1]
     wy = uy[1:] - uy[:-1]
     wz = uz[1:] - uz[:-1]
@@ -683,23 +757,17 @@ def _junction_limits(
     sy = uy[1:] + uy[:-1]
     sz = uz[1:] + uz[:-1]
     # theta is the angle at the corner: cos(theta/2) = |u2 - u1| / 2, sin(theta/2) = |u2 + u1| / 2.
-    cos_half = 0.5 * np.sqrt(wx * wx + wy * wy + wz * wz)
+    w_length = np.sqrt(wx * wx + wy * wy + wz * wz)
+    cos_half = 0.5 * w_length
     sin_half = np.minimum(0.5 * np.sqrt(sx * sx + sy * sy + sz * sz), 1.0)
-    turning = cos_half > 1e-12
-    safe_w = np.where(turning, 2.0 * cos_half, 1.0)
-    a_share = np.maximum(
-        np.maximum(np.abs(wx) * inv_a[0], np.abs(wy) * inv_a[1]), np.abs(wz) * inv_a[2]
-    )
-    a_junction = np.minimum(
-        safe_w / np.where(a_share > 0.0, a_share, 1.0), np.minimum(accel[1:], accel[:-1])
-    )
-    safe_cos = np.where(turning, cos_half, 1.0)
-    deviation_sq = a_junction * deviation_mm * sin_half * (1.0 + sin_half) / (safe_cos * safe_cos)
-    shorter = np.minimum(length[1:], length[:-1])
-    centripetal_sq = a_junction * 0.5 * shorter * sin_half / safe_cos
-    nominal_sq = np.minimum(v_nominal_sq[1:], v_nominal_sq[:-1])
-    limit = np.where(
-        turning, np.minimum(np.minimum(deviation_sq, centripetal_sq), nominal_sq), nominal_sq
-    )
-    limit = np.where(moving[1:] & moving[:-1], limit, 0.0)
-    return np.concatenate(([0.0], limit, [0.0]))
+    np.abs(wx, out=wx)
+    np.abs(wy, out=wy)
+    np.abs(wz, out=wz)
+    a_share = np.maximum(np.maximum(wx * inv_a[0], wy * inv_a[1]), wz * inv_a[2])
+    a_junction = np.fmin(w_length / a_share, np.minimum(accel[1:], accel[:-1]))
+    deviation_sq = a_junction * deviation_mm * sin_half * (1.0 + sin_half) / (cos_half * cos_half)
+    centripetal_sq = a_junction * 0.5 * np.minimum(length[1:], length[:-1]) * sin_half / cos_half
+    limit = np.minimum(v_nominal_sq[1:], v_nominal_sq[:-1])
+    np.minimum(limit, deviation_sq, out=limit)
+    np.minimum(limit, centripetal_sq, out=limit)
+    return limit
