@@ -119,7 +119,7 @@ class DeviceState:
     desired_velocity: int
     """Desired velocity, counts/s (mode 2)."""
     velocity: int
-    """Encoder counts over the last tick, counts/s."""
+    """Encoder counts over the last millisecond (at least one tick), counts/s."""
     queued: int
     """Values in the motion queue."""
     keyframes: int
@@ -665,10 +665,13 @@ class Device:
         if call.is_query:
             self._reply(5, self.tick_us)
             return
+        state = self._state
         self._interval_dms = call.args[0]
         self._clear_queue()
         self._clear_curve()
-        self._state[core1.S_FRESH] = 1
+        state[core1.S_FRESH] = 1
+        state[core1.S_COUNTS : core1.S_COUNTS + core1.HISTORY_SLOTS] = state[core1.S_ACTUAL]
+        state[core1.S_COUNTS_POS] = 0
         self._copy_in()
         self._debug_line(5, self.tick_us)
 
@@ -808,9 +811,11 @@ class Device:
         state = self._state
         position = call.args[0]
         count = int(state[core1.S_THETA]) // MICRO
+        shift = position - int(state[core1.S_ACTUAL])
         state[core1.S_OFFSET] = wrap_int32(position - count)
         state[core1.S_ACTUAL] = position
-        state[core1.S_PREV_ACTUAL] = position
+        for slot in range(core1.S_COUNTS, core1.S_COUNTS + core1.HISTORY_SLOTS):
+            state[slot] = wrap_int32(int(state[slot]) + shift)
         self._clear_queue()
         self._reset_controller()
         self._clear_curve()

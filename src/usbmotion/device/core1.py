@@ -20,7 +20,7 @@ One servo tick, in order:
    voltage, with conditional integration and a clamped integrator; the derivative is the
    error change over the last millisecond (``window`` ticks); 0 V when disabled.
 3. the motor over the tick, in ``steps`` equal integration steps.
-4. encoder: counter, velocity over the tick (counts/s), limit switches; in velocity mode
+4. encoder: counter, velocity over the window (counts/s), limit switches; in velocity mode
    the counter is reset to 0 after every 60 s of device time spent in that mode.
 5. faults (servo enabled): limit switch closing in mode 1 or 3, following error in mode 1
    or 3, then watchdog; a fault disables the servo.
@@ -65,9 +65,10 @@ S_OMEGA = 6
 S_OFFSET = 7
 """Encoder counter minus shaft count (call 23 and the velocity-mode reset change it)."""
 S_ACTUAL = 8
-S_PREV_ACTUAL = 9
+S_COUNTS_POS = 9
+"""Slot of the counter history holding the counter of ``window`` ticks ago."""
 S_VELOCITY = 10
-"""Encoder counts over the last tick, as counts/s."""
+"""Encoder counts over the derivative window (the last millisecond), as counts/s."""
 S_DESIRED = 11
 S_DESIRED_VEL = 12
 S_INTEGRAL = 13
@@ -90,10 +91,12 @@ S_VELOCITY_MODE_US = 23
 S_DIAG_LEFT = 24
 S_LIMITS = 25
 S_EVENTS = 26
+HISTORY_SLOTS = 10
 S_HISTORY = 27
 """First of ``HISTORY_SLOTS`` entries: the errors of the last ``window`` ticks (a ring)."""
-HISTORY_SLOTS = 10
-STATE_SIZE = S_HISTORY + HISTORY_SLOTS
+S_COUNTS = S_HISTORY + HISTORY_SLOTS
+"""First of ``HISTORY_SLOTS`` entries: the counters of the last ``window`` ticks (a ring)."""
+STATE_SIZE = S_COUNTS + HISTORY_SLOTS
 
 # --- params: what core0 copies in -------------------------------------------------------
 P_TICK_US = 0
@@ -139,7 +142,6 @@ _DYNAMIC = (
     S_OMEGA,
     S_OFFSET,
     S_ACTUAL,
-    S_PREV_ACTUAL,
     S_VELOCITY,
     S_DESIRED,
     S_DESIRED_VEL,
@@ -151,7 +153,7 @@ _DYNAMIC = (
     S_QUEUE_COUNT,
     S_START,
     S_LIMITS,
-    *range(S_HISTORY, S_HISTORY + HISTORY_SLOTS),
+    *range(S_HISTORY, S_HISTORY + 2 * HISTORY_SLOTS),
 )
 DYNAMIC_FIELDS: tuple[int, ...] = _DYNAMIC
 """State entries that a tick may change other than the clocks and countdowns: when one
@@ -243,7 +245,7 @@ def servo_block(
     omega = int(state[S_OMEGA])
     offset = int(state[S_OFFSET])
     actual = int(state[S_ACTUAL])
-    prev_actual = int(state[S_PREV_ACTUAL])
+    counts_pos = int(state[S_COUNTS_POS])
     velocity = int(state[S_VELOCITY])
     desired = int(state[S_DESIRED])
     desired_vel = int(state[S_DESIRED_VEL])
@@ -363,8 +365,12 @@ def servo_block(
         # 4. encoder and switches
         count = theta // MICRO
         actual = wrap_int32(count + offset)
-        velocity = trunc_div(wrap_int32(actual - prev_actual) * MICRO, tick_us)
-        prev_actual = actual
+        then = int(state[S_COUNTS + counts_pos])
+        velocity = trunc_div(wrap_int32(actual - then) * MICRO, window * tick_us)
+        state[S_COUNTS + counts_pos] = actual
+        counts_pos += 1
+        if counts_pos >= window:
+            counts_pos = 0
         new_limits = 0
         if count <= lower:
             new_limits = 1
@@ -377,8 +383,9 @@ def servo_block(
             if velocity_mode_us >= VELOCITY_RESET_US:
                 velocity_mode_us -= VELOCITY_RESET_US
                 offset = wrap_int32(-count)
+                for slot in range(window):
+                    state[S_COUNTS + slot] = wrap_int32(int(state[S_COUNTS + slot]) - actual)
                 actual = 0
-                prev_actual = 0
 
         # 5. faults
         since_command += tick_us
@@ -420,7 +427,7 @@ def servo_block(
     state[S_OMEGA] = omega
     state[S_OFFSET] = offset
     state[S_ACTUAL] = actual
-    state[S_PREV_ACTUAL] = prev_actual
+    state[S_COUNTS_POS] = counts_pos
     state[S_VELOCITY] = velocity
     state[S_DESIRED] = desired
     state[S_DESIRED_VEL] = desired_vel
@@ -505,8 +512,10 @@ def idle_advance(state: IntArray, params: IntArray, n_ticks: int) -> None:
         state[S_VELOCITY_MODE_US] += n_ticks * tick_us
     if params[P_DIAG_N] > 0:
         state[S_DIAG_LEFT] -= n_ticks
+    window = int(params[P_WINDOW])
+    state[S_COUNTS_POS] = (int(state[S_COUNTS_POS]) + n_ticks) % window
     if state[S_ENABLE] == 1:
-        state[S_HISTORY_POS] = (int(state[S_HISTORY_POS]) + n_ticks) % int(params[P_WINDOW])
+        state[S_HISTORY_POS] = (int(state[S_HISTORY_POS]) + n_ticks) % window
     if consuming:
         scalar = int(params[P_SCALAR])
         state[S_MOTION_LEFT] = (int(state[S_MOTION_LEFT]) - n_ticks) % scalar

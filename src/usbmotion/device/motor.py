@@ -224,7 +224,7 @@ def derive_constants(motor: MotorParams, *, tick_us: int) -> MotorConstants:
     tau_s = inertia / damping
     drive = kt / resistance / damping / rad_per_count * SciNumber(1, 6)
     friction_speed = load / damping / rad_per_count * SciNumber(1, 6)
-    step_s = SciNumber(tick_us, -6) / SciNumber.from_int(steps)
+    step_s = SciNumber.from_int(tick_us) * SciNumber(1, -6) / SciNumber.from_int(steps)
     ratio = float(step_s) / float(tau_s)
     decay = -math.expm1(-ratio)
     lag = float(tau_s) * (ratio - decay)
