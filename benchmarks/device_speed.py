@@ -26,6 +26,7 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -72,9 +73,9 @@ def run_streaming(interval_dms: int, values: list[int]) -> float:
 def run_core1_only(interval_dms: int, values: list[int]) -> float:
     """Seconds for ``servo_block`` alone to run the same stream from a preloaded queue."""
     device = _streaming_device(interval_dms)
-    state = device._state  # noqa: SLF001 - the benchmark drives core1 directly
-    params = device._params  # noqa: SLF001
-    queue = device._queue  # noqa: SLF001
+    state = device._state  # the benchmark drives core1 directly
+    params = device._params
+    queue = device._queue
     empty = np.zeros(0, dtype=np.int64)
     chunks = [values[i : i + BATCH] for i in range(0, len(values), BATCH)]
     elapsed = 0.0
@@ -169,8 +170,8 @@ def measure(*, ticks: int, runs: int) -> dict[str, Any]:
     for interval_dms in (10, 1):
         tick_us = interval_dms * 100
         values = trajectory(ticks, tick_us)
-        streaming = median_rate(lambda: run_streaming(interval_dms, values), ticks, runs)
-        bare = median_rate(lambda: run_core1_only(interval_dms, values), ticks, runs)
+        streaming = median_rate(partial(run_streaming, interval_dms, values), ticks, runs)
+        bare = median_rate(partial(run_core1_only, interval_dms, values), ticks, runs)
         per_tick = sci_calls_per_tick(interval_dms, values[:2000])
         sci_s = sci_seconds_per_tick(per_tick)
         results["configurations"][f"{1_000_000 // tick_us} Hz"] = {
