@@ -462,3 +462,15 @@ def test_bad_call_arguments_are_rejected() -> None:
         plan_moves([], LIMITS, CONFIG, start=(0.0, math.inf, 0.0))
     with pytest.raises(PlanningError, match="config"):
         plan_moves([], LIMITS, None)  # type: ignore[arg-type]
+
+
+def test_arc_smaller_than_the_tolerance_still_turns() -> None:
+    # r = 1 um is below the 2 um tolerance: at most 120 degrees per chord, so a full circle
+    # is a triangle whose sagitta (r / 2) is within the tolerance.
+    start = (0.001, 0.0, 0.0)
+    plan = plan_moves(
+        [Arc(1, start, start, (0, 0, 0), Plane.XY, 1, 60)], LIMITS, CONFIG, start=start
+    )
+    assert len(plan) == 3
+    radius = np.hypot(plan.vertices_mm[:, 0], plan.vertices_mm[:, 1])
+    assert np.allclose(radius, 0.001, atol=1e-12)

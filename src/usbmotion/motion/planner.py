@@ -4,7 +4,8 @@
 
 1. Arcs are cut into chords whose sagitta is at most ``arc_tolerance_mm``:
    ``theta_per_chord = 2 * acos(1 - tol / r)`` with ``r`` the larger of the start and end
-   radii. The sweep follows LinuxCNC: ``rotation`` P > 0 turns counter-clockwise about the
+   radii (at most 120 degrees per chord, and no chord shorter than ``min_segment_mm``). The
+   sweep follows LinuxCNC: ``rotation`` P > 0 turns counter-clockwise about the
    plane normal (right-hand rule), P < 0 clockwise, ``|P| - 1`` extra full turns, a start and
    end that coincide in the plane (within 1e-8 mm) make a full turn. When the start and end
    radii differ the path is LinuxCNC's slight spiral (radius linear in the angle); a helix
@@ -66,7 +67,6 @@ __all__ = [
 FloatArray = npt.NDArray[np.float64]
 _TWO_PI = 2.0 * math.pi
 _FULL_CIRCLE_FUZZ_MM = 1e-8
-_MAX_THETA_PER_CHORD = 2.0 * math.pi / 3.0
 _SPLIT_SCALE = 2.0**20
 _SPLIT_SHIFT = 2.0**32
 _BLOCK = 32768
