@@ -42,6 +42,11 @@ MODE_POSITION = 1
 MODE_VELOCITY = 2
 MODE_CURVE = 3
 
+FAULT_NONE = Fault.NONE
+FAULT_WATCHDOG = Fault.WATCHDOG
+FAULT_FOLLOWING_ERROR = Fault.FOLLOWING_ERROR
+FAULT_LIMIT_SWITCH = Fault.LIMIT_SWITCH
+
 VELOCITY_RESET_US = 60_000_000
 """Velocity mode resets the encoder counter after this much device time in the mode."""
 TIMER_CAP_US = 1 << 62
@@ -390,22 +395,22 @@ def servo_block(
         # 5. faults
         since_command += tick_us
         since_command = min(since_command, TIMER_CAP_US)
-        new_fault = Fault.NONE
+        new_fault = FAULT_NONE
         if enable == 1:
             if mode != MODE_VELOCITY:
                 if closing != 0:
-                    new_fault = Fault.LIMIT_SWITCH
+                    new_fault = FAULT_LIMIT_SWITCH
                 elif fe_limit > 0:
                     following = wrap_int32(desired - actual)
                     if following > fe_limit or -following > fe_limit:
-                        new_fault = Fault.FOLLOWING_ERROR
-            if new_fault == Fault.NONE and watchdog_us > 0 and since_command >= watchdog_us:
-                new_fault = Fault.WATCHDOG
+                        new_fault = FAULT_FOLLOWING_ERROR
+            if new_fault == FAULT_NONE and watchdog_us > 0 and since_command >= watchdog_us:
+                new_fault = FAULT_WATCHDOG
 
         # 6. clock and diagnostics
         clock += 1
         executed += 1
-        if new_fault != Fault.NONE:
+        if new_fault != FAULT_NONE:
             fault = new_fault
             fault_tick = clock
             enable = 0
