@@ -297,3 +297,48 @@ def test_an_exception_in_the_servo_loop_faults_and_keeps_the_clock(
 def test_every_call_number_in_the_table_has_a_handler() -> None:
     device = Device()
     assert set(device._handlers) == set(BY_NUMBER)
+
+
+_SCI = st.tuples(st.sampled_from([1, 9999, 5, 1234]), st.sampled_from([-12, -6, 0, 3, 6]))
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    st.fixed_dictionaries(
+        {
+            "9": _SCI.map(lambda p: (min(p[0], 999), p[1])),
+            "10": _SCI.map(lambda p: (min(p[0], 999), p[1])),
+            "11": _SCI.map(lambda p: (min(p[0], 999), p[1])),
+            "13": _SCI,
+            "14": _SCI,
+            "15": _SCI,
+            "17": _SCI,
+            "32": _SCI,
+            "33": _SCI,
+        }
+    ),
+    st.sampled_from([1, 3, 10, 10000]),
+    st.sampled_from([1, 10, 10000]),
+    st.sampled_from([1, 1920, 1_000_000]),
+    st.sampled_from([1, 2]),
+    st.sampled_from([-(2**31), -1, 5000, 2**31 - 1]),
+)
+def test_extreme_parameters_keep_every_value_within_int64(
+    sci: dict[str, tuple[int, int]],
+    interval_dms: int,
+    sim_dms: int,
+    counts: int,
+    mode: int,
+    target: int,
+) -> None:
+    device = Device()
+    lines = [f"{call} {c} {e}" for call, (c, e) in sci.items()]
+    lines += [f"5 {interval_dms}", f"12 {sim_dms}", f"16 {counts}", f"7 {mode}", "3 1"]
+    assert send(device, *lines) == []
+    send(device, f"1 3 {target} {-target - 1} {target}")
+    for _ in range(6):
+        device.run(1 if interval_dms > 100 else 25)
+        assert abs(device.state.shaft_speed_micro_counts_s) <= 10**12
+    # a value beyond int64 cannot be stored in core1's state: it would latch fault 4
+    assert b"internal error" not in device.take_output()
+    assert device.state.fault in (0, 2, 3)
