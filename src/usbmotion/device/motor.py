@@ -28,7 +28,7 @@ a hard stop beyond each limit switch stops the shaft dead.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from usbmotion.errors import DeviceParameterError
 from usbmotion.protocol.table import BY_NUMBER, INT32_MAX, INT32_MIN, Param
@@ -58,9 +58,10 @@ SciPair = tuple[int, int]
 def _check(param: Param, field_name: str, value: object) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise DeviceParameterError(f"{field_name} {value!r} is not an int")
-    why = param.check(value)
-    if why is not None:
-        raise DeviceParameterError(f"{field_name}: {why}")
+    if not param.minimum <= value <= param.maximum:
+        raise DeviceParameterError(
+            f"{field_name} {value!r} is out of range {param.minimum}..{param.maximum}"
+        )
     return value
 
 
@@ -115,7 +116,7 @@ class MotorParams:
     """Lower limit switch position, counts from power-up (call 34)."""
     travel_upper_counts: int = INT32_MAX
     """Upper limit switch position, counts from power-up (call 34)."""
-    overtravel_counts: int = field(default=200)
+    overtravel_counts: int = 200
     """Distance from each switch to the hard stop beyond it, counts."""
 
     def __post_init__(self) -> None:
@@ -135,12 +136,8 @@ class MotorParams:
                 f"travel_lower_counts {self.travel_lower_counts!r} must be below "
                 f"travel_upper_counts {self.travel_upper_counts!r}"
             )
-        if isinstance(self.overtravel_counts, bool) or not isinstance(
-            self.overtravel_counts, int
-        ) or not 0 <= self.overtravel_counts <= 1_000_000:
-            raise DeviceParameterError(
-                f"overtravel_counts {self.overtravel_counts!r} is out of range 0..1000000"
-            )
+        overtravel = Param("overtravel_counts", 0, 1_000_000, "counts")
+        _check(overtravel, "overtravel_counts", self.overtravel_counts)
 
     # --- the continuous model in floating point (for tools and tests) ---------------------
 
@@ -149,7 +146,7 @@ class MotorParams:
         resistance = float(sci_value(self.winding_resistance_ohm))
         inertia = float(sci_value(self.inertia_kg_m2))
         viscous = float(sci_value(self.viscous_friction_unm_per_rad_s)) * 1e-6
-        load = float(SciNumber(*self.load_torque_mnm)) * 1e-3
+        load = float(sci_value(self.load_torque_mnm)) * 1e-3
         rad_per_count = 2.0 * math.pi / self.counts_per_revolution
         return kt, resistance, inertia, viscous, load, rad_per_count
 
@@ -218,7 +215,7 @@ def derive_constants(motor: MotorParams, *, tick_us: int) -> MotorConstants:
     resistance = sci_value(motor.winding_resistance_ohm)
     inertia = sci_value(motor.inertia_kg_m2)
     viscous = sci_value(motor.viscous_friction_unm_per_rad_s) * SciNumber(1, -6)
-    load = SciNumber(motor.load_torque_mnm[0], motor.load_torque_mnm[1]) * SciNumber(1, -3)
+    load = sci_value(motor.load_torque_mnm) * SciNumber(1, -3)
     rad_per_count = _TWO_PI / SciNumber.from_int(motor.counts_per_revolution)
     damping = kt * kt / resistance + viscous
     tau_s = inertia / damping
