@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from usbmotion.errors import OutOfRangeError
+from usbmotion.errors import DeviceFaultError, OutOfRangeError
 from usbmotion.host.device import ControlMode, Diagnostics
 from usbmotion.host.machine import Machine
 
@@ -99,10 +99,13 @@ def step_response(
     """Command a position step on one axis and record it, tick by tick.
 
     The machine must be configured; the axis holds its present position for ``lead_s``,
-    then steps by ``step_mm`` and holds for ``duration_s``. The axis is left enabled at
+    then steps by ``step_mm`` and holds for ``duration_s``. The following-error limit is
+    widened to twice the step for the test, then restored. The axis is left enabled at
     the new position.
 
     Raises:
+        DeviceFaultError: the device faulted during the test.
+
         OutOfRangeError: a step of zero or not finite, or a non-positive duration.
     """
     if not (math.isfinite(step_mm) and step_mm != 0):
@@ -119,6 +122,9 @@ def step_response(
         raise OutOfRangeError(f"step_mm {step_mm!r} is under one count", reason="step_mm")
     records: list[Diagnostics] = []
     client.on_diagnostics = records.append
+    limit = target.config.following_error_limit_counts
+    if limit:
+        client.set_following_error_limit(max(limit, 2 * abs(step)))
     client.set_control_mode(ControlMode.POSITION)
     client.set_servo_enable(True)
     start = client.status().actual_counts
@@ -135,6 +141,12 @@ def step_response(
     client.set_diagnostics_interval(0)
     client.sync()
     client.on_diagnostics = None
+    client.set_following_error_limit(limit)
+    status = client.status()
+    if status.fault:
+        raise DeviceFaultError(
+            f"axis {axis}: {status.fault_name} during the step test", device=client.name
+        )
     clock = np.array([r.clock for r in records], dtype=np.float64)
     desired = np.array([r.desired for r in records], dtype=np.float64)
     actual = np.array([r.actual_counts for r in records], dtype=np.float64)

@@ -245,7 +245,18 @@ class DeviceClient:
             failure = failure or problem
 
     def command(self, number: int, *args: int) -> None:
-        """Send a setter and confirm the device took it (an ``ERR`` raises here)."""
+        """Send a setter and confirm the device took it (an ``ERR`` raises here).
+
+        Raises:
+            OutOfRangeError: a value outside the call's range, the query form included
+                (``-1`` queries, it does not set).
+        """
+        call_spec = BY_NUMBER.get(number)
+        if call_spec is not None and call_spec.is_query(args):
+            for param, value in zip(call_spec.params, args, strict=False):
+                why = param.check(value)
+                if why is not None:
+                    raise OutOfRangeError(why, call=number, reason=why)
         self.transport.write(encode_call(number, *args) + encode_call(2, -1))
         self._await_answer(2, after_error=True)
 

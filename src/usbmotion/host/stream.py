@@ -156,12 +156,12 @@ class SetpointStream:
         if self.done_sending:
             return math.inf
         if self.batches == 0 and self.refusals == 0:
-            return self._now()
+            return self._status_time
         above = self._queued - self.low_water
         return self._status_time + max(above, 1) * self.period_s
 
     def service(self) -> None:
-        """Top the queue up if it is low; never blocks beyond one round trip per call.
+        """Top the queue up if it is low; reports progress every time it is called.
 
         Raises:
             LinkLostError: the link vanished (``confirmed`` says how many values the device
@@ -170,25 +170,7 @@ class SetpointStream:
         if self.done_sending:
             return
         try:
-            queued, free = self.client.queue_status()
-            self.status_queries += 1
-            self._observe(queued)
-            if queued > self.low_water and self.batches:
-                return
-            count = min(self.high_water - queued, free, self.max_batch, self.total - self.sent)
-            if count <= 0:
-                return
-            batch = [int(v) for v in self._values[self.sent : self.sent + count]]
-            try:
-                self.client.add_setpoints(batch)
-            except QueueFullError:
-                self.refusals += 1
-                return
-            self.sent += count
-            self.batches += 1
-            queued_after, _ = self.client.queue_status()
-            self.status_queries += 1
-            self._observe(queued_after)
+            self._top_up()
         except LinkLostError as error:
             raise LinkLostError(
                 f"{self.client.name}: link lost after {self.sent} of {self.total} setpoints"
@@ -201,6 +183,27 @@ class SetpointStream:
             )
         if self.done_sending:
             self._finished = self._now()
+
+    def _top_up(self) -> None:
+        queued, free = self.client.queue_status()
+        self.status_queries += 1
+        self._observe(queued)
+        if queued > self.low_water and self.batches:
+            return
+        count = min(self.high_water - queued, free, self.max_batch, self.total - self.sent)
+        if count <= 0:
+            return
+        batch = [int(v) for v in self._values[self.sent : self.sent + count]]
+        try:
+            self.client.add_setpoints(batch)
+        except QueueFullError:
+            self.refusals += 1
+            return
+        self.sent += count
+        self.batches += 1
+        queued_after, _ = self.client.queue_status()
+        self.status_queries += 1
+        self._observe(queued_after)
 
     def result(self) -> StreamResult:
         """What the stream did so far."""
