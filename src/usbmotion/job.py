@@ -213,13 +213,15 @@ def home_machine(machine: Machine) -> float:
     io.enter_velocity_mode()
     try:
         run_sequence(sequence, outputs, outputs, clock=clock, rate_hz=HOMING_POLL_HZ,
-                     timeout_s=300.0)
+                     timeout_s=300.0, on_poll=lambda _: io.keep_alive())
     except UsbMotionError:
         machine.stop()
         raise
     for axis in machine.axes.values():
         client = axis.client
         client.set_control_mode(ControlMode.POSITION)
+        gains = axis.config.gains
+        client.set_gains(kp=gains.kp, ki=gains.ki, kd=gains.kd)
         client.set_position(axis.scale.to_counts(axis.config.homing.position_mm))
         client.set_servo_enable(True)
     return clock.now() - started
