@@ -14,8 +14,11 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[dev,fast]'
 	touch $(STAMP)
 
+DEMO := src/usbmotion/data/demos/1-rounded-square.ngc
+
 run: $(STAMP)
-	$(BIN)/usbmotion demo
+	@mkdir -p out
+	$(BIN)/usbmotion run $(DEMO) --plot out/demo-1.png --report out/demo-1.json
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -x -p no:cacheprovider

@@ -115,6 +115,8 @@ class RunReport:
     stopped_at_line: int = 0
     stopped_at_setpoint: int = 0
     skew_estimate_s: float = 0.0
+    endpoints_checked: int = 0
+    max_endpoint_miss_mm: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         """The report as plain JSON-ready data."""
@@ -377,6 +379,7 @@ def _report(
         ))
     end_positions = machine.positions_mm()
     stopped_time = consumed * period_s
+    checked, miss = _endpoint_misses(program, trace) if completed else (0, 0.0)
     return RunReport(
         program=program.file,
         machine=config.name,
@@ -394,7 +397,35 @@ def _report(
         stopped_at_line=0 if completed else _line_at(plan, stopped_time),
         stopped_at_setpoint=0 if completed else consumed,
         skew_estimate_s=skew_s,
+        endpoints_checked=checked,
+        max_endpoint_miss_mm=miss,
     )
+
+
+def _actual_path_mm(trace: Trace) -> npt.NDArray[np.float64]:
+    """The actual XYZ positions (mm) at the diagnostics ticks all three axes reported."""
+    clocks = [np.asarray(trace.clock.get(n, []), dtype=np.int64) for n in PLAN_AXES]
+    common = clocks[0]
+    for other in clocks[1:]:
+        common = np.intersect1d(common, other)
+    columns = []
+    for name, clock in zip(PLAN_AXES, clocks, strict=True):
+        actual = np.asarray(trace.actual[name], dtype=np.float64)
+        index = np.searchsorted(clock, common)
+        columns.append(actual[index] / trace.counts_per_mm[name])
+    return np.stack(columns, axis=1) if common.size else np.empty((0, 3))
+
+
+def _endpoint_misses(program: GCodeProgram, trace: Trace) -> tuple[int, float]:
+    """How many programmed end points, and how far the actual path passed from the worst."""
+    path = _actual_path_mm(trace)
+    ends = np.array([m.end for m in program.moves if hasattr(m, "end")], dtype=np.float64)
+    if not path.size or not ends.size:
+        return 0, 0.0
+    worst = 0.0
+    for end in ends:
+        worst = max(worst, float(np.min(np.linalg.norm(path - end, axis=1))))
+    return int(ends.shape[0]), worst
 
 
 def describe(report: RunReport) -> str:
@@ -415,6 +446,9 @@ def describe(report: RunReport) -> str:
         )
     position = "  ".join(f"{k} {v:.3f}" for k, v in report.end_position_mm.items())
     lines.append(f"end position   {position} mm")
+    if report.endpoints_checked:
+        lines.append(f"end points     {report.endpoints_checked} programmed, the actual path passed"
+                     f" within {report.max_endpoint_miss_mm:.4f} mm of each")
     lines.append("faults         " + ("; ".join(
         f"axis {f.axis}: {f.fault} at {f.time_s:.3f} s, line {f.line}" for f in report.faults
     ) or "none"))
