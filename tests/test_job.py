@@ -1,0 +1,197 @@
+"""The main job end to end: homing the simulated machine, usbmotion run, the console, tune."""
+
+from __future__ import annotations
+
+import json
+import os
+import pty
+import select
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from usbmotion.cli.run import default_machine
+from usbmotion.demos import demo_path
+from usbmotion.host.config import load_config
+from usbmotion.host.machine import Machine
+from usbmotion.job import home_machine
+from usbmotion.tuning import step_response
+
+ROOT = Path(__file__).resolve().parents[1]
+FOLLOWING_ERROR_BOUND_MM = 0.1
+"""The stated bound on each axis's following error for the demo programs."""
+ENDPOINT_TOLERANCE_MM = 0.05
+"""The stated tolerance: the executed path passes this close to every programmed end point."""
+
+
+def _usbmotion(*args: str, timeout: float = 240) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "usbmotion", *args], capture_output=True,
+                          text=True, timeout=timeout, check=False)
+
+
+def test_full_home_ends_with_every_position_zero_at_the_lower_switch() -> None:
+    config = load_config(default_machine())
+    with Machine.connect(config) as machine:
+        machine.configure()
+        starts = machine.positions_mm()
+        assert all(v == 0 for v in starts.values()), "positions start at 0 before homing"
+        seconds = home_machine(machine)
+        assert 0 < seconds < 60
+        for name, status in machine.status().items():
+            assert status.lower_limit, f"{name} rests on its lower switch"
+            assert not status.upper_limit
+            assert abs(status.actual_counts) <= 2, f"{name} is at 0 ({status.actual_counts})"
+            assert status.fault == 0
+            assert status.enabled
+
+
+def test_usbmotion_run_a_demo_as_a_user_does(tmp_path: Path) -> None:
+    program = tmp_path / "square.ngc"
+    program.write_text(demo_path(1).read_text())
+    report_path = tmp_path / "report.json"
+    done = _usbmotion("run", str(program), "--report", str(report_path), "-q")
+    assert done.returncode == 0, done.stderr
+    assert "following error" in done.stdout
+    report = json.loads(report_path.read_text())
+    assert report["completed"] is True
+    assert report["faults"] == []
+    assert report["endpoints_checked"] == 14
+    assert report["max_endpoint_miss_mm"] < ENDPOINT_TOLERANCE_MM
+    for axis in report["axes"]:
+        assert axis["max_error_mm"] < FOLLOWING_ERROR_BOUND_MM, axis
+        assert axis["samples"] > 1000
+    assert abs(report["executed_time_s"] - report["planned_time_s"]) < 0.01
+    assert report["ignored_words"] == ["G94 (line 3)"]
+    plot = tmp_path / "square.png"
+    assert plot.stat().st_size > 20_000, "a real plot was written next to the program"
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_program_that_does_not_parse_stops_before_anything_moves(tmp_path: Path) -> None:
+    program = tmp_path / "bad.ngc"
+    program.write_text("G21 G90\nG0 X10\nG2 X20 Y0 F100\nM2\n")
+    done = _usbmotion("run", str(program), "-q", "--no-plot")
+    assert done.returncode == 2
+    assert f"{program}:3:" in done.stderr
+    assert "Traceback" not in done.stderr
+    assert "homing" not in done.stdout
+
+
+def test_a_fault_during_the_run_stops_every_axis_and_says_where(tmp_path: Path) -> None:
+    text = default_machine().read_text()
+    heavy = text.replace("sim = { start_mm = 100.0 }",
+                         "sim = { start_mm = 100.0, load_torque_mnm = 1700.0 }", 1)
+    assert heavy != text
+    machine_file = tmp_path / "stalled.toml"
+    machine_file.write_text(heavy)
+    program = tmp_path / "move.ngc"
+    program.write_text("G21 G90\nG1 X50 F600\nG1 Y50\nM2\n")
+    done = _usbmotion("run", str(program), "--machine", str(machine_file), "--no-home",
+                      "--report", str(tmp_path / "r.json"), "-q", "--no-plot")
+    assert done.returncode == 1, done.stdout + done.stderr
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["completed"] is False
+    fault = report["faults"][0]
+    assert fault["axis"] == "X"
+    assert fault["fault"] == "following error"
+    assert fault["line"] == 2
+    assert fault["time_s"] > 0
+    assert "STOPPED at program line" in done.stdout
+
+
+def test_console_through_a_pseudo_terminal() -> None:
+    leader, follower = pty.openpty()
+    process = subprocess.Popen([sys.executable, "-m", "usbmotion", "console"],
+                               stdin=follower, stdout=follower, stderr=follower, close_fds=True)
+    os.close(follower)
+    output = bytearray()
+
+    def read_until(marker: bytes, timeout: float = 180.0) -> str:
+        deadline = time.monotonic() + timeout
+        while marker not in output:
+            left = deadline - time.monotonic()
+            assert left > 0, f"no {marker!r} in {bytes(output)!r}"
+            ready, _, _ = select.select([leader], [], [], left)
+            if ready:
+                try:
+                    output.extend(os.read(leader, 65536))
+                except OSError:
+                    break
+        text = output.decode(errors="replace")
+        output.clear()
+        return text
+
+    def send(line: str) -> None:
+        os.write(leader, line.encode() + b"\n")
+
+    try:
+        assert "$h for help" in read_until(b"> ")
+        send("$d 1")
+        assert "loaded 1-rounded-square.ngc: 14 moves" in read_until(b"> ")
+        send("$c")
+        text = read_until(b"> ")
+        assert "cycle start" in text and "faults         none" in text and "done" in text
+        send("?")
+        text = read_until(b"> ")
+        assert "program: 1-rounded-square.ngc; homed: yes; last run: completed" in text
+        assert "X:     4.99" in text
+        send("$r")
+        text = read_until(b"> ")
+        assert "reset: stopping every axis" in text and "homed in" in text
+        send("$x 5")
+        assert "error: unknown command '$x 5'" in read_until(b"> ")
+        send("$d 9")
+        assert "demo 9 does not exist" in read_until(b"> ")
+        send("$q")
+        assert "bye" in read_until(b"bye")
+        assert process.wait(timeout=30) == 0
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        os.close(leader)
+
+
+def test_console_with_piped_input() -> None:
+    done = subprocess.run([sys.executable, "-m", "usbmotion", "console"], input="$h\n?\n$c\n",
+                          capture_output=True, text=True, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr
+    assert "$d N      load demo program N" in done.stdout
+    assert "program: none; homed: no" in done.stdout
+    assert "error: no program loaded" in done.stdout
+
+
+def test_step_response_figures() -> None:
+    config = load_config(default_machine())
+    with Machine.connect(config) as machine:
+        machine.configure()
+        response = step_response(machine, "X", step_mm=1000 / 240, duration_s=0.4)
+    metrics = response.metrics
+    assert metrics.step_counts == 1000
+    assert 0.02 < metrics.rise_time_s < 0.12
+    assert metrics.overshoot_pct <= 10.0
+    assert metrics.settling_time_s <= 0.15
+    assert abs(metrics.steady_state_error_counts) <= 2
+
+
+def test_tune_command_prints_the_figures_and_writes_a_plot(tmp_path: Path) -> None:
+    plot = tmp_path / "step.png"
+    done = _usbmotion("tune", "--axis", "Y", "--step-mm", "2", "--kp", "0.5", "--plot", str(plot))
+    assert done.returncode == 0, done.stderr
+    for word in ("rise time", "overshoot", "settling time", "steady-state error", "kp 0.5"):
+        assert word in done.stdout
+    assert plot.read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (("tune", "--axis", "Q"), "no axis 'Q'"),
+    (("run", "missing.ngc", "-q"), "cannot read"),
+])
+def test_bad_command_lines_are_clear(args: tuple[str, ...], message: str) -> None:
+    done = _usbmotion(*args)
+    assert done.returncode == 2
+    assert message in done.stderr
+    assert "Traceback" not in done.stderr
