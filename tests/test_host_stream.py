@@ -72,23 +72,28 @@ def _stream_everything(rig: Rig) -> None:
     clients = rig.clients
     for client in clients:
         client.set_servo_interval_dms(1)  # 10 kHz: 20,000 setpoints are 2 s of device time
-        client.set_debug_flag(1, 1)  # the device echoes every accepted batch: S0 N values
         client.set_servo_enable(True)
     period_s = clients[0].motion_period_s()
     progress: list[StreamProgress] = []
-    streams = [SetpointStream(c, _setpoints(i), period_s=period_s, on_progress=progress.append)
-               for i, c in enumerate(clients)]
+    # verify: the device echoes every batch it queues (S0 N values) and the stream checks it
+    streams = [SetpointStream(c, _setpoints(i), period_s=period_s, verify=True,
+                              on_progress=progress.append) for i, c in enumerate(clients)]
+    echoed: dict[int, list[int]] = {i: [] for i in range(len(clients))}
+    for index, stream in enumerate(streams):
+        check = stream._take
+
+        def spy(line: bytes, index: int = index, check=check) -> tuple[int, int] | None:  # type: ignore[no-untyped-def]
+            text = line.decode()
+            if text.startswith("S0 "):
+                echoed[index] += [int(v) for v in text.split()[2:]]
+            return check(line)
+
+        stream._take = spy  # type: ignore[method-assign]
     run_streams(streams)
     wait_until_drained(clients, period_s=period_s)
     for index, (client, stream) in enumerate(zip(clients, streams, strict=True)):
-        echoed: list[int] = []
-        for reply in client.debug_lines:
-            if reply.call == 1 and reply.kind is ReplyKind.DEBUG:
-                count = reply.values[0]
-                values = [int(v) for v in reply.text.split()]
-                assert len(values) == count
-                echoed += values
-        assert echoed == _setpoints(index).tolist(), "every value once, in order"
+        assert echoed[index] == _setpoints(index).tolist(), "every value once, in order"
+        assert stream.garbled_lines == stream.errors == stream.timeouts == 0
         assert client.refusals == 0, "no E0/E1 in normal operation"
         result = stream.result()
         assert result.refusals == 0
@@ -151,11 +156,13 @@ def test_a_slow_consumer_is_followed(sim_rig: Rig) -> None:
 
 def test_a_refused_batch_is_resent_exactly(sim_rig: Rig) -> None:
     client = sim_rig.clients[2]
-    link = client.transport.port.link
-    device = link.world.device("Z")
-    client.set_debug_flag(1, 1)
+    device = client.transport.port.link.world.device("Z")
+    desired: list[int] = []
+    client.on_diagnostics = lambda line: desired.append(line.desired)
+    client.set_diagnostics_interval(1)  # the device reports its desired value every tick
     client.set_servo_enable(True)
-    real_status = client.queue_status
+    stream = SetpointStream(client, list(range(1500)), period_s=client.motion_period_s())
+    real_status = stream._status
     calls = [0]
 
     def status_then_interference() -> tuple[int, int]:
@@ -165,20 +172,18 @@ def test_a_refused_batch_is_resent_exactly(sim_rig: Rig) -> None:
             device.feed(("1 700" + " -7" * 700 + "\n").encode())  # another host fills it
         return answer
 
-    client.queue_status = status_then_interference  # type: ignore[method-assign]
-    stream = SetpointStream(client, list(range(1500)), period_s=client.motion_period_s())
+    stream._status = status_then_interference  # type: ignore[method-assign]
     stream.service()
     assert stream.refusals == 1, "the device answered E1 to the first batch"
     assert stream.sent == 0, "a refused batch counts as not sent"
     run_streams([stream])
     wait_until_drained([client], period_s=stream.period_s)
-    accepted: list[int] = []
-    for reply in client.debug_lines:
-        if reply.call == 1 and reply.kind is ReplyKind.DEBUG:
-            accepted += [int(v) for v in reply.text.split()]
-    mine = [v for v in accepted if v != -7]
-    assert mine == list(range(1500)), "resent exactly, nothing lost, doubled or reordered"
-    assert client.status().desired_counts == 1499
+    client.set_diagnostics_interval(0)
+    executed = [v for i, v in enumerate(desired) if v != -7 and (i == 0 or v != desired[i - 1])]
+    assert executed[0] == 0 and executed[-1] == 1499
+    assert [v for v in executed if v >= 0] == list(range(1500)), (
+        "resent exactly: nothing lost, doubled or reordered"
+    )
 
 
 @pytest.mark.parametrize(

@@ -111,6 +111,19 @@ class LinkLostError(UsbMotionError, ConnectionError):
         self.confirmed = confirmed
 
 
+class LinkCorruptedError(DeviceError):
+    """The device echoed values other than those sent: the link changed bytes.
+
+    ``confirmed`` is how many setpoints had been confirmed intact before the mismatch.
+    """
+
+    def __init__(
+        self, message: str, *, device: str = "", call: int | None = None, confirmed: int = 0
+    ) -> None:
+        super().__init__(message, device=device, call=call)
+        self.confirmed = confirmed
+
+
 class DeviceNotFoundError(UsbMotionError, LookupError):
     """A configured device name was not found on any searched port."""
 

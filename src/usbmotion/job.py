@@ -20,9 +20,15 @@ import numpy.typing as npt
 from usbmotion.automation.device_io import DeviceHomingIO
 from usbmotion.automation.homing import Home, LimitSwitchState, MoveAxisHome
 from usbmotion.automation.sequence import run_sequence
-from usbmotion.errors import ConfigError, UsbMotionError
+from usbmotion.errors import (
+    ConfigError,
+    DeviceTimeoutError,
+    LinkCorruptedError,
+    LinkLostError,
+    UsbMotionError,
+)
 from usbmotion.host.config import MachineConfig
-from usbmotion.host.device import ControlMode, Diagnostics
+from usbmotion.host.device import ControlMode, Diagnostics, Status
 from usbmotion.host.machine import Machine
 from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams, wait_until_drained
 from usbmotion.motion.gcode import GCodeProgram
@@ -117,6 +123,8 @@ class RunReport:
     skew_estimate_s: float = 0.0
     endpoints_checked: int = 0
     max_endpoint_miss_mm: float = 0.0
+    link_error: str = ""
+    notes: tuple[str, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         """The report as plain JSON-ready data."""
@@ -276,7 +284,7 @@ def run_program(
 
     for index, name in enumerate(PLAN_AXES):
         streams[name] = SetpointStream(machine.axis(name).client, setpoints[:, index],
-                                       period_s=period_s, on_progress=progress)
+                                       period_s=period_s, verify=True, on_progress=progress)
     faults: list[FaultRecord] = []
     clock = machine.clock
     last_check = [clock.now()]
@@ -296,6 +304,8 @@ def run_program(
         return bool(faults)
 
     stopped = False
+    link_error = ""
+    lost_axis = ""
     try:
         run_streams(list(streams.values()), should_stop=check)
         stopped = bool(faults) or (should_stop is not None and should_stop())
@@ -307,16 +317,33 @@ def run_program(
             _settle(machine, counts=SETTLE_COUNTS, timeout_s=1.0)
     except KeyboardInterrupt:
         stopped = True
+    except (LinkLostError, LinkCorruptedError, DeviceTimeoutError) as error:
+        stopped = True
+        link_error = str(error)
+        lost_axis = next((n for n in PLAN_AXES if machine.axis(n).client.name
+                          == getattr(error, "device", None)), "")
+    notes: list[str] = []
     if stopped:
-        machine.stop()
-    statuses = machine.status()
-    consumed = min(streams[n].sent - statuses[n].queued for n in PLAN_AXES)
+        try:
+            machine.stop()
+        except UsbMotionError as error:
+            notes.append(f"stopping: {error}")
+    statuses: dict[str, Status] = {}
     for name in PLAN_AXES:
-        machine.axis(name).client.set_diagnostics_interval(0)
-    end_clock = max(s.clock for s in statuses.values())
+        try:
+            statuses[name] = machine.axis(name).client.status()
+            machine.axis(name).client.set_diagnostics_interval(0)
+        except UsbMotionError as error:
+            notes.append(f"axis {name}: {error}")
+    if link_error:
+        confirmed = streams[lost_axis].sent if lost_axis else min(
+            s.sent for s in streams.values())
+    else:
+        confirmed = min(streams[n].sent - statuses[n].queued for n in PLAN_AXES)
     report = _report(
-        program, machine, plan, setpoints.shape[0], trace, homing_s, end_clock,
-        faults, completed=not stopped, consumed=consumed, skew_s=sync.estimated_skew_s,
+        program, machine, plan, setpoints.shape[0], trace, homing_s, statuses,
+        faults, completed=not stopped, consumed=confirmed, skew_s=sync.estimated_skew_s,
+        link_error=link_error, notes=tuple(notes),
     )
     return report, trace
 
@@ -345,12 +372,14 @@ def _report(
     setpoint_count: int,
     trace: Trace,
     homing_s: float,
-    end_clock: int,
+    statuses: Mapping[str, Status],
     faults: list[FaultRecord],
     *,
     completed: bool,
     consumed: int,
     skew_s: float,
+    link_error: str = "",
+    notes: tuple[str, ...] = (),
 ) -> RunReport:
     config = machine.config
     period_s = config.motion_period_s
@@ -377,7 +406,10 @@ def _report(
             name, max_counts, rms_counts, max_counts / scale, rms_counts / scale,
             int(error[-1]) if error.size else 0, int(error.size),
         ))
-    end_positions = machine.positions_mm()
+    end_positions = {
+        name: machine.axis(name).scale.to_mm(status.actual_counts)
+        for name, status in statuses.items()
+    }
     stopped_time = consumed * period_s
     checked, miss = _endpoint_misses(program, trace) if completed else (0, 0.0)
     return RunReport(
@@ -399,6 +431,8 @@ def _report(
         skew_estimate_s=skew_s,
         endpoints_checked=checked,
         max_endpoint_miss_mm=miss,
+        link_error=link_error,
+        notes=notes,
     )
 
 
@@ -453,7 +487,12 @@ def describe(report: RunReport) -> str:
         f"axis {f.axis}: {f.fault} at {f.time_s:.3f} s, line {f.line}" for f in report.faults
     ) or "none"))
     lines.append("ignored words  " + (", ".join(report.ignored_words) or "none"))
+    if report.link_error:
+        lines.append(f"LINK LOST      {report.link_error}")
+    for note in report.notes:
+        lines.append(f"note           {note}")
     if not report.completed:
-        lines.append(f"STOPPED at program line {report.stopped_at_line}, setpoint"
+        what = "last setpoint the device confirmed" if report.link_error else "setpoint"
+        lines.append(f"STOPPED at program line {report.stopped_at_line}, {what}"
                      f" {report.stopped_at_setpoint} of {report.setpoints_per_axis}")
     return "\n".join(lines)

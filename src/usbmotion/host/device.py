@@ -163,7 +163,7 @@ class DeviceClient:
         """Validate and send one call without waiting for anything."""
         self.transport.write(encode_call(number, *args))
 
-    def _handle_aside(self, reply: Reply) -> bool:
+    def take_aside(self, reply: Reply) -> bool:
         """Consume lines that are not answers (diagnostics, debug echoes); True if consumed."""
         if reply.kind is ReplyKind.DIAGNOSTICS:
             if self.on_diagnostics is not None:
@@ -190,7 +190,7 @@ class DeviceClient:
                 reply = parse_reply(line)
             except UnexpectedReplyError as error:
                 raise UnexpectedReplyError(f"{self.name}: {error}") from error
-            if not self._handle_aside(reply):
+            if not self.take_aside(reply):
                 return reply
 
     def query(self, number: int, *args: int) -> Reply:

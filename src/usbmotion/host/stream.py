@@ -22,10 +22,24 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from usbmotion.errors import LinkLostError, OutOfRangeError, QueueFullError
+from usbmotion.errors import (
+    DeviceTimeoutError,
+    LinkCorruptedError,
+    LinkLostError,
+    OutOfRangeError,
+    QueueFullError,
+    UnexpectedReplyError,
+)
 from usbmotion.hermite import Keyframe
 from usbmotion.host.device import DeviceClient
-from usbmotion.protocol import CURVE_BUFFER_CAPACITY, QUEUE_CAPACITY
+from usbmotion.protocol import (
+    CURVE_BUFFER_CAPACITY,
+    QUEUE_CAPACITY,
+    Reply,
+    ReplyKind,
+    encode_call,
+    parse_reply,
+)
 from usbmotion.protocol.table import INT32_MAX, INT32_MIN
 
 
@@ -57,6 +71,18 @@ class StreamResult:
 
 ProgressCallback = Callable[[StreamProgress], None]
 
+RESYNC_ATTEMPTS = 5
+"""Status queries tried before a stream gives up on a link that answers nothing readable."""
+
+
+def _echo_values(reply: Reply) -> list[int] | None:
+    """The values of a call-1 echo ``S0 N v1 .. vN``, or None if it is not well formed."""
+    try:
+        values = [int(v) for v in reply.text.split()]
+    except ValueError:
+        return None
+    return values if len(values) == reply.values[0] else None
+
 
 class SetpointStream:
     """Stream integer setpoints (counts or counts/s) into one device's motion queue.
@@ -68,7 +94,9 @@ class SetpointStream:
         low_water: refill when the queue is predicted to hold this many or fewer.
         high_water: fill up to this many.
         max_batch: most values in one call-1 line.
-        on_progress: called after every batch.
+        verify: have the device echo every batch (call 8 ``8 1 1`` is sent) and check the
+            echo, so values mangled on the link are caught, not executed silently.
+        on_progress: called after every service.
     """
 
     def __init__(
@@ -80,6 +108,7 @@ class SetpointStream:
         low_water: int = 300,
         high_water: int = 900,
         max_batch: int = 600,
+        verify: bool = False,
         on_progress: ProgressCallback | None = None,
     ) -> None:
         if not (math.isfinite(period_s) and period_s > 0):
@@ -112,10 +141,17 @@ class SetpointStream:
         self.high_water = high_water
         self.max_batch = max_batch
         self.on_progress = on_progress
+        self.verify = verify
         self.sent = 0
         self.batches = 0
         self.refusals = 0
+        self.errors = 0
+        self.timeouts = 0
+        self.garbled_lines = 0
         self.status_queries = 0
+        self._echo: list[int] | None = None
+        self._refused = False
+        self._verify_armed = False
         self._queued = 0
         self._status_time = client.transport.clock.now()
         self._min_queued = QUEUE_CAPACITY
@@ -185,25 +221,138 @@ class SetpointStream:
             self._finished = self._now()
 
     def _top_up(self) -> None:
-        queued, free = self.client.queue_status()
-        self.status_queries += 1
-        self._observe(queued)
+        if self.verify and not self._verify_armed:
+            self.client.set_debug_flag(1, 1)
+            self._verify_armed = True
+        queued, free = self._status()
         if queued > self.low_water and self.batches:
             return
         count = min(self.high_water - queued, free, self.max_batch, self.total - self.sent)
         if count <= 0:
             return
         batch = [int(v) for v in self._values[self.sent : self.sent + count]]
-        try:
-            self.client.add_setpoints(batch)
-        except QueueFullError:
-            self.refusals += 1
-            return
-        self.sent += count
-        self.batches += 1
-        queued_after, _ = self.client.queue_status()
+        if self._send_batch(batch):
+            self.sent += count
+            self.batches += 1
+
+    def _status(self) -> tuple[int, int]:
+        """Queue status, asked again (after draining the link) when garbled or lost."""
+        for _ in range(RESYNC_ATTEMPTS):
+            self.client.transport.write(encode_call(2, -1))
+            self.status_queries += 1
+            answer = self._exchange()
+            if answer is not None:
+                self._observe(answer[0])
+                return answer
+            self._drain()
+        raise DeviceTimeoutError(
+            f"{self.client.name}: no readable queue status after {RESYNC_ATTEMPTS} tries"
+            f" ({self.garbled_lines} garbled lines); {self.sent} setpoints confirmed",
+            device=self.client.name, call=2,
+        )
+
+    def _send_batch(self, batch: list[int]) -> bool:
+        """Send one call-1 batch with a status query behind it; True if the device took it.
+
+        With ``verify`` the device echoes every batch it takes (debug flag 1 of call 1),
+        and the echo must equal what was sent, so a batch mangled on the way is caught
+        and a lost answer is recovered from: after draining the link, an echo says the
+        batch was taken, no echo says it was not. Without ``verify`` a batch counts as
+        taken unless ``E1`` or ``ERR`` came back, and a lost answer is an error.
+
+        Raises:
+            LinkCorruptedError: the echo differs from the batch, or unreadable lines came
+                back in its place.
+            DeviceTimeoutError: the answer was lost and, without ``verify``, whether the
+                batch was taken cannot be known.
+        """
+        self._echo = None
+        self._refused = False
+        garbled_before = self.garbled_lines
+        self.client.transport.write(encode_call(1, len(batch), *batch) + encode_call(2, -1))
         self.status_queries += 1
-        self._observe(queued_after)
+        answer = self._exchange()
+        if answer is None:
+            self._drain()
+            if not self.verify:
+                raise DeviceTimeoutError(
+                    f"{self.client.name}: the answer to a batch of {len(batch)} setpoints was"
+                    f" lost, so whether it was queued is unknown; {self.sent} setpoints were"
+                    " confirmed (stream with verify=True to recover from this)",
+                    device=self.client.name, call=1,
+                )
+            self._status()
+        if self._echo is None and self.garbled_lines > garbled_before:
+            raise LinkCorruptedError(
+                f"{self.client.name}: {self.garbled_lines - garbled_before} unreadable line(s)"
+                f" came back after a batch of {len(batch)} setpoints, so whether it was queued"
+                f" cannot be known: the link is corrupting bytes; {self.sent} setpoints were"
+                " confirmed", device=self.client.name, call=1, confirmed=self.sent,
+            )
+        if self._echo is not None:
+            if self._echo != batch:
+                raise LinkCorruptedError(
+                    f"{self.client.name}: the device queued values other than those sent"
+                    f" (setpoints {self.sent}..{self.sent + len(batch) - 1}): the link is"
+                    f" corrupting bytes; {self.sent} setpoints were confirmed intact",
+                    device=self.client.name, call=1, confirmed=self.sent,
+                )
+            return True
+        if self.verify:
+            return False
+        return not self._refused
+
+    def _exchange(self) -> tuple[int, int] | None:
+        """Read up to the next queue-status answer; None when none came readable in time."""
+        while True:
+            try:
+                line = self.client.transport.read_line(self.client.timeout_s)
+            except DeviceTimeoutError:
+                self.timeouts += 1
+                return None
+            answer = self._take(line)
+            if answer is not None:
+                return answer
+
+    def _drain(self) -> None:
+        """Read whatever is still on its way, until the link is quiet."""
+        quiet_s = min(self.client.timeout_s, 0.25)
+        while True:
+            try:
+                line = self.client.transport.read_line(quiet_s)
+            except DeviceTimeoutError:
+                return
+            self._take(line)
+
+    def _take(self, line: bytes) -> tuple[int, int] | None:
+        """Account for one line; return (queued, free) if it is a queue-status answer."""
+        try:
+            reply = parse_reply(line)
+        except UnexpectedReplyError:
+            self.garbled_lines += 1
+            return None
+        if reply.kind is ReplyKind.DEBUG and reply.call == 1:
+            echo = _echo_values(reply)
+            if echo is None:
+                self.garbled_lines += 1
+            else:
+                self._echo = echo
+            return None
+        if self.client.take_aside(reply):
+            return None
+        if reply.kind is ReplyKind.REFUSAL and reply.call == 1:
+            self.refusals += 1
+            self.client.refusals += 1
+            self._refused = True
+            return None
+        if reply.kind is ReplyKind.ERROR:
+            self.errors += 1
+            self._refused = True
+            return None
+        if reply.kind is ReplyKind.QUERY and reply.call == 2 and len(reply.values) == 2:
+            return reply.values[0], reply.values[1]
+        self.garbled_lines += 1
+        return None
 
     def result(self) -> StreamResult:
         """What the stream did so far."""
