@@ -37,6 +37,7 @@ from usbmotion.device.core1 import (
 )
 from usbmotion.device.curve import CurvePlayer
 from usbmotion.device.flash import Flash, FlashContents, MemoryFlash
+from usbmotion.device.kernel import BlockFunction, compile_kernel, use_kernel
 from usbmotion.device.motor import (
     DIGITS,
     MICRO,
@@ -174,6 +175,14 @@ class Device:
         flash: where the flash variables persist (default: a fresh :class:`MemoryFlash`).
         motor: the simulated motor's power-up parameters (default :class:`MotorParams`).
         gains: the PID gains at power-up (default :class:`Gains`).
+        fast: run core1 as the compiled kernel (True), as the reference Python (False),
+            or (None) as :func:`usbmotion.device.kernel.use_kernel` decides: the kernel
+            when numba is installed, unless ``USBMOTION_KERNEL=0``. Both are bit-for-bit
+            equal.
+
+    Raises:
+        DeviceParameterError: a parameter of the wrong type, or ``fast=True`` without
+            numba.
 
     The device powers up as the seed says: position 0, RAM defaults (servo period 1000 us,
     scalar 1, servo disabled), control mode from flash.
@@ -185,6 +194,7 @@ class Device:
         flash: Flash | None = None,
         motor: MotorParams | None = None,
         gains: Gains | None = None,
+        fast: bool | None = None,
     ) -> None:
         if flash is not None and not isinstance(flash, Flash):
             raise DeviceParameterError(f"flash {flash!r} is not a Flash")
@@ -192,6 +202,7 @@ class Device:
             raise DeviceParameterError(f"motor {motor!r} is not a MotorParams")
         if gains is not None and not isinstance(gains, Gains):
             raise DeviceParameterError(f"gains {gains!r} is not a Gains")
+        self._fast = use_kernel(fast)
         self._flash: Flash = flash if flash is not None else MemoryFlash()
         self._power_up_motor = motor if motor is not None else MotorParams()
         self._power_up_gains = gains if gains is not None else Gains()
@@ -249,6 +260,11 @@ class Device:
     def tick_us(self) -> int:
         """The servo period (``servo_update_interval_us``), microseconds."""
         return self._interval_dms * 100
+
+    @property
+    def fast(self) -> bool:
+        """True when core1 runs as the compiled kernel, False on the reference path."""
+        return self._fast
 
     @property
     def flash(self) -> Flash:
@@ -379,6 +395,9 @@ class Device:
 
     # --- core1 ---------------------------------------------------------------------------
 
+    def _servo_block(self) -> BlockFunction:
+        return compile_kernel() if self._fast else servo_block
+
     def _run_some(self, limit: int) -> int:
         state = self._state
         tick_us = self.tick_us
@@ -396,12 +415,12 @@ class Device:
             n = min(limit, self._settle_left)
             if busy:
                 n = min(limit, ticks_to_scheduled_event(state, self._params) or limit)
-            done = servo_block(state, self._params, self._queue, self._empty, n)
+            done = self._servo_block()(state, self._params, self._queue, self._empty, n)
             self._settle_left = max(0, self._settle_left - done)
             self._after_block()
             return done
         before = state[list(DYNAMIC_FIELDS)].copy()
-        done = servo_block(state, self._params, self._queue, self._empty, 1)
+        done = self._servo_block()(state, self._params, self._queue, self._empty, 1)
         events = int(state[core1.S_EVENTS])
         self._after_block()
         if events != 0 or not np.array_equal(before, state[list(DYNAMIC_FIELDS)]):
@@ -426,7 +445,7 @@ class Device:
             position = curve.next_position(desired, tick_us)
             values[i] = position
             desired = wrap_int32(position)
-        done = servo_block(self._state, self._params, self._queue, values, n)
+        done = self._servo_block()(self._state, self._params, self._queue, values, n)
         if done < n:
             curve.restore(snapshot)
             desired = first_desired

@@ -1,0 +1,203 @@
+"""The fast path: core1's servo block compiled to machine code with numba.
+
+:func:`servo_block` has the signature and the meaning of
+:func:`usbmotion.device.core1.servo_block`: it is that very source, compiled unchanged by
+``numba.njit`` with the functions it calls (the ``usbmotion.scimath`` core, the motor step,
+the int32 wrap) registered as jitable, so it is bit-for-bit equal to the reference
+(``tests/device/test_kernel.py`` proves it). It runs a block of servo ticks in one call:
+core0 calls it up to the next pending command, queue event or diagnostics line.
+
+numba is optional (the ``fast`` extra). :func:`use_kernel` decides which path a device
+runs: the kernel when numba is importable, unless the environment variable
+``USBMOTION_KERNEL`` says otherwise (``0``: always the reference path; ``1``: the kernel or
+an error). Without numba the reference path runs and a one-line notice (a warning on the
+``usbmotion.device.kernel`` logger, printed once per process) says so.
+
+The compiled code is cached on disk (numba's ``cache=True``: ``__pycache__`` next to this
+module, or numba's user cache directory when that is not writable), so only the first run
+after an install or a change pays the compile (a few seconds; ``BENCHMARKS.md`` gives the
+figures). numba's cache only checks the file of the function it compiles, not the files of
+the functions it calls; the cache key here also carries a hash of ``core1.py``,
+``motor.py`` and ``scimath.py``, so an edit to any of them compiles afresh instead of
+loading stale machine code.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import inspect
+import logging
+import os
+import threading
+from collections.abc import Callable
+from types import ModuleType
+from typing import Any, Final
+
+from usbmotion import scimath
+from usbmotion.device import core1, motor
+from usbmotion.device.core1 import IntArray
+from usbmotion.errors import DeviceParameterError
+
+ENVIRONMENT_VARIABLE: Final = "USBMOTION_KERNEL"
+"""``0``: every device runs the reference core1; ``1``: the kernel is required; unset or
+empty: the kernel when numba is importable."""
+NOTICE: Final = (
+    "usbmotion: numba is not installed, so simulated devices run the reference servo loop"
+    " (pure Python, about 100 times slower); pip install 'usbmotion[fast]' for the kernel"
+)
+
+BlockFunction = Callable[[IntArray, IntArray, IntArray, IntArray, int], int]
+"""The signature of :func:`usbmotion.device.core1.servo_block` and of :func:`servo_block`."""
+
+_log = logging.getLogger(__name__)
+_lock = threading.Lock()
+_compiled: BlockFunction | None = None
+_jit_block: Any = None
+"""``core1.servo_block`` jitted (not cached by itself): what the cached wrapper calls."""
+_noticed = False
+
+
+def numba_available() -> bool:
+    """True when numba can be imported (checked without importing it)."""
+    try:
+        return importlib.util.find_spec("numba") is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def _environment_choice() -> bool | None:
+    raw = os.environ.get(ENVIRONMENT_VARIABLE, "")
+    value = raw.strip()
+    if value == "":
+        return None
+    if value in ("0", "1"):
+        return value == "1"
+    raise DeviceParameterError(
+        f"environment variable {ENVIRONMENT_VARIABLE}={raw!r} is not allowed; use 0 (the"
+        " reference servo loop), 1 (the compiled kernel) or leave it unset (the kernel when"
+        " numba is installed)"
+    )
+
+
+def use_kernel(fast: bool | None = None) -> bool:
+    """Whether a device should run the compiled kernel.
+
+    Parameters:
+        fast: True requires the kernel, False chooses the reference path, None (the
+            default) follows ``USBMOTION_KERNEL`` and otherwise takes the kernel when numba
+            is importable, printing :data:`NOTICE` once per process when it is not.
+
+    Raises:
+        DeviceParameterError: ``fast`` is not a bool or None; the kernel is required
+            (``fast=True`` or ``USBMOTION_KERNEL=1``) but numba is not installed; or
+            ``USBMOTION_KERNEL`` holds something other than ``0``, ``1`` or nothing.
+    """
+    global _noticed  # noqa: PLW0603 - the notice is printed once per process
+    if fast is not None and not isinstance(fast, bool):
+        raise DeviceParameterError(f"fast {fast!r} is not True, False or None")
+    choice = fast if fast is not None else _environment_choice()
+    if choice is False:
+        return False
+    if numba_available():
+        return True
+    if choice is True:
+        source = "fast=True" if fast else f"{ENVIRONMENT_VARIABLE}=1"
+        raise DeviceParameterError(
+            f"{source} asks for the compiled servo kernel, but numba is not installed;"
+            " pip install 'usbmotion[fast]', or use the reference path"
+            f" (fast=False or {ENVIRONMENT_VARIABLE}=0)"
+        )
+    if not _noticed:
+        _noticed = True
+        _log.warning(NOTICE)
+    return False
+
+
+def source_hash() -> int:
+    """A positive 62-bit hash of the sources the kernel is compiled from."""
+    digest = hashlib.sha256()
+    for module in (core1, motor, scimath):
+        digest.update(inspect.getsource(module).encode("utf-8"))
+    return int.from_bytes(digest.digest()[:8], "little") >> 2 | 1
+
+
+def _cached_wrapper(numba: ModuleType, fingerprint: int) -> BlockFunction:
+    """``_jit_block`` behind a cached jitted wrapper whose cache key carries ``fingerprint``.
+
+    numba's cache key hashes the bytecode and the closure of the function it caches:
+    ``fingerprint`` is the whole closure, so other sources mean another key.
+    """
+
+    def servo_kernel(
+        state: IntArray, params: IntArray, queue: IntArray, curve: IntArray, n_ticks: int
+    ) -> int:
+        if fingerprint == 0:
+            return 0
+        ticks: int = _jit_block(state, params, queue, curve, n_ticks)
+        return ticks
+
+    compiled: BlockFunction = numba.njit(cache=True, nogil=True)(servo_kernel)
+    return compiled
+
+
+def compile_kernel() -> BlockFunction:
+    """The compiled block function (compiled, or loaded from the cache, on the first call).
+
+    The machine code is built when it is first called with arrays; :func:`warm_up` does
+    that at once.
+
+    Raises:
+        ImportError: numba is not installed.
+    """
+    global _compiled, _jit_block  # noqa: PLW0603 - one compiled kernel per process
+    if _compiled is not None:
+        return _compiled
+    with _lock:
+        if _compiled is None:
+            import numba  # noqa: PLC0415 - optional dependency, imported on first use
+            from numba.extending import register_jitable  # noqa: PLC0415
+
+            for function in (
+                *scimath.NUMBA_CORE,
+                core1.wrap_int32,
+                core1.trunc_div,
+                motor._trunc_div,
+                motor.motor_step,
+            ):
+                register_jitable(function)
+            _jit_block = numba.njit(nogil=True)(core1.servo_block)
+            _compiled = _cached_wrapper(numba, source_hash())
+        return _compiled
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) the kernel now, by running it on a 0-tick block.
+
+    Raises:
+        ImportError: numba is not installed.
+    """
+    function = compile_kernel()
+    empty = core1.new_state()[:0]
+    function(core1.new_state(), core1.new_params(), empty.copy(), empty, 0)
+
+
+def servo_block(
+    state: IntArray,
+    params: IntArray,
+    queue: IntArray,
+    curve: IntArray,
+    n_ticks: int,
+) -> int:
+    """Run up to ``n_ticks`` servo ticks in compiled code; as ``core1.servo_block`` exactly.
+
+    Parameters:
+        state, params, queue, curve, n_ticks: as :func:`usbmotion.device.core1.servo_block`
+            (``numpy.int64`` arrays, C-contiguous).
+
+    Returns the number of ticks run.
+
+    Raises:
+        ImportError: numba is not installed.
+    """
+    return compile_kernel()(state, params, queue, curve, n_ticks)

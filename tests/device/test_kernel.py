@@ -1,0 +1,389 @@
+"""The compiled kernel against the reference core1, and the switch between them.
+
+Bit-for-bit: random gains, motor parameters, control modes, setpoint streams, curve
+positions and block lengths give the kernel exactly the reference's state (positions,
+velocities, integrator, fault, queue, every entry) after every block, and two whole
+devices, one on each path, print the same bytes and report the same state after every
+run. Through the whole chain in virtual time (host streams into ``sim://`` devices) the
+kernel runs long blocks and ends where the reference ends. Without numba the reference
+path runs and a one-line notice says so.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from usbmotion.device import Device, core1, kernel
+from usbmotion.device.core1 import IntArray
+from usbmotion.errors import DeviceParameterError
+from usbmotion.host.device import DeviceClient
+from usbmotion.host.stream import SetpointStream, run_streams, wait_until_drained
+from usbmotion.protocol import QUEUE_CAPACITY
+from usbmotion.sim import SimWorld, drop_world, set_world
+
+from .helpers import send, take
+
+needs_numba = pytest.mark.skipif(not kernel.numba_available(), reason="numba is not installed")
+
+
+@pytest.fixture(scope="module")
+def compiled() -> kernel.BlockFunction:
+    """The kernel, compiled (or loaded from numba's cache) once for the session."""
+    kernel.warm_up()
+    return kernel.compile_kernel()
+
+
+@pytest.fixture
+def no_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv(kernel.ENVIRONMENT_VARIABLE, raising=False)
+
+
+# --- strategies -------------------------------------------------------------------------
+
+_realistic_sci = st.tuples(st.integers(1, 9999), st.integers(-4, 1))
+_any_sci = st.tuples(st.integers(1, 9999), st.integers(-12, 6))
+_gain = st.one_of(
+    st.tuples(st.integers(0, 999), st.integers(-4, 0)),
+    st.tuples(st.integers(0, 999), st.integers(-12, 6)),
+)
+
+
+def _sci_line(call: int, pair: tuple[int, int]) -> str:
+    return f"{call} {pair[0]} {pair[1]}"
+
+
+@st.composite
+def configurations(draw: st.DrawFn) -> list[str]:
+    """Command lines that configure a device: gains, motor, period, mode, limits, faults."""
+    interval_dms = draw(st.sampled_from([1, 2, 5, 10, 20]), label="interval_dms")
+    steps = draw(st.integers(1, 6), label="motor steps per tick")
+    sim_dms = max(1, interval_dms // steps)
+    mode = draw(st.sampled_from([1, 2, 3]), label="mode")
+    lines = [f"5 {interval_dms}", f"12 {sim_dms}", f"7 {mode}"]
+    for call in (9, 10, 11):
+        lines.append(_sci_line(call, draw(_gain, label=f"gain {call}")))
+    motor_sci = st.one_of(_realistic_sci, _realistic_sci, _any_sci)
+    for call in (13, 14, 15, 17, 32):
+        if draw(st.booleans(), label=f"set {call}"):
+            lines.append(_sci_line(call, draw(motor_sci, label=f"motor {call}")))
+    if draw(st.booleans(), label="set 33"):
+        load = draw(st.tuples(st.integers(0, 9999), st.integers(-4, 2)), label="load")
+        lines.append(_sci_line(33, load))
+    if draw(st.booleans(), label="set 16"):
+        lines.append(f"16 {draw(st.integers(1, 1_000_000), label='counts per rev')}")
+    if draw(st.booleans(), label="travel"):
+        lower = draw(st.integers(-50_000, -1), label="lower")
+        upper = draw(st.integers(1, 50_000), label="upper")
+        lines.append(f"34 {lower} {upper}")
+    lines.append(f"6 {draw(st.integers(1, 5), label='scalar')}")
+    lines.append(f"21 {draw(st.sampled_from([0, 0, 1, 7, 50]), label='diagnostics')}")
+    lines.append(f"28 {draw(st.sampled_from([0, 0, 0, 3, 40]), label='watchdog ms')}")
+    lines.append(f"29 {draw(st.sampled_from([0, 0, 0, 5, 500]), label='following limit')}")
+    if draw(st.booleans(), label="armed start"):
+        lines.append(f"31 {draw(st.integers(0, 200), label='start tick')}")
+    lines.append("3 1")
+    return lines
+
+
+_setpoint = st.one_of(
+    st.integers(-3000, 3000),
+    st.integers(-(2**31), 2**31 - 1),
+)
+
+
+@st.composite
+def blocks(draw: st.DrawFn) -> list[tuple[list[int], list[int], int, bool]]:
+    """(values to queue, curve positions, ticks, recover from a fault first) per block."""
+    count = draw(st.integers(1, 6), label="blocks")
+    out = []
+    for _ in range(count):
+        values = draw(st.lists(_setpoint, max_size=40), label="values")
+        ticks = draw(st.integers(0, 250), label="ticks")
+        curve = draw(st.lists(st.integers(-5000, 5000), max_size=ticks), label="curve")
+        out.append((values, curve, ticks, draw(st.booleans(), label="recover")))
+    return out
+
+
+def _arrays(device: Device) -> tuple[IntArray, IntArray, IntArray]:
+    """Copies of a device's core1 state, params and queue (the block's whole input)."""
+    return device._state.copy(), device._params.copy(), device._queue.copy()
+
+
+def _push(state: IntArray, queue: IntArray, values: list[int]) -> None:
+    head = int(state[core1.S_QUEUE_HEAD])
+    count = int(state[core1.S_QUEUE_COUNT])
+    for value in values[: QUEUE_CAPACITY - count]:
+        queue[(head + count) % QUEUE_CAPACITY] = value
+        count += 1
+    state[core1.S_QUEUE_COUNT] = count
+
+
+def _between_blocks(state: IntArray, *, recover: bool) -> None:
+    """What core0 does between blocks: clear the events, take a command; maybe clear a
+    fault and enable again (calls 30 and 3)."""
+    state[core1.S_EVENTS] = 0
+    state[core1.S_SINCE_COMMAND_US] = 0
+    if recover and state[core1.S_ENABLE] == 0:
+        state[core1.S_FAULT] = 0
+        state[core1.S_ENABLE] = 1
+        state[core1.S_INTEGRAL] = 0
+        state[core1.S_FRESH] = 1
+        state[core1.S_MOTION_LEFT] = 0
+        state[core1.S_DESIRED] = state[core1.S_ACTUAL]
+        state[core1.S_DESIRED_VEL] = 0
+
+
+# --- bit for bit ------------------------------------------------------------------------
+
+
+@needs_numba
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(configuration=configurations(), stream=blocks())
+def test_the_kernel_equals_core1_after_every_block(
+    compiled: kernel.BlockFunction,
+    configuration: list[str],
+    stream: list[tuple[list[int], list[int], int, bool]],
+) -> None:
+    device = Device(fast=False)
+    send(device, *configuration)
+    state, params, queue = _arrays(device)
+    fast_state, fast_queue = state.copy(), queue.copy()
+    for values, positions, ticks, recover in stream:
+        for array in (state, fast_state):
+            _between_blocks(array, recover=recover)
+        _push(state, queue, values)
+        _push(fast_state, fast_queue, values)
+        curve = np.asarray(positions, dtype=np.int64)
+        left = ticks
+        while True:
+            done = core1.servo_block(state, params, queue, curve, left)
+            fast_done = compiled(fast_state, params, fast_queue, curve, left)
+            assert fast_done == done
+            assert fast_state.tolist() == state.tolist()
+            assert fast_queue.tolist() == queue.tolist()
+            left -= done
+            if left <= 0:
+                break
+            curve = curve[done:]
+            for array in (state, fast_state):
+                _between_blocks(array, recover=False)
+
+
+@st.composite
+def scripts(draw: st.DrawFn) -> list[str | int]:
+    """Command lines (str) and runs (int ticks), interleaved."""
+    steps: list[str | int] = []
+    for _ in range(draw(st.integers(1, 10), label="steps")):
+        kind = draw(st.sampled_from(["run", "run", "run", "stream", "command", "keyframe"]))
+        if kind == "run":
+            steps.append(draw(st.integers(0, 400), label="run ticks"))
+        elif kind == "stream":
+            values = draw(st.lists(st.integers(-4000, 4000), min_size=1, max_size=60))
+            steps.append(f"1 {len(values)} {' '.join(map(str, values))}")
+        elif kind == "keyframe":
+            duration = draw(st.integers(1, 80), label="duration ms")
+            position = draw(st.integers(-3000, 3000), label="position")
+            tangents = draw(st.tuples(st.integers(-2000, 2000), st.integers(-2000, 2000)))
+            steps.append(f"25 {duration} {position} {tangents[0]} {tangents[1]}")
+        else:
+            steps.append(draw(st.sampled_from([
+                "3 0", "3 1", "4 0", "30 0", "23 150", "7 1", "7 2", "7 3", "21 0", "21 13",
+                "22 0", "0 -700", "26 0", "29 0", "28 0",
+            ]), label="command"))
+    return steps
+
+
+@needs_numba
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(configuration=configurations(), script=scripts())
+def test_a_kernel_device_equals_a_reference_device_after_every_run(
+    compiled: kernel.BlockFunction, configuration: list[str], script: list[str | int]
+) -> None:
+    reference, fast = Device(fast=False), Device(fast=True)
+    assert (reference.fast, fast.fast) == (False, True)
+    for device in (reference, fast):
+        send(device, *configuration)
+    for step in script:
+        for device in (reference, fast):
+            if isinstance(step, int):
+                device.run(step)
+            else:
+                device.feed(f"{step}\n".encode("ascii"))
+        assert take(fast) == take(reference)
+        assert fast.state == reference.state
+    assert fast.settings == reference.settings
+    assert fast._state.tolist() == reference._state.tolist()
+
+
+# --- the whole chain in virtual time ------------------------------------------------------
+
+
+class _Counting:
+    """Counts the kernel's blocks and ticks (wraps the compiled function)."""
+
+    def __init__(self, function: kernel.BlockFunction) -> None:
+        self.function = function
+        self.blocks = 0
+        self.ticks = 0
+
+    def __call__(
+        self, state: IntArray, params: IntArray, queue: IntArray, curve: IntArray, n: int
+    ) -> int:
+        done = self.function(state, params, queue, curve, n)
+        self.blocks += 1
+        self.ticks += done
+        return done
+
+
+def _stream_in_virtual_time(*, fast: bool, world_name: str) -> tuple[list[Device], int]:
+    """Stream 30,000 setpoints into each of 3 sim:// devices at 10 kHz; returns devices."""
+    world = SimWorld()
+    devices = [Device(fast=fast) for _ in range(3)]
+    for name, device in zip("XYZ", devices, strict=True):
+        world.add(device, key=name)
+    set_world(world_name, world)
+    clients = [DeviceClient.open(f"sim://{name}?world={world_name}", name=name) for name in "XYZ"]
+    try:
+        for client in clients:
+            client.set_servo_interval_dms(1)
+            client.set_motion_scalar(10)
+            client.set_servo_enable(True)
+        period_s = clients[0].motion_period_s()
+        ramp = np.arange(3000, dtype=np.int64)
+        streams = [SetpointStream(client, (ramp * (i + 1)) // 3, period_s=period_s)
+                   for i, client in enumerate(clients)]
+        run_streams(streams)
+        wait_until_drained(clients, period_s=period_s)
+        queries = sum(stream.status_queries for stream in streams)
+    finally:
+        for client in clients:
+            client.close()
+        drop_world(world_name)
+    return devices, queries
+
+
+@needs_numba
+def test_streaming_into_sim_devices_runs_long_kernel_blocks(
+    compiled: kernel.BlockFunction, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    counting = _Counting(compiled)
+    monkeypatch.setattr("usbmotion.device.core0.compile_kernel", lambda: counting)
+    fast_devices, queries = _stream_in_virtual_time(fast=True, world_name="kernel-chain")
+    monkeypatch.undo()
+    # 3 axes x 3000 setpoints x 10 ticks: no per-tick (or per-setpoint) round trips
+    assert counting.ticks >= 3 * 3000 * 10
+    assert counting.ticks / counting.blocks >= 100, (counting.ticks, counting.blocks)
+    assert queries <= 3 * 3000 / 100
+    reference_devices, _ = _stream_in_virtual_time(fast=False, world_name="reference-chain")
+    for fast_device, reference_device in zip(fast_devices, reference_devices, strict=True):
+        assert fast_device.state == reference_device.state
+        assert fast_device.state.fault == 0
+        assert fast_device.state.desired == fast_device.state.actual or abs(
+            fast_device.state.desired - fast_device.state.actual
+        ) <= 3
+
+
+# --- the switch -------------------------------------------------------------------------
+
+
+@needs_numba
+def test_devices_take_the_kernel_when_numba_is_there(no_environment: None) -> None:
+    assert Device().fast is True
+    assert Device(fast=False).fast is False
+
+
+@needs_numba
+@pytest.mark.parametrize(("value", "fast"), [("0", False), ("1", True), ("", True), (" 0 ", False)])
+def test_the_environment_variable_chooses_the_path(
+    monkeypatch: pytest.MonkeyPatch, value: str, fast: bool
+) -> None:
+    monkeypatch.setenv(kernel.ENVIRONMENT_VARIABLE, value)
+    assert Device().fast is fast
+    assert Device(fast=not fast).fast is (not fast), "an explicit argument wins"
+
+
+def test_a_bad_environment_value_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(kernel.ENVIRONMENT_VARIABLE, "yes")
+    with pytest.raises(DeviceParameterError, match=r"USBMOTION_KERNEL='yes' is not allowed"):
+        Device()
+
+
+def test_a_bad_fast_argument_is_refused() -> None:
+    with pytest.raises(DeviceParameterError, match=r"fast 1 is not True, False or None"):
+        Device(fast=1)  # type: ignore[arg-type]
+
+
+@pytest.fixture
+def without_numba(monkeypatch: pytest.MonkeyPatch, no_environment: None) -> Iterator[None]:
+    """numba cannot be imported; the notice has not been printed yet in this process."""
+    monkeypatch.setitem(sys.modules, "numba", None)
+    monkeypatch.setattr(kernel, "_noticed", False)
+    yield
+
+
+def test_without_numba_the_reference_runs_and_a_notice_says_so_once(
+    without_numba: None, caplog: pytest.LogCaptureFixture
+) -> None:
+    assert kernel.numba_available() is False
+    with caplog.at_level(logging.WARNING, logger="usbmotion.device.kernel"):
+        device = Device()
+        Device()
+    assert device.fast is False
+    assert [record.getMessage() for record in caplog.records] == [kernel.NOTICE]
+    assert "\n" not in kernel.NOTICE
+    send(device, "3 1", "0 100")
+    device.run(500)
+    assert abs(device.state.actual - 100) <= 2
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="usbmotion.device.kernel"):
+        assert Device(fast=False).fast is False
+    assert caplog.records == []
+
+
+def test_without_numba_asking_for_the_kernel_is_an_error(
+    without_numba: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    with pytest.raises(DeviceParameterError, match=r"fast=True asks for the compiled servo"):
+        Device(fast=True)
+    monkeypatch.setenv(kernel.ENVIRONMENT_VARIABLE, "1")
+    with pytest.raises(DeviceParameterError, match=r"USBMOTION_KERNEL=1 asks for the compiled"):
+        Device()
+    monkeypatch.setenv(kernel.ENVIRONMENT_VARIABLE, "0")
+    assert Device().fast is False
+
+
+@needs_numba
+def test_an_exception_in_the_kernel_faults_and_keeps_the_clock(
+    compiled: kernel.BlockFunction, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    device = Device(fast=True)
+    send(device, "3 1", "0 100")
+
+    def broken(*args: object) -> int:
+        raise ZeroDivisionError("oops")
+
+    monkeypatch.setattr("usbmotion.device.core0.compile_kernel", lambda: broken)
+    device.run(50)
+    assert device.clock == 50
+    assert send(device, "30 -1") == [
+        "ERR ? internal error in the servo loop (ZeroDivisionError: oops); fault 4 latched",
+        "FAULT 4 0",
+    ]
+    monkeypatch.undo()
+    device.run(10)
+    assert device.clock == 60
+
+
+@needs_numba
+def test_the_cache_key_carries_the_sources(compiled: kernel.BlockFunction) -> None:
+    py_func = compiled.py_func  # type: ignore[attr-defined]
+    assert py_func.__closure__ is not None
+    assert [cell.cell_contents for cell in py_func.__closure__] == [kernel.source_hash()]
+    assert 0 < kernel.source_hash() < 2**62
