@@ -97,11 +97,12 @@ def test_example_machine_loads_as_the_simulated_xyz_machine() -> None:
     for axis in config.axes:
         assert axis.counts_per_mm == 240.0
         assert axis.homing.direction == -1
-        assert axis.homing.position_mm == axis.travel_mm[0]
+        assert axis.homing.position_mm == axis.travel_mm[0] - 1.0
+        assert axis.switch_margin_mm == 1.0
         assert axis.sim is not None
         lower, upper = axis.sim_travel_counts or (0, 0)
         assert lower < 0 < upper
-        assert upper - lower == round((axis.travel_mm[1] - axis.travel_mm[0]) * 240)
+        assert upper - lower == round((axis.travel_mm[1] - axis.travel_mm[0] + 2.0) * 240)
     assert config.axis("X").travel_mm == (0.0, 200.0)
     assert config.axis("Z").travel_mm == (0.0, 100.0)
 
@@ -129,11 +130,13 @@ def test_values_defaults_and_derived_figures(tmp_path: Path) -> None:
     assert x.max_jerk_mm_s3 == 20 * 500
     assert x.scale.to_counts(1.0) == 240
     assert x.sim is not None and x.sim.start_mm == 100.0
-    assert x.sim_travel_counts == (-24000, 24000)
+    assert x.homing.position_mm == -1.0
+    assert x.sim_travel_counts == (-24240, 24240)
     assert x.sim.counts_per_revolution == SIM_MOTOR_DEFAULTS["counts_per_revolution"]
     assert z.sim is None and z.sim_travel_counts is None
     assert z.homing.direction == 1
-    assert z.homing.position_mm == 90.0
+    assert z.homing.position_mm == 91.0
+    assert z.switch_margin_mm == 1.0
     assert z.homing.slow_speed_mm_s == pytest.approx(0.5)
     assert z.following_error_limit_counts == 0
     assert config.homing_order == (("Z",), ("X",))
@@ -303,6 +306,8 @@ def test_unreadable_file_is_a_config_error(tmp_path: Path) -> None:
         ("watchdog_ms = 0", 'ports = "/dev/ttyACM0"', "ports", ("not a list",)),
         ("speed_mm_s = 5", "speed_mm_s = 50", "axes.Z.homing.speed_mm_s",
          ("out of range", "at most max_velocity_mm_s")),
+        ("speed_mm_s = 5", "speed_mm_s = 5\nposition_mm = 80", "axes.Z.homing.position_mm",
+         ("80 is out of range", "at or above travel_mm's highest")),
     ],
 )
 def test_bad_values_are_located(
@@ -311,7 +316,8 @@ def test_bad_values_are_located(
     assert old in GOOD
     text = GOOD.replace(old, new, 1)
     error = fails(tmp_path, text)
-    assert_located(error, key=key, line=line_of(text, new), words=(*words, "allowed"))
+    assert_located(error, key=key, line=line_of(text, new.splitlines()[-1]),
+                   words=(*words, "allowed"))
 
 
 def test_the_same_device_on_two_axes(tmp_path: Path) -> None:

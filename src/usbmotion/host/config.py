@@ -50,6 +50,17 @@ class PidGains:
     kd: float
 
 
+VELOCITY_GAINS_DEFAULT = PidGains(kp=0.001, ki=0.5, kd=0.0)
+"""Velocity-mode gains when a file gives none: a PI loop that holds the default simulated
+motor within a count per second of its target. The velocity it is fed is measured over one
+servo tick (1000 counts/s per count at 1 ms), so a small ``kp`` keeps that quantisation
+from chattering the output; ``ki`` acts on the integrated error, a position error."""
+
+
+HOME_SWITCH_MARGIN_MM = 1.0
+"""How far beyond the end of the travel the home switch closes, when a file does not say."""
+
+
 @dataclass(frozen=True, slots=True)
 class HomingConfig:
     """How one axis finds its reference switch.
@@ -61,8 +72,10 @@ class HomingConfig:
         slow_speed_mm_s: back-off and slow re-approach speed, mm/s.
         backoff_mm: distance to back off the switch before the slow re-approach, mm
             (0: take the zero on the first touch).
-        position_mm: the machine position of the switch, assigned to the axis once homed
-            (by default the end of ``travel_mm`` the switch sits at).
+        position_mm: the machine position of the switch's closing point, assigned to the
+            axis once homed. It lies at or beyond the end of ``travel_mm`` it homes to (by
+            default 1 mm beyond), so that moves to the ends of the travel never close the
+            switch (a closing switch is a fault in position mode).
     """
 
     direction: int
@@ -89,8 +102,8 @@ class SimMotorConfig:
             per rad/s.
         load_torque_mnm: constant load torque opposing motion, mNm.
         start_mm: where the carriage stands at power-up, in machine millimetres; the
-            simulated limit switches are placed at the ends of the axis's ``travel_mm``
-            relative to it.
+            simulated limit switches close ``switch_margin_mm`` beyond the ends of the
+            axis's ``travel_mm``, relative to it.
     """
 
     update_interval_dms: int
@@ -135,7 +148,9 @@ class AxisConfig:
         max_accel_mm_s2: the largest acceleration of the axis, mm/s^2.
         max_jerk_mm_s3: the largest jerk of jerk-limited profiles, mm/s^3.
         travel_mm: (lowest, highest) machine position of the axis, mm.
-        gains: the PID gains.
+        gains: the PID gains of position and curve modes (1 and 3): on the position error.
+        velocity_gains: the PID gains of velocity mode (2, used by homing): on the velocity
+            error, so ``kp`` is in V per count/s and ``ki`` in V per count.
         following_error_limit_mm: a larger |desired - actual| disables the servo and
             latches a fault on the device, mm (0: no limit).
         homing: how the axis homes.
@@ -152,6 +167,7 @@ class AxisConfig:
     max_jerk_mm_s3: float
     travel_mm: tuple[float, float]
     gains: PidGains
+    velocity_gains: PidGains
     following_error_limit_mm: float
     homing: HomingConfig
     sim: SimMotorConfig | None
@@ -177,14 +193,25 @@ class AxisConfig:
         return round(self.following_error_limit_mm * self.counts_per_mm)
 
     @property
+    def switch_margin_mm(self) -> float:
+        """How far beyond each end of ``travel_mm`` the limit switches close, mm."""
+        end = self.travel_mm[0] if self.homing.direction == -1 else self.travel_mm[1]
+        return abs(self.homing.position_mm - end)
+
+    @property
     def sim_travel_counts(self) -> tuple[int, int] | None:
-        """The simulated switch positions in counts from power-up (call 34), if simulated."""
+        """The simulated switch positions in counts from power-up (call 34), if simulated.
+
+        Each switch closes ``switch_margin_mm`` beyond its end of ``travel_mm``, measured
+        from the carriage's power-up position ``sim.start_mm``.
+        """
         if self.sim is None:
             return None
         low, high = self.travel_mm
+        margin = self.switch_margin_mm
         return (
-            round((low - self.sim.start_mm) * self.counts_per_mm),
-            round((high - self.sim.start_mm) * self.counts_per_mm),
+            round((low - margin - self.sim.start_mm) * self.counts_per_mm),
+            round((high + margin - self.sim.start_mm) * self.counts_per_mm),
         )
 
 
@@ -580,7 +607,9 @@ def _axis(name: str, reader: _Reader, servo_interval_dms: int) -> AxisConfig:
     max_jerk = reader.number("max_jerk_mm_s3", default=20 * max_accel, above=0, maximum=1e10,
                              unit="mm/s^3; default 20 x max_accel_mm_s2")
     travel = _travel(reader, counts_per_mm)
-    gains = _gains(reader)
+    gains = _gains(reader, "gains", defaults=None, mode="position and curve modes")
+    velocity_gains = _gains(reader, "velocity_gains", defaults=VELOCITY_GAINS_DEFAULT,
+                            mode="velocity mode")
     fe_limit = reader.number(
         "following_error_limit_mm", default=2.0, minimum=0,
         maximum=min(travel[1] - travel[0], INT32_MAX / counts_per_mm),
@@ -591,12 +620,14 @@ def _axis(name: str, reader: _Reader, servo_interval_dms: int) -> AxisConfig:
     sim = _sim(reader, travel, counts_per_mm, servo_interval_dms, simulated=simulated)
     reader.finish((
         "device", "url", "counts_per_mm", "max_velocity_mm_s", "max_accel_mm_s2",
-        "max_jerk_mm_s3", "travel_mm", "gains", "following_error_limit_mm", "homing", "sim",
+        "max_jerk_mm_s3", "travel_mm", "gains", "velocity_gains", "following_error_limit_mm",
+        "homing", "sim",
     ))
     return AxisConfig(
         name=name, device=device, url=url, counts_per_mm=counts_per_mm,
         max_velocity_mm_s=max_velocity, max_accel_mm_s2=max_accel, max_jerk_mm_s3=max_jerk,
-        travel_mm=travel, gains=gains, following_error_limit_mm=fe_limit, homing=homing,
+        travel_mm=travel, gains=gains, velocity_gains=velocity_gains,
+        following_error_limit_mm=fe_limit, homing=homing,
         sim=sim,
     )
 
@@ -624,7 +655,7 @@ def _sci(reader: _Reader, name: str, value: float, *, call: int, digits: int) ->
     problem = BY_NUMBER[call].problem((coefficient, exponent))
     if problem is not None:
         spec = BY_NUMBER[call]
-        low = spec.params[0].minimum * 10.0 ** spec.params[1].minimum
+        low = max(1, spec.params[0].minimum) * 10.0 ** spec.params[1].minimum
         high = spec.params[0].maximum * 10.0 ** spec.params[1].maximum
         reader.fail(
             name, f"{value!r} cannot be sent to the device (call {call}: {problem[1]});"
@@ -632,14 +663,19 @@ def _sci(reader: _Reader, name: str, value: float, *, call: int, digits: int) ->
         )
 
 
-def _gains(reader: _Reader) -> PidGains:
-    table = reader.table("gains", required=True,
-                         allowed="a table with kp, ki, kd (PID gains, numbers >= 0)")
-    assert table is not None
+def _gains(reader: _Reader, name: str, *, defaults: PidGains | None, mode: str) -> PidGains:
+    table = reader.table(name, required=defaults is None,
+                         allowed=f"a table with kp, ki, kd (PID gains of {mode}, numbers >= 0)")
+    table = table if table is not None else _Reader(reader.source, {}, reader.key(name))
     values: dict[str, float] = {}
-    for key, call, unit in (("kp", 9, "V per count"), ("ki", 10, "V per count-second"),
-                            ("kd", 11, "V-seconds per count")):
-        values[key] = table.number(key, minimum=0, unit=unit)
+    velocity = defaults is not None
+    for key, call, unit in (
+        ("kp", 9, "V per count/s" if velocity else "V per count"),
+        ("ki", 10, "V per count" if velocity else "V per count-second"),
+        ("kd", 11, "V-seconds per count/s" if velocity else "V-seconds per count"),
+    ):
+        default = _REQUIRED if defaults is None else getattr(defaults, key)
+        values[key] = table.number(key, default=default, minimum=0, unit=unit)
         _sci(table, key, values[key], call=call, digits=3)
     table.finish(("kp", "ki", "kd"))
     return PidGains(**values)
@@ -660,10 +696,18 @@ def _homing(reader: _Reader, travel: tuple[float, float], max_velocity: float) -
     length = travel[1] - travel[0]
     backoff = table.number("backoff_mm", default=min(2.0, length / 4), minimum=0,
                            maximum=length / 2, unit="mm, at most half the travel")
-    position = table.number(
-        "position_mm", default=travel[0] if direction == -1 else travel[1],
-        minimum=travel[0], maximum=travel[1], unit="mm, within travel_mm",
-    )
+    if direction == -1:
+        position = table.number(
+            "position_mm", default=travel[0] - HOME_SWITCH_MARGIN_MM,
+            minimum=travel[0] - length, maximum=travel[0],
+            unit="mm, at or below travel_mm's lowest, by at most the travel's length",
+        )
+    else:
+        position = table.number(
+            "position_mm", default=travel[1] + HOME_SWITCH_MARGIN_MM,
+            minimum=travel[1], maximum=travel[1] + length,
+            unit="mm, at or above travel_mm's highest, by at most the travel's length",
+        )
     table.finish(("direction", "speed_mm_s", "slow_speed_mm_s", "backoff_mm", "position_mm"))
     return HomingConfig(int(direction), speed, slow, backoff, position)
 
@@ -682,16 +726,16 @@ def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
         maximum=servo_interval_dms, unit="tenths of a millisecond, at most servo_interval_dms",
     )
     values: dict[str, float] = {}
-    for key, call, unit, signed in (
+    for key, call, unit, zero in (
         ("source_voltage_v", 13, "volts", False),
         ("torque_constant_mnm_per_a", 14, "mNm per ampere", False),
         ("winding_resistance_ohm", 15, "ohms", False),
         ("inertia_kg_m2", 17, "kg m^2", False),
         ("viscous_friction_unm_per_rad_s", 32, "uNm per rad/s", False),
-        ("load_torque_mnm", 33, "mNm", True),
+        ("load_torque_mnm", 33, "mNm, 0 for none", True),
     ):
-        if signed:
-            values[key] = table.number(key, default=d[key], unit=unit)
+        if zero:
+            values[key] = table.number(key, default=d[key], minimum=0, unit=unit)
         else:
             values[key] = table.number(key, default=d[key], above=0, unit=unit)
         _sci(table, key, values[key], call=call, digits=4)

@@ -1,0 +1,165 @@
+"""Find devices by the name in their flash: open each candidate port, ask call 18, close it.
+
+A USB Motion Device keeps its name in flash (call 18), so a machine's configuration names
+its axes' devices rather than their ports, which change from boot to boot. Discovery
+searches the computer's serial ports (``serial.tools.list_ports``) and any explicit URLs
+(``socket://host:port`` of ``usbmotion sim --tcp``, ``sim://`` devices), sends each one
+``18 -1``, and reads the ``DEVICE_NAME`` answer within a short timeout.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+from serial.tools import list_ports
+
+from usbmotion.errors import (
+    DeviceNotFoundError,
+    DeviceTimeoutError,
+    LinkLostError,
+    UnexpectedReplyError,
+)
+from usbmotion.host.transport import LineTransport
+from usbmotion.protocol import ReplyKind, parse_reply
+
+PROBE_TIMEOUT_S = 0.5
+"""How long a port has to answer ``18 -1``, seconds."""
+
+_QUERY = b"\n18 -1\n"
+"""The probe: a newline first ends whatever partial line an earlier host left behind."""
+
+
+@dataclass(frozen=True, slots=True)
+class PortAnswer:
+    """What one searched port answered.
+
+    Fields:
+        url: the port path or URL.
+        name: the device name it answered with, or ``None``.
+        problem: why there is no name: ``"no answer within 0.5 s"``, ``"could not open:
+            ..."``, ``"answered 'xyz'"``; empty when a name came back.
+    """
+
+    url: str
+    name: str | None
+    problem: str = ""
+
+    def describe(self) -> str:
+        """One phrase: ``/dev/ttyACM0: 'X AXIS'`` or ``/dev/ttyS0: no answer within 0.5 s``."""
+        if self.name is not None:
+            return f"{self.url}: {self.name!r}"
+        return f"{self.url}: {self.problem}"
+
+
+def serial_ports() -> list[str]:
+    """The computer's serial ports (device paths), sorted."""
+    return sorted(port.device for port in list_ports.comports())
+
+
+def probe(url: str, *, timeout_s: float = PROBE_TIMEOUT_S) -> PortAnswer:
+    """Open ``url``, ask the device's name (call 18), close it.
+
+    Lines that are not the answer (diagnostics, an ``ERR`` for a stale partial line) are
+    skipped until the timeout, measured on the port's clock. Never raises for a port that
+    is missing, busy or silent: the answer says what happened.
+    """
+    try:
+        transport = LineTransport.open(url)
+    except LinkLostError as error:
+        return PortAnswer(url, None, f"could not open: {error.__cause__ or error}")
+    other = ""
+    with transport:
+        try:
+            transport.discard_input()
+            transport.write(_QUERY)
+            deadline = transport.clock.now() + timeout_s
+            while True:
+                left = deadline - transport.clock.now()
+                if left <= 0:
+                    break
+                try:
+                    line = transport.read_line(left)
+                except DeviceTimeoutError:
+                    break
+                try:
+                    reply = parse_reply(line)
+                except UnexpectedReplyError:
+                    other = other or line.decode("ascii", errors="replace")[:40]
+                    continue
+                if reply.kind is ReplyKind.QUERY and reply.call == 18:
+                    return PortAnswer(url, reply.text)
+        except LinkLostError as error:
+            return PortAnswer(url, None, f"link lost: {error}")
+    if other:
+        return PortAnswer(url, None, f"answered {other!r}, not a device name")
+    return PortAnswer(url, None, f"no answer within {timeout_s:g} s")
+
+
+def scan(urls: Iterable[str], *, timeout_s: float = PROBE_TIMEOUT_S) -> list[PortAnswer]:
+    """Probe every URL (each once, in order) and return what each answered."""
+    answers: list[PortAnswer] = []
+    seen: set[str] = set()
+    for url in urls:
+        if url not in seen:
+            seen.add(url)
+            answers.append(probe(url, timeout_s=timeout_s))
+    return answers
+
+
+def discover(
+    names: Iterable[str],
+    *,
+    urls: Sequence[str] = (),
+    search_ports: bool = True,
+    timeout_s: float = PROBE_TIMEOUT_S,
+) -> dict[str, str]:
+    """Find each device name among the serial ports and ``urls``; returns name -> URL.
+
+    Parameters:
+        names: the device names to find (as written to flash with call 18).
+        urls: ports or URLs to search first (``socket://...``, ``sim://...``, paths).
+        search_ports: also search the computer's serial ports.
+        timeout_s: how long each port has to answer.
+
+    Raises:
+        DeviceNotFoundError: a name is on no searched port, or on more than one; the
+            message lists every port searched and what it answered.
+    """
+    wanted = list(dict.fromkeys(names))
+    if not wanted:
+        return {}
+    candidates = list(urls) + (serial_ports() if search_ports else [])
+    answers = scan(candidates, timeout_s=timeout_s)
+    return match_names(wanted, answers)
+
+
+def match_names(names: Sequence[str], answers: Sequence[PortAnswer]) -> dict[str, str]:
+    """Pair each wanted name with the one port that answered it.
+
+    Raises:
+        DeviceNotFoundError: as :func:`discover`.
+    """
+    searched = tuple(answer.url for answer in answers)
+    report = "; ".join(answer.describe() for answer in answers) or "no ports to search"
+    found: dict[str, list[str]] = {}
+    for answer in answers:
+        if answer.name is not None:
+            found.setdefault(answer.name, []).append(answer.url)
+    result: dict[str, str] = {}
+    for name in names:
+        where = found.get(name, [])
+        if not where:
+            raise DeviceNotFoundError(
+                f"device {name!r} not found; searched {len(answers)} port(s): {report}",
+                name=name, searched=searched,
+            )
+        if len(where) > 1:
+            raise DeviceNotFoundError(
+                f"device {name!r} answers on {len(where)} ports ({', '.join(where)}); give each"
+                " device its own name (call 18) so every axis is found on one port",
+                name=name, searched=searched,
+            )
+        result[name] = where[0]
+    return result
+

@@ -1,0 +1,443 @@
+"""A machine: several devices as named axes, configured from one file, started together.
+
+:meth:`Machine.connect` opens one :class:`~usbmotion.host.device.DeviceClient` per axis of a
+:class:`~usbmotion.host.config.MachineConfig`: ``sim://`` axes become simulated devices in
+one virtual-time world (built with the file's motor), axes named by their device name are
+found by discovery, explicit ports are opened as they are. :meth:`Machine.configure` sends
+the file's settings through the clients' validated methods; :meth:`Machine.synchronise`
+zeroes the device clocks and arms a common start (call 31).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+from urllib.parse import quote
+
+from usbmotion.errors import (
+    ConfigError,
+    DeviceError,
+    DeviceNotFoundError,
+    UsbMotionError,
+)
+from usbmotion.host.config import AxisConfig, MachineConfig, SimMotorConfig
+from usbmotion.host.device import AxisScale, ControlMode, DeviceClient, Status, to_sci
+from usbmotion.host.discovery import PROBE_TIMEOUT_S, discover
+from usbmotion.host.timesync import (
+    DEFAULT_MARGIN_S,
+    DEFAULT_SAMPLES,
+    SyncReport,
+    shared_clock,
+    synchronise_start,
+)
+from usbmotion.host.transport import LineTransport
+from usbmotion.sim.clock import Clock
+from usbmotion.sim.registry import drop_world, set_world
+from usbmotion.sim.urlhandler.protocol_sim import parse_sim_url
+from usbmotion.sim.world import SimWorld
+
+if TYPE_CHECKING:
+    from usbmotion.device.motor import MotorParams
+
+_aliases = itertools.count(1)
+
+
+@dataclass(frozen=True, slots=True)
+class Axis:
+    """One axis of a connected machine.
+
+    Fields:
+        name: the axis letter.
+        config: its configuration.
+        client: the device that drives it.
+        url: the port or URL it was opened on.
+    """
+
+    name: str
+    config: AxisConfig
+    client: DeviceClient
+    url: str
+
+    @property
+    def scale(self) -> AxisScale:
+        """Millimetres to counts."""
+        return self.config.scale
+
+
+def sim_motor_params(sim: SimMotorConfig, *, travel_counts: tuple[int, int]) -> MotorParams:
+    """The device's ``MotorParams`` for a simulated axis (scientific values to 4 digits)."""
+    from usbmotion.device.motor import MotorParams  # noqa: PLC0415 - only simulated axes need it
+
+    def pair(value: float, label: str) -> tuple[int, int]:
+        coefficient, exponent = to_sci(value, digits=4, parameter=label)
+        return (coefficient, exponent if coefficient else 0)
+
+    return MotorParams(
+        source_voltage_v=pair(sim.source_voltage_v, "source_voltage_v"),
+        torque_constant_mnm_per_a=pair(sim.torque_constant_mnm_per_a,
+                                       "torque_constant_mnm_per_a"),
+        winding_resistance_ohm=pair(sim.winding_resistance_ohm, "winding_resistance_ohm"),
+        counts_per_revolution=sim.counts_per_revolution,
+        inertia_kg_m2=pair(sim.inertia_kg_m2, "inertia_kg_m2"),
+        viscous_friction_unm_per_rad_s=pair(sim.viscous_friction_unm_per_rad_s,
+                                            "viscous_friction_unm_per_rad_s"),
+        load_torque_mnm=pair(sim.load_torque_mnm, "load_torque_mnm"),
+        sim_update_interval_dms=sim.update_interval_dms,
+        travel_lower_counts=travel_counts[0],
+        travel_upper_counts=travel_counts[1],
+    )
+
+
+def _add_simulated(world: SimWorld, key: str, axis: AxisConfig) -> None:
+    """Put the simulated device of ``axis`` into ``world`` under ``key`` (if not there yet)."""
+    if key in world.keys:
+        return
+    from usbmotion.device import Device, MemoryFlash  # noqa: PLC0415 - simulated axes only
+
+    assert axis.sim is not None
+    travel = axis.sim_travel_counts
+    assert travel is not None
+    device = Device(flash=MemoryFlash(), motor=sim_motor_params(axis.sim, travel_counts=travel))
+    name = axis.device or key
+    codes = " ".join(str(ord(c)) for c in name)
+    device.feed(f"18 {len(name)} {codes}\n".encode("ascii"))
+    device.take_output()
+    world.add(device, key=key)
+
+
+class Machine:
+    """Several devices as named axes.
+
+    Build one with :meth:`connect`. A context manager; :meth:`close` is safe twice and
+    closes every link (it does not move or disable anything: :meth:`stop` does).
+
+    Parameters:
+        config: the machine configuration.
+        axes: the connected axes, in the configuration's order.
+        world: the simulated world of the ``sim://`` axes, if any.
+    """
+
+    def __init__(
+        self,
+        config: MachineConfig,
+        axes: Sequence[Axis],
+        *,
+        world: SimWorld | None = None,
+        world_alias: str | None = None,
+    ) -> None:
+        self.config = config
+        self.axes: Mapping[str, Axis] = {axis.name: axis for axis in axes}
+        self.world = world
+        self._world_alias = world_alias
+        self._closed = False
+        try:
+            self.clock: Clock = shared_clock([axis.client for axis in axes])
+        except UsbMotionError as error:
+            raise ConfigError(
+                f"{config.path}: {error}; a machine's axes must all be simulated in one"
+                " world (sim://) or all be devices on ports", path=str(config.path),
+            ) from error
+
+    # --- connecting ------------------------------------------------------------------------
+
+    @classmethod
+    def connect(
+        cls,
+        config: MachineConfig,
+        *,
+        world: SimWorld | None = None,
+        search_ports: bool = True,
+        ports: Sequence[str] = (),
+        probe_timeout_s: float = PROBE_TIMEOUT_S,
+    ) -> Machine:
+        """Open every axis's device.
+
+        ``sim://NAME[?latency_us=N]`` axes are simulated devices ``NAME`` of ``world`` (a
+        fresh world when none is given); a device not yet in it is created with the
+        axis's simulated motor and named as configured. An axis given by ``device`` name
+        only is found by discovery among ``ports``, the configuration's ``ports``, the
+        devices of ``world`` and (with ``search_ports``) the computer's serial ports. An
+        axis given both a ``url`` and a ``device`` name is checked to answer to that name.
+
+        Raises:
+            DeviceNotFoundError: a device name was not found, or a port answers to
+                another name.
+            LinkLostError: a port could not be opened.
+            ConfigError: the axes do not share one clock (simulated and real mixed).
+        """
+        simulated = [axis for axis in config.axes if axis.is_simulated]
+        alias: str | None = None
+        if simulated or world is not None:
+            world = world if world is not None else SimWorld()
+            alias = f"machine-{next(_aliases)}"
+            set_world(alias, world)
+        urls: dict[str, str] = {}
+        opened: list[Axis] = []
+        try:
+            for axis in simulated:
+                assert axis.url is not None and world is not None and alias is not None
+                key, _, latency_us = parse_sim_url(axis.url)
+                _add_simulated(world, key, axis)
+                urls[axis.name] = _sim_url(key, alias, latency_us)
+            for axis in config.axes:
+                if not axis.is_simulated and axis.url is not None:
+                    urls[axis.name] = axis.url
+            lost = [axis for axis in config.axes if axis.name not in urls]
+            if lost:
+                candidates = list(ports) + list(config.ports)
+                if world is not None and alias is not None:
+                    candidates += [_sim_url(key, alias, 0) for key in world.keys]
+                found = discover(
+                    [axis.device for axis in lost if axis.device is not None],
+                    urls=candidates, search_ports=search_ports, timeout_s=probe_timeout_s,
+                )
+                for axis in lost:
+                    assert axis.device is not None
+                    urls[axis.name] = found[axis.device]
+            for axis in config.axes:
+                url = urls[axis.name]
+                client = DeviceClient(
+                    LineTransport.open(url, label=axis.label), name=axis.label,
+                    timeout_s=config.reply_timeout_s,
+                )
+                client.scale = axis.scale
+                opened.append(Axis(axis.name, axis, client, url))
+                if axis.device is not None and axis.url is not None:
+                    client.transport.discard_input()
+                    answered = client.device_name()
+                    if answered != axis.device:
+                        raise DeviceNotFoundError(
+                            f"axis {axis.name}: {axis.url} answers to {answered!r}, not to the"
+                            f" configured device {axis.device!r}",
+                            name=axis.device, searched=(axis.url,),
+                        )
+            return cls(config, opened, world=world, world_alias=alias)
+        except BaseException:
+            for axis_open in opened:
+                axis_open.client.close()
+            if alias is not None:
+                drop_world(alias)
+            raise
+
+    # --- configuring -----------------------------------------------------------------------
+
+    def configure(self) -> None:
+        """Send the configuration to every device, servos disabled first.
+
+        Servo interval and motion scalar, control mode 1 (position) with its PID gains,
+        following-error limit, watchdog; for axes with a simulated motor its values and
+        travel. Each goes through the client's validated, confirmed setter.
+
+        Raises:
+            OutOfRangeError: a value the device cannot take (names the axis's device).
+            ErrReplyError, DeviceTimeoutError, LinkLostError: a device refused or is gone.
+        """
+        config = self.config
+        for axis in self.axes.values():
+            client, settings = axis.client, axis.config
+            client.set_servo_enable(False)
+            client.set_servo_interval_dms(config.servo_interval_dms)
+            client.set_motion_scalar(config.motion_scalar)
+            _set_mode(client, settings, ControlMode.POSITION)
+            client.set_following_error_limit(settings.following_error_limit_counts)
+            client.set_watchdog_ms(config.watchdog_ms)
+            sim = settings.sim
+            travel = settings.sim_travel_counts
+            if sim is not None and travel is not None:
+                client.set_sim_interval_dms(sim.update_interval_dms)
+                client.set_sim_value(13, sim.source_voltage_v, label="source_voltage_v")
+                client.set_sim_value(14, sim.torque_constant_mnm_per_a,
+                                     label="torque_constant_mnm_per_a")
+                client.set_sim_value(15, sim.winding_resistance_ohm,
+                                     label="winding_resistance_ohm")
+                client.set_sim_counts_per_revolution(sim.counts_per_revolution)
+                client.set_sim_value(17, sim.inertia_kg_m2, label="inertia_kg_m2")
+                client.set_sim_value(32, sim.viscous_friction_unm_per_rad_s,
+                                     label="viscous_friction_unm_per_rad_s")
+                client.set_sim_value(33, sim.load_torque_mnm, label="load_torque_mnm")
+                client.set_sim_travel(*travel)
+
+    # --- the axes together -----------------------------------------------------------------
+
+    @property
+    def clients(self) -> list[DeviceClient]:
+        """The axes' device clients, in axis order."""
+        return [axis.client for axis in self.axes.values()]
+
+    def axis(self, name: str) -> Axis:
+        """The axis with this letter.
+
+        Raises:
+            KeyError: no such axis (the message lists the axes there are).
+        """
+        try:
+            return self.axes[name]
+        except KeyError:
+            raise KeyError(
+                f"no axis {name!r}; this machine has {', '.join(self.axes)}"
+            ) from None
+
+    def set_mode(self, mode: ControlMode, *, axes: Iterable[str] | None = None) -> None:
+        """Switch axes (all by default) to a control mode, with that mode's gains.
+
+        Velocity mode gets the configuration's ``velocity_gains``, position and curve modes
+        its ``gains``; the gains go first, so the loop never runs a tick of the new mode
+        on the old mode's gains. Changing the mode clears the motion queue.
+
+        Raises:
+            KeyError: an unknown axis name.
+            DeviceError: a device refused (names it), after trying every axis.
+        """
+        chosen = [self.axis(name) for name in (axes if axes is not None else self.axes)]
+        failures: list[str] = []
+        for axis in chosen:
+            try:
+                _set_mode(axis.client, axis.config, mode)
+            except (UsbMotionError, OSError) as error:
+                failures.append(f"{axis.name}: {error}")
+        if failures:
+            raise DeviceError(f"could not set control mode {int(mode)}: " + "; ".join(failures),
+                              device=", ".join(f.split(":", 1)[0] for f in failures), call=7)
+
+    def status(self) -> dict[str, Status]:
+        """Each axis's status (call 20), by axis letter."""
+        return {name: axis.client.status() for name, axis in self.axes.items()}
+
+    def positions_mm(self) -> dict[str, float]:
+        """Each axis's actual position, mm."""
+        return {
+            name: axis.scale.to_mm(status.actual_counts)
+            for (name, axis), status in zip(self.axes.items(), self.status().values(),
+                                            strict=True)
+        }
+
+    def enable(self, on: bool) -> None:
+        """Enable (or disable) every servo.
+
+        Enabling stops at the first axis that refuses (a latched fault, say) and then
+        disables every axis before raising, so the machine never runs half enabled.
+
+        Raises:
+            DeviceError: an axis refused or failed (names it); with ``on=False`` after
+                every axis was tried.
+        """
+        if not on:
+            self._each("disable", lambda axis: axis.client.set_servo_enable(False))
+            return
+        for axis in self.axes.values():
+            try:
+                axis.client.set_servo_enable(True)
+            except (UsbMotionError, OSError) as error:
+                try:
+                    self._each("disable", lambda each: each.client.set_servo_enable(False))
+                except DeviceError as also:
+                    raise DeviceError(f"{error}; then {also}", device=axis.name,
+                                      call=3) from error
+                raise DeviceError(
+                    f"axis {axis.name} could not be enabled ({error}); every axis was disabled",
+                    device=axis.name, call=3,
+                ) from error
+
+    def clear_queues(self) -> None:
+        """Empty every motion queue (each axis holds its last desired position).
+
+        Raises:
+            DeviceError: after trying every axis, naming each that failed.
+        """
+        self._each("clear the queue of", lambda axis: axis.client.clear_queue())
+
+    def clear_faults(self) -> None:
+        """Clear every latched fault (call 30).
+
+        Raises:
+            DeviceError: after trying every axis, naming each that failed.
+        """
+        self._each("clear the fault of", lambda axis: axis.client.clear_fault())
+
+    def stop(self) -> None:
+        """The safe stop: clear every queue and disable every servo.
+
+        Every step is tried on every axis even when some fail; the failures are then
+        raised together.
+
+        Raises:
+            DeviceError: naming each axis and step that failed.
+        """
+        failures: list[str] = []
+        for name, axis in self.axes.items():
+            for step, action in (("clear queue", axis.client.clear_queue),
+                                 ("disable", lambda a=axis: a.client.set_servo_enable(False))):
+                try:
+                    action()
+                except (UsbMotionError, OSError) as error:
+                    failures.append(f"{name} ({step}): {error}")
+        if failures:
+            raise DeviceError(
+                f"stop failed on {len(failures)} step(s): " + "; ".join(failures),
+                device=", ".join(sorted({f.split(" ", 1)[0] for f in failures})),
+            )
+
+    def _each(self, what: str, action: Callable[[Axis], None]) -> None:
+        failures: list[tuple[str, Exception]] = []
+        for name, axis in self.axes.items():
+            try:
+                action(axis)
+            except (UsbMotionError, OSError) as error:
+                failures.append((name, error))
+        if failures:
+            detail = "; ".join(f"{name}: {error}" for name, error in failures)
+            raise DeviceError(
+                f"could not {what} {len(failures)} axis/axes: {detail}",
+                device=", ".join(name for name, _ in failures),
+            ) from failures[0][1]
+
+    # --- time --------------------------------------------------------------------------------
+
+    def synchronise(
+        self,
+        *,
+        samples: int = DEFAULT_SAMPLES,
+        margin_s: float = DEFAULT_MARGIN_S,
+        axes: Iterable[str] | None = None,
+    ) -> SyncReport:
+        """Zero the device clocks, measure them and arm a common start (call 31).
+
+        The servos must be enabled for the queues to start. See
+        :func:`usbmotion.host.timesync.synchronise_start`.
+        """
+        names = list(axes) if axes is not None else list(self.axes)
+        return synchronise_start([self.axis(n).client for n in names], samples=samples,
+                                 margin_s=margin_s)
+
+    # --- lifetime ----------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Close every link (safe twice)."""
+        if self._closed:
+            return
+        self._closed = True
+        for axis in self.axes.values():
+            axis.client.close()
+        if self._world_alias is not None:
+            drop_world(self._world_alias)
+
+    def __enter__(self) -> Machine:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _set_mode(client: DeviceClient, axis: AxisConfig, mode: ControlMode) -> None:
+    gains = axis.velocity_gains if mode is ControlMode.VELOCITY else axis.gains
+    client.set_gains(kp=gains.kp, ki=gains.ki, kd=gains.kd)
+    client.set_control_mode(mode)
+
+
+def _sim_url(key: str, alias: str, latency_us: int) -> str:
+    query = f"world={quote(alias)}"
+    if latency_us:
+        query += f"&latency_us={latency_us}"
+    return f"sim://{quote(key)}?{query}"
