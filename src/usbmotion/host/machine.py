@@ -340,6 +340,17 @@ class Machine:
                     device=axis.name, call=3,
                 ) from error
 
+    def ping(self) -> dict[str, tuple[int, int]]:
+        """Ask every device its queue state (call 2); any command resets its watchdog.
+
+        A loop that leaves enabled axes alone for longer than ``watchdog_ms`` (homing one
+        axis while the others wait, say) calls this to keep them enabled.
+
+        Returns:
+            axis letter -> (values queued, free slots).
+        """
+        return {name: axis.client.queue_status() for name, axis in self.axes.items()}
+
     def clear_queues(self) -> None:
         """Empty every motion queue (each axis holds its last desired position).
 
