@@ -49,7 +49,7 @@ def trajectory(ticks: int, tick_us: int) -> list[int]:
 
 
 def _streaming_device(interval_dms: int) -> Device:
-    device = Device()
+    device = Device(fast=False)
     device.feed(f"5 {interval_dms}\n3 1\n".encode())
     return device
 
@@ -144,7 +144,7 @@ def sci_seconds_per_tick(per_tick: Counter[str]) -> float:
 
 def idle_ticks_per_second(ticks: int) -> float:
     """Ticks per second of an enabled servo holding still (skipped in blocks)."""
-    device = Device()
+    device = Device(fast=False)
     device.feed(b"3 1\n0 100\n")
     device.run(1000)
     start = time.perf_counter()

@@ -1,0 +1,295 @@
+"""End to end: ``usbmotion run`` of a long program on the 3-axis machine at 10 kHz.
+
+    python benchmarks/run_speed.py [--minutes 3] [--runs 3] [--reference-runs 3] [--json]
+
+A seeded benchmark program (``benchmark_program``: G1 lines, G2/G3 arcs in the I/J and R
+forms, full circles and helices, plunges and rapids, all within X 0..200, Y 0..200,
+Z 0..100 mm and at least 1 mm off 0) is run by the command a user runs::
+
+    usbmotion run PROGRAM --machine benchmarks/machine-10khz.toml --report R.json --no-plot -q
+
+on the simulated machine of ``machine-10khz.toml`` (servo loops at 10 kHz, setpoints at
+1 kHz), once per run with the compiled kernel (``USBMOTION_KERNEL=1``) and with the
+reference core1 (``USBMOTION_KERNEL=0``), each in a fresh process, taking turns.
+
+Figures, medians of the runs:
+
+- wall seconds of the whole command (interpreter start, imports, kernel load, planning,
+  homing, the program, the report), and machine seconds: the homing time plus the time
+  until the machine settled at the end of the program (``homing_time_s`` +
+  ``settle_time_s`` of the report); the multiple of real time is machine over wall;
+- the kernel's speed-up over the reference, measured in the same run;
+- whether every report of every run is identical, kernel and reference alike (following
+  error to the count, executed time, end positions, everything in the JSON).
+
+Then one more kernel run in-process counts what the devices did: servo ticks, kernel
+blocks, how many blocks ended at a diagnostics line, and the diagnostics lines and
+setpoint lines the host exchanged: the anatomy of where the time goes.
+Target: at least 100x real time with the kernel.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import random
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+MACHINE = Path(__file__).with_name("machine-10khz.toml")
+TARGET_MULTIPLE = 100.0
+TRAVEL_MM = (200.0, 200.0, 100.0)
+MARGIN_MM = 5.0
+SAFE_Z_MM = 30.0
+WHAT_IF_PERIODS = ((0.01, "10 ms"), (100.0, "100 s (almost none)"))
+"""Diagnostics periods the anatomy also tries, beside the job's own (2 ms)."""
+
+
+def _figure(rng: random.Random, x: float, y: float) -> tuple[list[str], float, float]:
+    """One cutting figure near (x, y): plunge, lines and arcs, a helix, a full circle."""
+    r = rng.uniform(4.0, 15.0)
+    low = MARGIN_MM + 2 * r
+    cx = min(max(x + rng.uniform(-30.0, 30.0), low), TRAVEL_MM[0] - low)
+    cy = min(max(y + rng.uniform(-30.0, 30.0), low), TRAVEL_MM[1] - low)
+    z = rng.uniform(5.0, 20.0)
+    w = rng.uniform(5.0, 2 * r)
+    feed = rng.choice((600, 900, 1200, 1500))
+    out = [
+        f"G0 X{cx - r:.3f} Y{cy:.3f}",
+        f"G1 Z{z:.3f} F300",
+        f"G2 X{cx - r:.3f} Y{cy:.3f} I{r:.3f} J0 F{feed}",
+        f"G3 X{cx + r:.3f} Y{cy:.3f} Z{z + 1.5:.3f} I{r:.3f} J0",
+        f"G1 X{cx + r:.3f} Y{cy + w:.3f}",
+        f"G3 X{cx + r - w:.3f} Y{cy + 2 * w:.3f} R{w:.3f}",
+        f"G1 X{cx - r:.3f}",
+        f"G2 X{cx - r - w / 2:.3f} Y{cy + 1.5 * w:.3f} I0 J{-w / 2:.3f}",
+        f"G1 X{cx - r:.3f} Y{cy:.3f} Z{z:.3f}",
+        f"G0 Z{SAFE_Z_MM:.3f}",
+    ]
+    return out, cx, cy
+
+
+def benchmark_program(*, minutes: float, seed: int = 2026) -> str:
+    """A G-code program of about ``minutes`` minutes on the benchmark machine."""
+    rng = random.Random(seed)
+    out = ["%", "(usbmotion run benchmark program: lines, arcs, helices, plunges)",
+           "G21 G90 G17", f"G0 Z{SAFE_Z_MM:.3f}"]
+    x, y = 100.0, 100.0
+    figures = max(1, round(minutes * 60 / 18.0))
+    for _ in range(figures):
+        lines, x, y = _figure(rng, x, y)
+        out += lines
+    out += ["G0 X5 Y5", "G0 Z5", "M2", "%"]
+    return "\n".join(out) + "\n"
+
+
+def _run_command(program: Path, machine: Path, report: Path, *, kernel: bool) -> float:
+    """Wall seconds of one ``usbmotion run`` in a fresh process."""
+    env = {**os.environ, "USBMOTION_KERNEL": "1" if kernel else "0"}
+    command = [sys.executable, "-m", "usbmotion", "run", str(program), "--machine",
+               str(machine), "--report", str(report), "--no-plot", "-q"]
+    started = time.perf_counter()
+    done = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
+    elapsed = time.perf_counter() - started
+    if done.returncode != 0:
+        raise RuntimeError(f"usbmotion run failed ({done.returncode}):\n{done.stderr}"
+                           f"{done.stdout}")
+    return elapsed
+
+
+def _machine_s(report: dict[str, Any]) -> float:
+    return float(report["homing_time_s"]) + float(report["settle_time_s"])
+
+
+def anatomy(
+    program: Path, machine_file: Path, *, diagnostics_period_s: float | None = None
+) -> dict[str, Any]:
+    """One in-process kernel run of the job, counting blocks, ticks and lines.
+
+    ``diagnostics_period_s`` replaces the job's diagnostics period for this run (a what-if:
+    how the diagnostics lines bound the speed); None keeps the job's own.
+    """
+    from usbmotion import job  # noqa: PLC0415 - only this part needs the job in-process
+    from usbmotion.device import core0, core1, kernel  # noqa: PLC0415
+    from usbmotion.host.config import load_config  # noqa: PLC0415
+    from usbmotion.host.device import DeviceClient  # noqa: PLC0415
+    from usbmotion.host.machine import Machine  # noqa: PLC0415
+    from usbmotion.job import plan_program, run_program  # noqa: PLC0415
+    from usbmotion.motion.gcode import load_gcode  # noqa: PLC0415
+    from usbmotion.sim.world import SimWorld  # noqa: PLC0415
+
+    compiled = kernel.compile_kernel()
+    counts = {"blocks": 0, "ticks": 0, "blocks_at_diagnostics": 0, "diagnostics_lines": 0,
+              "setpoint_lines": 0}
+
+    def counting(state: Any, params: Any, queue: Any, curve: Any, n: int) -> int:
+        done = compiled(state, params, queue, curve, n)
+        counts["blocks"] += 1
+        counts["ticks"] += done
+        if state[core1.S_EVENTS] & core1.EVENT_DIAGNOSTICS:
+            counts["blocks_at_diagnostics"] += 1
+        return done
+
+    original_kernel = core0.compile_kernel  # type: ignore[attr-defined]
+    original_aside = DeviceClient.take_aside
+    original_send = DeviceClient.add_setpoints
+
+    def take_aside(self: DeviceClient, reply: Any) -> bool:
+        counts["diagnostics_lines"] += reply.kind.name == "DIAGNOSTICS"
+        return original_aside(self, reply)
+
+    def add_setpoints(self: DeviceClient, values: Any) -> None:
+        counts["setpoint_lines"] += 1
+        original_send(self, values)
+
+    shipped_period_s = job.DIAGNOSTICS_PERIOD_S
+    core0.compile_kernel = lambda: counting  # type: ignore[attr-defined]
+    DeviceClient.take_aside = take_aside  # type: ignore[method-assign]
+    DeviceClient.add_setpoints = add_setpoints  # type: ignore[method-assign]
+    if diagnostics_period_s is not None:
+        job.DIAGNOSTICS_PERIOD_S = diagnostics_period_s
+    try:
+        config = load_config(machine_file)
+        parsed = load_gcode(program)
+        plan = plan_program(parsed, config)
+        started = time.perf_counter()
+        with Machine.connect(config, world=SimWorld()) as machine:
+            report, _ = run_program(machine, parsed, plan)
+        elapsed = time.perf_counter() - started
+    finally:
+        job.DIAGNOSTICS_PERIOD_S = shipped_period_s
+        core0.compile_kernel = original_kernel  # type: ignore[attr-defined]
+        DeviceClient.take_aside = original_aside  # type: ignore[method-assign]
+        DeviceClient.add_setpoints = original_send  # type: ignore[method-assign]
+    machine_s = report.homing_time_s + report.settle_time_s
+    return {
+        **counts,
+        "diagnostics_period_s": diagnostics_period_s or shipped_period_s,
+        "job_wall_s": elapsed,
+        "real_time_multiple": machine_s / elapsed,
+        "machine_s": machine_s,
+        "ticks_per_block": counts["ticks"] / max(1, counts["blocks"]),
+        "share_of_blocks_at_diagnostics": (
+            counts["blocks_at_diagnostics"] / max(1, counts["blocks"])
+        ),
+        "job_wall_us_per_diagnostics_line": elapsed / max(1, counts["diagnostics_lines"]) * 1e6,
+    }
+
+
+def measure(
+    *, minutes: float, runs: int, reference_runs: int, seed: int, machine: Path = MACHINE
+) -> dict[str, Any]:
+    """Run the benchmark: kernel and reference runs taking turns, then the anatomy."""
+    with tempfile.TemporaryDirectory(prefix="usbmotion-run-speed-") as folder:
+        program = Path(folder) / "benchmark.ngc"
+        program.write_text(benchmark_program(minutes=minutes, seed=seed), encoding="ascii")
+        walls: dict[str, list[float]] = {"kernel": [], "reference": []}
+        reports: dict[str, list[dict[str, Any]]] = {"kernel": [], "reference": []}
+        for index in range(max(runs, reference_runs)):
+            for path, wanted in (("kernel", runs), ("reference", reference_runs)):
+                if index >= wanted:
+                    continue
+                report_path = Path(folder) / f"{path}-{index}.json"
+                walls[path].append(
+                    _run_command(program, machine, report_path, kernel=path == "kernel")
+                )
+                reports[path].append(json.loads(report_path.read_text(encoding="utf-8")))
+        parts = anatomy(program, machine)
+        parts["what_if"] = [
+            {**anatomy(program, machine, diagnostics_period_s=period), "label": label}
+            for period, label in WHAT_IF_PERIODS
+        ]
+        lines = len(program.read_text(encoding="ascii").splitlines())
+    first = reports["kernel"][0]
+    identical = all(r == first for path in reports for r in reports[path])
+    figures: dict[str, Any] = {
+        "benchmark": "run_speed",
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "machine_file": machine.name,
+        "program_lines": lines,
+        "program_moves": first["moves"],
+        "planned_time_s": first["planned_time_s"],
+        "homing_time_s": first["homing_time_s"],
+        "machine_s": _machine_s(first),
+        "completed": first["completed"],
+        "reports_identical": identical,
+        "runs": {"kernel": runs, "reference": reference_runs},
+        "following_error_counts": {a["name"]: [a["max_error_counts"], a["rms_error_counts"]]
+                                   for a in first["axes"]},
+        "anatomy": parts,
+        "target_multiple": TARGET_MULTIPLE,
+    }
+    for path in ("kernel", "reference"):
+        wall = statistics.median(walls[path])
+        figures[path] = {"wall_s": wall, "real_time_multiple": figures["machine_s"] / wall,
+                         "walls_s": walls[path]}
+    figures["speedup"] = figures["reference"]["wall_s"] / figures["kernel"]["wall_s"]
+    figures["meets_target"] = figures["kernel"]["real_time_multiple"] >= TARGET_MULTIPLE
+    return figures
+
+
+def report(figures: dict[str, Any]) -> str:
+    """The figures as text."""
+    fast, slow, parts = figures["kernel"], figures["reference"], figures["anatomy"]
+    errors = ", ".join(f"{axis} {m} / {rms:.2f}"
+                       for axis, (m, rms) in figures["following_error_counts"].items())
+    return "\n".join([
+        f"run_speed: usbmotion run on {figures['machine_file']} (10 kHz servo), Python"
+        f" {figures['python']}, {figures['cpus']} CPUs",
+        f"  program: {figures['program_moves']} moves, {figures['planned_time_s']:.1f} s"
+        f" planned; homing {figures['homing_time_s']:.1f} s; machine time"
+        f" {figures['machine_s']:.1f} s; completed: {figures['completed']}",
+        f"  kernel:    {fast['wall_s']:7.2f} s wall = {fast['real_time_multiple']:6.1f}x real"
+        f" time (median of {figures['runs']['kernel']})",
+        f"  reference: {slow['wall_s']:7.2f} s wall = {slow['real_time_multiple']:6.1f}x real"
+        f" time (median of {figures['runs']['reference']}); kernel speed-up"
+        f" {figures['speedup']:.1f}x",
+        f"  reports identical (kernel and reference, every run): {figures['reports_identical']}"
+        f"; following error max/rms counts: {errors}",
+        f"  target {figures['target_multiple']:g}x real time:"
+        f" {'met' if figures['meets_target'] else 'NOT met'}",
+        f"  anatomy (in-process kernel run, {parts['job_wall_s']:.2f} s for"
+        f" {parts['machine_s']:.1f} s): {parts['ticks']:,} ticks in {parts['blocks']:,} kernel"
+        f" blocks ({parts['ticks_per_block']:.0f} ticks each,"
+        f" {parts['share_of_blocks_at_diagnostics']:.0%} ended by a diagnostics line);"
+        f" {parts['diagnostics_lines']:,} diagnostics lines and {parts['setpoint_lines']:,}"
+        f" setpoint lines; {parts['job_wall_us_per_diagnostics_line']:.1f} us of job time per"
+        " diagnostics line",
+        *(f"  what if the job asked for diagnostics every {w['label']}: {w['job_wall_s']:.2f} s"
+          f" = {w['real_time_multiple']:.0f}x real time ({w['blocks']:,} blocks of"
+          f" {w['ticks_per_block']:.0f} ticks)" for w in parts["what_if"]),
+    ])
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """Run the benchmark, print the figures (or JSON with ``--json``) and return them."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--minutes", type=float, default=3.0, help="program length, minutes")
+    parser.add_argument("--runs", type=int, default=3, help="kernel runs (median)")
+    parser.add_argument("--reference-runs", type=int, default=3, help="reference runs (median)")
+    parser.add_argument("--seed", type=int, default=2026, help="program generator seed")
+    parser.add_argument("--machine", type=Path, default=MACHINE,
+                        help="machine file (default: benchmarks/machine-10khz.toml)")
+    parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+    args = parser.parse_args(argv)
+    if args.runs < 1 or args.reference_runs < 1:
+        parser.error("--runs and --reference-runs must be >= 1")
+    if not (math.isfinite(args.minutes) and 0.1 <= args.minutes <= 60):
+        parser.error(f"--minutes {args.minutes!r}: 0.1 to 60")
+    figures = measure(minutes=args.minutes, runs=args.runs,
+                      reference_runs=args.reference_runs, seed=args.seed, machine=args.machine)
+    print(json.dumps(figures, indent=2) if args.json else report(figures))
+    return figures
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
