@@ -117,6 +117,11 @@ class Machine:
         config: the machine configuration.
         axes: the connected axes, in the configuration's order.
         world: the simulated world of the ``sim://`` axes, if any.
+        world_alias: the name ``world`` is registered under for ``sim://`` URLs; the
+            registration is dropped on :meth:`close`.
+
+    Raises:
+        ConfigError: the axes' links do not share one clock.
     """
 
     def __init__(
@@ -160,6 +165,13 @@ class Machine:
         only is found by discovery among ``ports``, the configuration's ``ports``, the
         devices of ``world`` and (with ``search_ports``) the computer's serial ports. An
         axis given both a ``url`` and a ``device`` name is checked to answer to that name.
+
+        Parameters:
+            config: the machine configuration.
+            world: the world of the simulated axes (default: a fresh one).
+            search_ports: let discovery search the computer's serial ports.
+            ports: more ports or URLs for discovery to search first.
+            probe_timeout_s: how long each searched port has to answer its name.
 
         Raises:
             DeviceNotFoundError: a device name was not found, or a port answers to

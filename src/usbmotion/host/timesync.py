@@ -5,10 +5,12 @@ same instant the host
 
 1. zeroes every device clock (call ``22 0``, sent to all devices back to back, so the
    ticks stay small and never wrap);
-2. measures each clock against the host's by round trips (``22 -1``): the device read its
-   clock somewhere inside the round trip, so with symmetric links it read it at the
-   midpoint, and the round trip with the smallest duration bounds the error best. The
-   samples are spread over one tick, so that one of them lands close to a tick boundary;
+2. measures each clock against the host's by round trips (``22 -1``). A device reads its
+   clock during the tick it reports, and (links being symmetric) at about the middle of
+   the round trip, so each sample bounds from above the host time at which that clock
+   read zero; the lowest bound from the round trips near the shortest one is the
+   estimate. The samples are spread over one tick, so that one of them lands close to a
+   tick boundary;
 3. picks a start time comfortably ahead (a few round trips plus a margin), converts it to
    each device's own tick through its offset, and arms call 31 on every device: each
    queue starts consuming when its clock reaches its tick.
