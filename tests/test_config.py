@@ -97,12 +97,12 @@ def test_example_machine_loads_as_the_simulated_xyz_machine() -> None:
     for axis in config.axes:
         assert axis.counts_per_mm == 240.0
         assert axis.homing.direction == -1
-        assert axis.homing.position_mm == axis.travel_mm[0] - 1.0
-        assert axis.switch_margin_mm == 1.0
+        assert axis.homing.position_mm == axis.travel_mm[0]
+        assert axis.switch_margin_mm == 0.0
         assert axis.sim is not None
         lower, upper = axis.sim_travel_counts or (0, 0)
         assert lower < 0 < upper
-        assert upper - lower == round((axis.travel_mm[1] - axis.travel_mm[0] + 2.0) * 240)
+        assert upper - lower == round((axis.travel_mm[1] - axis.travel_mm[0]) * 240)
     assert config.axis("X").travel_mm == (0.0, 200.0)
     assert config.axis("Z").travel_mm == (0.0, 100.0)
 
@@ -130,16 +130,26 @@ def test_values_defaults_and_derived_figures(tmp_path: Path) -> None:
     assert x.max_jerk_mm_s3 == 20 * 500
     assert x.scale.to_counts(1.0) == 240
     assert x.sim is not None and x.sim.start_mm == 100.0
-    assert x.homing.position_mm == -1.0
-    assert x.sim_travel_counts == (-24240, 24240)
+    assert x.homing.position_mm == 0.0
+    assert x.sim_travel_counts == (-24000, 24000)
     assert x.sim.counts_per_revolution == SIM_MOTOR_DEFAULTS["counts_per_revolution"]
     assert z.sim is None and z.sim_travel_counts is None
     assert z.homing.direction == 1
-    assert z.homing.position_mm == 91.0
-    assert z.switch_margin_mm == 1.0
+    assert z.homing.position_mm == 90.0
+    assert z.switch_margin_mm == 0.0
     assert z.homing.slow_speed_mm_s == pytest.approx(0.5)
     assert z.following_error_limit_counts == 0
     assert config.homing_order == (("Z",), ("X",))
+
+
+def test_a_home_switch_beyond_the_travel_moves_both_simulated_switches(tmp_path: Path) -> None:
+    text = GOOD.replace("gains = { kp = 0.2, ki = 2, kd = 0.002 }",
+                        "gains = { kp = 0.2, ki = 2, kd = 0.002 }\n"
+                        "homing = { position_mm = -1.5 }")
+    x = load_config(write(tmp_path, text)).axis("X")
+    assert x.homing.position_mm == -1.5
+    assert x.switch_margin_mm == 1.5
+    assert x.sim_travel_counts == (-24360, 24360)
 
 
 def test_sim_defaults_are_the_device_motor_defaults() -> None:

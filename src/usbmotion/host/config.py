@@ -57,10 +57,6 @@ servo tick (1000 counts/s per count at 1 ms), so a small ``kp`` keeps that quant
 from chattering the output; ``ki`` acts on the integrated error, a position error."""
 
 
-HOME_SWITCH_MARGIN_MM = 1.0
-"""How far beyond the end of the travel the home switch closes, when a file does not say."""
-
-
 @dataclass(frozen=True, slots=True)
 class HomingConfig:
     """How one axis finds its reference switch.
@@ -73,9 +69,10 @@ class HomingConfig:
         backoff_mm: distance to back off the switch before the slow re-approach, mm
             (0: take the zero on the first touch).
         position_mm: the machine position of the switch's closing point, assigned to the
-            axis once homed. It lies at or beyond the end of ``travel_mm`` it homes to (by
-            default 1 mm beyond), so that moves to the ends of the travel never close the
-            switch (a closing switch is a fault in position mode).
+            axis once homed; at or beyond the end of ``travel_mm`` it homes to (by default
+            at that end). A switch closing in position mode is a fault, so a machine whose
+            programs go to the very end of the travel puts the switch beyond it (e.g.
+            1 mm: ``travel_mm = [0, 200]``, ``position_mm = -1.0``).
     """
 
     direction: int
@@ -698,13 +695,13 @@ def _homing(reader: _Reader, travel: tuple[float, float], max_velocity: float) -
                            maximum=length / 2, unit="mm, at most half the travel")
     if direction == -1:
         position = table.number(
-            "position_mm", default=travel[0] - HOME_SWITCH_MARGIN_MM,
+            "position_mm", default=travel[0],
             minimum=travel[0] - length, maximum=travel[0],
             unit="mm, at or below travel_mm's lowest, by at most the travel's length",
         )
     else:
         position = table.number(
-            "position_mm", default=travel[1] + HOME_SWITCH_MARGIN_MM,
+            "position_mm", default=travel[1],
             minimum=travel[1], maximum=travel[1] + length,
             unit="mm, at or above travel_mm's highest, by at most the travel's length",
         )
