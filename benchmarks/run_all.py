@@ -93,7 +93,7 @@ def rows_kernel(f: dict[str, Any]) -> list[Row]:
     for row in f["rows"]:
         fast, slow = row["kernel"], row["reference"]
         rows.append((
-            f"ticks/s at 10 kHz, {row['axes']} axis{'es' if row['axes'] > 1 else ''},"
+            f"ticks/s at 10 kHz, {row['axes']} {'axes' if row['axes'] > 1 else 'axis'},"
             f" {labels[row['scenario']]}",
             f"{fast['ticks_s']:,.0f} ({_x(fast['real_time_multiple'])} real time)",
             f"reference {slow['ticks_s']:,.0f} ({_x(slow['real_time_multiple'])})",
@@ -245,7 +245,8 @@ def table(results: dict[str, Any]) -> str:
     header: Row = ("figure", "usbmotion", "peer (same run)", "ratio")
     body: list[Row | None] = []
     for name, figures in results["benchmarks"].items():
-        body.append(None)
+        if body:
+            body.append(None)
         body.append((f"[{name}] {results['seconds'][name]:.0f} s", "", "", ""))
         body.extend(ROWS[name](figures))
     widths = [max(len(row[i]) for row in [header, *[r for r in body if r]]) for i in range(4)]

@@ -15,9 +15,9 @@ reference core1 (``USBMOTION_KERNEL=0``), each in a fresh process, taking turns.
 Figures, medians of the runs:
 
 - wall seconds of the whole command (interpreter start, imports, kernel load, planning,
-  homing, the program, the report), and machine seconds: the homing time plus the time
-  until the machine settled at the end of the program (``homing_time_s`` +
-  ``settle_time_s`` of the report); the multiple of real time is machine over wall;
+  homing, the program, the report), and machine seconds: the homing time plus the
+  program's planned time (``homing_time_s`` + ``planned_time_s`` of the report; a real
+  machine takes at least that long); the multiple of real time is machine over wall;
 - the kernel's speed-up over the reference, measured in the same run;
 - whether every report of every run is identical, kernel and reference alike (following
   error to the count, executed time, end positions, everything in the JSON).
@@ -106,7 +106,7 @@ def _run_command(program: Path, machine: Path, report: Path, *, kernel: bool) ->
 
 
 def _machine_s(report: dict[str, Any]) -> float:
-    return float(report["homing_time_s"]) + float(report["settle_time_s"])
+    return float(report["homing_time_s"]) + float(report["planned_time_s"])
 
 
 def anatomy(
@@ -140,20 +140,20 @@ def anatomy(
 
     original_kernel = core0.compile_kernel  # type: ignore[attr-defined]
     original_aside = DeviceClient.take_aside
-    original_send = DeviceClient.add_setpoints
+    original_call_1 = core0.Device._call_1
 
     def take_aside(self: DeviceClient, reply: Any) -> bool:
         counts["diagnostics_lines"] += reply.kind.name == "DIAGNOSTICS"
         return original_aside(self, reply)
 
-    def add_setpoints(self: DeviceClient, values: Any) -> None:
+    def call_1(self: core0.Device, call: Any) -> None:
         counts["setpoint_lines"] += 1
-        original_send(self, values)
+        original_call_1(self, call)
 
     shipped_period_s = job.DIAGNOSTICS_PERIOD_S
     core0.compile_kernel = lambda: counting  # type: ignore[attr-defined]
     DeviceClient.take_aside = take_aside  # type: ignore[method-assign]
-    DeviceClient.add_setpoints = add_setpoints  # type: ignore[method-assign]
+    core0.Device._call_1 = call_1  # type: ignore[method-assign]
     if diagnostics_period_s is not None:
         job.DIAGNOSTICS_PERIOD_S = diagnostics_period_s
     try:
@@ -168,8 +168,8 @@ def anatomy(
         job.DIAGNOSTICS_PERIOD_S = shipped_period_s
         core0.compile_kernel = original_kernel  # type: ignore[attr-defined]
         DeviceClient.take_aside = original_aside  # type: ignore[method-assign]
-        DeviceClient.add_setpoints = original_send  # type: ignore[method-assign]
-    machine_s = report.homing_time_s + report.settle_time_s
+        core0.Device._call_1 = original_call_1  # type: ignore[method-assign]
+    machine_s = report.homing_time_s + report.planned_time_s
     return {
         **counts,
         "diagnostics_period_s": diagnostics_period_s or shipped_period_s,

@@ -5,8 +5,9 @@ positions and block lengths give the kernel exactly the reference's state (posit
 velocities, integrator, fault, queue, every entry) after every block, and two whole
 devices, one on each path, print the same bytes and report the same state after every
 run. Through the whole chain in virtual time (host streams into ``sim://`` devices) the
-kernel runs long blocks and ends where the reference ends. Without numba the reference
-path runs and a one-line notice says so.
+kernel runs long blocks and ends where the reference ends, and the main job (home, stream,
+report) reports the same figures on both paths. Without numba the reference path runs
+and a one-line notice says so.
 """
 
 from __future__ import annotations
@@ -387,3 +388,68 @@ def test_the_cache_key_carries_the_sources(compiled: kernel.BlockFunction) -> No
     assert py_func.__closure__ is not None
     assert [cell.cell_contents for cell in py_func.__closure__] == [kernel.source_hash()]
     assert 0 < kernel.source_hash() < 2**62
+
+
+_MACHINE = """
+name = "kernel test machine"
+servo_interval_dms = 10
+motion_scalar = 1
+homing_order = [["X", "Y", "Z"]]
+{axes}
+"""
+_AXIS = """
+[axes.{name}]
+url = "sim://{name}"
+device = "{name} AXIS"
+counts_per_mm = 240.0
+max_velocity_mm_s = 20.0
+max_accel_mm_s2 = 400.0
+travel_mm = [0.0, 50.0]
+following_error_limit_mm = 2.0
+gains = {{ kp = 1.0, ki = 1.0, kd = 0.007 }}
+sim = {{ start_mm = 5.0 }}
+
+[axes.{name}.homing]
+direction = -1
+speed_mm_s = 10.0
+slow_speed_mm_s = 2.0
+backoff_mm = 1.0
+position_mm = 0.0
+"""
+_PROGRAM = """G21 G90 G17
+G0 Z5
+G1 X10 Y10 F900
+G2 X20 Y10 I5 J0
+G3 X15 Y15 Z6 R5
+G1 X5 Y5 Z5
+M2
+"""
+
+
+def _run_job(monkeypatch: pytest.MonkeyPatch, *, kernel_switch: str) -> dict[str, object]:
+    from usbmotion.host.config import parse_config  # noqa: PLC0415 - only this test
+    from usbmotion.host.machine import Machine  # noqa: PLC0415
+    from usbmotion.job import plan_program, run_program  # noqa: PLC0415
+    from usbmotion.motion.gcode import parse_gcode  # noqa: PLC0415
+
+    monkeypatch.setenv(kernel.ENVIRONMENT_VARIABLE, kernel_switch)
+    axes = "".join(_AXIS.format(name=name) for name in "XYZ")
+    config = parse_config(_MACHINE.format(axes=axes), path="<kernel test>")
+    program = parse_gcode(_PROGRAM, file="<kernel test>")
+    plan = plan_program(program, config)
+    world = SimWorld()
+    with Machine.connect(config, world=world) as machine:
+        devices = [world.device(key) for key in world.keys]
+        assert [isinstance(d, Device) and d.fast for d in devices] == [kernel_switch == "1"] * 3
+        report, _ = run_program(machine, program, plan)
+    return report.to_json()
+
+
+@needs_numba
+def test_the_main_job_reports_the_same_on_both_paths(
+    compiled: kernel.BlockFunction, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    fast = _run_job(monkeypatch, kernel_switch="1")
+    reference = _run_job(monkeypatch, kernel_switch="0")
+    assert fast["completed"] is True
+    assert fast == reference
