@@ -31,6 +31,14 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
+# The long runs of the reliability tests: 100,000 examples per fuzz property (make test runs
+# a few hundred of each), no per-test timeout; a hang fails its example after 10 s.
+FUZZ_EXAMPLES ?= 100000
+
+fuzz: $(STAMP)
+	USBMOTION_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(BIN)/python -m pytest tests/fuzz -q \
+		-p no:cacheprovider -o timeout=0 --hypothesis-show-statistics
+
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py
 
