@@ -360,6 +360,20 @@ def test_without_numba_asking_for_the_kernel_is_an_error(
     assert Device().fast is False
 
 
+def test_a_broken_numba_is_named_in_the_notice_and_the_error(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture, no_environment: None
+) -> None:
+    monkeypatch.setattr(kernel, "_numba_problem", lambda: ImportError("llvmlite is too old"))
+    monkeypatch.setattr(kernel, "_noticed", False)
+    with caplog.at_level(logging.WARNING, logger="usbmotion.device.kernel"):
+        assert Device().fast is False
+    assert [record.getMessage() for record in caplog.records] == [
+        f"{kernel.NOTICE} [llvmlite is too old]"
+    ]
+    with pytest.raises(DeviceParameterError, match=r"numba cannot be imported \(llvmlite is"):
+        Device(fast=True)
+
+
 @needs_numba
 def test_an_exception_in_the_kernel_faults_and_keeps_the_clock(
     compiled: kernel.BlockFunction, monkeypatch: pytest.MonkeyPatch
@@ -386,8 +400,10 @@ def test_an_exception_in_the_kernel_faults_and_keeps_the_clock(
 def test_the_cache_key_carries_the_sources(compiled: kernel.BlockFunction) -> None:
     py_func = compiled.py_func  # type: ignore[attr-defined]
     assert py_func.__closure__ is not None
-    assert [cell.cell_contents for cell in py_func.__closure__] == [kernel.source_hash()]
-    assert 0 < kernel.source_hash() < 2**62
+    fingerprint = kernel.source_hash()
+    assert fingerprint is not None
+    assert 0 < fingerprint < 2**62
+    assert [cell.cell_contents for cell in py_func.__closure__] == [fingerprint]
 
 
 _MACHINE = """

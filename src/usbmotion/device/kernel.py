@@ -18,14 +18,14 @@ module, or numba's user cache directory when that is not writable), so only the 
 after an install or a change pays the compile (a few seconds; ``BENCHMARKS.md`` gives the
 figures). numba's cache only checks the file of the function it compiles, not the files of
 the functions it calls; the cache key here also carries a hash of ``core1.py``,
-``motor.py`` and ``scimath.py``, so an edit to any of them compiles afresh instead of
-loading stale machine code.
+``motor.py``, ``scimath.py`` and ``protocol/table.py``, so an edit to any of them compiles
+afresh instead of loading stale machine code (when the sources cannot be read, nothing is
+cached).
 """
 
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import inspect
 import logging
 import os
@@ -38,6 +38,7 @@ from usbmotion import scimath
 from usbmotion.device import core1, motor
 from usbmotion.device.core1 import IntArray
 from usbmotion.errors import DeviceParameterError
+from usbmotion.protocol import table
 
 ENVIRONMENT_VARIABLE: Final = "USBMOTION_KERNEL"
 """``0``: every device runs the reference core1; ``1``: the kernel is required; unset or
@@ -58,12 +59,18 @@ _jit_block: Any = None
 _noticed = False
 
 
-def numba_available() -> bool:
-    """True when numba can be imported (checked without importing it)."""
+def _numba_problem() -> BaseException | None:
+    """Why numba cannot be used, or None (the first call imports it)."""
     try:
-        return importlib.util.find_spec("numba") is not None
-    except (ImportError, ValueError):
-        return False
+        import numba  # noqa: F401, PLC0415 - optional dependency
+    except Exception as error:  # not installed, or an install broken in any way
+        return error
+    return None
+
+
+def numba_available() -> bool:
+    """True when numba can be imported (the first call imports it: about 0.4 s)."""
+    return _numba_problem() is None
 
 
 def _environment_choice() -> bool | None:
@@ -86,11 +93,12 @@ def use_kernel(fast: bool | None = None) -> bool:
     Parameters:
         fast: True requires the kernel, False chooses the reference path, None (the
             default) follows ``USBMOTION_KERNEL`` and otherwise takes the kernel when numba
-            is importable, printing :data:`NOTICE` once per process when it is not.
+            is importable, printing :data:`NOTICE` once per process when it is not (with
+            the import error when numba is installed but broken).
 
     Raises:
         DeviceParameterError: ``fast`` is not a bool or None; the kernel is required
-            (``fast=True`` or ``USBMOTION_KERNEL=1``) but numba is not installed; or
+            (``fast=True`` or ``USBMOTION_KERNEL=1``) but numba cannot be imported; or
             ``USBMOTION_KERNEL`` holds something other than ``0``, ``1`` or nothing.
     """
     global _noticed  # noqa: PLW0603 - the notice is printed once per process
@@ -99,26 +107,36 @@ def use_kernel(fast: bool | None = None) -> bool:
     choice = fast if fast is not None else _environment_choice()
     if choice is False:
         return False
-    if numba_available():
+    problem = _numba_problem()
+    if problem is None:
         return True
+    missing = isinstance(problem, ModuleNotFoundError)
+    why = "numba is not installed" if missing else f"numba cannot be imported ({problem})"
     if choice is True:
         source = "fast=True" if fast else f"{ENVIRONMENT_VARIABLE}=1"
         raise DeviceParameterError(
-            f"{source} asks for the compiled servo kernel, but numba is not installed;"
+            f"{source} asks for the compiled servo kernel, but {why};"
             " pip install 'usbmotion[fast]', or use the reference path"
             f" (fast=False or {ENVIRONMENT_VARIABLE}=0)"
         )
     if not _noticed:
         _noticed = True
-        _log.warning(NOTICE)
+        _log.warning(NOTICE if missing else f"{NOTICE} [{problem}]")
     return False
 
 
-def source_hash() -> int:
-    """A positive 62-bit hash of the sources the kernel is compiled from."""
+SOURCES: Final = (core1, motor, scimath, table)
+"""The modules whose source the compiled kernel depends on (code and constants)."""
+
+
+def source_hash() -> int | None:
+    """A positive 62-bit hash of :data:`SOURCES`, or None when a source cannot be read."""
     digest = hashlib.sha256()
-    for module in (core1, motor, scimath):
-        digest.update(inspect.getsource(module).encode("utf-8"))
+    for module in SOURCES:
+        try:
+            digest.update(inspect.getsource(module).encode("utf-8"))
+        except (OSError, TypeError):
+            return None
     return int.from_bytes(digest.digest()[:8], "little") >> 2 | 1
 
 
@@ -167,7 +185,11 @@ def compile_kernel() -> BlockFunction:
             ):
                 register_jitable(function)
             _jit_block = numba.njit(nogil=True)(core1.servo_block)
-            _compiled = _cached_wrapper(numba, source_hash())
+            fingerprint = source_hash()
+            if fingerprint is None:
+                _compiled = numba.njit(nogil=True)(core1.servo_block)
+            else:
+                _compiled = _cached_wrapper(numba, fingerprint)
         return _compiled
 
 
