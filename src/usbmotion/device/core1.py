@@ -23,7 +23,8 @@ One servo tick, in order:
 4. encoder: counter, velocity over the window (counts/s), limit switches; in velocity mode
    the counter is reset to 0 after every 60 s of device time spent in that mode.
 5. faults (servo enabled): limit switch closing in mode 1 or 3, following error in mode 1
-   or 3, then watchdog; a fault disables the servo.
+   or 3, then watchdog; a fault disables the servo and cuts its output to 0 V (as call
+   ``3 0`` does), so no line reports a drive the servo no longer applies.
 6. clock + 1, diagnostics countdown.
 """
 
@@ -414,6 +415,8 @@ def servo_block(
             fault = new_fault
             fault_tick = clock
             enable = 0
+            out_c = 0
+            out_e = 0
             events |= EVENT_FAULT
         if diag_n > 0:
             diag_left -= 1
