@@ -233,7 +233,8 @@ def parse_reply(line: bytes | str) -> Reply:
         UnexpectedReplyError: the line matches no reply in the table.
     """
     text = line.decode("ascii", errors="replace") if isinstance(line, bytes) else line
-    text = text.rstrip("\r\n").strip()
+    exact = text.rstrip("\r\n")
+    text = exact.strip()
     refused = REFUSALS.get(text)
     if refused is not None:
         return Reply(ReplyKind.REFUSAL, refused, text, (), "", text)
@@ -244,7 +245,8 @@ def parse_reply(line: bytes | str) -> Reply:
             call = None if match.group(1) == "?" else int(match.group(1))
             return Reply(ReplyKind.ERROR, call, "ERR", (), match.group(2), text)
     for matcher in _MATCHERS.get(first, ()):
-        match = matcher.pattern.match(text)
+        # The line as printed first: a device name may begin or end with a space.
+        match = matcher.pattern.match(exact) or matcher.pattern.match(text)
         if match is None:
             continue
         values: list[int] = []
