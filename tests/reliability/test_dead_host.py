@@ -1,0 +1,198 @@
+"""A dead host: ``usbmotion run`` is killed (SIGKILL) mid-program; each device's watchdog
+disables its servo; a new host connects, reads the fault, clears it and homes again.
+
+Everything runs in real time as it would on a bench: ``usbmotion sim --pty 3`` serves three
+devices on pseudo-terminals, the machine file points each axis at its terminal, and the
+host is a separate process. The host process is the real ``usbmotion run`` entry point with
+one addition: every write to a device is logged with its ``time.monotonic()`` (a clock all
+processes share), so the test knows when each device last heard its host.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import re
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import serial
+
+from usbmotion.cli.run import default_machine
+from usbmotion.host.config import load_config
+from usbmotion.host.device import DeviceClient, Status
+from usbmotion.host.machine import Machine
+from usbmotion.job import home_machine
+from usbmotion.protocol.table import Fault
+
+WATCHDOG_MS = 1250
+"""The shortest watchdog the default machine allows: a full queue (1000 x 1 ms) + 250 ms."""
+WATCHDOG_TOLERANCE_MS = 25.0
+"""How far the measured disable may be from the watchdog: the serving loop polls every
+millisecond and a loaded machine delays it; measured 1250.0..1251.0 ms when idle."""
+NAMES = ("X AXIS", "Y AXIS", "Z AXIS")
+
+_LOGGING_HOST = r"""
+import os, sys, time
+log = os.open(sys.argv[1], os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+from usbmotion.host import transport
+write = transport.LineTransport.write
+def logged(self, data):
+    write(self, data)
+    first = data.split(b"\n", 1)[0][:12].decode("ascii", "replace")
+    os.write(log, f"{time.monotonic():.6f}|{self.label}|{first}\n".encode())
+transport.LineTransport.write = logged
+from usbmotion.cli.main import main
+sys.argv = ["usbmotion", *sys.argv[2:]]
+main()
+"""
+
+PROGRAM = "G21 G90\nG1 X20 Y10 Z5 F300\nG1 X0 Y0 Z0\nM2\n"
+"""About 9 s of motion; the host is killed about 1.5 s into it."""
+
+
+@contextlib.contextmanager
+def _served(flash_dir: Path) -> Iterator[dict[str, str]]:
+    """``usbmotion sim --pty 3`` in a subprocess; yields device name -> terminal path."""
+    names = [arg for name in NAMES for arg in ("--name", name)]
+    server = subprocess.Popen(
+        [sys.executable, "-m", "usbmotion", "sim", "--pty", "3", "--flash-dir", str(flash_dir),
+         *names],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        assert server.stdout is not None
+        paths: dict[str, str] = {}
+        for _ in NAMES:
+            name, path = server.stdout.readline().rstrip("\n").rsplit(" ", 1)
+            paths[name] = path
+        assert sorted(paths) == sorted(NAMES), paths
+        yield paths
+    finally:
+        server.send_signal(signal.SIGTERM)
+        try:
+            server.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            server.kill()
+            server.wait()
+
+
+def _machine_file(folder: Path, paths: dict[str, str]) -> Path:
+    """The default machine with each axis on its terminal, carriages 5 mm above their lower
+    switches (so homing takes seconds, not minutes, in real time), the shortest watchdog."""
+    text = default_machine().read_text()
+    for letter in "XYZ":
+        text = text.replace(f'url = "sim://{letter}"', f'url = "{paths[letter + " AXIS"]}"')
+    text = re.sub(r"start_mm = [0-9.]+", "start_mm = 5.0", text)
+    text, count = re.subn(r"(?m)^watchdog_ms = \d+", f"watchdog_ms = {WATCHDOG_MS}", text)
+    assert count == 1
+    path = folder / "bench.toml"
+    path.write_text(text)
+    config = load_config(path)
+    assert config.watchdog_ms == WATCHDOG_MS
+    assert all(axis.sim is not None for axis in config.axes), "the file sets up the motors"
+    return path
+
+
+def _last_writes(log: Path) -> dict[str, float]:
+    """Device label -> monotonic time of the host's last write to it."""
+    last: dict[str, float] = {}
+    for line in log.read_text().splitlines():
+        stamp, label, _ = line.split("|", 2)
+        last[label] = float(stamp)
+    return last
+
+
+def _streaming(log: Path) -> bool:
+    return log.exists() and any(
+        line.split("|", 2)[2].startswith("1 ") for line in log.read_text().splitlines()
+    )
+
+
+def _take_over(path: str, name: str) -> DeviceClient:
+    """Open a device a dead host left behind: stop the diagnostics it had asked for (they
+    would keep the terminal full of lines), let the output drain, then talk."""
+    with serial.serial_for_url(path, timeout=0) as port:
+        port.write(b"21 0\n")
+        time.sleep(0.2)
+        port.reset_input_buffer()
+    client = DeviceClient.open(path, timeout_s=1.0, name=name)
+    client.transport.discard_input()
+    return client
+
+
+@pytest.mark.realtime
+def test_a_killed_host_leaves_every_servo_disabled_by_its_watchdog(tmp_path: Path) -> None:
+    program = tmp_path / "move.ngc"
+    program.write_text(PROGRAM)
+    log = tmp_path / "writes.log"
+    with _served(tmp_path / "flash") as paths:
+        machine_file = _machine_file(tmp_path, paths)
+        host = subprocess.Popen(
+            [sys.executable, "-c", _LOGGING_HOST, str(log), "run", str(program),
+             "--machine", str(machine_file), "--no-home", "-q", "--no-plot"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        try:
+            deadline = time.monotonic() + 30
+            while not _streaming(log):
+                assert host.poll() is None, host.communicate()
+                assert time.monotonic() < deadline, "the host never started streaming"
+                time.sleep(0.01)
+            time.sleep(1.5)
+            host.send_signal(signal.SIGKILL)
+            killed = time.monotonic()
+            assert host.wait(timeout=10) == -signal.SIGKILL
+        finally:
+            if host.poll() is None:
+                host.kill()
+                host.wait()
+        last = _last_writes(log)
+        assert len(last) == 3 and all(killed - t < 1.5 for t in last.values())
+        time.sleep(WATCHDOG_MS / 1000 + 0.5)
+
+        config = load_config(machine_file)
+        delays_ms: dict[str, float] = {}
+        for name, path in paths.items():
+            axis = next(a for a in config.axes if a.device == name)
+            with _take_over(path, name) as client:
+                status: Status = client.status()
+                assert not status.enabled, f"{name}: the watchdog disabled the servo"
+                assert status.fault == Fault.WATCHDOG, status
+                assert status.queued == 0
+                code, fault_tick = client.fault()
+                assert code == Fault.WATCHDOG
+                before = time.monotonic()
+                clock = client.clock()
+                after = time.monotonic()
+                tick_s = client.servo_interval_us() * 1e-6
+                fault_at = (before + after) / 2 - (clock - fault_tick) * tick_s
+                label = next(label for label in last if name in label)
+                delays_ms[axis.name] = (fault_at - last[label]) * 1000
+                target_mm = {"X": 20.0, "Y": 10.0, "Z": 5.0}[axis.name]
+                assert 0 < axis.scale.to_mm(status.actual_counts) < target_mm, "mid-program"
+                client.clear_fault()
+                assert client.fault() == (Fault.NONE, 0)
+        for letter, delay_ms in delays_ms.items():
+            assert abs(delay_ms - WATCHDOG_MS) <= WATCHDOG_TOLERANCE_MS, (letter, delays_ms)
+
+        started = time.monotonic()
+        with Machine.connect(config) as machine:
+            machine.configure()
+            home_machine(machine)
+            homing_s = time.monotonic() - started
+            for letter, status in machine.status().items():
+                axis = config.axis(letter)
+                assert status.enabled and status.fault == Fault.NONE
+                assert status.lower_limit, f"{letter} rests on its lower switch"
+                assert abs(status.actual_counts
+                           - axis.scale.to_counts(axis.homing.position_mm)) <= 2
+            machine.enable(False)
+        assert homing_s < 15
+    figures = ", ".join(f"{k} {v:.1f} ms" for k, v in delays_ms.items())
+    print(f"watchdog disable after the last command: {figures}; homed again in"
+          f" {homing_s:.1f} s")
