@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint typecheck check bench fuzz clean
+.PHONY: run test lint typecheck check bench fuzz soak clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -38,6 +38,12 @@ FUZZ_EXAMPLES ?= 100000
 fuzz: $(STAMP)
 	USBMOTION_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(BIN)/python -m pytest tests/fuzz -q \
 		-p no:cacheprovider -o timeout=0 --hypothesis-show-statistics
+
+# One hour of program on the default machine in virtual time: planned vs executed time and
+# memory (tracemalloc). make test runs three minutes of it.
+soak: $(STAMP)
+	USBMOTION_SOAK_S=3600 $(BIN)/python -m pytest tests/reliability/test_soak.py -q -s \
+		-p no:cacheprovider -o timeout=0
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py
