@@ -152,6 +152,8 @@ class SetpointStream:
         self._echo: list[int] | None = None
         self._refused = False
         self._verify_armed = False
+        self._failed_batches = 0
+        self._errors_at_batch = 0
         self._queued = 0
         self._status_time = client.transport.clock.now()
         self._min_queued = QUEUE_CAPACITY
@@ -268,6 +270,7 @@ class SetpointStream:
         """
         self._echo = None
         self._refused = False
+        self._errors_at_batch = self.errors
         garbled_before = self.garbled_lines
         self.client.transport.write(encode_call(1, len(batch), *batch) + encode_call(2, -1))
         self.status_queries += 1
@@ -297,19 +300,46 @@ class SetpointStream:
                     f" corrupting bytes; {self.sent} setpoints were confirmed intact",
                     device=self.client.name, call=1, confirmed=self.sent,
                 )
+            self._failed_batches = 0
             return True
-        if self.verify:
+        if self.verify or self._refused:
+            self._failed_batches += 1
+            if self._failed_batches >= RESYNC_ATTEMPTS and not self.refusals_only():
+                raise LinkCorruptedError(
+                    f"{self.client.name}: {self._failed_batches} batches in a row were damaged"
+                    f" on the link and not queued; {self.sent} setpoints were confirmed",
+                    device=self.client.name, call=1, confirmed=self.sent,
+                )
             return False
-        return not self._refused
+        return True
+
+    def refusals_only(self) -> bool:
+        """True when the last batch was turned away only by ``E1`` (a full queue, no damage)."""
+        return self.errors == self._errors_at_batch and self._echo is None and not self.verify
 
     def _exchange(self) -> tuple[int, int] | None:
-        """Read up to the next queue-status answer; None when none came readable in time."""
+        """Read up to the next queue-status answer.
+
+        Returns None when the answer did not come but a mangled line did (an ``ERR`` or an
+        unreadable line: the query was probably swallowed by a damaged line), so the
+        caller can resynchronise.
+
+        Raises:
+            DeviceTimeoutError: nothing came at all (a stalled or dead link).
+        """
+        errors, garbled = self.errors, self.garbled_lines
         while True:
             try:
                 line = self.client.transport.read_line(self.client.timeout_s)
-            except DeviceTimeoutError:
+            except DeviceTimeoutError as error:
                 self.timeouts += 1
-                return None
+                if self.errors > errors or self.garbled_lines > garbled:
+                    return None
+                raise DeviceTimeoutError(
+                    f"{self.client.name}: no answer within {self.client.timeout_s:g} s: the"
+                    f" link is stalled or gone; {self.sent} setpoints were confirmed",
+                    device=self.client.name, call=2,
+                ) from error
             answer = self._take(line)
             if answer is not None:
                 return answer

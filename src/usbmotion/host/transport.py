@@ -123,7 +123,9 @@ class LineTransport:
         deadline = self.clock.now() + timeout_s
         while True:
             left = deadline - self.clock.now()
-            self._pull(max(left, 0.0))
+            if left < 1e-6:
+                left = 0.0
+            self._pull(left)
             if self._lines:
                 return self._lines.popleft()
             if left <= 0:

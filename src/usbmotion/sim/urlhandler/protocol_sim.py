@@ -9,6 +9,7 @@ port's ``usbmotion_clock`` attribute is the world's :class:`VirtualClock`.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 from urllib.parse import parse_qs, unquote, urlsplit
 
@@ -115,7 +116,8 @@ class Serial(SerialBase):  # type: ignore[misc]
         """Read up to ``size`` bytes, advancing virtual time up to the timeout."""
         link = self._link()
         if not link.available() and self._timeout != 0:
-            timeout_us = _FOREVER_US if self._timeout is None else round(self._timeout * 1e6)
+            timeout_us = (_FOREVER_US if self._timeout is None
+                          else max(1, math.ceil(self._timeout * 1e6)))
             link.world.wait_for(link, timeout_us)
         return link.receive(size)
 
