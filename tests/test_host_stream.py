@@ -12,11 +12,10 @@ import numpy as np
 import pytest
 
 from usbmotion.device import Device
-from usbmotion.errors import OutOfRangeError, QueueFullError
+from usbmotion.errors import OutOfRangeError
 from usbmotion.host.device import DeviceClient
 from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams, wait_until_drained
 from usbmotion.host.transport import LineTransport
-from usbmotion.protocol import ReplyKind
 from usbmotion.sim import SimWorld, drop_world, set_world
 
 SETPOINTS = 20_000

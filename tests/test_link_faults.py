@@ -159,7 +159,7 @@ def test_a_stalled_link_times_out_with_a_typed_error(rig) -> None:  # type: igno
 
 
 def test_a_disconnect_mid_stream_says_how_many_were_confirmed(rig) -> None:  # type: ignore[no-untyped-def]
-    client, device, link = rig
+    client, _device, link = rig
     stream = SetpointStream(client, WANTED, period_s=0.001, verify=True)
     stream.service()
     link.world.advance(500_000)

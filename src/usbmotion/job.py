@@ -298,7 +298,8 @@ def run_program(
         for name, axis in machine.axes.items():
             status = axis.client.status()
             if status.fault != FaultCode.NONE:
-                elapsed = (status.clock - trace.start_tick) * tick_s
+                _, fault_tick = axis.client.fault()
+                elapsed = (fault_tick - trace.start_tick) * tick_s
                 faults.append(FaultRecord(name, status.fault_name, elapsed,
                                           _line_at(plan, elapsed)))
         return bool(faults)

@@ -472,8 +472,11 @@ def run_streams(
     streams: Sequence[SetpointStream | KeyframeStream],
     *,
     should_stop: Callable[[], bool] | None = None,
+    max_wait_s: float = 0.05,
 ) -> None:
     """Service several streams until every value is confirmed queued.
+
+    ``should_stop`` is asked at least every ``max_wait_s`` (a fault check, Ctrl-C).
 
     All streams must share one clock (the same virtual world, or the wall clock); between
     services this sleeps until the earliest stream wants attention.
@@ -492,7 +495,10 @@ def run_streams(
         for stream in due:
             stream.service()
         if not due:
-            clock.sleep(min(s.wake_time() for s in pending) - now)
+            wake = min(s.wake_time() for s in pending)
+            if should_stop is not None:
+                wake = min(wake, now + max_wait_s)
+            clock.sleep(wake - now)
 
 
 def wait_until_drained(
