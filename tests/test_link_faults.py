@@ -53,8 +53,11 @@ class RecordingDevice:
     def take_output(self) -> bytes:
         return self.inner.take_output()
 
-    def ticks_until_event(self) -> int | None:
-        return self.inner.ticks_until_event()
+    def take_timed_output(self) -> list[tuple[int, bytes]]:
+        return self.inner.take_timed_output()
+
+    def ticks_until_event(self, *, diagnostics: bool = True) -> int | None:
+        return self.inner.ticks_until_event(diagnostics=diagnostics)
 
     def run(self, ticks: int) -> None:
         for _ in range(ticks):

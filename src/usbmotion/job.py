@@ -9,6 +9,7 @@ that were ignored. A fault on any axis stops every axis.
 
 from __future__ import annotations
 
+from array import array
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -28,7 +29,7 @@ from usbmotion.errors import (
     UsbMotionError,
 )
 from usbmotion.host.config import MachineConfig
-from usbmotion.host.device import ControlMode, Diagnostics, Status
+from usbmotion.host.device import Alarm, ControlMode, Diagnostics, MotionStats, Status
 from usbmotion.host.machine import Machine
 from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams, wait_until_drained
 from usbmotion.motion.gcode import GCodeProgram
@@ -39,10 +40,15 @@ from usbmotion.protocol.table import Fault as FaultCode
 
 PLAN_AXES = ("X", "Y", "Z")
 HOMING_POLL_HZ = 50.0
-DIAGNOSTICS_PERIOD_S = 0.002
+DIAGNOSTICS_PERIOD_S = 0.01
+"""Diagnostics lines for the trace (plots, end points, settling): the peak and RMS error
+come from the devices' own statistics (call 35), so the trace need not be dense."""
 SETTLE_COUNTS = 2
 START_MARGIN_S = 0.2
-FAULT_CHECK_S = 0.1
+FAULT_CHECK_S = 0.05
+"""How often the run reads the alarms the devices printed (no exchange: lines that came)."""
+STATUS_CHECK_S = 1.0
+"""How often the run also asks every device its status, in case an alarm line was lost."""
 
 
 def planner_inputs(config: MachineConfig) -> tuple[list[AxisLimits], PlannerConfig, list[float]]:
@@ -80,7 +86,13 @@ def plan_program(program: GCodeProgram, config: MachineConfig) -> Plan:
 
 @dataclass(frozen=True, slots=True)
 class AxisResult:
-    """How one axis followed the program (from its diagnostics lines)."""
+    """How one axis followed the program, from the device's own statistics (call 35).
+
+    The peak and RMS following error (desired - actual) are over every servo tick of the
+    run, not over sampled diagnostics lines; ``max_error_time_s`` and ``max_error_line``
+    say when, since the start, and at which program line the peak came. ``ticks`` is the
+    servo ticks counted; ``samples`` the diagnostics lines recorded for the plots.
+    """
 
     name: str
     max_error_counts: int
@@ -89,6 +101,9 @@ class AxisResult:
     rms_error_mm: float
     final_error_counts: int
     samples: int
+    ticks: int = 0
+    max_error_time_s: float = 0.0
+    max_error_line: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -135,36 +150,48 @@ class RunReport:
 
 @dataclass(slots=True)
 class Trace:
-    """What the run recorded, for plots: device diagnostics per axis, in device ticks."""
+    """What the run recorded, for plots: device diagnostics per axis, in device ticks.
+
+    Each store holds 64-bit integers in an ``array`` (8 bytes a value), so a long program
+    costs 32 bytes per diagnostics line and axis.
+    """
 
     tick_s: float
     start_tick: int
-    clock: dict[str, list[int]] = field(default_factory=dict)
-    desired: dict[str, list[int]] = field(default_factory=dict)
-    actual: dict[str, list[int]] = field(default_factory=dict)
-    queued: dict[str, list[int]] = field(default_factory=dict)
+    clock: dict[str, array[int]] = field(default_factory=dict)
+    desired: dict[str, array[int]] = field(default_factory=dict)
+    actual: dict[str, array[int]] = field(default_factory=dict)
+    queued: dict[str, array[int]] = field(default_factory=dict)
     counts_per_mm: dict[str, float] = field(default_factory=dict)
 
     def record(self, axis: str) -> Callable[[Diagnostics], None]:
         """A diagnostics callback that appends to this trace."""
-        for store in (self.clock, self.desired, self.actual, self.queued):
-            store.setdefault(axis, [])
+        stores = (self.clock, self.desired, self.actual, self.queued)
+        for store in stores:
+            store.setdefault(axis, array("q"))
+        clock, desired, actual, queued = (store[axis] for store in stores)
 
         def on_line(line: Diagnostics) -> None:
-            self.clock[axis].append(line.clock)
-            self.desired[axis].append(line.desired)
-            self.actual[axis].append(line.actual_counts)
-            self.queued[axis].append(line.queued)
+            clock.append(line.clock)
+            desired.append(line.desired)
+            actual.append(line.actual_counts)
+            queued.append(line.queued)
 
         return on_line
+
+    def column(self, store: dict[str, array[int]], axis: str) -> npt.NDArray[np.int64]:
+        """One store of one axis as a numpy array (a copy)."""
+        values = store.get(axis)
+        if values is None:
+            return np.zeros(0, dtype=np.int64)
+        return np.frombuffer(values, dtype=np.int64).copy()
 
     def arrays(self, axis: str) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64],
                                          npt.NDArray[np.int64]]:
         """(time since start s, desired counts, actual counts) of one axis."""
-        clock = np.asarray(self.clock.get(axis, []), dtype=np.int64)
+        clock = self.column(self.clock, axis)
         return ((clock - self.start_tick).astype(np.float64) * self.tick_s,
-                np.asarray(self.desired.get(axis, []), dtype=np.int64),
-                np.asarray(self.actual.get(axis, []), dtype=np.int64))
+                self.column(self.desired, axis), self.column(self.actual, axis))
 
 
 class _Mirror:
@@ -209,6 +236,7 @@ def home_machine(machine: Machine) -> float:
         {name: axis.scale for name, axis in machine.axes.items()},
         poll_period_s=1.0 / HOMING_POLL_HZ,
         motion_period_s=dict.fromkeys(machine.axes, config.motion_period_s),
+        keep_alive_polls=_keep_alive_polls(config.watchdog_ms),
     )
     upward = {name for name, axis in machine.axes.items() if axis.config.homing.direction > 0}
     outputs = _Mirror(io, upward)
@@ -235,6 +263,12 @@ def home_machine(machine: Machine) -> float:
         client.set_position(axis.scale.to_counts(axis.config.homing.position_mm))
         client.set_servo_enable(True)
     return clock.now() - started
+
+
+def _keep_alive_polls(watchdog_ms: int) -> int:
+    """Homing polls between keep-alive queries: four within the watchdog, or one a second."""
+    window_s = watchdog_ms / 1000.0 / 4 if watchdog_ms > 0 else 1.0
+    return max(1, int(window_s * HOMING_POLL_HZ))
 
 
 def run_program(
@@ -274,7 +308,9 @@ def run_program(
     sync = machine.synchronise(margin_s=START_MARGIN_S, axes=PLAN_AXES)
     trace.start_tick = sync.devices[0].start_tick
     for name in PLAN_AXES:
-        machine.axis(name).client.set_diagnostics_interval(diag_ticks)
+        client = machine.axis(name).client
+        client.reset_motion_stats()
+        client.set_diagnostics_interval(diag_ticks)
     streams: dict[str, SetpointStream] = {}
 
     def progress(update: StreamProgress) -> None:
@@ -287,21 +323,36 @@ def run_program(
                                        period_s=period_s, verify=True, on_progress=progress)
     faults: list[FaultRecord] = []
     clock = machine.clock
-    last_check = [clock.now()]
+    last_check = [clock.now(), clock.now()]
+
+    def record(axis: str, fault: str, tick: int) -> None:
+        if any(f.axis == axis for f in faults):
+            return
+        elapsed = (tick - trace.start_tick) * tick_s
+        faults.append(FaultRecord(axis, fault, elapsed, _line_at(plan, elapsed)))
+
+    def on_alarm(axis: str) -> Callable[[Alarm], None]:
+        return lambda alarm: record(axis, alarm.fault_name, alarm.tick)
+
+    for name, axis in machine.axes.items():
+        axis.client.on_alarm = on_alarm(name)
 
     def check() -> bool:
         if should_stop is not None and should_stop():
             return True
-        if clock.now() - last_check[0] < FAULT_CHECK_S:
-            return False
-        last_check[0] = clock.now()
-        for name, axis in machine.axes.items():
-            status = axis.client.status()
-            if status.fault != FaultCode.NONE:
-                _, fault_tick = axis.client.fault()
-                elapsed = (fault_tick - trace.start_tick) * tick_s
-                faults.append(FaultRecord(name, status.fault_name, elapsed,
-                                          _line_at(plan, elapsed)))
+        now = clock.now()
+        if now - last_check[0] < FAULT_CHECK_S:
+            return bool(faults)
+        last_check[0] = now
+        for axis in machine.axes.values():
+            axis.client.read_pending()
+        if now - last_check[1] >= STATUS_CHECK_S:
+            last_check[1] = now
+            for name, axis in machine.axes.items():
+                status = axis.client.status()
+                if status.fault != FaultCode.NONE:
+                    _, fault_tick = axis.client.fault()
+                    record(name, status.fault_name, fault_tick)
         return bool(faults)
 
     stopped = False
@@ -330,19 +381,24 @@ def run_program(
         except UsbMotionError as error:
             notes.append(f"stopping: {error}")
     statuses: dict[str, Status] = {}
+    stats: dict[str, MotionStats] = {}
     for name in PLAN_AXES:
+        client = machine.axis(name).client
         try:
-            statuses[name] = machine.axis(name).client.status()
-            machine.axis(name).client.set_diagnostics_interval(0)
+            statuses[name] = client.status()
+            stats[name] = client.motion_stats()
+            client.set_diagnostics_interval(0)
         except UsbMotionError as error:
             notes.append(f"axis {name}: {error}")
+    for axis in machine.axes.values():
+        axis.client.on_alarm = None
     if link_error:
         confirmed = streams[lost_axis].sent if lost_axis else min(
             s.sent for s in streams.values())
     else:
         confirmed = min(streams[n].sent - statuses[n].queued for n in PLAN_AXES)
     report = _report(
-        program, machine, plan, setpoints.shape[0], trace, homing_s, statuses,
+        program, machine, plan, setpoints.shape[0], trace, homing_s, statuses, stats,
         faults, completed=not stopped, consumed=confirmed, skew_s=sync.estimated_skew_s,
         link_error=link_error, notes=tuple(notes),
     )
@@ -374,6 +430,7 @@ def _report(
     trace: Trace,
     homing_s: float,
     statuses: Mapping[str, Status],
+    stats: Mapping[str, MotionStats],
     faults: list[FaultRecord],
     *,
     completed: bool,
@@ -391,21 +448,23 @@ def _report(
         times, desired, actual = trace.arrays(name)
         in_run = times >= 0
         error = (desired - actual)[in_run]
-        queued = np.asarray(trace.queued.get(name, []), dtype=np.int64)[in_run]
         t_run = times[in_run]
         if error.size:
-            busy = np.nonzero(queued > 0)[0]
-            if busy.size:
-                executed_s = max(executed_s, float(t_run[busy[-1]]) + period_s)
-            within = np.abs(error) <= SETTLE_COUNTS
-            late = np.nonzero(~within)[0]
+            late = np.nonzero(np.abs(error) > SETTLE_COUNTS)[0]
             settle_s = max(settle_s, float(t_run[late[-1]]) if late.size else 0.0)
         scale = machine.axis(name).config.counts_per_mm
-        max_counts = int(np.max(np.abs(error))) if error.size else 0
-        rms_counts = float(np.sqrt(np.mean(error.astype(np.float64) ** 2))) if error.size else 0.0
+        axis_stats = stats.get(name, MotionStats(0, 0, 0, 0, -1))
+        if axis_stats.last_take_tick >= 0:
+            executed_s = max(executed_s,
+                             (axis_stats.last_take_tick - trace.start_tick) * trace.tick_s)
+        peak_s = max(0.0, (axis_stats.max_error_tick - trace.start_tick) * trace.tick_s)
+        status = statuses.get(name)
         results.append(AxisResult(
-            name, max_counts, rms_counts, max_counts / scale, rms_counts / scale,
-            int(error[-1]) if error.size else 0, int(error.size),
+            name, axis_stats.max_error_counts, axis_stats.rms_error_counts,
+            axis_stats.max_error_counts / scale, axis_stats.rms_error_counts / scale,
+            status.desired_counts - status.actual_counts if status is not None else 0,
+            int(error.size), ticks=axis_stats.ticks, max_error_time_s=peak_s,
+            max_error_line=_line_at(plan, peak_s) if axis_stats.ticks else 0,
         ))
     end_positions = {
         name: machine.axis(name).scale.to_mm(status.actual_counts)
@@ -439,27 +498,43 @@ def _report(
 
 def _actual_path_mm(trace: Trace) -> npt.NDArray[np.float64]:
     """The actual XYZ positions (mm) at the diagnostics ticks all three axes reported."""
-    clocks = [np.asarray(trace.clock.get(n, []), dtype=np.int64) for n in PLAN_AXES]
+    clocks = [trace.column(trace.clock, n) for n in PLAN_AXES]
     common = clocks[0]
     for other in clocks[1:]:
         common = np.intersect1d(common, other)
     columns = []
     for name, clock in zip(PLAN_AXES, clocks, strict=True):
-        actual = np.asarray(trace.actual[name], dtype=np.float64)
+        actual = trace.column(trace.actual, name).astype(np.float64)
         index = np.searchsorted(clock, common)
         columns.append(actual[index] / trace.counts_per_mm[name])
     return np.stack(columns, axis=1) if common.size else np.empty((0, 3))
 
 
 def _endpoint_misses(program: GCodeProgram, trace: Trace) -> tuple[int, float]:
-    """How many programmed end points, and how far the actual path passed from the worst."""
+    """How many programmed end points, and how far the actual path passed from the worst.
+
+    The path is the polyline through the recorded positions: the distance to an end point
+    is to the nearest point of a segment, not of a sample.
+    """
     path = _actual_path_mm(trace)
     ends = np.array([m.end for m in program.moves if hasattr(m, "end")], dtype=np.float64)
     if not path.size or not ends.size:
         return 0, 0.0
+    if path.shape[0] == 1:
+        return int(ends.shape[0]), float(np.max(np.linalg.norm(ends - path[0], axis=1)))
+    starts = path[:-1]
+    spans = path[1:] - starts
+    lengths_sq = np.einsum("ij,ij->i", spans, spans)
+    moving = lengths_sq > 0
     worst = 0.0
     for end in ends:
-        worst = max(worst, float(np.min(np.linalg.norm(path - end, axis=1))))
+        offsets = end - starts
+        along = np.zeros(len(starts))
+        along[moving] = np.clip(
+            np.einsum("ij,ij->i", offsets[moving], spans[moving]) / lengths_sq[moving], 0.0, 1.0
+        )
+        gaps = offsets - along[:, None] * spans
+        worst = max(worst, float(np.sqrt(np.min(np.einsum("ij,ij->i", gaps, gaps)))))
     return int(ends.shape[0]), worst
 
 
@@ -472,11 +547,12 @@ def describe(report: RunReport) -> str:
         f"homing         {report.homing_time_s:.3f} s",
         f"planned time   {report.planned_time_s:.3f} s",
         f"executed time  {report.executed_time_s:.3f} s (settled at {report.settle_time_s:.3f} s)",
-        "following error (device diagnostics, desired - actual):",
+        "following error (every servo tick, desired - actual):",
     ]
     for axis in report.axes:
         lines.append(
             f"  {axis.name}  max {axis.max_error_mm:8.4f} mm ({axis.max_error_counts:5d} counts)"
+            f" at {axis.max_error_time_s:.3f} s, line {axis.max_error_line}"
             f"   rms {axis.rms_error_mm:8.4f} mm ({axis.rms_error_counts:8.2f} counts)"
         )
     position = "  ".join(f"{k} {v:.3f}" for k, v in report.end_position_mm.items())

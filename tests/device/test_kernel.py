@@ -389,6 +389,7 @@ def test_an_exception_in_the_kernel_faults_and_keeps_the_clock(
     assert device.clock == 50
     assert send(device, "30 -1") == [
         "ERR ? internal error in the servo loop (ZeroDivisionError: oops); fault 4 latched",
+        "ALARM 4 0",
         "FAULT 4 0",
     ]
     monkeypatch.undo()

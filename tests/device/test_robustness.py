@@ -244,6 +244,7 @@ def test_enabling_with_a_latched_fault_is_refused() -> None:
     send(device, "29 1", "3 1", "0 100")
     device.run(1)
     assert device.state.fault == 2
+    assert device.take_output() == b"ALARM 2 1\n"
     assert send(device, "3 1") == [
         "ERR 3 fault 2 (following error) is latched; clear it with call 30 before enabling"
     ]
@@ -262,7 +263,8 @@ def test_an_unexpected_exception_is_an_err_reply_and_fault_4(
     monkeypatch.setitem(device._handlers, 24, broken)
     lines = send(device, "24 -1")
     assert lines == [
-        "ERR 24 internal error (RuntimeError: bad thing); fault 4 latched"
+        "ERR 24 internal error (RuntimeError: bad thing); fault 4 latched",
+        "ALARM 4 0",
     ]
     state = device.state
     assert (state.fault, state.enable) == (4, 0)
@@ -286,6 +288,7 @@ def test_an_exception_in_the_servo_loop_faults_and_keeps_the_clock(
     assert device.clock == 50
     assert send(device, "30 -1") == [
         "ERR ? internal error in the servo loop (ZeroDivisionError: oops); fault 4 latched",
+        "ALARM 4 0",
         "FAULT 4 0",
     ]
     assert len(calls) == 1

@@ -25,6 +25,7 @@ def test_watchdog_disables_the_servo_after_silence() -> None:
     device.run(1)
     state = device.state
     assert (state.enable, state.fault, state.fault_tick) == (0, 1, 99)
+    assert device.take_output() == b"ALARM 1 99\n", "the fault is announced unasked"
     assert send(device, "30 -1") == ["FAULT 1 99"]
     assert send(device, "3 1")[0].startswith("ERR 3 fault 1 (watchdog) is latched")
     assert device.state.enable == 0
@@ -44,6 +45,7 @@ def test_following_error_fault_and_clear() -> None:
     device.run(1)
     assert device.state.fault == 2
     assert device.state.enable == 0
+    assert device.take_output() == b"ALARM 2 1\n"
     assert send(device, "20 -1")[0].endswith(" 0 1 0 2")
     send(device, "30 0")
     assert device.state.fault == 0
@@ -61,6 +63,7 @@ def test_limit_switch_closing_in_position_mode_faults() -> None:
     assert state.fault == 3
     assert state.enable == 0
     assert state.limits == 2
+    assert device.take_output().decode().splitlines() == [f"ALARM 3 {state.fault_tick}"]
     assert send(device, "24 -1") == ["LIMITS 0 1"]
     assert 300 <= state.actual <= 300 + 200 + 1, "stopped at or before the hard stop"
 

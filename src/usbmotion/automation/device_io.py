@@ -1,8 +1,11 @@
 """Homing inputs and outputs over real (or simulated) devices, in mm through each axis scale.
 
 A target velocity is sent in velocity mode (control mode 2) as a short run of identical
-velocity setpoints covering a few polling periods: if the host stops polling, the queue
-runs dry and the device brings the axis to rest by itself.
+velocity setpoints covering a few polling periods, replacing the queue in one exchange: if
+the host stops polling, the queue runs dry and the device brings the axis to rest by
+itself. An unchanged velocity is sent again only every other poll (the run covers twice
+that), and an axis that was not spoken to in a poll gets a cheap query only as often as
+``keep_alive_polls`` says, so homing costs few exchanges per poll.
 """
 
 from __future__ import annotations
@@ -30,8 +33,11 @@ class DeviceHomingIO:
         poll_period_s: how often the homing sequence is polled; each velocity command
             covers ``cover_polls`` of these.
         motion_period_s: axis name -> seconds per queue value on that device.
-        cover_polls: polling periods each velocity command lasts on the device.
+        cover_polls: polling periods each velocity command lasts on the device; an
+            unchanged velocity is sent again after half of them.
         velocity_gains: (kp, ki, kd) of the velocity loop used while homing.
+        keep_alive_polls: an axis no call reached gets a query every this many calls of
+            :meth:`keep_alive` (keep it well below the watchdog).
     """
 
     def __init__(
@@ -41,22 +47,31 @@ class DeviceHomingIO:
         *,
         poll_period_s: float,
         motion_period_s: Mapping[str, float],
-        cover_polls: int = 3,
+        cover_polls: int = 4,
         velocity_gains: tuple[float, float, float] = VELOCITY_GAINS,
+        keep_alive_polls: int = 1,
     ) -> None:
         if not (math.isfinite(poll_period_s) and poll_period_s > 0):
             raise OutOfRangeError(f"poll_period_s {poll_period_s!r} must be > 0",
                                   reason="poll_period_s")
-        if cover_polls < 1:
-            raise OutOfRangeError(f"cover_polls {cover_polls!r} must be >= 1",
+        if cover_polls < 2:
+            raise OutOfRangeError(f"cover_polls {cover_polls!r} must be >= 2",
                                   reason="cover_polls")
+        if keep_alive_polls < 1:
+            raise OutOfRangeError(f"keep_alive_polls {keep_alive_polls!r} must be >= 1",
+                                  reason="keep_alive_polls")
         self.clients = dict(clients)
         self.scales = dict(scales)
         self.poll_period_s = poll_period_s
         self.motion_period_s = dict(motion_period_s)
         self.cover_polls = cover_polls
         self.velocity_gains = velocity_gains
+        self.keep_alive_polls = keep_alive_polls
         self.velocity_commands = 0
+        self._sent: dict[str, tuple[int, int]] = {}
+        """Axis -> (velocity counts/s last sent, calls since it was sent)."""
+        self._quiet: dict[str, int] = dict.fromkeys(self.clients, 0)
+        """Axis -> polls (keep-alive calls) since anything was sent to it."""
 
     def enter_velocity_mode(self) -> None:
         """Put every axis in velocity mode, with the velocity gains, servo enabled."""
@@ -76,6 +91,7 @@ class DeviceHomingIO:
         client = self.clients.get(axis)
         if client is None:
             return None
+        self._quiet[axis] = 0
         status = client.status()
         if status.fault:
             raise DeviceFaultError(
@@ -85,28 +101,46 @@ class DeviceHomingIO:
                                 at_upper_limit=status.upper_limit)
 
     def keep_alive(self) -> None:
-        """A cheap query to every device, so no watchdog trips on an axis that waits."""
-        for client in self.clients.values():
-            client.queue_status()
+        """Call once per poll: a cheap query to a device no call reached for a while.
+
+        So no watchdog trips on an axis that waits for its turn to home.
+        """
+        for axis, client in self.clients.items():
+            if self._quiet[axis] >= self.keep_alive_polls:
+                client.queue_status()
+                self._quiet[axis] = 0
+            self._quiet[axis] += 1
 
     def position_mm(self, axis: str) -> float:
         """Actual position of the axis, mm."""
+        self._quiet[axis] = 0
         return self.scales[axis].to_mm(self.clients[axis].status().actual_counts)
 
     def set_target_velocity(self, axis: str, velocity_mm_s: float) -> None:
-        """Replace the axis's queue with enough setpoints of this velocity to bridge polls."""
-        client = self.clients[axis]
+        """Replace the axis's queue with enough setpoints of this velocity to bridge polls.
+
+        An unchanged velocity is not sent again until half of the last run is used up;
+        zero, once sent, needs no refill (an empty queue in velocity mode means rest).
+        """
         counts_s = self.scales[axis].to_counts(velocity_mm_s)
-        client.clear_queue()
+        last = self._sent.get(axis)
+        if last is not None and last[0] == counts_s:
+            calls = last[1] + 1
+            if counts_s == 0 or calls < self.cover_polls // 2:
+                self._sent[axis] = (counts_s, calls)
+                return
+        self._sent[axis] = (counts_s, 0)
+        self._quiet[axis] = 0
         self.velocity_commands += 1
         if counts_s == 0:
-            client.add_setpoints([0])
+            self.clients[axis].replace_setpoints([0])
             return
         period = self.motion_period_s[axis]
         count = min(QUEUE_CAPACITY, max(2, math.ceil(self.cover_polls * self.poll_period_s
                                                      / period)))
-        client.add_setpoints([counts_s] * count)
+        self.clients[axis].replace_setpoints([counts_s] * count)
 
     def zero_position(self, axis: str) -> None:
         """Call 23: the present position becomes 0."""
+        self._quiet[axis] = 0
         self.clients[axis].set_position(0)

@@ -24,7 +24,6 @@ import numpy as np
 from usbmotion.device import core1
 from usbmotion.device.core1 import (
     DYNAMIC_FIELDS,
-    EVENT_DIAGNOSTICS,
     MODE_CURVE,
     MODE_POSITION,
     MODE_VELOCITY,
@@ -51,6 +50,7 @@ from usbmotion.errors import DeviceParameterError, EmptyLineError, FlashError, P
 from usbmotion.hermite import Keyframe
 from usbmotion.protocol.codec import Call, LineSplitter, Overlong, format_err, parse_call
 from usbmotion.protocol.table import (
+    ALARM,
     BY_NUMBER,
     DIAGNOSTICS,
     ERR,
@@ -208,6 +208,11 @@ class Device:
         self._power_up_gains = gains if gains is not None else Gains()
         self._splitter = LineSplitter(max_bytes=MAX_LINE_BYTES)
         self._output = bytearray()
+        self._stamps: list[tuple[int, int]] = []
+        """Where in ``_output`` a run of lines printed at one tick starts: (offset, tick)."""
+        self._clock_base = 0
+        """Ticks since the device was made minus ``S_CLOCK`` (the clock is zeroed by call 22
+        and by a restart; output is stamped on this unbroken count)."""
         self._handlers: dict[int, Callable[[Call], None]] = {
             number: getattr(self, f"_call_{number}") for number in BY_NUMBER
         }
@@ -241,7 +246,9 @@ class Device:
         Unread output and any partial input line are lost, as when USB drops.
         """
         self._output.clear()
+        self._stamps.clear()
         self._splitter.reset()
+        self._clock_base += self.clock
         self._power_up()
 
     # --- public API ----------------------------------------------------------------------
@@ -316,9 +323,26 @@ class Device:
         """Everything the device printed since the last call (ASCII lines ending in ``\\n``)."""
         data = bytes(self._output)
         self._output.clear()
+        self._stamps.clear()
         return data
 
-    def ticks_until_event(self) -> int | None:
+    def take_timed_output(self) -> list[tuple[int, bytes]]:
+        """As :meth:`take_output`, in runs of lines each with how many ticks ago it printed.
+
+        A block of servo ticks prints its diagnostics lines when it ends; each is stamped
+        with the tick it belongs to, so a simulation can deliver it at its own time.
+        """
+        if not self._stamps:
+            return []
+        now = self._ticks()
+        bounds = [offset for offset, _ in self._stamps[1:]] + [len(self._output)]
+        runs = [(now - stamp, bytes(self._output[offset:end]))
+                for (offset, stamp), end in zip(self._stamps, bounds, strict=True)]
+        self._output.clear()
+        self._stamps.clear()
+        return runs
+
+    def ticks_until_event(self, *, diagnostics: bool = True) -> int | None:
         """Ticks until the device next prints or changes state on its own, or None.
 
         ``run(n)`` with ``n`` below the answer prints nothing and changes no variable a
@@ -326,9 +350,11 @@ class Device:
         down. Counted: the next diagnostics line, the watchdog expiring, an armed start
         being reached, the motion queue running dry, a keyframe being reached (its slot
         frees), the velocity-mode counter reset. Faults that the motion itself causes
-        (following error, a limit switch closing) are not predicted.
+        (following error, a limit switch closing) are not predicted. With ``diagnostics``
+        False the diagnostics lines are not counted: ``run`` goes through them in one block
+        and stamps each line with its tick (see :meth:`take_timed_output`).
         """
-        event = ticks_to_scheduled_event(self._state, self._params)
+        event = ticks_to_scheduled_event(self._state, self._params, diagnostics=diagnostics)
         if self._state[core1.S_MODE] == MODE_CURVE and self._state[core1.S_ENABLE] == 1:
             reach = self._curve.ticks_until_reached(self.tick_us)
             if reach is not None:
@@ -407,6 +433,7 @@ class Device:
         if enabled and start > clock:
             limit = min(limit, start - clock)
         mode = int(state[core1.S_MODE])
+        self._params[core1.P_DIAG_ROOM] = 1 if mode == MODE_CURVE else core1.DIAG_SLOTS
         consuming = running(state)
         if mode == MODE_CURVE and consuming and (self._curve.playing or self._curve.queued):
             return self._run_curve(min(limit, _CURVE_CHUNK), tick_us)
@@ -414,7 +441,8 @@ class Device:
         if busy or self._settle_left > 0:
             n = min(limit, self._settle_left)
             if busy:
-                n = min(limit, ticks_to_scheduled_event(state, self._params) or limit)
+                event = ticks_to_scheduled_event(state, self._params, diagnostics=False)
+                n = min(limit, event or limit)
             done = self._servo_block()(state, self._params, self._queue, self._empty, n)
             self._settle_left = max(0, self._settle_left - done)
             self._after_block()
@@ -456,24 +484,49 @@ class Device:
         return done
 
     def _after_block(self) -> None:
+        """Print the diagnostics lines core1 recorded during the block, each at its tick,
+        then the alarm of a fault that latched (the block ends at that tick)."""
         state = self._state
         events = int(state[core1.S_EVENTS])
         state[core1.S_EVENTS] = 0
-        if events & EVENT_DIAGNOSTICS:
-            self._print(
-                DIAGNOSTICS.format(
-                    int(state[core1.S_CLOCK]),
-                    self._desired_reported(),
-                    int(state[core1.S_ACTUAL]),
-                    int(state[core1.S_VELOCITY]),
-                    self._output_mv(),
-                    self._queued_reported(),
-                )
-            )
+        if int(state[core1.S_DIAG_COUNT]):
+            self._print_diagnostics()
+        if events & core1.EVENT_FAULT:
+            self._print_alarm()
+
+    def _print_alarm(self) -> None:
+        state = self._state
+        tick = int(state[core1.S_FAULT_TICK])
+        self._print(ALARM.format(int(state[core1.S_FAULT]), tick),
+                    ticks_ago=max(0, int(state[core1.S_CLOCK]) - tick))
+
+    def _print_diagnostics(self) -> None:
+        state = self._state
+        count = int(state[core1.S_DIAG_COUNT])
+        state[core1.S_DIAG_COUNT] = 0
+        clock = int(state[core1.S_CLOCK])
+        curve = state[core1.S_MODE] == MODE_CURVE
+        start = core1.S_DIAG
+        records = state[start : start + count * core1.DIAG_RECORD].tolist()
+        for base in range(0, len(records), core1.DIAG_RECORD):
+            tick, desired, actual, velocity, out_c, out_e, queued = records[
+                base : base + core1.DIAG_RECORD
+            ]
+            line = DIAGNOSTICS.format(tick, desired, actual, velocity,
+                                      sci_to_int(out_c, out_e + 3),
+                                      self._curve.queued if curve else queued)
+            self._print(line, ticks_ago=clock - tick)
 
     # --- core0: lines --------------------------------------------------------------------
 
-    def _print(self, line: str) -> None:
+    def _ticks(self) -> int:
+        """Ticks since the device was made (never zeroed)."""
+        return int(self._state[core1.S_CLOCK]) + self._clock_base
+
+    def _print(self, line: str, *, ticks_ago: int = 0) -> None:
+        stamp = self._ticks() - ticks_ago
+        if not self._stamps or self._stamps[-1][1] != stamp:
+            self._stamps.append((len(self._output), stamp))
         self._output += line.encode("ascii", errors="backslashreplace") + b"\n"
 
     def _interpret(self, line: bytes) -> None:
@@ -505,6 +558,7 @@ class Device:
         detail = " ".join(f"{type(error).__name__}: {error}".split())[:200]
         reason = f"internal error{' ' + where if where else ''} ({detail}); fault 4 latched"
         self._print(ERR.format(call, reason))
+        self._print_alarm()
 
     def _debug_line(self, number: int, *values: int | str) -> None:
         template = BY_NUMBER[number].debug.get(self._debug.get(number, 0))
@@ -597,12 +651,12 @@ class Device:
 
     def _push(self, values: tuple[int, ...]) -> None:
         state = self._state
-        head = int(state[core1.S_QUEUE_HEAD])
         count = int(state[core1.S_QUEUE_COUNT])
-        for value in values:
-            self._queue[(head + count) % QUEUE_CAPACITY] = value
-            count += 1
-        state[core1.S_QUEUE_COUNT] = count
+        tail = (int(state[core1.S_QUEUE_HEAD]) + count) % QUEUE_CAPACITY
+        first = min(len(values), QUEUE_CAPACITY - tail)
+        self._queue[tail : tail + first] = values[:first]
+        self._queue[: len(values) - first] = values[first:]
+        state[core1.S_QUEUE_COUNT] = count + len(values)
 
     def _refuse_in_curve_mode(self) -> None:
         if self._state[core1.S_MODE] == MODE_CURVE:
@@ -823,8 +877,27 @@ class Device:
         if call.is_query:
             self._reply(22, self.clock)
             return
+        self._clock_base += self.clock
         self._state[core1.S_CLOCK] = 0
         self._debug_line(22)
+
+    def _call_35(self, call: Call) -> None:
+        state = self._state
+        if call.is_query:
+            self._reply(
+                35,
+                int(state[core1.S_STATS_TICKS]),
+                int(state[core1.S_STATS_MAX]),
+                int(state[core1.S_STATS_MAX_TICK]),
+                int(state[core1.S_STATS_SUM_SQ]),
+                int(state[core1.S_LAST_TAKE]),
+            )
+            return
+        for index in (core1.S_STATS_TICKS, core1.S_STATS_MAX, core1.S_STATS_MAX_TICK,
+                      core1.S_STATS_SUM_SQ):
+            state[index] = 0
+        state[core1.S_LAST_TAKE] = -1
+        self._debug_line(35)
 
     def _call_23(self, call: Call) -> None:
         state = self._state

@@ -25,7 +25,9 @@ One servo tick, in order:
 5. faults (servo enabled): limit switch closing in mode 1 or 3, following error in mode 1
    or 3, then watchdog; a fault disables the servo and cuts its output to 0 V (as call
    ``3 0`` does), so no line reports a drive the servo no longer applies.
-6. clock + 1, diagnostics countdown.
+6. clock + 1, diagnostics countdown; a diagnostics tick writes a record of the line into
+   ``state`` for core0 to print (the block goes on until core0's room for records is used
+   up); the motion statistics (call 35) count the tick.
 """
 
 from __future__ import annotations
@@ -54,7 +56,7 @@ TIMER_CAP_US = 1 << 62
 """The time-since-last-command timer stops here instead of overflowing."""
 
 EVENT_DIAGNOSTICS = 1
-"""``state[S_EVENTS]`` bit: a diagnostics line is due (printed by core0)."""
+"""``state[S_EVENTS]`` bit: the diagnostics records are full (core0 prints them)."""
 EVENT_FAULT = 2
 """``state[S_EVENTS]`` bit: a fault latched during the block."""
 
@@ -102,7 +104,29 @@ S_HISTORY = 27
 """First of ``HISTORY_SLOTS`` entries: the errors of the last ``window`` ticks (a ring)."""
 S_COUNTS = S_HISTORY + HISTORY_SLOTS
 """First of ``HISTORY_SLOTS`` entries: the counters of the last ``window`` ticks (a ring)."""
-STATE_SIZE = S_COUNTS + HISTORY_SLOTS
+S_STATS_TICKS = S_COUNTS + HISTORY_SLOTS
+"""Motion statistics (call 35): servo ticks counted (enabled in mode 1 or 3, any armed start
+reached) since a reset."""
+S_STATS_MAX = S_STATS_TICKS + 1
+"""Largest absolute following error counted, counts."""
+S_STATS_MAX_TICK = S_STATS_TICKS + 2
+"""Clock (after the tick) of the first tick with that largest error."""
+S_STATS_SUM_SQ = S_STATS_TICKS + 3
+"""Sum of the squared following errors counted, saturating at :data:`STATS_SUM_CAP`."""
+S_LAST_TAKE = S_STATS_TICKS + 4
+"""Clock of the tick that last took a value from the motion queue (-1: none yet)."""
+S_DIAG_COUNT = S_STATS_TICKS + 5
+"""Diagnostics records written since core0 last printed them."""
+DIAG_SLOTS = 64
+"""Diagnostics records ``state`` holds."""
+DIAG_RECORD = 7
+"""Entries of one record: clock, desired (velocity in mode 2), actual, velocity, output
+(coefficient, exponent), queued values."""
+S_DIAG = S_DIAG_COUNT + 1
+"""First entry of the ``DIAG_SLOTS`` records."""
+STATE_SIZE = S_DIAG + DIAG_SLOTS * DIAG_RECORD
+STATS_SUM_CAP = 1 << 62
+"""The sum of squared following errors stops here instead of overflowing."""
 
 # --- params: what core0 copies in -------------------------------------------------------
 P_TICK_US = 0
@@ -138,7 +162,10 @@ P_STOP_HIGH = 26
 P_WINDOW = 27
 """Derivative window, ticks: the error change is taken over the last millisecond (at least
 one tick, at most ``HISTORY_SLOTS``), so encoder quantisation does not grow with the rate."""
-PARAMS_SIZE = 28
+P_DIAG_ROOM = 28
+"""Diagnostics records core0 takes per block: the block ends when this many are written
+(1 to ``DIAG_SLOTS``; 1 prints every line at its own tick)."""
+PARAMS_SIZE = 29
 
 _DYNAMIC = (
     S_ENABLE,
@@ -172,6 +199,7 @@ def new_state() -> IntArray:
     state = np.zeros(STATE_SIZE, dtype=np.int64)
     state[S_START] = -1
     state[S_MODE] = MODE_POSITION
+    state[S_LAST_TAKE] = -1
     return state
 
 
@@ -212,6 +240,8 @@ def servo_block(
         n_ticks: ticks to run.
 
     Returns the number of ticks run (``n_ticks`` unless an event stopped the block).
+    The caller empties the diagnostics records (``state[S_DIAG_COUNT] = 0``) after each
+    block; records beyond ``DIAG_SLOTS`` are not written.
     """
     tick_us = int(params[P_TICK_US])
     scalar = int(params[P_SCALAR])
@@ -241,6 +271,7 @@ def servo_block(
     stop_low = int(params[P_STOP_LOW])
     stop_high = int(params[P_STOP_HIGH])
     window = int(params[P_WINDOW])
+    diag_room = min(max(1, int(params[P_DIAG_ROOM])), DIAG_SLOTS)
 
     clock = int(state[S_CLOCK])
     enable = int(state[S_ENABLE])
@@ -268,6 +299,12 @@ def servo_block(
     velocity_mode_us = int(state[S_VELOCITY_MODE_US])
     diag_left = int(state[S_DIAG_LEFT])
     limits = int(state[S_LIMITS])
+    stats_ticks = int(state[S_STATS_TICKS])
+    stats_max = int(state[S_STATS_MAX])
+    stats_max_tick = int(state[S_STATS_MAX_TICK])
+    stats_sum_sq = int(state[S_STATS_SUM_SQ])
+    last_take = int(state[S_LAST_TAKE])
+    diag_count = int(state[S_DIAG_COUNT])
 
     curve_len = len(curve)
     events = 0
@@ -290,6 +327,7 @@ def servo_block(
                             if queue_head == QUEUE_CAPACITY:
                                 queue_head = 0
                             queue_count -= 1
+                            last_take = clock
                             if mode == MODE_VELOCITY:
                                 desired_vel = value
                             else:
@@ -397,20 +435,31 @@ def servo_block(
         since_command += tick_us
         since_command = min(since_command, TIMER_CAP_US)
         new_fault = FAULT_NONE
+        following = 0
         if enable == 1:
             if mode != MODE_VELOCITY:
+                following = wrap_int32(desired - actual)
                 if closing != 0:
                     new_fault = FAULT_LIMIT_SWITCH
-                elif fe_limit > 0:
-                    following = wrap_int32(desired - actual)
-                    if following > fe_limit or -following > fe_limit:
-                        new_fault = FAULT_FOLLOWING_ERROR
+                elif fe_limit > 0 and (following > fe_limit or -following > fe_limit):
+                    new_fault = FAULT_FOLLOWING_ERROR
             if new_fault == FAULT_NONE and watchdog_us > 0 and since_command >= watchdog_us:
                 new_fault = FAULT_WATCHDOG
 
-        # 6. clock and diagnostics
+        # 6. clock, statistics and diagnostics
         clock += 1
         executed += 1
+        if enable == 1 and mode != MODE_VELOCITY and start < 0:
+            stats_ticks += 1
+            size = following if following >= 0 else -following
+            if size > stats_max:
+                stats_max = size
+                stats_max_tick = clock
+            square = size * size
+            if square > STATS_SUM_CAP - stats_sum_sq:
+                stats_sum_sq = STATS_SUM_CAP
+            else:
+                stats_sum_sq += square
         if new_fault != FAULT_NONE:
             fault = new_fault
             fault_tick = clock
@@ -422,7 +471,18 @@ def servo_block(
             diag_left -= 1
             if diag_left <= 0:
                 diag_left = diag_n
-                events |= EVENT_DIAGNOSTICS
+                if diag_count < DIAG_SLOTS:
+                    base = S_DIAG + diag_count * DIAG_RECORD
+                    state[base] = clock
+                    state[base + 1] = desired_vel if mode == MODE_VELOCITY else desired
+                    state[base + 2] = actual
+                    state[base + 3] = velocity
+                    state[base + 4] = out_c
+                    state[base + 5] = out_e
+                    state[base + 6] = queue_count
+                    diag_count += 1
+                if diag_count >= diag_room:
+                    events |= EVENT_DIAGNOSTICS
         if events != 0:
             break
 
@@ -453,6 +513,12 @@ def servo_block(
     state[S_DIAG_LEFT] = diag_left
     state[S_LIMITS] = limits
     state[S_EVENTS] = events
+    state[S_STATS_TICKS] = stats_ticks
+    state[S_STATS_MAX] = stats_max
+    state[S_STATS_MAX_TICK] = stats_max_tick
+    state[S_STATS_SUM_SQ] = stats_sum_sq
+    state[S_LAST_TAKE] = last_take
+    state[S_DIAG_COUNT] = diag_count
     return executed
 
 
@@ -464,40 +530,42 @@ def running(state: IntArray) -> bool:
     return start < 0 or int(state[S_CLOCK]) >= start
 
 
-def ticks_to_scheduled_event(state: IntArray, params: IntArray) -> int | None:
+def ticks_to_scheduled_event(
+    state: IntArray, params: IntArray, *, diagnostics: bool = True
+) -> int | None:
     """Ticks until the next event of the clocks and countdowns alone, 1-based, or None.
 
-    Counts a diagnostics line, the watchdog expiring, an armed start being reached, the
+    Counts a diagnostics line (unless ``diagnostics`` is False: a block records those
+    lines and runs on), the watchdog expiring, an armed start being reached, the
     queue running dry (its last value taken, or a velocity-mode motion update that finds
     it empty while a non-zero velocity is desired) and the velocity-mode counter reset.
     Faults that the motion itself causes (following error, limit switch) are not
     scheduled: they happen when the physics says.
     """
+    head = state[:S_HISTORY].tolist()
     tick_us = int(params[P_TICK_US])
     candidates: list[int] = []
-    diag_n = int(params[P_DIAG_N])
-    if diag_n > 0:
-        candidates.append(max(1, int(state[S_DIAG_LEFT])))
-    enabled = state[S_ENABLE] == 1
+    if diagnostics and params[P_DIAG_N] > 0:
+        candidates.append(max(1, head[S_DIAG_LEFT]))
+    enabled = head[S_ENABLE] == 1
     watchdog_us = int(params[P_WATCHDOG_US])
     if enabled and watchdog_us > 0:
-        left_us = watchdog_us - int(state[S_SINCE_COMMAND_US])
+        left_us = watchdog_us - head[S_SINCE_COMMAND_US]
         candidates.append(max(1, -(-left_us // tick_us)))
-    start = int(state[S_START])
-    clock = int(state[S_CLOCK])
+    start = head[S_START]
+    clock = head[S_CLOCK]
     if enabled and start >= 0 and clock < start:
         candidates.append(start - clock + 1)
-    mode = int(state[S_MODE])
-    if running(state) and mode != MODE_CURVE:
-        first = int(state[S_MOTION_LEFT]) + 1
-        count = int(state[S_QUEUE_COUNT])
-        scalar = int(params[P_SCALAR])
+    mode = head[S_MODE]
+    if enabled and (start < 0 or clock >= start) and mode != MODE_CURVE:
+        first = head[S_MOTION_LEFT] + 1
+        count = head[S_QUEUE_COUNT]
         if count > 0:
-            candidates.append(first + (count - 1) * scalar)
-        elif mode == MODE_VELOCITY and state[S_DESIRED_VEL] != 0:
+            candidates.append(first + (count - 1) * int(params[P_SCALAR]))
+        elif mode == MODE_VELOCITY and head[S_DESIRED_VEL] != 0:
             candidates.append(first)
     if mode == MODE_VELOCITY:
-        left_us = VELOCITY_RESET_US - int(state[S_VELOCITY_MODE_US])
+        left_us = VELOCITY_RESET_US - head[S_VELOCITY_MODE_US]
         candidates.append(max(1, -(-left_us // tick_us)))
     return min(candidates) if candidates else None
 
@@ -512,6 +580,14 @@ def idle_advance(state: IntArray, params: IntArray, n_ticks: int) -> None:
     """
     tick_us = int(params[P_TICK_US])
     consuming = running(state) and state[S_MODE] != MODE_CURVE
+    if running(state) and state[S_MODE] != MODE_VELOCITY:
+        size = abs(wrap_int32(int(state[S_DESIRED]) - int(state[S_ACTUAL])))
+        if size > state[S_STATS_MAX]:
+            state[S_STATS_MAX] = size
+            state[S_STATS_MAX_TICK] = state[S_CLOCK] + 1
+        state[S_STATS_TICKS] += n_ticks
+        room = STATS_SUM_CAP - int(state[S_STATS_SUM_SQ])
+        state[S_STATS_SUM_SQ] += min(room, n_ticks * size * size)
     state[S_CLOCK] += n_ticks
     state[S_SINCE_COMMAND_US] = min(
         TIMER_CAP_US, int(state[S_SINCE_COMMAND_US]) + n_ticks * tick_us

@@ -9,7 +9,9 @@ answers is raised here, attached to the call that caused it.
 
 from __future__ import annotations
 
+import contextlib
 import math
+import random
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
@@ -32,6 +34,14 @@ from usbmotion.protocol import (
     parse_reply,
 )
 from usbmotion.protocol.table import Fault
+
+RESYNC_CALL = 63
+"""The call whose debug flag marks a resynchronisation: the highest number call 8 takes,
+a call the table does not define, so its flag prints nothing."""
+
+_MARKERS = random.Random()
+"""Draws the marker values: its own generator, seeded from the operating system, so a
+program that seeds :mod:`random` does not make two hosts draw the same markers."""
 
 
 class ControlMode(IntEnum):
@@ -73,6 +83,41 @@ class Diagnostics:
     velocity_counts_s: int
     output_mv: int
     queued: int
+
+
+@dataclass(frozen=True, slots=True)
+class Alarm:
+    """An ``ALARM`` line: the device latched a fault and said so unasked."""
+
+    fault: int
+    tick: int
+
+    @property
+    def fault_name(self) -> str:
+        """The fault's name (``following error``, ``limit switch``, ...)."""
+        return Fault.NAMES.get(self.fault, f"fault {self.fault}")
+
+
+@dataclass(frozen=True, slots=True)
+class MotionStats:
+    """Call 35: the device's own account of how it followed, tick by tick, since a reset.
+
+    Counted on every servo tick the servo ran enabled in position or curve mode (after any
+    armed start): ``ticks`` of them, the largest absolute following error and the clock
+    tick it first occurred at, the sum of the squared errors, and the clock tick that last
+    took a value from the motion queue (-1: none).
+    """
+
+    ticks: int
+    max_error_counts: int
+    max_error_tick: int
+    sum_sq_error: int
+    last_take_tick: int
+
+    @property
+    def rms_error_counts(self) -> float:
+        """Root mean square following error over the ticks counted, counts (0 with none)."""
+        return math.sqrt(self.sum_sq_error / self.ticks) if self.ticks else 0.0
 
 
 def to_sci(value: float, *, digits: int, parameter: str) -> tuple[int, int]:
@@ -151,6 +196,12 @@ class DeviceClient:
         self.on_diagnostics = on_diagnostics
         self.refusals = 0
         self.debug_lines: list[Reply] = []
+        self.alarms: list[Alarm] = []
+        """Every ``ALARM`` line read so far, oldest first."""
+        self.on_alarm: Callable[[Alarm], None] | None = None
+        """Called with each ``ALARM`` line as it is read."""
+        self.stray_lines = 0
+        """Lines :meth:`read_pending` found that no call was waiting for (dropped)."""
 
     @classmethod
     def open(cls, url: str, *, timeout_s: float = 1.0, name: str = "") -> DeviceClient:
@@ -164,7 +215,10 @@ class DeviceClient:
         self.transport.write(encode_call(number, *args))
 
     def take_aside(self, reply: Reply) -> bool:
-        """Consume lines that are not answers (diagnostics, debug echoes); True if consumed."""
+        """Consume lines that are not answers (diagnostics, debug echoes, alarms).
+
+        Returns True if the line was consumed.
+        """
         if reply.kind is ReplyKind.DIAGNOSTICS:
             if self.on_diagnostics is not None:
                 self.on_diagnostics(Diagnostics(*reply.values))
@@ -172,7 +226,33 @@ class DeviceClient:
         if reply.kind is ReplyKind.DEBUG:
             self.debug_lines.append(reply)
             return True
+        if reply.kind is ReplyKind.ALARM:
+            alarm = Alarm(*reply.values)
+            self.alarms.append(alarm)
+            if self.on_alarm is not None:
+                self.on_alarm(alarm)
+            return True
         return False
+
+    def read_pending(self) -> None:
+        """Take in, without waiting or sending, every line that has arrived.
+
+        For between exchanges, when no answer is awaited: diagnostics lines, debug lines
+        and alarms are taken as :meth:`take_aside` does; any other line is an answer no
+        call is waiting for (a late one, or a damaged line), counted in
+        :attr:`stray_lines` and dropped.
+
+        Raises:
+            LinkLostError: the port is gone.
+        """
+        for line in self.transport.poll_lines():
+            try:
+                reply = parse_reply(line)
+            except UnexpectedReplyError:
+                self.stray_lines += 1
+                continue
+            if not self.take_aside(reply):
+                self.stray_lines += 1
 
     def next_reply(self) -> Reply:
         """The next line that is not a diagnostics or debug line.
@@ -264,6 +344,77 @@ class DeviceClient:
         """Wait until every call sent so far has been executed; returns (queued, free)."""
         return self.queue_status()
 
+    def resynchronise(
+        self,
+        *,
+        stop_diagnostics: bool = False,
+        timeout_s: float | None = None,
+        on_skipped: Callable[[bytes], None] | None = None,
+    ) -> int:
+        """Bring the link back in step: afterwards no line left from before is in the way.
+
+        For a link taken over from a host that died or left, or one whose bytes were
+        damaged: the next reply read is the answer to the next call sent. The input is
+        discarded (the transport then drops up to the next newline: the tail of a line
+        in flight), and in one write the device gets a newline (ending any partial line
+        an earlier host left in its input), optionally ``21 0``, then ``2 -1`` (its
+        answer is the line that may be dropped), then the marker: the debug flag of call
+        :data:`RESYNC_CALL` set to a random value, queried and set back to 0. Every line
+        up to the answer that carries that value is skipped: diagnostics, echoes, line
+        tails, answers meant for another host, and the marker of an earlier
+        resynchronisation still in flight (unless it drew the same value, 1 in 255).
+        Skipped lines are not passed to ``on_diagnostics`` or kept as debug lines: they
+        belong to whoever sent the calls.
+
+        Parameters:
+            stop_diagnostics: send ``21 0`` first, so no diagnostics line follows.
+            timeout_s: how long the marker has to come back, on the link's clock
+                (default: the reply timeout); the clock runs from the write, however
+                many lines arrive meanwhile.
+            on_skipped: called with each line skipped.
+
+        Returns:
+            How many lines were skipped (the answer to ``2 -1`` among them when it was
+            not the line dropped).
+
+        Raises:
+            DeviceTimeoutError: the marker did not come back in time (names the device).
+            LinkLostError: the port is gone.
+        """
+        wait_s = self.timeout_s if timeout_s is None else timeout_s
+        if not (math.isfinite(wait_s) and wait_s > 0):
+            raise OutOfRangeError(f"timeout_s {timeout_s!r} must be > 0", reason="timeout_s")
+        value = _MARKERS.randint(1, 255)
+        marker_spec = BY_NUMBER[8].query_reply
+        assert marker_spec is not None
+        marker = marker_spec.format(RESYNC_CALL, value).encode("ascii")
+        transport = self.transport
+        transport.discard_input()
+        transport.write(
+            b"\n" + (encode_call(21, 0) if stop_diagnostics else b"") + encode_call(2, -1)
+            + encode_call(8, RESYNC_CALL, value) + encode_call(8, RESYNC_CALL, -1)
+            + encode_call(8, RESYNC_CALL, 0)
+        )
+        deadline = transport.clock.now() + wait_s
+        skipped = 0
+        while True:
+            left = deadline - transport.clock.now()
+            line: bytes | None = None
+            if left > 0:
+                with contextlib.suppress(DeviceTimeoutError):
+                    line = transport.read_line(left)
+            if line is None:
+                raise DeviceTimeoutError(
+                    f"{self.name}: no answer to the resynchronising query"
+                    f" `8 {RESYNC_CALL} -1` within {wait_s:g} s ({skipped} other lines"
+                    " skipped)", device=self.name, call=8,
+                )
+            if line.strip() == marker:
+                return skipped
+            skipped += 1
+            if on_skipped is not None:
+                on_skipped(line)
+
     # --- the motion queue ------------------------------------------------------------------
 
     def add_setpoint(self, value: int) -> None:
@@ -283,6 +434,19 @@ class DeviceClient:
         """
         self.transport.write(encode_call(1, len(values), *values) + encode_call(2, -1))
         self._await_answer(2, after_error=True)
+
+    def replace_setpoints(self, values: Sequence[int]) -> tuple[int, int]:
+        """Calls 4 and 1 in one exchange: empty the queue, then queue these values.
+
+        Returns the queue status (queued, free) after both.
+
+        Raises:
+            QueueFullError: the device answered ``E1`` (nothing was queued).
+        """
+        self.transport.write(encode_call(4, 0) + encode_call(1, len(values), *values)
+                             + encode_call(2, -1))
+        queued, free = self._await_answer(2, after_error=True).values
+        return queued, free
 
     def queue_status(self) -> tuple[int, int]:
         """Call 2: (values queued, free slots)."""
@@ -473,6 +637,14 @@ class DeviceClient:
         """Call 30 query: (fault code, tick it was set)."""
         code, tick = self.query(30, -1).values
         return code, tick
+
+    def reset_motion_stats(self) -> None:
+        """Call 35 ``0``: start the motion statistics afresh (the clock is kept)."""
+        self.command(35, 0)
+
+    def motion_stats(self) -> MotionStats:
+        """Call 35 query: the following error and queue statistics since the last reset."""
+        return MotionStats(*self.query(35, -1).values)
 
     def start_at(self, tick: int) -> None:
         """Call 31: hold the queue until the device clock reaches ``tick``."""

@@ -78,7 +78,7 @@ RESYNC_ATTEMPTS = 5
 def _echo_values(reply: Reply) -> list[int] | None:
     """The values of a call-1 echo ``S0 N v1 .. vN``, or None if it is not well formed."""
     try:
-        values = [int(v) for v in reply.text.split()]
+        values = list(map(int, reply.text.split()))
     except ValueError:
         return None
     return values if len(values) == reply.values[0] else None
@@ -232,7 +232,7 @@ class SetpointStream:
         count = min(self.high_water - queued, free, self.max_batch, self.total - self.sent)
         if count <= 0:
             return
-        batch = [int(v) for v in self._values[self.sent : self.sent + count]]
+        batch = self._values[self.sent : self.sent + count].tolist()
         if self._send_batch(batch):
             self.sent += count
             self.batches += 1

@@ -22,6 +22,7 @@ from usbmotion.errors import (
     WrongCountError,
 )
 from usbmotion.protocol.table import (
+    ALARM,
     BY_NUMBER,
     CALLS,
     DIAGNOSTICS,
@@ -34,6 +35,10 @@ from usbmotion.protocol.table import (
 )
 
 _INT = re.compile(r"[+-]?\d+\Z")
+_WELL_FORMED = re.compile(rb"[ \t]*[+-]?[0-9]+(?:[ \t]+[+-]?[0-9]+)*[ \t]*\r?\n?\Z")
+"""A whole line of decimal integers separated by spaces or tabs: the common case, which
+:func:`parse_call` converts at C speed; anything else takes the token-by-token path that
+names the offending token."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,6 +94,11 @@ def encode_call(number: int, *args: int) -> bytes:
         UnknownCallError, WrongCountError, OutOfRangeError: see :func:`check_call`.
         NonIntegerTokenError: an input is not an ``int`` (``bool`` included).
     """
+    if type(number) is int and set(map(type, args)) <= {int}:
+        check_call(number, args)
+        if args:
+            return f"{number} {' '.join(map(str, args))}\n".encode("ascii")
+        return f"{number}\n".encode("ascii")
     for position, value in enumerate((number, *args)):
         if type(value) is not int:
             raise NonIntegerTokenError(
@@ -96,10 +106,7 @@ def encode_call(number: int, *args: int) -> bytes:
                 call=number if type(number) is int else None,
                 reason="not an integer",
             )
-    check_call(number, args)
-    if args:
-        return f"{number} {' '.join(map(str, args))}\n".encode("ascii")
-    return f"{number}\n".encode("ascii")
+    raise AssertionError("unreachable: a non-int input was found above")
 
 
 def parse_call(line: bytes | str) -> Call:
@@ -114,6 +121,12 @@ def parse_call(line: bytes | str) -> Call:
         UnknownCallError, WrongCountError, OutOfRangeError: see :func:`check_call`.
     """
     if isinstance(line, bytes):
+        if len(line) <= MAX_LINE_BYTES and _WELL_FORMED.match(line) is not None:
+            numbers = list(map(int, line.split()))
+            if numbers:
+                number, args = numbers[0], tuple(numbers[1:])
+                check_call(number, args)
+                return Call(number, args)
         if len(line.rstrip(b"\r\n")) > MAX_LINE_BYTES:
             raise LineTooLongError(
                 f"line of {len(line)} bytes is longer than {MAX_LINE_BYTES}",
@@ -176,6 +189,8 @@ class ReplyKind(Enum):
     """``ERR <call> <reason>``: a malformed or refused line."""
     DIAGNOSTICS = "diagnostics"
     """A ``D ...`` line printed every N servo ticks."""
+    ALARM = "alarm"
+    """``ALARM <fault> <tick>``: printed unasked when a fault latches."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -219,11 +234,14 @@ def _matchers() -> dict[str, list[_Matcher]]:
         for template in call_spec.debug.values():
             add(ReplyKind.DEBUG, call_spec.number, template)
     add(ReplyKind.DIAGNOSTICS, None, DIAGNOSTICS)
+    add(ReplyKind.ALARM, None, ALARM)
     return table
 
 
 _MATCHERS = _matchers()
 _ERR = re.compile(r"^ERR (\?|-?\d+) (.*)$")
+_DIAGNOSTICS = re.compile(DIAGNOSTICS.pattern().pattern.encode("ascii"))
+"""Diagnostics lines as bytes: the most frequent line by far, parsed without decoding."""
 
 
 def parse_reply(line: bytes | str) -> Reply:
@@ -232,6 +250,12 @@ def parse_reply(line: bytes | str) -> Reply:
     Raises:
         UnexpectedReplyError: the line matches no reply in the table.
     """
+    if isinstance(line, bytes) and line[:2] == b"D ":
+        found = _DIAGNOSTICS.match(line.rstrip(b"\r\n"))
+        if found is not None:
+            text = line.rstrip(b"\r\n").decode("ascii")
+            return Reply(ReplyKind.DIAGNOSTICS, None, "D",
+                         tuple(map(int, found.groups())), "", text)
     text = line.decode("ascii", errors="replace") if isinstance(line, bytes) else line
     exact = text.rstrip("\r\n")
     text = exact.strip()

@@ -55,11 +55,13 @@ class Template:
     """
 
     text: str
+    fields: tuple[str, ...] = field(init=False, repr=False, compare=False)
+    """Names of the placeholders, in order."""
+    _positional: str = field(init=False, repr=False, compare=False)
 
-    @property
-    def fields(self) -> tuple[str, ...]:
-        """Names of the placeholders, in order."""
-        return tuple(_FIELD.findall(self.text))
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "fields", tuple(_FIELD.findall(self.text)))
+        object.__setattr__(self, "_positional", _FIELD.sub("{}", self.text))
 
     @property
     def head(self) -> str:
@@ -68,15 +70,11 @@ class Template:
 
     def format(self, *values: int | str) -> str:
         """Fill the placeholders in order."""
-        names = self.fields
-        if len(values) != len(names):
+        if len(values) != len(self.fields):
             raise ValueError(
-                f"template {self.text!r} takes {len(names)} values, got {len(values)}"
+                f"template {self.text!r} takes {len(self.fields)} values, got {len(values)}"
             )
-        out = self.text
-        for name, value in zip(names, values, strict=True):
-            out = out.replace("{" + name + "}", str(value), 1)
-        return out
+        return self._positional.format(*values)
 
     def pattern(self) -> re.Pattern[str]:
         """A regular expression matching a whole line of this template."""
@@ -152,10 +150,12 @@ class CallSpec:
                     f"call {self.number} ({self.name}) announced {count} items"
                     f" but carries {len(args) - 1}",
                 )
-            for value in args[1:]:
-                why = self.item.check(value)
-                if why is not None:
-                    return ("range", why)
+            items = args[1:]
+            if items and (min(items) < self.item.minimum or max(items) > self.item.maximum):
+                for value in items:
+                    why = self.item.check(value)
+                    if why is not None:
+                        return ("range", why)
             return None
         if len(args) != len(self.params):
             want = len(self.params)
@@ -478,6 +478,24 @@ CALLS: tuple[CallSpec, ...] = (
         notes="The travel is measured in motor counts from power-up (call 23 does not move it);"
         " lower must be below upper.",
     ),
+    CallSpec(
+        35,
+        "MOTION_STATS",
+        "Motion statistics: reset them (0) or query them (-1).",
+        (_p("reset", 0, 0, "0 resets the statistics"),),
+        query=(-1,),
+        query_reply=_t("MOTION_STATS {ticks} {max_error} {max_error_tick} {sum_sq_error}"
+                       " {last_take_tick}"),
+        debug={1: _t("MOTION STATS RESET")},
+        notes="Counted on every servo tick the servo runs enabled in mode 1 or 3 (an armed start"
+        " reached), since the last"
+        " reset: `ticks` counted, the largest absolute following error (desired - actual,"
+        " counts) and the clock tick it first occurred at, and the sum of the squared"
+        " following errors (it stops at 2^62 instead of overflowing): the exact peak and RMS"
+        " following error of a run, which sampled diagnostics lines can miss."
+        " `last_take_tick` is the clock tick that last took a value from the motion queue"
+        " (-1: none since the reset); a reset keeps the clock.",
+    ),
 )
 
 BY_NUMBER: Mapping[int, CallSpec] = {spec.number: spec for spec in CALLS}
@@ -509,6 +527,10 @@ class Fault:
 
 DIAGNOSTICS = Template("D {clock} {desired} {actual} {velocity} {output_mv} {queued}")
 """The line call 21 prints every N servo ticks."""
+
+ALARM = Template("ALARM {fault} {tick}")
+"""The line the device prints, unasked, at the tick a fault latches (the fault code and
+that tick, as call 30 reports them): the host learns of a fault without polling for it."""
 
 ERR = Template("ERR {call} {text}")
 """The device's answer to a malformed line; ``call`` is ``?`` when it cannot be read."""

@@ -30,9 +30,9 @@ class SimulatedDevice(Protocol):
 
     def run(self, ticks: int) -> None: ...
 
-    def take_output(self) -> bytes: ...
+    def take_timed_output(self) -> list[tuple[int, bytes]]: ...
 
-    def ticks_until_event(self) -> int | None: ...
+    def ticks_until_event(self, *, diagnostics: bool = True) -> int | None: ...
 
 
 @dataclass(slots=True)
@@ -218,15 +218,15 @@ class SimWorld:
             member.inbox.append((due_us, data))
 
     def _collect(self, member: _Member) -> None:
-        out = member.device.take_output()
-        if out:
+        tick_us = member.device.tick_us
+        for ticks_ago, out in member.device.take_timed_output():
             for link in member.links:
-                link._push(member.time_us, out)
+                link._push(member.time_us - ticks_ago * tick_us, out)
 
     def _run(self, member: _Member, ticks: int) -> None:
         device = member.device
         while ticks > 0:
-            event = device.ticks_until_event()
+            event = device.ticks_until_event(diagnostics=False)
             step = ticks if event is None else max(1, min(ticks, event))
             device.run(step)
             member.time_us += step * device.tick_us
