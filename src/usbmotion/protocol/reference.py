@@ -11,7 +11,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from usbmotion.protocol.table import CALLS, DIAGNOSTICS, ERR, CallSpec, Param
+from usbmotion.protocol.table import ALARM, CALLS, DIAGNOSTICS, ERR, CallSpec, Param
 
 BEGIN = "<!-- BEGIN CALL TABLE: generated from usbmotion.protocol.table; do not edit -->"
 END = "<!-- END CALL TABLE -->"
@@ -75,7 +75,8 @@ def render_reference() -> str:
         *summary,
         "",
         f"Malformed lines are answered `{ERR.text}`. "
-        f"Diagnostics lines (call 21) read `{DIAGNOSTICS.text}`.",
+        f"Diagnostics lines (call 21) read `{DIAGNOSTICS.text}`. "
+        f"A fault that latches is announced unasked with `{ALARM.text}`.",
         "",
         "## Every call",
         "",
