@@ -17,11 +17,8 @@ Target: at least 50,000 ticks/s for one axis. Run:
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import platform
-import statistics
 import sys
 import time
 from collections import Counter
@@ -31,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from _common import argument_parser, emit, median_of, parse_arguments
 from usbmotion import scimath
 from usbmotion.device import Device
 from usbmotion.device import core1 as core1_module
@@ -154,7 +152,7 @@ def idle_ticks_per_second(ticks: int) -> float:
 
 def median_rate(measure: Callable[[], float], ticks: int, runs: int) -> float:
     """Median ticks/s over ``runs`` calls of ``measure`` (which returns elapsed seconds)."""
-    return statistics.median(ticks / measure() for _ in range(runs))
+    return median_of(lambda: ticks / measure(), runs)
 
 
 def measure(*, ticks: int, runs: int) -> dict[str, Any]:
@@ -218,16 +216,12 @@ def report(results: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Run the benchmark, print the figures (or JSON) and return them."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", action="store_true", help="print JSON instead of text")
-    parser.add_argument("--runs", type=int, default=5, help="runs per figure (median)")
+    parser = argument_parser(__doc__, runs=5)
     parser.add_argument("--ticks", type=int, default=20_000, help="servo ticks per run")
-    args = parser.parse_args(argv)
-    if args.runs < 1 or args.ticks < BATCH:
-        parser.error(f"--runs must be >= 1 and --ticks >= {BATCH}")
-    results = measure(ticks=args.ticks, runs=args.runs)
-    print(json.dumps(results, indent=2) if args.json else report(results))
-    return results
+    args = parse_arguments(parser, argv)
+    if args.ticks < BATCH:
+        parser.error(f"--ticks {args.ticks!r}: at least {BATCH}")
+    return emit(measure(ticks=args.ticks, runs=args.runs), report, as_json=args.json)
 
 
 if __name__ == "__main__":

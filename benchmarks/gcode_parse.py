@@ -19,16 +19,15 @@ is skipped (``pip install -r benchmarks/requirements.txt``).
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import random
 import statistics
 import sys
-import time
 import warnings
 from collections.abc import Callable
+from typing import Any
 
+from _common import argument_parser, emit, parse_arguments, timed
 from usbmotion.motion.gcode import parse_blocks, parse_gcode
 
 PYGCODE_SLICE_LINES = 10_000
@@ -104,21 +103,17 @@ def _pygcode() -> Callable[[list[str]], int] | None:
     return run
 
 
-def main(argv: list[str] | None = None) -> dict[str, object]:
+def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Run the benchmark, print the figures and return them.
 
     Parameters:
         argv: command-line arguments (``--lines``, ``--runs``, ``--seed``, ``--json``);
             ``None`` reads ``sys.argv``.
     """
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argument_parser(__doc__, runs=5)
     parser.add_argument("--lines", type=int, default=100_000, help="program length")
-    parser.add_argument("--runs", type=int, default=5, help="runs per figure (median)")
     parser.add_argument("--seed", type=int, default=2024, help="program generator seed")
-    parser.add_argument("--json", action="store_true", help="print the figures as JSON")
-    args = parser.parse_args(argv)
-    if args.runs < 1:
-        parser.error(f"--runs {args.runs!r}: at least 1")
+    args = parse_arguments(parser, argv)
 
     text = make_program(args.lines, seed=args.seed)
     lines = text.splitlines()
@@ -132,20 +127,16 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
     peer_pygcode: list[float] = []
     blocks = moves = parsed_gcodeparser = parsed_pygcode = 0
     for _ in range(args.runs):
-        start = time.perf_counter()
-        blocks = len(parse_blocks(text))
-        ours_parse.append(time.perf_counter() - start)
+        blocks, seconds = timed(lambda: len(parse_blocks(text)))
+        ours_parse.append(seconds)
         if gcodeparser is not None:
-            start = time.perf_counter()
-            parsed_gcodeparser = gcodeparser(text)
-            peer_gcodeparser.append(time.perf_counter() - start)
+            parsed_gcodeparser, seconds = timed(lambda: gcodeparser(text))
+            peer_gcodeparser.append(seconds)
         if pygcode is not None:
-            start = time.perf_counter()
-            parsed_pygcode = pygcode(pygcode_lines)
-            peer_pygcode.append(time.perf_counter() - start)
-        start = time.perf_counter()
-        moves = len(parse_gcode(text, file="<benchmark>").moves)
-        ours_interpret.append(time.perf_counter() - start)
+            parsed_pygcode, seconds = timed(lambda: pygcode(pygcode_lines))
+            peer_pygcode.append(seconds)
+        moves, seconds = timed(lambda: len(parse_gcode(text, file="<benchmark>").moves))
+        ours_interpret.append(seconds)
 
     count = len(lines)
     ours_rate = count / statistics.median(ours_parse)
@@ -165,7 +156,7 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
         parsed["pygcode"] = parsed_pygcode
     else:
         skipped["pygcode"] = f"not installed ({INSTALL_HINT})"
-    result: dict[str, object] = {
+    result: dict[str, Any] = {
         "lines": count,
         "runs": args.runs,
         "seed": args.seed,
@@ -179,44 +170,38 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
         "moves": moves,
         "skipped": skipped,
     }
-
-    if args.json:
-        print(json.dumps(result, indent=2))
-    else:
-        _print_report(result, ratios, rates, skipped, len(pygcode_lines))
-    return result
+    return emit(result, report, as_json=args.json)
 
 
-def _print_report(
-    result: dict[str, object],
-    ratios: dict[str, float],
-    rates: dict[str, float],
-    skipped: dict[str, str],
-    pygcode_lines: int,
-) -> None:
-    print(
+def report(result: dict[str, Any]) -> str:
+    """The figures as text."""
+    rates, ratios = result["parse_lines_per_s"], result["parse_ratio"]
+    targets = result["parse_targets"]
+    lines = [
         f"G-code program: {result['lines']:,} lines of G0-G3 (seed {result['seed']}), "
-        f"median of {result['runs']} runs, Python {result['python']}"
-    )
-    print("parsing (text to blocks of words), lines/s:")
-    print(f"  ours         {rates['ours']:>12,.0f}")
-    targets = {"gcodeparser": TARGET_VS_GCODEPARSER, "pygcode": TARGET_VS_PYGCODE}
+        f"median of {result['runs']} runs, Python {result['python']}",
+        "parsing (text to blocks of words), lines/s:",
+        f"  ours         {rates['ours']:>12,.0f}",
+    ]
     for peer in ("gcodeparser", "pygcode"):
         if peer in rates:
             note = (
-                f" (timed on the first {pygcode_lines:,} lines, scaled)"
+                f" (timed on the first {result['pygcode_timed_lines']:,} lines, scaled)"
                 if peer == "pygcode"
                 else ""
             )
             verdict = "meets" if ratios[peer] >= targets[peer] else "MISSES"
-            print(
+            lines.append(
                 f"  {peer:<12} {rates[peer]:>12,.0f}   ours/{peer} = {ratios[peer]:.2f}x "
                 f"({verdict} the {targets[peer]:g}x target){note}"
             )
         else:
-            print(f"  {peer:<12} skipped: {skipped[peer]}")
-    print("interpreting (text to typed moves), lines/s:")
-    print(f"  ours         {result['interpret_lines_per_s']:>12,.0f}   ({result['moves']:,} moves)")
+            lines.append(f"  {peer:<12} skipped: {result['skipped'][peer]}")
+    lines.append("interpreting (text to typed moves), lines/s:")
+    lines.append(
+        f"  ours         {result['interpret_lines_per_s']:>12,.0f}   ({result['moves']:,} moves)"
+    )
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -27,8 +27,6 @@ cache filled, each also as the interpreter's whole run (start, imports, compile 
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import os
 import platform
@@ -38,10 +36,12 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 import numpy as np
 
+from _common import argument_parser, emit, median_of, parse_arguments, table_row
 from usbmotion.device import Device, core1, kernel
 from usbmotion.device.core1 import IntArray
 from usbmotion.sim.world import SimWorld
@@ -159,8 +159,7 @@ def measure(*, axes_counts: list[int], device_s: float, reference_s: float,
             row: dict[str, Any] = {"scenario": scenario, "axes": axes}
             for path, fast, seconds in (("kernel", True, device_s),
                                         ("reference", False, reference_s)):
-                walls = [timer(fast, axes, seconds) for _ in range(runs)]
-                wall = statistics.median(walls)
+                wall = median_of(partial(timer, fast, axes, seconds), runs)
                 row[path] = {
                     "device_s": seconds,
                     "ticks_s": axes * seconds * tick_hz / wall,
@@ -199,22 +198,29 @@ def _numba_version() -> str:
     return str(numba.__version__)
 
 
+_COLUMNS = ("<9", ">5", ">16", ">13", ">19", ">13", ">8")
+
+
 def report(figures: dict[str, Any]) -> str:
     """The figures as text."""
     lines = [
         f"kernel_speed: servo ticks/s at {figures['servo_rate_hz']:,} Hz (setpoints at"
         f" {figures['setpoint_rate_hz']:,} Hz), median of {figures['runs']} runs,"
         f" Python {figures['python']}, numba {figures['numba']}, {figures['cpus']} CPUs",
-        f"{'scenario':<9}{'axes':>5}{'kernel ticks/s':>16}{'x real time':>13}"
-        f"{'reference ticks/s':>19}{'x real time':>13}{'ratio':>8}",
+        table_row(
+            ("scenario", "axes", "kernel ticks/s", "x real time", "reference ticks/s",
+             "x real time", "ratio"),
+            _COLUMNS,
+        ),
     ]
     for row in figures["rows"]:
         fast, slow = row["kernel"], row["reference"]
-        lines.append(
-            f"{row['scenario']:<9}{row['axes']:>5}{fast['ticks_s']:>16,.0f}"
-            f"{fast['real_time_multiple']:>12,.0f}x{slow['ticks_s']:>19,.0f}"
-            f"{slow['real_time_multiple']:>12,.1f}x{row['ratio']:>7.0f}x"
-        )
+        lines.append(table_row(
+            (row["scenario"], str(row["axes"]), f"{fast['ticks_s']:,.0f}",
+             f"{fast['real_time_multiple']:,.0f}x", f"{slow['ticks_s']:,.0f}",
+             f"{slow['real_time_multiple']:,.1f}x", f"{row['ratio']:.0f}x"),
+            _COLUMNS,
+        ))
     for name, met in figures["targets_met"].items():
         lines.append(f"target {name}: {'met' if met else 'NOT met'}")
     cost = figures["compile"]
@@ -229,19 +235,17 @@ def report(figures: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Run the benchmark, print the figures (or JSON with ``--json``) and return them."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argument_parser(__doc__, runs=5)
     parser.add_argument("--axes", type=int, nargs="+", default=[1, 3, 8], help="axis counts")
     parser.add_argument("--seconds", type=float, default=20.0,
                         help="device seconds per kernel run")
     parser.add_argument("--reference-seconds", type=float, default=1.0,
                         help="device seconds per reference run")
-    parser.add_argument("--runs", type=int, default=5, help="runs per figure (median)")
     parser.add_argument("--compile-runs", type=int, default=1,
                         help="cold/warm compile measurements (0 to skip)")
-    parser.add_argument("--json", action="store_true", help="print the figures as JSON")
-    args = parser.parse_args(argv)
-    if args.runs < 1 or args.compile_runs < 0:
-        parser.error("--runs must be >= 1 and --compile-runs >= 0")
+    args = parse_arguments(parser, argv)
+    if args.compile_runs < 0:
+        parser.error(f"--compile-runs {args.compile_runs!r}: at least 0")
     if min(args.seconds, args.reference_seconds) < 1.0:
         parser.error("--seconds and --reference-seconds must be >= 1.0 (one queue fill)")
     if any(not 1 <= n <= 64 for n in args.axes):
@@ -251,8 +255,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     figures = measure(axes_counts=args.axes, device_s=args.seconds,
                       reference_s=args.reference_seconds, runs=args.runs,
                       compile_runs=args.compile_runs)
-    print(json.dumps(figures, indent=2) if args.json else report(figures))
-    return figures
+    return emit(figures, report, as_json=args.json)
 
 
 if __name__ == "__main__":

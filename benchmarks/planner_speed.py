@@ -20,19 +20,15 @@ Run: ``python benchmarks/planner_speed.py [--json] [--runs 5] [--moves 100000]``
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import platform
-import statistics
 import sys
-import time
-from collections.abc import Callable
 from functools import partial
 from typing import Any
 
 import numpy as np
 
+from _common import argument_parser, emit, median_seconds, table_row
 from usbmotion.hermite import Keyframe, hermite_position, sample_keyframes
 from usbmotion.motion.moves import Arc, Linear, Move, Plane, Rapid, Vec3
 from usbmotion.motion.planner import AxisLimits, Plan, PlannerConfig, plan_moves
@@ -98,16 +94,6 @@ def random_program(count: int, *, seed: int, arcs: bool = True) -> list[Move]:
     return moves
 
 
-def median_time(action: Callable[[], object], runs: int) -> float:
-    """Median wall time of ``runs`` calls of ``action``, seconds."""
-    times = []
-    for _ in range(runs):
-        started = time.perf_counter()
-        action()
-        times.append(time.perf_counter() - started)
-    return statistics.median(times)
-
-
 def interp_reference(plan: Plan, period_s: float) -> np.ndarray:
     """Piecewise-linear positions at the same sample times by ``numpy.interp`` (reference)."""
     times = sample_times(plan, period_s)
@@ -154,9 +140,7 @@ def hermite_loop(start: int, keyframes: list[Keyframe], tick_us: int) -> list[in
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Run the benchmark, print a table (or JSON with ``--json``), return the figures."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    parser.add_argument("--runs", type=int, default=5, help="runs per figure (median)")
+    parser = argument_parser(__doc__, runs=5)
     parser.add_argument("--moves", type=int, default=100_000, help="moves in the program")
     parser.add_argument(
         "--sample-moves", type=int, default=3_000, help="moves of the program to sample"
@@ -168,9 +152,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     config = PlannerConfig()
     program = random_program(args.moves, seed=args.seed)
     plan = plan_moves(program, LIMITS, config)
-    plan_s = median_time(lambda: plan_moves(program, LIMITS, config), runs)
+    plan_s = median_seconds(lambda: plan_moves(program, LIMITS, config), runs)
     lines = random_program(args.moves, seed=args.seed, arcs=False)
-    lines_s = median_time(lambda: plan_moves(lines, LIMITS, config), runs)
+    lines_s = median_seconds(lambda: plan_moves(lines, LIMITS, config), runs)
 
     figures: dict[str, Any] = {
         "python": platform.python_version(),
@@ -190,10 +174,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     part = plan_moves(program[: args.sample_moves], LIMITS, config)
     for period_s in (0.001, 0.0001):
         setpoints = sample_plan(part, period_s=period_s, counts_per_mm=COUNTS_PER_MM)
-        sample_s = median_time(
+        sample_s = median_seconds(
             partial(sample_plan, part, period_s=period_s, counts_per_mm=COUNTS_PER_MM), runs
         )
-        interp_s = median_time(partial(interp_reference, part, period_s), runs)
+        interp_s = median_seconds(partial(interp_reference, part, period_s), runs)
         figures["sampling"].append(
             {
                 "period_s": period_s,
@@ -208,8 +192,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     keyframes = hermite_keyframes(200, seed=args.seed)
     tick_us = 1000
     ticks = len(sample_keyframes(0, keyframes, tick_us=tick_us))
-    vector_s = median_time(lambda: sample_keyframes(0, keyframes, tick_us=tick_us), runs)
-    loop_s = median_time(lambda: hermite_loop(0, keyframes, tick_us), max(1, runs // 2))
+    vector_s = median_seconds(lambda: sample_keyframes(0, keyframes, tick_us=tick_us), runs)
+    loop_s = median_seconds(lambda: hermite_loop(0, keyframes, tick_us), max(1, runs // 2))
     figures["hermite"] = {
         "ticks": ticks,
         "sample_keyframes_ticks_per_s": ticks / vector_s,
@@ -217,47 +201,58 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "ratio": loop_s / vector_s,
     }
 
-    if args.json:
-        print(json.dumps(figures, indent=2))
-    else:
-        print_table(figures)
-    return figures
+    return emit(figures, report, as_json=args.json)
 
 
-def print_table(figures: dict[str, Any]) -> None:
+_COLUMNS = ("<44", ">16")
+
+
+def _line(figure: str, value: str, note: str = "") -> str:
+    return table_row((figure, value), _COLUMNS) + (f"  {note}" if note else "")
+
+
+def report(figures: dict[str, Any]) -> str:
     """The figures as a plain table."""
-    print(
+    lines = [
         f"planner_speed: Python {figures['python']}, numpy {figures['numpy']}, "
-        f"{figures['machine']}, median of {figures['runs']} runs"
-    )
-    print(
+        f"{figures['machine']}, median of {figures['runs']} runs",
         f"program: {figures['moves']:,} moves ({figures['arc_moves']:,} arcs) -> "
-        f"{figures['segments']:,} segments, {figures['program_duration_s']:,.0f} s of motion"
-    )
-    print()
-    print(f"{'figure':<44}{'value':>16}  target")
-    print(
-        f"{'plan_moves, mixed program (moves/s)':<44}{figures['plan_moves_per_s']:>16,.0f}  100,000"
-    )
-    print(f"{'plan_moves, mixed program (segments/s)':<44}{figures['plan_segments_per_s']:>16,.0f}")
-    print(
-        f"{'plan_moves, lines only (moves/s)':<44}{figures['plan_lines_only_moves_per_s']:>16,.0f}"
-    )
+        f"{figures['segments']:,} segments, {figures['program_duration_s']:,.0f} s of motion",
+        "",
+        _line("figure", "value", "target"),
+        _line(
+            "plan_moves, mixed program (moves/s)", f"{figures['plan_moves_per_s']:,.0f}", "100,000"
+        ),
+        _line("plan_moves, mixed program (segments/s)", f"{figures['plan_segments_per_s']:,.0f}"),
+        _line("plan_moves, lines only (moves/s)", f"{figures['plan_lines_only_moves_per_s']:,.0f}"),
+    ]
     for row in figures["sampling"]:
-        label = f"sample_plan at {row['period_s'] * 1000:g} ms (axis-setpoints/s)"
-        print(f"{label:<44}{row['axis_setpoints_per_s']:>16,.0f}  5,000,000")
-        reference = "  numpy.interp, same times (axis-setpoints/s)"
-        print(
-            f"{reference:<44}{row['interp_axis_setpoints_per_s']:>16,.0f}"
-            f"  (sample_plan is {row['ratio_to_interp']:.2f}x its speed)"
+        lines.append(
+            _line(
+                f"sample_plan at {row['period_s'] * 1000:g} ms (axis-setpoints/s)",
+                f"{row['axis_setpoints_per_s']:,.0f}",
+                "5,000,000",
+            )
+        )
+        lines.append(
+            _line(
+                "  numpy.interp, same times (axis-setpoints/s)",
+                f"{row['interp_axis_setpoints_per_s']:,.0f}",
+                f"(sample_plan is {row['ratio_to_interp']:.2f}x its speed)",
+            )
         )
     hermite = figures["hermite"]
-    print(f"{'sample_keyframes (ticks/s)':<44}{hermite['sample_keyframes_ticks_per_s']:>16,.0f}")
-    print(
-        f"{'  hermite_position per tick (ticks/s)':<44}"
-        f"{hermite['hermite_position_loop_ticks_per_s']:>16,.0f}"
-        f"  (sample_keyframes is {hermite['ratio']:.1f}x faster)"
+    lines.append(
+        _line("sample_keyframes (ticks/s)", f"{hermite['sample_keyframes_ticks_per_s']:,.0f}")
     )
+    lines.append(
+        _line(
+            "  hermite_position per tick (ticks/s)",
+            f"{hermite['hermite_position_loop_ticks_per_s']:,.0f}",
+            f"(sample_keyframes is {hermite['ratio']:.1f}x faster)",
+        )
+    )
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -16,19 +16,16 @@ Run: ``python benchmarks/scimath_speed.py [--json] [--runs 5] [--operations 2000
 
 from __future__ import annotations
 
-import argparse
-import json
 import operator
 import platform
 import random
-import statistics
 import sys
-import time
 from collections import deque
 from collections.abc import Callable
 from itertools import repeat
 from typing import Any
 
+from _common import argument_parser, emit, median_of, parse_arguments, table_row, timed
 from usbmotion.scimath import DEFAULT_DIGITS, SciNumber, sci_add, sci_div, sci_mul, sci_sub
 
 MIN_RUN_S = 0.05
@@ -57,21 +54,14 @@ def make_operands(count: int, *, digits: int, seed: int) -> tuple[list[SciNumber
 def ops_per_second(batch: Callable[[], None], operations: int, *, runs: int) -> float:
     """Median operations per second of ``batch`` (which performs ``operations``) over runs."""
     loops = 1
-    while True:
-        start = time.perf_counter()
+
+    def run_loops() -> None:
         for _ in range(loops):
             batch()
-        elapsed = time.perf_counter() - start
-        if elapsed >= MIN_RUN_S:
-            break
+
+    while timed(run_loops)[1] < MIN_RUN_S:
         loops *= 2
-    rates = []
-    for _ in range(runs):
-        start = time.perf_counter()
-        for _ in range(loops):
-            batch()
-        rates.append(loops * operations / (time.perf_counter() - start))
-    return statistics.median(rates)
+    return median_of(lambda: loops * operations / timed(run_loops)[1], runs)
 
 
 def measure(*, operations: int, runs: int, digits: int, seed: int) -> dict[str, Any]:
@@ -118,11 +108,13 @@ def measure(*, operations: int, runs: int, digits: int, seed: int) -> dict[str, 
     }
 
 
+_COLUMNS = ("<5", ">14", ">18", ">8", ">14", ">8")
+
+
 def format_table(figures: dict[str, Any]) -> str:
     """The figures as a fixed-width table."""
-    header = (
-        f"{'op':<5}{'float ops/s':>14}{'SciNumber ops/s':>18}{'ratio':>8}"
-        f"{'core ops/s':>14}{'ratio':>8}"
+    header = table_row(
+        ("op", "float ops/s", "SciNumber ops/s", "ratio", "core ops/s", "ratio"), _COLUMNS
     )
     lines = [
         f"scimath speed (digits={figures['digits']}, Python {figures['python']}, "
@@ -132,32 +124,33 @@ def format_table(figures: dict[str, Any]) -> str:
     ]
     for name, row in figures["results"].items():
         lines.append(
-            f"{name:<5}{row['float_ops_s']:>14,.0f}{row['scinumber_ops_s']:>18,.0f}"
-            f"{row['scinumber_ratio']:>7.1f}x{row['core_ops_s']:>14,.0f}{row['core_ratio']:>7.1f}x"
+            table_row(
+                (
+                    name,
+                    f"{row['float_ops_s']:,.0f}",
+                    f"{row['scinumber_ops_s']:,.0f}",
+                    f"{row['scinumber_ratio']:.1f}x",
+                    f"{row['core_ops_s']:,.0f}",
+                    f"{row['core_ratio']:.1f}x",
+                ),
+                _COLUMNS,
+            )
         )
     return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Run the benchmark, print a table (or JSON with ``--json``) and return the figures."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
-    parser.add_argument("--json", action="store_true", help="print the figures as JSON")
-    parser.add_argument("--runs", type=int, default=5, help="timed runs per figure (median)")
+    parser = argument_parser(__doc__, runs=5)
     parser.add_argument("--operations", type=int, default=20_000, help="operand pairs per batch")
     parser.add_argument("--seed", type=int, default=2040, help="operand random seed")
-    args = parser.parse_args(argv)
-    if args.runs < 1:
-        parser.error(f"--runs {args.runs!r} must be at least 1")
+    args = parse_arguments(parser, argv)
     if args.operations < 1:
         parser.error(f"--operations {args.operations!r} must be at least 1")
     figures = measure(
         operations=args.operations, runs=args.runs, digits=DEFAULT_DIGITS, seed=args.seed
     )
-    if args.json:
-        print(json.dumps(figures, indent=2))
-    else:
-        print(format_table(figures))
-    return figures
+    return emit(figures, format_table, as_json=args.json)
 
 
 if __name__ == "__main__":

@@ -27,8 +27,6 @@ ceiling) and a host whose capacity exceeds it.
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import platform
 import statistics
@@ -42,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from _common import argument_parser, emit, parse_arguments, table_row
 from usbmotion.host.device import DeviceClient
 from usbmotion.host.stream import SetpointStream, run_streams, wait_until_drained
 from usbmotion.host.transport import LineTransport
@@ -168,6 +167,9 @@ def limit_of(row: dict[str, Any]) -> str:
             f" {row['host_capacity_setpoints_s']:,.0f}/s on its own")
 
 
+_COLUMNS = (">7", ">12", ">9", ">6", ">13", ">15", ">10")
+
+
 def report(figures: dict[str, Any]) -> str:
     """The figures as text."""
     lines = [
@@ -175,16 +177,20 @@ def report(figures: dict[str, Any]) -> str:
         f" {figures['servo_rate_hz']:,} Hz, {figures['seconds_per_device']:g} s per device,"
         f" median of {figures['runs']} runs, Python {figures['python']},"
         f" {figures['cpus']} CPUs",
-        f"{'devices':>7} {'setpoints/s':>12} {'ceiling':>9} {'share':>6}"
-        f" {'host ms/1000':>13} {'server ms/1000':>15} {'min queue':>10}",
+        table_row(
+            ("devices", "setpoints/s", "ceiling", "share", "host ms/1000", "server ms/1000",
+             "min queue"),
+            _COLUMNS, gap=" ",
+        ),
     ]
     for row in figures["rows"]:
-        lines.append(
-            f"{row['devices']:>7} {row['setpoints_s']:>12,.0f}"
-            f" {row['device_ceiling_setpoints_s']:>9,} {row['share_of_ceiling']:>6.0%}"
-            f" {row['host_cpu_ms_per_1000']:>13.2f} {row['server_cpu_ms_per_1000']:>15.2f}"
-            f" {row['min_queued']:>10}"
-        )
+        lines.append(table_row(
+            (str(row["devices"]), f"{row['setpoints_s']:,.0f}",
+             f"{row['device_ceiling_setpoints_s']:,}", f"{row['share_of_ceiling']:.0%}",
+             f"{row['host_cpu_ms_per_1000']:.2f}", f"{row['server_cpu_ms_per_1000']:.2f}",
+             str(row["min_queued"])),
+            _COLUMNS, gap=" ",
+        ))
         lines.append(f"        {limit_of(row)}")
     best = max(figures["rows"], key=lambda row: row["setpoints_s"])
     lines.append(
@@ -197,23 +203,18 @@ def report(figures: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Run the benchmark, print the figures (or JSON with ``--json``) and return them."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argument_parser(__doc__, runs=3)
     parser.add_argument("--devices", type=int, nargs="+", default=[1, 3, 6],
                         help="numbers of devices to serve (one run set each)")
     parser.add_argument("--seconds", type=float, default=3.0,
                         help="seconds of setpoints per device and run")
-    parser.add_argument("--runs", type=int, default=3, help="runs per figure (median)")
-    parser.add_argument("--json", action="store_true", help="print the figures as JSON")
-    args = parser.parse_args(argv)
-    if args.runs < 1:
-        parser.error(f"--runs {args.runs!r}: at least 1")
+    args = parse_arguments(parser, argv)
     if not 0.1 <= args.seconds <= 600:
         parser.error(f"--seconds {args.seconds!r}: 0.1 to 600")
     if any(not 1 <= n <= 64 for n in args.devices):
         parser.error(f"--devices {args.devices!r}: each 1 to 64")
     figures = measure(device_counts=args.devices, seconds=args.seconds, runs=args.runs)
-    print(json.dumps(figures, indent=2) if args.json else report(figures))
-    return figures
+    return emit(figures, report, as_json=args.json)
 
 
 if __name__ == "__main__":

@@ -234,15 +234,20 @@ def keyframe_lists(longest_ms: int) -> st.SearchStrategy[list[Keyframe]]:
     return st.lists(keyframe, min_size=0, max_size=8)
 
 
+def assert_sampled_like_the_reference(start: int, keyframes: list[Keyframe], tick_us: int) -> None:
+    """``sample_keyframes`` gives int64 values, as many as counted, equal to the reference."""
+    sampled = sample_keyframes(start, keyframes, tick_us=tick_us)
+    assert sampled.dtype == np.int64
+    assert len(sampled) == keyframe_tick_count(keyframes, tick_us=tick_us)
+    assert sampled.tolist() == reference_ticks(start, keyframes, tick_us)
+
+
 @settings(max_examples=100, deadline=None)
 @given(positions, keyframe_lists(200), st.sampled_from([250, 500, 1000, 1250, 4096]))
 def test_sample_keyframes_equals_the_per_tick_reference(
     start: int, keyframes: list[Keyframe], tick_us: int
 ) -> None:
-    sampled = sample_keyframes(start, keyframes, tick_us=tick_us)
-    assert sampled.dtype == np.int64
-    assert len(sampled) == keyframe_tick_count(keyframes, tick_us=tick_us)
-    assert sampled.tolist() == reference_ticks(start, keyframes, tick_us)
+    assert_sampled_like_the_reference(start, keyframes, tick_us)
 
 
 @settings(max_examples=40, deadline=None)
@@ -250,10 +255,7 @@ def test_sample_keyframes_equals_the_per_tick_reference(
 def test_sample_keyframes_fine_ticks_equal_the_reference(
     start: int, keyframes: list[Keyframe], tick_us: int
 ) -> None:
-    sampled = sample_keyframes(start, keyframes, tick_us=tick_us)
-    assert sampled.dtype == np.int64
-    assert len(sampled) == keyframe_tick_count(keyframes, tick_us=tick_us)
-    assert sampled.tolist() == reference_ticks(start, keyframes, tick_us)
+    assert_sampled_like_the_reference(start, keyframes, tick_us)
 
 
 def test_sample_keyframes_ties_are_exact() -> None:

@@ -73,6 +73,13 @@ def unit(digits: int) -> Fraction:
     return Fraction(1, 10 ** (digits - 1))
 
 
+def add_or_subtract(a: SciNumber, op: str, b: SciNumber) -> tuple[SciNumber, Fraction]:
+    """``a + b`` or ``a - b`` (``op``), in scientific notation and exactly."""
+    if op == "+":
+        return a + b, exact(a) + exact(b)
+    return a - b, exact(a) - exact(b)
+
+
 def assert_normalised(number: SciNumber) -> None:
     c, e, digits = number.coefficient, number.exponent, number.digits
     assert (c == 0 and e == 0) or 10 ** (digits - 1) <= abs(c) < 10**digits, number
@@ -340,10 +347,9 @@ def test_addition_subtraction_cases(
     a: SciNumber, op: str, b: SciNumber, expected: SciNumber
 ) -> None:
     """Equal exponents, carries, cancellations and exact zeros all renormalise."""
-    result = a + b if op == "+" else a - b
+    result, value = add_or_subtract(a, op, b)
     assert result == expected
     assert_normalised(result)
-    value = exact(a) + exact(b) if op == "+" else exact(a) - exact(b)
     assert_truncated_result(result, value, 4)
 
 
@@ -377,8 +383,7 @@ def test_levelled_addition_subtraction_within_bound(
     b = draw_shifted(data, a, -(digits - 1), digits - 1)
     if data.draw(st.booleans(), label="same magnitude"):
         b = SciNumber(-a.coefficient if op == "+" else a.coefficient, a.exponent, digits=digits)
-    result = a + b if op == "+" else a - b
-    value = exact(a) + exact(b) if op == "+" else exact(a) - exact(b)
+    result, value = add_or_subtract(a, op, b)
     assert_truncated_result(result, value, digits)
 
 
@@ -396,8 +401,7 @@ def test_dropped_significance_within_bound(
         b = draw_shifted(data, a, digits, digits + 12)
     else:
         b = draw_shifted(data, a, -digits - 12, -digits)
-    result = a + b if op == "+" else a - b
-    value = exact(a) + exact(b) if op == "+" else exact(a) - exact(b)
+    result, value = add_or_subtract(a, op, b)
     if a.exponent > b.exponent:
         assert result == a
         dropped = exact(b)

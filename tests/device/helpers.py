@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from usbmotion.device import Device
+from collections.abc import Iterator
+
+from usbmotion.device import Device, DeviceState
 
 
 def send(device: Device, *lines: str) -> list[str]:
@@ -18,10 +20,18 @@ def take(device: Device) -> list[str]:
     return text.splitlines()
 
 
-def positions(device: Device, ticks: int) -> list[int]:
-    """Run ``ticks`` ticks one at a time and return the encoder count after each."""
-    out = []
+def states(device: Device, ticks: int) -> Iterator[DeviceState]:
+    """Run ``ticks`` ticks one at a time, yielding the device's state after each."""
     for _ in range(ticks):
         device.run(1)
-        out.append(device.state.actual)
-    return out
+        yield device.state
+
+
+def positions(device: Device, ticks: int) -> list[int]:
+    """Run ``ticks`` ticks one at a time and return the encoder count after each."""
+    return [state.actual for state in states(device, ticks)]
+
+
+def desired_positions(device: Device, ticks: int) -> list[int]:
+    """Run ``ticks`` ticks one at a time and return the desired position after each."""
+    return [state.desired for state in states(device, ticks)]

@@ -9,7 +9,7 @@ import pytest
 from usbmotion.device import Device
 from usbmotion.hermite import Keyframe, keyframe_tick_count, sample_keyframes
 
-from .helpers import send
+from .helpers import desired_positions, send
 
 KEYFRAMES = (
     Keyframe(100, 500, 0, 1024),
@@ -55,14 +55,6 @@ def _exact_samples(start: int, keyframes: tuple[Keyframe, ...], tick_us: int, n:
     return values
 
 
-def _play(device: Device, ticks: int) -> list[int]:
-    seen = []
-    for _ in range(ticks):
-        device.run(1)
-        seen.append(device.state.desired)
-    return seen
-
-
 def _append(device: Device, keyframes: tuple[Keyframe, ...]) -> list[str]:
     return send(device, *(
         f"25 {k.duration_ms} {k.position_counts} {k.tangent_in} {k.tangent_out}"
@@ -80,7 +72,7 @@ def test_every_tick_matches_the_exact_cubic_and_sample_keyframes(
     send(device, "3 1")
     tick_us = interval_dms * 100
     n = keyframe_tick_count(KEYFRAMES, tick_us=tick_us) + 20
-    played = _play(device, n)
+    played = desired_positions(device, n)
     sampled = list(sample_keyframes(start, KEYFRAMES, tick_us=tick_us))
     sampled += [KEYFRAMES[-1].position_counts] * (n - len(sampled))
     assert played == sampled
@@ -97,11 +89,11 @@ def test_keyframes_appended_while_playing_continue_the_same_curve() -> None:
     _append(parts, KEYFRAMES[:3])
     for device in (whole, parts):
         send(device, "3 1")
-    first = _play(whole, 300)
-    assert _play(parts, 300) == first
+    first = desired_positions(whole, 300)
+    assert desired_positions(parts, 300) == first
     assert send(parts, "27 -1") == ["CURVE_BUFFER 7"], "two of three reached by tick 299"
     _append(parts, KEYFRAMES[3:])
-    assert _play(parts, 400) == _play(whole, 400)
+    assert desired_positions(parts, 400) == desired_positions(whole, 400)
 
 
 def test_a_full_buffer_refuses_and_loses_nothing() -> None:
@@ -113,7 +105,7 @@ def test_a_full_buffer_refuses_and_loses_nothing() -> None:
     assert device.keyframes() == KEYFRAMES
     send(device, "3 1")
     n = keyframe_tick_count(KEYFRAMES, tick_us=1000)
-    assert _play(device, n) == list(sample_keyframes(0, KEYFRAMES, tick_us=1000))
+    assert desired_positions(device, n) == list(sample_keyframes(0, KEYFRAMES, tick_us=1000))
     assert device.keyframes() == ()
 
 
@@ -121,12 +113,13 @@ def test_running_dry_holds_and_the_next_keyframe_starts_a_new_curve() -> None:
     device = Device()
     send(device, "7 3", "3 1")
     _append(device, KEYFRAMES[:2])
-    _play(device, 200)
+    desired_positions(device, 200)
     assert device.state.desired == 800
-    assert _play(device, 50) == [800] * 50
+    assert desired_positions(device, 50) == [800] * 50
     later = (Keyframe(40, 100, -1024, 0),)
     _append(device, later)
-    assert _play(device, 45) == list(sample_keyframes(800, later, tick_us=1000)) + [100] * 4
+    expected = list(sample_keyframes(800, later, tick_us=1000)) + [100] * 4
+    assert desired_positions(device, 45) == expected
 
 
 def test_the_first_keyframe_is_reached_and_its_slot_freed_on_its_tick() -> None:
@@ -134,9 +127,9 @@ def test_the_first_keyframe_is_reached_and_its_slot_freed_on_its_tick() -> None:
     send(device, "7 3")
     _append(device, KEYFRAMES[:2])
     send(device, "3 1")
-    _play(device, 100)  # ticks 0..99: 0 to 99 ms
+    desired_positions(device, 100)  # ticks 0..99: 0 to 99 ms
     assert send(device, "27 -1") == ["CURVE_BUFFER 6"]
-    _play(device, 1)  # tick 100: the keyframe at 100 ms
+    desired_positions(device, 1)  # tick 100: the keyframe at 100 ms
     assert device.state.desired == 500
     assert send(device, "27 -1") == ["CURVE_BUFFER 7"]
 
@@ -146,10 +139,10 @@ def test_clearing_keyframes_holds_the_position() -> None:
     send(device, "7 3")
     _append(device, KEYFRAMES[:1])
     send(device, "3 1")
-    _play(device, 50)
+    desired_positions(device, 50)
     held = device.state.desired
     send(device, "26 0")
-    assert _play(device, 20) == [held] * 20
+    assert desired_positions(device, 20) == [held] * 20
     assert send(device, "27 -1") == ["CURVE_BUFFER 8"]
 
 

@@ -4,16 +4,7 @@ from __future__ import annotations
 
 from usbmotion.device import Device
 
-from .helpers import send
-
-
-def _consume(device: Device, ticks: int) -> list[int]:
-    """Desired position after each of ``ticks`` ticks."""
-    seen = []
-    for _ in range(ticks):
-        device.run(1)
-        seen.append(device.state.desired)
-    return seen
+from .helpers import desired_positions, send
 
 
 def test_a_thousand_single_values_fit_and_the_next_is_refused() -> None:
@@ -46,10 +37,10 @@ def test_nothing_queued_is_lost_or_reordered_by_refusals_and_consumption() -> No
     assert device.queue_values() == ()
     device.feed(("1 1000 " + " ".join(map(str, values)) + "\n").encode())
     send(device, "3 1")
-    consumed = _consume(device, 400)
+    consumed = desired_positions(device, 400)
     send(device, "1 400 " + " ".join(map(str, range(400))))
     assert send(device, "0 1") == ["E0"]
-    consumed += _consume(device, 1000)
+    consumed += desired_positions(device, 1000)
     assert consumed == values + list(range(400))
     assert send(device, "2 -1") == ["MOTION_QUEUE 0 1000"]
 
@@ -57,7 +48,7 @@ def test_nothing_queued_is_lost_or_reordered_by_refusals_and_consumption() -> No
 def test_one_value_every_scalar_ticks_starting_with_the_first_tick() -> None:
     device = Device()
     send(device, "6 3", "1 4 10 20 30 40", "3 1")
-    assert _consume(device, 13) == [10, 10, 10, 20, 20, 20, 30, 30, 30, 40, 40, 40, 40]
+    assert desired_positions(device, 13) == [10, 10, 10, 20, 20, 20, 30, 30, 30, 40, 40, 40, 40]
 
 
 def test_an_empty_queue_holds_the_last_position() -> None:
@@ -75,7 +66,7 @@ def test_the_queue_waits_while_the_servo_is_disabled() -> None:
     device.run(100)
     assert device.queue_values() == (1, 2, 3)
     send(device, "3 1")
-    assert _consume(device, 3) == [1, 2, 3]
+    assert desired_positions(device, 3) == [1, 2, 3]
 
 
 def test_calls_that_clear_the_queue() -> None:

@@ -118,6 +118,13 @@ class MoveAxisHome:
         self._phase = _Phase.DONE
         return result
 
+    def _zero_here(self, outputs: HomingOutputs) -> Transition:
+        """Stop on the lower switch, call the position zero and complete."""
+        outputs.set_target_velocity(self.axis, 0.0)
+        outputs.zero_position(self.axis)
+        self._phase = _Phase.DONE
+        return Complete
+
     def poll(self, inputs: HomingInputs, outputs: HomingOutputs) -> Transition:
         """One step of homing."""
         if self._phase is _Phase.DONE:
@@ -133,10 +140,7 @@ class MoveAxisHome:
                 outputs.set_target_velocity(self.axis, -self.homing_speed_mm_s)
                 return Incomplete
             if self.backoff_mm == 0:
-                outputs.set_target_velocity(self.axis, 0.0)
-                outputs.zero_position(self.axis)
-                self._phase = _Phase.DONE
-                return Complete
+                return self._zero_here(outputs)
             self._phase = _Phase.BACK_OFF
             self._backoff_start_mm = inputs.position_mm(self.axis)
         if self._phase is _Phase.BACK_OFF:
@@ -154,10 +158,7 @@ class MoveAxisHome:
         if not switches.at_lower_limit:
             outputs.set_target_velocity(self.axis, -self.slow_speed_mm_s)
             return Incomplete
-        outputs.set_target_velocity(self.axis, 0.0)
-        outputs.zero_position(self.axis)
-        self._phase = _Phase.DONE
-        return Complete
+        return self._zero_here(outputs)
 
 
 HomingGroup = str | Sequence[str]

@@ -3,21 +3,15 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
-from typing import Annotated
 
 import typer
 
-from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, default_machine
+from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, MachineOption, default_machine
 from usbmotion.errors import ConfigError, UsbMotionError
 
 
 def console(
-    machine: Annotated[
-        Path | None,
-        typer.Option("--machine", "-m", help="Machine configuration (default: the built-in"
-                     " simulated XYZ machine)."),
-    ] = None,
+    machine: MachineOption = None,
 ) -> None:
     """Drive the machine from a console: $c cycle start, $r reset and home, $d N demo.
 

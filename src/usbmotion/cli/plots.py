@@ -22,6 +22,15 @@ def _pyplot() -> Any:
     return plt
 
 
+def _save(plt: Any, fig: Any, path: Path) -> Path:
+    """Lay ``fig`` out, write it to ``path`` (creating its folder) and close it."""
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
 def plot_run(path: Path, plan: Plan, trace: Trace, report: RunReport) -> Path:
     """Commanded against actual XY path, and following error over time per axis."""
     from usbmotion.motion.sampler import sample_positions_mm  # noqa: PLC0415
@@ -57,11 +66,7 @@ def plot_run(path: Path, plan: Plan, trace: Trace, report: RunReport) -> Path:
     ax_error.legend(loc="best")
     fig.suptitle(f"{Path(report.program).name} on {report.machine}: planned"
                  f" {report.planned_time_s:.2f} s, executed {report.executed_time_s:.2f} s")
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
 def plot_step(path: Path, response: StepResponse) -> Path:
@@ -80,8 +85,4 @@ def plot_step(path: Path, response: StepResponse) -> Path:
                  f" {m.overshoot_pct:.1f} %, settling {m.settling_time_s * 1000:.0f} ms")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best")
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)

@@ -25,6 +25,15 @@ EXIT_FAULT = 1
 EXIT_BAD_INPUT = 2
 
 
+MachineOption = Annotated[
+    Path | None,
+    typer.Option("--machine", "-m", help="Machine configuration (default: the built-in"
+                 " simulated XYZ machine)."),
+]
+"""The ``--machine`` option of the commands that drive a machine (``default_machine()``
+when it is not given)."""
+
+
 def default_machine() -> Path:
     """The built-in simulated 3-axis machine (the same file as ``examples/machine.toml``)."""
     return Path(str(resources.files("usbmotion") / "data" / "machine.toml"))
@@ -32,11 +41,7 @@ def default_machine() -> Path:
 
 def run(
     program: Annotated[Path, typer.Argument(help="The G-code program.", show_default=False)],
-    machine: Annotated[
-        Path | None,
-        typer.Option("--machine", "-m", help="Machine configuration (default: the built-in"
-                     " simulated XYZ machine)."),
-    ] = None,
+    machine: MachineOption = None,
     plot: Annotated[
         Path | None, typer.Option("--plot", help="PNG to write (default: PROGRAM.png).")
     ] = None,

@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, default_machine
+from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, MachineOption, default_machine
 from usbmotion.errors import ConfigError, UsbMotionError
 
 
@@ -22,9 +22,7 @@ def tune(
     kp: Annotated[float | None, typer.Option("--kp", help="Try this proportional gain.")] = None,
     ki: Annotated[float | None, typer.Option("--ki", help="Try this integral gain.")] = None,
     kd: Annotated[float | None, typer.Option("--kd", help="Try this derivative gain.")] = None,
-    machine: Annotated[
-        Path | None, typer.Option("--machine", "-m", help="Machine configuration.")
-    ] = None,
+    machine: MachineOption = None,
     plot: Annotated[
         Path | None, typer.Option("--plot", help="PNG to write (default: tune-AXIS.png).")
     ] = None,

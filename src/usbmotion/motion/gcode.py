@@ -51,7 +51,7 @@ from pathlib import Path
 
 from usbmotion.errors import GCodeError, UnsupportedGCodeError
 from usbmotion.motion.gcode_lexer import Block, Word, parse_blocks, tokenize, word_columns
-from usbmotion.motion.moves import Arc, Dwell, Linear, Move, Plane, Rapid
+from usbmotion.motion.moves import Arc, Dwell, Linear, Move, Plane, Rapid, Vec3
 
 __all__ = [
     "Block",
@@ -765,8 +765,7 @@ class _Interpreter:
         return motion
 
     def dwell(self, block: Block, params: dict[str, float]) -> None:
-        position = self.position
-        self.moves.append(Dwell(block.line, (position[0], position[1], position[2]), params["P"]))
+        self.moves.append(Dwell(block.line, _point(self.position), params["P"]))
 
     def non_modal(self, block: Block, code: int, params: dict[str, float]) -> None:
         if code in (280, 300):
@@ -778,8 +777,7 @@ class _Interpreter:
                 end[axis] = home[axis]
             self.traverse(block.line, end)
         elif code in (281, 301):
-            position = self.position
-            self.homes[code - 1] = (position[0], position[1], position[2])
+            self.homes[code - 1] = _point(self.position)
         elif code == 920:
             for axis, letter in enumerate(_AXIS_LETTERS):
                 if letter in params:
@@ -807,9 +805,18 @@ class _Interpreter:
         return end
 
     def traverse(self, line: int, end: list[float]) -> None:
-        start = self.position
-        self.moves.append(Rapid(line, (start[0], start[1], start[2]), (end[0], end[1], end[2])))
+        self.moves.append(Rapid(line, _point(self.position), _point(end)))
         self.position = end
+
+    def require_feed(self, block: Block, blame: int, name: str) -> None:
+        """Refuse the feed move ``name`` (G1, G2, G3) while the feed rate is 0."""
+        if self.feed_mm_min == 0.0:
+            raise self.error(
+                block,
+                blame,
+                f"{name} with feed rate 0: set a feed rate with F (units per minute) before "
+                "or on this line",
+            )
 
     def move(
         self,
@@ -829,22 +836,10 @@ class _Interpreter:
             self.traverse(block.line, self.ends(params))
             return
         if motion == 10:
-            if self.feed_mm_min == 0.0:
-                raise self.error(
-                    block,
-                    blame,
-                    "G1 with feed rate 0: set a feed rate with F (units per minute) before "
-                    "or on this line",
-                )
-            start = self.position
+            self.require_feed(block, blame, "G1")
             end = self.ends(params)
             self.moves.append(
-                Linear(
-                    block.line,
-                    (start[0], start[1], start[2]),
-                    (end[0], end[1], end[2]),
-                    self.feed_mm_min,
-                )
+                Linear(block.line, _point(self.position), _point(end), self.feed_mm_min)
             )
             self.position = end
             return
@@ -874,13 +869,7 @@ class _Interpreter:
             )
         if radius_format and centre_format:
             raise self.error(block, where["R"], f"{name} arc with both R and I/J/K: use one form")
-        if self.feed_mm_min == 0.0:
-            raise self.error(
-                block,
-                blame,
-                f"{name} with feed rate 0: set a feed rate with F (units per minute) before "
-                "or on this line",
-            )
+        self.require_feed(block, blame, name)
         first_axis, second_axis = _AXIS_LETTERS[first], _AXIS_LETTERS[second]
         if centre_format:
             if other_letter in params:
@@ -931,9 +920,9 @@ class _Interpreter:
         self.moves.append(
             Arc(
                 block.line,
-                (start[0], start[1], start[2]),
-                (end[0], end[1], end[2]),
-                (centre[0], centre[1], centre[2]),
+                _point(start),
+                _point(end),
+                _point(centre),
                 plane,
                 -turns if motion == 20 else turns,
                 self.feed_mm_min,
@@ -1048,6 +1037,11 @@ class _Interpreter:
             theta = direction + math.pi / 2.0
         offset = abs_radius * math.cos(math.asin(half_length / abs_radius))
         return mid1 + offset * math.cos(theta), mid2 + offset * math.sin(theta)
+
+
+def _point(values: list[float]) -> Vec3:
+    """The first three values (x, y, z in mm) as a point."""
+    return (values[0], values[1], values[2])
 
 
 def _first_of(where: dict[str, int], letters: str) -> int:

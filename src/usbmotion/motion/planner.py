@@ -218,7 +218,10 @@ class Plan:
     def segments(self) -> tuple[PlannedSegment, ...]:
         """The segments as ``PlannedSegment`` objects (built on first use)."""
         vertices = [tuple(row) for row in self.vertices_mm.tolist()]
-        columns = zip(
+        kinds = list(SegmentKind)
+        rows = zip(
+            vertices[:-1],
+            vertices[1:],
             self.length_mm.tolist(),
             self.v_entry_mm_s.tolist(),
             self.v_cruise_mm_s.tolist(),
@@ -228,41 +231,11 @@ class Plan:
             self.t_cruise_s.tolist(),
             self.t_decel_s.tolist(),
             self.line.tolist(),
-            self.kind.tolist(),
+            [kinds[kind] for kind in self.kind.tolist()],
             self.start_time_s.tolist(),
             strict=True,
         )
-        kinds = list(SegmentKind)
-        return tuple(
-            PlannedSegment(
-                vertices[i],
-                vertices[i + 1],
-                length,
-                v_entry,
-                v_cruise,
-                v_exit,
-                accel,
-                t_accel,
-                t_cruise,
-                t_decel,
-                line,
-                kinds[kind],
-                start_time,
-            )
-            for i, (
-                length,
-                v_entry,
-                v_cruise,
-                v_exit,
-                accel,
-                t_accel,
-                t_cruise,
-                t_decel,
-                line,
-                kind,
-                start_time,
-            ) in enumerate(columns)
-        )
+        return tuple(PlannedSegment(*row) for row in rows)
 
 
 def _check_point(name: str, point: object) -> Vec3:
@@ -294,12 +267,19 @@ def _as_float(value: object) -> float:
     return float(value)
 
 
-def _gap_error(move: Move, where: Vec3, expected: Vec3, tolerance: float) -> PlanningError:
+def _check_join(move: Move, where: Vec3, expected: Vec3, tolerance: float) -> None:
+    """Refuse a move starting at ``where`` farther than ``tolerance`` from ``expected``."""
+    if (
+        abs(where[0] - expected[0]) <= tolerance
+        and abs(where[1] - expected[1]) <= tolerance
+        and abs(where[2] - expected[2]) <= tolerance
+    ):
+        return
     if not all(math.isfinite(value) for value in (*where, *expected)):
-        return PlanningError(
+        raise PlanningError(
             f"line {move.line}: position {where!r} (after {expected!r}) is not finite"
         )
-    return PlanningError(
+    raise PlanningError(
         f"line {move.line}: move starts at {where!r} but the previous move ended at "
         f"{expected!r}; moves must join within {tolerance!r} mm"
     )
@@ -380,12 +360,8 @@ def plan_moves(
         if cls is Linear or cls is Rapid:
             line_move: Linear | Rapid = move  # type: ignore[assignment]
             s = line_move.start
-            if s != expected and not (
-                abs(s[0] - expected[0]) <= tolerance
-                and abs(s[1] - expected[1]) <= tolerance
-                and abs(s[2] - expected[2]) <= tolerance
-            ):
-                raise _gap_error(move, s, expected, tolerance)
+            if s != expected:
+                _check_join(move, s, expected, tolerance)
             e = line_move.end
             expected = e
             ex, ey, ez = e
@@ -395,28 +371,18 @@ def plan_moves(
             if dx * dx + dy * dy + dz * dz < min_segment_sq:
                 continue
             if cls is Linear:
-                item_kind.append(1)
-                item_feed.append(line_move.feed_mm_min)  # type: ignore[union-attr]
+                kind = 1
+                feed = line_move.feed_mm_min  # type: ignore[union-attr]
             else:
-                item_kind.append(0)
-                item_feed.append(inf)
-            item_line.append(move.line)
-            item_dwell.append(0.0)
-            item_count.append(1)
-            end_x.append(ex)
-            end_y.append(ey)
-            end_z.append(ez)
-            kx, ky, kz = ex, ey, ez
-            total += 1
+                kind = 0
+                feed = inf
+            dwell_s = 0.0
+            count = 1
         elif cls is Arc:
             arc: Arc = move  # type: ignore[assignment]
             s = arc.start
-            if s != expected and not (
-                abs(s[0] - expected[0]) <= tolerance
-                and abs(s[1] - expected[1]) <= tolerance
-                and abs(s[2] - expected[2]) <= tolerance
-            ):
-                raise _gap_error(move, s, expected, tolerance)
+            if s != expected:
+                _check_join(move, s, expected, tolerance)
             e = arc.end
             expected = e
             axes = plane_axes.get(arc.plane)
@@ -424,20 +390,20 @@ def plan_moves(
                 raise PlanningError(f"line {arc.line}: arc plane {arc.plane!r} is not a Plane")
             a1, a2, an = axes
             c = arc.centre
-            sx = s[a1] - c[a1]
-            sy = s[a2] - c[a2]
-            ex = e[a1] - c[a1]
-            ey = e[a2] - c[a2]
-            r0 = hypot(sx, sy)
-            r1 = hypot(ex, ey)
+            su = s[a1] - c[a1]
+            sv = s[a2] - c[a2]
+            eu = e[a1] - c[a1]
+            ev = e[a2] - c[a2]
+            r0 = hypot(su, sv)
+            r1 = hypot(eu, ev)
             if not (r0 > min_segment and r1 > min_segment and math.isfinite(r0 + r1)):
                 raise PlanningError(
                     f"line {arc.line}: arc from {s!r} to {e!r} about centre {c!r} has "
                     f"radius {r0!r} at the start and {r1!r} at the end; both must be "
                     f"finite and larger than {min_segment!r} mm"
                 )
-            theta0 = atan2(sy, sx)
-            sweep = _arc_sweep(arc, theta0, atan2(ey, ex), hypot(ex - sx, ey - sy))
+            theta0 = atan2(sv, su)
+            sweep = _arc_sweep(arc, theta0, atan2(ev, eu), hypot(eu - su, ev - sv))
             normal_travel = e[an] - s[an]
             turn = sweep if sweep > 0.0 else -sweep
             r_min, r_max = (r0, r1) if r0 < r1 else (r1, r0)
@@ -447,20 +413,12 @@ def plan_moves(
             cosine = 1.0 - arc_tolerance / r_max
             chords = ceil(turn / (2.0 * acos(cosine if cosine > 0.5 else 0.5)))
             shortest = int(0.8 * hypot(turn * r_min, normal_travel) / min_segment)
-            chords = max(1, min(chords, shortest))
-            item_kind.append(2)
-            item_feed.append(arc.feed_mm_min)
-            item_line.append(arc.line)
-            item_dwell.append(0.0)
-            item_count.append(chords)
-            end_x.append(e[0])
-            end_y.append(e[1])
-            end_z.append(e[2])
-            if chords > 1:
+            count = max(1, min(chords, shortest))
+            if count > 1:
                 arc_rows.append(
                     (
                         total,
-                        chords,
+                        count,
                         c[a1],
                         c[a2],
                         r0,
@@ -472,17 +430,15 @@ def plan_moves(
                     )
                 )
                 arc_planes.append((a1, a2, an))
-            kx, ky, kz = e
-            total += chords
+            kind = 2
+            feed = arc.feed_mm_min
+            dwell_s = 0.0
+            ex, ey, ez = e
         elif cls is Dwell:
             dwell: Dwell = move  # type: ignore[assignment]
             p = dwell.position
-            if p != expected and not (
-                abs(p[0] - expected[0]) <= tolerance
-                and abs(p[1] - expected[1]) <= tolerance
-                and abs(p[2] - expected[2]) <= tolerance
-            ):
-                raise _gap_error(move, p, expected, tolerance)
+            if p != expected:
+                _check_join(move, p, expected, tolerance)
             seconds = dwell.seconds
             if isinstance(seconds, bool) or not isinstance(seconds, (int, float)):
                 raise PlanningError(f"line {dwell.line}: dwell {seconds!r} s is not a number")
@@ -490,17 +446,23 @@ def plan_moves(
                 raise PlanningError(
                     f"line {dwell.line}: dwell {seconds!r} s must be finite and >= 0"
                 )
-            item_kind.append(3)
-            item_feed.append(0.0)
-            item_line.append(dwell.line)
-            item_dwell.append(float(seconds))
-            item_count.append(1)
-            end_x.append(kx)
-            end_y.append(ky)
-            end_z.append(kz)
-            total += 1
+            kind = 3
+            feed = 0.0
+            dwell_s = float(seconds)
+            count = 1
+            ex, ey, ez = kx, ky, kz
         else:
             raise PlanningError(f"moves holds {move!r}, which is not a Rapid, Linear, Arc or Dwell")
+        item_kind.append(kind)
+        item_feed.append(feed)
+        item_line.append(move.line)
+        item_dwell.append(dwell_s)
+        item_count.append(count)
+        end_x.append(ex)
+        end_y.append(ey)
+        end_z.append(ez)
+        kx, ky, kz = ex, ey, ez
+        total += count
 
     return _plan_columns(
         origin=origin,
