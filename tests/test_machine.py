@@ -302,7 +302,7 @@ def test_a_missing_name_lists_every_port_searched_and_its_answer(
     assert f"sim://x?world={world_name}: 'X AXIS'" in message
     assert f"{quiet_url}: no answer within 0.1 s" in message
     assert f"{missing}: could not open" in message
-    assert "loop://: answered '18 -1', not a device name" in message
+    assert "loop://: answered '21 0', not a device name" in message
 
 
 def test_a_name_on_two_ports_is_ambiguous(world_name: str) -> None:

@@ -1,5 +1,6 @@
 """A dead host: ``usbmotion run`` is killed (SIGKILL) mid-program; each device's watchdog
-disables its servo; a new host connects, reads the fault, clears it and homes again.
+disables its servo; a new host connects while the devices still print the diagnostics the
+dead host asked for, reads the fault, clears it and homes again.
 
 Everything runs in real time as it would on a bench: ``usbmotion sim --pty 3`` serves three
 devices on pseudo-terminals, the machine file points each axis at its terminal, and the
@@ -20,11 +21,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-import serial
 
 from usbmotion.cli.run import default_machine
 from usbmotion.host.config import load_config
-from usbmotion.host.device import DeviceClient, Status
+from usbmotion.host.device import Status
 from usbmotion.host.machine import Machine
 from usbmotion.job import home_machine
 from usbmotion.protocol.table import Fault
@@ -113,16 +113,14 @@ def _streaming(log: Path) -> bool:
     )
 
 
-def _take_over(path: str, name: str) -> DeviceClient:
-    """Open a device a dead host left behind: stop the diagnostics it had asked for (they
-    would keep the terminal full of lines), let the output drain, then talk."""
-    with serial.serial_for_url(path, timeout=0) as port:
-        port.write(b"21 0\n")
-        time.sleep(0.2)
-        port.reset_input_buffer()
-    client = DeviceClient.open(path, timeout_s=1.0, name=name)
-    client.transport.discard_input()
-    return client
+def _diagnostics_left_on(log: Path) -> dict[str, int]:
+    """Device label -> the diagnostics interval (call 21) the host set last, if not 0."""
+    interval: dict[str, int] = {}
+    for line in log.read_text().splitlines():
+        _, label, first = line.split("|", 2)
+        if first.startswith("21 "):
+            interval[label] = int(first.split()[1])
+    return {label: ticks for label, ticks in interval.items() if ticks}
 
 
 @pytest.mark.realtime
@@ -153,13 +151,18 @@ def test_a_killed_host_leaves_every_servo_disabled_by_its_watchdog(tmp_path: Pat
                 host.wait()
         last = _last_writes(log)
         assert len(last) == 3 and all(killed - t < 1.5 for t in last.values())
+        assert sorted(_diagnostics_left_on(log)) == sorted(last), "every device still prints"
         time.sleep(WATCHDOG_MS / 1000 + 0.5)
 
         config = load_config(machine_file)
         delays_ms: dict[str, float] = {}
-        for name, path in paths.items():
-            axis = next(a for a in config.axes if a.device == name)
-            with _take_over(path, name) as client:
+        started = time.monotonic()
+        with Machine.connect(config) as machine:
+            connect_ms = (time.monotonic() - started) * 1000
+            for axis in config.axes:
+                client = machine.axis(axis.name).client
+                name = axis.device
+                assert name is not None
                 status: Status = client.status()
                 assert not status.enabled, f"{name}: the watchdog disabled the servo"
                 assert status.fault == Fault.WATCHDOG, status
@@ -177,11 +180,8 @@ def test_a_killed_host_leaves_every_servo_disabled_by_its_watchdog(tmp_path: Pat
                 assert 0 < axis.scale.to_mm(status.actual_counts) < target_mm, "mid-program"
                 client.clear_fault()
                 assert client.fault() == (Fault.NONE, 0)
-        for letter, delay_ms in delays_ms.items():
-            assert abs(delay_ms - WATCHDOG_MS) <= WATCHDOG_TOLERANCE_MS, (letter, delays_ms)
-
-        started = time.monotonic()
-        with Machine.connect(config) as machine:
+            for letter, delay_ms in delays_ms.items():
+                assert abs(delay_ms - WATCHDOG_MS) <= WATCHDOG_TOLERANCE_MS, (letter, delays_ms)
             machine.configure()
             home_machine(machine)
             homing_s = time.monotonic() - started
@@ -194,5 +194,5 @@ def test_a_killed_host_leaves_every_servo_disabled_by_its_watchdog(tmp_path: Pat
             machine.enable(False)
         assert homing_s < 15
     figures = ", ".join(f"{k} {v:.1f} ms" for k, v in delays_ms.items())
-    print(f"watchdog disable after the last command: {figures}; homed again in"
-          f" {homing_s:.1f} s")
+    print(f"watchdog disable after the last command: {figures}; connected over the"
+          f" diagnostics in {connect_ms:.0f} ms; homed again in {homing_s:.1f} s")

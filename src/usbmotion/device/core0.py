@@ -455,11 +455,15 @@ class Device:
             self._settle_left = _SETTLE_CHUNK
             return done
         quiet = limit - done
-        event = ticks_to_scheduled_event(state, self._params)
+        event = ticks_to_scheduled_event(state, self._params, diagnostics=False)
         if event is not None:
             quiet = min(quiet, event - 1)
+        full = core1.ticks_to_full_records(state, self._params)
+        if full is not None:
+            quiet = min(quiet, full)
         if quiet > 0:
             idle_advance(state, self._params, quiet)
+            self._after_block()
             done += quiet
         return done
 

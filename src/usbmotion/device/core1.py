@@ -570,13 +570,29 @@ def ticks_to_scheduled_event(
     return min(candidates) if candidates else None
 
 
+def ticks_to_full_records(state: IntArray, params: IntArray) -> int | None:
+    """Ticks until the diagnostics record of the last free slot is written, or None.
+
+    With diagnostics off, None; with every slot taken, 0.
+    """
+    diag_n = int(params[P_DIAG_N])
+    if diag_n <= 0:
+        return None
+    room = DIAG_SLOTS - int(state[S_DIAG_COUNT])
+    if room <= 0:
+        return 0
+    return max(1, int(state[S_DIAG_LEFT])) + (room - 1) * diag_n
+
+
 def idle_advance(state: IntArray, params: IntArray, n_ticks: int) -> None:
     """Advance the clocks and countdowns by ``n_ticks`` ticks of a state at rest.
 
     Valid when one servo tick leaves every :data:`DYNAMIC_FIELDS` entry unchanged, no
     queue value or curve position is due, and ``n_ticks`` is below
-    :func:`ticks_to_scheduled_event`: then each of these ticks changes only the clocks and
-    countdowns, and this gives the same state as running them.
+    :func:`ticks_to_scheduled_event` (with ``diagnostics=False``) and
+    :func:`ticks_to_full_records`: then each of these ticks changes only the clocks and
+    countdowns, and writes the diagnostics records a tick would, and this gives the same
+    state as running them.
     """
     tick_us = int(params[P_TICK_US])
     consuming = running(state) and state[S_MODE] != MODE_CURVE
@@ -594,8 +610,28 @@ def idle_advance(state: IntArray, params: IntArray, n_ticks: int) -> None:
     )
     if state[S_MODE] == MODE_VELOCITY:
         state[S_VELOCITY_MODE_US] += n_ticks * tick_us
-    if params[P_DIAG_N] > 0:
-        state[S_DIAG_LEFT] -= n_ticks
+    diag_n = int(params[P_DIAG_N])
+    if diag_n > 0:
+        clock = int(state[S_CLOCK]) - n_ticks
+        due = max(1, int(state[S_DIAG_LEFT]))
+        record = (
+            int(state[S_DESIRED_VEL] if state[S_MODE] == MODE_VELOCITY else state[S_DESIRED]),
+            int(state[S_ACTUAL]),
+            int(state[S_VELOCITY]),
+            int(state[S_OUT_C]),
+            int(state[S_OUT_E]),
+            int(state[S_QUEUE_COUNT]),
+        )
+        count = int(state[S_DIAG_COUNT])
+        while due <= n_ticks:
+            if count < DIAG_SLOTS:
+                base = S_DIAG + count * DIAG_RECORD
+                state[base] = clock + due
+                state[base + 1 : base + DIAG_RECORD] = record
+                count += 1
+            due += diag_n
+        state[S_DIAG_COUNT] = count
+        state[S_DIAG_LEFT] = due - n_ticks
     window = int(params[P_WINDOW])
     state[S_COUNTS_POS] = (int(state[S_COUNTS_POS]) + n_ticks) % window
     if state[S_ENABLE] == 1:

@@ -3,8 +3,11 @@
 A USB Motion Device keeps its name in flash (call 18), so a machine's configuration names
 its axes' devices rather than their ports, which change from boot to boot. Discovery
 searches the computer's serial ports (``serial.tools.list_ports``) and any explicit URLs
-(``socket://host:port`` of ``usbmotion sim --tcp``, ``sim://`` devices), sends each one
-``18 -1``, and reads the ``DEVICE_NAME`` answer within a short timeout.
+(``socket://host:port`` of ``usbmotion sim --tcp``, ``sim://`` devices), takes each link
+over as a new host does (diagnostics off, then
+:meth:`~usbmotion.host.device.DeviceClient.resynchronise`, so lines a dead host left in
+flight are skipped), sends ``18 -1`` and reads the ``DEVICE_NAME`` answer, each within a
+short timeout.
 """
 
 from __future__ import annotations
@@ -15,19 +18,21 @@ from dataclasses import dataclass
 from serial.tools import list_ports
 
 from usbmotion.errors import (
+    DeviceError,
     DeviceNotFoundError,
     DeviceTimeoutError,
     LinkLostError,
     UnexpectedReplyError,
 )
+from usbmotion.host.device import DeviceClient
 from usbmotion.host.transport import LineTransport
-from usbmotion.protocol import ReplyKind, parse_reply
+from usbmotion.protocol import parse_reply
 
 PROBE_TIMEOUT_S = 0.5
-"""How long a port has to answer ``18 -1``, seconds."""
+"""How long a port has to answer each query of the probe, seconds."""
 
-_QUERY = b"\n18 -1\n"
-"""The probe: a newline first ends whatever partial line an earlier host left behind."""
+_KEPT_LINES = 16
+"""How many skipped lines a probe keeps to say what a port that is no device answered."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,7 +43,8 @@ class PortAnswer:
         url: the port path or URL.
         name: the device name it answered with, or ``None``.
         problem: why there is no name: ``"no answer within 0.5 s"``, ``"could not open:
-            ..."``, ``"answered 'xyz'"``; empty when a name came back.
+            ..."``, ``"answered 'xyz', not a device name"``, ``"no device name: ..."``;
+            empty when a name came back.
     """
 
     url: str
@@ -58,42 +64,47 @@ def serial_ports() -> list[str]:
 
 
 def probe(url: str, *, timeout_s: float = PROBE_TIMEOUT_S) -> PortAnswer:
-    """Open ``url``, ask the device's name (call 18), close it.
+    """Open ``url``, take the link over, ask the device's name (call 18), close it.
 
-    Lines that are not the answer (diagnostics, an ``ERR`` for a stale partial line) are
-    skipped until the timeout, measured on the port's clock. Never raises for a port that
-    is missing, busy or silent: the answer says what happened.
+    Lines that are not the answer (diagnostics, echoes and answers meant for an earlier
+    host, an ``ERR`` for a stale partial line) are skipped by the resynchronisation;
+    each query has ``timeout_s`` to be answered, measured on the port's clock. Never
+    raises for a port that is missing, busy, silent or no device: the answer says what
+    happened.
     """
     try:
         transport = LineTransport.open(url)
     except LinkLostError as error:
         return PortAnswer(url, None, f"could not open: {error.__cause__ or error}")
-    other = ""
-    with transport:
+    skipped: list[bytes] = []
+
+    def keep(line: bytes) -> None:
+        if len(skipped) < _KEPT_LINES:
+            skipped.append(line)
+
+    with DeviceClient(transport, timeout_s=timeout_s) as client:
         try:
-            transport.discard_input()
-            transport.write(_QUERY)
-            deadline = transport.clock.now() + timeout_s
-            while True:
-                left = deadline - transport.clock.now()
-                if left <= 0:
-                    break
-                try:
-                    line = transport.read_line(left)
-                except DeviceTimeoutError:
-                    break
-                try:
-                    reply = parse_reply(line)
-                except UnexpectedReplyError:
-                    other = other or line.decode("ascii", errors="replace")[:40]
-                    continue
-                if reply.kind is ReplyKind.QUERY and reply.call == 18:
-                    return PortAnswer(url, reply.text)
+            client.resynchronise(stop_diagnostics=True, on_skipped=keep)
+            return PortAnswer(url, client.device_name())
+        except DeviceTimeoutError:
+            pass
+        except (UnexpectedReplyError, DeviceError) as error:
+            return PortAnswer(url, None, f"no device name: {error}")
         except LinkLostError as error:
             return PortAnswer(url, None, f"link lost: {error}")
-    if other:
-        return PortAnswer(url, None, f"answered {other!r}, not a device name")
+    other = next((line for line in skipped if not _is_reply(line)), None)
+    if other is not None:
+        shown = other.decode("ascii", errors="replace")[:40]
+        return PortAnswer(url, None, f"answered {shown!r}, not a device name")
     return PortAnswer(url, None, f"no answer within {timeout_s:g} s")
+
+
+def _is_reply(line: bytes) -> bool:
+    try:
+        parse_reply(line)
+    except UnexpectedReplyError:
+        return False
+    return True
 
 
 def scan(urls: Iterable[str], *, timeout_s: float = PROBE_TIMEOUT_S) -> list[PortAnswer]:

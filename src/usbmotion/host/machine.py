@@ -166,6 +166,11 @@ class Machine:
         devices of ``world`` and (with ``search_ports``) the computer's serial ports. An
         axis given both a ``url`` and a ``device`` name is checked to answer to that name.
 
+        A device may still be printing for a host that died or left (diagnostics it asked
+        for, an echo, answers, the tail of a line): each link is taken over with
+        :meth:`~usbmotion.host.device.DeviceClient.resynchronise`, which turns
+        diagnostics off and skips every line up to the answer to its own query.
+
         Parameters:
             config: the machine configuration.
             world: the world of the simulated axes (default: a fresh one).
@@ -177,6 +182,7 @@ class Machine:
             DeviceNotFoundError: a device name was not found, or a port answers to
                 another name.
             LinkLostError: a port could not be opened.
+            DeviceTimeoutError: a port did not answer the resynchronising query.
             ConfigError: the axes do not share one clock (simulated and real mixed).
         """
         simulated = [axis for axis in config.axes if axis.is_simulated]
@@ -216,22 +222,20 @@ class Machine:
                 )
                 client.scale = axis.scale
                 opened.append(Axis(axis.name, axis, client, url))
-                if axis.device is not None and axis.url is not None:
-                    client.transport.discard_input()
-                    answered = client.device_name()
-                    if answered != axis.device:
-                        raise DeviceNotFoundError(
-                            f"axis {axis.name}: {axis.url} answers to {answered!r}, not to the"
-                            f" configured device {axis.device!r}",
-                            name=axis.device, searched=(axis.url,),
-                        )
-            return cls(config, opened, world=world, world_alias=alias)
+            machine = cls(config, opened, world=world, world_alias=alias)
         except BaseException:
             for axis_open in opened:
                 axis_open.client.close()
             if alias is not None:
                 drop_world(alias)
             raise
+        try:
+            for axis_open in opened:
+                _take_over(axis_open)
+        except BaseException:
+            machine.close()
+            raise
+        return machine
 
     # --- configuring -----------------------------------------------------------------------
 
@@ -451,6 +455,24 @@ class Machine:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _take_over(axis: Axis) -> None:
+    """Diagnostics off and the link resynchronised; then the name checked, if one is set.
+
+    Raises:
+        DeviceNotFoundError: the port answers to another name than the configured one.
+    """
+    client, settings = axis.client, axis.config
+    client.resynchronise(stop_diagnostics=True)
+    if settings.device is not None and settings.url is not None:
+        answered = client.device_name()
+        if answered != settings.device:
+            raise DeviceNotFoundError(
+                f"axis {axis.name}: {settings.url} answers to {answered!r}, not to the"
+                f" configured device {settings.device!r}",
+                name=settings.device, searched=(settings.url,),
+            )
 
 
 def _set_mode(client: DeviceClient, axis: AxisConfig, mode: ControlMode) -> None:

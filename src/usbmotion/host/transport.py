@@ -4,6 +4,11 @@ pyserial's own ``readline`` reads a byte at a time; this transport reads whateve
 arrived in one call and cuts it into lines itself, so a fast device is never throttled by
 the host. Waiting is done on the port's clock: the wall clock for real ports, the virtual
 clock of the simulation for ``sim://`` ports (where waiting advances the simulation).
+
+After :meth:`LineTransport.discard_input` the next bytes may be the tail of a line the
+device was printing, so they are dropped up to the next newline; a host taking over a
+link therefore resynchronises with a query of its own
+(:meth:`usbmotion.host.device.DeviceClient.resynchronise`).
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ class LineTransport:
         self.clock: Clock = clock if clock is not None else WALL_CLOCK
         self._splitter = LineSplitter(max_bytes=_MAX_REPLY_LINE)
         self._lines: deque[bytes] = deque()
+        self._drop_to_newline = False
         self.bytes_written = 0
         self.bytes_read = 0
         self._closed = False
@@ -97,6 +103,12 @@ class LineTransport:
         if not chunk:
             return False
         self.bytes_read += len(chunk)
+        if self._drop_to_newline:
+            end = chunk.find(b"\n")
+            if end < 0:
+                return True
+            self._drop_to_newline = False
+            chunk = chunk[end + 1:]
         for line in self._splitter.feed(chunk):
             if isinstance(line, Overlong):
                 self._lines.append(b"<overlong line dropped>")
@@ -134,13 +146,31 @@ class LineTransport:
                 )
 
     def discard_input(self) -> None:
-        """Forget every line and byte received so far."""
+        """Forget every line and byte received so far, and the rest of the line in progress.
+
+        Resetting the port's input buffer drops what has reached the host, not what is
+        still on its way (in the device's USB buffer, a pseudo-terminal, a socket): the
+        next bytes may be the tail of a line, even when no partial line was held here.
+        So the bytes that arrive next are dropped up to and including the first newline,
+        unless the port's reset is known to leave the link at the start of a line (a
+        port whose ``usbmotion_exact_reset`` is true: the ``sim://`` ports, whose reset
+        drops every byte the device has printed, in flight or not).
+
+        A whole line may be dropped that way, the answer to a query sent after this call
+        among them: to take over a link, use
+        :meth:`usbmotion.host.device.DeviceClient.resynchronise`, which discards and then
+        reads up to the answer to a query of its own.
+
+        Raises:
+            LinkLostError: the port is gone.
+        """
         self._lines.clear()
         self._splitter.reset()
         try:
             self.port.reset_input_buffer()
         except (serial.SerialException, OSError) as error:
             raise LinkLostError(f"{self.label}: {error}", device=self.label) from error
+        self._drop_to_newline = getattr(self.port, "usbmotion_exact_reset", False) is not True
 
     def sleep(self, seconds: float) -> None:
         """Wait on the link's clock."""

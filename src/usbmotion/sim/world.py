@@ -119,7 +119,12 @@ class SimLink:
         if self.faults.stalled:
             return 0
         now = self.world.time_us
-        return sum(len(d) for t, d in self._outbox if t <= now)
+        total = 0
+        for due, data in self._outbox:
+            if due > now:
+                break
+            total += len(data)
+        return total
 
     def receive(self, size: int) -> bytes:
         """Take up to ``size`` bytes that have arrived by now."""

@@ -4,7 +4,10 @@ The device ``NAME`` (URL-quoted: ``sim://X%20AXIS``) of the world ``W`` (default
 ``default``) is opened; a device that is not there yet is created with the defaults and
 that name. Reading with a timeout advances the world's virtual clock instead of
 sleeping, so host code written for real ports runs in virtual time unchanged. The
-port's ``usbmotion_clock`` attribute is the world's :class:`VirtualClock`.
+port's ``usbmotion_clock`` attribute is the world's :class:`VirtualClock`; its
+``usbmotion_exact_reset`` is true because resetting its input buffer drops every byte the
+device has printed, in flight or not, and the device prints whole lines: the next byte the
+host reads starts a line.
 """
 
 from __future__ import annotations
@@ -71,6 +74,9 @@ def _ensure_device(world: SimWorld, name: str) -> None:
 
 class Serial(SerialBase):  # type: ignore[misc]
     """A pyserial port whose far end is a simulated device."""
+
+    usbmotion_exact_reset = True
+    """After :meth:`reset_input_buffer` the next byte read starts a line."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         self.link: SimLink | None = None
