@@ -32,8 +32,8 @@ extra wall time, the speed at which a longer program goes by.
 
 Then one more kernel run in-process counts what the devices did: servo ticks, kernel
 blocks, the lines the devices interpreted, and the diagnostics and alarm lines they
-printed: the anatomy of where the time goes; and a what-if run with the diagnostics every
-2 ms (five times the job's trace density).
+printed: the anatomy of where the time goes; and what-if runs with the diagnostics every
+10 ms and every 2 ms whatever the program's length.
 Target: at least 100x real time with the kernel.
 """
 
@@ -58,8 +58,9 @@ TARGET_MULTIPLE = 100.0
 TRAVEL_MM = (200.0, 200.0, 100.0)
 MARGIN_MM = 5.0
 SAFE_Z_MM = 30.0
-WHAT_IF_PERIODS = ((0.002, "2 ms"),)
-"""Diagnostics periods the anatomy also tries, beside the job's own (10 ms)."""
+WHAT_IF_PERIODS = ((0.01, "10 ms"), (0.002, "2 ms"))
+"""Diagnostics periods the anatomy also tries, beside the job's own (10 ms, or sparser for a
+program longer than 200 s: ``job.trace_period_s``)."""
 SHORT_MINUTES = 0.3
 """The one-figure program that measures the fixed cost of a run."""
 
@@ -170,12 +171,13 @@ def anatomy(
         counts["lines_in"] += 1
         original_interpret(self, line)
 
-    shipped_period_s = job.DIAGNOSTICS_PERIOD_S
+    shipped_period_s, shipped_points = job.DIAGNOSTICS_PERIOD_S, job.TRACE_POINTS
     core0.compile_kernel = lambda: counting  # type: ignore[attr-defined]
     DeviceClient.take_aside = take_aside  # type: ignore[method-assign]
     core0.Device._interpret = interpret  # type: ignore[method-assign]
     if diagnostics_period_s is not None:
         job.DIAGNOSTICS_PERIOD_S = diagnostics_period_s
+        job.TRACE_POINTS = 1 << 62
     try:
         config = load_config(machine_file)
         parsed = load_gcode(program)
@@ -185,14 +187,14 @@ def anatomy(
             report, _ = run_program(machine, parsed, plan)
         elapsed = time.perf_counter() - started
     finally:
-        job.DIAGNOSTICS_PERIOD_S = shipped_period_s
+        job.DIAGNOSTICS_PERIOD_S, job.TRACE_POINTS = shipped_period_s, shipped_points
         core0.compile_kernel = original_kernel  # type: ignore[attr-defined]
         DeviceClient.take_aside = original_aside  # type: ignore[method-assign]
         core0.Device._interpret = original_interpret  # type: ignore[method-assign]
     machine_s = report.homing_time_s + report.planned_time_s
     return {
         **counts,
-        "diagnostics_period_s": diagnostics_period_s or shipped_period_s,
+        "diagnostics_period_s": diagnostics_period_s or job.trace_period_s(plan.duration_s),
         "job_wall_s": elapsed,
         "real_time_multiple": machine_s / elapsed,
         "machine_s": machine_s,

@@ -41,8 +41,12 @@ from usbmotion.protocol.table import Fault as FaultCode
 PLAN_AXES = ("X", "Y", "Z")
 HOMING_POLL_HZ = 50.0
 DIAGNOSTICS_PERIOD_S = 0.01
-"""Diagnostics lines for the trace (plots, end points, settling): the peak and RMS error
-come from the devices' own statistics (call 35), so the trace need not be dense."""
+"""The shortest period of the diagnostics lines of the trace (plots, end points, settling):
+the peak and RMS error come from the devices' own statistics (call 35), so the trace need
+not be dense."""
+TRACE_POINTS = 20_000
+"""The most diagnostics lines per axis the trace aims at: a longer program gets a sparser
+trace (an hour, one line every 0.18 s), so its memory and the host's work stay bounded."""
 SETTLE_COUNTS = 2
 START_MARGIN_S = 0.2
 FAULT_CHECK_S = 0.05
@@ -265,6 +269,11 @@ def home_machine(machine: Machine) -> float:
     return clock.now() - started
 
 
+def trace_period_s(duration_s: float) -> float:
+    """The diagnostics period of the trace of a program lasting ``duration_s``."""
+    return max(DIAGNOSTICS_PERIOD_S, duration_s / TRACE_POINTS)
+
+
 def _keep_alive_polls(watchdog_ms: int) -> int:
     """Homing polls between keep-alive queries: four within the watchdog, or one a second."""
     window_s = watchdog_ms / 1000.0 / 4 if watchdog_ms > 0 else 1.0
@@ -300,7 +309,7 @@ def run_program(
         for axis in machine.axes.values():
             axis.client.set_servo_enable(True)
     tick_s = config.servo_period_s
-    diag_ticks = max(1, round(DIAGNOSTICS_PERIOD_S / tick_s))
+    diag_ticks = max(1, round(trace_period_s(plan.duration_s) / tick_s))
     trace = Trace(tick_s=tick_s, start_tick=0,
                   counts_per_mm={n: machine.axis(n).config.counts_per_mm for n in machine.axes})
     for name, axis in machine.axes.items():

@@ -310,6 +310,12 @@ class LineSplitter:
 
     def feed(self, data: bytes) -> list[bytes | Overlong]:
         """Take a chunk and return the whole lines it completes (without ``\\n``/``\\r``)."""
+        if not self._buffer and not self._discarding:
+            pieces = data.split(b"\n")
+            rest = pieces.pop()
+            if not pieces or max(map(len, pieces)) <= self._max:
+                self._keep(rest)
+                return [piece.rstrip(b"\r") for piece in pieces]
         out: list[bytes | Overlong] = []
         start = 0
         while True:
