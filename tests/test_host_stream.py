@@ -16,6 +16,7 @@ from usbmotion.errors import OutOfRangeError
 from usbmotion.host.device import DeviceClient
 from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams, wait_until_drained
 from usbmotion.host.transport import LineTransport
+from usbmotion.protocol import values_crc32
 from usbmotion.sim import SimWorld, drop_world, set_world
 
 SETPOINTS = 20_000
@@ -74,24 +75,29 @@ def _stream_everything(rig: Rig) -> None:
         client.set_servo_enable(True)
     period_s = clients[0].motion_period_s()
     progress: list[StreamProgress] = []
-    # verify: the device echoes every batch it queues (S0 N values) and the stream checks it
+    # verify: the device acknowledges every batch it queues (ADDED N CRC c) and the stream
+    # checks it; the acknowledgements must cover the setpoints once, in order
     streams = [SetpointStream(c, _setpoints(i), period_s=period_s, verify=True,
                               on_progress=progress.append) for i, c in enumerate(clients)]
-    echoed: dict[int, list[int]] = {i: [] for i in range(len(clients))}
+    acked: dict[int, list[tuple[int, int]]] = {i: [] for i in range(len(clients))}
     for index, stream in enumerate(streams):
         check = stream._take
 
         def spy(line: bytes, index: int = index, check=check) -> tuple[int, int] | None:  # type: ignore[no-untyped-def]
-            text = line.decode()
-            if text.startswith("S0 "):
-                echoed[index] += [int(v) for v in text.split()[2:]]
+            words = line.decode().split()
+            if words[:1] == ["ADDED"]:
+                acked[index].append((int(words[1]), int(words[3])))
             return check(line)
 
         stream._take = spy  # type: ignore[method-assign]
     run_streams(streams)
     wait_until_drained(clients, period_s=period_s)
     for index, (client, stream) in enumerate(zip(clients, streams, strict=True)):
-        assert echoed[index] == _setpoints(index).tolist(), "every value once, in order"
+        wanted, start = _setpoints(index), 0
+        for count, crc in acked[index]:
+            assert crc == values_crc32(wanted[start : start + count]), "in order, intact"
+            start += count
+        assert start == SETPOINTS, "every value once"
         assert stream.garbled_lines == stream.errors == stream.timeouts == 0
         assert client.refusals == 0, "no E0/E1 in normal operation"
         result = stream.result()

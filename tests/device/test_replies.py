@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import struct
+import zlib
+
 import pytest
 
 from usbmotion.device import Device
@@ -224,3 +227,11 @@ def test_status_reports_the_servo() -> None:
     assert (clock, desired, queued, enable, mode, limits, fault) == (300, 500, 0, 1, 1, 0, 0)
     assert abs(actual - 500) <= 2
     assert velocity == 0
+
+
+def test_a_batch_is_acknowledged_by_its_crc_with_flag_2() -> None:
+    device = Device()
+    expected = zlib.crc32(struct.pack("<3i", -1, 2147483647, -2147483648))
+    assert send(device, "8 1 2", "1 3 -1 2147483647 -2147483648") == [f"ADDED 3 CRC {expected}"]
+    assert send(device, "8 1 0", "1 1 5") == [], "flag 0: no line"
+    assert send(device, "8 1 7", "1 1 5") == [], "an undefined flag acts as 0"

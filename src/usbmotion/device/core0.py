@@ -48,7 +48,14 @@ from usbmotion.device.motor import (
 )
 from usbmotion.errors import DeviceParameterError, EmptyLineError, FlashError, ProtocolError
 from usbmotion.hermite import Keyframe
-from usbmotion.protocol.codec import Call, LineSplitter, Overlong, format_err, parse_call
+from usbmotion.protocol.codec import (
+    Call,
+    LineSplitter,
+    Overlong,
+    format_err,
+    parse_call,
+    values_crc32,
+)
 from usbmotion.protocol.table import (
     ALARM,
     BY_NUMBER,
@@ -707,7 +714,11 @@ class Device:
             self._print("E1")
             return
         self._push(values)
-        self._debug_line(1, len(values), " ".join(map(str, values)))
+        flag = self._debug.get(1, 0)
+        if flag == 1:
+            self._debug_line(1, len(values), " ".join(map(str, values)))
+        elif flag == 2:
+            self._debug_line(1, len(values), values_crc32(values))
 
     def _call_2(self, call: Call) -> None:
         queued = int(self._state[core1.S_QUEUE_COUNT])

@@ -39,6 +39,7 @@ from usbmotion.protocol import (
     ReplyKind,
     encode_call,
     parse_reply,
+    values_crc32,
 )
 from usbmotion.protocol.table import INT32_MAX, INT32_MIN
 
@@ -75,13 +76,21 @@ RESYNC_ATTEMPTS = 5
 """Status queries tried before a stream gives up on a link that answers nothing readable."""
 
 
-def _echo_values(reply: Reply) -> list[int] | None:
-    """The values of a call-1 echo ``S0 N v1 .. vN``, or None if it is not well formed."""
+def _acknowledgement(reply: Reply) -> tuple[int, int] | None:
+    """(count, CRC-32) of the batch a call-1 debug line says was queued, or None.
+
+    ``ADDED N CRC c`` (debug flag 2, what a stream asks for) carries them; an echo
+    ``S0 N v1 .. vN`` (flag 1) is reduced to them. None: not well formed.
+    """
+    if reply.key == "ADDED" and len(reply.values) == 2:
+        return reply.values[0], reply.values[1]
     try:
         values = list(map(int, reply.text.split()))
     except ValueError:
         return None
-    return values if len(values) == reply.values[0] else None
+    if not reply.values or len(values) != reply.values[0]:
+        return None
+    return len(values), values_crc32(values)
 
 
 class SetpointStream:
@@ -94,8 +103,9 @@ class SetpointStream:
         low_water: refill when the queue is predicted to hold this many or fewer.
         high_water: fill up to this many.
         max_batch: most values in one call-1 line.
-        verify: have the device echo every batch (call 8 ``8 1 1`` is sent) and check the
-            echo, so values mangled on the link are caught, not executed silently.
+        verify: have the device acknowledge every batch it queues with the batch's CRC-32
+            (call 8 ``8 1 2`` is sent) and check it against the values sent, so values
+            mangled on the link are caught, not executed silently.
         on_progress: called after every service.
     """
 
@@ -149,7 +159,8 @@ class SetpointStream:
         self.timeouts = 0
         self.garbled_lines = 0
         self.status_queries = 0
-        self._echo: list[int] | None = None
+        self._ack: tuple[int, int] | None = None
+        """(count, CRC-32) the device acknowledged for the batch in flight."""
         self._refused = False
         self._verify_armed = False
         self._failed_batches = 0
@@ -224,7 +235,7 @@ class SetpointStream:
 
     def _top_up(self) -> None:
         if self.verify and not self._verify_armed:
-            self.client.set_debug_flag(1, 1)
+            self.client.set_debug_flag(1, 2)
             self._verify_armed = True
         queued, free = self._status()
         if queued > self.low_water and self.batches:
@@ -232,8 +243,8 @@ class SetpointStream:
         count = min(self.high_water - queued, free, self.max_batch, self.total - self.sent)
         if count <= 0:
             return
-        batch = self._values[self.sent : self.sent + count].tolist()
-        if self._send_batch(batch):
+        chunk = self._values[self.sent : self.sent + count]
+        if self._send_batch(chunk.tolist(), crc=values_crc32(chunk)):
             self.sent += count
             self.batches += 1
 
@@ -253,22 +264,23 @@ class SetpointStream:
             device=self.client.name, call=2,
         )
 
-    def _send_batch(self, batch: list[int]) -> bool:
+    def _send_batch(self, batch: list[int], *, crc: int) -> bool:
         """Send one call-1 batch with a status query behind it; True if the device took it.
 
-        With ``verify`` the device echoes every batch it takes (debug flag 1 of call 1),
-        and the echo must equal what was sent, so a batch mangled on the way is caught
-        and a lost answer is recovered from: after draining the link, an echo says the
-        batch was taken, no echo says it was not. Without ``verify`` a batch counts as
+        With ``verify`` the device acknowledges every batch it takes with its count and
+        CRC-32 (debug flag 2 of call 1), which must equal those of what was sent
+        (``crc``), so a batch mangled on the way is caught and a lost answer is recovered
+        from: after draining the link, an acknowledgement says the batch was taken, none
+        says it was not. Without ``verify`` a batch counts as
         taken unless ``E1`` or ``ERR`` came back, and a lost answer is an error.
 
         Raises:
-            LinkCorruptedError: the echo differs from the batch, or unreadable lines came
-                back in its place.
+            LinkCorruptedError: the acknowledged count or CRC differs from the batch's, or
+                unreadable lines came back in its place.
             DeviceTimeoutError: the answer was lost and, without ``verify``, whether the
                 batch was taken cannot be known.
         """
-        self._echo = None
+        self._ack = None
         self._refused = False
         self._errors_at_batch = self.errors
         garbled_before = self.garbled_lines
@@ -285,15 +297,15 @@ class SetpointStream:
                     device=self.client.name, call=1,
                 )
             self._status()
-        if self._echo is None and self.garbled_lines > garbled_before:
+        if self._ack is None and self.garbled_lines > garbled_before:
             raise LinkCorruptedError(
                 f"{self.client.name}: {self.garbled_lines - garbled_before} unreadable line(s)"
                 f" came back after a batch of {len(batch)} setpoints, so whether it was queued"
                 f" cannot be known: the link is corrupting bytes; {self.sent} setpoints were"
                 " confirmed", device=self.client.name, call=1, confirmed=self.sent,
             )
-        if self._echo is not None:
-            if self._echo != batch:
+        if self._ack is not None:
+            if self._ack != (len(batch), crc):
                 raise LinkCorruptedError(
                     f"{self.client.name}: the device queued values other than those sent"
                     f" (setpoints {self.sent}..{self.sent + len(batch) - 1}): the link is"
@@ -315,7 +327,7 @@ class SetpointStream:
 
     def refusals_only(self) -> bool:
         """True when the last batch was turned away only by ``E1`` (a full queue, no damage)."""
-        return self.errors == self._errors_at_batch and self._echo is None and not self.verify
+        return self.errors == self._errors_at_batch and self._ack is None and not self.verify
 
     def _exchange(self) -> tuple[int, int] | None:
         """Read up to the next queue-status answer.
@@ -362,11 +374,11 @@ class SetpointStream:
             self.garbled_lines += 1
             return None
         if reply.kind is ReplyKind.DEBUG and reply.call == 1:
-            echo = _echo_values(reply)
+            echo = _acknowledgement(reply)
             if echo is None:
                 self.garbled_lines += 1
             else:
-                self._echo = echo
+                self._ack = echo
             return None
         if self.client.take_aside(reply):
             return None

@@ -11,6 +11,7 @@ from usbmotion.protocol.codec import (
     format_err,
     parse_call,
     parse_reply,
+    values_crc32,
 )
 from usbmotion.protocol.table import (
     BY_NAME,
@@ -50,4 +51,5 @@ __all__ = [
     "format_err",
     "parse_call",
     "parse_reply",
+    "values_crc32",
 ]

@@ -7,9 +7,13 @@ integers separated by spaces or tabs, ended by ``\\n`` (a ``\\r`` before it is i
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable, Iterator
+import zlib
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from enum import Enum
+
+import numpy as np
+import numpy.typing as npt
 
 from usbmotion.errors import (
     EmptyLineError,
@@ -35,10 +39,10 @@ from usbmotion.protocol.table import (
 )
 
 _INT = re.compile(r"[+-]?\d+\Z")
-_WELL_FORMED = re.compile(rb"[ \t]*[+-]?[0-9]+(?:[ \t]+[+-]?[0-9]+)*[ \t]*\r?\n?\Z")
-"""A whole line of decimal integers separated by spaces or tabs: the common case, which
-:func:`parse_call` converts at C speed; anything else takes the token-by-token path that
-names the offending token."""
+_NUMERIC = b"0123456789+- \t\r\n"
+"""The bytes of a line of decimal integers: a line of nothing else is converted at C speed
+by :func:`parse_call` (``int`` then rejects a misplaced sign); anything else takes the
+token-by-token path that names the offending token."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -109,6 +113,14 @@ def encode_call(number: int, *args: int) -> bytes:
     raise AssertionError("unreachable: a non-int input was found above")
 
 
+def values_crc32(values: Sequence[int] | npt.NDArray[np.integer]) -> int:
+    """CRC-32 (zlib) of setpoints as 32-bit little-endian two's complement integers.
+
+    What a device answers a batch with when call 1's debug flag is 2 (``ADDED N CRC c``).
+    """
+    return zlib.crc32(np.asarray(values, dtype="<i4").tobytes())
+
+
 def parse_call(line: bytes | str) -> Call:
     """Parse one line (with or without its newline) into a validated :class:`Call`.
 
@@ -121,8 +133,11 @@ def parse_call(line: bytes | str) -> Call:
         UnknownCallError, WrongCountError, OutOfRangeError: see :func:`check_call`.
     """
     if isinstance(line, bytes):
-        if len(line) <= MAX_LINE_BYTES and _WELL_FORMED.match(line) is not None:
-            numbers = list(map(int, line.split()))
+        if len(line) <= MAX_LINE_BYTES and not line.translate(None, _NUMERIC):
+            try:
+                numbers = list(map(int, line.split()))
+            except ValueError:
+                numbers = []
             if numbers:
                 number, args = numbers[0], tuple(numbers[1:])
                 check_call(number, args)

@@ -230,9 +230,12 @@ CALLS: tuple[CallSpec, ...] = (
         "Add N integers to the motion queue, all or none.",
         (_p("count", 1, QUEUE_CAPACITY, "number of values that follow"),),
         item=_p("value", INT32_MIN, INT32_MAX, "setpoint: counts (mode 1) or counts/s (mode 2)"),
-        debug={1: _t("S0 {count} {values}")},
+        debug={1: _t("S0 {count} {values}"), 2: _t("ADDED {count} CRC {crc}")},
         refusal="E1",
-        notes="If the queue cannot take all N values it takes none and answers `E1`.",
+        notes="If the queue cannot take all N values it takes none and answers `E1`. Debug flag"
+        " 2 acknowledges a batch taken without echoing it: `crc` is the CRC-32 (zlib, IEEE"
+        " 802.3) of the N values as 32-bit little-endian two's complement integers, which the"
+        " host computes over what it sent (`usbmotion.protocol.values_crc32`).",
     ),
     CallSpec(
         2,
