@@ -196,3 +196,37 @@ def test_bad_command_lines_are_clear(args: tuple[str, ...], message: str) -> Non
     assert done.returncode == 2
     assert message in done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_end_points_are_measured_against_the_whole_path() -> None:
+    """The pruned search equals a brute-force distance to every segment of the path."""
+    from array import array  # noqa: PLC0415
+
+    import numpy as np  # noqa: PLC0415
+
+    from usbmotion.job import Trace, _endpoint_misses  # noqa: PLC0415
+    from usbmotion.motion.gcode import parse_gcode  # noqa: PLC0415
+
+    rng = np.random.default_rng(7)
+    steps = rng.normal(0.0, 0.4, size=(3000, 3))
+    steps[::250] *= 40  # a few long jumps, as rapids leave between samples
+    path = np.cumsum(steps, axis=0) + 100.0
+    trace = Trace(tick_s=0.001, start_tick=0, counts_per_mm=dict.fromkeys("XYZ", 1000.0))
+    for index, name in enumerate("XYZ"):
+        trace.clock[name] = array("q", range(len(path)))
+        trace.actual[name] = array("q", np.round(path[:, index] * 1000).astype(np.int64))
+    ends = path[rng.integers(0, len(path), 40)] + rng.normal(0.0, 0.3, size=(40, 3))
+    program = parse_gcode("G21 G90\n" + "".join(
+        f"G1 X{x:.3f} Y{y:.3f} Z{z:.3f} F600\n" for x, y, z in ends) + "M2\n")
+    checked, worst = _endpoint_misses(program, trace)
+
+    points = np.stack([np.asarray(trace.actual[n], dtype=float) / 1000 for n in "XYZ"], axis=1)
+    starts, spans = points[:-1], np.diff(points, axis=0)
+    brute = 0.0
+    for end in np.array([move.end for move in program.moves]):
+        along = np.clip(np.einsum("ij,ij->i", end - starts, spans)
+                        / np.einsum("ij,ij->i", spans, spans), 0.0, 1.0)
+        gaps = starts + along[:, None] * spans - end
+        brute = max(brute, float(np.sqrt(np.einsum("ij,ij->i", gaps, gaps).min())))
+    assert checked == 40
+    assert worst == pytest.approx(brute, abs=1e-9)

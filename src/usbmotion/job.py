@@ -44,9 +44,10 @@ DIAGNOSTICS_PERIOD_S = 0.01
 """The shortest period of the diagnostics lines of the trace (plots, end points, settling):
 the peak and RMS error come from the devices' own statistics (call 35), so the trace need
 not be dense."""
-TRACE_POINTS = 20_000
-"""The most diagnostics lines per axis the trace aims at: a longer program gets a sparser
-trace (an hour, one line every 0.18 s), so its memory and the host's work stay bounded."""
+TRACE_POINTS = 10_000
+"""The most diagnostics lines per axis the trace aims at (more than a plot can show): a
+longer program gets a sparser trace (10 minutes, one line every 60 ms; an hour, every
+0.36 s), so its memory and the host's work stay bounded."""
 SETTLE_COUNTS = 2
 START_MARGIN_S = 0.2
 FAULT_CHECK_S = 0.05
@@ -534,15 +535,27 @@ def _endpoint_misses(program: GCodeProgram, trace: Trace) -> tuple[int, float]:
     starts = path[:-1]
     spans = path[1:] - starts
     lengths_sq = np.einsum("ij,ij->i", spans, spans)
-    moving = lengths_sq > 0
+    longest = float(np.sqrt(lengths_sq.max()))
+    last = len(starts) - 1
     worst = 0.0
     for end in ends:
-        offsets = end - starts
-        along = np.zeros(len(starts))
+        offsets = path - end
+        dist_sq = np.einsum("ij,ij->i", offsets, offsets)
+        # A segment can pass closer than its ends only if an end is within the nearest
+        # sample's distance plus the longest segment: only those segments are measured.
+        reach = float(np.sqrt(dist_sq.min())) + longest
+        near = np.nonzero(dist_sq <= reach * reach)[0]
+        index = np.unique(np.clip(np.concatenate((near - 1, near)), 0, last))
+        seg_offsets = offsets[index]
+        seg_spans = spans[index]
+        seg_lengths = lengths_sq[index]
+        along = np.zeros(len(index))
+        moving = seg_lengths > 0
         along[moving] = np.clip(
-            np.einsum("ij,ij->i", offsets[moving], spans[moving]) / lengths_sq[moving], 0.0, 1.0
+            -np.einsum("ij,ij->i", seg_offsets[moving], seg_spans[moving]) / seg_lengths[moving],
+            0.0, 1.0,
         )
-        gaps = offsets - along[:, None] * spans
+        gaps = seg_offsets + along[:, None] * seg_spans
         worst = max(worst, float(np.sqrt(np.min(np.einsum("ij,ij->i", gaps, gaps)))))
     return int(ends.shape[0]), worst
 

@@ -235,3 +235,13 @@ def test_a_batch_is_acknowledged_by_its_crc_with_flag_2() -> None:
     assert send(device, "8 1 2", "1 3 -1 2147483647 -2147483648") == [f"ADDED 3 CRC {expected}"]
     assert send(device, "8 1 0", "1 1 5") == [], "flag 0: no line"
     assert send(device, "8 1 7", "1 1 5") == [], "an undefined flag acts as 0"
+
+
+def test_the_crc_covers_a_batch_that_wraps_around_the_queue_ring() -> None:
+    device = Device()
+    send(device, "3 1", "1 700 " + " ".join(["5"] * 700))
+    device.run(600)
+    values = list(range(-250, 250))
+    expected = zlib.crc32(struct.pack(f"<{len(values)}i", *values))
+    lines = send(device, "8 1 2", f"1 {len(values)} " + " ".join(map(str, values)), "2 -1")
+    assert lines == [f"ADDED 500 CRC {expected}", "MOTION_QUEUE 600 400"]

@@ -16,6 +16,7 @@ device keeps serving. Nothing escapes :meth:`Device.feed`.
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
@@ -54,7 +55,6 @@ from usbmotion.protocol.codec import (
     Overlong,
     format_err,
     parse_call,
-    values_crc32,
 )
 from usbmotion.protocol.table import (
     ALARM,
@@ -660,7 +660,8 @@ class Device:
         state[core1.S_DESIRED_VEL] = 0
         self._curve.interrupt(int(state[core1.S_ACTUAL]))
 
-    def _push(self, values: tuple[int, ...]) -> None:
+    def _push(self, values: tuple[int, ...]) -> int:
+        """Append to the queue ring; returns the slot of the first value."""
         state = self._state
         count = int(state[core1.S_QUEUE_COUNT])
         tail = (int(state[core1.S_QUEUE_HEAD]) + count) % QUEUE_CAPACITY
@@ -668,6 +669,7 @@ class Device:
         self._queue[tail : tail + first] = values[:first]
         self._queue[: len(values) - first] = values[first:]
         state[core1.S_QUEUE_COUNT] = count + len(values)
+        return tail
 
     def _refuse_in_curve_mode(self) -> None:
         if self._state[core1.S_MODE] == MODE_CURVE:
@@ -713,12 +715,15 @@ class Device:
         if int(self._state[core1.S_QUEUE_COUNT]) + len(values) > QUEUE_CAPACITY:
             self._print("E1")
             return
-        self._push(values)
+        tail = self._push(values)
         flag = self._debug.get(1, 0)
         if flag == 1:
             self._debug_line(1, len(values), " ".join(map(str, values)))
         elif flag == 2:
-            self._debug_line(1, len(values), values_crc32(values))
+            first = min(len(values), QUEUE_CAPACITY - tail)
+            crc = zlib.crc32(self._queue[tail : tail + first].astype("<i4").tobytes())
+            crc = zlib.crc32(self._queue[: len(values) - first].astype("<i4").tobytes(), crc)
+            self._debug_line(1, len(values), crc)
 
     def _call_2(self, call: Call) -> None:
         queued = int(self._state[core1.S_QUEUE_COUNT])

@@ -238,7 +238,7 @@ class SetpointStream:
             self.client.set_debug_flag(1, 2)
             self._verify_armed = True
         queued, free = self._status()
-        if queued > self.low_water and self.batches:
+        if queued > self.low_water + (self.high_water - self.low_water) // 10 and self.batches:
             return
         count = min(self.high_water - queued, free, self.max_batch, self.total - self.sent)
         if count <= 0:
@@ -287,7 +287,9 @@ class SetpointStream:
         self.client.transport.write(encode_call(1, len(batch), *batch) + encode_call(2, -1))
         self.status_queries += 1
         answer = self._exchange()
-        if answer is None:
+        if answer is not None:
+            self._observe(answer[0])
+        else:
             self._drain()
             if not self.verify:
                 raise DeviceTimeoutError(
