@@ -369,7 +369,7 @@ def run_program(
     link_error = ""
     lost_axis = ""
     try:
-        run_streams(list(streams.values()), should_stop=check)
+        run_streams(list(streams.values()), should_stop=check, max_wait_s=FAULT_CHECK_S)
         stopped = bool(faults) or (should_stop is not None and should_stop())
         if not stopped:
             wait_until_drained([machine.axis(n).client for n in PLAN_AXES], period_s=period_s,
