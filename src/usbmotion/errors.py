@@ -112,7 +112,7 @@ class LinkLostError(UsbMotionError, ConnectionError):
 
 
 class LinkCorruptedError(DeviceError):
-    """The device echoed values other than those sent: the link changed bytes.
+    """The device acknowledged values other than those sent: the link changed bytes.
 
     ``confirmed`` is how many setpoints had been confirmed intact before the mismatch.
     """
