@@ -189,7 +189,7 @@ def test_a_long_program_keeps_time_and_memory(monkeypatch: pytest.MonkeyPatch) -
     late_s = (soak.drains["X"][0] - 1 - soak.start_tick) * config.servo_period_s - soak.planned_s
     print(
         f"soak: {soak.planned_s:.1f} s of program, diagnostics every"
-        f" {job.DIAGNOSTICS_PERIOD_S * 1e3:g} ms ({soak.setpoints} setpoints per axis) in"
+        f" {job.trace_period_s(soak.planned_s) * 1e3:g} ms ({soak.setpoints} setpoints per axis) in"
         f" {soak.wall_s:.1f} s of wall time; executed - planned"
         f" {late_s * 1e3:+.2f} ms;"
         f" memory: trace {trace_bytes / 1e6:.1f} MB"
