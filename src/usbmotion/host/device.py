@@ -31,6 +31,7 @@ from usbmotion.protocol import (
     Reply,
     ReplyKind,
     encode_call,
+    parse_diagnostics,
     parse_reply,
 )
 from usbmotion.protocol.table import Fault
@@ -246,6 +247,11 @@ class DeviceClient:
             LinkLostError: the port is gone.
         """
         for line in self.transport.poll_lines():
+            values = parse_diagnostics(line)
+            if values is not None:
+                if self.on_diagnostics is not None:
+                    self.on_diagnostics(Diagnostics(*values))
+                continue
             try:
                 reply = parse_reply(line)
             except UnexpectedReplyError:

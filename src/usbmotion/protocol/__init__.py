@@ -10,6 +10,7 @@ from usbmotion.protocol.codec import (
     encode_call,
     format_err,
     parse_call,
+    parse_diagnostics,
     parse_reply,
     values_crc32,
 )
@@ -50,6 +51,7 @@ __all__ = [
     "encode_call",
     "format_err",
     "parse_call",
+    "parse_diagnostics",
     "parse_reply",
     "values_crc32",
 ]

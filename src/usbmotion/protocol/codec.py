@@ -257,6 +257,19 @@ _MATCHERS = _matchers()
 _ERR = re.compile(r"^ERR (\?|-?\d+) (.*)$")
 _DIAGNOSTICS = re.compile(DIAGNOSTICS.pattern().pattern.encode("ascii"))
 """Diagnostics lines as bytes: the most frequent line by far, parsed without decoding."""
+_DIAGNOSTICS_BYTES = b"D -0123456789"
+
+
+def parse_diagnostics(line: bytes) -> tuple[int, ...] | None:
+    """The six values of a diagnostics line (``D <clock> ...``), or None if it is not one.
+
+    The fast path for the most frequent line: exactly what :func:`parse_reply` would read.
+    """
+    line = line.rstrip(b"\r\n")
+    if line[:2] != b"D " or line.translate(None, _DIAGNOSTICS_BYTES):
+        return None
+    found = _DIAGNOSTICS.match(line)
+    return None if found is None else tuple(map(int, found.groups()))
 
 
 def parse_reply(line: bytes | str) -> Reply:
@@ -266,11 +279,10 @@ def parse_reply(line: bytes | str) -> Reply:
         UnexpectedReplyError: the line matches no reply in the table.
     """
     if isinstance(line, bytes) and line[:2] == b"D ":
-        found = _DIAGNOSTICS.match(line.rstrip(b"\r\n"))
-        if found is not None:
+        diagnostics = parse_diagnostics(line)
+        if diagnostics is not None:
             text = line.rstrip(b"\r\n").decode("ascii")
-            return Reply(ReplyKind.DIAGNOSTICS, None, "D",
-                         tuple(map(int, found.groups())), "", text)
+            return Reply(ReplyKind.DIAGNOSTICS, None, "D", diagnostics, "", text)
     text = line.decode("ascii", errors="replace") if isinstance(line, bytes) else line
     exact = text.rstrip("\r\n")
     text = exact.strip()
