@@ -49,6 +49,36 @@ def test_full_home_ends_with_every_position_zero_at_the_lower_switch() -> None:
             assert status.enabled
 
 
+def test_homing_uses_each_axis_velocity_gains(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The velocity loop of homing runs on the gains the machine file gives each axis."""
+    from dataclasses import replace  # noqa: PLC0415
+
+    from usbmotion.host.config import PidGains  # noqa: PLC0415
+    from usbmotion.host.device import DeviceClient  # noqa: PLC0415
+
+    config = load_config(default_machine())
+    wanted = {"X": PidGains(0.0011, 0.51, 0.0), "Y": PidGains(0.0009, 0.49, 0.0)}
+    axes = tuple(replace(axis, velocity_gains=wanted[axis.name]) if axis.name in wanted
+                 else axis for axis in config.axes)
+    config = replace(config, axes=axes)
+    seen: dict[str, list[tuple[float, float, float]]] = {}
+    original = DeviceClient.set_gains
+
+    def spy(self: DeviceClient, *, kp: float, ki: float, kd: float) -> None:
+        seen.setdefault(self.name, []).append((kp, ki, kd))
+        original(self, kp=kp, ki=ki, kd=kd)
+
+    with Machine.connect(config) as machine:
+        machine.configure()
+        monkeypatch.setattr(DeviceClient, "set_gains", spy)
+        home_machine(machine)
+        for name, axis in machine.axes.items():
+            gains = axis.config.velocity_gains
+            assert seen[axis.client.name][0] == (gains.kp, gains.ki, gains.kd), name
+            position = axis.config.gains
+            assert seen[axis.client.name][-1] == (position.kp, position.ki, position.kd)
+
+
 def test_usbmotion_run_a_demo_as_a_user_does(tmp_path: Path) -> None:
     program = tmp_path / "square.ngc"
     program.write_text(demo_path(1).read_text())

@@ -241,6 +241,9 @@ def home_machine(machine: Machine) -> float:
         {name: axis.scale for name, axis in machine.axes.items()},
         poll_period_s=1.0 / HOMING_POLL_HZ,
         motion_period_s=dict.fromkeys(machine.axes, config.motion_period_s),
+        velocity_gains={name: (axis.config.velocity_gains.kp, axis.config.velocity_gains.ki,
+                               axis.config.velocity_gains.kd)
+                        for name, axis in machine.axes.items()},
         keep_alive_polls=_keep_alive_polls(config.watchdog_ms),
     )
     upward = {name for name, axis in machine.axes.items() if axis.config.homing.direction > 0}

@@ -35,7 +35,9 @@ class DeviceHomingIO:
         motion_period_s: axis name -> seconds per queue value on that device.
         cover_polls: polling periods each velocity command lasts on the device; an
             unchanged velocity is sent again after half of them.
-        velocity_gains: (kp, ki, kd) of the velocity loop used while homing.
+        velocity_gains: (kp, ki, kd) of the velocity loop used while homing: one for every
+            axis, or a mapping of axis name -> gains (axes it leaves out get
+            :data:`VELOCITY_GAINS`).
         keep_alive_polls: an axis no call reached gets a query every this many calls of
             :meth:`keep_alive` (keep it well below the watchdog).
     """
@@ -48,7 +50,9 @@ class DeviceHomingIO:
         poll_period_s: float,
         motion_period_s: Mapping[str, float],
         cover_polls: int = 4,
-        velocity_gains: tuple[float, float, float] = VELOCITY_GAINS,
+        velocity_gains: (
+            tuple[float, float, float] | Mapping[str, tuple[float, float, float]]
+        ) = VELOCITY_GAINS,
         keep_alive_polls: int = 1,
     ) -> None:
         if not (math.isfinite(poll_period_s) and poll_period_s > 0):
@@ -65,7 +69,12 @@ class DeviceHomingIO:
         self.poll_period_s = poll_period_s
         self.motion_period_s = dict(motion_period_s)
         self.cover_polls = cover_polls
-        self.velocity_gains = velocity_gains
+        self.velocity_gains: dict[str, tuple[float, float, float]] = (
+            {name: velocity_gains.get(name, VELOCITY_GAINS) for name in self.clients}
+            if isinstance(velocity_gains, Mapping)
+            else dict.fromkeys(self.clients, velocity_gains)
+        )
+        """Axis -> (kp, ki, kd) of its velocity loop while homing."""
         self.keep_alive_polls = keep_alive_polls
         self.velocity_commands = 0
         self._sent: dict[str, tuple[int, int]] = {}
@@ -75,8 +84,8 @@ class DeviceHomingIO:
 
     def enter_velocity_mode(self) -> None:
         """Put every axis in velocity mode, with the velocity gains, servo enabled."""
-        kp, ki, kd = self.velocity_gains
-        for client in self.clients.values():
+        for axis, client in self.clients.items():
+            kp, ki, kd = self.velocity_gains[axis]
             client.set_control_mode(ControlMode.VELOCITY)
             client.set_gains(kp=kp, ki=ki, kd=kd)
             client.set_servo_enable(True)
