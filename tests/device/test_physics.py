@@ -5,8 +5,9 @@ from __future__ import annotations
 import math
 
 import pytest
+from tests.device.helpers import send
 
-from usbmotion.device import MotorParams
+from usbmotion.device import Device, MotorParams
 from usbmotion.device.motor import MICRO, derive_constants, motor_tick
 
 from .float_reference import (
@@ -129,3 +130,16 @@ def test_float_reference_agrees_on_the_step_shape() -> None:
     settle_ms, overshoot = step_figures(counts, 1000, 1000)
     assert settle_ms <= 150
     assert overshoot <= 10
+
+
+def test_zero_viscous_friction_is_allowed_and_frees_the_motor() -> None:
+    """Call 32 takes 0 (no viscous friction): the voltage alone then drives the shaft faster."""
+    device = Device()
+    damped = device.motor_constants.drive
+    assert send(device, "32 0 0", "32 -1 0") == ["SIM_VISCOUS_FRICTION 0 0"]
+    free = device.motor_constants.drive
+    assert free[1] == damped[1] and free[0] > damped[0]
+    assert send(device, "32 -5 0") == ["ERR 32 coefficient -5 is out of range 0..9999"]
+    send(device, "3 1", "0 500")
+    device.run(300)
+    assert (device.state.fault, abs(device.state.actual - 500) <= 2) == (0, True)

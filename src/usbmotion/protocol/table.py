@@ -465,7 +465,8 @@ CALLS: tuple[CallSpec, ...] = (
         debug={1: _t("START TICK MODIFIED TO {value}")},
         notes="The query answers -1 when no start is armed.",
     ),
-    _sim_sci(32, "VISCOUS_FRICTION", "viscous friction at the encoder shaft", "uNm per rad/s"),
+    _sim_sci(32, "VISCOUS_FRICTION", "viscous friction at the encoder shaft", "uNm per rad/s",
+             zero=True),
     _sim_sci(33, "LOAD_TORQUE", "constant load torque opposing motion", "mNm", zero=True),
     CallSpec(
         34,
