@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import math
 import socket
-import threading
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -18,7 +16,7 @@ from usbmotion.host.discovery import discover, probe, scan
 from usbmotion.host.machine import Machine
 from usbmotion.host.timesync import SyncReport, measure_clock, synchronise_start
 from usbmotion.sim.clock import WALL_CLOCK
-from usbmotion.sim.registry import drop_world, set_world
+from usbmotion.sim.registry import set_world
 from usbmotion.sim.server import DeviceServer
 from usbmotion.sim.world import SimWorld, VirtualClock
 
@@ -66,14 +64,6 @@ def serving(world: SimWorld) -> DeviceServer:
     while world.time_us == 0 and WALL_CLOCK.now() < deadline:
         WALL_CLOCK.sleep(0.01)
     return server
-
-
-@pytest.fixture
-def world_name() -> Iterator[str]:
-    """A registered world name, dropped afterwards."""
-    name = f"test-{threading.get_ident()}-{id(object())}"
-    yield name
-    drop_world(name)
 
 
 # --- connect and configure, virtual time -----------------------------------------------

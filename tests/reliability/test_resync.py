@@ -15,8 +15,6 @@ has reached the host.
 
 from __future__ import annotations
 
-import threading
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -29,7 +27,7 @@ from usbmotion.host.device import DeviceClient
 from usbmotion.host.machine import Machine
 from usbmotion.host.transport import LineTransport
 from usbmotion.protocol import ReplyKind, parse_reply
-from usbmotion.sim.registry import drop_world, register_url_handler, set_world
+from usbmotion.sim.registry import register_url_handler, set_world
 from usbmotion.sim.world import SimWorld
 
 PACKET_BYTES = 7
@@ -97,14 +95,6 @@ def named(name: str) -> Device:
     device.feed(f"18 {len(name)} {codes}\n".encode("ascii"))
     device.take_output()
     return device
-
-
-@pytest.fixture
-def world_name() -> Iterator[str]:
-    """A registered world name, dropped afterwards."""
-    name = f"resync-{threading.get_ident()}-{id(object())}"
-    yield name
-    drop_world(name)
 
 
 def _world(name: str, device_name: str = "X AXIS") -> SimWorld:
