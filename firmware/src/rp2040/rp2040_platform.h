@@ -1,0 +1,21 @@
+/* The RP2040 platform's own parts, shared between its files (not seen by the portable code). */
+#ifndef USBMOTION_RP2040_PLATFORM_H
+#define USBMOTION_RP2040_PLATFORM_H
+
+#include <stdint.h>
+
+/* Servo ticks completed since power-up, incremented as the last action of every tick (after
+ * device_servo_tick returns). Read by address from the ELF by the emulator harness. */
+extern volatile uint64_t usbmotion_ticks_done;
+
+/* core0, before core1 starts */
+void servo_lock_init(void);
+void motion_queue_init(void);
+
+/* core1's entry: flash lockout victim, the periodic servo alarm, then sleep between ticks */
+void servo_core1_main(void);
+
+/* core0: bring up USB and run the main loop; never returns */
+void usb_cdc_run(void);
+
+#endif
