@@ -80,6 +80,7 @@ POWER_UP_QUERIES = {
     "33 -1 0": "SIM_LOAD_TORQUE 50 0",
     "34 -1 -1": "SIM_TRAVEL -2147483648 2147483647",
     "35 -1": "MOTION_STATS 0 0 0 0 -1",
+    "36 1": "SWITCH_EDGE 1 0 0 0 0",
 }
 
 
@@ -124,6 +125,7 @@ SET_THEN_QUERY = [
     ("33 0 0", "33 -1 0", "SIM_LOAD_TORQUE 0 0"),
     ("34 -100 100", "34 -1 -1", "SIM_TRAVEL -100 100"),
     ("0 42", "2 -1", "MOTION_QUEUE 1 999"),
+    ("37 -12", "20 -1", "STATUS 0 -12 -12 0 0 0 1 0 0"),
 ]
 
 
@@ -168,6 +170,7 @@ DEBUG_LINES = [
     ([], "33 25 0", "SIM LOAD TORQUE MODIFIED TO 25 0"),
     ([], "34 -10 10", "SIM TRAVEL MODIFIED TO -10 10"),
     ([], "35 0", "MOTION STATS RESET"),
+    ([], "37 -3", "POSITION SHIFTED BY -3"),
 ]
 
 

@@ -50,6 +50,7 @@ _MAY_CHANGE: dict[int, set[str]] = {
     32: {"motor"},
     33: {"motor"},
     34: {"motor"},
+    37: {"queue", "keyframes", "actual", "desired"},
 }
 _SETTINGS = [f.name for f in fields(DeviceSettings)]
 
@@ -142,6 +143,12 @@ def _integer_lines(draw: st.DrawFn) -> bytes:
     if draw(st.integers(0, 9)) == 0:
         position = draw(st.integers(0, len(tokens) - 1))
         tokens[position] = draw(st.sampled_from(["x", "1.5", "--1", "0x10", "", "+7", "1e3"]))
+    if draw(st.integers(0, 19)) == 0:
+        position = draw(st.integers(0, len(tokens) - 1))
+        sign = draw(st.sampled_from(["", "-", "+"]))
+        zeros = "0" * draw(st.sampled_from([0, 1, 30]))
+        digits = draw(st.sampled_from([18, 19, 20, 4301, 9000]))
+        tokens[position] = sign + zeros + "9" * (digits - 1) + "1"
     separator = draw(st.sampled_from([" ", "  ", "\t", " \t"]))
     text = separator.join(tokens)
     if draw(st.booleans()):
@@ -188,6 +195,31 @@ def test_any_byte_stream_in_any_split_never_raises(data: bytes, cuts: list[int])
 
 
 # --- bad values on the wire ----------------------------------------------------------------
+
+HUGE_LINES = [
+    ("0 " + "7" * 18, "ERR 0 value 777777777777777777 is out of range -2147483648..2147483647"),
+    ("0 -" + "7" * 19,
+     "ERR 0 value -777777777777777777...(19 digits) is out of range -2147483648..2147483647"),
+    ("0 +000" + "1" * 5000,
+     "ERR 0 value 111111111111111111...(5000 digits) is out of range -2147483648..2147483647"),
+    ("1 1 " + "2" * 4400,
+     "ERR 1 value 222222222222222222...(4400 digits) is out of range -2147483648..2147483647"),
+    ("1 " + "9" * 25 + " 1",
+     "ERR 1 count 999999999999999999...(25 digits) is out of range 1..1000"),
+    ("-" + "3" * 40 + " 1", "ERR ? unknown call"),
+    ("8 " + "0" * 40 + "3 1", ""),
+]
+
+
+@pytest.mark.parametrize(("line", "reply"), HUGE_LINES)
+def test_an_integer_of_any_length_is_read_without_a_fault(line: str, reply: str) -> None:
+    """Integers beyond 18 significant digits are out of every range: refused with their
+    digits abbreviated, never an internal error (Python's int() refuses 4,301 digits)."""
+    device = Device()
+    assert send(device, line) == ([reply] if reply else [])
+    assert device.state.fault == 0
+    for text in send(device, line):
+        parse_reply(text)
 
 BAD_LINES = [
     ("5 0", "ERR 5 interval_dms 0 is out of range 1..10000", "5 -1"),

@@ -141,13 +141,44 @@ def test_position_set_moves_the_counter_not_the_shaft() -> None:
     device = Device()
     send(device, "3 1", "0 500")
     device.run(300)
-    shaft = device.state.shaft_micro_counts
+    before = device.state
     send(device, "1 2 9 9", "23 -70")
     state = device.state
-    assert (state.actual, state.desired, state.queued, state.integrator) == (-70, -70, 0, 0)
+    error = before.desired - before.actual
+    assert (state.actual, state.desired, state.queued) == (-70, -70 + error, 0)
+    assert (state.integrator, state.velocity) == (before.integrator, before.velocity), (
+        "a change of coordinates: the loop goes on undisturbed"
+    )
     device.run(200)
-    assert abs(device.state.actual + 70) <= 2
-    assert abs(device.state.shaft_micro_counts - shaft) < 3_000_000
+    assert abs(device.state.actual - device.state.desired) <= 2
+    assert abs(device.state.shaft_micro_counts - before.shaft_micro_counts) < 3_000_000
+
+
+def test_setting_the_position_while_moving_changes_nothing_of_the_motion() -> None:
+    """Two devices on the same run, one of them renumbered mid-move (call 23, then 37):
+    their shafts move exactly alike, tick by tick; only the counters differ."""
+    plain, shifted = Device(), Device()
+    ramp = " ".join(str(4 * k) for k in range(1, 301))
+    for device in (plain, shifted):
+        send(device, "3 1", f"1 300 {ramp}")
+        device.run(120)
+    send(plain, "4 0")
+    send(shifted, "23 5000")
+    offset = shifted.state.actual - plain.state.actual
+    for device, extra in ((plain, 0), (shifted, offset)):
+        rest = " ".join(str(4 * k + extra) for k in range(121, 301))
+        send(device, f"1 180 {rest}")
+    for _ in range(40):
+        plain.run(5)
+        shifted.run(5)
+        assert shifted.state.shaft_micro_counts == plain.state.shaft_micro_counts
+        assert shifted.state.actual == plain.state.actual + offset
+        assert shifted.state.velocity == plain.state.velocity
+    send(shifted, "37 -5000")
+    plain.run(100)
+    shifted.run(100)
+    assert shifted.state.shaft_micro_counts == plain.state.shaft_micro_counts
+    assert shifted.state.actual == plain.state.actual + offset - 5000
 
 
 def test_the_counter_wraps_like_an_int32() -> None:

@@ -277,7 +277,8 @@ def test_every_query_answers_one_reply_after_any_session(steps: list[Step]) -> N
         for spec in CALLS:
             if spec.query is None:
                 continue
-            args = tuple(7 if q is None else q for q in spec.query)
+            args = tuple(param.maximum if q is None else q
+                         for q, param in zip(spec.query, spec.params, strict=True))
             device.feed(" ".join(map(str, (spec.number, *args))).encode("ascii") + b"\n")
             lines = device.take_output().decode("ascii").splitlines()
             assert len(lines) == 1, (spec.number, lines)

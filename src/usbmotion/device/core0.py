@@ -919,19 +919,32 @@ class Device:
         state[core1.S_LAST_TAKE] = -1
         self._debug_line(35)
 
-    def _call_23(self, call: Call) -> None:
+    def _shift_position(self, shift: int) -> None:
+        """Calls 23 and 37: move the counter's coordinates by ``shift``; the loop goes on."""
         state = self._state
-        position = call.args[0]
-        count = int(state[core1.S_THETA]) // MICRO
-        shift = position - int(state[core1.S_ACTUAL])
-        state[core1.S_OFFSET] = wrap_int32(position - count)
-        state[core1.S_ACTUAL] = position
+        state[core1.S_OFFSET] = wrap_int32(int(state[core1.S_OFFSET]) + shift)
+        state[core1.S_ACTUAL] = wrap_int32(int(state[core1.S_ACTUAL]) + shift)
+        state[core1.S_DESIRED] = wrap_int32(int(state[core1.S_DESIRED]) + shift)
         for slot in range(core1.S_COUNTS, core1.S_COUNTS + core1.HISTORY_SLOTS):
             state[slot] = wrap_int32(int(state[slot]) + shift)
+        core1.shift_edges(state, shift)
         self._clear_queue()
-        self._reset_controller()
         self._clear_curve()
+
+    def _call_23(self, call: Call) -> None:
+        position = call.args[0]
+        self._shift_position(position - int(self._state[core1.S_ACTUAL]))
         self._debug_line(23, position)
+
+    def _call_36(self, call: Call) -> None:
+        switch = call.args[0]
+        base = core1.S_EDGES + (switch - 1) * core1.EDGE_FIELDS
+        edge = self._state[base : base + core1.EDGE_FIELDS].tolist()
+        self._reply(36, switch, *edge)
+
+    def _call_37(self, call: Call) -> None:
+        self._shift_position(call.args[0])
+        self._debug_line(37, call.args[0])
 
     def _call_24(self, call: Call) -> None:
         limits = int(self._state[core1.S_LIMITS])

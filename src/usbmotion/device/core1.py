@@ -20,8 +20,10 @@ One servo tick, in order:
    voltage, with conditional integration and a clamped integrator; the derivative is the
    error change over the last millisecond (``window`` ticks); 0 V when disabled.
 3. the motor over the tick, in ``steps`` equal integration steps.
-4. encoder: counter, velocity over the window (counts/s), limit switches; in velocity mode
-   the counter is reset to 0 after every 60 s of device time spent in that mode.
+4. encoder: counter, velocity over the window (counts/s), limit switches, and for each switch
+   that changed, the edge latch (call 36: the counter and the clock of the tick it changed
+   on); in velocity mode the counter is reset to 0 after every 60 s of device time spent in
+   that mode (latched edge positions move with it).
 5. faults (servo enabled): limit switch closing in mode 1 or 3, following error in mode 1
    or 3, then watchdog; a fault disables the servo and cuts its output to 0 V (as call
    ``3 0`` does), so no line reports a drive the servo no longer applies.
@@ -117,12 +119,24 @@ S_LAST_TAKE = S_STATS_TICKS + 4
 """Clock of the tick that last took a value from the motion queue (-1: none yet)."""
 S_DIAG_COUNT = S_STATS_TICKS + 5
 """Diagnostics records written since core0 last printed them."""
+S_EDGES = S_DIAG_COUNT + 1
+"""The switch-edge latch (call 36): for each switch (lower, then upper) ``EDGE_FIELDS``
+entries: edges counted since power-up (modulo 2**32), whether the last one closed the switch
+(1) or opened it (0), the encoder counter at the tick of that edge (kept in the counter's
+current coordinates: call 23, call 37 and the velocity-mode reset shift it with the counter)
+and the clock after that tick."""
+EDGE_FIELDS = 4
+EDGE_COUNT = 0
+EDGE_CLOSED = 1
+EDGE_POSITION = 2
+EDGE_TICK = 3
+EDGE_COUNT_MODULUS = 1 << 32
 DIAG_SLOTS = 64
 """Diagnostics records ``state`` holds."""
 DIAG_RECORD = 7
 """Entries of one record: clock, desired (velocity in mode 2), actual, velocity, output
 (coefficient, exponent), queued values."""
-S_DIAG = S_DIAG_COUNT + 1
+S_DIAG = S_EDGES + 2 * EDGE_FIELDS
 """First entry of the ``DIAG_SLOTS`` records."""
 STATE_SIZE = S_DIAG + DIAG_SLOTS * DIAG_RECORD
 STATS_SUM_CAP = 1 << 62
@@ -211,6 +225,16 @@ def new_params() -> IntArray:
 def wrap_int32(value: int) -> int:
     """``value`` as the int32 the hardware counter holds (two's complement wrap)."""
     return ((value + 2147483648) & 0xFFFFFFFF) - 2147483648
+
+
+def shift_edges(state: IntArray, shift: int) -> None:
+    """Move the latched edge positions with the encoder counter (``shift`` counts, wrapping
+    as the counter does); a switch with no edge yet (its tick is 0: an edge's tick is at least
+    1) keeps position 0."""
+    for switch in range(2):
+        base = S_EDGES + switch * EDGE_FIELDS
+        if state[base + EDGE_TICK] != 0:
+            state[base + EDGE_POSITION] = wrap_int32(int(state[base + EDGE_POSITION]) + shift)
 
 
 def trunc_div(numerator: int, denominator: int) -> int:
@@ -421,7 +445,18 @@ def servo_block(
         if count >= upper:
             new_limits |= 2
         closing = new_limits & ~limits
+        changed = new_limits ^ limits
         limits = new_limits
+        if changed != 0:
+            for switch in range(2):
+                if changed & (1 << switch):
+                    base = S_EDGES + switch * EDGE_FIELDS
+                    state[base + EDGE_COUNT] = (int(state[base + EDGE_COUNT]) + 1) % (
+                        EDGE_COUNT_MODULUS
+                    )
+                    state[base + EDGE_CLOSED] = (new_limits >> switch) & 1
+                    state[base + EDGE_POSITION] = actual
+                    state[base + EDGE_TICK] = clock + 1
         if mode == MODE_VELOCITY:
             velocity_mode_us += tick_us
             if velocity_mode_us >= VELOCITY_RESET_US:
@@ -429,6 +464,7 @@ def servo_block(
                 offset = wrap_int32(-count)
                 for slot in range(window):
                     state[S_COUNTS + slot] = wrap_int32(int(state[S_COUNTS + slot]) - actual)
+                shift_edges(state, -actual)
                 actual = 0
 
         # 5. faults

@@ -180,6 +180,7 @@ def compile_kernel() -> BlockFunction:
                 *scimath.NUMBA_CORE,
                 core1.wrap_int32,
                 core1.trunc_div,
+                core1.shift_edges,
                 motor._trunc_div,
                 motor.motor_step,
             ):

@@ -79,7 +79,7 @@ def check_call(number: int, args: tuple[int, ...]) -> CallSpec:
     if call_spec is None:
         raise UnknownCallError(
             f"unknown executive call {number!r}; known calls are {_known_calls()}",
-            call=number,
+            call=None if isinstance(number, HugeInteger) else number,
             reason="unknown call",
         )
     problem = call_spec.problem(args)
@@ -138,7 +138,7 @@ def parse_call(line: bytes | str) -> Call:
                 numbers = list(map(int, line.split()))
             except ValueError:
                 numbers = []
-            if numbers:
+            if numbers and min(numbers) > -HUGE_INTEGER and max(numbers) < HUGE_INTEGER:
                 number, args = numbers[0], tuple(numbers[1:])
                 check_call(number, args)
                 return Call(number, args)
@@ -164,6 +164,35 @@ def parse_call(line: bytes | str) -> Call:
     return Call(number, args)
 
 
+HUGE_DIGITS = 18
+"""Significant digits an integer input is read with exactly (every such value fits a signed
+64-bit integer); a longer one is beyond every range of the table and is read as a
+:class:`HugeInteger`."""
+HUGE_INTEGER = 10**HUGE_DIGITS
+
+
+class HugeInteger(int):
+    """An integer input of more than :data:`HUGE_DIGITS` significant digits.
+
+    Its value is ``+-10**18`` (outside every range, so a range check refuses it) and its
+    ``repr`` abbreviates the digits as written: ``123456789012345678...(5000 digits)``. A
+    firmware reads such a token without arbitrary-precision numbers, and no message is
+    longer than a line.
+    """
+
+    shown: str
+
+    def __new__(cls, negative: bool, digits: str) -> HugeInteger:
+        number = super().__new__(cls, -HUGE_INTEGER if negative else HUGE_INTEGER)
+        number.shown = f"{'-' if negative else ''}{digits[:HUGE_DIGITS]}...({len(digits)} digits)"
+        return number
+
+    def __repr__(self) -> str:
+        return self.shown
+
+    __str__ = __repr__
+
+
 def _to_int(token: str, call: int | None, position: int) -> int:
     if _INT.match(token) is None:
         shown = token if len(token) <= 24 else token[:21] + "..."
@@ -173,6 +202,9 @@ def _to_int(token: str, call: int | None, position: int) -> int:
             call=call,
             reason=f"{what} {shown!r} is not an integer",
         )
+    digits = token.lstrip("+-").lstrip("0")
+    if len(digits) > HUGE_DIGITS:
+        return HugeInteger(token[0] == "-", digits)
     return int(token)
 
 

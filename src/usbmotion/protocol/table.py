@@ -385,10 +385,15 @@ CALLS: tuple[CallSpec, ...] = (
     CallSpec(
         23,
         "SET_POSITION",
-        "Set the actual (and desired) position counter, e.g. to 0 after homing.",
+        "Set the position counter to V: the same shift as call 37 by V minus the counter.",
         (_p("position", INT32_MIN, INT32_MAX, "counts"),),
         debug={1: _t("POSITION SET TO {value}")},
-        notes="Clears the motion queue and the integrator; the servo holds the new position.",
+        notes="A change of coordinates, not of motion: the desired position, the counter's"
+        " history and the latched switch edges (call 36) move with the counter, so the error,"
+        " the measured velocity, the integrator and the derivative history are unchanged and"
+        " the loop goes on as if nothing happened (a moving axis keeps moving, a holding one"
+        " holds). The motion queue and the keyframe buffer are cleared: their values were in"
+        " the old coordinates.",
     ),
     CallSpec(
         24,
@@ -500,8 +505,37 @@ CALLS: tuple[CallSpec, ...] = (
         " `last_take_tick` is the clock tick that last took a value from the motion queue"
         " (-1: none since the reset); a reset keeps the clock.",
     ),
+    CallSpec(
+        36,
+        "SWITCH_EDGE",
+        "The last edge of a limit switch, latched by core1 on the tick it happened.",
+        (_p("switch", 1, 2, "1 lower, 2 upper"),),
+        query=(None,),
+        query_reply=_t("SWITCH_EDGE {switch} {edges} {closed} {position} {tick}"),
+        notes="Always a query. On every servo tick the encoder shows a switch change state"
+        " (closing or opening, in any mode, enabled or not) core1 latches the encoder counter"
+        " and the clock of that tick: `edges` counts the switch's edges since power-up (modulo"
+        " 2^32), `closed` is 1 when the last one closed the switch, `position` is the counter"
+        " on that tick and `tick` the clock after it (as call 30 stamps a fault). The position"
+        " is kept in the counter's current coordinates: calls 23 and 37 and the velocity-mode"
+        " reset move it with the counter. Before the first edge: `0 0 0 0`. A host homes on"
+        " this latch, not on when it saw the switch: the zero is exact to the count however"
+        " late the host looks. Moving the travel with call 34 is no edge.",
+    ),
+    CallSpec(
+        37,
+        "SHIFT_POSITION",
+        "Shift the position counter by D counts (a change of coordinates; the loop goes on).",
+        (_p("shift", INT32_MIN, INT32_MAX, "counts added to the counter"),),
+        debug={1: _t("POSITION SHIFTED BY {value}")},
+        notes="The counter, the desired position, the counter's history and the latched switch"
+        " edges all move by D (wrapping as the int32 counter does): the following error, the"
+        " measured velocity, the integrator and the derivative history are unchanged. Clears"
+        " the motion queue and the keyframe buffer (their values were in the old"
+        " coordinates). A host sets machine zero from a latched edge with one shift, exact"
+        " whatever the axis does meanwhile: `37 (switch position - edge position)`.",
+    ),
 )
-
 BY_NUMBER: Mapping[int, CallSpec] = {spec.number: spec for spec in CALLS}
 BY_NAME: Mapping[str, CallSpec] = {spec.name: spec for spec in CALLS}
 
