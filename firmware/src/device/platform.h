@@ -1,0 +1,42 @@
+/* What the portable device code needs from the platform it runs on (the RP2040, or the
+ * native build the tests use). The portable code never touches hardware. */
+#ifndef USBMOTION_PLATFORM_H
+#define USBMOTION_PLATFORM_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+/* Output, core0 only: queue the bytes for USB (blocks while the host reads them). */
+void platform_write(const char *bytes, size_t length);
+
+/* The servo lock. core1 holds it for the whole of one servo tick; core0 holds it while it
+ * reads or changes core1's state (the seed's "core1 stops its loop, copies, resumes").
+ * Short critical sections only. */
+void platform_servo_lock(void);
+void platform_servo_unlock(void);
+
+/* The servo period changed (call 5): the platform re-arms its periodic tick. */
+void platform_servo_period_changed(uint32_t tick_us);
+
+/* The motion queue: on the chip a queue_t of int32_t, capacity MOTION_QUEUE_CAPACITY. */
+#define MOTION_QUEUE_CAPACITY 1000u
+bool mq_try_add(int32_t value);      /* core0 */
+bool mq_try_remove(int32_t *value);  /* core1 */
+uint32_t mq_level(void);
+void mq_clear(void);                 /* core0, with the servo lock held */
+int32_t mq_peek(uint32_t index);     /* core0: the index-th value from the head */
+
+/* Flash for the flash variables: PLATFORM_FLASH_SECTORS erase sectors at the end of the
+ * flash, each PLATFORM_FLASH_SECTOR_BYTES, programmed a PLATFORM_FLASH_PAGE_BYTES page at a
+ * time (erased bytes read 0xff). Two sectors, so a new record can be written while the old
+ * one is still whole: a power cut leaves the old value or the new one. */
+#define PLATFORM_FLASH_SECTORS 2u
+#define PLATFORM_FLASH_SECTOR_BYTES 4096u
+#define PLATFORM_FLASH_PAGE_BYTES 256u
+const uint8_t *platform_flash_sector(unsigned sector);   /* memory-mapped, read-only */
+bool platform_flash_erase(unsigned sector);              /* false: the erase failed */
+bool platform_flash_program(unsigned sector, uint32_t offset, const uint8_t *page);
+                                                         /* one page; false: it failed */
+
+#endif

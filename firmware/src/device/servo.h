@@ -1,0 +1,184 @@
+/* core1: the servo loop over flat state, mirroring src/usbmotion/device/core1.py field for
+ * field (the S_* entries are servo_state_t, the P_* entries servo_params_t). Every value is
+ * the integer the Python device holds; the widths below hold every value it can reach. */
+#ifndef USBMOTION_SERVO_H
+#define USBMOTION_SERVO_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#include "sci.h"
+
+#define MODE_POSITION 1
+#define MODE_VELOCITY 2
+#define MODE_CURVE 3
+
+#define FAULT_NONE 0
+#define FAULT_WATCHDOG 1
+#define FAULT_FOLLOWING_ERROR 2
+#define FAULT_LIMIT_SWITCH 3
+#define FAULT_INTERNAL 4
+
+#define SERVO_HISTORY_SLOTS 10
+#define CURVE_BUFFER_CAPACITY 8
+#define VELOCITY_RESET_US 60000000LL
+#define TIMER_CAP_US (1LL << 62)
+#define STATS_SUM_CAP (1LL << 62)
+#define MICRO 1000000LL
+
+/* One Hermite keyframe as call 25 carries it (hermite.Keyframe). */
+typedef struct {
+    uint16_t duration_ms;
+    int32_t position_counts;
+    int16_t tangent_in;
+    int16_t tangent_out;
+} keyframe_t;
+
+/* The keyframe buffer and the player of curve mode (device/curve.py CurvePlayer). */
+typedef struct {
+    keyframe_t buffer[CURVE_BUFFER_CAPACITY];
+    uint8_t head;
+    uint8_t count;
+    bool playing;
+    int64_t elapsed_us;
+    int32_t start_position;
+    int32_t start_tangent;
+} curve_player_t;
+
+/* The latch of one limit switch (call 36). */
+typedef struct {
+    uint32_t edges;    /* edges since power-up, modulo 2^32 */
+    int32_t closed;    /* 1: the last edge closed the switch */
+    int32_t position;  /* the counter on that tick, in the counter's current coordinates */
+    int64_t tick;      /* the clock after that tick; 0: no edge yet */
+} switch_edge_t;
+
+/* What core1 changes (core1.py S_*). */
+typedef struct {
+    int64_t clock;
+    int32_t enable;
+    int32_t mode;
+    int32_t fault;
+    int64_t fault_tick;
+    int64_t theta;             /* shaft, micro-counts from power-up (not wrapped) */
+    int64_t omega;             /* shaft speed, micro-counts/s */
+    int32_t offset;            /* counter minus shaft count */
+    int32_t actual;            /* the encoder counter (int32, wraps) */
+    uint32_t counts_pos;
+    int64_t velocity;          /* counts/s over the derivative window */
+    int32_t desired;
+    int32_t desired_vel;
+    int64_t integral;
+    uint32_t history_pos;
+    int32_t fresh;
+    sci_t out;                 /* PID output, V */
+    int64_t motion_left;
+    int64_t start;             /* armed start tick, or -1 */
+    int64_t since_command_us;
+    int64_t velocity_mode_us;
+    int64_t diag_left;
+    int32_t limits;            /* bit 0 lower, bit 1 upper */
+    int64_t history[SERVO_HISTORY_SLOTS];       /* errors of the last window ticks */
+    int32_t counts[SERVO_HISTORY_SLOTS];        /* counters of the last window ticks */
+    int64_t stats_ticks;
+    int64_t stats_max;
+    int64_t stats_max_tick;
+    int64_t stats_sum_sq;
+    int64_t last_take;
+    switch_edge_t edges[2];    /* lower, upper */
+    curve_player_t curve;
+} servo_state_t;
+
+/* What core0 copies in when a variable changes (core1.py P_*). */
+typedef struct {
+    int64_t tick_us;
+    int64_t scalar;
+    sci_t kp;
+    sci_t ki_dt;               /* Ki times the period, V per error-tick */
+    sci_t kd_dt;               /* Kd over the window, V per error change */
+    sci_t vs;                  /* source voltage, the output ceiling */
+    int64_t integral_limit;    /* 0: integrator off */
+    int64_t watchdog_us;
+    int64_t fe_limit;
+    int64_t diag_n;
+    int32_t steps;             /* motor integration steps per tick */
+    sci_t drive;
+    sci_t friction;
+    sci_t decay;
+    sci_t lag;
+    int32_t lower;             /* switch positions, counts from power-up */
+    int32_t upper;
+    int64_t stop_low;          /* hard stops, micro-counts */
+    int64_t stop_high;
+    int32_t window;            /* derivative window, ticks (1..SERVO_HISTORY_SLOTS) */
+} servo_params_t;
+
+/* The RAM variables core0 owns and the calls set (core0.py Device fields). Gains and the
+ * scientific-notation motor parameters are (coefficient, exponent) as the calls carry them. */
+typedef struct {
+    int32_t interval_dms;               /* call 5 */
+    int32_t scalar;                     /* call 6 */
+    sci_t kp, ki, kd;                   /* calls 9-11 */
+    int32_t sim_update_interval_dms;    /* call 12 */
+    sci_t source_voltage_v;             /* call 13 */
+    sci_t torque_constant_mnm_per_a;    /* call 14 */
+    sci_t winding_resistance_ohm;       /* call 15 */
+    int32_t counts_per_revolution;      /* call 16 */
+    sci_t inertia_kg_m2;                /* call 17 */
+    sci_t viscous_friction_unm_per_rad_s; /* call 32 */
+    sci_t load_torque_mnm;              /* call 33 */
+    int32_t travel_lower_counts;        /* call 34 */
+    int32_t travel_upper_counts;
+    int32_t overtravel_counts;          /* 200, fixed */
+    int32_t diag_n;                     /* call 21 */
+    int32_t watchdog_ms;                /* call 28 */
+    int32_t fe_limit;                   /* call 29 */
+} device_vars_t;
+
+/* The records core1 writes for core0 to print, in order: a diagnostics line (call 21) or an
+ * alarm (a fault latched). A single-producer (core1), single-consumer (core0) ring. */
+#define RECORD_DIAGNOSTICS 1
+#define RECORD_ALARM 2
+typedef struct {
+    uint8_t kind;
+    int64_t clock;             /* diagnostics: the clock; alarm: the fault tick */
+    int64_t desired;           /* the desired velocity in mode 2 */
+    int64_t actual;
+    int64_t velocity;
+    sci_t out;
+    int32_t queued;            /* keyframes in mode 3, queue values otherwise */
+    int32_t fault;             /* alarm: the fault code */
+} record_t;
+#define RECORD_RING_SLOTS 512u
+typedef struct {
+    record_t slots[RECORD_RING_SLOTS];
+    volatile uint32_t head;    /* written by core1 */
+    volatile uint32_t tail;    /* written by core0 */
+    volatile uint32_t dropped; /* records core1 could not write (ring full) */
+} record_ring_t;
+
+/* Power-up state (core1.new_state): zeroes, start -1, mode from flash, last_take -1. */
+void servo_state_init(servo_state_t *state, int32_t mode);
+
+/* core0's _copy_in: the params core1 runs with, from the RAM variables. Soft floating point
+ * (the motor's exponential), never called on core1. */
+void servo_params_derive(const device_vars_t *vars, servo_params_t *params);
+
+/* One servo tick (core1.servo_block for one tick, with curve mode's player run by core1).
+ * The caller holds the servo lock. Writes its records to `ring`. */
+void servo_tick(servo_state_t *state, const servo_params_t *params, record_ring_t *ring);
+
+/* The switch bits the shaft position gives (core0._switches). */
+int32_t servo_switches(const servo_state_t *state, const servo_params_t *params);
+
+/* Calls 23 and 37: move the counter's coordinates by `shift` (core0._shift_position, without
+ * the queue and curve clearing, which the caller does). */
+void servo_shift_position(servo_state_t *state, int64_t shift);
+
+/* Curve mode's buffer (core0 calls these with the servo lock held). */
+bool curve_append(curve_player_t *curve, keyframe_t keyframe);  /* false: full */
+void curve_clear(curve_player_t *curve);
+void curve_interrupt(curve_player_t *curve);
+uint32_t curve_queued(const curve_player_t *curve);
+
+#endif

@@ -1,0 +1,66 @@
+"""Build the portable firmware sources for this machine, for tests that compare them with the
+Python device without an emulator (a shared library for ctypes, or an executable).
+
+The portable code (``firmware/src/device``) has no hardware in it; compiled here with the
+same warnings as the firmware (errors included), it runs the same integer operations. The
+emulator tests (``tests/firmware/test_emulated_*``) prove the RP2040 build itself.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import shutil
+import subprocess
+from collections.abc import Sequence
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+DEVICE_SOURCES = ROOT / "firmware" / "src" / "device"
+CACHE = ROOT / "build" / "native"
+FLAGS = ("-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", "-Wshadow", "-Wconversion",
+         "-Wno-sign-conversion", "-fno-strict-aliasing")
+
+
+def compiler() -> str:
+    """The C compiler to use (``CC``, else cc or gcc)."""
+    found = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
+    if not found:
+        raise RuntimeError("no C compiler: install gcc (apt-get install gcc) or set CC")
+    return found
+
+
+def build(name: str, sources: Sequence[Path], *, shared: bool,
+          defines: Sequence[str] = ()) -> Path:
+    """Compile ``sources`` (and the headers beside them) once; returns the output's path.
+
+    The output is cached under ``build/native`` by a hash of every source and header and of
+    the flags, so an edit rebuilds and an unchanged tree does not.
+    """
+    digest = hashlib.sha256()
+    headers = sorted({h for s in sources for h in s.parent.glob("*.h")})
+    for path in [*sources, *headers]:
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    options = [*FLAGS, *(f"-D{d}" for d in defines)]
+    digest.update(" ".join(options).encode())
+    digest.update(b"shared" if shared else b"exe")
+    suffix = ".so" if shared else ""
+    out = CACHE / f"{name}-{digest.hexdigest()[:16]}{suffix}"
+    if out.exists():
+        return out
+    CACHE.mkdir(parents=True, exist_ok=True)
+    includes = sorted({f"-I{s.parent}" for s in sources})
+    command = [compiler(), *options, *includes, *(["-shared", "-fPIC"] if shared else []),
+               "-o", str(out) + ".tmp", *map(str, sources), "-lm"]
+    result = subprocess.run(command, capture_output=True, text=True, check=False)
+    if result.returncode != 0:
+        raise RuntimeError(f"compiling {name} failed:\n{' '.join(command)}\n{result.stderr}")
+    os.replace(str(out) + ".tmp", out)
+    return out
+
+
+def load(name: str, sources: Sequence[Path], *, defines: Sequence[str] = ()) -> ctypes.CDLL:
+    """Build ``sources`` as a shared library and load it."""
+    return ctypes.CDLL(str(build(name, sources, shared=True, defines=defines)))
