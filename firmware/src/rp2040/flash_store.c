@@ -5,7 +5,9 @@
 #include <stdint.h>
 
 #include "hardware/flash.h"
+#include "hardware/sync.h"
 #include "pico/flash.h"
+#include "pico/multicore.h"
 
 #include "platform.h"
 
@@ -42,8 +44,17 @@ bool platform_flash_write(const uint8_t *page, size_t length) {
         return false;
     }
     struct flash_store_job job = {.data = page, .length = length};
-    if (flash_safe_execute(flash_store_rewrite, &job, FLASH_STORE_TIMEOUT_MS) != PICO_OK) {
-        return false;
+    if (multicore_lockout_victim_is_initialized(1)) {
+        if (flash_safe_execute(flash_store_rewrite, &job, FLASH_STORE_TIMEOUT_MS) != PICO_OK) {
+            return false;
+        }
+    } else {
+        /* core1 still waits in the bootrom for its launch (device_power_up runs before it),
+         * where flash_safe_execute refuses: with no other core to lock out, masking this
+         * core's interrupts is enough. */
+        uint32_t saved = save_and_disable_interrupts();
+        flash_store_rewrite(&job);
+        restore_interrupts(saved);
     }
     const uint8_t *stored = platform_flash_read();
     for (size_t i = 0; i < length; i++) {

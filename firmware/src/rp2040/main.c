@@ -1,7 +1,5 @@
 /* The USB Motion Device on the RP2040: core0 runs USB CDC and the interpreter, core1 the servo
  * tick from a hardware alarm. */
-#include "pico/multicore.h"
-
 #include "device.h"
 #include "rp2040_platform.h"
 
@@ -9,6 +7,6 @@ int main(void) {
     servo_lock_init();
     motion_queue_init();
     device_power_up();
-    multicore_launch_core1(servo_core1_main);
+    servo_start();
     usb_cdc_run();
 }

@@ -12,6 +12,8 @@ extern volatile uint64_t usbmotion_ticks_done;
 void servo_lock_init(void);
 void motion_queue_init(void);
 
+/* core0: launches core1 and returns once it ticks and can be locked out for flash writes */
+void servo_start(void);
 /* core1's entry: flash lockout victim, the periodic servo alarm, then sleep between ticks */
 void servo_core1_main(void);
 

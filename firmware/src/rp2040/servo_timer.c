@@ -10,6 +10,7 @@
 #include "hardware/sync.h"
 #include "hardware/timer.h"
 #include "pico/flash.h"
+#include "pico/multicore.h"
 #include "pico/platform.h"
 
 #include "device.h"
@@ -20,6 +21,9 @@
 #define SERVO_ALARM_NUM 0u
 #define SERVO_ALARM_BIT (1u << SERVO_ALARM_NUM)
 #define SERVO_ALARM_IRQ (TIMER_IRQ_0 + SERVO_ALARM_NUM)
+
+/* core1 to core0 through the FIFO: ticking, and a lockout victim for flash writes */
+#define SERVO_CORE1_READY 0x5E4D0001u
 
 volatile uint64_t usbmotion_ticks_done;
 
@@ -91,6 +95,12 @@ void platform_servo_period_changed(uint32_t tick_us) {
     spin_unlock(schedule_lock, saved);
 }
 
+void servo_start(void) {
+    multicore_launch_core1(servo_core1_main);
+    while (multicore_fifo_pop_blocking() != SERVO_CORE1_READY) {
+    }
+}
+
 void servo_core1_main(void) {
     flash_safe_execute_core_init(); /* core0's flash writes lock this core out */
     hardware_alarm_claim(SERVO_ALARM_NUM);
@@ -104,6 +114,7 @@ void servo_core1_main(void) {
         hw_set_bits(&timer_hw->intf, SERVO_ALARM_BIT);
     }
     spin_unlock(schedule_lock, saved);
+    multicore_fifo_push_blocking(SERVO_CORE1_READY);
     for (;;) {
         __wfe();
     }

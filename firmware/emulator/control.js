@@ -1,0 +1,164 @@
+#!/usr/bin/env node
+// Deterministic mode: one emulated device driven by JSON lines on stdin, one JSON reply line
+// per request on stdout. See README.md for the protocol.
+//
+//   node control.js [--bootrom FILE]
+
+import { createInterface } from 'node:readline';
+
+import { parseArgs } from './lib/args.js';
+import { DeviceError, EmulatedDevice } from './lib/emulated-device.js';
+
+const options = parseArgs(process.argv.slice(2), ['bootrom']);
+let device = null;
+let powered = false;
+let spanStart = null;
+
+function bytesToText(bytes) {
+  return Buffer.from(bytes).toString('latin1');
+}
+
+function requireDevice() {
+  if (!device) {
+    throw new DeviceError('no firmware loaded: send {"cmd": "load", ...} first');
+  }
+  if (!powered) {
+    throw new DeviceError('device is off: send {"cmd": "power_up"} first');
+  }
+  return device;
+}
+
+function span() {
+  const now = { cycles: device.busyCycles(), nanos: device.nanos };
+  const result = {
+    tick: device.ticksDone(),
+    cycles: [now.cycles[0] - spanStart.cycles[0], now.cycles[1] - spanStart.cycles[1]],
+    emulated_ns: now.nanos - spanStart.nanos,
+    output: device.takeOutput().map(({ tick, bytes }) => [tick, bytesToText(bytes)]),
+  };
+  spanStart = now;
+  return result;
+}
+
+function powerUp(request) {
+  if (request.erase_flash) {
+    device.flash.resetData();
+  }
+  const wallStart = performance.now();
+  device.bootHeld();
+  powered = true;
+  spanStart = { cycles: [0, 0], nanos: 0 };
+  const result = span();
+  result.wall_ms = performance.now() - wallStart;
+  return result;
+}
+
+const commands = {
+  load(request) {
+    for (const key of ['uf2']) {
+      if (typeof request[key] !== 'string') {
+        throw new DeviceError(`load needs "${key}": a file path`);
+      }
+    }
+    device = new EmulatedDevice({
+      uf2: request.uf2,
+      elf: request.elf,
+      flash: request.flash ?? null,
+      bootrom: options.bootrom,
+    });
+    powered = false;
+    const symbols = {};
+    for (const name of request.symbols ?? []) {
+      const symbol = device.symbols.get(name);
+      symbols[name] = symbol ? symbol.address : null;
+    }
+    return { symbols };
+  },
+  power_up: (request) => {
+    if (!device) {
+      throw new DeviceError('no firmware loaded: send {"cmd": "load", ...} first');
+    }
+    return powerUp(request);
+  },
+  power_cycle: (request) => {
+    requireDevice();
+    return powerUp(request);
+  },
+  power_down() {
+    requireDevice();
+    powered = false;
+    device.mcu = null;
+    return {};
+  },
+  flash_reset() {
+    if (!device) {
+      throw new DeviceError('no firmware loaded');
+    }
+    device.flash.resetData();
+    return {};
+  },
+  feed(request) {
+    const d = requireDevice();
+    if (typeof request.data !== 'string') {
+      throw new DeviceError('feed needs "data": the bytes as a string of code points 0-255');
+    }
+    const bytes = Buffer.from(request.data, 'latin1');
+    d.feed(bytes);
+    return span();
+  },
+  run(request) {
+    const d = requireDevice();
+    const ticks = request.ticks;
+    if (!Number.isInteger(ticks) || ticks < 0) {
+      throw new DeviceError(`run needs "ticks": a whole number >= 0, not ${JSON.stringify(ticks)}`);
+    }
+    d.runTicks(ticks);
+    return span();
+  },
+  status() {
+    const d = requireDevice();
+    return { tick: d.ticksDone(), busy_cycles: d.busyCycles(), emulated_ns: d.nanos, timer_held: d.timerHeld };
+  },
+  read(request) {
+    const d = requireDevice();
+    const symbol = d.symbols.get(request.symbol);
+    if (!symbol) {
+      throw new DeviceError(`no symbol ${JSON.stringify(request.symbol)} in the ELF`);
+    }
+    const size = request.size ?? symbol.size;
+    const bytes = new Uint8Array(size);
+    for (let i = 0; i < size; i++) {
+      bytes[i] = d.mcu.readUint8(symbol.address + i);
+    }
+    return { address: symbol.address, hex: Buffer.from(bytes).toString('hex') };
+  },
+  quit() {
+    return {};
+  },
+};
+
+const lines = createInterface({ input: process.stdin, crlfDelay: Infinity });
+for await (const line of lines) {
+  if (!line.trim()) {
+    continue;
+  }
+  let request;
+  let reply;
+  try {
+    request = JSON.parse(line);
+    const handler = Object.hasOwn(commands, request.cmd) ? commands[request.cmd] : null;
+    if (!handler) {
+      throw new DeviceError(`unknown cmd ${JSON.stringify(request.cmd)}; known: ${Object.keys(commands).join(', ')}`);
+    }
+    reply = { ok: true, ...handler(request) };
+  } catch (error) {
+    reply = { ok: false, error: error instanceof SyntaxError ? `bad JSON: ${error.message}` : error.message };
+  }
+  if (request && request.id !== undefined) {
+    reply.id = request.id;
+  }
+  process.stdout.write(`${JSON.stringify(reply)}\n`);
+  if (request && request.cmd === 'quit') {
+    break;
+  }
+}

@@ -1,0 +1,317 @@
+// One emulated USB Motion Device: a dual-core RP2040 running a UF2 from its flash, with the
+// USB host's end of the CDC port. Two ways to run it:
+//   - runFor(ns): free running, as the chip does (serve.js paces it to the wall clock);
+//   - runTicks(n) / feed(bytes): deterministic, at servo tick boundaries. The timer is held
+//     (its count stops and its alarms wait, as when a debugger pauses it) while core0 takes in
+//     and handles input, so input arrives between two ticks in no device time, and the tick
+//     count (usbmotion_ticks_done, read by address from the ELF) says where each output byte
+//     came.
+
+import { readFileSync } from 'node:fs';
+
+import { readBootrom, patchBootrom } from './bootrom.js';
+import { CdcHost } from './cdc-host.js';
+import { DualRP2040 } from './dual-core.js';
+import { readElfSymbols } from './elf.js';
+import { FLASH_BREAKPOINTS, FlashImage, answerFlashBreakpoint } from './flash.js';
+import { parseUf2 } from './uf2.js';
+
+const SRAM_BASE = 0x20000000;
+const TIMER_KEY = 0x40054;
+const TICKS_SYMBOL = 'usbmotion_ticks_done';
+/** Cycles a core runs before the other gets its turn, when both are awake. */
+export const QUANTUM_BOTH_CYCLES = 64;
+/** ... and when the other sleeps (it wakes at the next quantum at the latest). */
+export const QUANTUM_ONE_CYCLES = 1024;
+/** Emulated time a device may take to finish handling input before it counts as hung. */
+const SETTLE_LIMIT_NS = 10e9;
+
+export class DeviceError extends Error {}
+
+export class EmulatedDevice {
+  /**
+   * @param {object} options
+   * @param {string} options.uf2 firmware image
+   * @param {string} [options.elf] the same firmware's ELF (for the tick counter's address);
+   *   default: the UF2's path with .elf
+   * @param {string|null} [options.flash] file that keeps the flash contents, or null
+   * @param {string} [options.bootrom] RP2040 bootrom B1 image
+   */
+  constructor({ uf2, elf, flash = null, bootrom }) {
+    const elfPath = elf ?? uf2.replace(/\.uf2$/, '.elf');
+    this.symbols = readElfSymbols(new Uint8Array(readFileSync(elfPath)));
+    const ticks = this.symbols.get(TICKS_SYMBOL);
+    if (!ticks) {
+      throw new DeviceError(`${elfPath} has no symbol ${TICKS_SYMBOL}: not a usbmotion firmware`);
+    }
+    if (ticks.address < SRAM_BASE || ticks.address % 4 !== 0) {
+      throw new DeviceError(`${TICKS_SYMBOL} at 0x${ticks.address.toString(16)} is not in SRAM`);
+    }
+    this.ticksOffset = ticks.address - SRAM_BASE;
+    const patched = patchBootrom(readBootrom(bootrom), FLASH_BREAKPOINTS);
+    this.bootromWords = new Uint32Array(patched.image.buffer.slice(0));
+    this.breakpoints = patched.byAddress;
+    this.flash = new FlashImage(flash);
+    this.flash.flashUf2(parseUf2(new Uint8Array(readFileSync(uf2))));
+    this.mcu = null;
+    this.output = [];
+    this.onOutput = null; // (bytes) => void, else output is kept for takeOutput()
+    this.fault = null;
+  }
+
+  /**
+   * A fresh chip on the same flash contents: output and unread input of the last one are lost.
+   * @param {object} [options]
+   * @param {boolean} [options.hold] keep the timer held from reset (deterministic mode)
+   */
+  powerUp({ hold = false } = {}) {
+    const mcu = new DualRP2040();
+    mcu.loadBootrom(this.bootromWords);
+    mcu.flash.set(this.flash.bytes);
+    // core1 waits in the bootrom for core0's launch sequence; core0 enters the second-stage
+    // boot loader at the start of flash (the bootrom's own flash boot needs SSI reads that
+    // rp2040js lacks)
+    mcu.core.PC = 0x10000000;
+    mcu.onBreak = (number) => {
+      if (!answerFlashBreakpoint(mcu, this.flash, this.breakpoints, number)) {
+        const core = mcu.core;
+        this.fault = `core${mcu.coreIndex} stopped at BKPT #${number} at 0x${(core.PC - 2).toString(16)}`;
+        core.PC -= core.breakRewind;
+        core.waiting = true;
+      }
+    };
+    this.mcu = mcu;
+    this.clock = mcu.clock;
+    this.sram = mcu.sramView;
+    this.fault = null;
+    this.output = [];
+    this.host = new CdcHost(mcu.usbCtrl, (data) => this.received(data));
+    this.over = [0, 0];
+    this.setUpTimerHold(mcu.peripherals[TIMER_KEY]);
+    if (hold) {
+      this.holdTimer();
+    }
+  }
+
+  setUpTimerHold(timer) {
+    const clock = this.clock;
+    this.timer = timer;
+    this.heldAt = -1; // timer time (ns) while held, else -1
+    this.timerLagNs = 0; // how far the timer is behind the clock: the time it was held
+    this.timerAlarms = new Set(timer.alarms.map((alarm) => alarm.clockAlarm));
+    const device = this;
+    timer.clock = {
+      get nanos() {
+        return device.heldAt >= 0 ? device.heldAt : clock.nanos - device.timerLagNs;
+      },
+    };
+    timer.alarms.forEach((alarm, index) => {
+      alarm.clockAlarm.callback = () => {
+        if (device.heldAt < 0) {
+          timer.fireAlarm(index);
+        }
+        // held: the alarm is scheduled again when the timer runs on
+      };
+    });
+  }
+
+  holdTimer() {
+    if (this.heldAt < 0) {
+      this.heldAt = this.clock.nanos - this.timerLagNs;
+    }
+  }
+
+  releaseTimer() {
+    if (this.heldAt < 0) {
+      return;
+    }
+    const nowMicros = this.heldAt / 1000;
+    this.timerLagNs = this.clock.nanos - this.heldAt;
+    this.heldAt = -1;
+    this.timer.alarms.forEach((alarm, index) => {
+      if (!alarm.armed) {
+        return;
+      }
+      const remaining = (alarm.targetMicros - nowMicros) >>> 0;
+      if (remaining === 0) {
+        this.timer.fireAlarm(index);
+      } else {
+        alarm.clockAlarm.schedule(remaining * 1000);
+      }
+    });
+  }
+
+  get timerHeld() {
+    return this.heldAt >= 0;
+  }
+
+  received(data) {
+    if (this.onOutput) {
+      this.onOutput(data);
+      return;
+    }
+    const tick = this.ticksDone();
+    const last = this.output[this.output.length - 1];
+    if (last && last.tick === tick) {
+      last.chunks.push(Uint8Array.from(data));
+    } else {
+      this.output.push({ tick, chunks: [Uint8Array.from(data)] });
+    }
+  }
+
+  /** Output since the last call: [{tick, bytes}] in order, one entry per tick. */
+  takeOutput() {
+    const output = this.output.map(({ tick, chunks }) => ({ tick, bytes: Buffer.concat(chunks) }));
+    this.output = [];
+    return output;
+  }
+
+  ticksDone() {
+    const low = this.sram.getUint32(this.ticksOffset, true);
+    const high = this.sram.getUint32(this.ticksOffset + 4, true);
+    return high * 4294967296 + low;
+  }
+
+  busyCycles() {
+    return this.mcu.busyCycles();
+  }
+
+  /** Emulated time since power-up, ns. */
+  get nanos() {
+    return this.clock.nanos;
+  }
+
+  /** Queues host-to-device bytes (taken by the device as it reads them). */
+  send(data) {
+    this.host.send(data);
+  }
+
+  /** Both cores asleep with nothing for them on the way: no input, no USB transfer. */
+  quiescent() {
+    if (this.host.queuedBytes > 0 || !this.host.connected) {
+      return false;
+    }
+    for (let alarm = this.clock.nextAlarm; alarm; alarm = alarm.next) {
+      if (!this.timerAlarms.has(alarm)) {
+        return false;
+      }
+    }
+    return true;
+  }
+
+  execute(index, core, budget) {
+    this.mcu.select(index);
+    const target = core.cycles + budget - this.over[index];
+    while (core.cycles < target) {
+      core.executeInstruction();
+      if (core.waiting) {
+        break;
+      }
+    }
+    this.over[index] = core.waiting ? 0 : core.cycles - target;
+  }
+
+  /**
+   * Runs both cores until the clock reaches endNanos or a stop condition holds.
+   * @param {number} endNanos
+   * @param {{ticks?: number, settle?: boolean}} [stop] ticks: stop (and hold the timer) once
+   *   that many ticks are done; settle: stop once quiescent
+   * @returns {'time'|'ticks'|'settled'|'idle'}
+   */
+  advance(endNanos, stop = {}) {
+    const mcu = this.mcu;
+    const clock = this.clock;
+    const core0 = mcu.cores[0];
+    const cycleNanos = 1e9 / mcu.clkSys;
+    const targetTicks = stop.ticks ?? -1;
+    const settle = stop.settle === true;
+    for (;;) {
+      if (this.fault) {
+        throw new DeviceError(this.fault);
+      }
+      const now = clock.nanos;
+      if (now >= endNanos) {
+        return 'time';
+      }
+      const core1 = mcu.cores[1];
+      const run0 = !core0.waiting;
+      const run1 = !mcu.core1Off && !core1.waiting;
+      let slice = endNanos - now;
+      const next = clock.nextAlarm;
+      if (next && next.nanos - now < slice) {
+        slice = next.nanos - now;
+      }
+      if (!run0 && !run1) {
+        if (settle && this.quiescent()) {
+          return 'settled';
+        }
+        if (!next) {
+          if (endNanos === Infinity) {
+            return 'idle';
+          }
+          clock.tick(endNanos - now);
+          continue;
+        }
+        clock.tick(slice);
+        continue;
+      }
+      const quantum = (run0 && run1 ? QUANTUM_BOTH_CYCLES : QUANTUM_ONE_CYCLES) * cycleNanos;
+      if (quantum < slice) {
+        slice = quantum;
+      }
+      if (slice > 0) {
+        const budget = slice / cycleNanos;
+        if (run0) {
+          this.execute(0, core0, budget);
+        }
+        if (run1) {
+          this.execute(1, core1, budget);
+        }
+      }
+      if (targetTicks >= 0 && this.ticksDone() >= targetTicks) {
+        // hold before the clock moves on, so the next tick's alarm cannot fire
+        this.holdTimer();
+        clock.tick(slice);
+        return 'ticks';
+      }
+      clock.tick(slice);
+    }
+  }
+
+  /** Deterministic: lets core0 finish what it has (timer held); throws if it never does. */
+  settle() {
+    this.holdTimer();
+    const reason = this.advance(this.clock.nanos + SETTLE_LIMIT_NS, { settle: true });
+    if (reason !== 'settled') {
+      throw new DeviceError(
+        `device still busy after ${SETTLE_LIMIT_NS / 1e9} s of emulated time with the timer held`,
+      );
+    }
+  }
+
+  /** Deterministic: power-up with the timer held until USB is up and core0 sleeps (tick 0). */
+  bootHeld() {
+    this.powerUp({ hold: true });
+    this.settle();
+  }
+
+  /** Deterministic: runs `count` more servo ticks, then lets core0 finish (timer held). */
+  runTicks(count) {
+    if (count > 0) {
+      const target = this.ticksDone() + count;
+      this.releaseTimer();
+      const reason = this.advance(Infinity, { ticks: target });
+      if (reason !== 'ticks') {
+        throw new DeviceError(`the servo stopped ticking at tick ${this.ticksDone()}`);
+      }
+    }
+    this.settle();
+  }
+
+  /** Deterministic: gives the device bytes at the current tick boundary and lets it handle them. */
+  feed(data) {
+    this.holdTimer();
+    this.send(data);
+    this.settle();
+  }
+}
