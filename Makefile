@@ -50,3 +50,36 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) build src/*.egg-info .pytest_cache .mypy_cache .ruff_cache
+
+# The RP2040 firmware (firmware/): picotool once (without USB, only to write UF2 files), then
+# the CMake build on the Pico SDK into build/firmware (.elf/.bin/.uf2), and the emulator's npm
+# packages. Only these targets need the Arm toolchain; check-toolchain.sh installs it as root
+# (CI) and otherwise says what is missing.
+PICO_SDK_PATH ?= $(abspath ../shared/rp2040/pico-sdk)
+PICOTOOL_SOURCE ?= $(abspath ../shared/rp2040/picotool)
+PICOTOOL_PREFIX := $(CURDIR)/build/picotool
+PICOTOOL_CONFIG := $(PICOTOOL_PREFIX)/lib/cmake/picotool/picotoolConfig.cmake
+FIRMWARE_BUILD := build/firmware
+EMULATOR := firmware/emulator
+
+.PHONY: firmware firmware-toolchain firmware-test
+
+firmware-toolchain:
+	@bash firmware/tools/check-toolchain.sh
+
+$(PICOTOOL_CONFIG): | firmware-toolchain
+	cmake -S $(PICOTOOL_SOURCE) -B build/picotool-build -DCMAKE_BUILD_TYPE=Release \
+		-DPICO_SDK_PATH=$(PICO_SDK_PATH) -DPICOTOOL_NO_LIBUSB=1 -DCMAKE_INSTALL_PREFIX=$(PICOTOOL_PREFIX)
+	cmake --build build/picotool-build -j2 --target install
+
+$(EMULATOR)/node_modules/.package-lock.json: $(EMULATOR)/package-lock.json | firmware-toolchain
+	cd $(EMULATOR) && npm ci --no-audit --no-fund
+
+firmware: firmware-toolchain $(PICOTOOL_CONFIG) $(EMULATOR)/node_modules/.package-lock.json
+	cmake -S firmware -B $(FIRMWARE_BUILD) -DCMAKE_BUILD_TYPE=Release \
+		-DPICO_SDK_PATH=$(PICO_SDK_PATH) -Dpicotool_DIR=$(dir $(PICOTOOL_CONFIG))
+	cmake --build $(FIRMWARE_BUILD) -j2
+
+# The emulator harness's own tests, on the test fixture firmware.
+firmware-test: firmware
+	cd $(EMULATOR) && node --test test/

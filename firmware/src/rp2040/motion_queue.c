@@ -9,12 +9,6 @@
 #include "platform.h"
 #include "rp2040_platform.h"
 
-#ifdef MQ_CAPACITY
-#define MOTION_QUEUE_CAPACITY MQ_CAPACITY
-#else
-#define MOTION_QUEUE_CAPACITY 1000
-#endif
-
 static queue_t motion_queue;
 
 void motion_queue_init(void) {
