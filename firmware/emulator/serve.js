@@ -6,8 +6,11 @@
 // port nobody reads.
 //
 //   node serve.js --uf2 FILE [--elf FILE] [--flash FILE] [--tcp PORT] [--host ADDR] [--bootrom FILE]
+//                 [--exit-with-stdin 1]
 //
 // Prints "listening ADDR:PORT" on stdout once it accepts connections (PORT 0: any free port).
+// With --exit-with-stdin 1 it exits when its standard input closes: a parent process that
+// holds the pipe takes the emulator with it, however it ends.
 
 import { createServer } from 'node:net';
 
@@ -21,7 +24,15 @@ const LAG_LIMIT_MS = 250;
 /** Input held for the device before the client's socket is paused. */
 const INPUT_HIGH_WATER = 64 * 1024;
 
-const options = parseArgs(process.argv.slice(2), ['uf2', 'elf', 'flash', 'tcp', 'host', 'bootrom']);
+const options = parseArgs(process.argv.slice(2), [
+  'uf2',
+  'elf',
+  'flash',
+  'tcp',
+  'host',
+  'bootrom',
+  'exit-with-stdin',
+]);
 if (!options.uf2) {
   process.stderr.write('serve.js: --uf2 FILE is required\n');
   process.exit(2);
@@ -122,6 +133,12 @@ server.listen(port, host, () => {
   emulatedBase = device.nanos;
   step();
 });
+
+if (options['exit-with-stdin'] === '1') {
+  process.stdin.on('end', () => process.exit(0));
+  process.stdin.on('error', () => process.exit(0));
+  process.stdin.resume();
+}
 
 for (const signal of ['SIGINT', 'SIGTERM']) {
   process.on(signal, () => {

@@ -1,0 +1,573 @@
+"""Run the device firmware (``firmware/``) in the RP2040 emulator (``firmware/emulator``).
+
+Two ways, each a Node.js process on rp2040js per device:
+
+- :class:`EmulatedDevice`, deterministic: power up, give bytes at a servo tick boundary, run a
+  number of ticks, and read back every output byte with the tick it arrived at and the cycles
+  each core was busy. The differential tests and the budget benchmark drive the firmware so.
+- :class:`FirmwareServer`, real time: N emulated devices, each on a TCP port and optionally a
+  pseudo-terminal, for the host, ``usbmotion run``, miniterm or any serial client, as real
+  devices are.
+
+The emulator needs Node.js 20 (``node`` on the PATH, or ``node=``) and ``npm ci`` run in
+``firmware/emulator`` (``make firmware`` does both and builds the UF2).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import selectors
+import signal
+import socket
+import subprocess
+import tempfile
+import threading
+import time
+import tty
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+from usbmotion.errors import DeviceError, DeviceTimeoutError
+
+_PROJECT_ROOT = Path(__file__).resolve().parents[3]
+_EMULATOR_ENV = "USBMOTION_EMULATOR_DIR"
+_READ_CHUNK = 65536
+_EXIT_WAIT_S = 5.0
+
+
+def emulator_dir() -> Path:
+    """The emulator harness's folder: ``$USBMOTION_EMULATOR_DIR``, else ``firmware/emulator``."""
+    override = os.environ.get(_EMULATOR_ENV)
+    return Path(override) if override else _PROJECT_ROOT / "firmware" / "emulator"
+
+
+def default_uf2() -> Path:
+    """Where ``make firmware`` writes the firmware: ``build/firmware/usbmotion.uf2``."""
+    return _PROJECT_ROOT / "build" / "firmware" / "usbmotion.uf2"
+
+
+def _check_image(uf2: Path, elf: Path | None) -> tuple[Path, Path]:
+    elf_path = elf if elf is not None else uf2.with_suffix(".elf")
+    for path, what in ((uf2, "UF2 image"), (elf_path, "ELF file (for its symbols)")):
+        if not path.is_file():
+            raise FileNotFoundError(
+                f"firmware {what} {str(path)!r} not found; `make firmware` builds it"
+            )
+    return uf2, elf_path
+
+
+def _script(name: str) -> Path:
+    script = emulator_dir() / name
+    if not (emulator_dir() / "node_modules" / "rp2040js").is_dir():
+        raise FileNotFoundError(
+            f"the emulator's packages are not installed in {str(emulator_dir())!r}; "
+            "run `make firmware` (or `npm ci` there)"
+        )
+    return script
+
+
+def _stop_process(process: subprocess.Popen[bytes]) -> None:
+    """Ends a child: its stdin closed first (the harness exits on that), then SIGTERM, SIGKILL."""
+    if process.stdin is not None:
+        with contextlib.suppress(OSError):
+            process.stdin.close()
+    try:
+        process.wait(timeout=_EXIT_WAIT_S)
+    except subprocess.TimeoutExpired:
+        process.send_signal(signal.SIGTERM)
+        try:
+            process.wait(timeout=_EXIT_WAIT_S)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+    for stream in (process.stdout, process.stderr):
+        if stream is not None:
+            with contextlib.suppress(OSError):
+                stream.close()
+
+
+class _LineReader:
+    """Lines from a child's pipe, each within a deadline."""
+
+    def __init__(self, stream: IO[bytes]) -> None:
+        self._fd = stream.fileno()
+        self._buffer = bytearray()
+        self._selector = selectors.DefaultSelector()
+        self._selector.register(self._fd, selectors.EVENT_READ)
+
+    def readline(self, timeout_s: float) -> bytes:
+        deadline = time.monotonic() + timeout_s
+        while b"\n" not in self._buffer:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0 or not self._selector.select(remaining):
+                raise TimeoutError
+            chunk = os.read(self._fd, _READ_CHUNK)
+            if not chunk:
+                raise EOFError
+            self._buffer += chunk
+        end = self._buffer.index(b"\n") + 1
+        line = bytes(self._buffer[:end])
+        del self._buffer[:end]
+        return line
+
+    def close(self) -> None:
+        self._selector.close()
+
+
+# --- deterministic ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class OutputChunk:
+    """Bytes the device sent, and the servo tick (ticks done since power-up) they arrived at."""
+
+    tick: int
+    data: bytes
+
+
+@dataclass(frozen=True, slots=True)
+class Span:
+    """What one request did: the tick it ended at, the output and the cost.
+
+    Fields:
+        tick: servo ticks done since power-up when the request ended.
+        output: device output during the request, in order, one chunk per tick.
+        busy_cycles: cycles core0 and core1 executed (not asleep) during the request.
+        emulated_ns: emulated time the request took (the servo timer stands still while
+            input is handled, so feeding costs no ticks).
+    """
+
+    tick: int
+    output: tuple[OutputChunk, ...]
+    busy_cycles: tuple[int, int]
+    emulated_ns: int
+
+    @property
+    def data(self) -> bytes:
+        """All the output bytes of the span."""
+        return b"".join(chunk.data for chunk in self.output)
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceStatus:
+    """Totals since power-up: ticks, busy cycles per core, emulated time."""
+
+    tick: int
+    busy_cycles: tuple[int, int]
+    emulated_ns: int
+
+
+class EmulatedDevice:
+    """One emulated device in deterministic mode (``firmware/emulator/control.js``).
+
+    Input is taken at servo tick boundaries: :meth:`feed` gives bytes after the ticks done so
+    far and before the next, and returns once core0 has handled them and sleeps;
+    :meth:`run` runs ticks. One process serves many sessions: :meth:`power_cycle` gives a fresh
+    chip on the same flash (``erase_flash=True`` resets the flash to the bare program).
+
+    Parameters:
+        uf2: the firmware image.
+        elf: the same firmware's ELF (default: ``uf2`` with ``.elf``).
+        flash: a file keeping the flash contents across power cycles and processes; ``None``
+            keeps them in the process only.
+        node: the Node.js executable.
+        timeout_s: longest wait for one request (a run of 60,000 ticks takes about 2 s).
+
+    Raises:
+        FileNotFoundError: the image, its ELF or the emulator's packages are missing.
+        DeviceError: the emulator refused a request or stopped.
+        DeviceTimeoutError: a request took longer than ``timeout_s``.
+    """
+
+    def __init__(
+        self,
+        uf2: Path | str,
+        *,
+        elf: Path | str | None = None,
+        flash: Path | str | None = None,
+        node: str = "node",
+        timeout_s: float = 120.0,
+    ) -> None:
+        self.uf2, self.elf = _check_image(Path(uf2), Path(elf) if elf is not None else None)
+        self.flash = Path(flash) if flash is not None else None
+        self.timeout_s = timeout_s
+        self._stderr = tempfile.TemporaryFile()  # noqa: SIM115 - closed by close()
+        self._process: subprocess.Popen[bytes] | None = subprocess.Popen(
+            [node, str(_script("control.js"))],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=self._stderr,
+        )
+        assert self._process.stdout is not None
+        self._reader = _LineReader(self._process.stdout)
+        self._powered = False
+        try:
+            reply = self._request(
+                {
+                    "cmd": "load",
+                    "uf2": str(self.uf2),
+                    "elf": str(self.elf),
+                    "flash": str(self.flash) if self.flash is not None else None,
+                }
+            )
+        except BaseException:
+            self.close()
+            raise
+        self.symbols: dict[str, int | None] = reply.get("symbols", {})
+
+    @property
+    def name(self) -> str:
+        """The image this device runs, for messages."""
+        return f"emulated {self.uf2.name}"
+
+    def _request(self, request: dict[str, Any]) -> dict[str, Any]:
+        process = self._process
+        if process is None or process.stdin is None:
+            raise DeviceError("the emulated device is closed", device=self.name)
+        try:
+            process.stdin.write(json.dumps(request).encode("ascii") + b"\n")
+            process.stdin.flush()
+            line = self._reader.readline(self.timeout_s)
+        except TimeoutError:
+            raise DeviceTimeoutError(
+                f"emulator gave no answer to {request['cmd']!r} in {self.timeout_s} s",
+                device=self.name,
+            ) from None
+        except (EOFError, BrokenPipeError) as error:
+            raise DeviceError(
+                f"emulator exited during {request['cmd']!r}: {self._stderr_text()}",
+                device=self.name,
+            ) from error
+        reply: dict[str, Any] = json.loads(line)
+        if not reply.get("ok"):
+            raise DeviceError(
+                f"emulator refused {request['cmd']!r}: {reply.get('error')}", device=self.name
+            )
+        return reply
+
+    def _stderr_text(self) -> str:
+        self._stderr.seek(0)
+        return self._stderr.read().decode("utf-8", "replace").strip() or "(no message)"
+
+    @staticmethod
+    def _span(reply: dict[str, Any]) -> Span:
+        cycles = reply["cycles"]
+        return Span(
+            tick=int(reply["tick"]),
+            output=tuple(
+                OutputChunk(int(tick), text.encode("latin-1")) for tick, text in reply["output"]
+            ),
+            busy_cycles=(int(cycles[0]), int(cycles[1])),
+            emulated_ns=int(reply["emulated_ns"]),
+        )
+
+    def power_up(self, *, erase_flash: bool = False) -> Span:
+        """Power on a fresh chip (tick 0: USB configured, core0 asleep); the span is the boot."""
+        span = self._span(self._request({"cmd": "power_up", "erase_flash": erase_flash}))
+        self._powered = True
+        return span
+
+    def power_cycle(self, *, erase_flash: bool = False) -> Span:
+        """Power off and on: output not read and input not taken are lost; flash is kept."""
+        return self.power_up(erase_flash=erase_flash)
+
+    def flash_reset(self) -> None:
+        """Erase the flash but for the program (as freshly loaded); applies at the next power-up."""
+        self._request({"cmd": "flash_reset"})
+
+    def feed(self, data: bytes) -> Span:
+        """Give the device ``data`` at the current tick boundary; returns once it is handled."""
+        return self._span(self._request({"cmd": "feed", "data": data.decode("latin-1")}))
+
+    def run(self, ticks: int) -> Span:
+        """Run ``ticks`` servo ticks (and let core0 print what they recorded)."""
+        if ticks < 0:
+            raise ValueError(f"ticks {ticks!r} is negative; run takes 0 or more")
+        return self._span(self._request({"cmd": "run", "ticks": ticks}))
+
+    def status(self) -> DeviceStatus:
+        """Totals since power-up."""
+        reply = self._request({"cmd": "status"})
+        cycles = reply["busy_cycles"]
+        return DeviceStatus(
+            tick=int(reply["tick"]),
+            busy_cycles=(int(cycles[0]), int(cycles[1])),
+            emulated_ns=int(reply["emulated_ns"]),
+        )
+
+    def read_symbol(self, symbol: str, size: int | None = None) -> bytes:
+        """The bytes of a firmware variable, by its ELF symbol (``size`` default: the symbol's)."""
+        request: dict[str, Any] = {"cmd": "read", "symbol": symbol}
+        if size is not None:
+            request["size"] = size
+        return bytes.fromhex(self._request(request)["hex"])
+
+    def close(self) -> None:
+        """Stop the emulator process. Safe to call twice."""
+        process, self._process = self._process, None
+        if process is not None:
+            self._reader.close()
+            _stop_process(process)
+            self._stderr.close()
+
+    def __enter__(self) -> EmulatedDevice:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# --- real time -------------------------------------------------------------------------------
+
+
+@dataclass(slots=True)
+class FirmwareEndpoint:
+    """Where one emulated device is served.
+
+    Fields:
+        index: the device's number, from 0.
+        host, port: its TCP address (``url`` gives ``socket://host:port``).
+        flash: the file holding its flash.
+        path: its pseudo-terminal, when served on one (else ``""``).
+    """
+
+    index: int
+    host: str
+    port: int
+    flash: Path
+    path: str = ""
+    _process: subprocess.Popen[bytes] | None = None
+    _master: int = -1
+    _slave: int = -1
+    _link: socket.socket | None = None
+    _to_device: bytearray = field(default_factory=bytearray)
+    dropped_bytes: int = 0
+
+    @property
+    def url(self) -> str:
+        """The device as a pyserial URL: its pseudo-terminal, else ``socket://host:port``."""
+        return self.path or f"socket://{self.host}:{self.port}"
+
+
+class FirmwareServer:
+    """Serve ``count`` emulated devices in real time, each on a TCP port (``serve.js``).
+
+    With ``pty=True`` each device also gets a pseudo-terminal: a thread relays between it and
+    the device's TCP port, and the slave side stays open here, so clients may come and go
+    (output nobody reads is dropped when the terminal's buffer is full). Use as a context
+    manager, or call :meth:`start` and :meth:`close`.
+
+    Parameters:
+        uf2: the firmware image (the ELF beside it, or ``elf``).
+        count: how many devices.
+        tcp_port: device ``i`` listens on ``tcp_port + i``; 0 picks free ports.
+        host: the address to bind (loopback by default).
+        pty: also serve each device on a pseudo-terminal.
+        flash_dir: folder for the devices' flash files (``device-<i>.flash``, kept across
+            runs); default: a temporary folder removed by :meth:`close`.
+        node: the Node.js executable.
+        start_timeout_s: longest wait for a device to listen.
+
+    Raises:
+        FileNotFoundError: the image, its ELF or the emulator's packages are missing.
+        DeviceError: an emulator failed to start.
+    """
+
+    def __init__(
+        self,
+        uf2: Path | str,
+        count: int,
+        *,
+        elf: Path | str | None = None,
+        tcp_port: int = 0,
+        host: str = "127.0.0.1",
+        pty: bool = False,
+        flash_dir: Path | str | None = None,
+        node: str = "node",
+        start_timeout_s: float = 30.0,
+    ) -> None:
+        if count < 1:
+            raise ValueError(f"count {count!r} of devices; at least 1")
+        self.uf2, self.elf = _check_image(Path(uf2), Path(elf) if elf is not None else None)
+        self.count = count
+        self.tcp_port = tcp_port
+        self.host = host
+        self.pty = pty
+        self.node = node
+        self.start_timeout_s = start_timeout_s
+        self._temporary: tempfile.TemporaryDirectory[str] | None = None
+        if flash_dir is None:
+            self._temporary = tempfile.TemporaryDirectory(prefix="usbmotion-flash-")
+            flash_dir = self._temporary.name
+        self.flash_dir = Path(flash_dir)
+        self.endpoints: list[FirmwareEndpoint] = []
+        self._stderr = tempfile.TemporaryFile()  # noqa: SIM115 - closed by close()
+        self._selector: selectors.DefaultSelector | None = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._closed = False
+
+    def start(self) -> FirmwareServer:
+        """Start the emulators (and the pseudo-terminal relay); returns once all listen."""
+        if self.endpoints:
+            return self
+        self.flash_dir.mkdir(parents=True, exist_ok=True)
+        script = _script("serve.js")
+        try:
+            for index in range(self.count):
+                self.endpoints.append(self._start_device(index, script))
+            if self.pty:
+                self._start_relay()
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def _start_device(self, index: int, script: Path) -> FirmwareEndpoint:
+        flash = self.flash_dir / f"device-{index}.flash"
+        port = self.tcp_port + index if self.tcp_port else 0
+        process = subprocess.Popen(
+            [
+                self.node,
+                str(script),
+                "--uf2",
+                str(self.uf2),
+                "--elf",
+                str(self.elf),
+                "--flash",
+                str(flash),
+                "--tcp",
+                str(port),
+                "--host",
+                self.host,
+                "--exit-with-stdin",
+                "1",
+            ],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=self._stderr,
+        )
+        endpoint = FirmwareEndpoint(index, self.host, port, flash, _process=process)
+        assert process.stdout is not None
+        reader = _LineReader(process.stdout)
+        try:
+            line = reader.readline(self.start_timeout_s).decode("ascii", "replace").strip()
+        except (TimeoutError, EOFError):
+            _stop_process(process)
+            raise DeviceError(
+                f"emulated device {index} did not start: {self._stderr_text()}",
+                device=str(self.uf2),
+            ) from None
+        finally:
+            reader.close()
+        address = line.removeprefix("listening ")
+        if address == line or ":" not in address:
+            _stop_process(process)
+            raise DeviceError(f"emulated device {index} printed {line!r}", device=str(self.uf2))
+        endpoint.port = int(address.rsplit(":", 1)[1])
+        return endpoint
+
+    def _stderr_text(self) -> str:
+        self._stderr.seek(0)
+        return self._stderr.read().decode("utf-8", "replace").strip() or "(no message)"
+
+    # pseudo-terminals
+
+    def _start_relay(self) -> None:
+        selector = selectors.DefaultSelector()
+        self._selector = selector
+        for endpoint in self.endpoints:
+            master, slave = os.openpty()
+            tty.setraw(slave)
+            os.set_blocking(master, False)
+            endpoint._master, endpoint._slave = master, slave
+            endpoint.path = os.ttyname(slave)
+            link = socket.create_connection((self.host, endpoint.port), timeout=5.0)
+            link.setblocking(False)
+            link.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            endpoint._link = link
+            selector.register(master, selectors.EVENT_READ, (endpoint, "pty"))
+            selector.register(link, selectors.EVENT_READ, (endpoint, "tcp"))
+        self._thread = threading.Thread(target=self._relay, name="firmware-pty-relay", daemon=True)
+        self._thread.start()
+
+    def _relay(self) -> None:
+        selector = self._selector
+        assert selector is not None
+        while not self._stop.is_set():
+            for key, _ in selector.select(0.05):
+                endpoint, side = key.data
+                if side == "pty":
+                    self._pty_readable(endpoint)
+                else:
+                    self._tcp_readable(endpoint)
+            for endpoint in self.endpoints:
+                self._flush_to_device(endpoint)
+
+    def _pty_readable(self, endpoint: FirmwareEndpoint) -> None:
+        try:
+            data = os.read(endpoint._master, _READ_CHUNK)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:  # EIO: no client holds the slave side
+            return
+        endpoint._to_device += data
+
+    def _flush_to_device(self, endpoint: FirmwareEndpoint) -> None:
+        if endpoint._to_device and endpoint._link is not None:
+            try:
+                sent = endpoint._link.send(endpoint._to_device)
+            except (BlockingIOError, InterruptedError):
+                return
+            del endpoint._to_device[:sent]
+
+    def _tcp_readable(self, endpoint: FirmwareEndpoint) -> None:
+        assert endpoint._link is not None
+        try:
+            data = endpoint._link.recv(_READ_CHUNK)
+        except (BlockingIOError, InterruptedError):
+            return
+        if not data:  # the emulator exited
+            if self._selector is not None:
+                self._selector.unregister(endpoint._link)
+            endpoint._link.close()
+            endpoint._link = None
+            return
+        try:
+            written = os.write(endpoint._master, data)
+        except BlockingIOError:
+            written = 0
+        endpoint.dropped_bytes += len(data) - written
+
+    def close(self) -> None:
+        """Stop the relay and the emulators, close the terminals. Safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        if self._selector is not None:
+            self._selector.close()
+        for endpoint in self.endpoints:
+            if endpoint._link is not None:
+                endpoint._link.close()
+            for fd in (endpoint._master, endpoint._slave):
+                if fd >= 0:
+                    with contextlib.suppress(OSError):
+                        os.close(fd)
+            if endpoint._process is not None:
+                _stop_process(endpoint._process)
+                endpoint._process = None
+        self._stderr.close()
+        if self._temporary is not None:
+            self._temporary.cleanup()
+
+    def __enter__(self) -> FirmwareServer:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
