@@ -36,8 +36,10 @@ export class EmulatedDevice {
    *   default: the UF2's path with .elf
    * @param {string|null} [options.flash] file that keeps the flash contents, or null
    * @param {string} [options.bootrom] RP2040 bootrom B1 image
+   * @param {number} [options.quantumCycles] cycles per turn when both cores are awake
    */
-  constructor({ uf2, elf, flash = null, bootrom }) {
+  constructor({ uf2, elf, flash = null, bootrom, quantumCycles = QUANTUM_BOTH_CYCLES }) {
+    this.quantumCycles = quantumCycles;
     const elfPath = elf ?? uf2.replace(/\.uf2$/, '.elf');
     this.symbols = readElfSymbols(new Uint8Array(readFileSync(elfPath)));
     const ticks = this.symbols.get(TICKS_SYMBOL);
@@ -255,7 +257,7 @@ export class EmulatedDevice {
         clock.tick(slice);
         continue;
       }
-      const quantum = (run0 && run1 ? QUANTUM_BOTH_CYCLES : QUANTUM_ONE_CYCLES) * cycleNanos;
+      const quantum = (run0 && run1 ? this.quantumCycles : QUANTUM_ONE_CYCLES) * cycleNanos;
       if (quantum < slice) {
         slice = quantum;
       }
