@@ -171,6 +171,7 @@ DEBUG_LINES = [
     ([], "34 -10 10", "SIM TRAVEL MODIFIED TO -10 10"),
     ([], "35 0", "MOTION STATS RESET"),
     ([], "37 -3", "POSITION SHIFTED BY -3"),
+    ([], "38 0 2 5 -5", "REPLACED 0 0 2 CRC 2082170553"),
 ]
 
 

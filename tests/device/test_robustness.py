@@ -51,6 +51,7 @@ _MAY_CHANGE: dict[int, set[str]] = {
     33: {"motor"},
     34: {"motor"},
     37: {"queue", "keyframes", "actual", "desired"},
+    38: {"queue"},
 }
 _SETTINGS = [f.name for f in fields(DeviceSettings)]
 
@@ -117,9 +118,10 @@ def _integer_lines(draw: st.DrawFn) -> bytes:
         spec = draw(_SPECS)
         number = spec.number
         params = list(spec.params)
+        lead = len(spec.params) - 1
         if spec.counted and spec.item is not None:
             n = draw(st.integers(0, 4))
-            params = [spec.params[0], *[spec.item] * n]
+            params = [*spec.params, *[spec.item] * n]
         if spec.query is not None and draw(st.booleans()):
             args = [draw(st.integers(0, 63)) if q is None else q for q in spec.query]
         else:
@@ -132,9 +134,9 @@ def _integer_lines(draw: st.DrawFn) -> bytes:
                 args.append(draw(st.one_of(inside, inside, near)))
             if spec.counted and args:
                 if draw(st.integers(0, 3)) == 0:
-                    args[0] = draw(st.integers(-1, 30))
+                    args[lead] = draw(st.integers(-1, 30))
                 else:
-                    args[0] = len(args) - 1
+                    args[lead] = len(args) - lead - 1
         if draw(st.integers(0, 5)) == 0:
             args = args[: draw(st.integers(0, len(args)))] + draw(
                 st.lists(st.integers(-5, 5), max_size=2)
@@ -207,6 +209,7 @@ HUGE_LINES = [
     ("1 " + "9" * 25 + " 1",
      "ERR 1 count 999999999999999999...(25 digits) is out of range 1..1000"),
     ("-" + "3" * 40 + " 1", "ERR ? unknown call"),
+    ("3" * 19 + " x", "ERR ? input 1 'x' is not an integer"),
     ("8 " + "0" * 40 + "3 1", ""),
 ]
 

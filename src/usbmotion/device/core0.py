@@ -725,6 +725,33 @@ class Device:
             crc = zlib.crc32(self._queue[: len(values) - first].astype("<i4").tobytes(), crc)
             self._debug_line(1, len(values), crc)
 
+    def _call_38(self, call: Call) -> None:
+        self._refuse_in_curve_mode()
+        state = self._state
+        tick, count = call.args[0], call.args[1]
+        values = call.args[2:]
+        queued = int(state[core1.S_QUEUE_COUNT])
+        kept, skipped = queued, 0
+        if state[core1.S_ENABLE] == 1:
+            clock = int(state[core1.S_CLOCK])
+            start = int(state[core1.S_START])
+            first = max(start, clock) if start >= 0 else clock + int(state[core1.S_MOTION_LEFT])
+            scalar = self._scalar
+            kept = min(queued, max(0, -(-(tick - first) // scalar)))
+            skipped = min(count, max(0, -(-(first - tick) // scalar)))
+        else:
+            kept = 0
+        added = values[skipped:]
+        if kept + len(added) > QUEUE_CAPACITY:
+            self._print("E38")
+            return
+        kept_values = self.queue_values()[:kept]
+        self._clear_queue()
+        self._push((*kept_values, *added))
+        if self._debug.get(38, 0) == 1:
+            crc = zlib.crc32(np.asarray(added, dtype="<i4").tobytes())
+            self._debug_line(38, kept, skipped, len(added), crc)
+
     def _call_2(self, call: Call) -> None:
         queued = int(self._state[core1.S_QUEUE_COUNT])
         self._reply(2, queued, QUEUE_CAPACITY - queued)

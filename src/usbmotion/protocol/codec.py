@@ -159,7 +159,8 @@ def parse_call(line: bytes | str) -> Call:
     if not tokens:
         raise EmptyLineError("empty line", reason="empty line")
     number = _to_int(tokens[0], None, 0)
-    args = tuple(_to_int(token, number, i) for i, token in enumerate(tokens[1:], start=1))
+    known = None if isinstance(number, HugeInteger) else number
+    args = tuple(_to_int(token, known, i) for i, token in enumerate(tokens[1:], start=1))
     check_call(number, args)
     return Call(number, args)
 

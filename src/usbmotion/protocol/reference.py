@@ -27,7 +27,7 @@ def _inputs(call: CallSpec) -> str:
     names = [p.name for p in call.params]
     if call.counted:
         assert call.item is not None
-        names = [names[0], f"{call.item.name}1 .. {call.item.name}N"]
+        names = [*names, f"{call.item.name}1 .. {call.item.name}N"]
     return " ".join(f"`{n}`" for n in names) if names else "none"
 
 

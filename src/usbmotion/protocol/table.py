@@ -92,8 +92,9 @@ class Template:
 class CallSpec:
     """One executive call.
 
-    ``params`` are the fixed supporting inputs. A *counted* call (1, 18) instead takes
-    a count ``N`` (``params[0]``) followed by ``N`` items each checked against ``item``.
+    ``params`` are the fixed supporting inputs. A *counted* call (1, 18, 38) takes its
+    fixed inputs ``params[:-1]`` (none for 1 and 18), then a count ``N`` (``params[-1]``),
+    then ``N`` items each checked against ``item``.
     ``query`` is the input tuple that queries the call's value instead of setting it
     (``None`` in it matches any value), answered with ``query_reply``. ``debug`` maps a
     call-8 flag to the line the device prints when the call executes with that flag set.
@@ -138,19 +139,22 @@ class CallSpec:
             return None
         if self.counted:
             assert self.item is not None
-            if not args:
-                return ("count", f"call {self.number} ({self.name}) needs a count first")
-            count = args[0]
-            why = self.params[0].check(count)
-            if why is not None:
-                return ("range", why)
-            if len(args) != count + 1:
+            lead = len(self.params) - 1
+            if len(args) <= lead:
+                first = "a count" if not lead else f"{lead} input{'s' * (lead != 1)} and a count"
+                return ("count", f"call {self.number} ({self.name}) needs {first} first")
+            for param, value in zip(self.params, args[: lead + 1], strict=False):
+                why = param.check(value)
+                if why is not None:
+                    return ("range", why)
+            count = args[lead]
+            if len(args) != lead + 1 + count:
                 return (
                     "count",
                     f"call {self.number} ({self.name}) announced {count} items"
-                    f" but carries {len(args) - 1}",
+                    f" but carries {len(args) - lead - 1}",
                 )
-            items = args[1:]
+            items = args[lead + 1 :]
             if items and (min(items) < self.item.minimum or max(items) > self.item.maximum):
                 for value in items:
                     why = self.item.check(value)
@@ -534,6 +538,30 @@ CALLS: tuple[CallSpec, ...] = (
         " the motion queue and the keyframe buffer (their values were in the old"
         " coordinates). A host sets machine zero from a latched edge with one shift, exact"
         " whatever the axis does meanwhile: `37 (switch position - edge position)`.",
+    ),
+    CallSpec(
+        38,
+        "REPLACE_FROM",
+        "Replace the motion queue's future from device tick T with N values, in one step.",
+        (
+            _p("tick", 0, INT32_MAX, "device clock tick the first new value is for"),
+            _p("count", 0, QUEUE_CAPACITY, "number of values that follow"),
+        ),
+        item=_p("value", INT32_MIN, INT32_MAX, "setpoint: counts (mode 1) or counts/s (mode 2)"),
+        debug={1: _t("REPLACED {kept} {skipped} {added} CRC {crc}")},
+        refusal="E38",
+        notes="What a host needs to stop, hold or change a motion already queued without a"
+        " seam, whatever the link's latency. While the servo runs, every queued value is due"
+        " on a known tick (the next one on the next motion update, then one every"
+        " `motion_update_interval_scalar` ticks; with a start armed by call 31, from that"
+        " tick). The device keeps the queued values due before tick T (`kept`), drops the"
+        " rest, and appends the new values, value k being for tick T + k x scalar: those"
+        " already past when the line arrives are dropped (`skipped`), so the first new value"
+        " used is the one for the tick it is used on. With the servo disabled nothing is due:"
+        " the queue is replaced whole. N = 0 only cuts the queue at T. If the result would not"
+        " fit the queue it is refused with `E38` and nothing changes; refused in curve mode"
+        " (like calls 0 and 1). Debug flag 1 acknowledges what was done: `added` = N -"
+        " `skipped` and `crc` the CRC-32 of the added values, as call 1's flag 2.",
     ),
 )
 BY_NUMBER: Mapping[int, CallSpec] = {spec.number: spec for spec in CALLS}
