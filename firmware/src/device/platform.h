@@ -25,6 +25,7 @@ bool mq_try_add(int32_t value);      /* core0 */
 bool mq_try_remove(int32_t *value);  /* core1 */
 uint32_t mq_level(void);
 void mq_clear(void);                 /* core0, with the servo lock held */
+void mq_truncate(uint32_t count);    /* core0, with the servo lock held: keep the first count */
 int32_t mq_peek(uint32_t index);     /* core0: the index-th value from the head */
 
 /* Flash for the flash variables: PLATFORM_FLASH_SECTORS erase sectors at the end of the
