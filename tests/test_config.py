@@ -350,3 +350,257 @@ def test_sim_table_values_are_checked(tmp_path: Path) -> None:
     error = fails(tmp_path, text)
     assert_located(error, key="axes.X.sim.inertia_kg_m2", line=line_of(text, "inertia_kg_m2"),
                    words=("out of range", "kg m^2"))
+
+
+# --- a misspelt key is named as unknown, with the closest known key -----------------------
+
+AXIS_KEYS = ("counts_per_mm, device, following_error_limit_mm, gains, homing, max_accel_mm_s2,"
+             " max_jerk_mm_s3, max_velocity_mm_s, reach, sim, travel_mm, url, velocity_gains")
+SIM_KEYS = ("counts_per_revolution, inertia_kg_m2, load_torque_mnm, source_voltage_v, start_mm,"
+            " torque_constant_mnm_per_a, update_interval_dms, viscous_friction_unm_per_rad_s,"
+            " winding_resistance_ohm")
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "key", "problem"),
+    [
+        ("servo_interval_dms = 10", "servo_interval_ms = 10", "servo_interval_ms",
+         "unknown key 'servo_interval_ms'; did you mean 'servo_interval_dms'? allowed keys here:"
+         " arc_tolerance_mm, axes, homing_order, junction_deviation_mm, motion_scalar, name,"
+         " ports, reply_timeout_s, servo_interval_dms, watchdog_ms"),
+        ("max_accel_mm_s2 = 500", "max_acel_mm_s2 = 500", "axes.X.max_acel_mm_s2",
+         "unknown key 'max_acel_mm_s2'; did you mean 'max_accel_mm_s2'? allowed keys here: "
+         + AXIS_KEYS),
+        ("counts_per_mm = 100.5", "Counts_Per_MM = 100.5", "axes.Z.Counts_Per_MM",
+         "unknown key 'Counts_Per_MM'; did you mean 'counts_per_mm'? allowed keys here: "
+         + AXIS_KEYS),
+        ("kd = 0.002 }", "kdd = 0.002 }", "axes.X.gains.kdd",
+         "unknown key 'kdd'; did you mean 'kd'? allowed keys here: kd, ki, kp"),
+        ("[axes.Z.gains]", "[axes.Z.velocity_gains]\nkp = 0.001\nkii = 0.5\n[axes.Z.gains]",
+         "axes.Z.velocity_gains.kii",
+         "unknown key 'kii'; did you mean 'ki'? allowed keys here: kd, ki, kp"),
+        ("speed_mm_s = 5", "sped_mm_s = 5", "axes.Z.homing.sped_mm_s",
+         "unknown key 'sped_mm_s'; did you mean 'speed_mm_s'? allowed keys here: backoff_mm,"
+         " direction, position_mm, slow_speed_mm_s, speed_mm_s"),
+        ("travel_mm = [0, 200]", "travel_mm = [0, 200]\nsim = { inertia_kg_m = 1e-3 }",
+         "axes.X.sim.inertia_kg_m",
+         "unknown key 'inertia_kg_m'; did you mean 'inertia_kg_m2'? allowed keys here: "
+         + SIM_KEYS),
+        ("travel_mm = [0, 200]", "travel_mm = [0, 200]\nreach = { velocity_mm_s = 40,"
+         " acel_mm_s2 = 900 }", "axes.X.reach.acel_mm_s2",
+         "unknown key 'acel_mm_s2'; did you mean 'accel_mm_s2'? allowed keys here: accel_mm_s2,"
+         " velocity_mm_s"),
+        ("servo_interval_dms = 10", "servo_interval_dms = 10\ncolour = 'red'", "colour",
+         "unknown key 'colour'; allowed keys here: arc_tolerance_mm, axes, homing_order,"
+         " junction_deviation_mm, motion_scalar, name, ports, reply_timeout_s,"
+         " servo_interval_dms, watchdog_ms"),
+    ],
+)
+def test_a_misspelt_key_is_named_as_unknown_with_the_closest_key(
+    tmp_path: Path, old: str, new: str, key: str, problem: str
+) -> None:
+    assert old in GOOD
+    text = GOOD.replace(old, new, 1)
+    error = fails(tmp_path, text)
+    line = line_of(text, key.rsplit(".", 1)[-1] + " =")
+    assert str(error) == f"{error.path}:{line}: {key}: {problem}"
+    assert error.key == key
+    assert error.line == line
+
+
+def test_an_unknown_key_is_named_before_the_other_problems_of_its_table(tmp_path: Path) -> None:
+    """A bad value read before the misspelt key, a missing required key: the typo comes first."""
+    text = (GOOD.replace("counts_per_mm = 240", "counts_per_mm = -240")
+            .replace("max_accel_mm_s2 = 500", "max_acel_mm_s2 = 500"))
+    error = fails(tmp_path, text)
+    assert error.key == "axes.X.max_acel_mm_s2"
+    assert error.line == line_of(text, "max_acel_mm_s2")
+    text = GOOD.replace("watchdog_ms = 0", "watchdog_ms = 0\nwatchdog = 5").replace(
+        "max_accel_mm_s2 = 500", "max_accel_mm_s2 = -500")
+    error = fails(tmp_path, text)
+    assert error.key == "watchdog"
+    assert "did you mean 'watchdog_ms'?" in str(error)
+
+
+def test_a_lower_case_axis_letter_is_suggested_in_upper_case(tmp_path: Path) -> None:
+    text = GOOD.replace("[axes.Z]", "[axes.z]").replace("[axes.Z.", "[axes.z.")
+    error = fails(tmp_path, text)
+    assert str(error) == (f"{error.path}:{line_of(text, '[axes.z]')}: axes.z: 'z' is not an"
+                          " axis name (did you mean 'Z'?); allowed: X, Y, Z, A, B, C, U, V, W")
+
+
+# --- limits the motor cannot reach ----------------------------------------------------------
+
+DEFAULT_MOTOR = "the simulated motor (axes.X.sim's defaults)"
+MARGIN = "(90% of it, so the PID keeps 10% of the supply to correct errors)"
+
+
+def analytic_reach(*, load_torque_mnm: float = 50.0, inertia_kg_m2: float = 1.1e-3,
+                   counts_per_mm: float = 240.0) -> tuple[float, float]:
+    """No-load speed (mm/s) and acceleration from standstill (mm/s^2) of the default motor
+    at 12 V, straight from the model's equation (PROTOCOL.md, "The simulated motor")."""
+    import math  # noqa: PLC0415
+
+    kt, resistance, volts, viscous = 0.3346, 2.182, 12.0, 500e-6
+    drive = kt * volts / resistance - load_torque_mnm * 1e-3
+    mm_per_rad = 1920 / (2 * math.pi) / counts_per_mm
+    return (drive / (kt * kt / resistance + viscous) * mm_per_rad,
+            drive / inertia_kg_m2 * mm_per_rad)
+
+
+def test_the_default_machine_reach_is_the_motor_model_at_full_voltage() -> None:
+    from usbmotion.host.config import REACH_MARGIN, simulated_reach  # noqa: PLC0415
+
+    config = load_config(EXAMPLES / "machine.toml")
+    x, z = config.axis("X"), config.axis("Z")
+    assert x.sim is not None and z.sim is not None
+    reach_x = simulated_reach(x.sim, x.counts_per_mm)
+    reach_z = simulated_reach(z.sim, z.counts_per_mm)
+    assert (reach_x.velocity_mm_s, reach_x.accel_mm_s2) == pytest.approx(analytic_reach())
+    assert (reach_z.velocity_mm_s, reach_z.accel_mm_s2) == pytest.approx(
+        analytic_reach(load_torque_mnm=80.0, inertia_kg_m2=1.5e-3))
+    assert reach_x.velocity_mm_s == pytest.approx(43.99, abs=0.01)
+    assert reach_x.accel_mm_s2 == pytest.approx(2072, abs=1)
+    assert reach_x.accel_at_mm_s2(20.0) == pytest.approx(1130, abs=1)
+    assert reach_z.velocity_mm_s == pytest.approx(43.26, abs=0.01)
+    assert reach_z.accel_at_mm_s2(15.0) == pytest.approx(976, abs=1)
+    assert REACH_MARGIN == 0.1
+    for axis, reach in ((x, reach_x), (z, reach_z)):
+        assert axis.max_velocity_mm_s <= reach.usable_velocity_mm_s
+        assert axis.max_accel_mm_s2 <= reach.usable_accel_mm_s2(axis.max_velocity_mm_s)
+        assert axis.reach is None
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "key", "problem"),
+    [
+        ("max_velocity_mm_s = 25", "max_velocity_mm_s = 50", "axes.X.max_velocity_mm_s",
+         f"50.0 mm/s is faster than the motor can go: its no-load speed at the full 12 V of"
+         f" {DEFAULT_MOTOR} is 43.99 mm/s ((Kt V/R - T_load) / (Kt^2/R + b)); allowed:"
+         f" <= 39.59 mm/s {MARGIN}"),
+        ("max_velocity_mm_s = 25", "max_velocity_mm_s = 42", "axes.X.max_velocity_mm_s",
+         f"42.0 mm/s leaves the PID less than 10% of the supply to correct errors: its no-load"
+         f" speed at the full 12 V of {DEFAULT_MOTOR} is 43.99 mm/s ((Kt V/R - T_load) /"
+         f" (Kt^2/R + b)); allowed: <= 39.59 mm/s {MARGIN}"),
+        ("max_accel_mm_s2 = 500", "max_accel_mm_s2 = 1000", "axes.X.max_accel_mm_s2",
+         f"1000.0 mm/s^2 is more than the motor can give at max_velocity_mm_s 25 mm/s: the"
+         f" motor gives 894.6 mm/s^2 at the full 12 V of {DEFAULT_MOTOR} ((Kt (V - Kt w)/R -"
+         " b w - T_load) / J at w = max_velocity_mm_s; 2072 mm/s^2 from standstill, 0 at the"
+         " top speed 43.99 mm/s); allowed: <= 687.3 mm/s^2 (keeping 10% of the supply for the"
+         " PID: 2072 x (0.9 - 25 / 43.99)), or a lower max_velocity_mm_s"),
+        ("max_accel_mm_s2 = 500", "max_accel_mm_s2 = 800", "axes.X.max_accel_mm_s2",
+         f"800.0 mm/s^2 leaves the PID less than 10% of the supply to correct errors at"
+         f" max_velocity_mm_s 25 mm/s: the motor gives 894.6 mm/s^2 at the full 12 V of"
+         f" {DEFAULT_MOTOR} ((Kt (V - Kt w)/R - b w - T_load) / J at w = max_velocity_mm_s;"
+         " 2072 mm/s^2 from standstill, 0 at the top speed 43.99 mm/s); allowed: <= 687.3"
+         " mm/s^2 (keeping 10% of the supply for the PID: 2072 x (0.9 - 25 / 43.99)), or a"
+         " lower max_velocity_mm_s"),
+        ("travel_mm = [0, 200]", "travel_mm = [0, 200]\n"
+         "sim = { source_voltage_v = 6.0, inertia_kg_m2 = 2.2e-3 }", "axes.X.max_velocity_mm_s",
+         "25.0 mm/s is faster than the motor can go: its no-load speed at the full 6 V of"
+         " axes.X.sim is 21.38 mm/s ((Kt V/R - T_load) / (Kt^2/R + b)); allowed:"
+         f" <= 19.24 mm/s {MARGIN}"),
+        ("travel_mm = [0, 200]", "travel_mm = [0, 200]\nsim = { load_torque_mnm = 2000 }",
+         "axes.X.max_velocity_mm_s",
+         "25.0 mm/s cannot be reached: its no-load speed at the full 12 V of axes.X.sim is 0"
+         " ((Kt V/R - T_load) / (Kt^2/R + b): the load torque is at least the stall torque"
+         " Kt V/R); allowed: a motor that turns (a smaller load_torque_mnm or a larger"
+         " source_voltage_v)"),
+    ],
+)
+def test_a_limit_the_simulated_motor_cannot_reach_is_refused(
+    tmp_path: Path, old: str, new: str, key: str, problem: str
+) -> None:
+    assert old in GOOD
+    text = GOOD.replace(old, new, 1)
+    error = fails(tmp_path, text)
+    line = line_of(text, key.rsplit(".", 1)[-1] + " =")
+    assert str(error) == f"{error.path}:{line}: {key}: {problem}"
+    assert (error.key, error.line) == (key, line)
+
+
+def test_the_reach_limits_load_up_to_the_margin_and_not_beyond(tmp_path: Path) -> None:
+    """39.59 mm/s (with the acceleration left there) loads; a hundredth more does not."""
+    from usbmotion.host.config import simulated_reach  # noqa: PLC0415
+
+    fast = GOOD.replace("max_velocity_mm_s = 25", "max_velocity_mm_s = 39.59").replace(
+        "max_accel_mm_s2 = 500", "max_accel_mm_s2 = 0.2")
+    x = load_config(write(tmp_path, fast)).axis("X")
+    assert x.sim is not None
+    reach = simulated_reach(x.sim, x.counts_per_mm)
+    assert 0.2 <= reach.usable_accel_mm_s2(39.59) < 0.21
+    fails(tmp_path, fast.replace("max_velocity_mm_s = 39.59", "max_velocity_mm_s = 39.6"))
+    fails(tmp_path, fast.replace("max_accel_mm_s2 = 0.2", "max_accel_mm_s2 = 0.21"))
+    hard = GOOD.replace("max_accel_mm_s2 = 500", "max_accel_mm_s2 = 687.3")
+    assert load_config(write(tmp_path, hard)).axis("X").max_accel_mm_s2 == 687.3
+    fails(tmp_path, hard.replace("max_accel_mm_s2 = 687.3", "max_accel_mm_s2 = 687.5"))
+
+
+MEASURED = "reach = { velocity_mm_s = 30.0, accel_mm_s2 = 1200.0 }"
+
+
+def test_a_measured_reach_is_read_and_the_limits_are_checked_against_it(tmp_path: Path) -> None:
+    text = GOOD.replace("following_error_limit_mm = 0", "following_error_limit_mm = 0\n"
+                        + MEASURED)
+    z = load_config(write(tmp_path, text)).axis("Z")
+    assert z.sim is None and z.reach is not None
+    assert (z.reach.velocity_mm_s, z.reach.accel_mm_s2) == (30.0, 1200.0)
+    assert z.reach.accel_at_mm_s2(10.0) == pytest.approx(800.0)
+    assert z.reach.usable_accel_mm_s2(10.0) == pytest.approx(680.0)
+    assert load_config(write(tmp_path, GOOD)).axis("Z").reach is None
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "key", "problem"),
+    [
+        ("max_velocity_mm_s = 10", "max_velocity_mm_s = 31", "axes.Z.max_velocity_mm_s",
+         "31.0 mm/s is faster than the motor can go: its top speed measured by usbmotion tune"
+         " --reach is 30 mm/s (axes.Z.reach.velocity_mm_s); allowed: <= 27 mm/s"
+         f" {MARGIN}"),
+        ("max_accel_mm_s2 = 200", "max_accel_mm_s2 = 700", "axes.Z.max_accel_mm_s2",
+         "700.0 mm/s^2 leaves the PID less than 10% of the supply to correct errors at"
+         " max_velocity_mm_s 10 mm/s: the motor gives 800 mm/s^2 by the reach that usbmotion"
+         " tune --reach measured (axes.Z.reach, on a DC motor's straight torque-speed line;"
+         " 1200 mm/s^2 from standstill, 0 at the top speed 30 mm/s); allowed: <= 680 mm/s^2"
+         " (keeping 10% of the supply for the PID: 1200 x (0.9 - 10 / 30)), or a lower"
+         " max_velocity_mm_s"),
+        ("max_accel_mm_s2 = 200", "max_accel_mm_s2 = 900", "axes.Z.max_accel_mm_s2",
+         "900.0 mm/s^2 is more than the motor can give at max_velocity_mm_s 10 mm/s"),
+        (MEASURED, "reach = { velocity_mm_s = 30.0 }", "axes.Z.reach.accel_mm_s2",
+         "missing required key 'accel_mm_s2'; allowed: a number > 0 and <= 1e+08 (mm/s^2, the"
+         " acceleration from standstill it measured)"),
+        (MEASURED, "reach = { velocity_mm_s = -30.0, accel_mm_s2 = 1200.0 }",
+         "axes.Z.reach.velocity_mm_s",
+         "-30.0 is out of range; allowed: a number > 0 and <= 100000 (mm/s, the top speed"
+         " usbmotion tune --reach measured)"),
+        (MEASURED, "reach = 30.0", "axes.Z.reach",
+         "30.0 (float) is not a table; allowed: a table: velocity_mm_s, accel_mm_s2 (as"
+         " usbmotion tune --reach prints)"),
+    ],
+)
+def test_a_limit_above_a_measured_reach_is_refused(
+    tmp_path: Path, old: str, new: str, key: str, problem: str
+) -> None:
+    base = GOOD.replace("following_error_limit_mm = 0", "following_error_limit_mm = 0\n"
+                        + MEASURED)
+    text = base.replace(old, new, 1)
+    assert text != base
+    error = fails(tmp_path, text)
+    z_table = line_of(text, "[axes.Z]")
+    name = "reach" if ".reach" in key else key.rsplit(".", 1)[-1]
+    line = z_table + line_of("\n".join(text.splitlines()[z_table:]), name + " =")
+    assert str(error).startswith(f"{error.path}:{line}: {key}: {problem}"), str(error)
+    assert (error.key, error.line) == (key, line)
+
+
+def test_a_simulated_axis_with_a_measured_reach_is_held_to_both(tmp_path: Path) -> None:
+    """The model refuses what the measurement would allow, and the other way round."""
+    generous = GOOD.replace("travel_mm = [0, 200]", "travel_mm = [0, 200]\n"
+                            "reach = { velocity_mm_s = 100.0, accel_mm_s2 = 9000.0 }")
+    error = fails(tmp_path, generous.replace("max_velocity_mm_s = 25", "max_velocity_mm_s = 42"))
+    assert "its no-load speed at the full 12 V of" in str(error)
+    stingy = GOOD.replace("travel_mm = [0, 200]", "travel_mm = [0, 200]\n"
+                          "reach = { velocity_mm_s = 27.0, accel_mm_s2 = 9000.0 }")
+    error = fails(tmp_path, stingy)
+    assert error.key == "axes.X.max_velocity_mm_s"
+    assert "its top speed measured by usbmotion tune --reach is 27 mm/s" in str(error)

@@ -1,27 +1,35 @@
 """The machine configuration: one TOML file read into frozen, validated dataclasses.
 
 A file names the machine-wide settings at its top level and one ``[axes.<LETTER>]`` table
-per axis, with optional ``gains``, ``homing`` and ``sim`` sub-tables (see
-``examples/machine.toml`` and ``examples/real-machine.toml``). Every key is checked: an
-unknown key, a value of the wrong type or out of its range, and a missing required key
-are :class:`~usbmotion.errors.ConfigError` s naming the file, the dotted key
+per axis, with optional ``gains``, ``velocity_gains``, ``homing``, ``sim`` and ``reach``
+sub-tables (see ``examples/machine.toml`` and ``examples/real-machine.toml``). Every key is
+checked: an unknown key (named before anything else in its table, with the closest known
+key), a value of the wrong type or out of its range, a missing required key, and a
+``max_velocity_mm_s`` or ``max_accel_mm_s2`` the axis's motor cannot reach with
+:data:`REACH_MARGIN` to spare (from the motor model of a simulated axis, from the ``reach``
+that ``usbmotion tune --reach`` measured on a real one) are
+:class:`~usbmotion.errors.ConfigError` s naming the file, the dotted key
 (``axes.X.max_accel_mm_s2``), the line when it can be found, and what is allowed.
 """
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from usbmotion.errors import ConfigError
 from usbmotion.host.device import AxisScale, to_sci
 from usbmotion.protocol import BY_NUMBER, DEVICE_NAME_MAX, QUEUE_CAPACITY
 from usbmotion.protocol.table import INT32_MAX, INT32_MIN
+
+if TYPE_CHECKING:
+    from usbmotion.device.motor import MotorParams
 
 AXIS_LETTERS = ("X", "Y", "Z", "A", "B", "C", "U", "V", "W")
 """Axis names a machine may use: the RS274/NGC axis letters."""
@@ -113,6 +121,32 @@ class SimMotorConfig:
     load_torque_mnm: float
     start_mm: float
 
+    def motor_params(
+        self, *, travel_counts: tuple[int, int] = (INT32_MIN, INT32_MAX)
+    ) -> MotorParams:
+        """The device's motor (``usbmotion.device.motor.MotorParams``): each value to the
+        4 significant digits its call carries, the switches at ``travel_counts``."""
+        from usbmotion.device.motor import MotorParams  # noqa: PLC0415 - simulated axes only
+
+        def pair(value: float, label: str) -> tuple[int, int]:
+            coefficient, exponent = to_sci(value, digits=4, parameter=label)
+            return (coefficient, exponent if coefficient else 0)
+
+        return MotorParams(
+            source_voltage_v=pair(self.source_voltage_v, "source_voltage_v"),
+            torque_constant_mnm_per_a=pair(self.torque_constant_mnm_per_a,
+                                           "torque_constant_mnm_per_a"),
+            winding_resistance_ohm=pair(self.winding_resistance_ohm, "winding_resistance_ohm"),
+            counts_per_revolution=self.counts_per_revolution,
+            inertia_kg_m2=pair(self.inertia_kg_m2, "inertia_kg_m2"),
+            viscous_friction_unm_per_rad_s=pair(self.viscous_friction_unm_per_rad_s,
+                                                "viscous_friction_unm_per_rad_s"),
+            load_torque_mnm=pair(self.load_torque_mnm, "load_torque_mnm"),
+            sim_update_interval_dms=self.update_interval_dms,
+            travel_lower_counts=travel_counts[0],
+            travel_upper_counts=travel_counts[1],
+        )
+
 
 SIM_MOTOR_DEFAULTS: Mapping[str, float] = {
     "update_interval_dms": 10,
@@ -127,6 +161,69 @@ SIM_MOTOR_DEFAULTS: Mapping[str, float] = {
 """The simulated motor of a ``sim`` table's omitted keys: the device's own power-up
 defaults (``usbmotion.device.motor.MotorParams``), a 12 V 30:1 gearmotor with a 64 CPR
 encoder (1920 counts per output revolution)."""
+
+
+REACH_MARGIN = 0.1
+"""The share of the motor's full-voltage capability an axis's limits leave to the PID.
+
+At the worst point of a planned move, top speed ``v`` while still accelerating at ``a``,
+an axis uses ``v / v_top + a / a_0`` of what its motor can do at the full source voltage
+(:class:`AxisReach`): that is the share of the supply the motion itself needs (exactly so
+without load torque; with it, the share is a little higher). ``max_velocity_mm_s`` and
+``max_accel_mm_s2`` may use at most ``1 - REACH_MARGIN`` of it, so the PID keeps a tenth of
+the supply to correct errors, and the few percent by which a measured reach, a warm winding
+or a sagging supply may be off do not make the limits unreachable."""
+
+
+@dataclass(frozen=True, slots=True)
+class AxisReach:
+    """What an axis's motor can do at its full source voltage, in axis units.
+
+    A DC motor's torque falls on a straight line from standstill to its no-load speed as the
+    back-EMF grows, so two figures describe it: the acceleration available at speed ``v`` is
+    ``accel_mm_s2 * (1 - v / velocity_mm_s)``, from ``(Kt (V - Kt w)/R - b w - T_load) / J``.
+
+    Fields:
+        velocity_mm_s: top speed: the no-load speed under the axis's own friction and load
+            torque, mm/s.
+        accel_mm_s2: acceleration from standstill, mm/s^2.
+    """
+
+    velocity_mm_s: float
+    accel_mm_s2: float
+
+    def accel_at_mm_s2(self, velocity_mm_s: float) -> float:
+        """The acceleration available at ``velocity_mm_s`` (0 from top speed on), mm/s^2."""
+        return max(0.0, self.accel_mm_s2 * (1.0 - velocity_mm_s / self.velocity_mm_s))
+
+    @property
+    def usable_velocity_mm_s(self) -> float:
+        """The fastest ``max_velocity_mm_s`` that keeps :data:`REACH_MARGIN`, mm/s."""
+        return (1.0 - REACH_MARGIN) * self.velocity_mm_s
+
+    def usable_accel_mm_s2(self, velocity_mm_s: float) -> float:
+        """The largest ``max_accel_mm_s2`` that keeps :data:`REACH_MARGIN` with
+        ``max_velocity_mm_s = velocity_mm_s``, mm/s^2."""
+        share = 1.0 - REACH_MARGIN - velocity_mm_s / self.velocity_mm_s
+        return max(0.0, self.accel_mm_s2 * share)
+
+
+def simulated_reach(sim: SimMotorConfig, counts_per_mm: float) -> AxisReach:
+    """The reach of a simulated motor at its full source voltage, from the motor model.
+
+    Top speed: the model's steady speed under the source voltage, with the load torque and
+    viscous friction, ``(Kt V/R - T_load) / (Kt^2/R + b)``. Acceleration from standstill:
+    the stall torque after the load torque over the inertia, ``(Kt V/R - T_load) / J``.
+    Both through ``counts_per_revolution`` and ``counts_per_mm``; a motor whose load torque
+    is at least its stall torque has a reach of 0.
+    """
+    motor = sim.motor_params()
+    counts_per_rad = motor.counts_per_revolution / (2.0 * math.pi)
+    coefficient, exponent = motor.source_voltage_v
+    speed_counts_s = motor.steady_speed_counts_s(coefficient * 10.0 ** exponent)
+    inertia = motor.inertia_kg_m2[0] * 10.0 ** motor.inertia_kg_m2[1]
+    accel_counts_s2 = max(0.0, motor.stall_torque_nm()) / inertia * counts_per_rad
+    return AxisReach(speed_counts_s / counts_per_mm, accel_counts_s2 / counts_per_mm)
 
 
 @dataclass(frozen=True, slots=True)
@@ -151,6 +248,10 @@ class AxisConfig:
         following_error_limit_mm: a larger |desired - actual| disables the servo and
             latches a fault on the device, mm (0: no limit).
         homing: how the axis homes.
+        reach: what the axis's motor can do at full voltage as ``usbmotion tune --reach``
+            measured it (the file's ``reach`` table), or ``None``. ``max_velocity_mm_s``
+            and ``max_accel_mm_s2`` were checked against it, and against the motor model
+            of a simulated axis, keeping :data:`REACH_MARGIN`.
         sim: the simulated motor, for simulated axes (always set for ``sim://`` axes;
             ``None`` on real hardware unless the file gives a ``sim`` table).
     """
@@ -167,6 +268,7 @@ class AxisConfig:
     velocity_gains: PidGains
     following_error_limit_mm: float
     homing: HomingConfig
+    reach: AxisReach | None
     sim: SimMotorConfig | None
 
     @property
@@ -384,6 +486,7 @@ class _Reader:
         self.data = data
         self.prefix = prefix
         self._read: set[str] = set()
+        self._known: tuple[str, ...] = ()
 
     def key(self, name: str) -> tuple[str, ...]:
         return (*self.prefix, name)
@@ -458,19 +561,56 @@ class _Reader:
         """A value of any type, for the caller to check."""
         return self._get(name, default, allowed)
 
-    def finish(self, known: tuple[str, ...] | None = None) -> None:
-        """Reject every key that was not read."""
+    def expect(self, known: tuple[str, ...]) -> None:
+        """Reject, before any value is read, the first key (in file order) not in ``known``.
+
+        So a misspelt required key is named as unknown, with the closest known key, rather
+        than reported as the correct key missing.
+        """
+        self._known = known
+        for name in self.data:
+            if name not in known:
+                self.fail(name, _unknown_key(name, known))
+
+    def finish(self) -> None:
+        """Reject every key that was not read (those :meth:`expect` let through included)."""
         for name in self.data:
             if name not in self._read:
-                listed = ", ".join(sorted(known if known is not None else self._read))
-                self.fail(name, f"unknown key {name!r}; allowed keys here: {listed}")
+                self.fail(name, _unknown_key(name, self._known or tuple(self._read)))
+
+
+def _unknown_key(name: str, known: tuple[str, ...]) -> str:
+    """``unknown key 'max_acel_mm_s2'; did you mean 'max_accel_mm_s2'? allowed keys here: ...``"""
+    by_folded = {key.lower(): key for key in known}
+    close = difflib.get_close_matches(name.lower(), list(by_folded), n=1)
+    hint = f"; did you mean {by_folded[close[0]]!r}?" if close else ";"
+    return f"unknown key {name!r}{hint} allowed keys here: {', '.join(sorted(known))}"
 
 
 # --- the schema ------------------------------------------------------------------------------
 
 
+_MACHINE_KEYS = (
+    "name", "servo_interval_dms", "motion_scalar", "junction_deviation_mm", "arc_tolerance_mm",
+    "watchdog_ms", "reply_timeout_s", "ports", "homing_order", "axes",
+)
+_AXIS_KEYS = (
+    "device", "url", "counts_per_mm", "max_velocity_mm_s", "max_accel_mm_s2", "max_jerk_mm_s3",
+    "travel_mm", "gains", "velocity_gains", "following_error_limit_mm", "homing", "sim", "reach",
+)
+_GAINS_KEYS = ("kp", "ki", "kd")
+_HOMING_KEYS = ("direction", "speed_mm_s", "slow_speed_mm_s", "backoff_mm", "position_mm")
+_SIM_KEYS = (
+    "update_interval_dms", "source_voltage_v", "torque_constant_mnm_per_a",
+    "winding_resistance_ohm", "counts_per_revolution", "inertia_kg_m2",
+    "viscous_friction_unm_per_rad_s", "load_torque_mnm", "start_mm",
+)
+_REACH_KEYS = ("velocity_mm_s", "accel_mm_s2")
+
+
 def _machine(top: _Reader) -> MachineConfig:
     path = top.source.path
+    top.expect(_MACHINE_KEYS)
     name = top.string("name", default=path.stem, allowed="a string, a label for the machine")
     servo_interval_dms = top.integer(
         "servo_interval_dms", default=10, minimum=1, maximum=10000,
@@ -508,10 +648,7 @@ def _machine(top: _Reader) -> MachineConfig:
     assert axes_table is not None
     axes = _axes(axes_table, servo_interval_dms)
     order = _homing_order(top, axes)
-    top.finish((
-        "name", "servo_interval_dms", "motion_scalar", "junction_deviation_mm",
-        "arc_tolerance_mm", "watchdog_ms", "reply_timeout_s", "ports", "homing_order", "axes",
-    ))
+    top.finish()
     return MachineConfig(
         path=path, name=name, axes=axes, servo_interval_dms=servo_interval_dms,
         motion_scalar=motion_scalar, junction_deviation_mm=junction_deviation_mm,
@@ -531,10 +668,12 @@ def _axes(table: _Reader, servo_interval_dms: int) -> tuple[AxisConfig, ...]:
     letters = ", ".join(AXIS_LETTERS)
     if not table.data:
         table.fail(None, f"no axes; add at least one [axes.<LETTER>] table ({letters})")
-    axes: list[AxisConfig] = []
     for name in table.data:
         if name not in AXIS_LETTERS:
-            table.fail(name, f"{name!r} is not an axis name; allowed: {letters}")
+            hint = f" (did you mean {name.upper()!r}?)" if name.upper() in AXIS_LETTERS else ""
+            table.fail(name, f"{name!r} is not an axis name{hint}; allowed: {letters}")
+    axes: list[AxisConfig] = []
+    for name in table.data:
         reader = table.table(name, required=True, allowed="a table of axis settings")
         assert reader is not None
         axes.append(_axis(name, reader, servo_interval_dms))
@@ -589,6 +728,7 @@ def _url(reader: _Reader) -> str | None:
 
 
 def _axis(name: str, reader: _Reader, servo_interval_dms: int) -> AxisConfig:
+    reader.expect(_AXIS_KEYS)
     device = _device_name(reader)
     url = _url(reader)
     if device is None and url is None:
@@ -615,18 +755,97 @@ def _axis(name: str, reader: _Reader, servo_interval_dms: int) -> AxisConfig:
     homing = _homing(reader, travel, max_velocity)
     simulated = url is not None and url.lower().startswith(SIM_SCHEME)
     sim = _sim(reader, travel, counts_per_mm, servo_interval_dms, simulated=simulated)
-    reader.finish((
-        "device", "url", "counts_per_mm", "max_velocity_mm_s", "max_accel_mm_s2",
-        "max_jerk_mm_s3", "travel_mm", "gains", "velocity_gains", "following_error_limit_mm",
-        "homing", "sim",
-    ))
+    reach = _reach(reader)
+    if sim is not None:
+        volts = f"{sim.source_voltage_v:g} V"
+        table = ".".join(reader.key("sim"))
+        motor = table if reader.has("sim") else f"the simulated motor ({table}'s defaults)"
+        _check_reach(
+            reader, simulated_reach(sim, counts_per_mm), max_velocity, max_accel,
+            speed=f"its no-load speed at the full {volts} of {motor}",
+            speed_how="(Kt V/R - T_load) / (Kt^2/R + b)",
+            accel=f"at the full {volts} of {motor}",
+            accel_how="(Kt (V - Kt w)/R - b w - T_load) / J at w = max_velocity_mm_s",
+        )
+    if reach is not None:
+        table = ".".join(reader.key("reach"))
+        _check_reach(
+            reader, reach, max_velocity, max_accel,
+            speed="its top speed measured by usbmotion tune --reach",
+            speed_how=f"{table}.velocity_mm_s",
+            accel="by the reach that usbmotion tune --reach measured",
+            accel_how=f"{table}, on a DC motor's straight torque-speed line",
+        )
+    reader.finish()
     return AxisConfig(
         name=name, device=device, url=url, counts_per_mm=counts_per_mm,
         max_velocity_mm_s=max_velocity, max_accel_mm_s2=max_accel, max_jerk_mm_s3=max_jerk,
         travel_mm=travel, gains=gains, velocity_gains=velocity_gains,
-        following_error_limit_mm=fe_limit, homing=homing,
-        sim=sim,
+        following_error_limit_mm=fe_limit, homing=homing, reach=reach, sim=sim,
     )
+
+
+def _reach(reader: _Reader) -> AxisReach | None:
+    table = reader.table(
+        "reach", allowed="a table: velocity_mm_s, accel_mm_s2 (as usbmotion tune --reach prints)"
+    )
+    if table is None:
+        return None
+    table.expect(_REACH_KEYS)
+    velocity = table.number("velocity_mm_s", above=0, maximum=1e5,
+                            unit="mm/s, the top speed usbmotion tune --reach measured")
+    accel = table.number("accel_mm_s2", above=0, maximum=1e8,
+                         unit="mm/s^2, the acceleration from standstill it measured")
+    table.finish()
+    return AxisReach(velocity, accel)
+
+
+def _down(value: float) -> str:
+    """``value`` rounded down to 4 significant digits, for a bound to copy into a file."""
+    if value <= 0 or not math.isfinite(value):
+        return "0"
+    quantum = 10.0 ** (math.floor(math.log10(value)) - 3)
+    return f"{math.floor(value / quantum) * quantum:.4g}"
+
+
+def _check_reach(reader: _Reader, reach: AxisReach, max_velocity: float, max_accel: float, *,
+                 speed: str, speed_how: str, accel: str, accel_how: str) -> None:
+    """Refuse a ``max_velocity_mm_s`` or ``max_accel_mm_s2`` beyond ``reach`` less the margin.
+
+    ``speed`` and ``accel`` say where each figure comes from, ``speed_how`` and ``accel_how``
+    how it was found.
+    """
+    kept = f"{REACH_MARGIN:.0%} of the supply"
+    top = reach.velocity_mm_s
+    if top <= 0:
+        reader.fail("max_velocity_mm_s", f"{max_velocity!r} mm/s cannot be reached: {speed}"
+                    f" is 0 ({speed_how}: the load torque is at least the stall torque"
+                    " Kt V/R); allowed: a motor that turns (a smaller load_torque_mnm or a"
+                    " larger source_voltage_v)")
+    usable = reach.usable_velocity_mm_s
+    if max_velocity > usable:
+        problem = ("is faster than the motor can go" if max_velocity > top
+                   else f"leaves the PID less than {kept} to correct errors")
+        reader.fail(
+            "max_velocity_mm_s",
+            f"{max_velocity!r} mm/s {problem}: {speed} is {top:.4g} mm/s ({speed_how});"
+            f" allowed: <= {_down(usable)} mm/s ({1 - REACH_MARGIN:.0%} of it, so the PID"
+            f" keeps {kept} to correct errors)",
+        )
+    available = reach.accel_at_mm_s2(max_velocity)
+    usable = reach.usable_accel_mm_s2(max_velocity)
+    if max_accel > usable:
+        problem = ("is more than the motor can give" if max_accel > available
+                   else f"leaves the PID less than {kept} to correct errors")
+        reader.fail(
+            "max_accel_mm_s2",
+            f"{max_accel!r} mm/s^2 {problem} at max_velocity_mm_s {max_velocity:g} mm/s:"
+            f" the motor gives {available:.4g} mm/s^2 {accel} ({accel_how}; {reach.accel_mm_s2:.4g}"
+            f" mm/s^2 from standstill, 0 at the top speed {top:.4g} mm/s);"
+            f" allowed: <= {_down(usable)} mm/s^2 (keeping {kept} for the"
+            f" PID: {reach.accel_mm_s2:.4g} x ({1 - REACH_MARGIN:g} - {max_velocity:g}"
+            f" / {top:.4g})), or a lower max_velocity_mm_s",
+        )
 
 
 def _travel(reader: _Reader, counts_per_mm: float) -> tuple[float, float]:
@@ -664,6 +883,7 @@ def _gains(reader: _Reader, name: str, *, defaults: PidGains | None, mode: str) 
     table = reader.table(name, required=defaults is None,
                          allowed=f"a table with kp, ki, kd (PID gains of {mode}, numbers >= 0)")
     table = table if table is not None else _Reader(reader.source, {}, reader.key(name))
+    table.expect(_GAINS_KEYS)
     values: dict[str, float] = {}
     velocity = defaults is not None
     for key, call, unit in (
@@ -674,7 +894,7 @@ def _gains(reader: _Reader, name: str, *, defaults: PidGains | None, mode: str) 
         default = _REQUIRED if defaults is None else getattr(defaults, key)
         values[key] = table.number(key, default=default, minimum=0, unit=unit)
         _sci(table, key, values[key], call=call, digits=3)
-    table.finish(("kp", "ki", "kd"))
+    table.finish()
     return PidGains(**values)
 
 
@@ -682,6 +902,7 @@ def _homing(reader: _Reader, travel: tuple[float, float], max_velocity: float) -
     table = reader.table("homing", allowed="a table: direction, speed_mm_s, slow_speed_mm_s,"
                          " backoff_mm, position_mm")
     table = table if table is not None else _Reader(reader.source, {}, reader.key("homing"))
+    table.expect(_HOMING_KEYS)
     allowed = "-1 (home onto the lower limit switch) or 1 (the upper one)"
     direction = table.raw("direction", default=-1, allowed=allowed)
     if isinstance(direction, bool) or direction not in (-1, 1):
@@ -705,7 +926,7 @@ def _homing(reader: _Reader, travel: tuple[float, float], max_velocity: float) -
             minimum=travel[1], maximum=travel[1] + length,
             unit="mm, at or above travel_mm's highest, by at most the travel's length",
         )
-    table.finish(("direction", "speed_mm_s", "slow_speed_mm_s", "backoff_mm", "position_mm"))
+    table.finish()
     return HomingConfig(int(direction), speed, slow, backoff, position)
 
 
@@ -716,6 +937,7 @@ def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
         if not simulated:
             return None
         table = _Reader(reader.source, {}, reader.key("sim"))
+    table.expect(_SIM_KEYS)
     d = SIM_MOTOR_DEFAULTS
     interval = table.integer(
         "update_interval_dms", default=min(int(d["update_interval_dms"]), servo_interval_dms),
@@ -745,11 +967,7 @@ def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
     for end in travel:
         if not INT32_MIN <= round((end - start) * counts_per_mm) <= INT32_MAX:
             table.fail("start_mm", f"{start!r} puts a switch outside int32 counts")
-    table.finish((
-        "update_interval_dms", "source_voltage_v", "torque_constant_mnm_per_a",
-        "winding_resistance_ohm", "counts_per_revolution", "inertia_kg_m2",
-        "viscous_friction_unm_per_rad_s", "load_torque_mnm", "start_mm",
-    ))
+    table.finish()
     return SimMotorConfig(
         update_interval_dms=interval, counts_per_revolution=counts_per_rev, start_mm=start,
         **values,
