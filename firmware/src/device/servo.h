@@ -111,6 +111,13 @@ typedef struct {
     int64_t stop_low;          /* hard stops, micro-counts */
     int64_t stop_high;
     int32_t window;            /* derivative window, ticks (1..SERVO_HISTORY_SLOTS) */
+    /* Not in core1.py: the tick's two divisions as reduced fractions, set by
+     * servo_params_finish from tick_us, steps and window (servo_params_derive calls it), so
+     * that the usual periods divide by a small number or not at all. */
+    int64_t travel_num;        /* tick_us / (steps * 10^6) = travel_num / travel_den */
+    int64_t travel_den;
+    int64_t velocity_num;      /* 10^6 / (window * tick_us) = velocity_num / velocity_den */
+    int64_t velocity_den;
 } servo_params_t;
 
 /* The RAM variables core0 owns and the calls set (core0.py Device fields). Gains and the
@@ -164,8 +171,15 @@ void servo_state_init(servo_state_t *state, int32_t mode);
  * (the motor's exponential), never called on core1. */
 void servo_params_derive(const device_vars_t *vars, servo_params_t *params);
 
-/* One servo tick (core1.servo_block for one tick, with curve mode's player run by core1).
- * The caller holds the servo lock. Writes its records to `ring`. */
+/* The fields of servo_params_t that are not core1.py's (travel_*, velocity_*), from tick_us,
+ * steps and window: whoever fills the others without servo_params_derive calls this. */
+void servo_params_finish(servo_params_t *params);
+
+/* One servo tick (core1.servo_block for one tick, with curve mode's player run by core1 on
+ * each running tick, as core0.py's _run_curve feeds it). The caller holds the servo lock.
+ * Takes motion values with mq_try_remove (platform.h) and reads mq_level for the records.
+ * Writes to `ring`, in this order, a diagnostics record when one is due and an alarm record
+ * when a fault latched on this tick; a full ring counts the record in `dropped` instead. */
 void servo_tick(servo_state_t *state, const servo_params_t *params, record_ring_t *ring);
 
 /* The switch bits the shaft position gives (core0._switches). */

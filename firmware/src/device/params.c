@@ -1,0 +1,96 @@
+/* core0's _copy_in (core0.py): the params core1 runs with, from the RAM variables. */
+#include "motor.h"
+#include "servo.h"
+
+#define INTEGRAL_CAP ((int64_t)1 << 62)
+
+static sci_t sci_value(sci_t pair) {
+    return sci_normalize(pair.c, pair.e);
+}
+
+/* max(1, min(2^62, int(x))) without overflow: int(x) truncates toward zero. */
+static int64_t integral_limit_of(sci_t x) {
+    if (x.c <= 0) {
+        return 1;
+    }
+    if (x.e >= 16) {
+        return INTEGRAL_CAP;   /* at least 1000 * 10^16 > 2^62 */
+    }
+    uint64_t value;
+    if (x.e >= 0) {
+        value = (uint64_t)x.c * sci_pow10_u64[x.e];   /* below 10^4 * 10^15 < 2^64 */
+    } else {
+        value = (uint64_t)sci_to_int(x);
+    }
+    if (value > (uint64_t)INTEGRAL_CAP) {
+        return INTEGRAL_CAP;
+    }
+    return value < 1u ? 1 : (int64_t)value;
+}
+
+static int64_t gcd64(int64_t a, int64_t b) {
+    while (b != 0) {
+        int64_t t = a % b;
+        a = b;
+        b = t;
+    }
+    return a;
+}
+
+void servo_params_finish(servo_params_t *params) {
+    int64_t step = params->tick_us;
+    int64_t per_second = (int64_t)params->steps * MOTOR_MICRO;
+    if (step > 0 && per_second > 0) {
+        int64_t g = gcd64(step, per_second);
+        params->travel_num = step / g;
+        params->travel_den = per_second / g;
+    } else {
+        params->travel_num = 0;
+        params->travel_den = 1;
+    }
+    int64_t span = (int64_t)params->window * params->tick_us;
+    if (span > 0) {
+        int64_t g = gcd64(MOTOR_MICRO, span);
+        params->velocity_num = MOTOR_MICRO / g;
+        params->velocity_den = span / g;
+    } else {
+        params->velocity_num = 0;
+        params->velocity_den = 1;
+    }
+}
+
+void servo_params_derive(const device_vars_t *vars, servo_params_t *params) {
+    int64_t tick_us = (int64_t)vars->interval_dms * 100;
+    sci_t micro = sci_normalize(1, -6);
+    sci_t dt_s = sci_mul(sci_from_int(tick_us), micro);
+    sci_t kp = sci_value(vars->kp);
+    sci_t ki_dt = sci_mul(sci_value(vars->ki), dt_s);
+    int64_t window = 1000 / tick_us;
+    window = window < 1 ? 1 : window > SERVO_HISTORY_SLOTS ? SERVO_HISTORY_SLOTS : window;
+    sci_t kd_dt = sci_div(sci_value(vars->kd), sci_mul(dt_s, sci_from_int(window)));
+    sci_t vs = sci_value(vars->source_voltage_v);
+    int64_t integral_limit = ki_dt.c == 0 ? 0 : integral_limit_of(sci_div(vs, ki_dt));
+    motor_constants_t constants;
+    motor_derive_constants(vars, tick_us, &constants);
+    params->tick_us = tick_us;
+    params->scalar = vars->scalar;
+    params->kp = kp;
+    params->ki_dt = ki_dt;
+    params->kd_dt = kd_dt;
+    params->vs = vs;
+    params->integral_limit = integral_limit;
+    params->watchdog_us = (int64_t)vars->watchdog_ms * 1000;
+    params->fe_limit = vars->fe_limit;
+    params->diag_n = vars->diag_n;
+    params->steps = constants.steps;
+    params->drive = constants.drive;
+    params->friction = constants.friction_speed;
+    params->decay = constants.decay;
+    params->lag = constants.lag;
+    params->lower = vars->travel_lower_counts;
+    params->upper = vars->travel_upper_counts;
+    params->stop_low = constants.stop_low_micro;
+    params->stop_high = constants.stop_high_micro;
+    params->window = (int32_t)window;
+    servo_params_finish(params);
+}

@@ -1,0 +1,206 @@
+/* Scientific-notation integers: the firmware's real-time arithmetic, bit-exact with the
+ * functional core of src/usbmotion/scimath.py at 4 significant digits (the device's DIGITS).
+ *
+ * A number is c * 10^e, normalised: 1000 <= |c| <= 9999, or c == 0 with e == 0. Every
+ * operation truncates toward zero, as scimath.py documents; a product of two coefficients
+ * fits int32. Operands of mul, div, add, sub and compare are normalised 4-digit numbers
+ * (|c| <= 9999 is what the code relies on) whose exponents, and the result's, stay within
+ * +-2^29 (the device's stay within a few hundred).
+ *
+ * The operations the servo tick uses are inline definitions here (C11 inline; sci.c holds
+ * the external definitions), so the tick runs them without calls. sci_to_double and
+ * sci_from_double are core0's (soft floating point), never called on core1. */
+#ifndef USBMOTION_SCI_H
+#define USBMOTION_SCI_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#define SCI_DIGITS 4
+#define SCI_UPPER 10000   /* 10^SCI_DIGITS */
+
+typedef struct {
+    int32_t c;
+    int32_t e;
+} sci_t;
+
+/* 10^0 .. 10^9 and 10^0 .. 10^19. */
+extern const uint32_t sci_pow10_u32[10];
+extern const uint64_t sci_pow10_u64[20];
+
+/* The magnitude of an int64, as uint64 (INT64_MIN included). */
+inline uint64_t sci_magnitude64(int64_t value) {
+    return value < 0 ? 0u - (uint64_t)value : (uint64_t)value;
+}
+
+/* The coefficient of magnitude m (< 2^31) with a sign. */
+inline int32_t sci_signed(uint32_t m, bool negative) {
+    return negative ? -(int32_t)m : (int32_t)m;
+}
+
+/* floor(m / 10^k) for m < 2^63 whose quotient is below 10^4 (6 <= k <= 15), without a
+ * 64-bit division: a 32-bit quotient of the operands shifted so that the divisor keeps at
+ * least 16 bits (an underestimate by at most 2), corrected exactly. */
+uint32_t sci_div_pow10_u64(uint64_t m, unsigned k);
+
+/* sci_normalize for a magnitude below 2^32 (the fast path of every operation). */
+inline sci_t sci_normalize_u32(uint32_t m, int32_t e, bool negative) {
+    sci_t r;
+    if (m == 0) {
+        r.c = 0;
+        r.e = 0;
+        return r;
+    }
+    if (m >= 10000u) {
+        unsigned k;
+        if (m < 100000u) {
+            k = 1;
+        } else if (m < 1000000u) {
+            k = 2;
+        } else if (m < 10000000u) {
+            k = 3;
+        } else if (m < 100000000u) {
+            k = 4;
+        } else if (m < 1000000000u) {
+            k = 5;
+        } else {
+            k = 6;
+        }
+        m /= sci_pow10_u32[k];
+        e += (int32_t)k;
+    } else if (m < 1000u) {
+        unsigned k = m < 10u ? 3u : m < 100u ? 2u : 1u;
+        m *= sci_pow10_u32[k];
+        e -= (int32_t)k;
+    }
+    r.c = sci_signed(m, negative);
+    r.e = e;
+    return r;
+}
+
+/* scimath.sci_normalize(c, e, 4) for any int64 c. */
+inline sci_t sci_normalize(int64_t c, int32_t e) {
+    uint64_t m = sci_magnitude64(c);
+    if (m <= UINT32_MAX) {
+        return sci_normalize_u32((uint32_t)m, e, c < 0);
+    }
+    unsigned digits = 10;   /* m >= 2^32 > 10^9 */
+    while (digits < 20 && m >= sci_pow10_u64[digits]) {
+        digits++;
+    }
+    unsigned k = digits - SCI_DIGITS;
+    sci_t r;
+    r.c = sci_signed(sci_div_pow10_u64(m, k), c < 0);
+    r.e = e + (int32_t)k;
+    return r;
+}
+
+/* scimath.sci_from_int(value, 4). */
+inline sci_t sci_from_int(int64_t value) {
+    return sci_normalize(value, 0);
+}
+
+/* scimath.sci_to_int(c, e): c * 10^e truncated toward zero. The caller keeps the value
+ * within int64 (|c| <= 9999 and e <= 14 always does; beyond int64 the result is not the
+ * Python's); any int32 c with e < 0 is exact. */
+inline int64_t sci_to_int(sci_t x) {
+    if (x.e >= 0) {
+        uint64_t scale = sci_pow10_u64[x.e > 19 ? 19 : x.e];
+        uint64_t m = (uint64_t)(x.c < 0 ? 0u - (uint32_t)x.c : (uint32_t)x.c) * scale;
+        return x.c < 0 ? -(int64_t)m : (int64_t)m;
+    }
+    if (x.e <= -10) {
+        return 0;   /* |c| < 2^31 < 10^10 */
+    }
+    uint32_t m = x.c < 0 ? 0u - (uint32_t)x.c : (uint32_t)x.c;
+    m /= sci_pow10_u32[-x.e];
+    return x.c < 0 ? -(int64_t)m : (int64_t)m;
+}
+
+/* scimath.sci_mul: A = C1*C2; A / 10^4 (E + 4) when |A| >= 10^7, else A / 10^3 (E + 3). */
+inline sci_t sci_mul(sci_t a, sci_t b) {
+    int32_t product = a.c * b.c;
+    sci_t r;
+    if (product == 0) {
+        r.c = 0;
+        r.e = 0;
+    } else if (product >= 10000000 || product <= -10000000) {
+        r.c = product / 10000;
+        r.e = a.e + b.e + SCI_DIGITS;
+    } else {
+        r.c = product / 1000;
+        r.e = a.e + b.e + SCI_DIGITS - 1;
+    }
+    return r;
+}
+
+/* scimath.sci_add: a dropped operand when the exponents differ by 4 or more, else the sum
+ * levelled to the smaller exponent and renormalised. */
+inline sci_t sci_add(sci_t a, sci_t b) {
+    if (a.c == 0) {
+        return b;
+    }
+    if (b.c == 0) {
+        return a;
+    }
+    int32_t shift = a.e - b.e;
+    if (shift >= SCI_DIGITS) {
+        return a;
+    }
+    if (shift <= -SCI_DIGITS) {
+        return b;
+    }
+    int32_t sum;
+    int32_t e;
+    if (shift >= 0) {
+        sum = a.c * (int32_t)sci_pow10_u32[shift] + b.c;
+        e = b.e;
+    } else {
+        sum = a.c + b.c * (int32_t)sci_pow10_u32[-shift];
+        e = a.e;
+    }
+    uint32_t m = sum < 0 ? 0u - (uint32_t)sum : (uint32_t)sum;
+    return sci_normalize_u32(m, e, sum < 0);
+}
+
+/* scimath.sci_sub: a + (-b). */
+inline sci_t sci_sub(sci_t a, sci_t b) {
+    b.c = -b.c;
+    return sci_add(a, b);
+}
+
+/* scimath.sci_compare: -1, 0 or 1 (exact). */
+inline int sci_compare(sci_t a, sci_t b) {
+    int sa = (a.c > 0) - (a.c < 0);
+    int sb = (b.c > 0) - (b.c < 0);
+    if (sa != sb) {
+        return sa > sb ? 1 : -1;
+    }
+    if (sa == 0) {
+        return 0;
+    }
+    if (a.e != b.e) {
+        return a.e > b.e ? sa : -sa;
+    }
+    if (a.c == b.c) {
+        return 0;
+    }
+    return a.c > b.c ? 1 : -1;
+}
+
+/* scimath.sci_div: D = C1*10^4 / C2; D / 10 (E1 - E2 - 3) when |D| >= 10^4, else D
+ * (E1 - E2 - 4). Core0 only (derived constants). The device never divides by zero (the
+ * Python raises ZeroDivisionError there); a zero divisor gives 0. */
+sci_t sci_div(sci_t a, sci_t b);
+
+/* float(SciNumber): the double nearest to c * 10^e (ties to even), exactly as Python's
+ * int-to-float and int/int true division round. Exponents above 400 give +-infinity (the
+ * Python raises OverflowError), below -400 a zero of c's sign, as the Python. Core0 only. */
+double sci_to_double(sci_t x);
+
+/* SciNumber.from_float(x, digits=4): repr(x) (the shortest decimal that reads back as x)
+ * truncated toward zero to 4 significant digits; 0 for a zero (and for a NaN or an
+ * infinity, which the Python refuses). Core0 only. */
+sci_t sci_from_double(double x);
+
+#endif

@@ -1,0 +1,307 @@
+/* core1's servo tick (servo.h): core1.servo_block for one tick, the same operations in the
+ * same order, over servo_state_t and servo_params_t; and the state changes core0 makes on
+ * core1's state (power-up, switches, coordinate shift).
+ *
+ * Ranges (why int64 suffices where the Python's ints are unbounded): the shaft stays within
+ * the hard stops, |theta| < (2^31 + 201) * 10^6 < 2^52; |omega| <= 10^12 (motor_step moves it
+ * toward a target clamped to 10^12, by a decay of at most 1); the velocity is at most
+ * 2^31 * 10^6 / 600 in magnitude (window * tick_us >= 600), so errors and their changes are
+ * below 2^43; the integral sum is clamped to the integral limit <= 2^62 and one error more
+ * stays below 2^63; a square of a following error is at most 2^62; the timer stops at 2^62. */
+#include <stdatomic.h>
+
+#include "curve.h"
+#include "motor.h"
+#include "platform.h"
+#include "servo.h"
+
+#define EDGE_TICK_NONE 0
+
+/* core1.wrap_int32: the int32 the hardware counter holds (two's complement wrap). */
+static inline int32_t wrap_int32(int64_t value) {
+    uint32_t bits = (uint32_t)value;
+    return bits < 0x80000000u ? (int32_t)bits : -(int32_t)(~bits) - 1;
+}
+
+/* theta // 10^6 (floor), as floor(floor(|theta| / 2^6) / 15625) on the magnitude: a divisor
+ * of 14 bits, which the RP2040's 64-bit division does in three hardware divisions. */
+static inline int64_t floor_micro(int64_t theta) {
+    if (theta >= 0) {
+        return (int64_t)(((uint64_t)theta >> 6) / 15625u);
+    }
+    uint64_t magnitude = 0u - (uint64_t)theta;
+    return -(int64_t)(((magnitude + (MOTOR_MICRO - 1)) >> 6) / 15625u);
+}
+
+static void shift_edges(servo_state_t *state, int64_t shift) {
+    for (unsigned i = 0; i < 2; i++) {
+        switch_edge_t *edge = &state->edges[i];
+        if (edge->tick != EDGE_TICK_NONE) {
+            edge->position = wrap_int32((int64_t)edge->position + shift);
+        }
+    }
+}
+
+static void ring_put(record_ring_t *ring, const record_t *record) {
+    uint32_t head = ring->head;
+    if (head - ring->tail >= RECORD_RING_SLOTS) {
+        ring->dropped = ring->dropped + 1u;
+        return;
+    }
+    ring->slots[head % RECORD_RING_SLOTS] = *record;
+    atomic_thread_fence(memory_order_release);   /* the record before the head */
+    ring->head = head + 1u;
+}
+
+void servo_state_init(servo_state_t *state, int32_t mode) {
+    *state = (servo_state_t){0};
+    state->mode = mode;
+    state->start = -1;
+    state->last_take = -1;
+}
+
+int32_t servo_switches(const servo_state_t *state, const servo_params_t *params) {
+    int64_t count = floor_micro(state->theta);
+    int32_t bits = 0;
+    if (count <= params->lower) {
+        bits |= 1;
+    }
+    if (count >= params->upper) {
+        bits |= 2;
+    }
+    return bits;
+}
+
+void servo_shift_position(servo_state_t *state, int64_t shift) {
+    state->offset = wrap_int32((int64_t)state->offset + shift);
+    state->actual = wrap_int32((int64_t)state->actual + shift);
+    state->desired = wrap_int32((int64_t)state->desired + shift);
+    for (unsigned slot = 0; slot < SERVO_HISTORY_SLOTS; slot++) {
+        state->counts[slot] = wrap_int32((int64_t)state->counts[slot] + shift);
+    }
+    shift_edges(state, shift);
+}
+
+/* 1. motion update (servo enabled) */
+static void motion_update(servo_state_t *s, const servo_params_t *p) {
+    if (s->start >= 0 && s->clock >= s->start) {
+        s->start = -1;
+        s->motion_left = 0;
+    }
+    if (s->start >= 0) {
+        return;
+    }
+    if (s->mode == MODE_CURVE) {
+        s->desired = wrap_int32(curve_next_position(&s->curve, s->desired, p->tick_us));
+        return;
+    }
+    if (s->motion_left <= 0) {
+        int32_t value;
+        if (mq_try_remove(&value)) {
+            s->last_take = s->clock;
+            if (s->mode == MODE_VELOCITY) {
+                s->desired_vel = value;
+            } else {
+                s->desired = value;
+            }
+        } else if (s->mode == MODE_VELOCITY) {
+            s->desired_vel = 0;
+        }
+        s->motion_left = p->scalar;
+    }
+    s->motion_left -= 1;
+}
+
+/* 2. PID (servo enabled): the output in volts, saturated, with conditional integration */
+static void pid(servo_state_t *s, const servo_params_t *p) {
+    int64_t error;
+    if (s->mode == MODE_VELOCITY) {
+        error = (int64_t)s->desired_vel - s->velocity;
+    } else {
+        error = wrap_int32((int64_t)s->desired - s->actual);
+    }
+    int32_t window = p->window;
+    if (s->fresh == 1) {
+        for (int32_t slot = 0; slot < window; slot++) {
+            s->history[slot] = error;
+        }
+        s->history_pos = 0;
+        s->fresh = 0;
+    }
+    int64_t change = error - s->history[s->history_pos];
+    s->history[s->history_pos] = error;
+    s->history_pos += 1;
+    if (s->history_pos >= (uint32_t)window) {
+        s->history_pos = 0;
+    }
+    sci_t proportional = sci_mul(p->kp, sci_from_int(error));
+    sci_t derivative = sci_mul(p->kd_dt, sci_from_int(change));
+    int64_t candidate = 0;
+    if (p->integral_limit > 0) {
+        candidate = s->integral + error;
+        if (candidate > p->integral_limit) {
+            candidate = p->integral_limit;
+        } else if (candidate < -p->integral_limit) {
+            candidate = -p->integral_limit;
+        }
+    }
+    sci_t integral = sci_mul(p->ki_dt, sci_from_int(candidate));
+    sci_t u = sci_add(sci_add(proportional, integral), derivative);
+    sci_t negative_vs = {-p->vs.c, p->vs.e};
+    if (sci_compare(u, p->vs) > 0) {
+        u = p->vs;
+        if (error <= 0) {
+            s->integral = candidate;
+        }
+    } else if (sci_compare(u, negative_vs) < 0) {
+        u = negative_vs;
+        if (error >= 0) {
+            s->integral = candidate;
+        }
+    } else {
+        s->integral = candidate;
+    }
+    s->out = u;
+}
+
+/* 4. encoder, switches, the edge latch and the velocity-mode counter reset; returns the
+ * switches that closed on this tick */
+static int32_t encoder(servo_state_t *s, const servo_params_t *p) {
+    int64_t count = floor_micro(s->theta);
+    s->actual = wrap_int32(count + s->offset);
+    int32_t then = s->counts[s->counts_pos];
+    int64_t velocity = (int64_t)wrap_int32((int64_t)s->actual - then) * p->velocity_num;
+    if (p->velocity_den != 1) {
+        velocity /= p->velocity_den;   /* C truncates toward zero, as trunc_div */
+    }
+    s->velocity = velocity;
+    s->counts[s->counts_pos] = s->actual;
+    s->counts_pos += 1;
+    if (s->counts_pos >= (uint32_t)p->window) {
+        s->counts_pos = 0;
+    }
+    int32_t limits = 0;
+    if (count <= p->lower) {
+        limits = 1;
+    }
+    if (count >= p->upper) {
+        limits |= 2;
+    }
+    int32_t closing = limits & ~s->limits;
+    int32_t changed = limits ^ s->limits;
+    s->limits = limits;
+    if (changed != 0) {
+        for (unsigned i = 0; i < 2; i++) {
+            if (changed & (1 << i)) {
+                switch_edge_t *edge = &s->edges[i];
+                edge->edges += 1u;   /* modulo 2^32 */
+                edge->closed = (limits >> i) & 1;
+                edge->position = s->actual;
+                edge->tick = s->clock + 1;
+            }
+        }
+    }
+    if (s->mode == MODE_VELOCITY) {
+        s->velocity_mode_us += p->tick_us;
+        if (s->velocity_mode_us >= VELOCITY_RESET_US) {
+            s->velocity_mode_us -= VELOCITY_RESET_US;
+            s->offset = wrap_int32(-count);
+            for (int32_t slot = 0; slot < p->window; slot++) {
+                s->counts[slot] = wrap_int32((int64_t)s->counts[slot] - s->actual);
+            }
+            shift_edges(s, -(int64_t)s->actual);
+            s->actual = 0;
+        }
+    }
+    return closing;
+}
+
+void servo_tick(servo_state_t *s, const servo_params_t *p, record_ring_t *ring) {
+    bool enabled = s->enable == 1;
+    if (enabled) {
+        motion_update(s, p);
+        pid(s, p);
+    } else {
+        s->out.c = 0;
+        s->out.e = 0;
+    }
+
+    /* 3. motor */
+    sci_t drive = sci_mul(s->out, p->drive);
+    for (int32_t step = 0; step < p->steps; step++) {
+        motor_step(&s->theta, &s->omega, drive, p);
+    }
+
+    int32_t closing = encoder(s, p);
+
+    /* 5. faults */
+    s->since_command_us += p->tick_us;
+    if (s->since_command_us > TIMER_CAP_US) {
+        s->since_command_us = TIMER_CAP_US;
+    }
+    int32_t new_fault = FAULT_NONE;
+    int64_t following = 0;
+    if (enabled) {
+        if (s->mode != MODE_VELOCITY) {
+            following = wrap_int32((int64_t)s->desired - s->actual);
+            if (closing != 0) {
+                new_fault = FAULT_LIMIT_SWITCH;
+            } else if (p->fe_limit > 0 && (following > p->fe_limit || -following > p->fe_limit)) {
+                new_fault = FAULT_FOLLOWING_ERROR;
+            }
+        }
+        if (new_fault == FAULT_NONE && p->watchdog_us > 0 &&
+            s->since_command_us >= p->watchdog_us) {
+            new_fault = FAULT_WATCHDOG;
+        }
+    }
+
+    /* 6. clock, statistics, fault latch, diagnostics */
+    s->clock += 1;
+    if (enabled && s->mode != MODE_VELOCITY && s->start < 0) {
+        s->stats_ticks += 1;
+        int64_t size = following >= 0 ? following : -following;   /* <= 2^31 */
+        if (size > s->stats_max) {
+            s->stats_max = size;
+            s->stats_max_tick = s->clock;
+        }
+        int64_t square = (int64_t)((uint64_t)size * (uint64_t)size);
+        if (square > STATS_SUM_CAP - s->stats_sum_sq) {
+            s->stats_sum_sq = STATS_SUM_CAP;
+        } else {
+            s->stats_sum_sq += square;
+        }
+    }
+    if (new_fault != FAULT_NONE) {
+        s->fault = new_fault;
+        s->fault_tick = s->clock;
+        s->enable = 0;
+        s->out.c = 0;
+        s->out.e = 0;
+    }
+    if (p->diag_n > 0) {
+        s->diag_left -= 1;
+        if (s->diag_left <= 0) {
+            s->diag_left = p->diag_n;
+            record_t record = {
+                .kind = RECORD_DIAGNOSTICS,
+                .clock = s->clock,
+                .desired = s->mode == MODE_VELOCITY ? s->desired_vel : s->desired,
+                .actual = s->actual,
+                .velocity = s->velocity,
+                .out = s->out,
+                .queued = (int32_t)(s->mode == MODE_CURVE ? curve_queued(&s->curve) : mq_level()),
+                .fault = FAULT_NONE,
+            };
+            ring_put(ring, &record);
+        }
+    }
+    if (new_fault != FAULT_NONE) {
+        record_t alarm = {
+            .kind = RECORD_ALARM,
+            .clock = s->fault_tick,
+            .fault = s->fault,
+        };
+        ring_put(ring, &alarm);
+    }
+}
