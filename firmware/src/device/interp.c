@@ -1,0 +1,1177 @@
+/* core0: the line splitter, the parser, every call of the table and the device's output,
+ * answering byte for byte as src/usbmotion/device/core0.py with protocol/codec.py. */
+#include "interp.h"
+
+#include <string.h>
+
+#include "device.h"
+#include "flashvars.h"
+#include "platform.h"
+#include "servo.h"
+
+_Static_assert(TABLE_QUEUE_CAPACITY == MOTION_QUEUE_CAPACITY, "one queue capacity");
+_Static_assert(TABLE_CURVE_BUFFER_CAPACITY == CURVE_BUFFER_CAPACITY, "one keyframe capacity");
+_Static_assert(TABLE_MAX_PARAMS >= 4, "call 25 has four inputs");
+
+#define DEBUG_FLAG_CALLS 64u /* call 8 sets a flag for any call 0..63, defined or not */
+#define HUGE_VALUE 1000000000000000000LL /* 10^18: HugeInteger's value */
+
+/* --- the device: core0's variables and what core1 runs on -------------------------------- */
+
+static servo_state_t servo_state; /* core1's: read and changed only under the servo lock */
+static servo_params_t servo_params;
+static servo_params_t derived;    /* servo_params_derive's output, copied in under the lock */
+static record_ring_t records;
+static device_vars_t vars;        /* the RAM variables */
+static flash_vars_t flash;
+static uint8_t debug_flags[DEBUG_FLAG_CALLS];
+static line_splitter_t splitter;
+int32_t interp_items[TABLE_QUEUE_CAPACITY];
+
+/* --- output ------------------------------------------------------------------------------ */
+
+#define OUT_BYTES 128u
+static char out_buffer[OUT_BYTES];
+static size_t out_length;
+
+static void out_flush(void) {
+    if (out_length > 0) {
+        platform_write(out_buffer, out_length);
+        out_length = 0;
+    }
+}
+
+static void out_char(char c) {
+    if (out_length == OUT_BYTES) {
+        out_flush();
+    }
+    out_buffer[out_length++] = c;
+}
+
+static void out_bytes(const char *bytes, size_t length) {
+    for (size_t i = 0; i < length; i++) {
+        out_char(bytes[i]);
+    }
+}
+
+static void out_text(const char *text) {
+    out_bytes(text, strlen(text));
+}
+
+/* Python's str(int). */
+static size_t format_int(char *into, int64_t value) {
+    char digits[20];
+    size_t count = 0;
+    uint64_t magnitude = value < 0 ? 0u - (uint64_t)value : (uint64_t)value;
+    do {
+        digits[count++] = (char)('0' + magnitude % 10u);
+        magnitude /= 10u;
+    } while (magnitude != 0);
+    size_t length = 0;
+    if (value < 0) {
+        into[length++] = '-';
+    }
+    while (count > 0) {
+        into[length++] = digits[--count];
+    }
+    return length;
+}
+
+static void out_int(int64_t value) {
+    char text[21];
+    out_bytes(text, format_int(text, value));
+}
+
+static void out_end_line(void) {
+    out_char('\n');
+    out_flush();
+}
+
+/* A field of a template: one integer, a text, or a list of values (the rest of the line). */
+typedef struct {
+    int64_t number;
+    const char *text;      /* a text field when not NULL */
+    const int32_t *values; /* a list of values when not NULL */
+    uint32_t count;
+} field_t;
+
+#define NUMBER(x) ((field_t){.number = (x)})
+#define TEXT(t) ((field_t){.text = (t)})
+#define VALUES(v, n) ((field_t){.values = (v), .count = (n)})
+
+/* Template.format: the literal text with each {field} replaced, in order, then the newline. */
+static void print_template(const template_t *template, const field_t *fields) {
+    unsigned index = 0;
+    for (const char *c = template->text; *c != '\0'; c++) {
+        if (*c != '{') {
+            out_char(*c);
+            continue;
+        }
+        while (*c != '}') {
+            c++;
+        }
+        const field_t *field = &fields[index++];
+        if (field->text != NULL) {
+            out_text(field->text);
+        } else if (field->values != NULL) {
+            for (uint32_t i = 0; i < field->count; i++) {
+                if (i > 0) {
+                    out_char(' ');
+                }
+                out_int(field->values[i]);
+            }
+        } else {
+            out_int(field->number);
+        }
+    }
+    out_end_line();
+}
+
+static void print_plain(const char *line) {
+    out_text(line);
+    out_end_line();
+}
+
+/* _reply: the query reply of the call. */
+static void reply(uint32_t number, const field_t *fields) {
+    print_template(&call_table[number].query_reply, fields);
+}
+
+/* _debug_line: the call's debug line, when its flag has one (undefined flags act as 0). */
+static void debug_line(uint32_t number, const field_t *fields) {
+    uint8_t flag = debug_flags[number];
+    if (flag <= TABLE_MAX_DEBUG_FLAG && call_table[number].debug[flag].text != NULL) {
+        print_template(&call_table[number].debug[flag], fields);
+    }
+}
+
+/* --- messages: short texts built before an ERR line is printed ---------------------------- */
+
+typedef struct {
+    char text[256];
+    size_t length;
+} message_t;
+
+static void message_char(message_t *m, char c) {
+    if (m->length + 1 < sizeof m->text) {
+        m->text[m->length++] = c;
+        m->text[m->length] = '\0';
+    }
+}
+
+static void message_text(message_t *m, const char *text) {
+    while (*text != '\0') {
+        message_char(m, *text++);
+    }
+}
+
+static void message_int(message_t *m, int64_t value) {
+    char text[21];
+    size_t length = format_int(text, value);
+    for (size_t i = 0; i < length; i++) {
+        message_char(m, text[i]);
+    }
+}
+
+/* repr() of an integer input: its value, or HugeInteger's abbreviation
+ * `123456789012345678...(40 digits)`. */
+static void message_number(message_t *m, const number_t *number) {
+    if (!number->huge) {
+        message_int(m, number->value);
+        return;
+    }
+    if (number->value < 0) {
+        message_char(m, '-');
+    }
+    for (unsigned i = 0; i < TABLE_HUGE_DIGITS; i++) {
+        message_char(m, (char)number->digits[i]);
+    }
+    message_text(m, "...(");
+    message_int(m, number->digit_count);
+    message_text(m, " digits)");
+}
+
+/* ERR.format(call, reason), `call` being "?" when NULL. */
+static void print_err(const char *call, const char *reason) {
+    field_t fields[2] = {TEXT(call != NULL ? call : "?"), TEXT(reason)};
+    print_template(&template_err, fields);
+}
+
+static void print_err_call(uint32_t number, const char *reason) {
+    char call[21];
+    call[format_int(call, number)] = '\0';
+    print_err(call, reason);
+}
+
+/* --- LineSplitter ------------------------------------------------------------------------ */
+
+void splitter_reset(line_splitter_t *s) {
+    s->length = 0;
+    s->discarding = false;
+}
+
+split_result_t splitter_byte(line_splitter_t *s, uint8_t byte) {
+    if (byte != '\n') {
+        if (s->discarding) {
+            return SPLIT_NONE;
+        }
+        if (s->length == sizeof s->buffer) {
+            /* a line past TABLE_MAX_LINE_BYTES + 1 bytes can never be short enough */
+            s->discarding = true;
+            s->length = 0;
+            return SPLIT_NONE;
+        }
+        s->buffer[s->length++] = byte;
+        return SPLIT_NONE;
+    }
+    if (s->discarding) {
+        splitter_reset(s);
+        return SPLIT_OVERLONG;
+    }
+    while (s->length > 0 && s->buffer[s->length - 1] == '\r') {
+        s->length--;
+    }
+    if (s->length > TABLE_MAX_LINE_BYTES) {
+        splitter_reset(s);
+        return SPLIT_OVERLONG;
+    }
+    return SPLIT_LINE;
+}
+
+void splitter_consumed(line_splitter_t *s) {
+    s->length = 0;
+}
+
+/* --- parse_call -------------------------------------------------------------------------- */
+
+/* The separators of str.split() on the ASCII-decoded line (bytes >= 0x80 decode to U+FFFD,
+ * which is none). */
+static bool is_separator(uint8_t byte) {
+    return byte == ' ' || (byte >= 9 && byte <= 13) || (byte >= 28 && byte <= 31);
+}
+
+typedef struct {
+    const uint8_t *start;
+    uint32_t length;
+} token_t;
+
+typedef struct {
+    const uint8_t *line;
+    uint32_t length;
+    uint32_t at;
+} tokens_t;
+
+static bool next_token(tokens_t *tokens, token_t *token) {
+    while (tokens->at < tokens->length && is_separator(tokens->line[tokens->at])) {
+        tokens->at++;
+    }
+    if (tokens->at == tokens->length) {
+        return false;
+    }
+    uint32_t start = tokens->at;
+    while (tokens->at < tokens->length && !is_separator(tokens->line[tokens->at])) {
+        tokens->at++;
+    }
+    token->start = tokens->line + start;
+    token->length = tokens->at - start;
+    return true;
+}
+
+/* _to_int: false when the token does not match [+-]?\d+ ; else its value (HugeInteger's for
+ * more than TABLE_HUGE_DIGITS significant digits). */
+static bool read_number(token_t token, number_t *number) {
+    uint32_t at = 0;
+    bool negative = false;
+    if (token.start[0] == '+' || token.start[0] == '-') {
+        negative = token.start[0] == '-';
+        at = 1;
+    }
+    if (at == token.length) {
+        return false;
+    }
+    for (uint32_t i = at; i < token.length; i++) {
+        if (token.start[i] < '0' || token.start[i] > '9') {
+            return false;
+        }
+    }
+    while (at < token.length && token.start[at] == '0') {
+        at++;
+    }
+    uint32_t digits = token.length - at;
+    number->huge = digits > TABLE_HUGE_DIGITS;
+    number->digits = token.start + at;
+    number->digit_count = digits;
+    if (number->huge) {
+        number->value = negative ? -HUGE_VALUE : HUGE_VALUE;
+        return true;
+    }
+    int64_t value = 0;
+    for (uint32_t i = at; i < token.length; i++) {
+        value = value * 10 + (token.start[i] - '0');
+    }
+    number->value = negative ? -value : value;
+    return true;
+}
+
+/* repr() of the offending token as the Python prints it: at most 24 characters, else the
+ * first 21 and "..."; quotes as repr chooses them; a byte >= 0x80 is U+FFFD, which the
+ * output's backslashreplace prints as \ufffd. */
+static void message_token(message_t *m, token_t token) {
+    bool cut = token.length > 24;
+    uint32_t shown = cut ? 21 : token.length;
+    bool single = false;
+    bool double_ = false;
+    for (uint32_t i = 0; i < shown; i++) {
+        single = single || token.start[i] == '\'';
+        double_ = double_ || token.start[i] == '"';
+    }
+    char quote = single && !double_ ? '"' : '\'';
+    static const char hex[] = "0123456789abcdef";
+    message_char(m, quote);
+    for (uint32_t i = 0; i < shown; i++) {
+        uint8_t c = token.start[i];
+        if (c == (uint8_t)quote || c == '\\') {
+            message_char(m, '\\');
+            message_char(m, (char)c);
+        } else if (c == '\t') {
+            message_text(m, "\\t");
+        } else if (c == '\n') {
+            message_text(m, "\\n");
+        } else if (c == '\r') {
+            message_text(m, "\\r");
+        } else if (c < 0x20 || c == 0x7f) {
+            message_text(m, "\\x");
+            message_char(m, hex[c >> 4]);
+            message_char(m, hex[c & 0xfu]);
+        } else if (c >= 0x80) {
+            message_text(m, "\\ufffd");
+        } else {
+            message_char(m, (char)c);
+        }
+    }
+    if (cut) {
+        message_text(m, "...");
+    }
+    message_char(m, quote);
+}
+
+/* Param.check's message: `name value is out of range min..max`. */
+static void print_range_err(uint32_t call, const param_spec_t *param, const number_t *value) {
+    message_t m = {.length = 0};
+    message_text(&m, param->name);
+    message_char(&m, ' ');
+    message_number(&m, value);
+    message_text(&m, " is out of range ");
+    message_int(&m, param->minimum);
+    message_text(&m, "..");
+    message_int(&m, param->maximum);
+    print_err_call(call, m.text);
+}
+
+static bool in_range(const param_spec_t *param, const number_t *value) {
+    return value->value >= param->minimum && value->value <= param->maximum;
+}
+
+/* CallSpec.is_query */
+static bool is_query(const call_spec_t *spec, const number_t *args, uint32_t count) {
+    if (spec->query_count == 0 || count != spec->query_count) {
+        return false;
+    }
+    for (unsigned i = 0; i < count; i++) {
+        if (!(spec->query_any & (1u << i)) && args[i].value != spec->query[i]) {
+            return false;
+        }
+    }
+    return true;
+}
+
+/* The items of a counted call, checked in order (CallSpec.problem's last step) and kept in
+ * interp_items. The line's integers were all read once already. */
+static bool read_items(const uint8_t *line, uint32_t length, uint32_t number,
+                       const call_spec_t *spec, uint32_t skip, uint32_t count) {
+    tokens_t tokens = {line, length, 0};
+    token_t token;
+    for (uint32_t i = 0; i < skip; i++) {
+        (void)next_token(&tokens, &token);
+    }
+    for (uint32_t i = 0; i < count; i++) {
+        number_t item;
+        (void)next_token(&tokens, &token);
+        (void)read_number(token, &item);
+        if (!in_range(&spec->item, &item)) {
+            print_range_err(number, &spec->item, &item);
+            return false;
+        }
+        interp_items[i] = (int32_t)item.value;
+    }
+    return true;
+}
+
+parse_result_t interp_parse(const uint8_t *line, uint32_t length, call_t *call) {
+    /* every token an integer (_to_int over the tokens in order) */
+    number_t head[1 + TABLE_MAX_PARAMS];
+    uint32_t count = 0;
+    tokens_t tokens = {line, length, 0};
+    token_t token;
+    while (next_token(&tokens, &token)) {
+        number_t number;
+        if (!read_number(token, &number)) {
+            message_t m = {.length = 0};
+            char call_text[48];
+            const char *call_name = NULL;
+            if (count == 0) {
+                message_text(&m, "executive call ");
+            } else {
+                message_text(&m, "input ");
+                message_int(&m, count);
+                message_char(&m, ' ');
+                if (!head[0].huge) {
+                    call_text[format_int(call_text, head[0].value)] = '\0';
+                    call_name = call_text;
+                }
+            }
+            message_token(&m, token);
+            message_text(&m, " is not an integer");
+            print_err(call_name, m.text);
+            return PARSE_ERROR;
+        }
+        if (count < 1 + TABLE_MAX_PARAMS) {
+            head[count] = number;
+        }
+        count++;
+    }
+    if (count == 0) {
+        return PARSE_EMPTY;
+    }
+
+    /* check_call */
+    const number_t *number = &head[0];
+    if (number->huge || number->value < 0 || number->value >= (int64_t)TABLE_CALLS) {
+        if (number->huge) {
+            print_err(NULL, "unknown call");
+        } else {
+            char call_text[21];
+            call_text[format_int(call_text, number->value)] = '\0';
+            print_err(call_text, "unknown call");
+        }
+        return PARSE_ERROR;
+    }
+    uint32_t n = (uint32_t)number->value;
+    const call_spec_t *spec = &call_table[n];
+    const number_t *args = &head[1];
+    uint32_t arg_count = count - 1;
+    call->number = n;
+    call->arg_count = arg_count;
+    call->item_count = 0;
+    call->is_query = is_query(spec, args, arg_count);
+    for (unsigned i = 0; i < TABLE_MAX_PARAMS; i++) {
+        call->args[i] = i < arg_count ? args[i].value : 0;
+    }
+
+    /* CallSpec.problem */
+    if (call->is_query) {
+        for (unsigned i = 0; i < arg_count; i++) {
+            if ((spec->query_any & (1u << i)) && !in_range(&spec->params[i], &args[i])) {
+                print_range_err(n, &spec->params[i], &args[i]);
+                return PARSE_ERROR;
+            }
+        }
+        return PARSE_OK;
+    }
+    if (spec->counted) {
+        uint32_t lead = spec->param_count - 1u;
+        if (arg_count <= lead) {
+            print_err_call(n, "wrong number of inputs");
+            return PARSE_ERROR;
+        }
+        for (unsigned i = 0; i <= lead; i++) {
+            if (!in_range(&spec->params[i], &args[i])) {
+                print_range_err(n, &spec->params[i], &args[i]);
+                return PARSE_ERROR;
+            }
+        }
+        uint32_t items = (uint32_t)args[lead].value;
+        if (arg_count != lead + 1u + items) {
+            print_err_call(n, "wrong number of inputs");
+            return PARSE_ERROR;
+        }
+        if (!read_items(line, length, n, spec, 1u + lead + 1u, items)) {
+            return PARSE_ERROR;
+        }
+        call->item_count = items;
+        return PARSE_OK;
+    }
+    if (arg_count != spec->param_count) {
+        print_err_call(n, "wrong number of inputs");
+        return PARSE_ERROR;
+    }
+    for (unsigned i = 0; i < arg_count; i++) {
+        if (!in_range(&spec->params[i], &args[i])) {
+            print_range_err(n, &spec->params[i], &args[i]);
+            return PARSE_ERROR;
+        }
+    }
+    return PARSE_OK;
+}
+
+/* --- core0: copying variables into core1 ------------------------------------------------- */
+
+/* _copy_in, in two halves: derive the params from the RAM variables (soft floating point,
+ * outside the lock), then copy them in with the servo lock held (core1 stops, copies,
+ * resumes) together with the state changes of the same call. */
+static void derive(void) {
+    servo_params_derive(&vars, &derived);
+}
+
+static void copy_in_locked(void) {
+    servo_params = derived;
+}
+
+static void set_and_copy_in(void) {
+    derive();
+    platform_servo_lock();
+    copy_in_locked();
+    platform_servo_unlock();
+}
+
+/* --- core0: shared actions (the servo lock held) ----------------------------------------- */
+
+static void clear_queue_locked(void) {
+    mq_clear();
+}
+
+static void clear_curve_locked(void) {
+    curve_clear(&servo_state.curve);
+}
+
+/* _reset_controller: the PID afresh from where the shaft is. */
+static void reset_controller_locked(void) {
+    servo_state.integral = 0;
+    servo_state.fresh = 1;
+    servo_state.motion_left = 0;
+    servo_state.desired = servo_state.actual;
+    servo_state.desired_vel = 0;
+    curve_interrupt(&servo_state.curve);
+}
+
+/* _shift_position: calls 23 and 37. */
+static void shift_position_locked(int64_t shift) {
+    servo_shift_position(&servo_state, shift);
+    clear_queue_locked();
+    clear_curve_locked();
+}
+
+/* true (with the ERR line printed) when the device is in curve mode: calls 0 and 1. */
+static bool refused_in_curve_mode(uint32_t number) {
+    platform_servo_lock();
+    int32_t mode = servo_state.mode;
+    platform_servo_unlock();
+    if (mode == MODE_CURVE) {
+        print_err_call(number, "curve mode (3) plays keyframes (call 25), not queue values;"
+                               " change the mode with call 7");
+        return true;
+    }
+    return false;
+}
+
+/* The PID output in millivolts, as the diagnostics line prints it: sci_to_int(c, e + 3). */
+static int64_t output_mv(sci_t out) {
+    out.e += 3;
+    return sci_to_int(out);
+}
+
+/* --- the calls --------------------------------------------------------------------------- */
+
+typedef void (*handler_t)(const call_t *call);
+
+static void call_0(const call_t *call) {
+    if (refused_in_curve_mode(0)) {
+        return;
+    }
+    if (!mq_try_add((int32_t)call->args[0])) {
+        print_plain(call_table[0].refusal);
+        return;
+    }
+    debug_line(0, (field_t[]){NUMBER(call->args[0])});
+}
+
+/* values_crc32: the CRC-32 of values as 32-bit little-endian two's complement integers. */
+static uint32_t values_crc32(const int32_t *values, uint32_t count) {
+    uint32_t crc = 0;
+    for (uint32_t i = 0; i < count; i++) {
+        uint32_t value = (uint32_t)values[i];
+        uint8_t bytes[4] = {(uint8_t)value, (uint8_t)(value >> 8), (uint8_t)(value >> 16),
+                            (uint8_t)(value >> 24)};
+        crc = crc32_update(crc, bytes, sizeof bytes);
+    }
+    return crc;
+}
+
+static void call_1(const call_t *call) {
+    if (refused_in_curve_mode(1)) {
+        return;
+    }
+    uint32_t count = call->item_count;
+    /* core1 only takes values away: once the queue has room for all, every add succeeds */
+    if (mq_level() + count > TABLE_QUEUE_CAPACITY) {
+        print_plain(call_table[1].refusal);
+        return;
+    }
+    for (uint32_t i = 0; i < count; i++) {
+        (void)mq_try_add(interp_items[i]);
+    }
+    uint8_t flag = debug_flags[1];
+    if (flag == 1) {
+        debug_line(1, (field_t[]){NUMBER(count), VALUES(interp_items, count)});
+    } else if (flag == 2) {
+        debug_line(1, (field_t[]){NUMBER(count), NUMBER(values_crc32(interp_items, count))});
+    }
+}
+
+static void call_2(const call_t *call) {
+    (void)call;
+    uint32_t queued = mq_level();
+    reply(2, (field_t[]){NUMBER(queued), NUMBER(TABLE_QUEUE_CAPACITY - queued)});
+}
+
+static void call_3(const call_t *call) {
+    platform_servo_lock();
+    int32_t enable = servo_state.enable;
+    int32_t fault = servo_state.fault;
+    if (call->is_query) {
+        platform_servo_unlock();
+        reply(3, (field_t[]){NUMBER(enable)});
+        return;
+    }
+    if (call->args[0] == 1 && enable == 0) {
+        if (fault != FAULT_NONE) {
+            platform_servo_unlock();
+            message_t m = {.length = 0};
+            message_text(&m, "fault ");
+            message_int(&m, fault);
+            message_text(&m, " (");
+            message_text(&m, fault_names[fault]);
+            message_text(&m, ") is latched; clear it with call 30 before enabling");
+            print_err_call(3, m.text);
+            return;
+        }
+        reset_controller_locked();
+        servo_state.enable = 1;
+    } else if (call->args[0] == 0) {
+        servo_state.enable = 0;
+        servo_state.out = (sci_t){0, 0};
+    }
+    platform_servo_unlock();
+    debug_line(3, (field_t[]){NUMBER(call->args[0])});
+}
+
+static void call_4(const call_t *call) {
+    (void)call;
+    platform_servo_lock();
+    clear_queue_locked();
+    platform_servo_unlock();
+    debug_line(4, NULL);
+}
+
+static void call_5(const call_t *call) {
+    if (call->is_query) {
+        reply(5, (field_t[]){NUMBER(device_tick_us())});
+        return;
+    }
+    vars.interval_dms = (int32_t)call->args[0];
+    derive();
+    platform_servo_lock();
+    clear_queue_locked();
+    clear_curve_locked();
+    servo_state.fresh = 1;
+    for (unsigned slot = 0; slot < SERVO_HISTORY_SLOTS; slot++) {
+        servo_state.counts[slot] = servo_state.actual;
+    }
+    servo_state.counts_pos = 0;
+    copy_in_locked();
+    platform_servo_unlock();
+    platform_servo_period_changed(device_tick_us());
+    debug_line(5, (field_t[]){NUMBER(device_tick_us())});
+}
+
+static void call_6(const call_t *call) {
+    if (call->is_query) {
+        reply(6, (field_t[]){NUMBER(vars.scalar)});
+        return;
+    }
+    vars.scalar = (int32_t)call->args[0];
+    derive();
+    platform_servo_lock();
+    clear_queue_locked();
+    servo_state.motion_left = 0;
+    copy_in_locked();
+    platform_servo_unlock();
+    debug_line(6, (field_t[]){NUMBER(vars.scalar)});
+}
+
+static void call_7(const call_t *call) {
+    platform_servo_lock();
+    if (call->is_query) {
+        int32_t mode = servo_state.mode;
+        platform_servo_unlock();
+        reply(7, (field_t[]){NUMBER(mode)});
+        return;
+    }
+    clear_queue_locked();
+    servo_state.mode = (int32_t)call->args[0];
+    servo_state.velocity_mode_us = 0;
+    reset_controller_locked();
+    clear_curve_locked();
+    platform_servo_unlock();
+    debug_line(7, (field_t[]){NUMBER(call->args[0])});
+}
+
+static void call_8(const call_t *call) {
+    uint32_t number = (uint32_t)call->args[0];
+    if (call->is_query) {
+        reply(8, (field_t[]){NUMBER(number), NUMBER(debug_flags[number])});
+        return;
+    }
+    debug_flags[number] = (uint8_t)call->args[1];
+}
+
+/* Calls 9-17, 32 and 33: a RAM variable the call sets whole, queried back as it was set. */
+static void sci_call(const call_t *call, sci_t *variable) {
+    uint32_t number = call->number;
+    if (call->is_query) {
+        reply(number, (field_t[]){NUMBER(variable->c), NUMBER(variable->e)});
+        return;
+    }
+    *variable = (sci_t){(int32_t)call->args[0], (int32_t)call->args[1]};
+    set_and_copy_in();
+    debug_line(number, (field_t[]){NUMBER(call->args[0]), NUMBER(call->args[1])});
+}
+
+static void int_call(const call_t *call, int32_t *variable) {
+    uint32_t number = call->number;
+    if (call->is_query) {
+        reply(number, (field_t[]){NUMBER(*variable)});
+        return;
+    }
+    *variable = (int32_t)call->args[0];
+    set_and_copy_in();
+    debug_line(number, (field_t[]){NUMBER(call->args[0])});
+}
+
+static void call_9(const call_t *call) { sci_call(call, &vars.kp); }
+static void call_10(const call_t *call) { sci_call(call, &vars.ki); }
+static void call_11(const call_t *call) { sci_call(call, &vars.kd); }
+static void call_12(const call_t *call) { int_call(call, &vars.sim_update_interval_dms); }
+static void call_13(const call_t *call) { sci_call(call, &vars.source_voltage_v); }
+static void call_14(const call_t *call) { sci_call(call, &vars.torque_constant_mnm_per_a); }
+static void call_15(const call_t *call) { sci_call(call, &vars.winding_resistance_ohm); }
+static void call_16(const call_t *call) { int_call(call, &vars.counts_per_revolution); }
+static void call_17(const call_t *call) { sci_call(call, &vars.inertia_kg_m2); }
+static void call_32(const call_t *call) { sci_call(call, &vars.viscous_friction_unm_per_rad_s); }
+static void call_33(const call_t *call) { sci_call(call, &vars.load_torque_mnm); }
+
+/* _write_flash: the ERR line when the write fails (the value unchanged). */
+static bool write_flash(uint32_t number, const char *name, uint8_t name_length, uint8_t mode) {
+    const char *reason = "";
+    if (flashvars_store(&flash, name, name_length, mode, &reason)) {
+        return true;
+    }
+    message_t m = {.length = 0};
+    message_text(&m, "flash write failed, value unchanged: ");
+    message_text(&m, reason);
+    print_err_call(number, m.text);
+    return false;
+}
+
+static void call_18(const call_t *call) {
+    if (call->is_query) {
+        reply(18, (field_t[]){TEXT(flashvars_device_name(&flash))});
+        return;
+    }
+    char name[TABLE_DEVICE_NAME_MAX];
+    for (uint32_t i = 0; i < call->item_count; i++) {
+        name[i] = (char)interp_items[i];
+    }
+    if (!write_flash(18, name, (uint8_t)call->item_count, flash.default_control_mode)) {
+        return;
+    }
+    debug_line(18, (field_t[]){TEXT(flashvars_device_name(&flash))});
+}
+
+static void call_19(const call_t *call) {
+    if (call->is_query) {
+        reply(19, (field_t[]){NUMBER(flash.default_control_mode)});
+        return;
+    }
+    if (!write_flash(19, flash.name, flash.name_length, (uint8_t)call->args[0])) {
+        return;
+    }
+    debug_line(19, (field_t[]){NUMBER(call->args[0])});
+}
+
+static void call_20(const call_t *call) {
+    (void)call;
+    platform_servo_lock();
+    const servo_state_t *s = &servo_state;
+    field_t fields[9] = {
+        NUMBER(s->clock),
+        NUMBER(s->actual),
+        NUMBER(s->mode == MODE_VELOCITY ? s->desired_vel : s->desired),
+        NUMBER(s->velocity),
+        NUMBER(s->mode == MODE_CURVE ? curve_queued(&s->curve) : mq_level()),
+        NUMBER(s->enable),
+        NUMBER(s->mode),
+        NUMBER(s->limits),
+        NUMBER(s->fault),
+    };
+    platform_servo_unlock();
+    reply(20, fields);
+}
+
+static void call_21(const call_t *call) {
+    if (call->is_query) {
+        reply(21, (field_t[]){NUMBER(vars.diag_n)});
+        return;
+    }
+    vars.diag_n = (int32_t)call->args[0];
+    derive();
+    platform_servo_lock();
+    servo_state.diag_left = vars.diag_n;
+    copy_in_locked();
+    platform_servo_unlock();
+    debug_line(21, (field_t[]){NUMBER(vars.diag_n)});
+}
+
+static void call_22(const call_t *call) {
+    platform_servo_lock();
+    int64_t clock = servo_state.clock;
+    if (!call->is_query) {
+        servo_state.clock = 0;
+    }
+    platform_servo_unlock();
+    if (call->is_query) {
+        reply(22, (field_t[]){NUMBER(clock)});
+        return;
+    }
+    debug_line(22, NULL);
+}
+
+static void call_23(const call_t *call) {
+    platform_servo_lock();
+    shift_position_locked(call->args[0] - servo_state.actual);
+    platform_servo_unlock();
+    debug_line(23, (field_t[]){NUMBER(call->args[0])});
+}
+
+static void call_24(const call_t *call) {
+    (void)call;
+    platform_servo_lock();
+    int32_t limits = servo_state.limits;
+    platform_servo_unlock();
+    reply(24, (field_t[]){NUMBER(limits & 1), NUMBER((limits >> 1) & 1)});
+}
+
+static void call_25(const call_t *call) {
+    keyframe_t keyframe = {
+        .duration_ms = (uint16_t)call->args[0],
+        .position_counts = (int32_t)call->args[1],
+        .tangent_in = (int16_t)call->args[2],
+        .tangent_out = (int16_t)call->args[3],
+    };
+    platform_servo_lock();
+    if (servo_state.mode != MODE_CURVE) {
+        platform_servo_unlock();
+        print_err_call(25, "keyframes play in curve mode only; select it with call 7 3");
+        return;
+    }
+    bool appended = curve_append(&servo_state.curve, keyframe);
+    platform_servo_unlock();
+    if (!appended) {
+        print_plain(call_table[25].refusal);
+        return;
+    }
+    debug_line(25, (field_t[]){NUMBER(call->args[0]), NUMBER(call->args[1]),
+                               NUMBER(call->args[2]), NUMBER(call->args[3])});
+}
+
+static void call_26(const call_t *call) {
+    (void)call;
+    platform_servo_lock();
+    clear_curve_locked();
+    platform_servo_unlock();
+    debug_line(26, NULL);
+}
+
+static void call_27(const call_t *call) {
+    (void)call;
+    platform_servo_lock();
+    uint32_t queued = curve_queued(&servo_state.curve);
+    platform_servo_unlock();
+    reply(27, (field_t[]){NUMBER(TABLE_CURVE_BUFFER_CAPACITY - queued)});
+}
+
+static void call_28(const call_t *call) { int_call(call, &vars.watchdog_ms); }
+static void call_29(const call_t *call) { int_call(call, &vars.fe_limit); }
+
+static void call_30(const call_t *call) {
+    platform_servo_lock();
+    int32_t fault = servo_state.fault;
+    int64_t fault_tick = servo_state.fault_tick;
+    if (!call->is_query) {
+        servo_state.fault = FAULT_NONE;
+        servo_state.fault_tick = 0;
+    }
+    platform_servo_unlock();
+    if (call->is_query) {
+        reply(30, (field_t[]){NUMBER(fault), NUMBER(fault_tick)});
+        return;
+    }
+    debug_line(30, NULL);
+}
+
+static void call_31(const call_t *call) {
+    platform_servo_lock();
+    int64_t start = servo_state.start;
+    if (!call->is_query) {
+        servo_state.start = call->args[0];
+    }
+    platform_servo_unlock();
+    if (call->is_query) {
+        reply(31, (field_t[]){NUMBER(start)});
+        return;
+    }
+    debug_line(31, (field_t[]){NUMBER(call->args[0])});
+}
+
+static void call_34(const call_t *call) {
+    if (call->is_query) {
+        reply(34, (field_t[]){NUMBER(vars.travel_lower_counts), NUMBER(vars.travel_upper_counts)});
+        return;
+    }
+    int64_t lower = call->args[0];
+    int64_t upper = call->args[1];
+    if (lower >= upper) {
+        message_t m = {.length = 0};
+        message_text(&m, "lower end ");
+        message_int(&m, lower);
+        message_text(&m, " must be below upper end ");
+        message_int(&m, upper);
+        print_err_call(34, m.text);
+        return;
+    }
+    vars.travel_lower_counts = (int32_t)lower;
+    vars.travel_upper_counts = (int32_t)upper;
+    derive();
+    platform_servo_lock();
+    copy_in_locked();
+    servo_state.limits = servo_switches(&servo_state, &servo_params);
+    platform_servo_unlock();
+    debug_line(34, (field_t[]){NUMBER(lower), NUMBER(upper)});
+}
+
+static void call_35(const call_t *call) {
+    platform_servo_lock();
+    servo_state_t *s = &servo_state;
+    field_t fields[5] = {NUMBER(s->stats_ticks), NUMBER(s->stats_max), NUMBER(s->stats_max_tick),
+                         NUMBER(s->stats_sum_sq), NUMBER(s->last_take)};
+    if (!call->is_query) {
+        s->stats_ticks = 0;
+        s->stats_max = 0;
+        s->stats_max_tick = 0;
+        s->stats_sum_sq = 0;
+        s->last_take = -1;
+    }
+    platform_servo_unlock();
+    if (call->is_query) {
+        reply(35, fields);
+        return;
+    }
+    debug_line(35, NULL);
+}
+
+static void call_36(const call_t *call) {
+    uint32_t which = (uint32_t)call->args[0];
+    platform_servo_lock();
+    switch_edge_t edge = servo_state.edges[which - 1];
+    platform_servo_unlock();
+    reply(36, (field_t[]){NUMBER(which), NUMBER(edge.edges), NUMBER(edge.closed),
+                          NUMBER(edge.position), NUMBER(edge.tick)});
+}
+
+static void call_37(const call_t *call) {
+    platform_servo_lock();
+    shift_position_locked(call->args[0]);
+    platform_servo_unlock();
+    debug_line(37, (field_t[]){NUMBER(call->args[0])});
+}
+
+static int64_t ceil_div(int64_t numerator, int64_t denominator) {
+    return numerator >= 0 ? (numerator + denominator - 1) / denominator
+                          : -((-numerator) / denominator);
+}
+
+/* Values call 38 adds with the servo lock still held: the first new values may be due on
+ * the next tick; the rest go in after it is released, far faster than core1 takes them. */
+#define REPLACE_LOCKED_VALUES 16u
+
+static void call_38(const call_t *call) {
+    if (refused_in_curve_mode(38)) {
+        return;
+    }
+    int64_t tick = call->args[0];
+    int64_t count = call->args[1];
+    platform_servo_lock();
+    int64_t queued = mq_level();
+    int64_t kept = 0;
+    int64_t skipped = 0;
+    if (servo_state.enable == 1) {
+        int64_t clock = servo_state.clock;
+        int64_t start = servo_state.start;
+        int64_t first = start >= 0 ? (start > clock ? start : clock)
+                                   : clock + servo_state.motion_left;
+        int64_t ahead = ceil_div(tick - first, vars.scalar);
+        int64_t late = ceil_div(first - tick, vars.scalar);
+        kept = ahead < 0 ? 0 : (ahead < queued ? ahead : queued);
+        skipped = late < 0 ? 0 : (late < count ? late : count);
+    }
+    uint32_t added = (uint32_t)(count - skipped);
+    if (kept + added > TABLE_QUEUE_CAPACITY) {
+        platform_servo_unlock();
+        print_plain(call_table[38].refusal);
+        return;
+    }
+    const int32_t *values = &interp_items[skipped];
+    mq_truncate((uint32_t)kept);
+    uint32_t locked = added < REPLACE_LOCKED_VALUES ? added : REPLACE_LOCKED_VALUES;
+    for (uint32_t i = 0; i < locked; i++) {
+        (void)mq_try_add(values[i]);
+    }
+    platform_servo_unlock();
+    for (uint32_t i = locked; i < added; i++) {
+        (void)mq_try_add(values[i]);
+    }
+    if (debug_flags[38] == 1) {
+        debug_line(38, (field_t[]){NUMBER(kept), NUMBER(skipped), NUMBER(added),
+                                   NUMBER(values_crc32(values, added))});
+    }
+}
+
+static const handler_t handlers[TABLE_CALLS] = {
+    call_0,  call_1,  call_2,  call_3,  call_4,  call_5,  call_6,  call_7,
+    call_8,  call_9,  call_10, call_11, call_12, call_13, call_14, call_15,
+    call_16, call_17, call_18, call_19, call_20, call_21, call_22, call_23,
+    call_24, call_25, call_26, call_27, call_28, call_29, call_30, call_31,
+    call_32, call_33, call_34, call_35, call_36, call_37, call_38,
+};
+
+/* --- lines ------------------------------------------------------------------------------- */
+
+/* _interpret: one line, at the tick it arrives. */
+static void interpret(const uint8_t *line, uint32_t length) {
+    call_t call;
+    if (interp_parse(line, length, &call) != PARSE_OK) {
+        return;
+    }
+    platform_servo_lock();
+    servo_state.since_command_us = 0;
+    platform_servo_unlock();
+    handlers[call.number](&call);
+}
+
+static void print_record(const record_t *record) {
+    if (record->kind == RECORD_ALARM) {
+        print_template(&template_alarm, (field_t[]){NUMBER(record->fault), NUMBER(record->clock)});
+        return;
+    }
+    print_template(&template_diagnostics,
+                   (field_t[]){NUMBER(record->clock), NUMBER(record->desired),
+                               NUMBER(record->actual), NUMBER(record->velocity),
+                               NUMBER(output_mv(record->out)), NUMBER(record->queued)});
+}
+
+/* --- device.h ---------------------------------------------------------------------------- */
+
+static void ram_defaults(void) {
+    memset(&vars, 0, sizeof vars);
+    vars.interval_dms = POWER_UP_INTERVAL_DMS;
+    vars.scalar = POWER_UP_SCALAR;
+    vars.kp = (sci_t){POWER_UP_KP};
+    vars.ki = (sci_t){POWER_UP_KI};
+    vars.kd = (sci_t){POWER_UP_KD};
+    vars.sim_update_interval_dms = POWER_UP_SIM_UPDATE_INTERVAL_DMS;
+    vars.source_voltage_v = (sci_t){POWER_UP_SOURCE_VOLTAGE_V};
+    vars.torque_constant_mnm_per_a = (sci_t){POWER_UP_TORQUE_CONSTANT_MNM_PER_A};
+    vars.winding_resistance_ohm = (sci_t){POWER_UP_WINDING_RESISTANCE_OHM};
+    vars.counts_per_revolution = POWER_UP_COUNTS_PER_REVOLUTION;
+    vars.inertia_kg_m2 = (sci_t){POWER_UP_INERTIA_KG_M2};
+    vars.viscous_friction_unm_per_rad_s = (sci_t){POWER_UP_VISCOUS_FRICTION_UNM_PER_RAD_S};
+    vars.load_torque_mnm = (sci_t){POWER_UP_LOAD_TORQUE_MNM};
+    vars.travel_lower_counts = POWER_UP_TRAVEL_LOWER_COUNTS;
+    vars.travel_upper_counts = POWER_UP_TRAVEL_UPPER_COUNTS;
+    vars.overtravel_counts = POWER_UP_OVERTRAVEL_COUNTS;
+    vars.diag_n = 0;
+    vars.watchdog_ms = 0;
+    vars.fe_limit = 0;
+}
+
+void device_power_up(void) {
+    flashvars_load(&flash);
+    splitter_reset(&splitter);
+    out_length = 0;
+    memset(debug_flags, 0, sizeof debug_flags);
+    ram_defaults();
+    derive();
+    platform_servo_lock();
+    servo_state_init(&servo_state, flash.default_control_mode);
+    copy_in_locked();
+    mq_clear();
+    records.head = 0;
+    records.tail = 0;
+    records.dropped = 0;
+    servo_state.limits = servo_switches(&servo_state, &servo_params);
+    platform_servo_unlock();
+}
+
+void device_feed(const uint8_t *data, size_t length) {
+    for (size_t i = 0; i < length; i++) {
+        split_result_t split = splitter_byte(&splitter, data[i]);
+        if (split == SPLIT_NONE) {
+            continue;
+        }
+        /* the Python device interprets a line at a tick boundary, after the lines of the
+         * ticks before it: print what core1 has recorded first */
+        device_poll();
+        if (split == SPLIT_LINE) {
+            interpret(splitter.buffer, splitter.length);
+            splitter_consumed(&splitter);
+        } else {
+            message_t m = {.length = 0};
+            message_text(&m, "line longer than ");
+            message_int(&m, TABLE_MAX_LINE_BYTES);
+            message_text(&m, " bytes");
+            print_err(NULL, m.text);
+        }
+    }
+}
+
+void device_poll(void) {
+    uint32_t tail = records.tail;
+    while (tail != records.head) {
+        __atomic_thread_fence(__ATOMIC_ACQUIRE); /* the record is read after its head */
+        record_t record = records.slots[tail % RECORD_RING_SLOTS];
+        __atomic_thread_fence(__ATOMIC_RELEASE); /* ... and before its slot is given back */
+        tail++;
+        records.tail = tail;
+        print_record(&record);
+    }
+}
+
+void device_servo_tick(void) {
+    platform_servo_lock();
+    servo_tick(&servo_state, &servo_params, &records);
+    platform_servo_unlock();
+}
+
+uint32_t device_tick_us(void) {
+    return (uint32_t)vars.interval_dms * 100u;
+}
