@@ -199,8 +199,11 @@ sci_t sci_div(sci_t a, sci_t b);
 double sci_to_double(sci_t x);
 
 /* SciNumber.from_float(x, digits=4): repr(x) (the shortest decimal that reads back as x)
- * truncated toward zero to 4 significant digits; 0 for a zero (and for a NaN or an
- * infinity, which the Python refuses). Core0 only. */
+ * truncated toward zero to 4 significant digits, for every normal double (|x| >= 2^-1022;
+ * the device converts numbers above 1e-112), and 0 for a zero. A subnormal's rounding
+ * interval holds several 4-digit numbers, among which repr picks the shortest: not done
+ * here (the result is then the largest 4-digit number that reads back as |x|). A NaN or an
+ * infinity, which the Python refuses, gives 0. Core0 only. */
 sci_t sci_from_double(double x);
 
 #endif
