@@ -112,6 +112,17 @@ def test_real_machine_example_loads_without_simulated_motors() -> None:
     assert not config.is_simulated
     assert all(axis.sim is None for axis in config.axes)
     assert all(axis.device for axis in config.axes)
+    x = config.axis("X")
+    assert x.reach is not None
+    assert (x.reach.velocity_mm_s, x.reach.accel_mm_s2) == (43.95, 2063.0)
+    assert x.max_velocity_mm_s / 43.95 + x.max_accel_mm_s2 / 2063.0 <= 0.9
+    assert config.axis("Y").reach is None
+
+
+def test_the_packaged_default_machine_is_the_example() -> None:
+    from usbmotion.cli.run import default_machine  # noqa: PLC0415
+
+    assert default_machine().read_text() == (EXAMPLES / "machine.toml").read_text()
 
 
 def test_values_defaults_and_derived_figures(tmp_path: Path) -> None:

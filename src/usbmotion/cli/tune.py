@@ -1,27 +1,52 @@
-"""``usbmotion tune``: a position step on one axis, its figures and a plot."""
+"""``usbmotion tune``: a position step on one axis, its figures and a plot; or, with
+``--reach``, what the axis's motor can do at full voltage, as a line for the machine file."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, MachineOption, default_machine
-from usbmotion.errors import ConfigError, UsbMotionError
+from usbmotion.errors import ConfigError, OutOfRangeError, UsbMotionError
+
+if TYPE_CHECKING:
+    from usbmotion.host.config import AxisConfig, MachineConfig
+
+REACH_DISTANCE_MAX_MM = 30.0
+"""The default room of ``--reach``: a quarter of the axis's travel, at most this."""
 
 
 def tune(
-    axis: Annotated[str, typer.Option("--axis", "-a", help="The axis to step (e.g. X).")],
-    step_mm: Annotated[float, typer.Option("--step-mm", help="Step size, mm.")] = 2.0,
+    axis: Annotated[str, typer.Option("--axis", "-a", help="The axis to test (e.g. X).")],
+    step_mm: Annotated[
+        float | None, typer.Option("--step-mm", help="Step size, mm (default 2).")
+    ] = None,
     duration_s: Annotated[
-        float, typer.Option("--duration-s", help="Record after the step, s.")
-    ] = 0.5,
+        float | None, typer.Option("--duration-s", help="Record after the step, s (default 0.5).")
+    ] = None,
     kp: Annotated[float | None, typer.Option("--kp", help="Try this proportional gain.")] = None,
     ki: Annotated[float | None, typer.Option("--ki", help="Try this integral gain.")] = None,
     kd: Annotated[float | None, typer.Option("--kd", help="Try this derivative gain.")] = None,
+    reach: Annotated[
+        bool,
+        typer.Option(
+            "--reach",
+            help="Instead of a step: run the axis at full voltage there and back and print its"
+            " top speed and acceleration, and the machine file's reach line.",
+        ),
+    ] = False,
+    distance_mm: Annotated[
+        float | None,
+        typer.Option(
+            "--distance-mm",
+            help="With --reach: the room the test may use from where the axis stands, mm"
+            " (negative: toward lower positions; default a quarter of the travel, at most 30).",
+        ),
+    ] = None,
     machine: MachineOption = None,
     plot: Annotated[
         Path | None, typer.Option("--plot", help="PNG to write (default: tune-AXIS.png).")
@@ -30,11 +55,11 @@ def tune(
     """Step one axis and print rise time, overshoot, settling time and steady-state error.
 
     The step starts from where the axis stands (keep it inside its travel). --kp/--ki/--kd
-    try gains without editing the configuration.
+    try gains without editing the configuration. --reach measures instead what the motor
+    can do (keep --distance-mm free ahead of the axis) and prints the reach line that lets
+    the machine file refuse limits the motor cannot reach.
     """
-    from usbmotion.host.config import PidGains, load_config  # noqa: PLC0415
-    from usbmotion.host.machine import Machine  # noqa: PLC0415
-    from usbmotion.tuning import step_response  # noqa: PLC0415
+    from usbmotion.host.config import load_config  # noqa: PLC0415
 
     try:
         config = load_config(machine or default_machine())
@@ -42,6 +67,32 @@ def tune(
     except (ConfigError, KeyError) as error:
         typer.echo(f"usbmotion tune: {error}", err=True)
         raise typer.Exit(EXIT_BAD_INPUT) from None
+    if reach:
+        given = [name for name, value in (("--step-mm", step_mm), ("--duration-s", duration_s),
+                                          ("--kp", kp), ("--ki", ki), ("--kd", kd),
+                                          ("--plot", plot)) if value is not None]
+        if given:
+            verb = "does" if len(given) == 1 else "do"
+            typer.echo(f"usbmotion tune: {', '.join(given)} {verb} not apply to --reach, which"
+                       " runs the axis at full voltage on its own gains; allowed with --reach:"
+                       " --axis, --distance-mm, --machine", err=True)
+            raise typer.Exit(EXIT_BAD_INPUT)
+        _reach(config, axis_config, distance_mm)
+        return
+    if distance_mm is not None:
+        typer.echo("usbmotion tune: --distance-mm applies to --reach only", err=True)
+        raise typer.Exit(EXIT_BAD_INPUT)
+    _step(config, axis_config, step_mm=2.0 if step_mm is None else step_mm,
+          duration_s=0.5 if duration_s is None else duration_s, kp=kp, ki=ki, kd=kd, plot=plot)
+
+
+def _step(config: MachineConfig, axis_config: AxisConfig, *, step_mm: float,
+          duration_s: float, kp: float | None, ki: float | None, kd: float | None,
+          plot: Path | None) -> None:
+    from usbmotion.host.config import PidGains  # noqa: PLC0415
+    from usbmotion.host.machine import Machine  # noqa: PLC0415
+    from usbmotion.tuning import step_response  # noqa: PLC0415
+
     gains = axis_config.gains
     tried = PidGains(kp if kp is not None else gains.kp, ki if ki is not None else gains.ki,
                      kd if kd is not None else gains.kd)
@@ -76,3 +127,56 @@ def tune(
     target = plot or Path(f"tune-{axis_config.name}.png")
     plot_step(target, response)
     typer.echo(f"plot                  {target}")
+
+
+def _reach(config: MachineConfig, axis_config: AxisConfig, distance_mm: float | None) -> None:
+    from usbmotion.host.config import REACH_MARGIN, round_down  # noqa: PLC0415
+    from usbmotion.host.machine import Machine  # noqa: PLC0415
+    from usbmotion.tuning import measure_reach  # noqa: PLC0415
+
+    low, high = axis_config.travel_mm
+    distance = (distance_mm if distance_mm is not None
+                else min(REACH_DISTANCE_MAX_MM, (high - low) / 4))
+    try:
+        with Machine.connect(config) as connected:
+            connected.configure()
+            try:
+                measured = measure_reach(connected, axis_config.name, distance_mm=distance)
+            finally:
+                connected.stop()
+    except OutOfRangeError as error:
+        typer.echo(f"usbmotion tune: {error}", err=True)
+        raise typer.Exit(EXIT_BAD_INPUT) from None
+    except UsbMotionError as error:
+        typer.echo(f"usbmotion tune: {error}", err=True)
+        raise typer.Exit(EXIT_FAULT) from None
+    scale = axis_config.counts_per_mm
+    name = axis_config.name
+    typer.echo(f"axis {name}: at full voltage ({measured.supply_v:g} V) from where it stood,"
+               f" {abs(distance):g} mm toward {'+' if distance > 0 else '-'} and back")
+    typer.echo("run  top speed      time constant  from standstill   fit RMS")
+    for run in measured.runs:
+        fit = run.fit
+        typer.echo(f"{'+' if run.direction > 0 else '-'}    "
+                   f"{fit.top_speed_counts_s / scale:8.2f} mm/s  "
+                   f"{fit.time_constant_s * 1000:8.1f} ms    "
+                   f"{fit.accel_counts_s2 / scale:8.0f} mm/s^2   "
+                   f"{fit.rms_residual_counts:.2f} counts")
+    result = measured.reach
+    velocity, accel = round_down(result.velocity_mm_s), round_down(result.accel_mm_s2)
+    typer.echo(f"reach {velocity:g} mm/s top speed, {accel:g} mm/s^2 from standstill (the lesser"
+               " of the runs)")
+    top = axis_config.max_velocity_mm_s
+    typer.echo(
+        f"at max_velocity_mm_s {top:g} the motor gives {result.accel_at_mm_s2(top):.4g} mm/s^2;"
+        f" keeping {REACH_MARGIN:.0%} of the supply for the PID, the machine file may set"
+        f" max_velocity_mm_s <= {round_down(result.usable_velocity_mm_s):g} and"
+        f" max_accel_mm_s2 <= {round_down(result.usable_accel_mm_s2(top)):g}"
+        f" (it sets {top:g} and {axis_config.max_accel_mm_s2:g})"
+    )
+    over = (top > result.usable_velocity_mm_s
+            or axis_config.max_accel_mm_s2 > result.usable_accel_mm_s2(top))
+    if over:
+        typer.echo("the file's limits are beyond that: lower them before adding the reach line")
+    typer.echo(f"put in [axes.{name}] of {config.path}:")
+    typer.echo(f"reach = {{ velocity_mm_s = {velocity:g}, accel_mm_s2 = {accel:g} }}")

@@ -800,12 +800,17 @@ def _reach(reader: _Reader) -> AxisReach | None:
     return AxisReach(velocity, accel)
 
 
+def round_down(value: float, *, digits: int = 4) -> float:
+    """``value`` rounded down to ``digits`` significant digits (0 for 0, negatives, NaN):
+    a bound to copy into a machine file that stays within what it bounds."""
+    if not (math.isfinite(value) and value > 0):
+        return 0.0
+    quantum = 10.0 ** (math.floor(math.log10(value)) - digits + 1)
+    return float(f"{math.floor(value / quantum) * quantum:.{digits}g}")
+
+
 def _down(value: float) -> str:
-    """``value`` rounded down to 4 significant digits, for a bound to copy into a file."""
-    if value <= 0 or not math.isfinite(value):
-        return "0"
-    quantum = 10.0 ** (math.floor(math.log10(value)) - 3)
-    return f"{math.floor(value / quantum) * quantum:.4g}"
+    return f"{round_down(value):g}"
 
 
 def _check_reach(reader: _Reader, reach: AxisReach, max_velocity: float, max_accel: float, *,
