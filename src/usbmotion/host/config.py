@@ -573,9 +573,13 @@ class _Reader:
                 self.fail(name, _unknown_key(name, known))
 
     def finish(self) -> None:
-        """Reject every key that was not read (those :meth:`expect` let through included)."""
+        """Reject every key that was not read: a key :meth:`expect` let through that the
+        schema then never read is a fault of this module, never silently ignored."""
         for name in self.data:
             if name not in self._read:
+                if name in self._known:
+                    self.fail(name, f"key {name!r} is allowed here but was not read (a fault"
+                              " of usbmotion's configuration reader; please report it)")
                 self.fail(name, _unknown_key(name, self._known or tuple(self._read)))
 
 
