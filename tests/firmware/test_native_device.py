@@ -27,7 +27,7 @@ from pathlib import Path
 from types import ModuleType
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from device.test_replies import DEBUG_LINES, POWER_UP_QUERIES, SEED_000, SET_THEN_QUERY
@@ -384,14 +384,45 @@ def test_alarms_of_every_fault(driver: Path) -> None:
     ])
 
 
-def test_replacing_the_queue_future(driver: Path) -> None:
+@pytest.mark.parametrize("scalar", [1, 3])
+def test_replacing_the_queue_future(driver: Path, scalar: int) -> None:
     ramp = " ".join(str(3 * k) for k in range(1, 401))
-    steps: list[Step] = [lines("8 38 1", "6 3", "3 1", f"1 400 {ramp}"), Run(181)]
+    steps: list[Step] = [lines("8 38 1", f"6 {scalar}", "3 1", f"1 400 {ramp}"),
+                         Run(60 * scalar + 1)]
+    clock = 60 * scalar + 1
     for lead in (-25, -1, 0, 1, 17):
-        tick = 181 + 2 + lead * 3
-        steps += [lines(f"38 {tick} 5 1 2 3 4 5", "2 -1"), Run(7)]
-    steps += [lines("31 500", "38 510 3 7 8 9", "2 -1"), Run(400), lines("3 0", "38 0 1 9")]
+        tick = clock + (scalar - 1) + lead * scalar
+        steps += [lines(f"38 {tick} 5 1 2 3 4 5", "2 -1", "20 -1"), Run(7)]
+        clock += 7
+    steps += [lines("31 500", "38 510 3 7 8 9", "2 -1"), Run(400), lines("3 0", "38 0 1 9"),
+              lines("3 1", "4 0", "1 1000 " + " ".join(["5"] * 999) + " 6"), Run(3),
+              lines(f"38 {clock + 410} 991 " + " ".join(["1"] * 991), "2 -1"),
+              lines(f"38 {clock + 410} 990 " + " ".join(["1"] * 990), "2 -1"), Run(20),
+              lines("38 0 0", "2 -1", "20 -1"), Run(5), lines("20 -1")]
     assert_same(driver, steps)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.sampled_from([(1, -12), (999, 6), (5, 0), (1234, -6), (9999, 3), (1, 6)]),
+             min_size=9, max_size=9),
+    st.sampled_from([1, 3, 10, 10000]),
+    st.sampled_from([1, 10, 10000]),
+    st.sampled_from([1, 1920, 1_000_000]),
+    st.sampled_from([1, 2]),
+    st.sampled_from([-(2**31), -1, 5000, 2**31 - 1]),
+)
+def test_extreme_parameters(driver: Path, sci: list[tuple[int, int]], interval_dms: int,
+                            sim_dms: int, counts: int, mode: int, target: int) -> None:
+    """test_robustness's extreme motors and gains, every value at its int64 edge."""
+    calls = [9, 10, 11, 13, 14, 15, 17, 32, 33]
+    setup = [f"{call} {min(c, 999) if call < 12 else c} {e}"
+             for call, (c, e) in zip(calls, sci, strict=True)]
+    setup += [f"5 {interval_dms}", f"12 {sim_dms}", f"16 {counts}", f"7 {mode}", "21 1", "3 1",
+              f"1 3 {target} {-target - 1} {target}"]
+    ticks = 1 if interval_dms > 100 else 25
+    with hang_guard(30.0):
+        assert_same(driver, [lines(*setup), *[Run(ticks)] * 6, lines("20 -1", "35 -1")])
 
 
 def _fuzz_steps(steps: Sequence[Lines | Silence | PowerCycle]) -> list[Step]:
