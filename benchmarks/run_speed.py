@@ -60,7 +60,7 @@ MARGIN_MM = 5.0
 SAFE_Z_MM = 30.0
 WHAT_IF_PERIODS = ((0.01, "10 ms"), (0.002, "2 ms"))
 """Diagnostics periods the anatomy also tries, beside the job's own (10 ms, or sparser for a
-program longer than 200 s: ``job.trace_period_s``)."""
+program longer than 200 s: ``usbmotion.session.trace_period_s``)."""
 SHORT_MINUTES = 0.3
 """The one-figure program that measures the fixed cost of a run."""
 
@@ -137,13 +137,11 @@ def anatomy(
     ``diagnostics_period_s`` replaces the job's diagnostics period for this run (a what-if:
     how the diagnostics lines bound the speed); None keeps the job's own.
     """
-    from usbmotion import job  # noqa: PLC0415 - only this part needs the job in-process
     from usbmotion.device import core0, core1, kernel  # noqa: PLC0415
     from usbmotion.host.config import load_config  # noqa: PLC0415
     from usbmotion.host.device import DeviceClient  # noqa: PLC0415
-    from usbmotion.host.machine import Machine  # noqa: PLC0415
-    from usbmotion.job import plan_program, run_program  # noqa: PLC0415
-    from usbmotion.motion.gcode import load_gcode  # noqa: PLC0415
+    from usbmotion.session import MachineSession  # noqa: PLC0415
+    from usbmotion.session import session as job  # noqa: PLC0415 - the job in-process
     from usbmotion.sim.world import SimWorld  # noqa: PLC0415
 
     compiled = kernel.compile_kernel()
@@ -180,11 +178,12 @@ def anatomy(
         job.TRACE_POINTS = 1 << 62
     try:
         config = load_config(machine_file)
-        parsed = load_gcode(program)
-        plan = plan_program(parsed, config)
         started = time.perf_counter()
-        with Machine.connect(config, world=SimWorld()) as machine:
-            report, _ = run_program(machine, parsed, plan)
+        with MachineSession.connect(config, world=SimWorld()) as session:
+            homing_s = session.home()
+            prepared = session.prepare(program)
+            plan = prepared.plan
+            report, _ = session.run(prepared, homing_s=homing_s)
         elapsed = time.perf_counter() - started
     finally:
         job.DIAGNOSTICS_PERIOD_S, job.TRACE_POINTS = shipped_period_s, shipped_points

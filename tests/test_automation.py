@@ -16,101 +16,187 @@ from usbmotion.automation import (
     Incomplete,
     LimitSwitchState,
     MoveAxisHome,
+    SwitchEdgeReading,
     Transition,
     run_sequence,
 )
-from usbmotion.errors import OutOfRangeError, SequenceFaultError
+from usbmotion.errors import OutOfRangeError, SequenceFaultError, StopRequestedError
 
 
 @dataclass
-class DummyLimits:
-    switches: dict[str, LimitSwitchState] = field(default_factory=dict)
-    positions: dict[str, float] = field(default_factory=dict)
+class Carriage:
+    """One axis in the homing orientation: a carriage that moves at the commanded velocity
+    (no ramp), a switch closed at and below ``switch_mm``, and the device's edge latch."""
+
+    position_mm: float
+    switch_mm: float = 0.0
+    velocity_mm_s: float = 0.0
+    edges: int = 0
+    edge_closed: bool = False
+    edge_mm: float = 0.0
+    stuck: bool = False
+    """The switch never opens (a welded contact)."""
+    upper_mm: float = 1e9
+
+    @property
+    def closed(self) -> bool:
+        return self.stuck or self.position_mm <= self.switch_mm
+
+    def advance(self, dt: float) -> None:
+        before = self.closed
+        self.position_mm += self.velocity_mm_s * dt
+        if self.closed != before:
+            self.edges += 1
+            self.edge_closed = self.closed
+            self.edge_mm = self.switch_mm if self.closed else self.position_mm
+
+
+@dataclass
+class Bench:
+    """Homing inputs and outputs over carriages, advanced ``dt`` per poll."""
+
+    carriages: dict[str, Carriage]
+    dt: float = 0.02
+    commands: list[tuple[str, float]] = field(default_factory=list)
+    zeroed: list[tuple[str, float, float]] = field(default_factory=list)
+    moving: dict[str, float] = field(default_factory=dict)
+    """Axis -> where a planned pull-off is going."""
 
     def limit_switches(self, axis: str) -> LimitSwitchState | None:
-        return self.switches.get(axis)
+        carriage = self.carriages.get(axis)
+        if carriage is None:
+            return None
+        return LimitSwitchState(carriage.closed, carriage.position_mm >= carriage.upper_mm)
 
     def position_mm(self, axis: str) -> float:
-        return self.positions.get(axis, 0.0)
+        return self.carriages[axis].position_mm
 
+    def switch_edge(self, axis: str) -> SwitchEdgeReading:
+        c = self.carriages[axis]
+        return SwitchEdgeReading(c.edges, c.edge_closed, c.edge_mm)
 
-@dataclass
-class DummyAxes:
-    velocities: dict[str, float] = field(default_factory=dict)
-    zeroed: list[str] = field(default_factory=list)
+    def at_rest(self, axis: str) -> bool:
+        return self.carriages[axis].velocity_mm_s == 0 and axis not in self.moving
 
     def set_target_velocity(self, axis: str, velocity_mm_s: float) -> None:
-        self.velocities[axis] = velocity_mm_s
+        self.commands.append((axis, velocity_mm_s))
+        self.carriages[axis].velocity_mm_s = velocity_mm_s
 
-    def zero_position(self, axis: str) -> None:
-        self.zeroed.append(axis)
+    def zero_and_pull_off(self, axis: str, edge: SwitchEdgeReading, pull_off_mm: float) -> None:
+        self.zeroed.append((axis, edge.position_mm, pull_off_mm))
+        self.moving[axis] = edge.position_mm + pull_off_mm
+
+    def step(self) -> None:
+        for name, carriage in self.carriages.items():
+            carriage.advance(self.dt)
+            if name in self.moving:
+                before = carriage.closed
+                carriage.position_mm = self.moving.pop(name)
+                if carriage.closed != before:
+                    carriage.edges += 1
+                    carriage.edge_closed = carriage.closed
+                    carriage.edge_mm = carriage.position_mm
+
+    def run(self, sequence: MoveAxisHome | Home, *, polls: int = 100_000) -> Transition:
+        for _ in range(polls):
+            result = sequence.poll(self, self)
+            if result is not Incomplete:
+                return result
+            self.step()
+        raise AssertionError("homing did not finish")
 
 
 def test_polling_without_hitting_limits_makes_an_axis_move_backwards() -> None:
+    bench = Bench({"7": Carriage(50.0)})
     seq = MoveAxisHome("7", 100.0)
-    axes, limits = DummyAxes(), DummyLimits({"7": LimitSwitchState()})
-    assert seq.poll(limits, axes) is Incomplete
-    assert axes.velocities == {"7": -100.0}
+    assert seq.poll(bench, bench) is Incomplete
+    assert bench.commands == [("7", -100.0)]
+    assert seq.phase == "seek"
 
 
 def test_actuating_the_upper_limit_is_a_fault() -> None:
+    bench = Bench({"7": Carriage(50.0, upper_mm=40.0)})
     seq = MoveAxisHome("7", 100.0)
-    axes = DummyAxes()
-    limits = DummyLimits({"7": LimitSwitchState(at_upper_limit=True)})
-    assert seq.poll(limits, axes) == Fault.unexpected_upper_limit("7")
-    assert axes.velocities["7"] == 0.0
+    assert seq.poll(bench, bench) == Fault.unexpected_upper_limit("7")
+    assert bench.commands[-1] == ("7", 0.0)
 
 
-def test_actuating_the_lower_limit_completes_the_sequence() -> None:
-    seq = MoveAxisHome("7", 100.0)
-    axes = DummyAxes()
-    limits = DummyLimits({"7": LimitSwitchState(at_lower_limit=True)})
-    assert seq.poll(limits, axes) is Complete
-    assert axes.velocities["7"] == 0.0
-    assert axes.zeroed == ["7"]
+def test_the_seeds_sequence_zeroes_on_the_seek_edge_without_a_back_off() -> None:
+    bench = Bench({"X": Carriage(3.0)})
+    assert bench.run(MoveAxisHome("X", 10.0)) is Complete
+    assert bench.zeroed == [("X", 0.0, 0.0)]
+    assert ("X", 0.0) in bench.commands, "stopped on the switch first"
 
 
 def test_homing_an_axis_that_does_not_exist_is_a_fault() -> None:
     seq = MoveAxisHome("9", 100.0)
-    assert seq.poll(DummyLimits(), DummyAxes()) == Fault.axis_not_found("9")
+    bench = Bench({})
+    assert seq.poll(bench, bench) == Fault.axis_not_found("9")
 
 
-def test_backoff_and_slow_reapproach() -> None:
-    seq = MoveAxisHome("X", 20.0, slow_speed_mm_s=2.0, backoff_mm=1.0)
-    axes = DummyAxes()
-    limits = DummyLimits({"X": LimitSwitchState()}, {"X": 5.0})
-    assert seq.poll(limits, axes) is Incomplete
-    assert axes.velocities["X"] == -20.0
-    limits.switches["X"] = LimitSwitchState(at_lower_limit=True)
-    limits.positions["X"] = -0.2
-    assert seq.poll(limits, axes) is Incomplete
-    assert seq.phase == "back off"
-    assert axes.velocities["X"] == 2.0
-    limits.switches["X"] = LimitSwitchState()
-    limits.positions["X"] = 0.3
-    assert seq.poll(limits, axes) is Incomplete
-    assert axes.velocities["X"] == 2.0, "keeps backing off until the distance is cleared"
-    limits.positions["X"] = 0.9
-    assert seq.poll(limits, axes) is Incomplete
-    assert seq.phase == "slow approach"
-    assert axes.velocities["X"] == -2.0
-    assert axes.zeroed == []
-    limits.switches["X"] = LimitSwitchState(at_lower_limit=True)
-    assert seq.poll(limits, axes) is Complete
-    assert axes.velocities["X"] == 0.0
-    assert axes.zeroed == ["X"]
+def test_grbls_cycle_seek_back_off_locate_pull_off() -> None:
+    bench = Bench({"X": Carriage(5.0)})
+    seq = MoveAxisHome("X", 20.0, slow_speed_mm_s=2.0, backoff_mm=1.0, pull_off_mm=1.0)
+    phases: list[str] = []
+    for _ in range(10_000):
+        result = seq.poll(bench, bench)
+        if not phases or phases[-1] != seq.phase:
+            phases.append(seq.phase)
+        if result is not Incomplete:
+            break
+        bench.step()
+    assert result is Complete
+    assert phases == ["seek", "seek stop", "back off", "back-off stop", "locate", "locate stop",
+                      "pull off", "done"]
+    speeds = [v for _, v in bench.commands]
+    assert speeds[0] == -20.0 and 2.0 in speeds and -2.0 in speeds, "slow back off and locate"
+    (zero,) = bench.zeroed
+    assert zero == ("X", 0.0, 1.0), "zeroed on the locate edge the device latched"
+    assert seq.reference is not None and seq.reference.closed
+    carriage = bench.carriages["X"]
+    assert carriage.position_mm == 1.0 and not carriage.closed
+
+
+def test_no_switch_within_the_search_distance_is_a_fault_naming_it() -> None:
+    bench = Bench({"X": Carriage(50.0, switch_mm=-1e6)})
+    result = bench.run(MoveAxisHome("X", 10.0, search_mm=30.0))
+    assert isinstance(result, Fault)
+    assert result.kind is FaultKind.SWITCH_NOT_FOUND
+    assert result.axis == "X" and "within 30 mm" in result.detail
+    assert bench.commands[-1] == ("X", 0.0), "the axis is stopped"
+    assert 30.0 < 50.0 - bench.carriages["X"].position_mm < 30.5
 
 
 def test_a_switch_that_never_opens_is_a_fault() -> None:
-    seq = MoveAxisHome("X", 20.0, backoff_mm=1.0)
-    axes = DummyAxes()
-    limits = DummyLimits({"X": LimitSwitchState(at_lower_limit=True)}, {"X": 0.0})
-    assert seq.poll(limits, axes) is Incomplete
-    limits.positions["X"] = 10.0
-    result = seq.poll(limits, axes)
+    bench = Bench({"X": Carriage(0.0, stuck=True)})
+    result = bench.run(MoveAxisHome("X", 20.0, backoff_mm=1.0))
     assert isinstance(result, Fault)
     assert result.kind is FaultKind.LIMIT_NOT_RELEASED
-    assert axes.velocities["X"] == 0.0
+    assert bench.commands[-1] == ("X", 0.0)
+
+
+def test_a_switch_still_closed_after_the_pull_off_is_a_fault() -> None:
+    bench = Bench({"X": Carriage(4.0)})
+    seq = MoveAxisHome("X", 20.0, pull_off_mm=1.0)
+    for _ in range(10_000):
+        result = seq.poll(bench, bench)
+        if seq.phase == "pull off":
+            bench.carriages["X"].stuck = True
+        if result is not Incomplete:
+            break
+        bench.step()
+    assert isinstance(result, Fault)
+    assert result.kind is FaultKind.LIMIT_NOT_RELEASED
+    assert "after homing" in result.detail
+
+
+def test_a_stop_brings_the_axis_to_rest_and_ends_the_sequence() -> None:
+    bench = Bench({"X": Carriage(40.0)})
+    seq = MoveAxisHome("X", 20.0)
+    assert seq.poll(bench, bench) is Incomplete
+    seq.stop(bench)
+    assert bench.commands[-1] == ("X", 0.0)
+    assert seq.poll(bench, bench) is Complete
 
 
 class Script:
@@ -175,18 +261,15 @@ def test_chain_runs_one_after_another_and_stops_at_a_fault() -> None:
 
 
 def test_home_in_order_z_first() -> None:
-    axes = DummyAxes()
-    limits = DummyLimits({n: LimitSwitchState() for n in "XYZ"})
+    bench = Bench({n: Carriage(2.0) for n in "XYZ"})
     home = Home("XYZ", lambda n: MoveAxisHome(n, 10.0), order=["Z", ["X", "Y"]])
-    assert home.poll(limits, axes) is Incomplete
-    assert axes.velocities == {"Z": -10.0}, "Z homes alone first"
-    limits.switches["Z"] = LimitSwitchState(at_lower_limit=True)
-    assert home.poll(limits, axes) is Incomplete
-    assert axes.velocities == {"Z": 0.0, "X": -10.0, "Y": -10.0}
-    limits.switches["X"] = LimitSwitchState(at_lower_limit=True)
-    limits.switches["Y"] = LimitSwitchState(at_lower_limit=True)
-    assert home.poll(limits, axes) is Complete
-    assert axes.zeroed == ["Z", "X", "Y"]
+    assert home.poll(bench, bench) is Incomplete
+    assert bench.commands == [("Z", -10.0)], "Z homes alone first"
+    assert bench.run(home) is Complete
+    assert [axis for axis, _, _ in bench.zeroed] == ["Z", "X", "Y"]
+    first_x = next(i for i, (axis, _) in enumerate(bench.commands) if axis == "X")
+    z_done = max(i for i, (axis, _) in enumerate(bench.commands) if axis == "Z")
+    assert first_x > z_done, "X starts once Z is done"
 
 
 def test_home_rejects_an_axis_named_twice() -> None:
@@ -195,6 +278,8 @@ def test_home_rejects_an_axis_named_twice() -> None:
 
 
 @pytest.mark.parametrize(("kwargs", "word"), [
+    ({"homing_speed_mm_s": 5.0, "search_mm": 0.0}, "search_mm"),
+    ({"homing_speed_mm_s": 5.0, "pull_off_mm": -1.0}, "pull_off_mm"),
     ({"homing_speed_mm_s": 0.0}, "homing_speed_mm_s"),
     ({"homing_speed_mm_s": float("nan")}, "homing_speed_mm_s"),
     ({"homing_speed_mm_s": 5.0, "backoff_mm": -1.0}, "backoff_mm"),
@@ -236,3 +321,14 @@ def test_runner_times_out_and_stops_the_sequence() -> None:
     with pytest.raises(SequenceFaultError, match="still running after 1 s"):
         run_sequence(seq, None, None, clock=clock, rate_hz=100, timeout_s=1.0)
     assert seq.stopped
+
+
+def test_runner_stops_the_sequence_when_asked_and_says_why() -> None:
+    clock = FakeClock()
+    seq = Script("a", [Incomplete] * 10, [])
+    asked = iter(["", "", "interrupted by the user"])
+    with pytest.raises(StopRequestedError, match="interrupted by the user") as caught:
+        run_sequence(seq, None, None, clock=clock, should_stop=lambda: next(asked))
+    assert seq.stopped
+    assert caught.value.reason == "interrupted by the user"
+    assert len(seq.answers) == 8, "polled twice, then stopped before the third poll"

@@ -97,12 +97,14 @@ def test_example_machine_loads_as_the_simulated_xyz_machine() -> None:
     for axis in config.axes:
         assert axis.counts_per_mm == 240.0
         assert axis.homing.direction == -1
-        assert axis.homing.position_mm == axis.travel_mm[0]
-        assert axis.switch_margin_mm == 0.0
+        assert axis.homing.position_mm == axis.travel_mm[0] - 1.0, "1 mm below the travel"
+        assert axis.homing.pull_off_mm == 1.0
+        assert axis.homing.search_mm == 1.5 * (axis.travel_mm[1] - axis.travel_mm[0])
+        assert axis.switch_margin_mm == 1.0
         assert axis.sim is not None
         lower, upper = axis.sim_travel_counts or (0, 0)
         assert lower < 0 < upper
-        assert upper - lower == round((axis.travel_mm[1] - axis.travel_mm[0]) * 240)
+        assert upper - lower == round((axis.travel_mm[1] - axis.travel_mm[0] + 2.0) * 240)
     assert config.axis("X").travel_mm == (0.0, 200.0)
     assert config.axis("Z").travel_mm == (0.0, 100.0)
 
@@ -141,13 +143,13 @@ def test_values_defaults_and_derived_figures(tmp_path: Path) -> None:
     assert x.max_jerk_mm_s3 == 20 * 500
     assert x.scale.to_counts(1.0) == 240
     assert x.sim is not None and x.sim.start_mm == 100.0
-    assert x.homing.position_mm == 0.0
-    assert x.sim_travel_counts == (-24000, 24000)
+    assert x.homing.position_mm == -1.0, "pull_off_mm below the travel, by default"
+    assert x.sim_travel_counts == (-24240, 24240)
     assert x.sim.counts_per_revolution == SIM_MOTOR_DEFAULTS["counts_per_revolution"]
     assert z.sim is None and z.sim_travel_counts is None
     assert z.homing.direction == 1
-    assert z.homing.position_mm == 90.0
-    assert z.switch_margin_mm == 0.0
+    assert z.homing.position_mm == 91.0
+    assert z.switch_margin_mm == 1.0
     assert z.homing.slow_speed_mm_s == pytest.approx(0.5)
     assert z.following_error_limit_counts == 0
     assert config.homing_order == (("Z",), ("X",))
@@ -156,11 +158,33 @@ def test_values_defaults_and_derived_figures(tmp_path: Path) -> None:
 def test_a_home_switch_beyond_the_travel_moves_both_simulated_switches(tmp_path: Path) -> None:
     text = GOOD.replace("gains = { kp = 0.2, ki = 2, kd = 0.002 }",
                         "gains = { kp = 0.2, ki = 2, kd = 0.002 }\n"
-                        "homing = { position_mm = -1.5 }")
+                        "homing = { position_mm = -1.5, pull_off_mm = 2.0 }")
     x = load_config(write(tmp_path, text)).axis("X")
     assert x.homing.position_mm == -1.5
     assert x.switch_margin_mm == 1.5
     assert x.sim_travel_counts == (-24360, 24360)
+
+
+@pytest.mark.parametrize(("homing", "words"), [
+    ("homing = { position_mm = 0.0 }",
+     ("axes.X.homing.position_mm: 0.0 puts the switch at the end of the working travel",
+      "a move to 0 (G0 to the end, a CAM retract) closes it", "allowed: below 0, e.g. -1")),
+    ("homing = { position_mm = -1.5 }",
+     ("homing leaves the axis at -0.5 mm (the switch's position_mm -1.5 pulled off by"
+      " pull_off_mm 1), outside travel_mm [0, 200]", "or a longer pull_off_mm")),
+    ("homing = { pull_off_mm = 0 }", ("axes.X.homing.pull_off_mm", "0 is out of range")),
+    ("homing = { search_mm = 5000 }", ("axes.X.homing.search_mm", "at most 10 x the travel")),
+])
+def test_a_switch_inside_the_travel_or_a_home_outside_it_is_refused(
+        tmp_path: Path, homing: str, words: tuple[str, ...]) -> None:
+    text = GOOD.replace("gains = { kp = 0.2, ki = 2, kd = 0.002 }",
+                        f"gains = {{ kp = 0.2, ki = 2, kd = 0.002 }}\n{homing}")
+    with pytest.raises(ConfigError) as caught:
+        load_config(write(tmp_path, text))
+    message = str(caught.value)
+    for word in words:
+        assert word in message, message
+    assert f":{line_of(text, homing)}:" in message, "the line of the homing table"
 
 
 def test_sim_defaults_are_the_device_motor_defaults() -> None:
@@ -328,7 +352,7 @@ def test_unreadable_file_is_a_config_error(tmp_path: Path) -> None:
         ("speed_mm_s = 5", "speed_mm_s = 50", "axes.Z.homing.speed_mm_s",
          ("out of range", "at most max_velocity_mm_s")),
         ("speed_mm_s = 5", "speed_mm_s = 5\nposition_mm = 80", "axes.Z.homing.position_mm",
-         ("80 is out of range", "at or above travel_mm's highest")),
+         ("80 is out of range", "above travel_mm's highest end")),
     ],
 )
 def test_bad_values_are_located(
@@ -392,7 +416,7 @@ SIM_KEYS = ("counts_per_revolution, inertia_kg_m2, load_torque_mnm, source_volta
          "unknown key 'kii'; did you mean 'ki'? allowed keys here: kd, ki, kp"),
         ("speed_mm_s = 5", "sped_mm_s = 5", "axes.Z.homing.sped_mm_s",
          "unknown key 'sped_mm_s'; did you mean 'speed_mm_s'? allowed keys here: backoff_mm,"
-         " direction, position_mm, slow_speed_mm_s, speed_mm_s"),
+         " direction, position_mm, pull_off_mm, search_mm, slow_speed_mm_s, speed_mm_s"),
         ("travel_mm = [0, 200]", "travel_mm = [0, 200]\nsim = { inertia_kg_m = 1e-3 }",
          "axes.X.sim.inertia_kg_m",
          "unknown key 'inertia_kg_m'; did you mean 'inertia_kg_m2'? allowed keys here: "

@@ -18,7 +18,7 @@ from usbmotion.cli.run import default_machine
 from usbmotion.demos import demo_path
 from usbmotion.host.config import load_config
 from usbmotion.host.machine import Machine
-from usbmotion.job import home_machine
+from usbmotion.session import MachineSession, home_position_mm
 from usbmotion.tuning import step_response
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -33,18 +33,26 @@ def _usbmotion(*args: str, timeout: float = 240) -> subprocess.CompletedProcess[
                           text=True, timeout=timeout, check=False)
 
 
-def test_full_home_ends_with_every_position_zero_at_the_lower_switch() -> None:
+def test_full_home_zeroes_every_axis_on_its_latched_switch_edge() -> None:
     config = load_config(default_machine())
-    with Machine.connect(config) as machine:
-        machine.configure()
-        starts = machine.positions_mm()
+    with MachineSession.connect(config) as session:
+        starts = session.positions_mm()
         assert all(v == 0 for v in starts.values()), "positions start at 0 before homing"
-        seconds = home_machine(machine)
+        assert not session.is_homed
+        seconds = session.home()
         assert 0 < seconds < 60
-        for name, status in machine.status().items():
-            assert status.lower_limit, f"{name} rests on its lower switch"
-            assert not status.upper_limit
-            assert abs(status.actual_counts) <= 2, f"{name} is at 0 ({status.actual_counts})"
+        assert session.is_homed
+        for name, status in session.machine.status().items():
+            axis = config.axis(name)
+            client = session.machine.axis(name).client
+            edge = client.switch_edge(1)
+            assert (edge.edges, edge.closed) == (4, False), "seek, back off, locate, pull off"
+            zero = session.zeroes[name]
+            assert zero.edge_counts + zero.shift_counts == axis.scale.to_counts(
+                axis.homing.position_mm), f"{name}: the locate edge is the switch's position"
+            assert not status.lower_limit and not status.upper_limit, "pulled off the switch"
+            assert status.desired_counts == axis.scale.to_counts(home_position_mm(axis))
+            assert abs(status.actual_counts - status.desired_counts) <= 2
             assert status.fault == 0
             assert status.enabled
 
@@ -68,10 +76,10 @@ def test_homing_uses_each_axis_velocity_gains(monkeypatch: pytest.MonkeyPatch) -
         seen.setdefault(self.name, []).append((kp, ki, kd))
         original(self, kp=kp, ki=ki, kd=kd)
 
-    with Machine.connect(config) as machine:
-        machine.configure()
+    with MachineSession.connect(config) as session:
+        machine = session.machine
         monkeypatch.setattr(DeviceClient, "set_gains", spy)
-        home_machine(machine)
+        session.home()
         for name, axis in machine.axes.items():
             gains = axis.config.velocity_gains
             assert seen[axis.client.name][0] == (gains.kp, gains.ki, gains.kd), name
@@ -95,7 +103,9 @@ def test_usbmotion_run_a_demo_as_a_user_does(tmp_path: Path) -> None:
         assert axis["max_error_mm"] < FOLLOWING_ERROR_BOUND_MM, axis
         assert axis["samples"] > 1000
     assert abs(report["executed_time_s"] - report["planned_time_s"]) < 0.01
-    assert report["ignored_words"] == ["G94 (line 3)"]
+    assert report["ignored_words"] == [
+        {"word": "G94", "line": 3, "meaning": "units-per-minute feed mode, the only one"}]
+    assert report["stop_reason"] == "completed"
     plot = tmp_path / "square.png"
     assert plot.stat().st_size > 20_000, "a real plot was written next to the program"
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -113,11 +123,11 @@ def test_a_program_that_does_not_parse_stops_before_anything_moves(tmp_path: Pat
 
 def test_a_fault_during_the_run_stops_every_axis_and_says_where(tmp_path: Path) -> None:
     text = default_machine().read_text()
-    heavy = text.replace("sim = { start_mm = 100.0 }",
-                         "sim = { start_mm = 100.0, load_torque_mnm = 1700.0 }", 1)
-    assert heavy != text
-    machine_file = tmp_path / "stalled.toml"
-    machine_file.write_text(heavy)
+    tight = text.replace("following_error_limit_mm = 1.0", "following_error_limit_mm = 0.005",
+                         1)
+    assert tight != text, "X trips on its first ramp: a following-error limit of one count"
+    machine_file = tmp_path / "tight.toml"
+    machine_file.write_text(tight)
     program = tmp_path / "move.ngc"
     program.write_text("G21 G90\nG1 X50 F600\nG1 Y50\nM2\n")
     done = _usbmotion("run", str(program), "--machine", str(machine_file), "--no-home",
@@ -130,7 +140,8 @@ def test_a_fault_during_the_run_stops_every_axis_and_says_where(tmp_path: Path) 
     assert fault["fault"] == "following error"
     assert fault["line"] == 2
     assert fault["time_s"] > 0
-    assert "STOPPED at program line" in done.stdout
+    assert report["stop_reason"] == "fault: axis X following error"
+    assert "STOPPED (fault: axis X following error) at program line 2" in done.stdout
 
 
 def test_console_through_a_pseudo_terminal() -> None:
@@ -167,7 +178,7 @@ def test_console_through_a_pseudo_terminal() -> None:
         assert "cycle start" in text and "faults         none" in text and "done" in text
         send("?")
         text = read_until(b"> ")
-        assert "program: 1-rounded-square.ngc; homed: yes; last run: completed" in text
+        assert "state: Idle; program: 1-rounded-square.ngc; homed: yes; last run: completed" in text
         assert re.search(r"X:\s+(4\.99|5\.00)\d mm", text), text
         send("$r")
         text = read_until(b"> ")
@@ -191,7 +202,7 @@ def test_console_with_piped_input() -> None:
                           capture_output=True, text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr
     assert "$d N      load demo program N" in done.stdout
-    assert "program: none; homed: no" in done.stdout
+    assert "state: Idle; program: none; homed: no" in done.stdout
     assert "error: no program loaded" in done.stdout
 
 
@@ -234,8 +245,8 @@ def test_end_points_are_measured_against_the_whole_path() -> None:
 
     import numpy as np  # noqa: PLC0415
 
-    from usbmotion.job import Trace, _endpoint_misses  # noqa: PLC0415
     from usbmotion.motion.gcode import parse_gcode  # noqa: PLC0415
+    from usbmotion.session.report import Trace, _endpoint_misses  # noqa: PLC0415
 
     rng = np.random.default_rng(7)
     steps = rng.normal(0.0, 0.4, size=(3000, 3))

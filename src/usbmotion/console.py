@@ -1,9 +1,11 @@
-"""The serial console of seed 003 over a machine: cycle start, reset, demo selection.
+"""The serial console of seed 003 over a machine session: cycle start, reset, demo selection.
 
-Commands are ``$`` and a letter, then values: ``$c`` runs the loaded program, ``$r`` stops
-the machine and homes it, ``$d N`` loads demo program N, ``$l FILE`` loads a G-code file,
-``?`` reports the state, ``$h`` lists the commands, ``$q`` leaves. Every command answers
-with at least one line; unknown input answers one ``error:`` line.
+Commands are ``$`` and a letter, then values: ``$c`` runs the loaded program from where the
+machine stands, ``$r`` stops the machine, clears any alarm and homes it, ``$d N`` loads demo
+program N, ``$l FILE`` loads a G-code file, ``?`` reports the state, ``$h`` lists the
+commands, ``$q`` leaves. Every command answers with at least one line; unknown input
+answers one ``error:`` line. A cycle start plans the program from where the machine is, so
+two in a row run it twice from wherever the first ended.
 """
 
 from __future__ import annotations
@@ -12,37 +14,39 @@ from collections.abc import Callable
 from pathlib import Path
 
 from usbmotion.demos import DEMOS, demo_path
-from usbmotion.errors import GCodeError, OutOfRangeError, PlanningError, UsbMotionError
-from usbmotion.host.machine import Machine
-from usbmotion.job import describe, home_machine, plan_program, run_program
-from usbmotion.motion.gcode import GCodeProgram, load_gcode
-from usbmotion.motion.planner import Plan
+from usbmotion.errors import (
+    GCodeError,
+    OutOfRangeError,
+    PlanningError,
+    StopRequestedError,
+    UsbMotionError,
+)
+from usbmotion.motion.gcode import parse_gcode, read_gcode_text
+from usbmotion.session import MachineSession, MachineState, describe
 
 HELP = """\
-$c        cycle start: run the loaded program
-$r        reset: stop every axis, then home
+$c        cycle start: run the loaded program from where the machine stands
+$r        reset: stop every axis, clear any alarm, then home
 $d N      load demo program N (1 rounded square, 2 star, 3 spiral)
 $l FILE   load a G-code file
-?         status: loaded program, homed, positions, faults
+?         status: state, loaded program, homed, positions, faults
 $h        this help
 $q        quit"""
 
 
 class Console:
-    """Interpret console lines against a connected machine.
+    """Interpret console lines against a machine session.
 
     Parameters:
-        machine: the connected machine (configured on first use).
+        session: the connected machine session.
         write: where replies go, one line per call.
     """
 
-    def __init__(self, machine: Machine, write: Callable[[str], None]) -> None:
-        self.machine = machine
+    def __init__(self, session: MachineSession, write: Callable[[str], None]) -> None:
+        self.session = session
         self.write = write
-        self.program: GCodeProgram | None = None
-        self.plan: Plan | None = None
-        self.homed = False
-        self.configured = False
+        self.path: Path | None = None
+        self.text = ""
         self.last_result = ""
 
     def handle(self, line: str) -> bool:
@@ -70,22 +74,21 @@ class Console:
                 self._load_file(value)
             else:
                 self.write(f"error: unknown command {text!r}; $h lists the commands")
+        except StopRequestedError as error:
+            self.write(f"stopped: {error.reason}; every axis at rest")
         except (GCodeError, PlanningError) as error:
             self.write(f"error: {error}")
         except UsbMotionError as error:
             self.write(f"error: {error}")
+        finally:
+            self.session.clear_stop_request()
         return True
 
-    def _configure(self) -> None:
-        if not self.configured:
-            self.machine.configure()
-            self.configured = True
-
     def _load(self, path: Path) -> None:
-        program = load_gcode(path)
-        plan = plan_program(program, self.machine.config)
-        self.program, self.plan = program, plan
-        self.write(f"loaded {path.name}: {len(program.moves)} moves, {plan.duration_s:.2f} s")
+        text = read_gcode_text(path)
+        program = parse_gcode(text, file=str(path))
+        self.path, self.text = path, text
+        self.write(f"loaded {path.name}: {len(program.moves)} moves")
 
     def _load_demo(self, value: str) -> None:
         try:
@@ -110,35 +113,44 @@ class Console:
             self.write(f"error: cannot read {value!r}: {error.strerror or error}")
 
     def _cycle_start(self) -> None:
-        if self.program is None or self.plan is None:
+        session = self.session
+        if self.path is None:
             self.write("error: no program loaded; $d N loads a demo, $l FILE a file")
             return
-        self._configure()
-        self.write(f"cycle start: {self.program.file}")
-        report, _ = run_program(self.machine, self.program, self.plan, home=not self.homed,
-                                configure=False)
-        self.homed = report.completed
-        self.last_result = "completed" if report.completed else "stopped"
+        if session.state is MachineState.ALARM:
+            self.write("error: the machine is in Alarm; $r resets and homes it")
+            return
+        prepared = session.prepare(self.path, text=self.text)
+        homing_s = 0.0
+        if not session.is_homed:
+            self.write("homing first: the machine is not homed")
+            homing_s = session.home()
+            prepared = session.prepare(self.path, text=self.text)
+        start = "  ".join(f"{a} {v:.3f}" for a, v in zip("XYZ", prepared.start_mm, strict=True))
+        self.write(f"cycle start: {self.path} from {start} mm, {prepared.plan.duration_s:.2f} s")
+        report, _ = session.run(prepared, homing_s=homing_s)
+        self.last_result = report.stop_reason
         for line in describe(report).splitlines():
             self.write(line)
-        self.write("done" if report.completed else "stopped: $r resets and homes")
+        self.write("done" if report.completed else f"stopped ({report.stop_reason}):"
+                   " $r resets and homes")
 
     def _reset(self) -> None:
-        self._configure()
+        session = self.session
         self.write("reset: stopping every axis")
-        self.machine.stop()
-        self.machine.clear_faults()
-        seconds = home_machine(self.machine)
-        self.homed = True
-        positions = "  ".join(f"{k} {v:.3f}" for k, v in self.machine.positions_mm().items())
+        session.reset()
+        seconds = session.home()
+        positions = "  ".join(f"{k} {v:.3f}" for k, v in session.positions_mm().items())
         self.write(f"homed in {seconds:.2f} s: {positions} mm")
 
     def _status(self) -> None:
-        loaded = Path(self.program.file).name if self.program is not None else "none"
-        self.write(f"program: {loaded}; homed: {'yes' if self.homed else 'no'};"
+        session = self.session
+        loaded = self.path.name if self.path is not None else "none"
+        homed = "yes" if session.is_homed else "no"
+        self.write(f"state: {session.state.value}; program: {loaded}; homed: {homed};"
                    f" last run: {self.last_result or 'none'}")
-        for name, status in self.machine.status().items():
-            scale = self.machine.axis(name).scale
+        for name, status in session.machine.status().items():
+            scale = session.machine.axis(name).scale
             self.write(
                 f"{name}: {scale.to_mm(status.actual_counts):9.3f} mm"
                 f"  {'enabled' if status.enabled else 'disabled'}  mode {int(status.mode)}"

@@ -213,6 +213,22 @@ class PlanningError(UsbMotionError, ValueError):
     """Moves could not be planned within the machine's limits."""
 
 
+class SoftLimitError(PlanningError):
+    """A program leaves an axis's travel: refused before anything moves.
+
+    ``line`` is the G-code line of the move, ``axis`` the axis letter, ``coordinate_mm``
+    the machine coordinate it would reach and ``limit_mm`` the end of the travel it passes.
+    """
+
+    def __init__(self, message: str, *, line: int, axis: str, coordinate_mm: float,
+                 limit_mm: float) -> None:
+        super().__init__(message)
+        self.line = line
+        self.axis = axis
+        self.coordinate_mm = coordinate_mm
+        self.limit_mm = limit_mm
+
+
 class ProfileError(UsbMotionError, ValueError):
     """A motion profile (trapezoid, jerk-limited, Hermite) could not be built."""
 
@@ -227,3 +243,24 @@ class SequenceFaultError(UsbMotionError, RuntimeError):
         super().__init__(message)
         self.axis = axis
         self.reason = reason or message
+
+
+class StopRequestedError(UsbMotionError, InterruptedError):
+    """The operator asked the machine to stop (Ctrl-C, SIGTERM, a front's stop): what was
+    running was brought to rest along its deceleration. ``reason`` says who asked."""
+
+    def __init__(self, message: str, *, reason: str = "") -> None:
+        super().__init__(message)
+        self.reason = reason or message
+
+
+# --- the machine session -------------------------------------------------------------------
+
+
+class MachineStateError(UsbMotionError, RuntimeError):
+    """The machine cannot do that in its present state (``state``): running before homing,
+    homing while a program runs, anything but a reset in Alarm."""
+
+    def __init__(self, message: str, *, state: str = "") -> None:
+        super().__init__(message)
+        self.state = state

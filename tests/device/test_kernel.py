@@ -431,7 +431,7 @@ direction = -1
 speed_mm_s = 10.0
 slow_speed_mm_s = 2.0
 backoff_mm = 1.0
-position_mm = 0.0
+position_mm = -1.0
 """
 _PROGRAM = """G21 G90 G17
 G0 Z5
@@ -445,20 +445,18 @@ M2
 
 def _run_job(monkeypatch: pytest.MonkeyPatch, *, kernel_switch: str) -> dict[str, object]:
     from usbmotion.host.config import parse_config  # noqa: PLC0415 - only this test
-    from usbmotion.host.machine import Machine  # noqa: PLC0415
-    from usbmotion.job import plan_program, run_program  # noqa: PLC0415
-    from usbmotion.motion.gcode import parse_gcode  # noqa: PLC0415
+    from usbmotion.session import MachineSession  # noqa: PLC0415
 
     monkeypatch.setenv(kernel.ENVIRONMENT_VARIABLE, kernel_switch)
     axes = "".join(_AXIS.format(name=name) for name in "XYZ")
     config = parse_config(_MACHINE.format(axes=axes), path="<kernel test>")
-    program = parse_gcode(_PROGRAM, file="<kernel test>")
-    plan = plan_program(program, config)
     world = SimWorld()
-    with Machine.connect(config, world=world) as machine:
+    with MachineSession.connect(config, world=world) as session:
         devices = [world.device(key) for key in world.keys]
         assert [isinstance(d, Device) and d.fast for d in devices] == [kernel_switch == "1"] * 3
-        report, _ = run_program(machine, program, plan)
+        homing_s = session.home()
+        prepared = session.prepare("<kernel test>", text=_PROGRAM)
+        report, _ = session.run(prepared, homing_s=homing_s)
     return report.to_json()
 
 

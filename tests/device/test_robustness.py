@@ -211,6 +211,8 @@ HUGE_LINES = [
     ("-" + "3" * 40 + " 1", "ERR ? unknown call"),
     ("3" * 19 + " x", "ERR ? input 1 'x' is not an integer"),
     ("8 " + "0" * 40 + "3 1", ""),
+    ("0" * 4301, "ERR 0 wrong number of inputs"),
+    ("0 -" + "0" * 4400 + "7", ""),
 ]
 
 

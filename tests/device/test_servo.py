@@ -335,3 +335,19 @@ def test_an_idle_device_runs_a_long_time_fast() -> None:
     state = device.state
     assert state.clock == 10_000_000
     assert abs(state.actual - 100) <= 2
+
+
+def test_a_block_of_ticks_equals_its_ticks_one_by_one_after_a_stale_derivative_history() -> None:
+    """A tick that changes nothing is rest only when the derivative's error history holds
+    one value: an older error still in the ring comes round later (extreme gains show it)."""
+    lines = ("9 1 -12", "10 999 6", "11 999 6", "13 9999 3", "14 1 -12", "15 1 -12", "17 1 -12",
+             "32 1 -12", "33 999 6", "5 1", "12 1", "16 1", "7 1", "21 1", "3 1",
+             "1 3 -2147483648 2147483647 -2147483648")
+    whole, stepped = Device(), Device()
+    for device in (whole, stepped):
+        send(device, *lines)
+    whole.run(14)
+    for _ in range(14):
+        stepped.run(1)
+    assert whole.take_timed_output() == stepped.take_timed_output()
+    assert whole.state == stepped.state

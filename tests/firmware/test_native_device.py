@@ -291,10 +291,6 @@ def test_over_long_lines(driver: Path) -> None:
     assert_same(driver, steps)
 
 
-@pytest.mark.xfail(strict=True, reason="Python artefact reported to the lead: codec._to_int"
-                   " calls int(token) on a token of more than 4300 characters with at most 18"
-                   " significant digits (leading zeros), which raises ValueError: the Python"
-                   " device answers an internal error and latches fault 4")
 def test_a_long_run_of_leading_zeros(driver: Path) -> None:
     assert_same(driver, [lines("0" * 4301, "0 " + "0" * 4300 + "7", "30 -1")])
 
@@ -434,11 +430,6 @@ def test_a_stale_derivative_history_tick_by_tick(driver: Path) -> None:
     assert_same(driver, [lines(*_STALE_HISTORY), *[Run(1)] * 14])
 
 
-@pytest.mark.xfail(strict=True, reason="Python spec bug reported to the lead: core0._run_some"
-                   " takes a tick that leaves DYNAMIC_FIELDS unchanged for rest and skips the"
-                   " next ticks with idle_advance, but the derivative's error history still"
-                   " holds tick 2's error, which comes round 10 ticks later: run(14) prints"
-                   " another output at tick 12 than 14 times run(1) (and the firmware)")
 def test_a_stale_derivative_history_after_rest(driver: Path) -> None:
     assert_same(driver, [lines(*_STALE_HISTORY), Run(14)])
 

@@ -19,10 +19,9 @@ from usbmotion.device import Device
 from usbmotion.device.core1 import wrap_int32
 from usbmotion.device.motor import MICRO
 from usbmotion.host.config import parse_config
-from usbmotion.host.machine import Machine
-from usbmotion.job import home_machine
 from usbmotion.protocol import ReplyKind, parse_reply
 from usbmotion.protocol.table import INT32_MAX, INT32_MIN
+from usbmotion.session import MachineSession, home_position_mm
 
 VELOCITY_GAINS = ("9 7 -3", "10 1 0", "11 0 0")
 MINUTE_US = 60_000_000
@@ -183,14 +182,16 @@ def test_a_homing_that_outlasts_a_minute_still_zeroes_at_the_switch() -> None:
     axis = config.axis("X")
     travel = axis.sim_travel_counts
     assert travel is not None
-    with Machine.connect(config) as machine:
-        machine.configure()
+    with MachineSession.connect(config) as session:
+        machine = session.machine
         assert machine.world is not None
         device = machine.world.device("X")
         assert isinstance(device, Device)
-        seconds = home_machine(machine)
+        seconds = session.home()
         assert seconds > 60, "the counter reset at least once while homing in velocity mode"
         status = machine.axis("X").client.status()
-        assert status.lower_limit and status.fault == 0 and status.enabled
-        assert status.actual_counts == axis.scale.to_counts(axis.homing.position_mm)
-        assert abs(_count(device) - travel[0]) <= 3, "the zero is taken at the switch"
+        assert not status.lower_limit and status.fault == 0 and status.enabled
+        assert status.desired_counts == axis.scale.to_counts(home_position_mm(axis))
+        switch = axis.scale.to_counts(axis.homing.position_mm)
+        shaft_at_edge = _count(device) - (status.actual_counts - switch)
+        assert shaft_at_edge == travel[0], "the zero is the switch itself, to the count"

@@ -1,6 +1,8 @@
 """A dead host: ``usbmotion run`` is killed (SIGKILL) mid-program; each device's watchdog
-disables its servo; a new host connects while the devices still print the diagnostics the
-dead host asked for, reads the fault, clears it and homes again.
+disables its servo; a new host takes the machine over while the devices still print the
+diagnostics the dead host asked for: it reports each fault, clears it, knows the position
+may be lost (a fault disabled the servo) and homes again, zeroing on the switch edge each
+device latched, exact to the count.
 
 Everything runs in real time as it would on a bench: ``usbmotion sim --pty 3`` serves three
 devices on pseudo-terminals, the machine file points each axis at its terminal, and the
@@ -28,9 +30,8 @@ import pytest
 from usbmotion.cli.run import default_machine
 from usbmotion.host.config import load_config
 from usbmotion.host.device import DeviceClient, Status
-from usbmotion.host.machine import Machine
-from usbmotion.job import home_machine
 from usbmotion.protocol.table import Fault
+from usbmotion.session import MachineSession, home_position_mm
 
 WATCHDOG_MS = 1250
 """The shortest watchdog the default machine allows: a full queue (1000 x 1 ms) + 250 ms."""
@@ -49,8 +50,8 @@ def logged(self, data):
     first = data.split(b"\n", 1)[0][:12].decode("ascii", "replace")
     os.write(log, f"{time.monotonic():.6f}|{self.label}|{first}\n".encode())
 transport.LineTransport.write = logged
-from usbmotion import job
-job.DIAGNOSTICS_PERIOD_S = 0.001
+from usbmotion.session import session
+session.DIAGNOSTICS_PERIOD_S = 0.001
 from usbmotion.cli.main import main
 sys.argv = ["usbmotion", *sys.argv[2:]]
 main()
@@ -168,18 +169,21 @@ def test_a_killed_host_leaves_every_servo_disabled_by_its_watchdog(tmp_path: Pat
         config = load_config(machine_file)
         delays_ms: dict[str, float] = {}
         started = time.monotonic()
-        with Machine.connect(config) as machine:
+        with MachineSession.connect(config) as session:
             connect_ms = (time.monotonic() - started) * 1000
+            machine = session.machine
+            assert not session.is_homed, "a fault disabled every servo: position may be lost"
+            assert sorted(session.faults_found) == ["X", "Y", "Z"]
+            assert len([n for n in session.notices if "watchdog" in n]) == 3, session.notices
             for axis in config.axes:
                 client = machine.axis(axis.name).client
                 name = axis.device
                 assert name is not None
-                status: Status = client.status()
-                assert not status.enabled, f"{name}: the watchdog disabled the servo"
-                assert status.fault == Fault.WATCHDOG, status
-                assert status.queued == 0
-                code, fault_tick = client.fault()
+                code, fault_tick = session.faults_found[axis.name]
                 assert code == Fault.WATCHDOG
+                status: Status = client.status()
+                assert not status.enabled and status.fault == Fault.NONE, "cleared"
+                assert status.queued == 0
                 before = time.monotonic()
                 clock = client.clock()
                 after = time.monotonic()
@@ -189,20 +193,22 @@ def test_a_killed_host_leaves_every_servo_disabled_by_its_watchdog(tmp_path: Pat
                 delays_ms[axis.name] = (fault_at - last[label]) * 1000
                 target_mm = {"X": 20.0, "Y": 10.0, "Z": 5.0}[axis.name]
                 assert 0 < axis.scale.to_mm(status.actual_counts) < target_mm, "mid-program"
-                client.clear_fault()
-                assert client.fault() == (Fault.NONE, 0)
             for letter, delay_ms in delays_ms.items():
                 assert abs(delay_ms - WATCHDOG_MS) <= WATCHDOG_TOLERANCE_MS, (letter, delays_ms)
-            machine.configure()
-            home_machine(machine)
+            session.home()
             homing_s = time.monotonic() - started
             for letter, status in machine.status().items():
                 axis = config.axis(letter)
+                travel = axis.sim_travel_counts
+                assert travel is not None
                 assert status.enabled and status.fault == Fault.NONE
-                assert status.lower_limit, f"{letter} rests on its lower switch"
-                assert abs(status.actual_counts
-                           - axis.scale.to_counts(axis.homing.position_mm)) <= 2
-            machine.enable(False)
+                zero = session.zeroes[letter]
+                assert zero.edge_counts == travel[0], (
+                    f"{letter}: the device latched the switch's closing edge at its very count"
+                    f" (counts from power-up, the dead host never homed): {zero}")
+                assert status.desired_counts == axis.scale.to_counts(home_position_mm(axis))
+                assert not status.lower_limit, f"{letter} pulled off its switch"
+            session.shutdown()
         assert homing_s < 15
     figures = ", ".join(f"{k} {v:.1f} ms" for k, v in delays_ms.items())
     print(f"watchdog disable after the last command: {figures}; connected over the"

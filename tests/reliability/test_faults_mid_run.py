@@ -1,14 +1,17 @@
 """Faults while a program runs: a stalled motor and a limit switch.
 
 The device trips on the servo tick the fault happens; the host sees it at its next fault
-check (every ``FAULT_CHECK_S`` of program time) and stops every other axis. Each test
-measures both in device ticks: the fault tick from the device (call 30), and the tick on
-which each other axis received its ``3 0`` (watched on the simulated devices). The report
-must name the axis, the fault, the time and the program line.
+check (every ``FAULT_CHECK_S`` of program time) and stops every other axis along the path
+at its planned deceleration (call 38 replaces what each has queued). Each test measures both
+in device ticks: the fault tick from the device (call 30), and the tick on which each other
+axis received its ``38`` (watched on the simulated devices). The report must name the axis,
+the fault, the time and the program line.
 
-``tests/test_job.py`` shows a following-error fault through ``usbmotion run`` with a
-heavy load; here the load is above the motor's stall torque and the trip is checked to
-the tick, and the limit-switch fault gets its own command-line run.
+``tests/test_job.py`` shows a following-error fault through ``usbmotion run``; here the load
+is raised above the motor's stall torque on the device (a machine file refuses a motor that
+cannot move its own load) and the trip is checked to the tick. A switch cannot be reached on
+a homed machine (soft limits refuse the program before anything moves), so the limit-switch
+fault runs an unhomed machine, whose devices count from where they powered up.
 """
 
 from __future__ import annotations
@@ -25,12 +28,11 @@ import numpy as np
 from usbmotion.cli.run import default_machine
 from usbmotion.device import Device
 from usbmotion.device.motor import MICRO, MotorParams
-from usbmotion.host.config import MachineConfig, load_config, parse_config
-from usbmotion.host.machine import Machine
-from usbmotion.job import FAULT_CHECK_S, RunReport, plan_program, run_program
-from usbmotion.motion.gcode import parse_gcode
+from usbmotion.host.config import MachineConfig, load_config
 from usbmotion.motion.sampler import sample_plan
 from usbmotion.protocol.table import Fault
+from usbmotion.session import MachineSession, RunReport, plan_gcode
+from usbmotion.session.session import FAULT_CHECK_S
 
 STALL_PROGRAM = "G21 G90\nG1 X50 F600\nG1 Y50\nM2\n"
 LIMIT_PROGRAM = "G21 G90\nG1 X10 Y10 F1200\nG1 X250 Y60\nG1 X0 Y0\nM2\n"
@@ -39,62 +41,69 @@ LIMIT_PROGRAM = "G21 G90\nG1 X10 Y10 F1200\nG1 X250 Y60\nG1 X0 Y0\nM2\n"
 
 @dataclass
 class Outcome:
-    """What a run left: the report, each device's end state, and when each was disabled."""
+    """What a run left: the report, each device's end state, and when each was stopped."""
 
     report: RunReport
     start_tick: int
     devices: dict[str, Device]
-    disabled_at: dict[str, list[int]]
-    """Device clock at every ``3 0`` the axis received."""
+    stopped_at: dict[str, list[int]]
+    """Device clock at every ``38`` (a stop replacing the queue) the axis received."""
 
-    def first_disable_after(self, axis: str, tick: int) -> int:
-        return min(t for t in self.disabled_at[axis] if t >= tick)
+    def first_stop_after(self, axis: str, tick: int) -> int:
+        return min(t for t in self.stopped_at[axis] if t >= tick)
 
 
-def _watch_disables(device: Device, ticks: list[int]) -> Callable[[bytes], None]:
+def _watch_stops(device: Device, ticks: list[int]) -> Callable[[bytes], None]:
     feed = device.feed
 
     def watched(data: bytes) -> None:
-        if any(line.strip() == b"3 0" for line in bytes(data).split(b"\n")):
+        if any(line.startswith(b"38 ") for line in bytes(data).split(b"\n")):
             ticks.append(device.clock)
         feed(data)
 
     return watched
 
 
-def _run(config: MachineConfig, text: str, *, home: bool) -> Outcome:
-    program = parse_gcode(text, file="fault.ngc")
-    plan = plan_program(program, config)
-    with Machine.connect(config) as machine:
+def _run(config: MachineConfig, text: str, *, home: bool,
+         load_mnm: float | None = None) -> Outcome:
+    with MachineSession.connect(config) as session:
+        machine = session.machine
         assert machine.world is not None
         devices: dict[str, Device] = {}
-        disabled: dict[str, list[int]] = {}
+        stopped: dict[str, list[int]] = {}
         for name in machine.axes:
             device = machine.world.device(name)
             assert isinstance(device, Device)
             devices[name] = device
-            disabled[name] = []
-            device.feed = _watch_disables(device, disabled[name])  # type: ignore[method-assign]
-        report, trace = run_program(machine, program, plan, home=home)
-    return Outcome(report, trace.start_tick, devices, disabled)
+            stopped[name] = []
+            device.feed = _watch_stops(device, stopped[name])  # type: ignore[method-assign]
+        if load_mnm is not None:
+            machine.axis("X").client.set_sim_value(33, load_mnm, label="load_torque_mnm")
+        homing_s = session.home() if home else 0.0
+        prepared = session.prepare("fault.ngc", text=text, unhomed=not home)
+        report, trace = session.run(prepared, homing_s=homing_s)
+        session.shutdown()
+    return Outcome(report, trace.start_tick, devices, stopped)
 
 
-def _setpoints(config: MachineConfig, text: str) -> np.ndarray:
-    plan = plan_program(parse_gcode(text, file="fault.ngc"), config)
+def _setpoints(config: MachineConfig, text: str, *, start_mm: tuple[float, float, float]
+               ) -> np.ndarray:
+    _, plan = plan_gcode(config, text, start_mm=start_mm)
     scale = [config.axis(n).counts_per_mm for n in "XYZ"]
     return sample_plan(plan, period_s=config.motion_period_s, counts_per_mm=scale)
 
 
 def _check_every_axis_stopped(outcome: Outcome, fault_tick: int, tick_s: float) -> float:
-    """Every servo off and every queue empty; returns the slowest host stop, seconds."""
+    """Every servo off and every queue empty at the end; the others were stopped along the
+    path at the host's next check; returns the slowest, seconds."""
     slowest = 0.0
     for name, device in outcome.devices.items():
         state = device.state
-        assert state.enable == 0, f"{name} is disabled"
-        assert state.queued == 0, f"{name}'s queue is cleared"
+        assert state.enable == 0, f"{name} is disabled at the end"
+        assert state.queued == 0, f"{name}'s queue is empty"
         assert state.output_mv == 0
         if state.fault == Fault.NONE:
-            stop = outcome.first_disable_after(name, fault_tick)
+            stop = outcome.first_stop_after(name, fault_tick)
             slowest = max(slowest, (stop - fault_tick) * tick_s)
     assert slowest <= FAULT_CHECK_S + 0.01, "the host stops the others at its next check"
     return slowest
@@ -106,18 +115,13 @@ def test_a_stalled_motor_trips_on_the_first_tick_beyond_the_following_error_limi
     assert sim is not None
     stall_mnm = sim.torque_constant_mnm_per_a * sim.source_voltage_v / sim.winding_resistance_ohm
     load_mnm = round(1.1 * stall_mnm)
-    text = default_machine().read_text().replace(
-        "sim = { start_mm = 100.0 }", f"sim = {{ start_mm = 100.0, load_torque_mnm = {load_mnm} }}",
-        1,
-    )
-    config = parse_config(text, path="stalled.toml")
-    assert config.axis("X").sim is not None and config.axis("Y").sim == sim
+    config = base
     limit = config.axis("X").following_error_limit_counts
     assert limit > 0
-    setpoints = _setpoints(config, STALL_PROGRAM)
+    setpoints = _setpoints(config, STALL_PROGRAM, start_mm=(0.0, 0.0, 0.0))
     first_over = int(np.argmax(setpoints[:, 0] > limit))
 
-    outcome = _run(config, STALL_PROGRAM, home=False)
+    outcome = _run(config, STALL_PROGRAM, home=False, load_mnm=load_mnm)
     x = outcome.devices["X"].state
     tick_s = config.servo_period_s
     assert (x.fault, x.enable) == (Fault.FOLLOWING_ERROR, 0)
@@ -133,16 +137,17 @@ def test_a_stalled_motor_trips_on_the_first_tick_beyond_the_following_error_limi
     assert fault_s <= fault.time_s <= fault_s + FAULT_CHECK_S + 2 * tick_s
     slowest = _check_every_axis_stopped(outcome, x.fault_tick, tick_s)
     print(f"stall: X tripped at {fault_s:.3f} s, {x.desired - x.actual} counts behind"
-          f" (limit {limit}); reported at {fault.time_s:.3f} s; Y and Z off {slowest * 1e3:.0f}"
-          " ms later")
+          f" (limit {limit}); reported at {fault.time_s:.3f} s; Y and Z stopped along the"
+          f" path {slowest * 1e3:.0f} ms later")
 
 
 def _switch_mm(config: MachineConfig, axis: str) -> float:
-    """Where the axis's upper switch closes, in machine mm once homed."""
+    """Where the axis's upper switch closes, in mm of the unhomed device's counts (0 where
+    it powered up)."""
     settings = config.axis(axis)
     travel = settings.sim_travel_counts
-    assert travel is not None and settings.sim is not None
-    return settings.sim.start_mm + travel[1] / settings.counts_per_mm
+    assert travel is not None
+    return travel[1] / settings.counts_per_mm
 
 
 def test_a_limit_switch_mid_run_stops_every_axis_and_says_where() -> None:
@@ -150,11 +155,11 @@ def test_a_limit_switch_mid_run_stops_every_axis_and_says_where() -> None:
     x_axis = config.axis("X")
     assert _switch_mm(config, "X") < 250, "line 3 goes past the switch"
     switch_counts = x_axis.scale.to_counts(_switch_mm(config, "X"))
-    setpoints = _setpoints(config, LIMIT_PROGRAM)
+    setpoints = _setpoints(config, LIMIT_PROGRAM, start_mm=(0.0, 0.0, 0.0))
     reaches = int(np.argmax(setpoints[:, 0] >= switch_counts))
     tick_s = config.servo_period_s
 
-    outcome = _run(config, LIMIT_PROGRAM, home=True)
+    outcome = _run(config, LIMIT_PROGRAM, home=False)
     x = outcome.devices["X"].state
     assert (x.fault, x.enable) == (Fault.LIMIT_SWITCH, 0)
     assert x.limits == 2, "X rests on its upper switch"
@@ -176,8 +181,8 @@ def test_a_limit_switch_mid_run_stops_every_axis_and_says_where() -> None:
     for name in ("Y", "Z"):
         assert outcome.devices[name].state.fault == Fault.NONE, "stopped by the host"
     print(f"limit: X tripped at {fault_s:.3f} s (reaches the switch at {planned_s:.3f} s),"
-          f" coasted {coast_counts} counts; reported at {fault.time_s:.3f} s; Y and Z off"
-          f" {slowest * 1e3:.0f} ms later")
+          f" coasted {coast_counts} counts; reported at {fault.time_s:.3f} s; Y and Z stopped"
+          f" along the path {slowest * 1e3:.0f} ms later")
 
 
 def test_usbmotion_run_exits_1_and_names_the_switch(tmp_path: Path) -> None:
@@ -186,7 +191,7 @@ def test_usbmotion_run_exits_1_and_names_the_switch(tmp_path: Path) -> None:
     report_path = tmp_path / "report.json"
     done = subprocess.run(
         [sys.executable, "-m", "usbmotion", "run", str(program), "--report", str(report_path),
-         "-q", "--no-plot"],
+         "--no-home", "-q", "--no-plot"],
         capture_output=True, text=True, timeout=240, check=False,
     )
     assert done.returncode == 1, done.stdout + done.stderr
@@ -197,5 +202,5 @@ def test_usbmotion_run_exits_1_and_names_the_switch(tmp_path: Path) -> None:
     assert report["faults"][0]["time_s"] > 0
     assert report["stopped_at_line"] == 3
     assert "axis X: limit switch at" in done.stdout
-    assert "STOPPED at program line 3" in done.stdout
+    assert "STOPPED (fault: axis X limit switch) at program line 3" in done.stdout
     assert "Traceback" not in done.stderr

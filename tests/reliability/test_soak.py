@@ -38,13 +38,11 @@ from dataclasses import dataclass
 
 import pytest
 
-from usbmotion import job
 from usbmotion.cli.run import default_machine
 from usbmotion.device import Device
 from usbmotion.host.config import MachineConfig, load_config
-from usbmotion.host.machine import Machine
-from usbmotion.job import RunReport, plan_program, run_program
-from usbmotion.motion.gcode import parse_gcode
+from usbmotion.session import MachineSession, RunReport, plan_gcode
+from usbmotion.session import session as job
 
 SOAK_ENV = "USBMOTION_SOAK_S"
 """Environment variable: seconds of program to soak (``make soak`` sets 3600)."""
@@ -91,7 +89,7 @@ def _seconds(variable: str, default: float) -> float:
 
 def long_program(config: MachineConfig, seconds: float) -> str:
     """A program of laps that lasts at least ``seconds`` on ``config``'s machine."""
-    one, two = (plan_program(parse_gcode(f"G21 G90 G17\n{LAP * n}M2\n"), config).duration_s
+    one, two = (plan_gcode(config, f"G21 G90 G17\n{LAP * n}M2\n")[1].duration_s
                 for n in (1, 2))
     lap_s = two - one
     laps = max(1, math.ceil((seconds - (one - lap_s)) / lap_s))
@@ -131,10 +129,9 @@ class Soak:
 
 
 def _soak(config: MachineConfig, text: str) -> tuple[Soak, object]:
-    program = parse_gcode(text, file="soak.ngc")
-    plan = plan_program(program, config)
     started = time.perf_counter()
-    with Machine.connect(config) as machine:
+    with MachineSession.connect(config) as session:
+        machine = session.machine
         assert machine.world is not None
         drains: dict[str, Drains] = {}
         for name in machine.axes:
@@ -142,7 +139,9 @@ def _soak(config: MachineConfig, text: str) -> tuple[Soak, object]:
             assert isinstance(device, Device)
             drains[name] = Drains([])
             device.run = _watch_drains(device, drains[name])  # type: ignore[method-assign]
-        report, trace = run_program(machine, program, plan, home=False)
+        prepared = session.prepare("soak.ngc", text=text, unhomed=True)
+        plan = prepared.plan
+        report, trace = session.run(prepared)
     wall_s = time.perf_counter() - started
     soak = Soak(report, plan.duration_s, report.setpoints_per_axis, config.motion_period_s,
                 trace.start_tick, {k: v.ticks for k, v in drains.items()}, wall_s)

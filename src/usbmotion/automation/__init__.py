@@ -6,6 +6,7 @@ from usbmotion.automation.homing import (
     HomingOutputs,
     LimitSwitchState,
     MoveAxisHome,
+    SwitchEdgeReading,
 )
 from usbmotion.automation.sequence import (
     All,
@@ -33,6 +34,7 @@ __all__ = [
     "Incomplete",
     "LimitSwitchState",
     "MoveAxisHome",
+    "SwitchEdgeReading",
     "Transition",
     "at_end",
     "run_sequence",

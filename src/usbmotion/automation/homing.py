@@ -1,8 +1,26 @@
-"""Homing: drive each axis onto its lower limit switch and call that position zero.
+"""Homing: find each axis's reference switch the way real controllers do, and zero on it.
 
-The inputs and outputs are the seed's: limit switches in, target velocities out, in
-human units (mm, mm/s). :class:`MoveAxisHome` homes one axis; :class:`Home` homes several,
-all together or in a configured order (e.g. Z first, then X and Y together).
+The cycle is grbl's, for a servo axis whose device latches the encoder count on the tick a
+switch changes (call 36), so the zero does not depend on when the host looked:
+
+1. **seek**: toward the switch at the seek speed, at most ``search_mm`` (a fault naming the
+   axis and the distance when no switch closes);
+2. **back off**: away at the slow speed until the switch has opened and ``backoff_mm`` is
+   cleared (a fault when it does not open);
+3. **locate**: back toward it at the slow speed until it closes again: the device's latched
+   count of that closing edge is the reference;
+4. **pull off**: the outputs zero the axis from that latched count, once, and move it
+   ``pull_off_mm`` off the switch in position mode; a switch still closed then is a fault
+   (with no pull-off the axis rests on its switch, as in the seed's sequence).
+
+Every change of speed is a ramp at the axis's acceleration (the outputs' business), and each
+phase waits for the axis to come to rest before the next one starts.
+
+The inputs and outputs are the seed's, in human units (mm, mm/s) and in the homing
+orientation: toward the switch is negative and that switch is the "lower" one, whichever
+end of the axis it really is (:class:`~usbmotion.automation.device_io.DeviceHomingIO`
+turns an axis that homes upward around). :class:`MoveAxisHome` homes one axis;
+:class:`Home` homes several, all together or in a configured order (Z first, say).
 """
 
 from __future__ import annotations
@@ -25,13 +43,27 @@ from usbmotion.automation.sequence import (
 )
 from usbmotion.errors import OutOfRangeError
 
+LOCATE_SCALE = 5.0
+"""How far the back-off and the slow locate may go, in back-off distances (plus 1 mm),
+before the switch is declared stuck or lost (grbl's locate scalar)."""
+
 
 @dataclass(frozen=True, slots=True)
 class LimitSwitchState:
-    """The two limit switches of one axis."""
+    """The two limit switches of one axis (in the homing orientation)."""
 
     at_lower_limit: bool = False
     at_upper_limit: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class SwitchEdgeReading:
+    """The device's latch of the homing switch: ``edges`` counted since power-up, whether
+    the last one closed it, and where the axis was on that tick (mm, homing orientation)."""
+
+    edges: int
+    closed: bool
+    position_mm: float
 
 
 class HomingInputs(Protocol):
@@ -45,41 +77,56 @@ class HomingInputs(Protocol):
         """The axis's actual position."""
         ...
 
+    def switch_edge(self, axis: str) -> SwitchEdgeReading:
+        """The latched last edge of the switch the axis homes onto."""
+        ...
+
+    def at_rest(self, axis: str) -> bool:
+        """True once what was last commanded has played out and the axis stands still."""
+        ...
+
 
 class HomingOutputs(Protocol):
     """What homing drives."""
 
     def set_target_velocity(self, axis: str, velocity_mm_s: float) -> None:
-        """Move the axis at this velocity (0 stops it)."""
+        """Ramp the axis to this velocity (0 stops it along its deceleration)."""
         ...
 
-    def zero_position(self, axis: str) -> None:
-        """Call the axis's present position zero (call 23)."""
+    def zero_and_pull_off(self, axis: str, edge: SwitchEdgeReading, pull_off_mm: float) -> None:
+        """Set machine zero from the latched ``edge`` (once) and move ``pull_off_mm`` off the
+        switch along a planned move."""
         ...
 
 
-class _Phase(Enum):
-    APPROACH = "approach"
+class Phase(Enum):
+    """Where one axis's homing is."""
+
+    SEEK = "seek"
+    SEEK_STOP = "seek stop"
     BACK_OFF = "back off"
-    SLOW_APPROACH = "slow approach"
+    BACK_OFF_STOP = "back-off stop"
+    LOCATE = "locate"
+    LOCATE_STOP = "locate stop"
+    PULL_OFF = "pull off"
     DONE = "done"
 
 
 class MoveAxisHome:
-    """Home one axis onto its lower limit switch.
-
-    With ``backoff_mm == 0`` this is the seed's sequence: move toward the lower switch at
-    ``homing_speed_mm_s``; the lower switch stops the axis, zeroes it and completes; the
-    upper switch first is a fault. With ``backoff_mm > 0`` the first touch is followed by
-    backing off until the switch opens and ``backoff_mm`` is cleared, then a slow
-    re-approach at ``slow_speed_mm_s``, so the zero is taken at a low, repeatable speed.
+    """Home one axis onto its switch (see the module docstring for the cycle).
 
     Parameters:
         axis: the axis name.
-        homing_speed_mm_s: approach speed (> 0).
-        slow_speed_mm_s: re-approach and back-off speed (> 0; default a tenth of the
-            approach speed).
-        backoff_mm: distance to back off after the first touch (0 = no re-approach).
+        homing_speed_mm_s: seek speed (> 0).
+        slow_speed_mm_s: back-off and locate speed (> 0; default a tenth of the seek speed).
+        backoff_mm: how far to back off the switch before the slow locate (0: the seek's own
+            edge is the reference, as in the seed's sequence).
+        search_mm: the longest seek (> 0; default unbounded, which a machine never uses:
+            the session passes 1.5 x the travel).
+        pull_off_mm: how far the axis ends off the switch (>= 0).
+
+    Raises:
+        OutOfRangeError: a speed or distance out of its range.
     """
 
     def __init__(
@@ -89,76 +136,160 @@ class MoveAxisHome:
         *,
         slow_speed_mm_s: float | None = None,
         backoff_mm: float = 0.0,
+        search_mm: float = math.inf,
+        pull_off_mm: float = 0.0,
     ) -> None:
         _positive(homing_speed_mm_s, "homing_speed_mm_s")
         slow = homing_speed_mm_s / 10 if slow_speed_mm_s is None else slow_speed_mm_s
         _positive(slow, "slow_speed_mm_s")
-        if not (math.isfinite(backoff_mm) and backoff_mm >= 0):
-            raise OutOfRangeError(f"backoff_mm {backoff_mm!r} must be >= 0", reason="backoff_mm")
+        _not_negative(backoff_mm, "backoff_mm")
+        _not_negative(pull_off_mm, "pull_off_mm")
+        if math.isnan(search_mm) or search_mm <= 0:
+            raise OutOfRangeError(f"search_mm {search_mm!r} must be > 0", reason="search_mm")
         self.axis = axis
         self.homing_speed_mm_s = homing_speed_mm_s
         self.slow_speed_mm_s = slow
         self.backoff_mm = backoff_mm
-        self._phase = _Phase.APPROACH
-        self._backoff_start_mm = 0.0
+        self.search_mm = search_mm
+        self.pull_off_mm = pull_off_mm
+        self._phase = Phase.SEEK
+        self._started = False
+        self._mark_mm = 0.0
+        """Where the current phase started (seek, back off, locate), mm."""
+        self._edges = 0
+        """The switch's edge count when the current phase started."""
+        self._reference: SwitchEdgeReading | None = None
 
     @property
     def phase(self) -> str:
-        """Where the sequence is: approach, back off, slow approach, done."""
+        """Where the sequence is: seek, back off, locate, pull off, done, ..."""
         return self._phase.value
 
+    @property
+    def reference(self) -> SwitchEdgeReading | None:
+        """The latched edge the axis was zeroed on, once it has been."""
+        return self._reference
+
     def stop(self, outputs: HomingOutputs) -> None:
-        """Stop the axis (used when another axis faults)."""
-        if self._phase is not _Phase.DONE:
+        """Stop the axis along its deceleration (used when another axis faults, or the
+        operator interrupts); the sequence is over."""
+        if self._phase is not Phase.DONE:
             outputs.set_target_velocity(self.axis, 0.0)
-            self._phase = _Phase.DONE
+            self._phase = Phase.DONE
 
-    def _finish(self, outputs: HomingOutputs, result: Transition) -> Transition:
+    def _fault(self, outputs: HomingOutputs, fault: Fault) -> Transition:
         outputs.set_target_velocity(self.axis, 0.0)
-        self._phase = _Phase.DONE
-        return result
+        self._phase = Phase.DONE
+        return fault
 
-    def _zero_here(self, outputs: HomingOutputs) -> Transition:
-        """Stop on the lower switch, call the position zero and complete."""
-        outputs.set_target_velocity(self.axis, 0.0)
-        outputs.zero_position(self.axis)
-        self._phase = _Phase.DONE
-        return Complete
+    def _begin(self, phase: Phase, inputs: HomingInputs) -> None:
+        self._phase = phase
+        self._mark_mm = inputs.position_mm(self.axis)
+        self._edges = inputs.switch_edge(self.axis).edges
 
     def poll(self, inputs: HomingInputs, outputs: HomingOutputs) -> Transition:
         """One step of homing."""
-        if self._phase is _Phase.DONE:
+        if self._phase is Phase.DONE:
             return Complete
         switches = inputs.limit_switches(self.axis)
         if switches is None:
-            self._phase = _Phase.DONE
+            self._phase = Phase.DONE
             return Fault.axis_not_found(self.axis)
         if switches.at_upper_limit:
-            return self._finish(outputs, Fault.unexpected_upper_limit(self.axis))
-        if self._phase is _Phase.APPROACH:
-            if not switches.at_lower_limit:
-                outputs.set_target_velocity(self.axis, -self.homing_speed_mm_s)
-                return Incomplete
+            return self._fault(outputs, Fault.unexpected_upper_limit(self.axis))
+        if not self._started:
+            self._started = True
+            self._begin(Phase.SEEK, inputs)
+        phase = self._phase
+        if phase is Phase.SEEK:
+            return self._seek(inputs, outputs, switches)
+        if phase is Phase.BACK_OFF:
+            return self._back_off(inputs, outputs, switches)
+        if phase is Phase.LOCATE:
+            return self._locate(inputs, outputs, switches)
+        if not inputs.at_rest(self.axis):
+            return Incomplete
+        if phase is Phase.SEEK_STOP:
             if self.backoff_mm == 0:
-                return self._zero_here(outputs)
-            self._phase = _Phase.BACK_OFF
-            self._backoff_start_mm = inputs.position_mm(self.axis)
-        if self._phase is _Phase.BACK_OFF:
-            travelled = inputs.position_mm(self.axis) - self._backoff_start_mm
-            if switches.at_lower_limit or travelled < self.backoff_mm:
-                if switches.at_lower_limit and travelled > 3 * self.backoff_mm + 1.0:
-                    return self._finish(
-                        outputs,
-                        Fault(FaultKind.LIMIT_NOT_RELEASED, self.axis,
-                              f"still closed {travelled:.3f} mm off the switch"),
-                    )
-                outputs.set_target_velocity(self.axis, self.slow_speed_mm_s)
-                return Incomplete
-            self._phase = _Phase.SLOW_APPROACH
-        if not switches.at_lower_limit:
+                return self._zero(inputs, outputs)
+            self._begin(Phase.BACK_OFF, inputs)
+            outputs.set_target_velocity(self.axis, self.slow_speed_mm_s)
+            return Incomplete
+        if phase is Phase.BACK_OFF_STOP:
+            self._begin(Phase.LOCATE, inputs)
             outputs.set_target_velocity(self.axis, -self.slow_speed_mm_s)
             return Incomplete
-        return self._zero_here(outputs)
+        if phase is Phase.LOCATE_STOP:
+            return self._zero(inputs, outputs)
+        # PULL_OFF: the planned move has played out.
+        self._phase = Phase.DONE
+        if switches.at_lower_limit and self.pull_off_mm > 0:
+            return Fault(FaultKind.LIMIT_NOT_RELEASED, self.axis,
+                         f"still closed {self.pull_off_mm:g} mm off the switch after homing")
+        return Complete
+
+    def _seek(self, inputs: HomingInputs, outputs: HomingOutputs,
+              switches: LimitSwitchState) -> Transition:
+        if switches.at_lower_limit:
+            outputs.set_target_velocity(self.axis, 0.0)
+            self._phase = Phase.SEEK_STOP
+            return Incomplete
+        travelled = self._mark_mm - inputs.position_mm(self.axis)
+        if travelled > self.search_mm:
+            return self._fault(outputs, Fault(
+                FaultKind.SWITCH_NOT_FOUND, self.axis,
+                f"no switch within {self.search_mm:g} mm of the seek (travelled"
+                f" {travelled:.3f} mm); check the switch, its wiring and homing.direction"))
+        outputs.set_target_velocity(self.axis, -self.homing_speed_mm_s)
+        return Incomplete
+
+    def _back_off(self, inputs: HomingInputs, outputs: HomingOutputs,
+                  switches: LimitSwitchState) -> Transition:
+        position = inputs.position_mm(self.axis)
+        if switches.at_lower_limit:
+            travelled = position - self._mark_mm
+            if travelled > LOCATE_SCALE * self.backoff_mm + 1.0:
+                return self._fault(outputs, Fault(
+                    FaultKind.LIMIT_NOT_RELEASED, self.axis,
+                    f"still closed {travelled:.3f} mm off the switch"))
+            outputs.set_target_velocity(self.axis, self.slow_speed_mm_s)
+            return Incomplete
+        edge = inputs.switch_edge(self.axis)
+        opened_at = edge.position_mm if (edge.edges != self._edges and not edge.closed) else (
+            self._mark_mm)
+        if position - opened_at < self.backoff_mm:
+            outputs.set_target_velocity(self.axis, self.slow_speed_mm_s)
+            return Incomplete
+        outputs.set_target_velocity(self.axis, 0.0)
+        self._phase = Phase.BACK_OFF_STOP
+        return Incomplete
+
+    def _locate(self, inputs: HomingInputs, outputs: HomingOutputs,
+                switches: LimitSwitchState) -> Transition:
+        edge = inputs.switch_edge(self.axis)
+        if switches.at_lower_limit or (edge.edges != self._edges and edge.closed):
+            outputs.set_target_velocity(self.axis, 0.0)
+            self._phase = Phase.LOCATE_STOP
+            return Incomplete
+        travelled = self._mark_mm - inputs.position_mm(self.axis)
+        reach = LOCATE_SCALE * self.backoff_mm + 1.0
+        if travelled > reach:
+            return self._fault(outputs, Fault(
+                FaultKind.SWITCH_NOT_FOUND, self.axis,
+                f"the switch did not close again within {reach:g} mm of the slow locate"))
+        outputs.set_target_velocity(self.axis, -self.slow_speed_mm_s)
+        return Incomplete
+
+    def _zero(self, inputs: HomingInputs, outputs: HomingOutputs) -> Transition:
+        edge = inputs.switch_edge(self.axis)
+        if not edge.closed or edge.edges == 0:
+            return self._fault(outputs, Fault(
+                FaultKind.SWITCH_NOT_FOUND, self.axis,
+                "the device latched no closing edge of the switch"))
+        self._reference = edge
+        outputs.zero_and_pull_off(self.axis, edge, self.pull_off_mm)
+        self._phase = Phase.PULL_OFF
+        return Incomplete
 
 
 HomingGroup = str | Sequence[str]
@@ -188,8 +319,10 @@ class Home:
         named = [name for group in groups for name in group]
         if len(set(named)) != len(named):
             raise OutOfRangeError(f"homing order {order!r} names an axis twice", reason="order")
+        self.axes: dict[str, MoveAxisHome] = {name: make(name) for name in named}
+        """The one-axis sequences, by axis name."""
         stages: list[AutomationSequence[HomingInputs, HomingOutputs]] = [
-            All([make(name) for name in group]) for group in groups
+            All([self.axes[name] for name in group]) for group in groups
         ]
         self._inner: Chain[HomingInputs, HomingOutputs] = Chain(stages)
 
@@ -198,10 +331,15 @@ class Home:
         return self._inner.poll(inputs, outputs)
 
     def stop(self, outputs: HomingOutputs) -> None:
-        """Stop whatever is moving."""
+        """Stop whatever is moving, along its deceleration."""
         self._inner.stop(outputs)
 
 
 def _positive(value: float, name: str) -> None:
     if not (math.isfinite(value) and value > 0):
         raise OutOfRangeError(f"{name} {value!r} must be a finite number > 0", reason=name)
+
+
+def _not_negative(value: float, name: str) -> None:
+    if not (math.isfinite(value) and value >= 0):
+        raise OutOfRangeError(f"{name} {value!r} must be a finite number >= 0", reason=name)

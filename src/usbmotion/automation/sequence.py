@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Generic, Protocol, TypeVar
 
-from usbmotion.errors import OutOfRangeError, SequenceFaultError
+from usbmotion.errors import OutOfRangeError, SequenceFaultError, StopRequestedError
 from usbmotion.sim.clock import Clock
 
 
@@ -24,6 +24,7 @@ class FaultKind(Enum):
     AXIS_NOT_FOUND = "axis not found"
     UNEXPECTED_UPPER_LIMIT = "upper limit switch closed while homing toward the lower one"
     LIMIT_NOT_RELEASED = "limit switch still closed after backing off"
+    SWITCH_NOT_FOUND = "no limit switch found"
     TIMEOUT = "sequence did not finish in time"
     DEVICE = "device fault"
     STOPPED = "stopped by a fault elsewhere"
@@ -175,12 +176,17 @@ def run_sequence(
     rate_hz: float = 100.0,
     timeout_s: float = 120.0,
     on_poll: Callable[[int], None] | None = None,
+    should_stop: Callable[[], str] | None = None,
 ) -> None:
     """Poll ``sequence`` at ``rate_hz`` on ``clock`` until it completes.
+
+    ``should_stop`` is asked before every poll; a non-empty answer (why) stops the sequence
+    (its ``stop``, when it has one) and raises.
 
     Raises:
         SequenceFaultError: the sequence faulted (``axis`` and ``reason`` set), or it did
             not finish within ``timeout_s``.
+        StopRequestedError: ``should_stop`` answered why it should stop.
     """
     if not (math.isfinite(rate_hz) and rate_hz > 0):
         raise OutOfRangeError(f"rate_hz {rate_hz!r} must be > 0", reason="rate_hz")
@@ -188,6 +194,12 @@ def run_sequence(
     start = clock.now()
     polls = 0
     while True:
+        why = should_stop() if should_stop is not None else ""
+        if why:
+            stop = getattr(sequence, "stop", None)
+            if callable(stop):
+                stop(outputs)
+            raise StopRequestedError(f"stopped: {why}", reason=why)
         transition = sequence.poll(inputs, outputs)
         polls += 1
         if on_poll is not None:

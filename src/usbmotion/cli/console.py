@@ -6,7 +6,13 @@ import sys
 
 import typer
 
-from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, MachineOption, default_machine
+from usbmotion.cli.run import (
+    EXIT_BAD_INPUT,
+    EXIT_FAULT,
+    MachineOption,
+    default_machine,
+    stop_on_signals,
+)
 from usbmotion.errors import ConfigError, UsbMotionError
 
 
@@ -16,11 +22,13 @@ def console(
     """Drive the machine from a console: $c cycle start, $r reset and home, $d N demo.
 
     Reads one command per line from standard input (a prompt is shown on a terminal)
-    until end of input or $q. $h lists the commands.
+    until end of input or $q. $h lists the commands. Ctrl-C during a command brings every
+    axis to rest along its deceleration and returns to the prompt; a second one stops at
+    once. On leaving, the servos are disabled (the machine stays homed for the next host).
     """
     from usbmotion.console import Console  # noqa: PLC0415 - keep --help fast
     from usbmotion.host.config import load_config  # noqa: PLC0415
-    from usbmotion.host.machine import Machine  # noqa: PLC0415
+    from usbmotion.session import MachineSession  # noqa: PLC0415
 
     try:
         config = load_config(machine or default_machine())
@@ -34,18 +42,27 @@ def console(
         sys.stdout.flush()
 
     try:
-        with Machine.connect(config) as connected:
-            session = Console(connected, write)
+        with MachineSession.connect(config) as session:
+            for notice in session.notices:
+                write(f"notice: {notice}")
+            console_session = Console(session, write)
             write(f"usbmotion console on {config.name}: $h for help")
             while True:
                 if interactive:
                     sys.stdout.write("> ")
                     sys.stdout.flush()
-                line = sys.stdin.readline()
-                if not line or not session.handle(line):
+                try:
+                    line = sys.stdin.readline()
+                except KeyboardInterrupt:
+                    break
+                if not line:
+                    break
+                with stop_on_signals(session):
+                    going = console_session.handle(line)
+                if not going:
                     break
             try:
-                connected.stop()
+                session.shutdown()
             except UsbMotionError as error:
                 write(f"error: stopping the machine: {error}")
     except UsbMotionError as error:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import json
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Iterator
+from contextlib import contextmanager
 from importlib import resources
 from pathlib import Path
 from types import FrameType
@@ -13,17 +14,28 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from usbmotion.errors import ConfigError, GCodeError, PlanningError, UsbMotionError
+from usbmotion.errors import (
+    ConfigError,
+    GCodeError,
+    PlanningError,
+    SequenceFaultError,
+    SoftLimitError,
+    StopRequestedError,
+    UsbMotionError,
+)
 
 if TYPE_CHECKING:
-    from usbmotion.host.machine import Machine
-    from usbmotion.job import RunReport, Trace
-    from usbmotion.motion.gcode import GCodeProgram
-    from usbmotion.motion.planner import Plan
+    from usbmotion.session import MachineSession, Prepared, RunReport, Trace
 
+EXIT_COMPLETED = 0
 EXIT_FAULT = 1
+"""A device fault, a lost link, or a homing that failed: the report says which."""
 EXIT_BAD_INPUT = 2
-
+"""The program or the machine file is invalid, or leaves the travel: nothing moved."""
+EXIT_INTERRUPTED = 130
+"""Ctrl-C (SIGINT): every axis was brought to rest along its deceleration first."""
+EXIT_TERMINATED = 143
+"""SIGTERM: likewise."""
 
 MachineOption = Annotated[
     Path | None,
@@ -39,6 +51,37 @@ def default_machine() -> Path:
     return Path(str(resources.files("usbmotion") / "data" / "machine.toml"))
 
 
+@contextmanager
+def stop_on_signals(session: MachineSession) -> Iterator[None]:
+    """While inside: SIGINT and SIGTERM ask ``session`` to stop (a second one: at once)."""
+    from usbmotion.session import StopReason  # noqa: PLC0415
+
+    reasons = {signal.SIGINT: StopReason.USER.value, signal.SIGTERM: StopReason.TERMINATED.value}
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        session.request_stop(reasons.get(signal.Signals(signum), StopReason.USER.value))
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in reasons}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def exit_code(reason: str) -> int:
+    """The documented exit status of a run that ended for ``reason``."""
+    from usbmotion.session import StopReason  # noqa: PLC0415
+
+    if reason == StopReason.COMPLETED.value:
+        return EXIT_COMPLETED
+    if reason.startswith(StopReason.USER.value):
+        return EXIT_INTERRUPTED
+    if reason.startswith(StopReason.TERMINATED.value):
+        return EXIT_TERMINATED
+    return EXIT_FAULT
+
+
 def run(
     program: Annotated[Path, typer.Argument(help="The G-code program.", show_default=False)],
     machine: MachineOption = None,
@@ -52,74 +95,151 @@ def run(
     realtime: Annotated[
         bool, typer.Option("--realtime", help="Pace the simulation by the wall clock.")
     ] = False,
-    no_home: Annotated[bool, typer.Option("--no-home", help="Skip homing.")] = False,
+    no_home: Annotated[bool, typer.Option(
+        "--no-home", help="Do not home a machine that is not homed: run in the devices' own"
+        " counts, without soft limits.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
-    """Run a G-code program on the machine: home, plan, stream, then report and plot.
+    """Run a G-code program on the machine: home it if it is not homed, plan from where it
+    stands, check the travel, stream, then report and plot.
 
-    Exit status 0 when the program ran to the end, 1 after a fault or Ctrl-C (every axis
-    stopped; the report says where), 2 when the program or the configuration is invalid
-    (nothing moved).
+    The program starts from where the machine is (after homing: each axis's home position),
+    never from 0, and a program that leaves an axis's travel is refused before anything
+    moves. At the end, or on Ctrl-C or SIGTERM, every axis comes to rest along its
+    deceleration and the servos are disabled, so the next run finds the machine homed.
+
+    Exit status: 0 the program ran to its end; 1 a device fault, a lost link or a failed
+    homing (every axis stopped; the report says where); 2 the program or the machine file
+    is invalid or leaves the travel (nothing moved); 130 interrupted by Ctrl-C, 143 by
+    SIGTERM (every axis brought to rest along its deceleration, then the servos disabled;
+    a second Ctrl-C stops at once).
     """
     from usbmotion.host.config import load_config  # noqa: PLC0415 - keep --help fast
-    from usbmotion.host.machine import Machine  # noqa: PLC0415
-    from usbmotion.job import describe, plan_program, run_program  # noqa: PLC0415
-    from usbmotion.motion.gcode import load_gcode  # noqa: PLC0415
+    from usbmotion.motion.gcode import parse_gcode, read_gcode_text  # noqa: PLC0415
+    from usbmotion.session import MachineSession  # noqa: PLC0415
     from usbmotion.sim.world import SimWorld  # noqa: PLC0415
 
     try:
         config = load_config(machine or default_machine())
-        parsed = load_gcode(program)
-        plan = plan_program(parsed, config)
+        text = read_gcode_text(program)
+        parse_gcode(text, file=str(program))
     except GCodeError as error:
         typer.echo(f"{error.file}:{error.line}: {error.message}", err=True)
         raise typer.Exit(EXIT_BAD_INPUT) from None
-    except (ConfigError, PlanningError) as error:
+    except ConfigError as error:
         typer.echo(f"usbmotion run: {error}", err=True)
         raise typer.Exit(EXIT_BAD_INPUT) from None
     except OSError as error:
         typer.echo(f"usbmotion run: cannot read {error.filename!r}: {error.strerror}", err=True)
         raise typer.Exit(EXIT_BAD_INPUT) from None
 
-    interrupted = [False]
-
-    def on_interrupt(signum: int, frame: FrameType | None) -> None:
-        interrupted[0] = True
-
-    previous = signal.signal(signal.SIGINT, on_interrupt)
+    world = SimWorld(realtime=realtime) if config.is_simulated else None
     try:
-        world = SimWorld(realtime=realtime) if config.is_simulated else None
-        with Machine.connect(config, world=world) as connected:
-            if quiet:
-                report, trace = run_program(connected, parsed, plan, home=not no_home,
-                                            should_stop=lambda: interrupted[0])
-            else:
-                report, trace = _with_progress(connected, parsed, plan, not no_home,
-                                               lambda: interrupted[0])
+        session = MachineSession.connect(config, world=world)
     except UsbMotionError as error:
         typer.echo(f"usbmotion run: {error}", err=True)
         raise typer.Exit(EXIT_FAULT) from None
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    with session, stop_on_signals(session):
+        for notice in session.notices:
+            typer.echo(f"notice         {notice}", err=True)
+        code, report, trace, prepared = _job(session, program, text, no_home=no_home,
+                                              quiet=quiet)
+        try:
+            session.shutdown()
+        except UsbMotionError as error:
+            typer.echo(f"usbmotion run: {error}", err=True)
+            code = max(code, EXIT_FAULT) if code == EXIT_COMPLETED else code
+    if report is not None:
+        _write(report, trace, prepared, program, report_path=report_path, plot=plot,
+               no_plot=no_plot)
+    sys.stdout.flush()
+    if code != EXIT_COMPLETED:
+        raise typer.Exit(code)
+
+
+def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
+         quiet: bool) -> tuple[int, RunReport | None, Trace | None, Prepared | None]:
+    """Prepare, home if needed, run: (exit status, report, trace, the prepared program)."""
+    from usbmotion.motion.sampler import sample_count  # noqa: PLC0415
+    from usbmotion.session import StopReason  # noqa: PLC0415
+    from usbmotion.session.report import unstarted_report  # noqa: PLC0415
+
+    homing_s = 0.0
+    try:
+        prepared = session.prepare(program, text=text, unhomed=no_home)
+    except SoftLimitError as error:
+        typer.echo(f"{program}:{error.line}: {error}", err=True)
+        return EXIT_BAD_INPUT, None, None, None
+    except GCodeError as error:
+        typer.echo(f"{error.file}:{error.line}: {error.message}", err=True)
+        return EXIT_BAD_INPUT, None, None, None
+    except (ConfigError, PlanningError) as error:
+        typer.echo(f"usbmotion run: {error}", err=True)
+        return EXIT_BAD_INPUT, None, None, None
+    config = session.config
+
+    def unstarted(reason: str, code: int) -> tuple[int, RunReport, None, Prepared]:
+        try:
+            where = session.positions_mm()
+        except UsbMotionError:
+            where = {}
+        return code, unstarted_report(
+            prepared.program, config.name, prepared.plan,
+            setpoints_per_axis=sample_count(prepared.plan, config.motion_period_s),
+            homing_s=homing_s, stop_reason=reason, end_position_mm=where,
+            notes=tuple(session.notices)), None, prepared
+
+    try:
+        if not (no_home or session.is_homed):
+            homing_s = session.home()
+            prepared = session.prepare(program, text=text)
+    except StopRequestedError as error:
+        reason = f"{error.reason} (while homing)"
+        return unstarted(reason, exit_code(error.reason))
+    except SequenceFaultError as error:
+        typer.echo(f"usbmotion run: homing failed: {error}", err=True)
+        return unstarted(f"fault: homing failed: {error}", EXIT_FAULT)
+    except SoftLimitError as error:
+        typer.echo(f"{program}:{error.line}: {error}", err=True)
+        return EXIT_BAD_INPUT, None, None, None
+    except UsbMotionError as error:
+        typer.echo(f"usbmotion run: {error}", err=True)
+        return unstarted(f"fault: {error}", EXIT_FAULT)
+    if session.stop_requested:
+        return unstarted(f"{session.stop_requested} (before the program started)",
+                         exit_code(session.stop_requested))
+    try:
+        if quiet:
+            report, trace = session.run(prepared, homing_s=homing_s)
+        else:
+            report, trace = _with_progress(session, prepared, homing_s)
+    except UsbMotionError as error:
+        typer.echo(f"usbmotion run: {error}", err=True)
+        return unstarted(f"fault: {error}", EXIT_FAULT)
+    code = EXIT_COMPLETED if report.completed else exit_code(report.stop_reason)
+    if code == EXIT_COMPLETED and report.stop_reason != StopReason.COMPLETED.value:
+        code = EXIT_FAULT
+    return code, report, trace, prepared
+
+
+def _write(report: RunReport, trace: Trace | None, prepared: Prepared | None, program: Path, *,
+           report_path: Path | None, plot: Path | None, no_plot: bool) -> None:
+    from usbmotion.session import describe  # noqa: PLC0415
+
     typer.echo(describe(report))
     if report_path is not None:
         report_path.write_text(json.dumps(report.to_json(), indent=2) + "\n", encoding="utf-8")
         typer.echo(f"report         {report_path}")
-    if not no_plot:
+    if not no_plot and trace is not None and prepared is not None:
         from usbmotion.cli.plots import plot_run  # noqa: PLC0415
 
         target = plot or program.with_suffix(".png")
-        plot_run(target, plan, trace, report)
+        plot_run(target, prepared.plan, trace, report)
         typer.echo(f"plot           {target}")
-    sys.stdout.flush()
-    if not report.completed:
-        raise typer.Exit(EXIT_FAULT)
 
 
-def _with_progress(
-    machine: Machine, program: GCodeProgram, plan: Plan, home: bool,
-    should_stop: Callable[[], bool],
-) -> tuple[RunReport, Trace]:
+def _with_progress(session: MachineSession, prepared: Prepared,
+                   homing_s: float) -> tuple[RunReport, Trace]:
     from rich.progress import (  # noqa: PLC0415
         BarColumn,
         Progress,
@@ -127,16 +247,14 @@ def _with_progress(
         TimeRemainingColumn,
     )
 
-    from usbmotion.job import run_program  # noqa: PLC0415
-
     columns = (TextColumn("[bold]{task.description}"), BarColumn(),
                TextColumn("{task.completed:.2f}/{task.total:.2f} s program time"),
                TimeRemainingColumn())
     with Progress(*columns, transient=True, disable=not sys.stderr.isatty()) as progress:
-        task = progress.add_task("running", total=plan.duration_s)
+        task = progress.add_task("running", total=prepared.plan.duration_s)
 
         def update(done_s: float, total_s: float) -> None:
             progress.update(task, completed=done_s)
 
-        return run_program(machine, program, plan, home=home, on_progress=update,
-                           should_stop=should_stop)
+        return session.run(prepared, on_progress=update, homing_s=homing_s)
+

@@ -458,7 +458,8 @@ class Device:
         done = self._servo_block()(state, self._params, self._queue, self._empty, 1)
         events = int(state[core1.S_EVENTS])
         self._after_block()
-        if events != 0 or not np.array_equal(before, state[list(DYNAMIC_FIELDS)]):
+        if (events != 0 or not np.array_equal(before, state[list(DYNAMIC_FIELDS)])
+                or not self._rings_settled()):
             self._settle_left = _SETTLE_CHUNK
             return done
         quiet = limit - done
@@ -473,6 +474,20 @@ class Device:
             self._after_block()
             done += quiet
         return done
+
+    def _rings_settled(self) -> bool:
+        """True when the counter history (and, while enabled, the error history) holds one
+        value over the window: then a tick that changed nothing changes nothing next time
+        either (a ring still holding an older value would bring it round later)."""
+        state = self._state
+        window = int(self._params[core1.P_WINDOW])
+        counts = state[core1.S_COUNTS : core1.S_COUNTS + window]
+        if np.any(counts != counts[0]):
+            return False
+        if state[core1.S_ENABLE] != 1:
+            return True
+        errors = state[core1.S_HISTORY : core1.S_HISTORY + window]
+        return not np.any(errors != errors[0])
 
     def _run_curve(self, n: int, tick_us: int) -> int:
         curve = self._curve

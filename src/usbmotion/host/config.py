@@ -76,11 +76,16 @@ class HomingConfig:
         slow_speed_mm_s: back-off and slow re-approach speed, mm/s.
         backoff_mm: distance to back off the switch before the slow re-approach, mm
             (0: take the zero on the first touch).
-        position_mm: the machine position of the switch's closing point, assigned to the
-            axis once homed; at or beyond the end of ``travel_mm`` it homes to (by default
-            at that end). A switch closing in position mode is a fault, so a machine whose
-            programs go to the very end of the travel puts the switch beyond it (e.g.
-            1 mm: ``travel_mm = [0, 200]``, ``position_mm = -1.0``).
+        position_mm: the machine position of the switch's closing edge: the device latches
+            the count of that edge and homing gives it this position. It is outside the
+            working travel (below ``travel_mm``'s lowest when homing down), so a program
+            that goes to the end of the travel (``G0 X0``) never closes the switch; by
+            default ``pull_off_mm`` beyond that end.
+        pull_off_mm: how far homing moves the axis off the switch at the end (a planned
+            move, > 0); the axis then stands at ``position_mm`` + ``pull_off_mm`` (homing
+            down), which must be inside the travel.
+        search_mm: the longest the seek for the switch may go before homing fails naming
+            the axis and the distance (default 1.5 x the travel).
     """
 
     direction: int
@@ -88,6 +93,8 @@ class HomingConfig:
     slow_speed_mm_s: float
     backoff_mm: float
     position_mm: float
+    pull_off_mm: float = 1.0
+    search_mm: float = math.inf
 
 
 @dataclass(frozen=True, slots=True)
@@ -603,7 +610,8 @@ _AXIS_KEYS = (
     "travel_mm", "gains", "velocity_gains", "following_error_limit_mm", "homing", "sim", "reach",
 )
 _GAINS_KEYS = ("kp", "ki", "kd")
-_HOMING_KEYS = ("direction", "speed_mm_s", "slow_speed_mm_s", "backoff_mm", "position_mm")
+_HOMING_KEYS = ("direction", "speed_mm_s", "slow_speed_mm_s", "backoff_mm", "position_mm",
+                "pull_off_mm", "search_mm")
 _SIM_KEYS = (
     "update_interval_dms", "source_voltage_v", "torque_constant_mnm_per_a",
     "winding_resistance_ohm", "counts_per_revolution", "inertia_kg_m2",
@@ -909,7 +917,7 @@ def _gains(reader: _Reader, name: str, *, defaults: PidGains | None, mode: str) 
 
 def _homing(reader: _Reader, travel: tuple[float, float], max_velocity: float) -> HomingConfig:
     table = reader.table("homing", allowed="a table: direction, speed_mm_s, slow_speed_mm_s,"
-                         " backoff_mm, position_mm")
+                         " backoff_mm, position_mm, pull_off_mm, search_mm")
     table = table if table is not None else _Reader(reader.source, {}, reader.key("homing"))
     table.expect(_HOMING_KEYS)
     allowed = "-1 (home onto the lower limit switch) or 1 (the upper one)"
@@ -923,20 +931,35 @@ def _homing(reader: _Reader, travel: tuple[float, float], max_velocity: float) -
     length = travel[1] - travel[0]
     backoff = table.number("backoff_mm", default=min(2.0, length / 4), minimum=0,
                            maximum=length / 2, unit="mm, at most half the travel")
-    if direction == -1:
-        position = table.number(
-            "position_mm", default=travel[0],
-            minimum=travel[0] - length, maximum=travel[0],
-            unit="mm, at or below travel_mm's lowest, by at most the travel's length",
-        )
-    else:
-        position = table.number(
-            "position_mm", default=travel[1],
-            minimum=travel[1], maximum=travel[1] + length,
-            unit="mm, at or above travel_mm's highest, by at most the travel's length",
-        )
+    pull_off = table.number("pull_off_mm", default=min(1.0, length / 4), above=0,
+                            maximum=length / 2, unit="mm, at most half the travel")
+    search = table.number("search_mm", default=1.5 * length, above=0, maximum=10 * length,
+                          unit="mm, at most 10 x the travel; default 1.5 x")
+    end = travel[0] if direction == -1 else travel[1]
+    which = "lowest" if direction == -1 else "highest"
+    beyond = "below" if direction == -1 else "above"
+    position = table.number(
+        "position_mm", default=end + direction * pull_off,
+        minimum=end - length if direction == -1 else end,
+        maximum=end if direction == -1 else end + length,
+        unit=f"mm, {beyond} travel_mm's {which} end, by at most the travel's length",
+    )
+    if position == end:
+        table.fail("position_mm", (
+            f"{position!r} puts the switch at the end of the working travel, where a move to"
+            f" {end:g} (G0 to the end, a CAM retract) closes it and faults the axis; allowed:"
+            f" {beyond} {end:g}, e.g. {end + direction * pull_off:g} (pull_off_mm beyond it)"))
+    home = position - direction * pull_off
+    if (home < travel[0] - 1e-9) if direction == -1 else (home > travel[1] + 1e-9):
+        table.fail("position_mm", (
+            f"homing leaves the axis at {home:g} mm (the switch's position_mm {position:g}"
+            f" pulled off by pull_off_mm {pull_off:g}), outside travel_mm [{travel[0]:g},"
+            f" {travel[1]:g}], where no program may start; allowed: a position_mm within"
+            f" pull_off_mm of the travel's {which} end ({end + direction * pull_off:g}"
+            f" {'..' if direction == -1 else 'down to '}{end:g} excluded), or a longer"
+            " pull_off_mm"))
     table.finish()
-    return HomingConfig(int(direction), speed, slow, backoff, position)
+    return HomingConfig(int(direction), speed, slow, backoff, position, pull_off, search)
 
 
 def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,

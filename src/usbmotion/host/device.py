@@ -19,6 +19,7 @@ from enum import IntEnum
 from usbmotion.errors import (
     DeviceTimeoutError,
     ErrReplyError,
+    LinkCorruptedError,
     OutOfRangeError,
     QueueFullError,
     UnexpectedReplyError,
@@ -33,12 +34,18 @@ from usbmotion.protocol import (
     encode_call,
     parse_diagnostics,
     parse_reply,
+    values_crc32,
 )
 from usbmotion.protocol.table import Fault
 
 RESYNC_CALL = 63
 """The call whose debug flag marks a resynchronisation: the highest number call 8 takes,
 a call the table does not define, so its flag prints nothing."""
+
+HOMED_MARKER_CALL = 62
+"""The undefined call whose debug flag (a RAM variable: it survives a host, not a power
+cycle) a host sets once it has homed the device: a later host that reads it back knows the
+counter still holds the machine coordinates homing gave it."""
 
 _MARKERS = random.Random()
 """Draws the marker values: its own generator, seeded from the operating system, so a
@@ -97,6 +104,32 @@ class Alarm:
     def fault_name(self) -> str:
         """The fault's name (``following error``, ``limit switch``, ...)."""
         return Fault.NAMES.get(self.fault, f"fault {self.fault}")
+
+
+@dataclass(frozen=True, slots=True)
+class SwitchEdge:
+    """Call 36: the last edge of one limit switch, latched by the device on its tick.
+
+    ``edges`` counts the switch's edges since power-up (modulo 2**32; 0: none yet),
+    ``closed`` says whether the last one closed it, ``position_counts`` is the counter on
+    that tick (in the counter's current coordinates) and ``tick`` the clock after it.
+    """
+
+    switch: int
+    edges: int
+    closed: bool
+    position_counts: int
+    tick: int
+
+
+@dataclass(frozen=True, slots=True)
+class Replaced:
+    """What call 38 did: queued values kept (due before the tick), new values skipped
+    (already past when the line arrived) and added."""
+
+    kept: int
+    skipped: int
+    added: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -203,6 +236,7 @@ class DeviceClient:
         """Called with each ``ALARM`` line as it is read."""
         self.stray_lines = 0
         """Lines :meth:`read_pending` found that no call was waiting for (dropped)."""
+        self._replace_acknowledged = False
 
     @classmethod
     def open(cls, url: str, *, timeout_s: float = 1.0, name: str = "") -> DeviceClient:
@@ -454,6 +488,37 @@ class DeviceClient:
         queued, free = self._await_answer(2, after_error=True).values
         return queued, free
 
+    def replace_from(self, tick: int, values: Sequence[int]) -> Replaced:
+        """Call 38: the queue's future from device tick ``tick`` becomes ``values``.
+
+        Queued values due before ``tick`` are kept, value ``k`` is for tick ``tick + k x
+        scalar``, and values already past when the line arrives are skipped: the motion
+        changes from ``tick`` on without a seam. The device's acknowledgement (debug flag 1,
+        set on first use) is checked against what was sent.
+
+        Raises:
+            QueueFullError: the device answered ``E38`` (nothing changed).
+            LinkCorruptedError: the acknowledgement does not match the values sent.
+        """
+        if not self._replace_acknowledged:
+            self.set_debug_flag(38, 1)
+            self._replace_acknowledged = True
+        self.debug_lines = [r for r in self.debug_lines if r.call != 38]
+        self.transport.write(encode_call(38, tick, len(values), *values) + encode_call(2, -1))
+        self._await_answer(2, after_error=True)
+        acks = [r for r in self.debug_lines if r.call == 38]
+        self.debug_lines = [r for r in self.debug_lines if r.call != 38]
+        if len(acks) != 1:
+            raise LinkCorruptedError(
+                f"{self.name}: call 38 was acknowledged {len(acks)} times", device=self.name,
+                call=38)
+        kept, skipped, added, crc = acks[0].values
+        if added != len(values) - skipped or crc != values_crc32(list(values[skipped:])):
+            raise LinkCorruptedError(
+                f"{self.name}: call 38 acknowledged {acks[0].line!r}, which is not what was"
+                f" sent ({len(values)} values)", device=self.name, call=38)
+        return Replaced(kept, skipped, added)
+
     def queue_status(self) -> tuple[int, int]:
         """Call 2: (values queued, free slots)."""
         queued, free = self.query(2, -1).values
@@ -619,8 +684,28 @@ class DeviceClient:
         return self.query(22, -1).values[0]
 
     def set_position(self, counts: int) -> None:
-        """Call 23: set the actual position counter (clears the queue)."""
+        """Call 23: set the position counter to ``counts`` (a change of coordinates, as
+        :meth:`shift_position`; clears the queue)."""
         self.command(23, counts)
+
+    def shift_position(self, counts: int) -> None:
+        """Call 37: add ``counts`` to the position counter (a change of coordinates: the
+        desired position and the latched switch edges move with it, the loop goes on)."""
+        self.command(37, counts)
+
+    def switch_edge(self, switch: int) -> SwitchEdge:
+        """Call 36: the last edge of the lower (1) or upper (2) limit switch."""
+        number, edges, closed, position, tick = self.query(36, switch).values
+        return SwitchEdge(number, edges, closed == 1, position, tick)
+
+    def set_homed_marker(self, value: int) -> None:
+        """Mark the device as homed since its power-up (the flag of :data:`HOMED_MARKER_CALL`,
+        1..255; 0 clears the mark)."""
+        self.set_debug_flag(HOMED_MARKER_CALL, value)
+
+    def homed_marker(self) -> int:
+        """The homed mark (0 after a power cycle or when never set)."""
+        return self.debug_flag(HOMED_MARKER_CALL)
 
     def limits(self) -> tuple[bool, bool]:
         """Call 24: (lower pressed, upper pressed)."""

@@ -291,33 +291,39 @@ class GCodeProgram:
     ended_by: str
 
 
-def parse_gcode(text: str, *, file: str = "<string>") -> GCodeProgram:
+def parse_gcode(text: str, *, file: str = "<string>",
+                start: Vec3 = (0.0, 0.0, 0.0)) -> GCodeProgram:
     """Interpret a G-code program into moves.
 
     Parameters:
         text: the program.
         file: the name used in errors and in the result.
+        start: where the machine stands when the program starts (machine coordinates, mm):
+            the first move starts there, as LinuxCNC's interpreter starts from the
+            machine's current position.
 
     Raises:
         UnsupportedGCodeError: a word that would change the geometry is not supported.
         GCodeError: the program is invalid (bad syntax, bad arc, no feed rate, no
             program end, ...); ``file``, ``line``, ``column`` and ``word`` locate it.
     """
-    program, error = interpret_until_error(text, file=file)
+    program, error = interpret_until_error(text, file=file, start=start)
     if error is not None:
         raise error
     return program
 
 
 def interpret_until_error(
-    text: str, *, file: str = "<string>"
+    text: str, *, file: str = "<string>", start: Vec3 = (0.0, 0.0, 0.0)
 ) -> tuple[GCodeProgram, GCodeError | None]:
     """Interpret a G-code program, keeping the moves made before an error.
 
     Returns the program (complete, or up to the block before the error) and the error,
-    or ``None`` when the program is valid. Never raises for bad G-code.
+    or ``None`` when the program is valid. Never raises for bad G-code. ``start`` is where
+    the machine stands (see :func:`parse_gcode`).
     """
     interpreter = _Interpreter(file)
+    interpreter.position = [float(start[0]), float(start[1]), float(start[2])]
     error: GCodeError | None = None
     try:
         interpreter.run(tokenize(text, file=file), text)
@@ -339,14 +345,15 @@ def read_gcode_text(path: str | os.PathLike[str]) -> str:
         return data.decode("latin-1")
 
 
-def load_gcode(path: str | os.PathLike[str]) -> GCodeProgram:
+def load_gcode(path: str | os.PathLike[str], *,
+               start: Vec3 = (0.0, 0.0, 0.0)) -> GCodeProgram:
     """Read and interpret a G-code file (see :func:`parse_gcode`).
 
     Raises:
         OSError: the file cannot be read.
         GCodeError: as :func:`parse_gcode`, with ``file`` set to ``path``.
     """
-    return parse_gcode(read_gcode_text(path), file=os.fspath(path))
+    return parse_gcode(read_gcode_text(path), file=os.fspath(path), start=start)
 
 
 def move_record(move: Move) -> dict[str, object]:

@@ -206,7 +206,8 @@ def _to_int(token: str, call: int | None, position: int) -> int:
     digits = token.lstrip("+-").lstrip("0")
     if len(digits) > HUGE_DIGITS:
         return HugeInteger(token[0] == "-", digits)
-    return int(token)
+    value = int(digits or "0")
+    return -value if token[0] == "-" else value
 
 
 def _known_calls() -> str:

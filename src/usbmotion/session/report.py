@@ -1,0 +1,356 @@
+"""What a run says about itself: the report (figures, faults, why it stopped, the G-code
+words it ignored) and the trace of the devices' own diagnostics, for plots."""
+
+from __future__ import annotations
+
+from array import array
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from usbmotion.host.device import Diagnostics, MotionStats, Status
+from usbmotion.host.machine import Machine
+from usbmotion.motion.gcode import GCodeProgram, IgnoredWord
+from usbmotion.motion.planner import Plan
+
+PLAN_AXES = ("X", "Y", "Z")
+SETTLE_COUNTS = 2
+
+
+@dataclass(frozen=True, slots=True)
+class AxisResult:
+    """How one axis followed the program, from the device's own statistics (call 35).
+
+    The peak and RMS following error (desired - actual) are over every servo tick of the
+    run, not over sampled diagnostics lines; ``max_error_time_s`` and ``max_error_line``
+    say when, since the start, and at which program line the peak came. ``ticks`` is the
+    servo ticks counted; ``samples`` the diagnostics lines recorded for the plots.
+    """
+
+    name: str
+    max_error_counts: int
+    rms_error_counts: float
+    max_error_mm: float
+    rms_error_mm: float
+    final_error_counts: int
+    samples: int
+    ticks: int = 0
+    max_error_time_s: float = 0.0
+    max_error_line: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class FaultRecord:
+    """A fault seen during the run: which axis, what, when, and at which program line."""
+
+    axis: str
+    fault: str
+    time_s: float
+    line: int
+
+
+@dataclass(frozen=True, slots=True)
+class IgnoredWordRecord:
+    """A G-code word the run accepted without acting on it: the word as written, its line
+    and what it is for (spindle, coolant, ...)."""
+
+    word: str
+    line: int
+    meaning: str
+
+    @classmethod
+    def of(cls, word: IgnoredWord) -> IgnoredWordRecord:
+        """The record of an interpreter's ignored word."""
+        return cls(word.word, word.line, word.meaning)
+
+
+@dataclass(frozen=True, slots=True)
+class RunReport:
+    """The figures of one run.
+
+    ``stop_reason`` says why the run ended, in words: ``completed``, ``interrupted by the
+    user``, ``terminated (SIGTERM)``, ``fault: axis X following error``, ``link lost: ...``;
+    ``completed`` is True only for the first. ``stopped_at_s`` is the program time at which
+    motion ended (the planned time for a completed run), and ``stop_distance_mm`` how far
+    the path went from the moment the stop began to rest (0 when it completed).
+    """
+
+    program: str
+    machine: str
+    moves: int
+    setpoints_per_axis: int
+    planned_time_s: float
+    executed_time_s: float
+    settle_time_s: float
+    homing_time_s: float
+    axes: tuple[AxisResult, ...]
+    faults: tuple[FaultRecord, ...]
+    ignored_words: tuple[IgnoredWordRecord, ...]
+    end_position_mm: Mapping[str, float]
+    completed: bool
+    stop_reason: str = "completed"
+    stopped_at_s: float = 0.0
+    stopped_at_line: int = 0
+    stopped_at_setpoint: int = 0
+    stop_distance_mm: float = 0.0
+    skew_estimate_s: float = 0.0
+    endpoints_checked: int = 0
+    max_endpoint_miss_mm: float = 0.0
+    link_error: str = ""
+    notes: tuple[str, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        """The report as plain JSON-ready data."""
+        data = asdict(self)
+        data["end_position_mm"] = dict(self.end_position_mm)
+        return data
+
+
+@dataclass(slots=True)
+class Trace:
+    """What the run recorded, for plots: device diagnostics per axis, in device ticks.
+
+    Each store holds 64-bit integers in an ``array`` (8 bytes a value), so a long program
+    costs 32 bytes per diagnostics line and axis.
+    """
+
+    tick_s: float
+    start_tick: int
+    clock: dict[str, array[int]] = field(default_factory=dict)
+    desired: dict[str, array[int]] = field(default_factory=dict)
+    actual: dict[str, array[int]] = field(default_factory=dict)
+    queued: dict[str, array[int]] = field(default_factory=dict)
+    counts_per_mm: dict[str, float] = field(default_factory=dict)
+
+    def record(self, axis: str) -> Callable[[Diagnostics], None]:
+        """A diagnostics callback that appends to this trace."""
+        stores = (self.clock, self.desired, self.actual, self.queued)
+        for store in stores:
+            store.setdefault(axis, array("q"))
+        clock, desired, actual, queued = (store[axis] for store in stores)
+
+        def on_line(line: Diagnostics) -> None:
+            clock.append(line.clock)
+            desired.append(line.desired)
+            actual.append(line.actual_counts)
+            queued.append(line.queued)
+
+        return on_line
+
+    def column(self, store: dict[str, array[int]], axis: str) -> npt.NDArray[np.int64]:
+        """One store of one axis as a numpy array (a copy)."""
+        values = store.get(axis)
+        if values is None:
+            return np.zeros(0, dtype=np.int64)
+        return np.frombuffer(values, dtype=np.int64).copy()
+
+    def arrays(self, axis: str) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64],
+                                         npt.NDArray[np.int64]]:
+        """(time since start s, desired counts, actual counts) of one axis."""
+        clock = self.column(self.clock, axis)
+        return ((clock - self.start_tick).astype(np.float64) * self.tick_s,
+                self.column(self.desired, axis), self.column(self.actual, axis))
+
+
+def line_at(plan: Plan, time_s: float) -> int:
+    """The G-code line being executed at ``time_s`` into the plan."""
+    if len(plan) == 0:
+        return 0
+    index = int(np.searchsorted(plan.start_time_s, time_s, side="right")) - 1
+    return int(plan.line[min(max(index, 0), len(plan) - 1)])
+
+
+def build_report(
+    program: GCodeProgram,
+    machine: Machine,
+    plan: Plan,
+    setpoint_count: int,
+    trace: Trace,
+    homing_s: float,
+    statuses: Mapping[str, Status],
+    stats: Mapping[str, MotionStats],
+    faults: list[FaultRecord],
+    *,
+    completed: bool,
+    consumed: int,
+    skew_s: float,
+    stop_reason: str,
+    stop_distance_mm: float = 0.0,
+    link_error: str = "",
+    notes: tuple[str, ...] = (),
+) -> RunReport:
+    """The report of a run from what the devices said at its end."""
+    config = machine.config
+    period_s = config.motion_period_s
+    results: list[AxisResult] = []
+    executed_s = 0.0
+    settle_s = 0.0
+    for name in PLAN_AXES:
+        times, desired, actual = trace.arrays(name)
+        in_run = times >= 0
+        error = (desired - actual)[in_run]
+        t_run = times[in_run]
+        if error.size:
+            late = np.nonzero(np.abs(error) > SETTLE_COUNTS)[0]
+            settle_s = max(settle_s, float(t_run[late[-1]]) if late.size else 0.0)
+        scale = machine.axis(name).config.counts_per_mm
+        axis_stats = stats.get(name, MotionStats(0, 0, 0, 0, -1))
+        if axis_stats.last_take_tick >= 0:
+            executed_s = max(executed_s,
+                             (axis_stats.last_take_tick - trace.start_tick) * trace.tick_s)
+        peak_s = max(0.0, (axis_stats.max_error_tick - trace.start_tick) * trace.tick_s)
+        status = statuses.get(name)
+        results.append(AxisResult(
+            name, axis_stats.max_error_counts, axis_stats.rms_error_counts,
+            axis_stats.max_error_counts / scale, axis_stats.rms_error_counts / scale,
+            status.desired_counts - status.actual_counts if status is not None else 0,
+            int(error.size), ticks=axis_stats.ticks, max_error_time_s=peak_s,
+            max_error_line=line_at(plan, peak_s) if axis_stats.ticks else 0,
+        ))
+    end_positions = {
+        name: machine.axis(name).scale.to_mm(status.actual_counts)
+        for name, status in statuses.items()
+    }
+    stopped_time = consumed * period_s
+    checked, miss = _endpoint_misses(program, trace) if completed else (0, 0.0)
+    return RunReport(
+        program=program.file,
+        machine=config.name,
+        moves=len(program.moves),
+        setpoints_per_axis=setpoint_count,
+        planned_time_s=plan.duration_s,
+        executed_time_s=executed_s if completed else stopped_time,
+        settle_time_s=max(settle_s, executed_s) if completed else stopped_time,
+        homing_time_s=homing_s,
+        axes=tuple(results),
+        faults=tuple(faults),
+        ignored_words=tuple(IgnoredWordRecord.of(w) for w in program.ignored),
+        end_position_mm=end_positions,
+        completed=completed and not faults,
+        stop_reason=stop_reason,
+        stopped_at_s=plan.duration_s if completed else stopped_time,
+        stop_distance_mm=stop_distance_mm,
+        stopped_at_line=0 if completed else line_at(plan, stopped_time),
+        stopped_at_setpoint=0 if completed else consumed,
+        skew_estimate_s=skew_s,
+        endpoints_checked=checked,
+        max_endpoint_miss_mm=miss,
+        link_error=link_error,
+        notes=notes,
+    )
+
+
+def _actual_path_mm(trace: Trace) -> npt.NDArray[np.float64]:
+    """The actual XYZ positions (mm) at the diagnostics ticks all three axes reported."""
+    clocks = [trace.column(trace.clock, n) for n in PLAN_AXES]
+    common = clocks[0]
+    for other in clocks[1:]:
+        common = np.intersect1d(common, other)
+    columns = []
+    for name, clock in zip(PLAN_AXES, clocks, strict=True):
+        actual = trace.column(trace.actual, name).astype(np.float64)
+        index = np.searchsorted(clock, common)
+        columns.append(actual[index] / trace.counts_per_mm[name])
+    return np.stack(columns, axis=1) if common.size else np.empty((0, 3))
+
+
+def _endpoint_misses(program: GCodeProgram, trace: Trace) -> tuple[int, float]:
+    """How many programmed end points, and how far the actual path passed from the worst.
+
+    The path is the polyline through the recorded positions: the distance to an end point
+    is to the nearest point of a segment, not of a sample.
+    """
+    path = _actual_path_mm(trace)
+    ends = np.array([m.end for m in program.moves if hasattr(m, "end")], dtype=np.float64)
+    if not path.size or not ends.size:
+        return 0, 0.0
+    if path.shape[0] == 1:
+        return int(ends.shape[0]), float(np.max(np.linalg.norm(ends - path[0], axis=1)))
+    starts = path[:-1]
+    spans = path[1:] - starts
+    lengths_sq = np.einsum("ij,ij->i", spans, spans)
+    longest = float(np.sqrt(lengths_sq.max()))
+    last = len(starts) - 1
+    worst = 0.0
+    for end in ends:
+        offsets = path - end
+        dist_sq = np.einsum("ij,ij->i", offsets, offsets)
+        # A segment can pass closer than its ends only if an end is within the nearest
+        # sample's distance plus the longest segment: only those segments are measured.
+        reach = float(np.sqrt(dist_sq.min())) + longest
+        near = np.nonzero(dist_sq <= reach * reach)[0]
+        index = np.unique(np.clip(np.concatenate((near - 1, near)), 0, last))
+        seg_offsets = offsets[index]
+        seg_spans = spans[index]
+        seg_lengths = lengths_sq[index]
+        along = np.zeros(len(index))
+        moving = seg_lengths > 0
+        along[moving] = np.clip(
+            -np.einsum("ij,ij->i", seg_offsets[moving], seg_spans[moving]) / seg_lengths[moving],
+            0.0, 1.0,
+        )
+        gaps = seg_offsets + along[:, None] * seg_spans
+        worst = max(worst, float(np.sqrt(np.min(np.einsum("ij,ij->i", gaps, gaps)))))
+    return int(ends.shape[0]), worst
+
+
+def describe(report: RunReport) -> str:
+    """The report as a few lines of text for a person."""
+    lines = [
+        f"program        {Path(report.program).name} ({report.moves} moves,"
+        f" {report.setpoints_per_axis} setpoints per axis)",
+        f"machine        {report.machine}",
+        f"homing         {report.homing_time_s:.3f} s",
+        f"planned time   {report.planned_time_s:.3f} s",
+        f"executed time  {report.executed_time_s:.3f} s (settled at {report.settle_time_s:.3f} s)",
+        "following error (every servo tick, desired - actual):",
+    ]
+    for axis in report.axes:
+        lines.append(
+            f"  {axis.name}  max {axis.max_error_mm:8.4f} mm ({axis.max_error_counts:5d} counts)"
+            f" at {axis.max_error_time_s:.3f} s, line {axis.max_error_line}"
+            f"   rms {axis.rms_error_mm:8.4f} mm ({axis.rms_error_counts:8.2f} counts)"
+        )
+    position = "  ".join(f"{k} {v:.3f}" for k, v in report.end_position_mm.items())
+    lines.append(f"end position   {position} mm")
+    if report.endpoints_checked:
+        lines.append(f"end points     {report.endpoints_checked} programmed, the actual path passed"
+                     f" within {report.max_endpoint_miss_mm:.4f} mm of each")
+    lines.append(f"result         {report.stop_reason}")
+    lines.append("faults         " + ("; ".join(
+        f"axis {f.axis}: {f.fault} at {f.time_s:.3f} s, line {f.line}" for f in report.faults
+    ) or "none"))
+    lines.append("ignored words  " + (", ".join(
+        f"{w.word} (line {w.line}: {w.meaning})" for w in report.ignored_words) or "none"))
+    if report.link_error:
+        lines.append(f"LINK LOST      {report.link_error}")
+    for note in report.notes:
+        lines.append(f"note           {note}")
+    if not report.completed:
+        what = "last setpoint the device confirmed" if report.link_error else "setpoint"
+        lines.append(f"STOPPED ({report.stop_reason}) at program line {report.stopped_at_line},"
+                     f" {what} {report.stopped_at_setpoint} of {report.setpoints_per_axis},"
+                     f" {report.stopped_at_s:.3f} s into the program")
+        if report.stop_distance_mm:
+            lines.append(f"stop           along the path in {report.stop_distance_mm:.3f} mm"
+                         " (its planned deceleration)")
+    return "\n".join(lines)
+
+
+def unstarted_report(program: GCodeProgram, machine_name: str, plan: Plan, *,
+                     setpoints_per_axis: int, homing_s: float, stop_reason: str,
+                     end_position_mm: Mapping[str, float],
+                     notes: tuple[str, ...] = ()) -> RunReport:
+    """The report of a run that ended before its program started (homing stopped or
+    failed): nothing of the program ran."""
+    return RunReport(
+        program=program.file, machine=machine_name, moves=len(program.moves),
+        setpoints_per_axis=setpoints_per_axis, planned_time_s=plan.duration_s,
+        executed_time_s=0.0, settle_time_s=0.0, homing_time_s=homing_s, axes=(), faults=(),
+        ignored_words=tuple(IgnoredWordRecord.of(w) for w in program.ignored),
+        end_position_mm=dict(end_position_mm), completed=False, stop_reason=stop_reason,
+        stopped_at_s=0.0, stopped_at_line=0, stopped_at_setpoint=0, notes=notes)
