@@ -35,6 +35,20 @@ void mq_clear(void) {
     spin_unlock(motion_queue.core.spin_lock, save);
 }
 
+/* Keeps the first count values from the head (the ones core1 takes next), drops the rest:
+ * the write index moves back, so it costs the same whatever the number dropped. */
+void mq_truncate(uint32_t count) {
+    uint32_t save = spin_lock_blocking(motion_queue.core.spin_lock);
+    if (count < queue_get_level_unsafe(&motion_queue)) {
+        uint32_t slot = motion_queue.rptr + count;
+        if (slot > motion_queue.element_count) {
+            slot -= (uint32_t)motion_queue.element_count + 1;
+        }
+        motion_queue.wptr = (uint16_t)slot;
+    }
+    spin_unlock(motion_queue.core.spin_lock, save);
+}
+
 int32_t mq_peek(uint32_t index) {
     int32_t value = 0;
     uint32_t save = spin_lock_blocking(motion_queue.core.spin_lock);
