@@ -187,7 +187,7 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
             prepared.program, config.name, prepared.plan,
             setpoints_per_axis=sample_count(prepared.plan, config.motion_period_s),
             homing_s=homing_s, stop_reason=reason, end_position_mm=where,
-            notes=tuple(session.notices)), None, prepared
+            stop_latency_s=session.stop_latency_s, notes=tuple(session.notices)), None, prepared
 
     try:
         if not (no_home or session.is_homed):

@@ -5,7 +5,8 @@ A program's setpoints ``S[i]`` (one row per motion period, one column per axis) 
 travelled at the planned speed. Stopping keeps the path and slows the clock along it: the
 path parameter advances by ``r`` samples per period, ``r`` falling from 1 by the same step
 ``delta`` each period until it reaches 0. Near the stop point the path velocity is ``v``
-(counts per second per axis), so each axis decelerates at ``|v_k| delta / dt``; ``delta``
+(counts per second per axis, measured over the last few periods), so each axis
+decelerates at ``|v_k| delta / dt``; ``delta``
 is the largest that keeps every axis within its acceleration limit, the planner's own
 deceleration along that direction. On a straight path at constant speed the axes stop
 after ``v^2 / (2 a)``, exactly what a trapezoid's ramp takes; where the path curves or
@@ -27,6 +28,9 @@ IntArray = npt.NDArray[np.int64]
 QUANTUM_COUNTS = 2.0
 """Second differences of integer setpoints carry up to this much rounding (counts)."""
 _TRIES = 12
+VELOCITY_SPAN = 8
+"""Periods the path's velocity at the stop is measured over: integer setpoints make a single
+difference up to a count off (20 % at 5 counts a period)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -80,10 +84,13 @@ def stop_setpoints(
     empty = np.zeros((0, path.shape[1]), dtype=np.int64)
     if start == 0 or start >= count:
         return Stop(empty, float(max(0, min(start, count) - 1)), 1.0)
-    here = path[start - 1]
-    velocity = (path[start] - here) / period_s
-    if not np.any(velocity):
+    span = min(start, VELOCITY_SPAN)
+    velocity = (path[start - 1] - path[start - 1 - span]) / (span * period_s) if span else (
+        path[start] - path[start - 1]) / period_s
+    if not np.any(path[start] - path[start - 1]) and not np.any(velocity):
         return Stop(empty, float(start - 1), 1.0)
+    if not np.any(velocity):
+        velocity = (path[start] - path[start - 1]) / period_s
     step = float(np.min(limits[velocity != 0] * period_s / np.abs(velocity[velocity != 0])))
     step = min(step, 1.0)
     bound = limits * period_s * period_s + QUANTUM_COUNTS

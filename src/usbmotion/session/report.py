@@ -75,8 +75,11 @@ class RunReport:
     ``stop_reason`` says why the run ended, in words: ``completed``, ``interrupted by the
     user``, ``terminated (SIGTERM)``, ``fault: axis X following error``, ``link lost: ...``;
     ``completed`` is True only for the first. ``stopped_at_s`` is the program time at which
-    motion ended (the planned time for a completed run), and ``stop_distance_mm`` how far
-    the path went from the moment the stop began to rest (0 when it completed).
+    motion ended (the planned time for a completed run). A stopped run says how it
+    stopped: ``stop_distance_mm`` from the commanded position where the stop began to where
+    the axes came to rest (measured: their encoders), ``stop_planned_mm`` the planned
+    deceleration's ``v^2 / 2a`` from the speed there, and ``stop_latency_s`` from the stop
+    request (or the fault seen) to every axis at rest (0 when the run completed).
     """
 
     program: str
@@ -97,6 +100,8 @@ class RunReport:
     stopped_at_line: int = 0
     stopped_at_setpoint: int = 0
     stop_distance_mm: float = 0.0
+    stop_planned_mm: float = 0.0
+    stop_latency_s: float = 0.0
     skew_estimate_s: float = 0.0
     endpoints_checked: int = 0
     max_endpoint_miss_mm: float = 0.0
@@ -180,6 +185,8 @@ def build_report(
     skew_s: float,
     stop_reason: str,
     stop_distance_mm: float = 0.0,
+    stop_planned_mm: float = 0.0,
+    stop_latency_s: float = 0.0,
     link_error: str = "",
     notes: tuple[str, ...] = (),
 ) -> RunReport:
@@ -234,6 +241,8 @@ def build_report(
         stop_reason=stop_reason,
         stopped_at_s=plan.duration_s if completed else stopped_time,
         stop_distance_mm=stop_distance_mm,
+        stop_planned_mm=stop_planned_mm,
+        stop_latency_s=stop_latency_s,
         stopped_at_line=0 if completed else line_at(plan, stopped_time),
         stopped_at_setpoint=0 if completed else consumed,
         skew_estimate_s=skew_s,
@@ -335,15 +344,19 @@ def describe(report: RunReport) -> str:
         lines.append(f"STOPPED ({report.stop_reason}) at program line {report.stopped_at_line},"
                      f" {what} {report.stopped_at_setpoint} of {report.setpoints_per_axis},"
                      f" {report.stopped_at_s:.3f} s into the program")
-        if report.stop_distance_mm:
-            lines.append(f"stop           along the path in {report.stop_distance_mm:.3f} mm"
-                         " (its planned deceleration)")
+        if report.stop_latency_s and not (report.stop_planned_mm or report.stop_distance_mm):
+            lines.append(f"stop           every axis at rest {report.stop_latency_s * 1000:.0f} ms"
+                         " after it was asked")
+        if report.stop_planned_mm or report.stop_distance_mm:
+            lines.append(f"stop           along the path to rest in {report.stop_distance_mm:.3f}"
+                         f" mm (planned deceleration v^2/2a {report.stop_planned_mm:.3f} mm),"
+                         f" at rest {report.stop_latency_s * 1000:.0f} ms after it was asked")
     return "\n".join(lines)
 
 
 def unstarted_report(program: GCodeProgram, machine_name: str, plan: Plan, *,
                      setpoints_per_axis: int, homing_s: float, stop_reason: str,
-                     end_position_mm: Mapping[str, float],
+                     end_position_mm: Mapping[str, float], stop_latency_s: float = 0.0,
                      notes: tuple[str, ...] = ()) -> RunReport:
     """The report of a run that ended before its program started (homing stopped or
     failed): nothing of the program ran."""
@@ -353,4 +366,5 @@ def unstarted_report(program: GCodeProgram, machine_name: str, plan: Plan, *,
         executed_time_s=0.0, settle_time_s=0.0, homing_time_s=homing_s, axes=(), faults=(),
         ignored_words=tuple(IgnoredWordRecord.of(w) for w in program.ignored),
         end_position_mm=dict(end_position_mm), completed=False, stop_reason=stop_reason,
-        stopped_at_s=0.0, stopped_at_line=0, stopped_at_setpoint=0, notes=notes)
+        stopped_at_s=0.0, stopped_at_line=0, stopped_at_setpoint=0,
+        stop_latency_s=stop_latency_s, notes=notes)

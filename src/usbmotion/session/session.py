@@ -91,7 +91,9 @@ STOP_LEAD_S = 0.005
 """How far ahead of the devices' present tick a stop replaces the queued future: covers
 the time the lines take to reach every device (one that arrives late skips what is past)."""
 REST_TIMEOUT_S = 5.0
-"""The longest a stop waits for every axis to come to rest after its deceleration."""
+"""The longest a stop waits for every axis's queue to play out its deceleration."""
+SETTLE_TIMEOUT_S = 1.0
+"""How long a stopped axis then has to settle within SETTLE_COUNTS of where it was sent."""
 
 
 def homed_mark(config: MachineConfig, axis: AxisConfig) -> int:
@@ -133,6 +135,8 @@ class _Requests:
 
     reason: str = ""
     count: int = 0
+    at_s: float = 0.0
+    """When the first request came (the session's clock)."""
     notes: list[str] = field(default_factory=list)
 
 
@@ -160,6 +164,8 @@ class MachineSession:
         """The program last prepared (the active program)."""
         self.zeroes: dict[str, MachineZero] = {}
         """Axis -> how the last homing set its machine zero."""
+        self.stop_latency_s = 0.0
+        """From the last stop request to every axis at rest, seconds."""
         self.faults_found: dict[str, tuple[int, int]] = {}
         """Axis -> (fault code, device tick) of a fault an earlier host left, which the
         take-over cleared."""
@@ -325,6 +331,7 @@ class MachineSession:
         requests = self._requests
         requests.count += 1
         if not requests.reason:
+            requests.at_s = self.clock.now()
             requests.reason = reason
 
     @property
@@ -392,6 +399,7 @@ class MachineSession:
                          should_stop=lambda: self._requests.reason)
         except StopRequestedError:
             self._settle_homing(io)
+            self.stop_latency_s = self.clock.now() - self._requests.at_s
             self._state = MachineState.IDLE
             raise
         except (SequenceFaultError, UsbMotionError):
@@ -524,26 +532,41 @@ class MachineSession:
     # --- shared waits -------------------------------------------------------------------------
 
     def _wait_for_rest(self, names: list[str], *, poll_s: float = 0.01) -> None:
-        """Wait until every named axis's queue is empty and it has stopped moving."""
-        deadline = self.clock.now() + REST_TIMEOUT_S
+        """Wait until every named axis that is enabled has played out its queue and settled
+        (within :data:`SETTLE_COUNTS` of its commanded position, not moving); an axis that
+        keeps a larger error is accepted after :data:`SETTLE_TIMEOUT_S`: its servo holds it.
+
+        Raises:
+            DeviceError: a queue did not play out within :data:`REST_TIMEOUT_S`.
+        """
+        clock = self.clock
+        deadline = clock.now() + REST_TIMEOUT_S
+        settle_by: float | None = None
         last: dict[str, int] = {}
         while True:
             if self._stop_now_requested():
                 self.machine.stop()
                 return
-            still = False
+            playing = settling = False
             for name in names:
                 status = self.machine.axis(name).client.status()
+                if not status.enabled:
+                    continue
                 moved = abs(status.actual_counts - last.get(name, 2**40)) > 1
-                if status.enabled and (status.queued or moved):
-                    still = True
                 last[name] = status.actual_counts
-            if not still:
-                return
-            if self.clock.now() > deadline:
+                if status.queued:
+                    playing = True
+                elif moved or abs(status.desired_counts - status.actual_counts) > SETTLE_COUNTS:
+                    settling = True
+            now = clock.now()
+            if not playing:
+                settle_by = now + SETTLE_TIMEOUT_S if settle_by is None else settle_by
+                if not settling or now > settle_by:
+                    return
+            elif now > deadline:
                 raise DeviceError(f"axes {', '.join(names)} did not come to rest",
                                   device=", ".join(names))
-            self.clock.sleep(poll_s)
+            clock.sleep(poll_s)
 
 
 def _keep_alive_polls(watchdog_ms: int) -> int:
@@ -580,6 +603,8 @@ class _Run:
         self.streams: dict[str, SetpointStream] = {}
         self.start_tick = 0
         self.stop_distance_mm = 0.0
+        self.stop_planned_mm = 0.0
+        self.stop_latency_s = 0.0
         self.stopped_index: float | None = None
 
     # the devices' view of time -----------------------------------------------------------------
@@ -707,6 +732,7 @@ class _Run:
         tick = max(tick, self.start_tick + index * scalar)
         accel = [self.config.axis(n).max_accel_mm_s2 * self.config.axis(n).counts_per_mm
                  for n in PLAN_AXES]
+        asked_s = session._requests.at_s if session.stop_requested else clock.now()
         if index == 0 or index >= self.setpoints.shape[0]:
             stop_rows = np.zeros((0, 3), dtype=np.int64)
             end = float(min(index, self.setpoints.shape[0]) - 1)
@@ -714,21 +740,30 @@ class _Run:
             stop = stop_setpoints(self.setpoints, index, period_s=self.period_s,
                                   accel_counts_s2=accel)
             stop_rows, end = stop.setpoints, stop.end_index
+            speed_mm_s = float(np.linalg.norm(
+                (self.setpoints[index] - self.setpoints[index - 1]) / self.counts_per_mm)
+                / self.period_s)
+            decel_mm_s2 = stop.step * speed_mm_s / self.period_s
+            if decel_mm_s2 > 0:
+                self.stop_planned_mm = speed_mm_s**2 / (2 * decel_mm_s2)
         for column, name in enumerate(PLAN_AXES):
             client = machine.axis(name).client
             try:
                 client.replace_from(tick, stop_rows[:, column].tolist())
             except UsbMotionError as error:
                 self.notes.append(f"axis {name}: could not replace its queue ({error})")
-        if index > 0 and stop_rows.shape[0]:
-            path = np.vstack((self.setpoints[index - 1 : index], stop_rows)) / self.counts_per_mm
-            self.stop_distance_mm = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
         self.stopped_index = end
         try:
             session._wait_for_rest(list(PLAN_AXES))
         except DeviceError as error:
             self.notes.append(f"stop: {error}")
             machine.stop()
+        self.stop_latency_s = clock.now() - asked_s
+        if index > 0:
+            statuses = machine.status()
+            rest = np.array([statuses[n].actual_counts for n in PLAN_AXES], dtype=np.float64)
+            began = self.setpoints[index - 1].astype(np.float64)
+            self.stop_distance_mm = float(np.linalg.norm((rest - began) / self.counts_per_mm))
         if session._stop_now_requested():
             self.notes.append("a second stop request stopped every axis at once (servos off:"
                               " the axes coasted)")
@@ -760,7 +795,8 @@ class _Run:
             self.prepared.program, machine, self.plan, self.setpoints.shape[0], self.trace,
             self.homing_s, statuses, stats, self.faults, completed=completed,
             consumed=confirmed, skew_s=self.sync.estimated_skew_s, stop_reason=reason,
-            stop_distance_mm=self.stop_distance_mm, link_error=link_error,
+            stop_distance_mm=self.stop_distance_mm, stop_planned_mm=self.stop_planned_mm,
+            stop_latency_s=self.stop_latency_s, link_error=link_error,
             notes=tuple(session._requests.notes + self.notes))
         faulted = bool(self.faults) or bool(link_error) or any(
             s.fault != FaultCode.NONE for s in statuses.values())

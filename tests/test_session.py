@@ -1,0 +1,315 @@
+"""The machine session in virtual time: state, taking over, homing, soft limits, programs
+that start where the machine stands, and stops along the deceleration."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from usbmotion.automation import device_io
+from usbmotion.cli.run import default_machine
+from usbmotion.device import Device
+from usbmotion.errors import (
+    MachineStateError,
+    SequenceFaultError,
+    SoftLimitError,
+    StopRequestedError,
+)
+from usbmotion.host.config import MachineConfig, load_config, parse_config
+from usbmotion.protocol.table import Fault
+from usbmotion.session import (
+    TRANSITIONS,
+    MachineSession,
+    MachineState,
+    StopReason,
+    check_transition,
+    home_position_mm,
+)
+from usbmotion.sim.world import SimWorld
+
+LINE = "G21 G90\nG1 X150 F1200\nM2\n"
+"""A straight line at 20 mm/s, X's fastest on the default machine."""
+
+
+@pytest.fixture(scope="module")
+def config() -> MachineConfig:
+    return load_config(default_machine())
+
+
+def _devices(session: MachineSession) -> dict[str, Device]:
+    world = session.machine.world
+    assert world is not None
+    devices = {}
+    for name in session.machine.axes:
+        device = world.device(name)
+        assert isinstance(device, Device)
+        devices[name] = device
+    return devices
+
+
+def test_every_state_change_is_one_of_the_documented_transitions() -> None:
+    for state in MachineState:
+        for wanted in MachineState:
+            if wanted in TRANSITIONS[state]:
+                check_transition(state, wanted)
+            else:
+                with pytest.raises(MachineStateError, match=f"in {state.value}: it cannot go"):
+                    check_transition(state, wanted)
+    assert MachineState.IDLE in TRANSITIONS[MachineState.ALARM], "reset leaves Alarm"
+    assert TRANSITIONS[MachineState.ALARM] == {MachineState.IDLE}, "only reset leaves Alarm"
+
+
+def test_a_program_starts_where_the_machine_stands_and_can_run_twice(
+        config: MachineConfig) -> None:
+    with MachineSession.connect(config) as session:
+        assert session.state is MachineState.IDLE and not session.is_homed
+        session.home()
+        assert session.is_homed
+        step = "G21 G91\nG1 X10 Y5 F600\nM2\n"
+        first = session.prepare("step.ngc", text=step)
+        assert first.start_mm == tuple(home_position_mm(config.axis(n)) for n in "XYZ")
+        report, _ = session.run(first)
+        assert report.completed and report.stop_reason == "completed"
+        second = session.prepare("step.ngc", text=step)
+        assert second.start_mm == pytest.approx((10.0, 5.0, 0.0), abs=1 / 240)
+        report, _ = session.run(second)
+        assert report.completed
+        assert session.positions_mm()["X"] == pytest.approx(20.0, abs=1 / 240)
+        with pytest.raises(MachineStateError, match="prepare it again"):
+            session.run(first)
+
+
+def test_moves_to_zero_after_homing_touch_no_switch(config: MachineConfig) -> None:
+    """The switch is outside the travel: G0 X0 and a CAM retract (G28 G91 Z0) are moves,
+    not faults."""
+    program = "G21 G90\nG0 X50 Y40 Z20\nG0 X0 Y0\nG28 G91 Z0\nG90 G0 X0 Y0 Z0\nM2\n"
+    with MachineSession.connect(config) as session:
+        session.home()
+        report, _ = session.run(session.prepare("zero.ngc", text=program))
+        assert report.completed and report.faults == ()
+        for name, status in session.machine.status().items():
+            assert status.desired_counts == 0, name
+            assert not status.lower_limit and status.fault == 0
+
+
+@pytest.mark.parametrize(("program", "line", "axis", "coordinate", "limit"), [
+    ("G21 G90\nG0 X20\nG0 X300\nM2\n", 3, "X", 300.0, 200.0),
+    ("G21 G90\nG0 X60 Y5\nG3 X100 Y5 I20 J0 F600\nM2\n", 3, "Y", None, 0.0),
+    ("G21 G91\nG1 Z-0.5 F100\nM2\n", 2, "Z", -0.5, 0.0),
+])
+def test_a_program_that_leaves_the_travel_is_refused_before_anything_moves(
+        config: MachineConfig, program: str, line: int, axis: str, coordinate: float | None,
+        limit: float) -> None:
+    with MachineSession.connect(config) as session:
+        session.home()
+        devices = _devices(session)
+        before = {name: (d.state.desired, d.state.queued, d.settings) for name, d in
+                  devices.items()}
+        with pytest.raises(SoftLimitError) as caught:
+            session.prepare("far.ngc", text=program)
+        error = caught.value
+        assert (error.line, error.axis, error.limit_mm) == (line, axis, limit)
+        if coordinate is not None:
+            assert error.coordinate_mm == pytest.approx(coordinate)
+        assert f"line {line}: {axis} would reach" in str(error)
+        assert "nothing was moved" in str(error)
+        after = {name: (d.state.desired, d.state.queued, d.settings) for name, d in
+                 devices.items()}
+        assert after == before, "no setpoint was sent"
+
+
+def test_an_unhomed_machine_plans_where_homing_will_leave_it(config: MachineConfig) -> None:
+    with MachineSession.connect(config) as session:
+        prepared = session.prepare("p.ngc", text="G21 G90\nG0 X300\nM2\n", unhomed=True)
+        assert not prepared.homed, "in the devices' own counts: no soft limits"
+        with pytest.raises(SoftLimitError):
+            session.prepare("p.ngc", text="G21 G90\nG0 X300\nM2\n")
+        homed = session.prepare("p.ngc", text="G21 G90\nG0 X30\nM2\n")
+        assert homed.homed and homed.start_mm == (0.0, 0.0, 0.0)
+        with pytest.raises(MachineStateError, match="home it first"):
+            session.run(homed)
+
+
+def _stop_mid_run(session: MachineSession, at_s: float, *, twice: bool = False) -> None:
+    """Ask the session to stop once the program reaches ``at_s`` (from its progress)."""
+    asked = [False]
+
+    def progress(done_s: float, total_s: float) -> None:
+        if done_s >= at_s and not asked[0]:
+            asked[0] = True
+            session.request_stop()
+            if twice:
+                session.request_stop()
+
+    report, trace = session.run(session.prepare("line.ngc", text=LINE), on_progress=progress)
+    assert asked[0]
+    session.last = (report, trace)  # type: ignore[attr-defined]
+
+
+def test_a_stop_mid_run_decelerates_along_the_path_within_v2_over_2a(
+        config: MachineConfig) -> None:
+    with MachineSession.connect(config) as session:
+        session.home()
+        devices = _devices(session)
+        _stop_mid_run(session, 3.0)
+        report, trace = session.last  # type: ignore[attr-defined]
+        assert report.stop_reason == StopReason.USER.value and not report.completed
+        assert session.state is MachineState.IDLE, "at rest: Hold ended"
+        planned = 20.0**2 / (2 * 500.0)
+        assert report.stop_planned_mm == pytest.approx(planned, rel=0.05)
+        assert report.stop_distance_mm <= report.stop_planned_mm + 0.05, (
+            "within the planned deceleration (plus the following error)")
+        assert report.stop_distance_mm > 0.5 * planned, "a deceleration, not a dead stop"
+        for name, device in devices.items():
+            state = device.state
+            assert state.enable == 1, f"{name}: still servoing at rest (no coasting)"
+            assert state.queued == 0 and state.velocity == 0
+            assert abs(state.desired - state.actual) <= 2
+        times, desired, _ = trace.arrays("X")
+        steps = np.abs(np.diff(desired)) / np.diff(times)
+        assert steps.max() <= 20.0 * 240 * 1.02, "no jump in the commanded path at the stop"
+        assert 3.0 <= report.stopped_at_s <= 3.5, "where it was when asked (progress is sparse)"
+        session.shutdown()
+        assert all(d.state.enable == 0 and d.state.fault == Fault.NONE
+                   for d in devices.values()), "servos off, no fault latched"
+
+
+def test_a_second_stop_request_stops_at_once(config: MachineConfig) -> None:
+    with MachineSession.connect(config) as session:
+        session.home()
+        _stop_mid_run(session, 2.0, twice=True)
+        report, _ = session.last  # type: ignore[attr-defined]
+        assert not report.completed
+        assert any("stopped every axis at once" in note for note in report.notes), report.notes
+        assert all(not s.enabled for s in session.machine.status().values())
+
+
+def test_a_stop_during_homing_brings_every_axis_to_rest_unhomed(
+        config: MachineConfig, monkeypatch: pytest.MonkeyPatch) -> None:
+    original = device_io.DeviceHomingIO.after_poll
+    polls = [0]
+    with MachineSession.connect(config) as session:
+
+        def after_poll(self: device_io.DeviceHomingIO) -> None:
+            original(self)
+            polls[0] += 1
+            if polls[0] == 40:
+                session.request_stop()
+
+        monkeypatch.setattr(device_io.DeviceHomingIO, "after_poll", after_poll)
+        with pytest.raises(StopRequestedError, match="interrupted by the user"):
+            session.home()
+        assert session.state is MachineState.IDLE and not session.is_homed
+        assert session.stop_latency_s < 0.1, "every axis at rest within 100 ms"
+        for name, device in _devices(session).items():
+            assert device.state.velocity == 0 and device.state.queued == 0, name
+            assert device.state.fault == Fault.NONE
+
+
+def test_no_switch_within_the_search_distance_fails_naming_the_axis() -> None:
+    text = default_machine().read_text().replace(
+        "homing = { direction = -1, speed_mm_s = 10.0, slow_speed_mm_s = 1.0, backoff_mm = 1.0 }",
+        "homing = { direction = -1, speed_mm_s = 10.0, slow_speed_mm_s = 1.0, backoff_mm = 1.0,"
+        " search_mm = 20.0 }", 1)
+    config = parse_config(text, path="short-search.toml")
+    assert config.axis("X").homing.search_mm == 20.0
+    with MachineSession.connect(config) as session:
+        with pytest.raises(SequenceFaultError) as caught:
+            session.home()
+        assert caught.value.axis == "X"
+        assert "no switch within 20 mm of the seek" in str(caught.value)
+        assert session.state is MachineState.ALARM
+        for name, device in _devices(session).items():
+            assert device.state.velocity == 0, f"{name} brought to rest"
+        session.reset()
+        assert session.state is MachineState.IDLE
+
+
+def test_a_second_host_finds_the_machine_homed_where_the_first_left_it(
+        config: MachineConfig) -> None:
+    world = SimWorld()
+    with MachineSession.connect(config, world=world) as first:
+        first.home()
+        report, _ = first.run(first.prepare("a.ngc", text="G21 G90\nG1 X40 Y30 Z10 F900\nM2\n"))
+        assert report.completed
+        first.shutdown()
+    with MachineSession.connect(config, world=world) as second:
+        assert second.notices == [] and second.is_homed, "no fault: the position is known"
+        where = second.positions_mm()
+        assert where == pytest.approx({"X": 40.0, "Y": 30.0, "Z": 10.0}, abs=3 / 240), (
+            "where the axes rest, to a few counts of where the first host left them")
+        prepared = second.prepare("b.ngc", text="G21 G90\nG1 X0 Y0 Z0 F900\nM2\n")
+        assert prepared.start_mm == (where["X"], where["Y"], where["Z"])
+        report, _ = second.run(prepared)
+        assert report.completed and report.homing_time_s == 0
+
+
+def test_a_fault_an_earlier_host_left_is_reported_cleared_and_needs_homing(
+        config: MachineConfig) -> None:
+    world = SimWorld()
+    with MachineSession.connect(config, world=world) as first:
+        first.home()
+        for axis in first.machine.axes.values():
+            axis.client.set_watchdog_ms(50)
+    world.advance(200_000)
+    with MachineSession.connect(config, world=world) as second:
+        assert sorted(second.faults_found) == ["X", "Y", "Z"]
+        assert all(code == Fault.WATCHDOG for code, _ in second.faults_found.values())
+        assert len(second.notices) == 3
+        assert "fault 1 (watchdog)" in second.notices[0] and "homing is required" in (
+            second.notices[0])
+        assert not second.is_homed
+        assert all(s.fault == Fault.NONE for s in second.machine.status().values())
+
+
+def test_motion_an_earlier_host_left_running_is_stopped_along_its_deceleration(
+        config: MachineConfig) -> None:
+    world = SimWorld()
+    with MachineSession.connect(config, world=world) as first:
+        first.home()
+        client = first.machine.axis("X").client
+        ramp = [round(4.8 * k * k / 400) if k < 200 else round(4.8 * (k - 100))
+                for k in range(1, 1001)]
+        client.add_setpoints(ramp)
+    world.advance(500_000)
+    device = world.device("X")
+    assert isinstance(device, Device)
+    moving_at = device.state.actual
+    assert device.state.queued > 0 and device.state.velocity > 3000, "still running"
+    with MachineSession.connect(config, world=world) as second:
+        assert any("still running what an earlier host queued" in n for n in second.notices)
+        state = device.state
+        assert state.queued == 0 and state.velocity == 0
+        travelled_mm = (state.actual - moving_at) / 240
+        speed_mm_s = 4800 / 240
+        assert travelled_mm <= speed_mm_s**2 / (2 * 500) + speed_mm_s * 0.05, (
+            "stopped within its deceleration (plus the 20 ms it was watched)")
+
+
+def test_the_console_starts_a_cycle_twice_from_where_the_machine_stands() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "usbmotion", "console"], input="$d 1\n$c\n$c\n?\n$q\n",
+        capture_output=True, text=True, timeout=300, check=False)
+    assert done.returncode == 0, done.stdout + done.stderr
+    starts = [line for line in done.stdout.splitlines() if line.startswith("cycle start:")]
+    assert len(starts) == 2
+    assert "from X 0.000  Y 0.000  Z 0.000 mm" in starts[0]
+    assert "from X 5.000  Y 5.000  Z 5.000 mm" in starts[1], "the second from where the first ended"
+    assert done.stdout.count("\ndone\n") == 2
+    assert "faults         none" in done.stdout
+
+
+def test_usbmotion_run_refuses_a_program_beyond_the_travel_with_exit_2(tmp_path: Path) -> None:
+    program = tmp_path / "far.ngc"
+    program.write_text("G21 G90\nG0 X20\nG0 X300\nM2\n")
+    done = subprocess.run([sys.executable, "-m", "usbmotion", "run", str(program), "-q",
+                           "--no-plot"], capture_output=True, text=True, timeout=120,
+                          check=False)
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert f"{program}:3: line 3: X would reach 300.000 mm, beyond the upper end 200 mm" in (
+        done.stderr)
+    assert "homing" not in done.stdout and "Traceback" not in done.stderr
