@@ -22,7 +22,7 @@ import random
 import subprocess
 import zlib
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from types import ModuleType
 
@@ -33,11 +33,24 @@ from hypothesis import strategies as st
 from device.test_replies import DEBUG_LINES, POWER_UP_QUERIES, SEED_000, SET_THEN_QUERY
 from device.test_robustness import BAD_LINES, HUGE_LINES, _integer_lines
 from fuzz.budget import fuzz_settings, hang_guard
-from fuzz.test_device_fuzz import _STEP, MOTOR_STEPS_PER_EXAMPLE, Lines, PowerCycle, Silence
-from usbmotion.device import Device
+from fuzz.test_device_fuzz import _STEP, Lines, PowerCycle, Silence
 from usbmotion.protocol import CALLS, MAX_LINE_BYTES
 
 from .native import ROOT, build
+from .sessions import (
+    LOUD,
+    NO_NEWLINE,
+    Feed,
+    Firmware,
+    Power,
+    Printed,
+    Run,
+    Step,
+    first_difference,
+    fuzz_steps,
+    lines,
+    python_replay,
+)
 
 DEVICE_SOURCES = ROOT / "firmware" / "src" / "device"
 HOST_SOURCES = ROOT / "firmware" / "host"
@@ -50,60 +63,6 @@ def sources() -> list[Path]:
 
 
 # --- sessions ----------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class Feed:
-    """Bytes from USB."""
-
-    data: bytes
-
-
-@dataclass(frozen=True, slots=True)
-class Run:
-    """Servo ticks with no input."""
-
-    ticks: int
-
-
-@dataclass(frozen=True, slots=True)
-class Power:
-    """A power cycle (flash kept)."""
-
-
-Step = Feed | Run | Power
-Printed = list[tuple[int, bytes]]
-"""Every line printed (without its newline) with the tick it was printed at."""
-
-
-def lines(*texts: str | bytes) -> Feed:
-    """One feed of these lines, each ended by a newline."""
-    return Feed(b"".join((t.encode("ascii") if isinstance(t, str) else t) + b"\n"
-                         for t in texts))
-
-
-def python_replay(steps: Iterable[Step]) -> Printed:
-    """The session on the Python device."""
-    device = Device()
-    now = 0
-    printed: Printed = []
-
-    def take() -> None:
-        for ago, chunk in device.take_timed_output():
-            assert chunk.endswith(b"\n")
-            printed.extend((now - ago, line) for line in chunk[:-1].split(b"\n"))
-
-    for step in steps:
-        if isinstance(step, Feed):
-            device.feed(step.data)
-        elif isinstance(step, Run):
-            device.run(step.ticks)
-            now += step.ticks
-        else:
-            take()
-            device.restart()
-        take()
-    return printed
 
 
 def session_text(steps: Iterable[Step]) -> str:
@@ -125,7 +84,7 @@ def parse_driver_output(text: str) -> Printed:
     for row in text.splitlines():
         tick, data, *rest = row.split(" ")
         line = bytes.fromhex(data)
-        printed.append((int(tick), line + b" <no newline>" if rest == ["-"] else line))
+        printed.append((int(tick), line + NO_NEWLINE if rest == ["-"] else line))
     return printed
 
 
@@ -138,23 +97,15 @@ def native_replay(driver: Path, steps: Iterable[Step], *, flash: Path | None = N
     return parse_driver_output(result.stdout)
 
 
-def first_difference(expected: Printed, actual: Printed) -> str:
-    """Where two outputs part, for a failure message."""
-    for index, (want, got) in enumerate(zip(expected, actual, strict=False)):
-        if want != got:
-            return f"line {index}: Python {want!r}, firmware {got!r}"
-    if len(expected) != len(actual):
-        index = min(len(expected), len(actual))
-        extra = expected[index:] if len(expected) > len(actual) else actual[index:]
-        who = "Python" if len(expected) > len(actual) else "firmware"
-        return f"only the {who} printed from line {index}: {extra[:3]!r}"
-    return "identical"
+Driver = Path | Firmware
+"""The native session driver's executable, or another build (the emulated RP2040's tests run
+this module's scripted sessions with theirs)."""
 
 
-def assert_same(driver: Path, steps: Sequence[Step]) -> Printed:
+def assert_same(driver: Driver, steps: Sequence[Step]) -> Printed:
     """Replay on both; the firmware must print what the Python prints, at the same ticks."""
     expected = python_replay(steps)
-    actual = native_replay(driver, steps)
+    actual = native_replay(driver, steps) if isinstance(driver, Path) else driver.replay(steps)
     assert actual == expected, first_difference(expected, actual)
     return expected
 
@@ -169,28 +120,28 @@ def driver() -> Path:
 
 
 @pytest.mark.parametrize(("setup", "line", "expected"), SEED_000)
-def test_seed_000_strings(driver: Path, setup: list[str], line: str,
+def test_seed_000_strings(driver: Driver, setup: list[str], line: str,
                           expected: list[str]) -> None:
     printed = assert_same(driver, [lines(*setup), Feed(b"2 -1\n"), lines(line)])
     after = [text.decode() for _, text in printed]
     assert after[after.index("MOTION_QUEUE 0 1000") + 1 :] == expected
 
 
-def test_every_query_at_power_up(driver: Path) -> None:
+def test_every_query_at_power_up(driver: Driver) -> None:
     steps: list[Step] = [lines(line) for line in POWER_UP_QUERIES]
     printed = assert_same(driver, steps)
     assert [text.decode() for _, text in printed] == list(POWER_UP_QUERIES.values())
 
 
 @pytest.mark.parametrize(("set_line", "query", "reply"), SET_THEN_QUERY)
-def test_a_set_value_is_queried_back(driver: Path, set_line: str, query: str,
+def test_a_set_value_is_queried_back(driver: Driver, set_line: str, query: str,
                                      reply: str) -> None:
     printed = assert_same(driver, [lines(set_line), lines(query)])
     assert printed == [(0, reply.encode())]
 
 
 @pytest.mark.parametrize(("setup", "line", "expected"), DEBUG_LINES)
-def test_every_debug_line(driver: Path, setup: list[str], line: str, expected: str) -> None:
+def test_every_debug_line(driver: Driver, setup: list[str], line: str, expected: str) -> None:
     number = int(line.split(maxsplit=1)[0])
     steps: list[Step] = [lines(*setup), lines(line), lines(*setup), lines(f"8 {number} 1"),
                          lines(line), lines(f"8 {number} 9"), lines(*setup), lines(line)]
@@ -198,7 +149,7 @@ def test_every_debug_line(driver: Path, setup: list[str], line: str, expected: s
     assert (0, expected.encode()) in printed
 
 
-def test_every_debug_flag_of_every_call(driver: Path) -> None:
+def test_every_debug_flag_of_every_call(driver: Driver) -> None:
     """Every defined flag value and a few undefined ones, on every call's example line."""
     steps: list[Step] = [lines("7 1")]
     examples_of = {int(line.split()[0]): (setup, line) for setup, line, _ in DEBUG_LINES}
@@ -209,30 +160,30 @@ def test_every_debug_flag_of_every_call(driver: Path) -> None:
 
 
 @pytest.mark.parametrize(("line", "reply"), HUGE_LINES)
-def test_integers_of_any_length(driver: Path, line: str, reply: str) -> None:
+def test_integers_of_any_length(driver: Driver, line: str, reply: str) -> None:
     assert_same(driver, [lines(line), lines(line), lines("30 -1")])
 
 
 @pytest.mark.parametrize(("line", "err", "query"), BAD_LINES)
-def test_bad_values(driver: Path, line: str, err: str, query: str) -> None:
+def test_bad_values(driver: Driver, line: str, err: str, query: str) -> None:
     printed = assert_same(driver, [lines(query), lines(line), lines(query), lines("0 5", "2 -1")])
     assert (0, err.encode()) in printed
 
 
-def test_every_query_after_settings(driver: Path) -> None:
+def test_every_query_after_settings(driver: Driver) -> None:
     settings = [set_line for set_line, _, _ in SET_THEN_QUERY]
     queries = list(POWER_UP_QUERIES)
     assert_same(driver, [lines(*settings), lines(*queries), Power(), lines(*queries)])
 
 
-def test_replies_in_order_and_any_split(driver: Path) -> None:
+def test_replies_in_order_and_any_split(driver: Driver) -> None:
     whole = b"8 0 1\n0 3910\r\n\n  \n1 2 5 6\n2 -1\n8 1 2\n1 3 -1 2147483647 -2147483648\n"
     for size in (1, 2, 3, 7, len(whole)):
         steps: list[Step] = [Feed(whole[i : i + size]) for i in range(0, len(whole), size)]
         assert_same(driver, steps)
 
 
-def test_counts_before_ranges_and_query_forms(driver: Path) -> None:
+def test_counts_before_ranges_and_query_forms(driver: Driver) -> None:
     assert_same(driver, [lines(
         "1", "1 0", "1 1001 5", "1 2 5", "1 2 5 6 7", "1 2 2147483648 x", "1 2 5 -2147483649",
         "1 +2 005 -006", "18", "18 -1", "18 -2", "18 0", "18 1 31", "18 1 127", "18 2 65",
@@ -245,7 +196,7 @@ def test_counts_before_ranges_and_query_forms(driver: Path) -> None:
     )])
 
 
-def test_long_lines_of_many_inputs(driver: Path) -> None:
+def test_long_lines_of_many_inputs(driver: Driver) -> None:
     many = " ".join(["1"] * 1500)
     assert_same(driver, [lines(
         f"1 1000 {' '.join(['2'] * 999)} x", f"1 1000 {' '.join(['2'] * 1000)} x",
@@ -256,7 +207,7 @@ def test_long_lines_of_many_inputs(driver: Path) -> None:
     )])
 
 
-def test_messages_of_refused_calls(driver: Path) -> None:
+def test_messages_of_refused_calls(driver: Driver) -> None:
     assert_same(driver, [
         lines("7 3", "0 5", "1 1 5", "38 0 1 5", "7 1", "25 1 2 3 4", "34 10 -10", "34 0 0"),
         lines("7 3", *(f"25 {d} {d} 0 0" for d in range(1, 11)), "27 -1", "20 -1", "26 0"),
@@ -264,7 +215,7 @@ def test_messages_of_refused_calls(driver: Path) -> None:
     ])
 
 
-def test_the_crc_acknowledgement_of_a_full_queue(driver: Path) -> None:
+def test_the_crc_acknowledgement_of_a_full_queue(driver: Driver) -> None:
     values = [random.Random(7).randint(-(2**31), 2**31 - 1) for _ in range(1000)]
     printed = assert_same(driver, [lines("8 1 2", "1 1000 " + " ".join(map(str, values)))])
     crc = zlib.crc32(b"".join(v.to_bytes(4, "little", signed=True) for v in values))
@@ -274,7 +225,7 @@ def test_the_crc_acknowledgement_of_a_full_queue(driver: Path) -> None:
 # --- lines the splitter and the parser must read as the Python does ----------------------
 
 
-def test_over_long_lines(driver: Path) -> None:
+def test_over_long_lines(driver: Driver) -> None:
     limit = MAX_LINE_BYTES
     body = b"1 " + b"7 " * (limit // 2)
     cases = [
@@ -291,11 +242,11 @@ def test_over_long_lines(driver: Path) -> None:
     assert_same(driver, steps)
 
 
-def test_a_long_run_of_leading_zeros(driver: Path) -> None:
+def test_a_long_run_of_leading_zeros(driver: Driver) -> None:
     assert_same(driver, [lines("0" * 4301, "0 " + "0" * 4300 + "7", "30 -1")])
 
 
-def test_tokens_shown_as_python_repr_shows_them(driver: Path) -> None:
+def test_tokens_shown_as_python_repr_shows_them(driver: Driver) -> None:
     """Quotes, escapes, U+FFFD printed as \\ufffd, the 24-character cut, separators."""
     tokens = [
         b"'", b'"', b"'\"", b"a'b", b'a"b', b"\\", b"a\\'b", b"\x00", b"\x07\x1b\x7f",
@@ -314,7 +265,7 @@ def test_tokens_shown_as_python_repr_shows_them(driver: Path) -> None:
     assert_same(driver, [Feed(bytes(data))])
 
 
-def test_huge_integers_everywhere(driver: Path) -> None:
+def test_huge_integers_everywhere(driver: Driver) -> None:
     huge = ["9" * 18, "9" * 19, "1" + "0" * 18, "0" * 50 + "9" * 18, "-" + "9" * 18,
             "+" + "0" * 30 + "1" * 19, "-" + "2" * 4301, "7" * 9000]
     data = []
@@ -328,7 +279,7 @@ def test_huge_integers_everywhere(driver: Path) -> None:
 @fuzz_settings()
 @given(st.lists(st.binary(max_size=64), min_size=1, max_size=6),
        st.lists(st.integers(1, 40), max_size=6))
-def test_random_bytes(driver: Path, chunks: list[bytes], cuts: list[int]) -> None:
+def test_random_bytes(driver: Driver, chunks: list[bytes], cuts: list[int]) -> None:
     data = b"8 0 1\n8 1 1\n" + b"".join(chunks) + b"\n2 -1\n"
     steps: list[Step] = []
     position = 0
@@ -342,7 +293,7 @@ def test_random_bytes(driver: Path, chunks: list[bytes], cuts: list[int]) -> Non
 
 @fuzz_settings()
 @given(st.lists(_integer_lines(), min_size=1, max_size=8))
-def test_random_integer_lines(driver: Path, lines_: list[bytes]) -> None:
+def test_random_integer_lines(driver: Driver, lines_: list[bytes]) -> None:
     with hang_guard():
         assert_same(driver, [lines(*lines_), lines(*POWER_UP_QUERIES)])
 
@@ -350,29 +301,29 @@ def test_random_integer_lines(driver: Path, lines_: list[bytes]) -> None:
 # --- sessions with servo ticks -----------------------------------------------------------
 
 
-def test_status_after_a_move(driver: Path) -> None:
+def test_status_after_a_move(driver: Driver) -> None:
     assert_same(driver, [lines("3 1", "0 500"), Run(300), lines("20 -1", "35 -1")])
 
 
-def test_a_fault_alarm_and_the_refusal_to_enable(driver: Path) -> None:
+def test_a_fault_alarm_and_the_refusal_to_enable(driver: Driver) -> None:
     assert_same(driver, [lines("29 1", "3 1", "0 100"), Run(1), lines("3 1", "30 -1", "20 -1"),
                          lines("30 0", "3 1", "3 -1")])
 
 
-def test_the_crc_of_a_batch_that_wraps_the_queue_ring(driver: Path) -> None:
+def test_the_crc_of_a_batch_that_wraps_the_queue_ring(driver: Driver) -> None:
     values = " ".join(map(str, range(-250, 250)))
     assert_same(driver, [lines("3 1", "1 700 " + " ".join(["5"] * 700)), Run(600),
                          lines("8 1 2", f"1 500 {values}", "2 -1")])
 
 
-def test_diagnostics_lines_at_their_ticks(driver: Path) -> None:
+def test_diagnostics_lines_at_their_ticks(driver: Driver) -> None:
     assert_same(driver, [lines("21 7", "3 1", "0 300"), Run(100), lines("22 0", "21 3"), Run(20),
                          lines("7 2", "3 1", "1 2 4000 -4000"), Run(60), lines("7 3", "3 1"),
                          lines("25 20 400 0 0", "25 10 -100 512 -512"), Run(80),
                          lines("20 -1"), Power(), lines("21 1"), Run(5)])
 
 
-def test_alarms_of_every_fault(driver: Path) -> None:
+def test_alarms_of_every_fault(driver: Driver) -> None:
     assert_same(driver, [
         lines("21 50", "28 5", "3 1"), Run(20), lines("30 -1", "30 0"),
         lines("34 -50 50", "3 1", "0 80"), Run(400), lines("30 -1", "36 2", "30 0"),
@@ -381,7 +332,7 @@ def test_alarms_of_every_fault(driver: Path) -> None:
 
 
 @pytest.mark.parametrize("scalar", [1, 3])
-def test_replacing_the_queue_future(driver: Path, scalar: int) -> None:
+def test_replacing_the_queue_future(driver: Driver, scalar: int) -> None:
     ramp = " ".join(str(3 * k) for k in range(1, 401))
     steps: list[Step] = [lines("8 38 1", f"6 {scalar}", "3 1", f"1 400 {ramp}"),
                          Run(60 * scalar + 1)]
@@ -408,7 +359,7 @@ def test_replacing_the_queue_future(driver: Path, scalar: int) -> None:
     st.sampled_from([1, 2]),
     st.sampled_from([-(2**31), -1, 5000, 2**31 - 1]),
 )
-def test_extreme_parameters(driver: Path, sci: list[tuple[int, int]], interval_dms: int,
+def test_extreme_parameters(driver: Driver, sci: list[tuple[int, int]], interval_dms: int,
                             sim_dms: int, counts: int, mode: int, target: int) -> None:
     """test_robustness's extreme motors and gains, every value at its int64 edge."""
     calls = [9, 10, 11, 13, 14, 15, 17, 32, 33]
@@ -426,62 +377,27 @@ _STALE_HISTORY = ["9 1 -12", "10 999 6", "11 999 6", "13 9999 3", "14 1 -12", "1
                   "3 1", "1 3 -2147483648 2147483647 -2147483648"]
 
 
-def test_a_stale_derivative_history_tick_by_tick(driver: Path) -> None:
+def test_a_stale_derivative_history_tick_by_tick(driver: Driver) -> None:
     assert_same(driver, [lines(*_STALE_HISTORY), *[Run(1)] * 14])
 
 
-def test_a_stale_derivative_history_after_rest(driver: Path) -> None:
+def test_a_stale_derivative_history_after_rest(driver: Driver) -> None:
     assert_same(driver, [lines(*_STALE_HISTORY), Run(14)])
-
-
-def _fuzz_steps(steps: Sequence[Lines | Silence | PowerCycle]) -> list[Step]:
-    """A fuzz session as the replay's steps, its silences cut to the fuzz test's motor
-    budget (measured on a Python device, so both replays run the same ticks)."""
-    device = Device()
-    budget = MOTOR_STEPS_PER_EXAMPLE
-    out: list[Step] = []
-    for step in steps:
-        if isinstance(step, Lines):
-            data = b"".join(line + b"\n" for line in step.lines)
-            position = 0
-            for cut in (*step.cuts, len(data)):
-                out.append(Feed(data[position:cut]))
-                device.feed(data[position:cut])
-                position = cut
-        elif isinstance(step, Silence):
-            cost = max(1, device.motor_constants.steps)
-            ticks = min(step.ticks, budget // cost)
-            budget -= ticks * cost
-            pieces = step.pieces if ticks == step.ticks else (ticks,)
-            for piece in pieces:
-                out.append(Run(piece))
-                device.run(piece)
-        else:
-            out.append(Power())
-            device.restart()
-        device.take_output()
-    return out
 
 
 @fuzz_settings()
 @given(st.lists(_STEP, min_size=1, max_size=8))
-def test_fuzz_sessions(driver: Path, steps: list[Lines | Silence | PowerCycle]) -> None:
+def test_fuzz_sessions(driver: Driver, steps: list[Lines | Silence | PowerCycle]) -> None:
     with hang_guard(30.0):
-        assert_same(driver, [*_fuzz_steps(steps), lines(*POWER_UP_QUERIES)])
-
-
-_LOUD = st.builds(
-    lambda diag, call, flag: Lines((b"21 %d" % diag, b"8 %d %d" % (call, flag)), ()),
-    st.integers(1, 40), st.sampled_from([0, 1, 3, 7, 23, 25, 37, 38]), st.integers(0, 2))
-"""A diagnostics interval and a debug flag: the fuzz strategy's sessions made talkative."""
+        assert_same(driver, [*fuzz_steps(steps), lines(*POWER_UP_QUERIES)])
 
 
 @fuzz_settings()
-@given(st.lists(st.one_of(_STEP, _LOUD), min_size=1, max_size=10))
-def test_fuzz_sessions_with_diagnostics(driver: Path,
+@given(st.lists(st.one_of(_STEP, LOUD), min_size=1, max_size=10))
+def test_fuzz_sessions_with_diagnostics(driver: Driver,
                                         steps: list[Lines | Silence | PowerCycle]) -> None:
     with hang_guard(30.0):
-        assert_same(driver, [*_fuzz_steps([Lines((b"21 3",), ()), *steps]),
+        assert_same(driver, [*fuzz_steps([Lines((b"21 3",), ()), *steps]),
                              lines(*POWER_UP_QUERIES)])
 
 

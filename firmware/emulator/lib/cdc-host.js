@@ -2,8 +2,21 @@
 // device and receives its output; host-to-device bytes are queued here and an OUT transfer the
 // device arms is answered only when there is data (a real host NAKs until then). Answering at
 // once with empty packets, as the helper does, keeps an idle core0 busy in USB interrupts.
+//
+// The host also sends a start-of-frame packet every millisecond, which the package does not
+// model in device mode: the controller's DEV_SOF interrupt and its SOF_RD frame number (read
+// to clear the interrupt). TinyUSB needs them on the RP2040: its workaround of erratum
+// RP2040-E15 holds back a bulk IN transfer started in the last 200 us of a frame until the
+// next SOF, with the SOF interrupt enabled while a bulk IN endpoint is busy. The SOFs are only
+// scheduled while the device enables that interrupt (a real host sends them anyway; the
+// device does not see them then), so an idle device has no pending clock event.
 
 import { USBCDC } from 'rp2040js';
+
+const SOF_RD = 0x048;
+const INTR_DEV_SOF = 1 << 17;
+const FRAME_NS = 1e6;
+const FRAME_NUMBER_MASK = 0x7ff;
 
 export class CdcHost {
   /**
@@ -23,6 +36,7 @@ export class CdcHost {
       this.onConnected?.();
     };
     this.cdc.onSerialData = onData;
+    this.setUpStartOfFrame(usb);
     usb.onEndpointRead = (endpoint, size) => {
       if (endpoint !== this.cdc.outEndpoint) {
         return;
@@ -33,6 +47,49 @@ export class CdcHost {
         this.heldRead = size;
       }
     };
+  }
+
+  setUpStartOfFrame(usb) {
+    const clock = usb.rp2040.clock;
+    this.clock = clock;
+    this.sofScheduled = false;
+    this.sofAlarm = clock.createAlarm(() => {
+      this.sofScheduled = false;
+      usb.intRaw |= INTR_DEV_SOF;
+      usb.checkInterrupts();
+      this.scheduleStartOfFrame();
+    });
+    const read = usb.readUint32.bind(usb);
+    usb.readUint32 = (offset) => {
+      if (offset === SOF_RD) {
+        usb.intRaw &= ~INTR_DEV_SOF;
+        usb.checkInterrupts();
+        return this.frameNumber;
+      }
+      return read(offset);
+    };
+    const write = usb.writeUint32.bind(usb);
+    usb.writeUint32 = (offset, value) => {
+      write(offset, value);
+      this.scheduleStartOfFrame();
+    };
+  }
+
+  /** The frame the host is in: one per millisecond of emulated time. */
+  get frameNumber() {
+    return Math.floor(this.clock.nanos / FRAME_NS) & FRAME_NUMBER_MASK;
+  }
+
+  /** The next SOF at the next frame boundary, while the device enables the SOF interrupt. */
+  scheduleStartOfFrame() {
+    const wanted = (this.usb.intEnable & INTR_DEV_SOF) !== 0;
+    if (wanted && !this.sofScheduled) {
+      this.sofScheduled = true;
+      this.sofAlarm.schedule(FRAME_NS - (this.clock.nanos % FRAME_NS));
+    } else if (!wanted && this.sofScheduled) {
+      this.sofScheduled = false;
+      this.sofAlarm.cancel();
+    }
   }
 
   /** Queues bytes for the device. */

@@ -143,6 +143,11 @@ export class EmulatedDevice {
     });
   }
 
+  /** The RP2040 timer's time, ns: emulated time less the time it was held. */
+  get timerNanos() {
+    return this.heldAt >= 0 ? this.heldAt : this.clock.nanos - this.timerLagNs;
+  }
+
   get timerHeld() {
     return this.heldAt >= 0;
   }
@@ -297,15 +302,21 @@ export class EmulatedDevice {
     this.settle();
   }
 
-  /** Deterministic: runs `count` more servo ticks, then lets core0 finish (timer held). */
+  /**
+   * Deterministic: runs `count` more servo ticks, one at a time: after each, the timer is held
+   * until core0 has printed what the tick recorded and the host has taken it. Output stamped
+   * with tick N is so what the device printed after tick N, whatever USB's latency (the
+   * Python device stamps a line with the tick it printed at).
+   */
   runTicks(count) {
-    if (count > 0) {
-      const target = this.ticksDone() + count;
+    for (let done = 0; done < count; done++) {
+      const target = this.ticksDone() + 1;
       this.releaseTimer();
       const reason = this.advance(Infinity, { ticks: target });
       if (reason !== 'ticks') {
         throw new DeviceError(`the servo stopped ticking at tick ${this.ticksDone()}`);
       }
+      this.settle();
     }
     this.settle();
   }

@@ -150,12 +150,25 @@ describe('fixture firmware, deterministic', () => {
 
   test('the servo period: ticks at 500 us after call p 500', () => {
     device.feed(Buffer.from('p 500\n'));
-    const before = device.nanos;
+    const before = device.timerNanos;
     device.runTicks(100);
-    const perTickUs = (device.nanos - before) / 100 / 1000;
+    const perTickUs = (device.timerNanos - before) / 100 / 1000;
     assert.ok(Math.abs(perTickUs - 500) < 5, `${perTickUs} us per tick`);
     device.feed(Buffer.from('p 1000\n'));
     device.takeOutput();
+  });
+
+  test('at 10 kHz every record reaches the host at its tick: SOFs end the E15 deferral', () => {
+    // TinyUSB holds back a bulk IN transfer started 800-998 us after the last SOF until the
+    // next one (erratum RP2040-E15): without the host's SOFs the port would stop for good.
+    // Fresh from power-up, the timer passes 800-998 us after boot's last SOF within ten ticks.
+    const fresh = new EmulatedDevice({ uf2: FIXTURE_UF2 });
+    fresh.bootHeld();
+    fresh.feed(Buffer.from('p 100\nd 40\n'));
+    fresh.runTicks(40);
+    const output = text(fresh.takeOutput());
+    assert.deepEqual(output.slice(0, 1), [[0, 'p 100\nd\n']]);
+    assert.deepEqual(output.slice(1), Array.from({ length: 40 }, (_, i) => [i + 1, `t ${i + 1}\n`]));
   });
 
   test('flash persists across a power cycle and a new emulator on the same file', () => {

@@ -1,0 +1,146 @@
+"""Sessions replayed on the Python device and on a firmware build, and their comparison.
+
+A session is a list of steps: bytes fed from USB, servo ticks run with no input, power
+cycles. :func:`python_replay` plays it on the Python device (``usbmotion.device.Device``, the
+specification); a firmware build plays it through a :class:`Firmware` (the emulated RP2040
+of ``tests/firmware/emulated.py``) or the native session driver (``test_native_device``).
+Each gives every line printed with the servo tick it was printed at, ticks counted from
+the session's start and never zeroed (across power cycles too); the two lists must be
+equal, byte for byte and tick for tick.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+from hypothesis import strategies as st
+
+from fuzz.test_device_fuzz import MOTOR_STEPS_PER_EXAMPLE, Lines, PowerCycle, Silence
+from usbmotion.device import Device
+
+
+@dataclass(frozen=True, slots=True)
+class Feed:
+    """Bytes from USB."""
+
+    data: bytes
+
+
+@dataclass(frozen=True, slots=True)
+class Run:
+    """Servo ticks with no input."""
+
+    ticks: int
+
+
+@dataclass(frozen=True, slots=True)
+class Power:
+    """A power cycle (flash kept)."""
+
+
+Step = Feed | Run | Power
+Printed = list[tuple[int, bytes]]
+"""Every line printed (without its newline) with the tick it was printed at."""
+
+NO_NEWLINE = b" <no newline>"
+"""Marks a last line a firmware printed without its newline (the Python never does)."""
+
+
+@runtime_checkable
+class Firmware(Protocol):
+    """A firmware build that replays sessions (the native driver is a plain path instead)."""
+
+    def replay(self, steps: Sequence[Step]) -> Printed:
+        """The session on a fresh device with blank flash: every line with its tick."""
+        ...
+
+
+def lines(*texts: str | bytes) -> Feed:
+    """One feed of these lines, each ended by a newline."""
+    return Feed(b"".join((t.encode("ascii") if isinstance(t, str) else t) + b"\n"
+                         for t in texts))
+
+
+def python_replay(steps: Iterable[Step]) -> Printed:
+    """The session on the Python device."""
+    device = Device()
+    now = 0
+    printed: Printed = []
+
+    def take() -> None:
+        for ago, chunk in device.take_timed_output():
+            assert chunk.endswith(b"\n")
+            printed.extend((now - ago, line) for line in chunk[:-1].split(b"\n"))
+
+    for step in steps:
+        if isinstance(step, Feed):
+            device.feed(step.data)
+        elif isinstance(step, Run):
+            device.run(step.ticks)
+            now += step.ticks
+        else:
+            take()
+            device.restart()
+        take()
+    return printed
+
+
+def first_difference(expected: Printed, actual: Printed) -> str:
+    """Where two outputs part, for a failure message."""
+    for index, (want, got) in enumerate(zip(expected, actual, strict=False)):
+        if want != got:
+            return f"line {index}: Python {want!r}, firmware {got!r}"
+    if len(expected) != len(actual):
+        index = min(len(expected), len(actual))
+        extra = expected[index:] if len(expected) > len(actual) else actual[index:]
+        who = "Python" if len(expected) > len(actual) else "firmware"
+        return f"only the {who} printed from line {index}: {extra[:3]!r}"
+    return "identical"
+
+
+def fuzz_steps(steps: Sequence[Lines | Silence | PowerCycle], *,
+               motor_steps: int = MOTOR_STEPS_PER_EXAMPLE,
+               max_ticks: int | None = None) -> list[Step]:
+    """A fuzz session as the replay's steps, its silences cut to a budget.
+
+    ``motor_steps`` is the fuzz test's budget of simulated motor steps (measured on a Python
+    device, so both replays run the same ticks); ``max_ticks``, when given, also bounds the
+    servo ticks of the whole session (an emulated chip costs per tick, whatever the motor).
+    A silence cut short runs in one piece.
+    """
+    device = Device()
+    budget = motor_steps
+    ticks_left = max_ticks
+    out: list[Step] = []
+    for step in steps:
+        if isinstance(step, Lines):
+            data = b"".join(line + b"\n" for line in step.lines)
+            position = 0
+            for cut in (*step.cuts, len(data)):
+                out.append(Feed(data[position:cut]))
+                device.feed(data[position:cut])
+                position = cut
+        elif isinstance(step, Silence):
+            cost = max(1, device.motor_constants.steps)
+            ticks = min(step.ticks, budget // cost)
+            if ticks_left is not None:
+                ticks = min(ticks, ticks_left)
+                ticks_left -= ticks
+            budget -= ticks * cost
+            pieces = step.pieces if ticks == step.ticks else (ticks,)
+            for piece in pieces:
+                out.append(Run(piece))
+                device.run(piece)
+        else:
+            out.append(Power())
+            device.restart()
+        device.take_output()
+    return out
+
+
+LOUD = st.builds(
+    lambda diag, call, flag: Lines((b"21 %d" % diag, b"8 %d %d" % (call, flag)), ()),
+    st.integers(1, 40), st.sampled_from([0, 1, 3, 7, 23, 25, 37, 38]), st.integers(0, 2))
+"""A diagnostics interval and a debug flag: the fuzz strategy's sessions made talkative."""

@@ -1,0 +1,99 @@
+"""The RP2040 firmware in the emulator answers byte for byte as the Python device.
+
+Every scripted session of ``test_native_device`` (the device tests' replies, debug lines,
+errors, over-long lines, tokens, huge integers, servo scenarios, call 38) replayed on the
+Python device and on the firmware built for the chip (``make firmware``), running on an
+emulated RP2040 (``firmware/emulator``): identical lines, each at the same servo tick.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+
+import pytest
+
+from . import test_native_device as native
+from .emulated import EmulatedFirmware, missing
+from .test_native_device import (  # the scripted sessions, run here on the emulated chip
+    test_a_fault_alarm_and_the_refusal_to_enable,
+    test_a_long_run_of_leading_zeros,
+    test_a_set_value_is_queried_back,
+    test_a_stale_derivative_history_after_rest,
+    test_a_stale_derivative_history_tick_by_tick,
+    test_alarms_of_every_fault,
+    test_bad_values,
+    test_counts_before_ranges_and_query_forms,
+    test_diagnostics_lines_at_their_ticks,
+    test_every_debug_flag_of_every_call,
+    test_every_debug_line,
+    test_every_query_after_settings,
+    test_every_query_at_power_up,
+    test_huge_integers_everywhere,
+    test_integers_of_any_length,
+    test_long_lines_of_many_inputs,
+    test_messages_of_refused_calls,
+    test_over_long_lines,
+    test_replacing_the_queue_future,
+    test_replies_in_order_and_any_split,
+    test_seed_000_strings,
+    test_status_after_a_move,
+    test_the_crc_acknowledgement_of_a_full_queue,
+    test_the_crc_of_a_batch_that_wraps_the_queue_ring,
+    test_tokens_shown_as_python_repr_shows_them,
+)
+
+SCRIPTED = (
+    test_a_fault_alarm_and_the_refusal_to_enable,
+    test_a_long_run_of_leading_zeros,
+    test_a_set_value_is_queried_back,
+    test_a_stale_derivative_history_after_rest,
+    test_a_stale_derivative_history_tick_by_tick,
+    test_alarms_of_every_fault,
+    test_bad_values,
+    test_counts_before_ranges_and_query_forms,
+    test_diagnostics_lines_at_their_ticks,
+    test_every_debug_flag_of_every_call,
+    test_every_debug_line,
+    test_every_query_after_settings,
+    test_every_query_at_power_up,
+    test_huge_integers_everywhere,
+    test_integers_of_any_length,
+    test_long_lines_of_many_inputs,
+    test_messages_of_refused_calls,
+    test_over_long_lines,
+    test_replacing_the_queue_future,
+    test_replies_in_order_and_any_split,
+    test_seed_000_strings,
+    test_status_after_a_move,
+    test_the_crc_acknowledgement_of_a_full_queue,
+    test_the_crc_of_a_batch_that_wraps_the_queue_ring,
+    test_tokens_shown_as_python_repr_shows_them,
+)
+
+
+@pytest.fixture(scope="module")
+def driver() -> Iterator[EmulatedFirmware]:
+    """One emulated chip for the module; each session powers up a fresh one on blank flash."""
+    why = missing()
+    if why is not None:
+        message = f"{why}: `make firmware` builds the firmware and installs the emulator"
+        if os.environ.get("CI"):
+            pytest.fail(message)
+        pytest.skip(message)
+    firmware = EmulatedFirmware()
+    yield firmware
+    firmware.close()
+
+
+GENERATED = {"test_random_bytes", "test_random_integer_lines", "test_extreme_parameters",
+             "test_fuzz_sessions", "test_fuzz_sessions_with_diagnostics"}
+"""The native module's hypothesis tests: test_emulated_fuzz runs them with its own budgets."""
+
+
+def test_every_session_of_the_native_tests_runs_here() -> None:
+    """A session added to test_native_device for any build (``driver: Driver``) runs here."""
+    shared = {name for name, function in vars(native).items()
+              if name.startswith("test_") and callable(function)
+              and getattr(function, "__annotations__", {}).get("driver") == "Driver"}
+    assert shared == {function.__name__ for function in SCRIPTED} | GENERATED
