@@ -326,9 +326,17 @@ def test_runner_times_out_and_stops_the_sequence() -> None:
 def test_runner_stops_the_sequence_when_asked_and_says_why() -> None:
     clock = FakeClock()
     seq = Script("a", [Incomplete] * 10, [])
-    asked = iter(["", "", "interrupted by the user"])
+    asked_at: list[float] = []
+
+    def should_stop() -> str:
+        if clock.t >= 0.015:
+            asked_at.append(clock.t)
+            return "interrupted by the user"
+        return ""
+
     with pytest.raises(StopRequestedError, match="interrupted by the user") as caught:
-        run_sequence(seq, None, None, clock=clock, should_stop=lambda: next(asked))
+        run_sequence(seq, None, None, clock=clock, rate_hz=50, should_stop=should_stop)
     assert seq.stopped
     assert caught.value.reason == "interrupted by the user"
-    assert len(seq.answers) == 8, "polled twice, then stopped before the third poll"
+    assert len(seq.answers) == 9, "polled once at 0 s, stopped before the poll at 20 ms"
+    assert asked_at[0] == pytest.approx(0.016), "asked while waiting, every 2 ms"

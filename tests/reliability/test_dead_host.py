@@ -16,97 +16,28 @@ room: the new host's first bytes are most likely the tail of a line.
 
 from __future__ import annotations
 
-import contextlib
-import re
 import signal
-import subprocess
-import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from usbmotion.cli.run import default_machine
 from usbmotion.host.config import load_config
-from usbmotion.host.device import DeviceClient, Status
+from usbmotion.host.device import Status
 from usbmotion.protocol.table import Fault
 from usbmotion.session import MachineSession, home_position_mm
+
+from .bench import bench_machine, served
+from .bench import host as start_host
 
 WATCHDOG_MS = 1250
 """The shortest watchdog the default machine allows: a full queue (1000 x 1 ms) + 250 ms."""
 WATCHDOG_TOLERANCE_MS = 25.0
 """How far the measured disable may be from the watchdog: the serving loop polls every
 millisecond and a loaded machine delays it; measured 1250.0..1251.0 ms when idle."""
-NAMES = ("X AXIS", "Y AXIS", "Z AXIS")
-
-_LOGGING_HOST = r"""
-import os, sys, time
-log = os.open(sys.argv[1], os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-from usbmotion.host import transport
-write = transport.LineTransport.write
-def logged(self, data):
-    write(self, data)
-    first = data.split(b"\n", 1)[0][:12].decode("ascii", "replace")
-    os.write(log, f"{time.monotonic():.6f}|{self.label}|{first}\n".encode())
-transport.LineTransport.write = logged
-from usbmotion.session import session
-session.DIAGNOSTICS_PERIOD_S = 0.001
-from usbmotion.cli.main import main
-sys.argv = ["usbmotion", *sys.argv[2:]]
-main()
-"""
 
 PROGRAM = "G21 G90\nG1 X20 Y10 Z5 F300\nG1 X0 Y0 Z0\nM2\n"
 """About 9 s of motion; the host is killed about 1.5 s into it."""
-
-
-@contextlib.contextmanager
-def _served(flash_dir: Path) -> Iterator[dict[str, str]]:
-    """``usbmotion sim --pty 3`` in a subprocess; yields device name -> terminal path once
-    every device answers (the server's first servo tick may compile the servo kernel, which
-    holds it for seconds: a host connecting meanwhile would time out)."""
-    names = [arg for name in NAMES for arg in ("--name", name)]
-    server = subprocess.Popen(
-        [sys.executable, "-m", "usbmotion", "sim", "--pty", "3", "--flash-dir", str(flash_dir),
-         *names],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
-    try:
-        assert server.stdout is not None
-        paths: dict[str, str] = {}
-        for _ in NAMES:
-            name, path = server.stdout.readline().rstrip("\n").rsplit(" ", 1)
-            paths[name] = path
-        assert sorted(paths) == sorted(NAMES), paths
-        for name, path in paths.items():
-            with DeviceClient.open(path, timeout_s=60, name=name) as client:
-                client.resynchronise()
-        yield paths
-    finally:
-        server.send_signal(signal.SIGTERM)
-        try:
-            server.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            server.kill()
-            server.wait()
-
-
-def _machine_file(folder: Path, paths: dict[str, str]) -> Path:
-    """The default machine with each axis on its terminal, carriages 5 mm above their lower
-    switches (so homing takes seconds, not minutes, in real time), the shortest watchdog."""
-    text = default_machine().read_text()
-    for letter in "XYZ":
-        text = text.replace(f'url = "sim://{letter}"', f'url = "{paths[letter + " AXIS"]}"')
-    text = re.sub(r"start_mm = [0-9.]+", "start_mm = 5.0", text)
-    text, count = re.subn(r"(?m)^watchdog_ms = \d+", f"watchdog_ms = {WATCHDOG_MS}", text)
-    assert count == 1
-    path = folder / "bench.toml"
-    path.write_text(text)
-    config = load_config(path)
-    assert config.watchdog_ms == WATCHDOG_MS
-    assert all(axis.sim is not None for axis in config.axes), "the file sets up the motors"
-    return path
 
 
 def _last_writes(log: Path) -> dict[str, float]:
@@ -139,13 +70,10 @@ def test_a_killed_host_leaves_every_servo_disabled_by_its_watchdog(tmp_path: Pat
     program = tmp_path / "move.ngc"
     program.write_text(PROGRAM)
     log = tmp_path / "writes.log"
-    with _served(tmp_path / "flash") as paths:
-        machine_file = _machine_file(tmp_path, paths)
-        host = subprocess.Popen(
-            [sys.executable, "-c", _LOGGING_HOST, str(log), "run", str(program),
-             "--machine", str(machine_file), "--no-home", "-q", "--no-plot"],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        )
+    with served(tmp_path / "flash") as paths:
+        machine_file = bench_machine(tmp_path, paths, watchdog_ms=WATCHDOG_MS)
+        host = start_host(log, "run", str(program), "--machine", str(machine_file), "--no-home",
+                          "-q", "--no-plot", diagnostics_s=0.001)
         try:
             deadline = time.monotonic() + 30
             while not _streaming(log):

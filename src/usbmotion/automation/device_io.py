@@ -70,6 +70,9 @@ class MachineZero:
     edge_counts: int
     edge_tick: int
     shift_counts: int
+    seen_counts: int = 0
+    """The counter at the poll that first saw the switch closed (same coordinates as
+    ``edge_counts``): a zero taken there would be ``seen_counts - edge_counts`` off."""
 
 
 @dataclass(slots=True)

@@ -159,6 +159,9 @@ class MoveAxisHome:
         self._edges = 0
         """The switch's edge count when the current phase started."""
         self._reference: SwitchEdgeReading | None = None
+        self.seen_closed_mm: float | None = None
+        """Where the axis was at the poll that first saw the switch close on the edge it
+        was zeroed on: where a host that zeroes on what it polls would have put the zero."""
 
     @property
     def phase(self) -> str:
@@ -231,6 +234,7 @@ class MoveAxisHome:
     def _seek(self, inputs: HomingInputs, outputs: HomingOutputs,
               switches: LimitSwitchState) -> Transition:
         if switches.at_lower_limit:
+            self.seen_closed_mm = inputs.position_mm(self.axis)
             outputs.set_target_velocity(self.axis, 0.0)
             self._phase = Phase.SEEK_STOP
             return Incomplete
@@ -268,6 +272,7 @@ class MoveAxisHome:
                 switches: LimitSwitchState) -> Transition:
         edge = inputs.switch_edge(self.axis)
         if switches.at_lower_limit or (edge.edges != self._edges and edge.closed):
+            self.seen_closed_mm = inputs.position_mm(self.axis)
             outputs.set_target_velocity(self.axis, 0.0)
             self._phase = Phase.LOCATE_STOP
             return Incomplete

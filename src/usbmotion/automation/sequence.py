@@ -167,6 +167,10 @@ class Chain(Generic[InT, OutT]):
                 stop(outputs)
 
 
+STOP_CHECK_S = 0.002
+"""How often :func:`run_sequence` asks ``should_stop`` while it waits between polls."""
+
+
 def run_sequence(
     sequence: AutomationSequence[InT, OutT],
     inputs: InT,
@@ -219,4 +223,10 @@ def run_sequence(
                 reason=FaultKind.TIMEOUT.value,
             )
         next_poll = start + polls * period
-        clock.sleep(max(0.0, next_poll - clock.now()))
+        while True:
+            left = next_poll - clock.now()
+            if left <= 0:
+                break
+            if should_stop is not None and should_stop():
+                break
+            clock.sleep(min(left, STOP_CHECK_S) if should_stop is not None else left)

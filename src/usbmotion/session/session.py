@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 import zlib
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -92,6 +92,8 @@ STOP_LEAD_S = 0.005
 the time the lines take to reach every device (one that arrives late skips what is past)."""
 REST_TIMEOUT_S = 5.0
 """The longest a stop waits for every axis's queue to play out its deceleration."""
+REST_POLL_S = 0.005
+"""How often a stopped homing looks whether every axis is at rest."""
 SETTLE_TIMEOUT_S = 1.0
 """How long a stopped axis then has to settle within SETTLE_COUNTS of where it was sent."""
 
@@ -410,7 +412,12 @@ class MachineSession:
                 machine.stop()
             self._state = MachineState.ALARM
             raise
-        self.zeroes = dict(io.zeroes)
+        self.zeroes = {}
+        for name, zero in io.zeroes.items():
+            seen_mm = sequence.axes[name].seen_closed_mm
+            seen = zero.edge_counts if seen_mm is None else machine.axis(name).scale.to_counts(
+                -machine.axis(name).config.homing.direction * seen_mm)
+            self.zeroes[name] = replace(zero, seen_counts=seen)
         for name, axis in machine.axes.items():
             axis.client.set_homed_marker(homed_mark(config, axis.config))
             self.homed[name] = True
@@ -445,7 +452,7 @@ class MachineSession:
                 raise DeviceError("the axes did not come to rest after homing stopped",
                                   device=", ".join(names))
             io.after_poll()
-            self.clock.sleep(1.0 / HOMING_POLL_HZ)
+            self.clock.sleep(REST_POLL_S)
 
     # --- running ------------------------------------------------------------------------------
 

@@ -1,0 +1,71 @@
+"""Every real-time test, run again and again with both cores loaded: how often each passes.
+
+    python benchmarks/realtime_under_load.py [--rounds 20] [--load N] [--json]
+
+Starts ``--load`` busy-loop processes (default: one per core) and, while they run, runs
+``pytest -m realtime`` ``--rounds`` times (each round in a fresh process, so every test
+gets its own devices and hosts), then prints, for every real-time test, how many rounds it
+passed. A test that fails one round in ten is a defect, in the test or in the product.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+from xml.etree import ElementTree
+
+from _common import argument_parser, emit, parse_arguments
+from _load import busy_cores
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _round(report: Path) -> dict[str, bool]:
+    """One ``pytest -m realtime`` run: test id -> passed."""
+    subprocess.run([sys.executable, "-m", "pytest", "-m", "realtime", "-q",
+                    "-p", "no:cacheprovider", f"--junitxml={report}"], cwd=ROOT,
+                   capture_output=True, text=True, check=False)
+    results: dict[str, bool] = {}
+    for case in ElementTree.parse(report).getroot().iter("testcase"):
+        name = f"{case.get('classname')}::{case.get('name')}"
+        results[name] = not any(child.tag in ("failure", "error") for child in case)
+    return results
+
+
+def measure(rounds: int, load: int | None) -> dict[str, Any]:
+    """Pass counts per real-time test over ``rounds`` rounds under load."""
+    passes: dict[str, int] = {}
+    seen: dict[str, int] = {}
+    started = time.monotonic()
+    with busy_cores(load) as loops, tempfile.TemporaryDirectory() as folder:
+        for index in range(rounds):
+            for name, passed in _round(Path(folder) / f"round-{index}.xml").items():
+                seen[name] = seen.get(name, 0) + 1
+                passes[name] = passes.get(name, 0) + int(passed)
+    return {"rounds": rounds, "busy_loops": loops, "wall_s": time.monotonic() - started,
+            "passed": {name: passes[name] for name in sorted(seen)},
+            "ran": {name: seen[name] for name in sorted(seen)}}
+
+
+def _text(figures: dict[str, Any]) -> str:
+    lines = [f"{figures['rounds']} rounds of every real-time test with {figures['busy_loops']}"
+             f" busy loops loading the cores ({figures['wall_s'] / 60:.1f} min)"]
+    for name, passed in figures["passed"].items():
+        lines.append(f"  {passed:3d} / {figures['ran'][name]:<3d} {name}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    parser = argument_parser(__doc__, runs=1)
+    parser.add_argument("--rounds", type=int, default=20)
+    parser.add_argument("--load", type=int, default=None, help="busy loops (default: cores)")
+    args = parse_arguments(parser, argv)
+    return emit(measure(args.rounds, args.load), _text, as_json=args.json)
+
+
+if __name__ == "__main__":
+    main()
