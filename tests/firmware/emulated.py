@@ -54,17 +54,18 @@ class EmulatedFirmware:
     def replay(self, steps: Sequence[Step]) -> Printed:
         """The session on a fresh chip with blank flash: every line with its tick."""
         device = self.device
-        spans = [device.power_up(erase_flash=True)]
+        span = device.power_up(erase_flash=True)
+        spans = [span]
         base = 0  # ticks of the session before the last power cycle
         for step in steps:
             if isinstance(step, Feed):
-                spans.append(device.feed(step.data))
+                span = device.feed(step.data)
             elif isinstance(step, Run):
-                spans.append(device.run(step.ticks))
+                span = device.run(step.ticks)
             elif isinstance(step, Power):
-                base += spans[-1].tick
-                spans.append(device.power_cycle())
-            spans[-1] = _rebased(spans[-1], base)
+                base += span.tick
+                span = device.power_cycle()
+            spans.append(_rebased(span, base))
         self.spans = spans
         return printed_lines(spans)
 

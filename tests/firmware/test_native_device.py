@@ -38,6 +38,7 @@ from usbmotion.protocol import CALLS, MAX_LINE_BYTES
 
 from .native import ROOT, build
 from .sessions import (
+    EXTREME_PARAMETERS,
     LOUD,
     NO_NEWLINE,
     Feed,
@@ -46,6 +47,7 @@ from .sessions import (
     Printed,
     Run,
     Step,
+    extreme_session,
     first_difference,
     fuzz_steps,
     lines,
@@ -350,26 +352,12 @@ def test_replacing_the_queue_future(driver: Driver, scalar: int) -> None:
 
 
 @settings(max_examples=60, deadline=None)
-@given(
-    st.lists(st.sampled_from([(1, -12), (999, 6), (5, 0), (1234, -6), (9999, 3), (1, 6)]),
-             min_size=9, max_size=9),
-    st.sampled_from([1, 3, 10, 10000]),
-    st.sampled_from([1, 10, 10000]),
-    st.sampled_from([1, 1920, 1_000_000]),
-    st.sampled_from([1, 2]),
-    st.sampled_from([-(2**31), -1, 5000, 2**31 - 1]),
-)
+@given(*EXTREME_PARAMETERS)
 def test_extreme_parameters(driver: Driver, sci: list[tuple[int, int]], interval_dms: int,
                             sim_dms: int, counts: int, mode: int, target: int) -> None:
     """test_robustness's extreme motors and gains, every value at its int64 edge."""
-    calls = [9, 10, 11, 13, 14, 15, 17, 32, 33]
-    setup = [f"{call} {min(c, 999) if call < 12 else c} {e}"
-             for call, (c, e) in zip(calls, sci, strict=True)]
-    setup += [f"5 {interval_dms}", f"12 {sim_dms}", f"16 {counts}", f"7 {mode}", "21 1", "3 1",
-              f"1 3 {target} {-target - 1} {target}"]
-    ticks = 1 if interval_dms > 100 else 25
     with hang_guard(30.0):  # tick by tick: see test_a_stale_derivative_history_after_rest
-        assert_same(driver, [lines(*setup), *[Run(1)] * (6 * ticks), lines("20 -1", "35 -1")])
+        assert_same(driver, extreme_session(sci, interval_dms, sim_dms, counts, mode, target))
 
 
 _STALE_HISTORY = ["9 1 -12", "10 999 6", "11 999 6", "13 9999 3", "14 1 -12", "15 1 -12",
