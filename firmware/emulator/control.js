@@ -119,6 +119,10 @@ const commands = {
     const d = requireDevice();
     return { tick: d.ticksDone(), busy_cycles: d.busyCycles(), emulated_ns: d.nanos, timer_held: d.timerHeld };
   },
+  stacks() {
+    const d = requireDevice();
+    return { stacks: d.stackUsage() };
+  },
   read(request) {
     const d = requireDevice();
     const symbol = d.symbols.get(request.symbol);

@@ -23,6 +23,8 @@ from usbmotion.sim.firmware import (
 
 from .sessions import NO_NEWLINE, Feed, Power, Printed, Run, Step
 
+STACK_MARGIN = 256
+"""Stack bytes a session must leave unused on each core (interrupts' frames vary)."""
 SPANS_TICKS = b" <spans ticks %d-%d>"
 """Marks a line whose first byte and newline reached the host at different ticks."""
 
@@ -46,6 +48,8 @@ class EmulatedFirmware:
         self.device = EmulatedDevice(uf2 if uf2 is not None else default_uf2())
         self.spans: list[Span] = []
         """Every span of the last session (boot included), for the cost figures."""
+        self.stack_high_water = [0, 0]
+        """The most stack each core used in any session so far, bytes."""
 
     def close(self) -> None:
         """Stop the emulator process."""
@@ -67,7 +71,16 @@ class EmulatedFirmware:
                 span = device.power_cycle()
             spans.append(_rebased(span, base))
         self.spans = spans
+        self.check_stacks()
         return printed_lines(spans)
+
+    def check_stacks(self) -> None:
+        """Each core used at most its stack less :data:`STACK_MARGIN` since power-up."""
+        for core, usage in enumerate(self.device.stack_usage()):
+            assert usage is not None, f"the ELF names no stack of core{core}"
+            self.stack_high_water[core] = max(self.stack_high_water[core], usage.used)
+            assert usage.used <= usage.size - STACK_MARGIN, (
+                f"core{core} used {usage.used} of its {usage.size} stack bytes")
 
 
 def _rebased(span: Span, base: int) -> Span:

@@ -19,6 +19,13 @@ import { parseUf2 } from './uf2.js';
 const SRAM_BASE = 0x20000000;
 const TIMER_KEY = 0x40054;
 const TICKS_SYMBOL = 'usbmotion_ticks_done';
+/** Each core's stack, by the linker script's symbols: [bottom, top]. */
+const STACK_SYMBOLS = [
+  ['__StackBottom', '__StackTop'],
+  ['__StackOneBottom', '__StackOneTop'],
+];
+/** What a stack is painted with at power-up: the bytes still holding it were never used. */
+const STACK_PAINT = 0x5a;
 /** Cycles a core runs before the other gets its turn, when both are awake. */
 export const QUANTUM_BOTH_CYCLES = 64;
 /** ... and when the other sleeps (it wakes at the next quantum at the latest). */
@@ -50,6 +57,13 @@ export class EmulatedDevice {
       throw new DeviceError(`${TICKS_SYMBOL} at 0x${ticks.address.toString(16)} is not in SRAM`);
     }
     this.ticksOffset = ticks.address - SRAM_BASE;
+    this.stacks = STACK_SYMBOLS.map(([bottom, top]) => {
+      const low = this.symbols.get(bottom);
+      const high = this.symbols.get(top);
+      return low && high && high.address > low.address
+        ? { bottom: low.address - SRAM_BASE, top: high.address - SRAM_BASE }
+        : null;
+    });
     const patched = patchBootrom(readBootrom(bootrom), FLASH_BREAKPOINTS);
     this.bootromWords = new Uint32Array(patched.image.buffer.slice(0));
     this.breakpoints = patched.byAddress;
@@ -85,6 +99,11 @@ export class EmulatedDevice {
     this.mcu = mcu;
     this.clock = mcu.clock;
     this.sram = mcu.sramView;
+    for (const stack of this.stacks) {
+      if (stack) {
+        mcu.sram.fill(STACK_PAINT, stack.bottom, stack.top);
+      }
+    }
     this.fault = null;
     this.output = [];
     this.host = new CdcHost(mcu.usbCtrl, (data) => this.received(data));
@@ -177,6 +196,23 @@ export class EmulatedDevice {
     const low = this.sram.getUint32(this.ticksOffset, true);
     const high = this.sram.getUint32(this.ticksOffset + 4, true);
     return high * 4294967296 + low;
+  }
+
+  /**
+   * How much of each core's stack has been used since power-up (its high-water mark, from
+   * the paint), and its size, bytes; null for a stack the ELF does not name.
+   */
+  stackUsage() {
+    return this.stacks.map((stack) => {
+      if (!stack) {
+        return null;
+      }
+      let low = stack.bottom;
+      while (low < stack.top && this.mcu.sram[low] === STACK_PAINT) {
+        low++;
+      }
+      return { used: stack.top - low, size: stack.top - stack.bottom };
+    });
   }
 
   busyCycles() {

@@ -160,6 +160,14 @@ class DeviceStatus:
     emulated_ns: int
 
 
+@dataclass(frozen=True, slots=True)
+class StackUsage:
+    """One core's stack: the most of it used since power-up and its size, bytes."""
+
+    used: int
+    size: int
+
+
 class EmulatedDevice:
     """One emulated device in deterministic mode (``firmware/emulator/control.js``).
 
@@ -297,6 +305,18 @@ class EmulatedDevice:
             busy_cycles=(int(cycles[0]), int(cycles[1])),
             emulated_ns=int(reply["emulated_ns"]),
         )
+
+    def stack_usage(self) -> tuple[StackUsage | None, StackUsage | None]:
+        """Each core's stack since power-up: its high-water mark and size (None: not named).
+
+        The harness paints both stacks at power-up; the bytes no longer holding the paint
+        were used.
+        """
+        stacks = self._request({"cmd": "stacks"})["stacks"]
+        usage = tuple(None if stack is None else StackUsage(int(stack["used"]),
+                                                            int(stack["size"]))
+                      for stack in stacks)
+        return usage[0], usage[1]
 
     def read_symbol(self, symbol: str, size: int | None = None) -> bytes:
         """The bytes of a firmware variable, by its ELF symbol (``size`` default: the symbol's)."""
