@@ -15,6 +15,7 @@ import pytest
 
 from . import test_native_device as native
 from .emulated import EmulatedFirmware, missing
+from .sessions import Run, lines
 from .test_native_device import (  # the scripted sessions, run here on the emulated chip
     test_a_fault_alarm_and_the_refusal_to_enable,
     test_a_long_run_of_leading_zeros,
@@ -97,3 +98,24 @@ def test_every_session_of_the_native_tests_runs_here() -> None:
               if name.startswith("test_") and callable(function)
               and getattr(function, "__annotations__", {}).get("driver") == "Driver"}
     assert shared == {function.__name__ for function in SCRIPTED} | GENERATED
+
+
+# --- sessions of the chip's own: the budget's worst cases ----------------------------------
+
+
+def _ramp(count: int, step: int) -> str:
+    return " ".join(str(step * k) for k in range(1, count + 1))
+
+
+def test_every_mode_at_10_khz_with_diagnostics_every_tick(driver: EmulatedFirmware) -> None:
+    """Position, velocity and curve mode at a 100 us period, a D line after every tick and
+    the statistics counting: the cases benchmarks/firmware_budget.py measures. A curve's
+    first tick of a segment takes longer than the period on the chip; the harness holds the
+    timer while core1 works, so the ticks stay one period apart as the Python's."""
+    native.assert_same(driver, [
+        lines("5 1", "21 1", "3 1", f"1 1000 {_ramp(1000, 3)}"), Run(300),
+        lines("35 -1", "7 2", "3 1", f"1 500 {' '.join(['20000'] * 500)}"), Run(300),
+        lines("7 3", "3 1", "25 20 400 0 0", "25 10 -100 512 -512", "25 30 2000 100 -100",
+              "25 25 -3000 0 0"), Run(900), lines("20 -1", "35 -1", "27 -1"),
+    ])
+    assert driver.device.status().tick == 1500

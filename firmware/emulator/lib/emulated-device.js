@@ -257,8 +257,9 @@ export class EmulatedDevice {
   /**
    * Runs both cores until the clock reaches endNanos or a stop condition holds.
    * @param {number} endNanos
-   * @param {{ticks?: number, settle?: boolean}} [stop] ticks: stop (and hold the timer) once
-   *   that many ticks are done; settle: stop once quiescent
+   * @param {{ticks?: number, settle?: boolean, core1Untimed?: boolean}} [stop] ticks: stop
+   *   (and hold the timer) once that many ticks are done; settle: stop once quiescent;
+   *   core1Untimed: hold the timer whenever core1 is awake
    * @returns {'time'|'ticks'|'settled'|'idle'}
    */
   advance(endNanos, stop = {}) {
@@ -268,6 +269,7 @@ export class EmulatedDevice {
     const cycleNanos = 1e9 / mcu.clkSys;
     const targetTicks = stop.ticks ?? -1;
     const settle = stop.settle === true;
+    const core1Untimed = stop.core1Untimed === true;
     for (;;) {
       if (this.fault) {
         throw new DeviceError(this.fault);
@@ -279,6 +281,15 @@ export class EmulatedDevice {
       const core1 = mcu.cores[1];
       const run0 = !core0.waiting;
       const run1 = !mcu.core1Off && !core1.waiting;
+      if (core1Untimed) {
+        // the timer stands still while core1 works: a tick costs no timer time, so however
+        // many cycles it takes, the next one is due a whole period later (no catch-up)
+        if (run1) {
+          this.holdTimer();
+        } else {
+          this.releaseTimer();
+        }
+      }
       let slice = endNanos - now;
       const next = clock.nextAlarm;
       if (next && next.nanos - now < slice) {
@@ -342,13 +353,16 @@ export class EmulatedDevice {
    * Deterministic: runs `count` more servo ticks, one at a time: after each, the timer is held
    * until core0 has printed what the tick recorded and the host has taken it. Output stamped
    * with tick N is so what the device printed after tick N, whatever USB's latency (the
-   * Python device stamps a line with the tick it printed at).
+   * Python device stamps a line with the tick it printed at). The timer is also held while
+   * core1 runs a tick: a tick longer than the servo period (which on the chip would make the
+   * next ones late, run back to back to catch up) still ends one period before the next.
+   * The cycles every tick took are counted all the same (busyCycles).
    */
   runTicks(count) {
     for (let done = 0; done < count; done++) {
       const target = this.ticksDone() + 1;
       this.releaseTimer();
-      const reason = this.advance(Infinity, { ticks: target });
+      const reason = this.advance(Infinity, { ticks: target, core1Untimed: true });
       if (reason !== 'ticks') {
         throw new DeviceError(`the servo stopped ticking at tick ${this.ticksDone()}`);
       }

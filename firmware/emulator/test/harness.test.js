@@ -171,6 +171,20 @@ describe('fixture firmware, deterministic', () => {
     assert.deepEqual(output.slice(1), Array.from({ length: 40 }, (_, i) => [i + 1, `t ${i + 1}\n`]));
   });
 
+  test('a tick longer than the servo period: the next one is not run early to catch up', () => {
+    const fresh = new EmulatedDevice({ uf2: FIXTURE_UF2 });
+    fresh.bootHeld();
+    fresh.feed(Buffer.from('p 100\nk 20000\n')); // about 10 periods of spinning
+    const before = fresh.busyCycles()[1];
+    fresh.runTicks(1);
+    assert.equal(fresh.ticksDone(), 1);
+    assert.ok(fresh.busyCycles()[1] - before > 100000, 'the long tick ran');
+    fresh.runTicks(3);
+    assert.equal(fresh.ticksDone(), 4);
+    fresh.feed(Buffer.from('x\n'));
+    assert.deepEqual(text(fresh.takeOutput()).slice(-1), [[4, '1 4\n']]);
+  });
+
   test('flash persists across a power cycle and a new emulator on the same file', () => {
     device.feed(Buffer.from('w 4242\nr\n'));
     assert.equal(joined(device.takeOutput()), 'w 1\nr 4242 1\n');
