@@ -140,8 +140,8 @@ def anatomy(
     from usbmotion.device import core0, core1, kernel  # noqa: PLC0415
     from usbmotion.host.config import load_config  # noqa: PLC0415
     from usbmotion.host.device import DeviceClient  # noqa: PLC0415
-    from usbmotion.session import MachineSession  # noqa: PLC0415
     from usbmotion.session import session as job  # noqa: PLC0415 - the job in-process
+    from usbmotion.sim.machine import connect_session  # noqa: PLC0415
     from usbmotion.sim.world import SimWorld  # noqa: PLC0415
 
     compiled = kernel.compile_kernel()
@@ -179,7 +179,7 @@ def anatomy(
     try:
         config = load_config(machine_file)
         started = time.perf_counter()
-        with MachineSession.connect(config, world=SimWorld()) as session:
+        with connect_session(config, world=SimWorld()) as session:
             homing_s = session.home()
             prepared = session.prepare(program)
             plan = prepared.plan

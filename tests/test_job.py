@@ -17,8 +17,8 @@ import pytest
 from usbmotion.cli.run import default_machine
 from usbmotion.demos import demo_path
 from usbmotion.host.config import load_config
-from usbmotion.host.machine import Machine
-from usbmotion.session import MachineSession, home_position_mm
+from usbmotion.session import home_position_mm
+from usbmotion.sim.machine import SimulatedMachine, connect_session
 from usbmotion.tuning import step_response
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,7 +35,7 @@ def _usbmotion(*args: str, timeout: float = 240) -> subprocess.CompletedProcess[
 
 def test_full_home_zeroes_every_axis_on_its_latched_switch_edge() -> None:
     config = load_config(default_machine())
-    with MachineSession.connect(config) as session:
+    with connect_session(config) as session:
         starts = session.positions_mm()
         assert all(v == 0 for v in starts.values()), "positions start at 0 before homing"
         assert not session.is_homed
@@ -76,7 +76,7 @@ def test_homing_uses_each_axis_velocity_gains(monkeypatch: pytest.MonkeyPatch) -
         seen.setdefault(self.name, []).append((kp, ki, kd))
         original(self, kp=kp, ki=ki, kd=kd)
 
-    with MachineSession.connect(config) as session:
+    with connect_session(config) as session:
         machine = session.machine
         monkeypatch.setattr(DeviceClient, "set_gains", spy)
         session.home()
@@ -208,7 +208,7 @@ def test_console_with_piped_input() -> None:
 
 def test_step_response_figures() -> None:
     config = load_config(default_machine())
-    with Machine.connect(config) as machine:
+    with SimulatedMachine.connect(config) as machine:
         machine.configure()
         response = step_response(machine, "X", step_mm=1000 / 240, duration_s=0.4)
     metrics = response.metrics

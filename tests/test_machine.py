@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from usbmotion.clock import WALL_CLOCK
 from usbmotion.device import Device, MemoryFlash
 from usbmotion.errors import ConfigError, DeviceError, DeviceNotFoundError
 from usbmotion.host.config import MachineConfig, load_config, parse_config
@@ -15,7 +16,7 @@ from usbmotion.host.device import ControlMode
 from usbmotion.host.discovery import discover, probe, scan
 from usbmotion.host.machine import Machine
 from usbmotion.host.timesync import SyncReport, measure_clock, synchronise_start
-from usbmotion.sim.clock import WALL_CLOCK
+from usbmotion.sim.machine import SimulatedMachine
 from usbmotion.sim.registry import set_world
 from usbmotion.sim.server import DeviceServer
 from usbmotion.sim.world import SimWorld, VirtualClock
@@ -71,7 +72,7 @@ def serving(world: SimWorld) -> DeviceServer:
 
 def test_connect_and_configure_the_example_machine() -> None:
     config = load_config(EXAMPLE)
-    with Machine.connect(config) as machine:
+    with SimulatedMachine.connect(config) as machine:
         assert list(machine.axes) == ["X", "Y", "Z"]
         assert isinstance(machine.clock, VirtualClock)
         world = machine.world
@@ -132,7 +133,7 @@ def trapezoid_counts(axis_velocity_mm_s: float, accel_mm_s2: float, cruise_s: fl
 
 def test_the_example_limits_are_followed_within_a_tenth_of_a_millimetre() -> None:
     config = load_config(EXAMPLE)
-    with Machine.connect(config) as machine:
+    with SimulatedMachine.connect(config) as machine:
         assert machine.world is not None
         machine.configure()
         machine.enable(True)
@@ -154,7 +155,7 @@ def test_the_example_limits_are_followed_within_a_tenth_of_a_millimetre() -> Non
 
 def test_set_mode_switches_the_gains_with_the_mode() -> None:
     config = load_config(EXAMPLE)
-    with Machine.connect(config) as machine:
+    with SimulatedMachine.connect(config) as machine:
         machine.configure()
         machine.set_mode(ControlMode.VELOCITY, axes=["Z"])
         assert machine.world is not None
@@ -173,7 +174,7 @@ def test_connect_uses_devices_already_in_the_given_world() -> None:
     mine = named("PRE-MADE X")
     world.add(mine, key="X")
     config = parse_config(machine_text({"X": 'url = "sim://X"', "Y": 'url = "sim://Y"'}))
-    with Machine.connect(config, world=world) as machine:
+    with SimulatedMachine.connect(config, world=world) as machine:
         assert machine.world is world
         assert world.device("X") is mine
         assert machine.axis("X").client.device_name() == "PRE-MADE X"
@@ -187,7 +188,7 @@ def test_a_url_that_answers_to_another_name_is_refused() -> None:
     config = parse_config(machine_text({"X": 'url = "sim://X"\ndevice = "X AXIS"'}))
     with pytest.raises(DeviceNotFoundError, match="answers to 'SOMETHING ELSE', not to the"
                        " configured device 'X AXIS'"):
-        Machine.connect(config, world=world)
+        SimulatedMachine.connect(config, world=world)
 
 
 def test_axes_named_by_device_are_found_in_the_world() -> None:
@@ -197,7 +198,7 @@ def test_axes_named_by_device_are_found_in_the_world() -> None:
     config = parse_config(
         machine_text({"X": 'device = "BENCH X"', "Y": 'device = "BENCH Y"'})
     )
-    with Machine.connect(config, world=world, search_ports=False) as machine:
+    with SimulatedMachine.connect(config, world=world, search_ports=False) as machine:
         assert machine.axis("X").url.startswith("sim://0?world=")
         assert machine.axis("Y").url.startswith("sim://1?world=")
         assert machine.axis("Y").client.device_name() == "BENCH Y"
@@ -211,7 +212,7 @@ def test_simulated_and_real_axes_cannot_share_a_machine() -> None:
 
 def test_stop_clears_and_disables_every_axis_and_reports_failures_together() -> None:
     config = load_config(EXAMPLE)
-    with Machine.connect(config) as machine:
+    with SimulatedMachine.connect(config) as machine:
         machine.configure()
         machine.enable(True)
         for axis in machine.axes.values():
@@ -237,7 +238,7 @@ def test_stop_clears_and_disables_every_axis_and_reports_failures_together() -> 
 
 def test_enable_refused_by_one_axis_leaves_every_axis_disabled() -> None:
     config = load_config(EXAMPLE)
-    with Machine.connect(config) as machine:
+    with SimulatedMachine.connect(config) as machine:
         machine.configure()
         assert machine.world is not None
         machine.world.device("Y").feed(b"29 1\n3 1\n0 500\n")
@@ -349,7 +350,7 @@ def latency_config(latencies_us: tuple[int, ...]) -> MachineConfig:
 
 def test_time_sync_starts_every_axis_on_the_same_world_tick() -> None:
     config = latency_config((0, 700, 3000))
-    with Machine.connect(config) as machine:
+    with SimulatedMachine.connect(config) as machine:
         machine.configure()
         world = machine.world
         assert world is not None
@@ -384,7 +385,7 @@ def test_time_sync_starts_every_axis_on_the_same_world_tick() -> None:
 
 @pytest.mark.parametrize("latencies", [(0, 0, 0), (250, 1250, 40), (999, 1, 4500)])
 def test_time_sync_is_exact_for_other_latencies(latencies: tuple[int, ...]) -> None:
-    with Machine.connect(latency_config(latencies)) as machine:
+    with SimulatedMachine.connect(latency_config(latencies)) as machine:
         machine.configure()
         assert machine.world is not None
         machine.world.advance(777)
@@ -395,7 +396,7 @@ def test_time_sync_is_exact_for_other_latencies(latencies: tuple[int, ...]) -> N
 
 
 def test_measure_clock_and_arguments() -> None:
-    with Machine.connect(latency_config((0, 0, 2000))) as machine:
+    with SimulatedMachine.connect(latency_config((0, 0, 2000))) as machine:
         z = machine.axis("Z").client
         estimate = measure_clock(z, samples=3)
         assert estimate.samples == 3

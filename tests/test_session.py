@@ -29,6 +29,7 @@ from usbmotion.session import (
     check_transition,
     home_position_mm,
 )
+from usbmotion.sim.machine import connect_session
 from usbmotion.sim.world import SimWorld
 
 LINE = "G21 G90\nG1 X150 F1200\nM2\n"
@@ -65,7 +66,7 @@ def test_every_state_change_is_one_of_the_documented_transitions() -> None:
 
 def test_a_program_starts_where_the_machine_stands_and_can_run_twice(
         config: MachineConfig) -> None:
-    with MachineSession.connect(config) as session:
+    with connect_session(config) as session:
         assert session.state is MachineState.IDLE and not session.is_homed
         session.home()
         assert session.is_homed
@@ -87,7 +88,7 @@ def test_moves_to_zero_after_homing_touch_no_switch(config: MachineConfig) -> No
     """The switch is outside the travel: G0 X0 and a CAM retract (G28 G91 Z0) are moves,
     not faults."""
     program = "G21 G90\nG0 X50 Y40 Z20\nG0 X0 Y0\nG28 G91 Z0\nG90 G0 X0 Y0 Z0\nM2\n"
-    with MachineSession.connect(config) as session:
+    with connect_session(config) as session:
         session.home()
         report, _ = session.run(session.prepare("zero.ngc", text=program))
         assert report.completed and report.faults == ()
@@ -104,7 +105,7 @@ def test_moves_to_zero_after_homing_touch_no_switch(config: MachineConfig) -> No
 def test_a_program_that_leaves_the_travel_is_refused_before_anything_moves(
         config: MachineConfig, program: str, line: int, axis: str, coordinate: float | None,
         limit: float) -> None:
-    with MachineSession.connect(config) as session:
+    with connect_session(config) as session:
         session.home()
         devices = _devices(session)
         before = {name: (d.state.desired, d.state.queued, d.settings) for name, d in
@@ -123,7 +124,7 @@ def test_a_program_that_leaves_the_travel_is_refused_before_anything_moves(
 
 
 def test_an_unhomed_machine_plans_where_homing_will_leave_it(config: MachineConfig) -> None:
-    with MachineSession.connect(config) as session:
+    with connect_session(config) as session:
         prepared = session.prepare("p.ngc", text="G21 G90\nG0 X300\nM2\n", unhomed=True)
         assert not prepared.homed, "in the devices' own counts: no soft limits"
         with pytest.raises(SoftLimitError):
@@ -152,7 +153,7 @@ def _stop_mid_run(session: MachineSession, at_s: float, *, twice: bool = False) 
 
 def test_a_stop_mid_run_decelerates_along_the_path_within_v2_over_2a(
         config: MachineConfig) -> None:
-    with MachineSession.connect(config) as session:
+    with connect_session(config) as session:
         session.home()
         devices = _devices(session)
         _stop_mid_run(session, 3.0)
@@ -179,7 +180,7 @@ def test_a_stop_mid_run_decelerates_along_the_path_within_v2_over_2a(
 
 
 def test_a_second_stop_request_stops_at_once(config: MachineConfig) -> None:
-    with MachineSession.connect(config) as session:
+    with connect_session(config) as session:
         session.home()
         _stop_mid_run(session, 2.0, twice=True)
         report, _ = session.last  # type: ignore[attr-defined]
@@ -192,7 +193,7 @@ def test_a_stop_during_homing_brings_every_axis_to_rest_unhomed(
         config: MachineConfig, monkeypatch: pytest.MonkeyPatch) -> None:
     original = device_io.DeviceHomingIO.after_poll
     polls = [0]
-    with MachineSession.connect(config) as session:
+    with connect_session(config) as session:
 
         def after_poll(self: device_io.DeviceHomingIO) -> None:
             original(self)
@@ -217,7 +218,7 @@ def test_no_switch_within_the_search_distance_fails_naming_the_axis() -> None:
         " search_mm = 20.0 }", 1)
     config = parse_config(text, path="short-search.toml")
     assert config.axis("X").homing.search_mm == 20.0
-    with MachineSession.connect(config) as session:
+    with connect_session(config) as session:
         with pytest.raises(SequenceFaultError) as caught:
             session.home()
         assert caught.value.axis == "X"
@@ -232,12 +233,12 @@ def test_no_switch_within_the_search_distance_fails_naming_the_axis() -> None:
 def test_a_second_host_finds_the_machine_homed_where_the_first_left_it(
         config: MachineConfig) -> None:
     world = SimWorld()
-    with MachineSession.connect(config, world=world) as first:
+    with connect_session(config, world=world) as first:
         first.home()
         report, _ = first.run(first.prepare("a.ngc", text="G21 G90\nG1 X40 Y30 Z10 F900\nM2\n"))
         assert report.completed
         first.shutdown()
-    with MachineSession.connect(config, world=world) as second:
+    with connect_session(config, world=world) as second:
         assert second.notices == [] and second.is_homed, "no fault: the position is known"
         where = second.positions_mm()
         assert where == pytest.approx({"X": 40.0, "Y": 30.0, "Z": 10.0}, abs=3 / 240), (
@@ -251,12 +252,12 @@ def test_a_second_host_finds_the_machine_homed_where_the_first_left_it(
 def test_a_fault_an_earlier_host_left_is_reported_cleared_and_needs_homing(
         config: MachineConfig) -> None:
     world = SimWorld()
-    with MachineSession.connect(config, world=world) as first:
+    with connect_session(config, world=world) as first:
         first.home()
         for axis in first.machine.axes.values():
             axis.client.set_watchdog_ms(50)
     world.advance(200_000)
-    with MachineSession.connect(config, world=world) as second:
+    with connect_session(config, world=world) as second:
         assert sorted(second.faults_found) == ["X", "Y", "Z"]
         assert all(code == Fault.WATCHDOG for code, _ in second.faults_found.values())
         assert len(second.notices) == 3
@@ -269,7 +270,7 @@ def test_a_fault_an_earlier_host_left_is_reported_cleared_and_needs_homing(
 def test_motion_an_earlier_host_left_running_is_stopped_along_its_deceleration(
         config: MachineConfig) -> None:
     world = SimWorld()
-    with MachineSession.connect(config, world=world) as first:
+    with connect_session(config, world=world) as first:
         first.home()
         client = first.machine.axis("X").client
         ramp = [round(4.8 * k * k / 400) if k < 200 else round(4.8 * (k - 100))
@@ -280,7 +281,7 @@ def test_motion_an_earlier_host_left_running_is_stopped_along_its_deceleration(
     assert isinstance(device, Device)
     moving_at = device.state.actual
     assert device.state.queued > 0 and device.state.velocity > 3000, "still running"
-    with MachineSession.connect(config, world=world) as second:
+    with connect_session(config, world=world) as second:
         assert any("still running what an earlier host queued" in n for n in second.notices)
         state = device.state
         assert state.queued == 0 and state.velocity == 0

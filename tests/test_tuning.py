@@ -13,11 +13,12 @@ import numpy as np
 import pytest
 
 from usbmotion.cli.run import default_machine
+from usbmotion.clock import WALL_CLOCK
 from usbmotion.device import Device, MemoryFlash
 from usbmotion.errors import ConfigError, DeviceError, OutOfRangeError
 from usbmotion.host.config import MachineConfig, load_config, parse_config
 from usbmotion.host.machine import Machine
-from usbmotion.sim.clock import WALL_CLOCK
+from usbmotion.sim.machine import SimulatedMachine
 from usbmotion.sim.server import DeviceServer
 from usbmotion.sim.world import SimWorld
 from usbmotion.tuning import ReachMeasurement, fit_saturated_run, measure_reach
@@ -77,7 +78,7 @@ def measured(axis: str, *, distance_mm: float = 30.0,
              config: MachineConfig | None = None) -> tuple[ReachMeasurement, list[int]]:
     """measure_reach on the default machine; also the axis's counts after the test."""
     config = config or load_config(default_machine())
-    with Machine.connect(config) as machine:
+    with SimulatedMachine.connect(config) as machine:
         machine.configure()
         assert machine.world is not None
         device = machine.world.device(axis)
@@ -144,7 +145,7 @@ def test_a_motor_that_cannot_turn_is_named() -> None:
     assert x.sim is not None
     stalled = dataclasses.replace(x, sim=dataclasses.replace(x.sim, load_torque_mnm=2000.0))
     config = dataclasses.replace(config, axes=(stalled, *config.axes[1:]))
-    with Machine.connect(config) as machine:
+    with SimulatedMachine.connect(config) as machine:
         machine.configure()
         with pytest.raises(DeviceError, match=r"axis X: moved 0 mm of the 15 mm it may"
                            r" accelerate over in 0.5 s at full voltage: is the motor"

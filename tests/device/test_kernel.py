@@ -28,6 +28,7 @@ from usbmotion.host.device import DeviceClient
 from usbmotion.host.stream import SetpointStream, run_streams, wait_until_drained
 from usbmotion.protocol import QUEUE_CAPACITY
 from usbmotion.sim import SimWorld, drop_world, set_world
+from usbmotion.sim.machine import connect_session
 
 from .helpers import send, take
 
@@ -445,13 +446,12 @@ M2
 
 def _run_job(monkeypatch: pytest.MonkeyPatch, *, kernel_switch: str) -> dict[str, object]:
     from usbmotion.host.config import parse_config  # noqa: PLC0415 - only this test
-    from usbmotion.session import MachineSession  # noqa: PLC0415
 
     monkeypatch.setenv(kernel.ENVIRONMENT_VARIABLE, kernel_switch)
     axes = "".join(_AXIS.format(name=name) for name in "XYZ")
     config = parse_config(_MACHINE.format(axes=axes), path="<kernel test>")
     world = SimWorld()
-    with MachineSession.connect(config, world=world) as session:
+    with connect_session(config, world=world) as session:
         devices = [world.device(key) for key in world.keys]
         assert [isinstance(d, Device) and d.fast for d in devices] == [kernel_switch == "1"] * 3
         homing_s = session.home()

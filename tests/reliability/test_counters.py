@@ -21,7 +21,8 @@ from usbmotion.device.motor import MICRO
 from usbmotion.host.config import parse_config
 from usbmotion.protocol import ReplyKind, parse_reply
 from usbmotion.protocol.table import INT32_MAX, INT32_MIN
-from usbmotion.session import MachineSession, home_position_mm
+from usbmotion.session import home_position_mm
+from usbmotion.sim.machine import connect_session
 
 VELOCITY_GAINS = ("9 7 -3", "10 1 0", "11 0 0")
 MINUTE_US = 60_000_000
@@ -182,7 +183,7 @@ def test_a_homing_that_outlasts_a_minute_still_zeroes_at_the_switch() -> None:
     axis = config.axis("X")
     travel = axis.sim_travel_counts
     assert travel is not None
-    with MachineSession.connect(config) as session:
+    with connect_session(config) as session:
         machine = session.machine
         assert machine.world is not None
         device = machine.world.device("X")

@@ -31,8 +31,9 @@ from usbmotion.device.motor import MICRO, MotorParams
 from usbmotion.host.config import MachineConfig, load_config
 from usbmotion.motion.sampler import sample_plan
 from usbmotion.protocol.table import Fault
-from usbmotion.session import MachineSession, RunReport, plan_gcode
+from usbmotion.session import RunReport, plan_gcode
 from usbmotion.session.session import FAULT_CHECK_S
+from usbmotion.sim.machine import connect_session
 
 STALL_PROGRAM = "G21 G90\nG1 X50 F600\nG1 Y50\nM2\n"
 LIMIT_PROGRAM = "G21 G90\nG1 X10 Y10 F1200\nG1 X250 Y60\nG1 X0 Y0\nM2\n"
@@ -66,7 +67,7 @@ def _watch_stops(device: Device, ticks: list[int]) -> Callable[[bytes], None]:
 
 def _run(config: MachineConfig, text: str, *, home: bool,
          load_mnm: float | None = None) -> Outcome:
-    with MachineSession.connect(config) as session:
+    with connect_session(config) as session:
         machine = session.machine
         assert machine.world is not None
         devices: dict[str, Device] = {}

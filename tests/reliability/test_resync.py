@@ -24,9 +24,9 @@ from usbmotion.device import Device, MemoryFlash
 from usbmotion.host import device as device_module
 from usbmotion.host.config import parse_config
 from usbmotion.host.device import DeviceClient
-from usbmotion.host.machine import Machine
 from usbmotion.host.transport import LineTransport
 from usbmotion.protocol import ReplyKind, parse_reply
+from usbmotion.sim.machine import SimulatedMachine
 from usbmotion.sim.registry import register_url_handler, set_world
 from usbmotion.sim.world import SimWorld
 
@@ -211,7 +211,7 @@ def test_machine_connect_takes_over_a_device_a_dead_host_left_printing(
         "max_velocity_mm_s = 20\nmax_accel_mm_s2 = 500\ntravel_mm = [0, 200]\n"
         "following_error_limit_mm = 1.5\ngains = { kp = 0.5, ki = 5.0, kd = 0.002 }\n"
     )
-    with Machine.connect(config, world=world) as machine:
+    with SimulatedMachine.connect(config, world=world) as machine:
         client = machine.axis("X").client
         assert client.device_name() == "X AXIS"
         machine.configure()

@@ -41,8 +41,9 @@ import pytest
 from usbmotion.cli.run import default_machine
 from usbmotion.device import Device
 from usbmotion.host.config import MachineConfig, load_config
-from usbmotion.session import MachineSession, RunReport, plan_gcode
+from usbmotion.session import RunReport, plan_gcode
 from usbmotion.session import session as job
+from usbmotion.sim.machine import connect_session
 
 SOAK_ENV = "USBMOTION_SOAK_S"
 """Environment variable: seconds of program to soak (``make soak`` sets 3600)."""
@@ -130,7 +131,7 @@ class Soak:
 
 def _soak(config: MachineConfig, text: str) -> tuple[Soak, object]:
     started = time.perf_counter()
-    with MachineSession.connect(config) as session:
+    with connect_session(config) as session:
         machine = session.machine
         assert machine.world is not None
         drains: dict[str, Drains] = {}

@@ -22,12 +22,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from usbmotion.automation.homing import LimitSwitchState, SwitchEdgeReading
+from usbmotion.clock import Clock
 from usbmotion.errors import DeviceFaultError, OutOfRangeError
 from usbmotion.host.device import AxisScale, ControlMode, DeviceClient, Status, SwitchEdge
 from usbmotion.motion.profiles import trapezoid_profile
 from usbmotion.protocol import QUEUE_CAPACITY
 from usbmotion.protocol.table import INT32_MAX, INT32_MIN
-from usbmotion.sim.clock import Clock
 
 LEAD_S = 0.003
 """How far ahead of the device's present tick a ramp starts: covers the link's latency (a

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Generic, Protocol, TypeVar
 
+from usbmotion.clock import Clock
 from usbmotion.errors import OutOfRangeError, SequenceFaultError, StopRequestedError
-from usbmotion.sim.clock import Clock
 
 
 class FaultKind(Enum):

@@ -29,6 +29,7 @@ def console(
     from usbmotion.console import Console  # noqa: PLC0415 - keep --help fast
     from usbmotion.host.config import load_config  # noqa: PLC0415
     from usbmotion.session import MachineSession  # noqa: PLC0415
+    from usbmotion.sim.machine import connect_session  # noqa: PLC0415
 
     try:
         config = load_config(machine or default_machine())
@@ -42,7 +43,8 @@ def console(
         sys.stdout.flush()
 
     try:
-        with MachineSession.connect(config) as session:
+        with (connect_session(config) if config.is_simulated
+              else MachineSession.connect(config)) as session:
             for notice in session.notices:
                 write(f"notice: {notice}")
             console_session = Console(session, write)

@@ -117,6 +117,7 @@ def run(
     from usbmotion.host.config import load_config  # noqa: PLC0415 - keep --help fast
     from usbmotion.motion.gcode import parse_gcode, read_gcode_text  # noqa: PLC0415
     from usbmotion.session import MachineSession  # noqa: PLC0415
+    from usbmotion.sim.machine import connect_session  # noqa: PLC0415
     from usbmotion.sim.world import SimWorld  # noqa: PLC0415
 
     try:
@@ -133,9 +134,11 @@ def run(
         typer.echo(f"usbmotion run: cannot read {error.filename!r}: {error.strerror}", err=True)
         raise typer.Exit(EXIT_BAD_INPUT) from None
 
-    world = SimWorld(realtime=realtime) if config.is_simulated else None
     try:
-        session = MachineSession.connect(config, world=world)
+        if config.is_simulated:
+            session = connect_session(config, world=SimWorld(realtime=realtime))
+        else:
+            session = MachineSession.connect(config)
     except UsbMotionError as error:
         typer.echo(f"usbmotion run: {error}", err=True)
         raise typer.Exit(EXIT_FAULT) from None

@@ -7,6 +7,7 @@ import re
 import signal
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
 from typing import Annotated
@@ -60,11 +61,22 @@ def sim(
     flash_dir: Annotated[
         Path | None, typer.Option("--flash-dir", help="Folder of the devices' flash files.")
     ] = None,
+    firmware: Annotated[
+        Path | None,
+        typer.Option(
+            "--firmware",
+            help="Serve emulated RP2040s running this firmware image (.uf2, its .elf beside "
+            "it) instead of the Python devices.",
+        ),
+    ] = None,
 ) -> None:
     """Serve simulated devices in real time until SIGINT or SIGTERM.
 
     Prints one line per device: its name and its pseudo-terminal path (``--pty``) or its
-    ``socket://`` URL (``--tcp``).
+    ``socket://`` URL (``--tcp``). With ``--firmware``, each device is the device firmware
+    running on an emulated RP2040 (``make firmware`` builds ``build/firmware/usbmotion.uf2``;
+    the emulator needs Node.js 20 and ``npm ci`` in ``firmware/emulator``), its flash kept in
+    ``--flash-dir`` (default: ``$XDG_STATE_HOME/usbmotion/flash/rp2040``).
     """
     names = list(name or [])
     for each in names:
@@ -82,12 +94,17 @@ def sim(
     devices = pty if pty > 0 else (count or max(1, len(names)))
     if not 1 <= devices <= 64:
         raise typer.BadParameter(f"--count {devices!r} must be 1..64")
-    world = build_world(names, devices, flash_dir or default_flash_dir())
     stop = threading.Event()
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
         stop.set()
 
+    if firmware is not None:
+        _serve_firmware(firmware, devices, names, pty=pty > 0, tcp_port=max(tcp, 0),
+                        flash_dir=flash_dir or default_flash_dir() / "rp2040", stop=stop,
+                        on_signal=on_signal)
+        return
+    world = build_world(names, devices, flash_dir or default_flash_dir())
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
     with DeviceServer(world, pty=pty > 0, tcp_port=max(tcp, 0)) as server:
@@ -98,5 +115,42 @@ def sim(
         server.start()
         while not stop.wait(0.2):
             pass
+    sys.stdout.write("stopped\n")
+    sys.stdout.flush()
+
+
+def _serve_firmware(
+    image: Path,
+    devices: int,
+    names: list[str],
+    *,
+    pty: bool,
+    tcp_port: int,
+    flash_dir: Path,
+    stop: threading.Event,
+    on_signal: Callable[[int, FrameType | None], None],
+) -> None:
+    """``sim --firmware``: ``devices`` emulated RP2040s, served until ``stop`` is set."""
+    from usbmotion.errors import DeviceError  # noqa: PLC0415 - keeps start-up light
+    from usbmotion.sim.firmware import FirmwareServer  # noqa: PLC0415
+
+    server = FirmwareServer(image, devices, pty=pty, tcp_port=tcp_port, flash_dir=flash_dir,
+                            names=names)
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    try:
+        server.start()
+    except (FileNotFoundError, DeviceError) as error:
+        server.close()
+        sys.stderr.write(f"usbmotion sim: {error}\n")
+        raise typer.Exit(2) from None
+    with server:
+        for endpoint in server.endpoints:
+            sys.stdout.write(f"{endpoint.name} {endpoint.url}\n")
+        sys.stdout.flush()
+        while not stop.wait(0.2):
+            if server.stopped():
+                sys.stderr.write(f"usbmotion sim: {server.stopped()}\n")
+                raise typer.Exit(1)
     sys.stdout.write("stopped\n")
     sys.stdout.flush()

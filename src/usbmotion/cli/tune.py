@@ -90,7 +90,7 @@ def _step(config: MachineConfig, axis_config: AxisConfig, *, step_mm: float,
           duration_s: float, kp: float | None, ki: float | None, kd: float | None,
           plot: Path | None) -> None:
     from usbmotion.host.config import PidGains  # noqa: PLC0415
-    from usbmotion.host.machine import Machine  # noqa: PLC0415
+    from usbmotion.sim.machine import connect_machine  # noqa: PLC0415
     from usbmotion.tuning import step_response  # noqa: PLC0415
 
     gains = axis_config.gains
@@ -100,7 +100,7 @@ def _step(config: MachineConfig, axis_config: AxisConfig, *, step_mm: float,
                  for a in config.axes)
     config = dataclasses.replace(config, axes=axes)
     try:
-        with Machine.connect(config) as connected:
+        with connect_machine(config) as connected:
             connected.configure()
             response = step_response(connected, axis_config.name, step_mm=step_mm,
                                      duration_s=duration_s)
@@ -131,14 +131,14 @@ def _step(config: MachineConfig, axis_config: AxisConfig, *, step_mm: float,
 
 def _reach(config: MachineConfig, axis_config: AxisConfig, distance_mm: float | None) -> None:
     from usbmotion.host.config import REACH_MARGIN, round_down  # noqa: PLC0415
-    from usbmotion.host.machine import Machine  # noqa: PLC0415
+    from usbmotion.sim.machine import connect_machine  # noqa: PLC0415
     from usbmotion.tuning import measure_reach  # noqa: PLC0415
 
     low, high = axis_config.travel_mm
     distance = (distance_mm if distance_mm is not None
                 else min(REACH_DISTANCE_MAX_MM, (high - low) / 4))
     try:
-        with Machine.connect(config) as connected:
+        with connect_machine(config) as connected:
             connected.configure()
             try:
                 measured = measure_reach(connected, axis_config.name, distance_mm=distance)

@@ -31,6 +31,7 @@ import math
 from dataclasses import dataclass
 
 from usbmotion.errors import DeviceParameterError
+from usbmotion.motor_model import DcMotorModel
 from usbmotion.protocol.table import BY_NUMBER, INT32_MAX, INT32_MIN, Param
 from usbmotion.scimath import (
     SciNumber,
@@ -141,33 +142,29 @@ class MotorParams:
 
     # --- the continuous model in floating point (for tools and tests) ---------------------
 
-    def _si(self) -> tuple[float, float, float, float, float, float]:
-        kt = float(sci_value(self.torque_constant_mnm_per_a)) * 1e-3
-        resistance = float(sci_value(self.winding_resistance_ohm))
-        inertia = float(sci_value(self.inertia_kg_m2))
-        viscous = float(sci_value(self.viscous_friction_unm_per_rad_s)) * 1e-6
-        load = float(sci_value(self.load_torque_mnm)) * 1e-3
-        rad_per_count = 2.0 * math.pi / self.counts_per_revolution
-        return kt, resistance, inertia, viscous, load, rad_per_count
+    def model(self) -> DcMotorModel:
+        """These parameters as the continuous model's SI figures."""
+        return DcMotorModel(
+            torque_constant_nm_per_a=float(sci_value(self.torque_constant_mnm_per_a)) * 1e-3,
+            resistance_ohm=float(sci_value(self.winding_resistance_ohm)),
+            inertia_kg_m2=float(sci_value(self.inertia_kg_m2)),
+            viscous_nm_s_per_rad=float(sci_value(self.viscous_friction_unm_per_rad_s)) * 1e-6,
+            load_torque_nm=float(sci_value(self.load_torque_mnm)) * 1e-3,
+            counts_per_revolution=self.counts_per_revolution,
+            source_voltage_v=float(sci_value(self.source_voltage_v)),
+        )
 
     def time_constant_s(self) -> float:
         """Mechanical time constant ``J / (Kt**2/R + b)`` of the continuous model, s."""
-        kt, resistance, inertia, viscous, _, _ = self._si()
-        return inertia / (kt * kt / resistance + viscous)
+        return self.model().time_constant_s()
 
     def steady_speed_counts_s(self, voltage_v: float) -> float:
         """Speed the continuous model settles at under a constant voltage, counts/s."""
-        kt, resistance, _, viscous, load, rad_per_count = self._si()
-        damping = kt * kt / resistance + viscous
-        drive = kt * voltage_v / resistance
-        if abs(drive) <= load:
-            return 0.0
-        return (drive - math.copysign(load, drive)) / damping / rad_per_count
+        return self.model().steady_speed_counts_s(voltage_v)
 
     def stall_torque_nm(self) -> float:
         """Torque at standstill under the full source voltage, after the load torque, N m."""
-        kt, resistance, _, _, load, _ = self._si()
-        return kt * float(sci_value(self.source_voltage_v)) / resistance - load
+        return self.model().stall_torque_nm()
 
 
 @dataclass(frozen=True, slots=True)

@@ -21,15 +21,14 @@ import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NoReturn
+from typing import Any, NoReturn
 
 from usbmotion.errors import ConfigError
 from usbmotion.host.device import AxisScale, to_sci
+from usbmotion.host.urls import parse_sim_url
+from usbmotion.motor_model import DcMotorModel
 from usbmotion.protocol import BY_NUMBER, DEVICE_NAME_MAX, QUEUE_CAPACITY
 from usbmotion.protocol.table import INT32_MAX, INT32_MIN
-
-if TYPE_CHECKING:
-    from usbmotion.device.motor import MotorParams
 
 AXIS_LETTERS = ("X", "Y", "Z", "A", "B", "C", "U", "V", "W")
 """Axis names a machine may use: the RS274/NGC axis letters."""
@@ -128,30 +127,24 @@ class SimMotorConfig:
     load_torque_mnm: float
     start_mm: float
 
-    def motor_params(
-        self, *, travel_counts: tuple[int, int] = (INT32_MIN, INT32_MAX)
-    ) -> MotorParams:
-        """The device's motor (``usbmotion.device.motor.MotorParams``): each value to the
-        4 significant digits its call carries, the switches at ``travel_counts``."""
-        from usbmotion.device.motor import MotorParams  # noqa: PLC0415 - simulated axes only
+    def model(self) -> DcMotorModel:
+        """The motor's continuous model, each value to the 4 significant digits the device's
+        call carries (so the figures are those of the motor the device simulates)."""
 
-        def pair(value: float, label: str) -> tuple[int, int]:
+        def sent(value: float, label: str) -> float:
             coefficient, exponent = to_sci(value, digits=4, parameter=label)
-            return (coefficient, exponent if coefficient else 0)
+            return float(coefficient) * 10.0 ** exponent if coefficient else 0.0
 
-        return MotorParams(
-            source_voltage_v=pair(self.source_voltage_v, "source_voltage_v"),
-            torque_constant_mnm_per_a=pair(self.torque_constant_mnm_per_a,
-                                           "torque_constant_mnm_per_a"),
-            winding_resistance_ohm=pair(self.winding_resistance_ohm, "winding_resistance_ohm"),
+        return DcMotorModel(
+            torque_constant_nm_per_a=sent(self.torque_constant_mnm_per_a,
+                                          "torque_constant_mnm_per_a") * 1e-3,
+            resistance_ohm=sent(self.winding_resistance_ohm, "winding_resistance_ohm"),
+            inertia_kg_m2=sent(self.inertia_kg_m2, "inertia_kg_m2"),
+            viscous_nm_s_per_rad=sent(self.viscous_friction_unm_per_rad_s,
+                                      "viscous_friction_unm_per_rad_s") * 1e-6,
+            load_torque_nm=sent(self.load_torque_mnm, "load_torque_mnm") * 1e-3,
             counts_per_revolution=self.counts_per_revolution,
-            inertia_kg_m2=pair(self.inertia_kg_m2, "inertia_kg_m2"),
-            viscous_friction_unm_per_rad_s=pair(self.viscous_friction_unm_per_rad_s,
-                                                "viscous_friction_unm_per_rad_s"),
-            load_torque_mnm=pair(self.load_torque_mnm, "load_torque_mnm"),
-            sim_update_interval_dms=self.update_interval_dms,
-            travel_lower_counts=travel_counts[0],
-            travel_upper_counts=travel_counts[1],
+            source_voltage_v=sent(self.source_voltage_v, "source_voltage_v"),
         )
 
 
@@ -224,12 +217,10 @@ def simulated_reach(sim: SimMotorConfig, counts_per_mm: float) -> AxisReach:
     Both through ``counts_per_revolution`` and ``counts_per_mm``; a motor whose load torque
     is at least its stall torque has a reach of 0.
     """
-    motor = sim.motor_params()
-    counts_per_rad = motor.counts_per_revolution / (2.0 * math.pi)
-    coefficient, exponent = motor.source_voltage_v
-    speed_counts_s = motor.steady_speed_counts_s(coefficient * 10.0 ** exponent)
-    inertia = motor.inertia_kg_m2[0] * 10.0 ** motor.inertia_kg_m2[1]
-    accel_counts_s2 = max(0.0, motor.stall_torque_nm()) / inertia * counts_per_rad
+    motor = sim.model()
+    speed_counts_s = motor.steady_speed_counts_s(motor.source_voltage_v)
+    accel_counts_s2 = max(0.0, motor.stall_torque_nm()) / motor.inertia_kg_m2 * (
+        motor.counts_per_rad)
     return AxisReach(speed_counts_s / counts_per_mm, accel_counts_s2 / counts_per_mm)
 
 
@@ -724,8 +715,6 @@ def _url(reader: _Reader) -> str | None:
     if not url.strip():
         reader.fail("url", f"{url!r} is empty; allowed: {allowed}")
     if url.lower().startswith(SIM_SCHEME):
-        from usbmotion.sim.urlhandler.protocol_sim import parse_sim_url  # noqa: PLC0415
-
         try:
             parse_sim_url(url)
         except Exception as error:  # pyserial's SerialException names the problem

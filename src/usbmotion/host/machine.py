@@ -1,29 +1,28 @@
 """A machine: several devices as named axes, configured from one file, started together.
 
 :meth:`Machine.connect` opens one :class:`~usbmotion.host.device.DeviceClient` per axis of a
-:class:`~usbmotion.host.config.MachineConfig`: ``sim://`` axes become simulated devices in
-one virtual-time world (built with the file's motor), axes named by their device name are
-found by discovery, explicit ports are opened as they are. :meth:`Machine.configure` sends
+:class:`~usbmotion.host.config.MachineConfig`: axes named by their device name are found by
+discovery, explicit ports and URLs are opened as they are. The host knows only ports:
+``usbmotion.sim.machine.SimulatedMachine`` puts the simulated devices of ``sim://`` axes
+behind such URLs. :meth:`Machine.configure` sends
 the file's settings through the clients' validated methods; :meth:`Machine.synchronise`
 zeroes the device clocks and arms a common start (call 31).
 """
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
-from urllib.parse import quote
 
+from usbmotion.clock import Clock
 from usbmotion.errors import (
     ConfigError,
     DeviceError,
     DeviceNotFoundError,
     UsbMotionError,
 )
-from usbmotion.host.config import AxisConfig, MachineConfig, SimMotorConfig
-from usbmotion.host.device import AxisScale, ControlMode, DeviceClient, Status, to_sci
+from usbmotion.host.config import AxisConfig, MachineConfig
+from usbmotion.host.device import AxisScale, ControlMode, DeviceClient, Status
 from usbmotion.host.discovery import PROBE_TIMEOUT_S, discover
 from usbmotion.host.timesync import (
     DEFAULT_MARGIN_S,
@@ -33,15 +32,6 @@ from usbmotion.host.timesync import (
     synchronise_start,
 )
 from usbmotion.host.transport import LineTransport
-from usbmotion.sim.clock import Clock
-from usbmotion.sim.registry import drop_world, set_world
-from usbmotion.sim.urlhandler.protocol_sim import parse_sim_url
-from usbmotion.sim.world import SimWorld
-
-if TYPE_CHECKING:
-    from usbmotion.device.motor import MotorParams
-
-_aliases = itertools.count(1)
 
 
 @dataclass(frozen=True, slots=True)
@@ -66,47 +56,6 @@ class Axis:
         return self.config.scale
 
 
-def sim_motor_params(sim: SimMotorConfig, *, travel_counts: tuple[int, int]) -> MotorParams:
-    """The device's ``MotorParams`` for a simulated axis (scientific values to 4 digits)."""
-    from usbmotion.device.motor import MotorParams  # noqa: PLC0415 - only simulated axes need it
-
-    def pair(value: float, label: str) -> tuple[int, int]:
-        coefficient, exponent = to_sci(value, digits=4, parameter=label)
-        return (coefficient, exponent if coefficient else 0)
-
-    return MotorParams(
-        source_voltage_v=pair(sim.source_voltage_v, "source_voltage_v"),
-        torque_constant_mnm_per_a=pair(sim.torque_constant_mnm_per_a,
-                                       "torque_constant_mnm_per_a"),
-        winding_resistance_ohm=pair(sim.winding_resistance_ohm, "winding_resistance_ohm"),
-        counts_per_revolution=sim.counts_per_revolution,
-        inertia_kg_m2=pair(sim.inertia_kg_m2, "inertia_kg_m2"),
-        viscous_friction_unm_per_rad_s=pair(sim.viscous_friction_unm_per_rad_s,
-                                            "viscous_friction_unm_per_rad_s"),
-        load_torque_mnm=pair(sim.load_torque_mnm, "load_torque_mnm"),
-        sim_update_interval_dms=sim.update_interval_dms,
-        travel_lower_counts=travel_counts[0],
-        travel_upper_counts=travel_counts[1],
-    )
-
-
-def _add_simulated(world: SimWorld, key: str, axis: AxisConfig) -> None:
-    """Put the simulated device of ``axis`` into ``world`` under ``key`` (if not there yet)."""
-    if key in world.keys:
-        return
-    from usbmotion.device import Device, MemoryFlash  # noqa: PLC0415 - simulated axes only
-
-    assert axis.sim is not None
-    travel = axis.sim_travel_counts
-    assert travel is not None
-    device = Device(flash=MemoryFlash(), motor=sim_motor_params(axis.sim, travel_counts=travel))
-    name = axis.device or key
-    codes = " ".join(str(ord(c)) for c in name)
-    device.feed(f"18 {len(name)} {codes}\n".encode("ascii"))
-    device.take_output()
-    world.add(device, key=key)
-
-
 class Machine:
     """Several devices as named axes.
 
@@ -116,26 +65,14 @@ class Machine:
     Parameters:
         config: the machine configuration.
         axes: the connected axes, in the configuration's order.
-        world: the simulated world of the ``sim://`` axes, if any.
-        world_alias: the name ``world`` is registered under for ``sim://`` URLs; the
-            registration is dropped on :meth:`close`.
 
     Raises:
         ConfigError: the axes' links do not share one clock.
     """
 
-    def __init__(
-        self,
-        config: MachineConfig,
-        axes: Sequence[Axis],
-        *,
-        world: SimWorld | None = None,
-        world_alias: str | None = None,
-    ) -> None:
+    def __init__(self, config: MachineConfig, axes: Sequence[Axis]) -> None:
         self.config = config
         self.axes: Mapping[str, Axis] = {axis.name: axis for axis in axes}
-        self.world = world
-        self._world_alias = world_alias
         self._closed = False
         try:
             self.clock: Clock = shared_clock([axis.client for axis in axes])
@@ -152,19 +89,15 @@ class Machine:
         cls,
         config: MachineConfig,
         *,
-        world: SimWorld | None = None,
         search_ports: bool = True,
         ports: Sequence[str] = (),
         probe_timeout_s: float = PROBE_TIMEOUT_S,
     ) -> Machine:
         """Open every axis's device.
 
-        ``sim://NAME[?latency_us=N]`` axes are simulated devices ``NAME`` of ``world`` (a
-        fresh world when none is given); a device not yet in it is created with the
-        axis's simulated motor and named as configured. An axis given by ``device`` name
-        only is found by discovery among ``ports``, the configuration's ``ports``, the
-        devices of ``world`` and (with ``search_ports``) the computer's serial ports. An
-        axis given both a ``url`` and a ``device`` name is checked to answer to that name.
+        An axis given by ``device`` name only is found by discovery among ``ports``, the
+        configuration's ``ports`` and (with ``search_ports``) the computer's serial ports.
+        An axis given both a ``url`` and a ``device`` name is checked to answer to that name.
 
         A device may still be printing for a host that died or left (diagnostics it asked
         for, an echo, answers, the tail of a line): each link is taken over with
@@ -173,7 +106,6 @@ class Machine:
 
         Parameters:
             config: the machine configuration.
-            world: the world of the simulated axes (default: a fresh one).
             search_ports: let discovery search the computer's serial ports.
             ports: more ports or URLs for discovery to search first.
             probe_timeout_s: how long each searched port has to answer its name.
@@ -185,31 +117,15 @@ class Machine:
             DeviceTimeoutError: a port did not answer the resynchronising query.
             ConfigError: the axes do not share one clock (simulated and real mixed).
         """
-        simulated = [axis for axis in config.axes if axis.is_simulated]
-        alias: str | None = None
-        if simulated or world is not None:
-            world = world if world is not None else SimWorld()
-            alias = f"machine-{next(_aliases)}"
-            set_world(alias, world)
-        urls: dict[str, str] = {}
+        urls = {axis.name: axis.url for axis in config.axes if axis.url is not None}
         opened: list[Axis] = []
         try:
-            for axis in simulated:
-                assert axis.url is not None and world is not None and alias is not None
-                key, _, latency_us = parse_sim_url(axis.url)
-                _add_simulated(world, key, axis)
-                urls[axis.name] = _sim_url(key, alias, latency_us)
-            for axis in config.axes:
-                if not axis.is_simulated and axis.url is not None:
-                    urls[axis.name] = axis.url
             lost = [axis for axis in config.axes if axis.name not in urls]
             if lost:
-                candidates = list(ports) + list(config.ports)
-                if world is not None and alias is not None:
-                    candidates += [_sim_url(key, alias, 0) for key in world.keys]
                 found = discover(
                     [axis.device for axis in lost if axis.device is not None],
-                    urls=candidates, search_ports=search_ports, timeout_s=probe_timeout_s,
+                    urls=list(ports) + list(config.ports), search_ports=search_ports,
+                    timeout_s=probe_timeout_s,
                 )
                 for axis in lost:
                     assert axis.device is not None
@@ -222,12 +138,10 @@ class Machine:
                 )
                 client.scale = axis.scale
                 opened.append(Axis(axis.name, axis, client, url))
-            machine = cls(config, opened, world=world, world_alias=alias)
+            machine = cls(config, opened)
         except BaseException:
             for axis_open in opened:
                 axis_open.client.close()
-            if alias is not None:
-                drop_world(alias)
             raise
         try:
             for axis_open in opened:
@@ -447,8 +361,6 @@ class Machine:
         self._closed = True
         for axis in self.axes.values():
             axis.client.close()
-        if self._world_alias is not None:
-            drop_world(self._world_alias)
 
     def __enter__(self) -> Machine:
         return self
@@ -479,10 +391,3 @@ def _set_mode(client: DeviceClient, axis: AxisConfig, mode: ControlMode) -> None
     gains = axis.velocity_gains if mode is ControlMode.VELOCITY else axis.gains
     client.set_gains(kp=gains.kp, ki=gains.ki, kd=gains.kd)
     client.set_control_mode(mode)
-
-
-def _sim_url(key: str, alias: str, latency_us: int) -> str:
-    query = f"world={quote(alias)}"
-    if latency_us:
-        query += f"&latency_us={latency_us}"
-    return f"sim://{quote(key)}?{query}"

@@ -25,10 +25,10 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from usbmotion.clock import Clock
 from usbmotion.errors import DeviceError, OutOfRangeError
 from usbmotion.host.device import DeviceClient
 from usbmotion.protocol.table import INT32_MAX
-from usbmotion.sim.clock import Clock
 
 DEFAULT_SAMPLES = 8
 """Round trips per device when measuring its clock."""

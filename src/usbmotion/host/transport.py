@@ -19,10 +19,9 @@ from typing import Any
 
 import serial
 
+from usbmotion.clock import WALL_CLOCK, Clock
 from usbmotion.errors import DeviceTimeoutError, LinkLostError
 from usbmotion.protocol import LineSplitter, Overlong
-from usbmotion.sim.clock import WALL_CLOCK, Clock
-from usbmotion.sim.registry import register_url_handler
 
 _MAX_REPLY_LINE = 1 << 16
 
@@ -49,12 +48,12 @@ class LineTransport:
 
     @classmethod
     def open(cls, url: str, *, baudrate: int = 115200, label: str = "") -> LineTransport:
-        """Open ``url`` (a port path or any pyserial URL, ``sim://`` included).
+        """Open ``url`` (a port path or any pyserial URL; ``sim://`` once ``usbmotion.sim`` is
+        imported, which registers its handler with pyserial).
 
         Raises:
             LinkLostError: the port cannot be opened (the message names it and why).
         """
-        register_url_handler()
         try:
             port = serial.serial_for_url(url, baudrate=baudrate, timeout=0, write_timeout=5)
         except (serial.SerialException, OSError, ValueError) as error:

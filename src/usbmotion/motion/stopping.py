@@ -42,11 +42,13 @@ class Stop:
             rest (the last two rows equal); empty when the path is at rest there.
         end_index: where on the program's path the stop ends (a fractional row).
         step: the fall of the path rate per period (1 / step periods to rest).
+        velocity_counts_s: the path's velocity where the stop began, per axis.
     """
 
     setpoints: IntArray
     end_index: float
     step: float
+    velocity_counts_s: tuple[float, ...] = ()
 
 
 def stop_setpoints(
@@ -100,10 +102,10 @@ def stop_setpoints(
         if trail.shape[0] < 3 or np.all(
             np.abs(np.diff(trail, n=2, axis=0)) <= bound
         ):
-            return Stop(values, end, step)
+            return Stop(values, end, step, tuple(velocity.tolist()))
         step *= 0.7
     values, end = _warp(path, start - 1, step)
-    return Stop(values, end, step)
+    return Stop(values, end, step, tuple(velocity.tolist()))
 
 
 def _warp(path: npt.NDArray[np.float64], origin: int,

@@ -71,7 +71,6 @@ from usbmotion.session.report import (
     line_at,
 )
 from usbmotion.session.state import MachineState, StopReason, check_transition
-from usbmotion.sim.world import SimWorld
 
 HOMING_POLL_HZ = 50.0
 DIAGNOSTICS_PERIOD_S = 0.01
@@ -180,19 +179,26 @@ class MachineSession:
         cls,
         config: MachineConfig,
         *,
-        world: SimWorld | None = None,
         search_ports: bool = True,
         ports: tuple[str, ...] = (),
     ) -> MachineSession:
-        """Connect to the machine and take it over.
+        """Connect to the machine's devices and take it over.
 
         Raises:
             DeviceNotFoundError, LinkLostError, DeviceTimeoutError: as
                 :meth:`usbmotion.host.machine.Machine.connect`.
             DeviceError: a device refused its configuration.
         """
-        machine = Machine.connect(config, world=world, search_ports=search_ports,
-                                  ports=ports)
+        return cls.take_over(Machine.connect(config, search_ports=search_ports, ports=ports))
+
+    @classmethod
+    def take_over(cls, machine: Machine) -> MachineSession:
+        """A session on a connected machine, taken over (the module docstring says how);
+        the machine is closed if that fails.
+
+        Raises:
+            DeviceError: a device refused its configuration.
+        """
         session = cls(machine)
         try:
             session._take_over()
@@ -747,9 +753,8 @@ class _Run:
             stop = stop_setpoints(self.setpoints, index, period_s=self.period_s,
                                   accel_counts_s2=accel)
             stop_rows, end = stop.setpoints, stop.end_index
-            speed_mm_s = float(np.linalg.norm(
-                (self.setpoints[index] - self.setpoints[index - 1]) / self.counts_per_mm)
-                / self.period_s)
+            speed_mm_s = float(np.linalg.norm(np.array(stop.velocity_counts_s)
+                                              / self.counts_per_mm))
             decel_mm_s2 = stop.step * speed_mm_s / self.period_s
             if decel_mm_s2 > 0:
                 self.stop_planned_mm = speed_mm_s**2 / (2 * decel_mm_s2)

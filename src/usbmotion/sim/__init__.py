@@ -1,6 +1,6 @@
 """Running simulated devices: clocks, in-process links, the sim:// URL, pty and TCP servers."""
 
-from usbmotion.sim.clock import WALL_CLOCK, Clock, WallClock
+from usbmotion.clock import WALL_CLOCK, Clock, WallClock
 from usbmotion.sim.registry import drop_world, get_world, register_url_handler, set_world
 from usbmotion.sim.world import LinkFaults, SimLink, SimWorld, VirtualClock
 

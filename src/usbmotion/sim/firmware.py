@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import selectors
 import signal
 import socket
@@ -26,6 +27,7 @@ import tempfile
 import threading
 import time
 import tty
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -33,6 +35,7 @@ from typing import IO, Any
 from usbmotion.errors import DeviceError, DeviceTimeoutError
 
 _PROJECT_ROOT = Path(__file__).resolve().parents[3]
+_NAME_MAX = 25
 _EMULATOR_ENV = "USBMOTION_EMULATOR_DIR"
 _READ_CHUNK = 65536
 _EXIT_WAIT_S = 5.0
@@ -359,6 +362,8 @@ class FirmwareEndpoint:
     port: int
     flash: Path
     path: str = ""
+    name: str = ""
+    """The device's name, as it answered ``18 -1`` at start."""
     _process: subprocess.Popen[bytes] | None = None
     _master: int = -1
     _slave: int = -1
@@ -386,8 +391,11 @@ class FirmwareServer:
         tcp_port: device ``i`` listens on ``tcp_port + i``; 0 picks free ports.
         host: the address to bind (loopback by default).
         pty: also serve each device on a pseudo-terminal.
-        flash_dir: folder for the devices' flash files (``device-<i>.flash``, kept across
-            runs); default: a temporary folder removed by :meth:`close`.
+        flash_dir: folder for the devices' flash files (kept across runs:
+            ``device-<i>.flash``, or named after the device's name in ``names``); default: a
+            temporary folder removed by :meth:`close`.
+        names: device names (up to 25 printable ASCII characters) for the first devices,
+            written to their flash (call 18) when it holds another.
         node: the Node.js executable.
         start_timeout_s: longest wait for a device to listen.
 
@@ -406,11 +414,18 @@ class FirmwareServer:
         host: str = "127.0.0.1",
         pty: bool = False,
         flash_dir: Path | str | None = None,
+        names: Sequence[str] = (),
         node: str = "node",
         start_timeout_s: float = 30.0,
     ) -> None:
         if count < 1:
             raise ValueError(f"count {count!r} of devices; at least 1")
+        if len(names) > count:
+            raise ValueError(f"{len(names)} names for {count} devices")
+        for name in names:
+            if not 0 < len(name) <= _NAME_MAX or not all(32 <= ord(c) <= 126 for c in name):
+                raise ValueError(f"device name {name!r}: 1..{_NAME_MAX} printable ASCII")
+        self.names = tuple(names)
         self.uf2, self.elf = _check_image(Path(uf2), Path(elf) if elf is not None else None)
         self.count = count
         self.tcp_port = tcp_port
@@ -447,7 +462,10 @@ class FirmwareServer:
         return self
 
     def _start_device(self, index: int, script: Path) -> FirmwareEndpoint:
-        flash = self.flash_dir / f"device-{index}.flash"
+        wanted = self.names[index] if index < len(self.names) else ""
+        stem = (re.sub(r"[^A-Za-z0-9]+", "-", wanted).strip("-").lower() or f"device-{index}"
+                if wanted else f"device-{index}")
+        flash = self.flash_dir / f"{stem}.flash"
         port = self.tcp_port + index if self.tcp_port else 0
         process = subprocess.Popen(
             [
@@ -488,11 +506,67 @@ class FirmwareServer:
             _stop_process(process)
             raise DeviceError(f"emulated device {index} printed {line!r}", device=str(self.uf2))
         endpoint.port = int(address.rsplit(":", 1)[1])
+        try:
+            endpoint.name = self._name_device(endpoint, wanted)
+        except BaseException:
+            _stop_process(process)
+            raise
         return endpoint
+
+    def _name_device(self, endpoint: FirmwareEndpoint, wanted: str) -> str:
+        """Asks the device its name over its TCP port, first writing ``wanted`` to its flash
+        when it holds another; returns the name it answers."""
+        deadline = time.monotonic() + self.start_timeout_s
+        with socket.create_connection((self.host, endpoint.port), timeout=5.0) as link:
+            link.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            received = bytearray()
+
+            def ask() -> str:
+                link.sendall(b"18 -1\n")
+                while True:
+                    for line in bytes(received).split(b"\n")[:-1]:
+                        if line.startswith(b"DEVICE_NAME "):
+                            received.clear()
+                            return line[len(b"DEVICE_NAME "):].decode("ascii", "replace")
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0:
+                        raise DeviceTimeoutError(
+                            f"emulated device {endpoint.index} gave no name", device=str(self.uf2))
+                    link.settimeout(remaining)
+                    chunk = link.recv(_READ_CHUNK)
+                    if not chunk:
+                        raise DeviceError(f"emulated device {endpoint.index} closed its port",
+                                          device=str(self.uf2))
+                    received.extend(chunk)
+
+            name = ask()
+            if wanted and name != wanted:
+                codes = " ".join(str(ord(c)) for c in wanted)
+                link.sendall(f"18 {len(wanted)} {codes}\n".encode("ascii"))
+                name = ask()
+                if name != wanted:
+                    raise DeviceError(f"emulated device {endpoint.index} kept the name {name!r} "
+                                      f"when given {wanted!r}", device=str(self.uf2))
+        return name
 
     def _stderr_text(self) -> str:
         self._stderr.seek(0)
         return self._stderr.read().decode("utf-8", "replace").strip() or "(no message)"
+
+    def stopped(self) -> str:
+        """Why an emulated device stopped (its process exited), or ``""`` while all run."""
+        for endpoint in self.endpoints:
+            process = endpoint._process
+            if process is not None and process.poll() is not None:
+                return (f"emulated device {endpoint.index} exited with status "
+                        f"{process.returncode}: {self._stderr_text()}")
+        return ""
+
+    def messages(self) -> str:
+        """What the emulators wrote on their standard error so far (e.g. that one cannot
+        keep up with real time), ``""`` if nothing."""
+        self._stderr.seek(0)
+        return self._stderr.read().decode("utf-8", "replace").strip()
 
     # pseudo-terminals
 

@@ -300,7 +300,7 @@ class SimWorld:
 
 
 class VirtualClock:
-    """A :class:`~usbmotion.sim.clock.Clock` whose sleeping advances a world."""
+    """A :class:`~usbmotion.clock.Clock` whose sleeping advances a world."""
 
     def __init__(self, world: SimWorld) -> None:
         self.world = world

@@ -14,50 +14,16 @@ from __future__ import annotations
 
 import math
 from typing import Any
-from urllib.parse import parse_qs, unquote, urlsplit
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
 from usbmotion.errors import LinkLostError
+from usbmotion.host.urls import parse_sim_url
 from usbmotion.sim.registry import get_world
 from usbmotion.sim.world import SimLink, SimWorld, VirtualClock
 
 _FOREVER_US = 10_000_000
 """How long a read without timeout waits in virtual time before giving up."""
-
-
-def parse_sim_url(url: str) -> tuple[str, str, int]:
-    """Split a ``sim://`` URL into (device name, world name, latency in us).
-
-    Raises:
-        SerialException: not a sim URL, an unknown option, or a bad value.
-    """
-    parts = urlsplit(url)
-    if parts.scheme.lower() != "sim":
-        raise SerialException(f"expected a URL of the form sim://NAME[?world=W], got {url!r}")
-    name = unquote(parts.netloc + parts.path)
-    if not name:
-        raise SerialException(f"URL {url!r} names no device: use sim://NAME")
-    world = "default"
-    latency_us = 0
-    for option, values in parse_qs(parts.query, keep_blank_values=True).items():
-        value = values[-1]
-        if option == "world":
-            world = value
-        elif option == "latency_us":
-            try:
-                latency_us = int(value)
-            except ValueError:
-                latency_us = -1
-            if latency_us < 0:
-                raise SerialException(
-                    f"latency_us {value!r} in {url!r} is not an integer >= 0"
-                ) from None
-        else:
-            raise SerialException(
-                f"unknown option {option!r} in {url!r}; known options are world, latency_us"
-            )
-    return name, world, latency_us
 
 
 def _ensure_device(world: SimWorld, name: str) -> None:
