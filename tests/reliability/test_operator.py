@@ -15,6 +15,7 @@ import signal
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -87,8 +88,11 @@ def test_two_runs_in_a_row_on_the_same_served_devices_both_succeed(tmp_path: Pat
             "the second starts where the first ended")
 
 
-@pytest.mark.realtime
-def test_ctrl_c_during_homing_stops_within_100_ms(tmp_path: Path) -> None:
+def _interrupted(tmp_path: Path, signum: int, began: str, after_s: float) -> tuple[
+        int, dict[str, Any], str]:
+    """Run LINE on served devices and send ``signum`` ``after_s`` after the host first
+    writes a line starting ``began``; the exit status, the report, the output. The devices
+    are then checked left clean."""
     program = tmp_path / "line.ngc"
     program.write_text(LINE)
     with served(tmp_path / "flash") as paths:
@@ -98,39 +102,9 @@ def test_ctrl_c_during_homing_stops_within_100_ms(tmp_path: Path) -> None:
         process = start_host(log, "run", str(program), "--machine", str(machine_file),
                              "--report", str(report_path), "-q", "--no-plot")
         try:
-            began = _wait_for(log, lambda first: first.startswith("38 "),
-                              lambda: process.poll() is None)
-            time.sleep(max(0.0, began + 0.4 - time.monotonic()))
-            process.send_signal(signal.SIGINT)
-            out, err = process.communicate(timeout=60)
-        finally:
-            if process.poll() is None:
-                process.kill()
-                process.wait()
-        assert process.returncode == 130, out + err
-        report = json.loads(report_path.read_text())
-        assert report["stop_reason"] == "interrupted by the user (while homing)"
-        assert not report["completed"]
-        assert 0 < report["stop_latency_s"] < 0.1, report["stop_latency_s"]
-        assert "every axis at rest" in out
-        _check_left_clean(machine_file)
-    print(f"Ctrl-C while homing: every axis at rest {report['stop_latency_s'] * 1e3:.0f} ms"
-          " after the interrupt")
-
-
-def _interrupted_mid_run(tmp_path: Path, signum: int) -> tuple[int, dict[str, object], str]:
-    program = tmp_path / "line.ngc"
-    program.write_text(LINE)
-    with served(tmp_path / "flash") as paths:
-        machine_file = bench_machine(tmp_path, paths, watchdog_ms=WATCHDOG_MS)
-        log = tmp_path / "w.log"
-        report_path = tmp_path / "r.json"
-        process = start_host(log, "run", str(program), "--machine", str(machine_file),
-                             "--report", str(report_path), "-q", "--no-plot")
-        try:
-            began = _wait_for(log, lambda first: first.startswith("31 "),
-                              lambda: process.poll() is None, timeout_s=60)
-            time.sleep(max(0.0, began + 2.5 - time.monotonic()))
+            at = _wait_for(log, lambda first: first.startswith(began),
+                           lambda: process.poll() is None, timeout_s=60)
+            time.sleep(max(0.0, at + after_s - time.monotonic()))
             process.send_signal(signum)
             out, err = process.communicate(timeout=60)
         finally:
@@ -143,8 +117,20 @@ def _interrupted_mid_run(tmp_path: Path, signum: int) -> tuple[int, dict[str, ob
 
 
 @pytest.mark.realtime
+def test_ctrl_c_during_homing_stops_within_100_ms(tmp_path: Path) -> None:
+    code, report, output = _interrupted(tmp_path, signal.SIGINT, "38 ", 0.4)
+    assert code == 130, output
+    assert report["stop_reason"] == "interrupted by the user (while homing)"
+    assert not report["completed"]
+    assert 0 < report["stop_latency_s"] < 0.1, report["stop_latency_s"]
+    assert "every axis at rest" in output
+    print(f"Ctrl-C while homing: every axis at rest {report['stop_latency_s'] * 1e3:.0f} ms"
+          " after the interrupt")
+
+
+@pytest.mark.realtime
 def test_ctrl_c_mid_run_stops_within_the_planned_deceleration(tmp_path: Path) -> None:
-    code, report, output = _interrupted_mid_run(tmp_path, signal.SIGINT)
+    code, report, output = _interrupted(tmp_path, signal.SIGINT, "31 ", 2.5)
     assert code == 130, output
     assert report["stop_reason"] == "interrupted by the user"
     planned = 20.0**2 / (2 * 500.0)
@@ -161,7 +147,7 @@ def test_ctrl_c_mid_run_stops_within_the_planned_deceleration(tmp_path: Path) ->
 @pytest.mark.realtime
 def test_sigterm_mid_run_stops_the_same_way_and_exits_143_with_a_report(
         tmp_path: Path) -> None:
-    code, report, output = _interrupted_mid_run(tmp_path, signal.SIGTERM)
+    code, report, output = _interrupted(tmp_path, signal.SIGTERM, "31 ", 2.5)
     assert code == 143, output
     assert report["stop_reason"] == "terminated (SIGTERM)"
     assert report["stop_distance_mm"] <= float(report["stop_planned_mm"]) + 0.05, report
