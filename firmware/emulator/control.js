@@ -119,6 +119,14 @@ const commands = {
     const d = requireDevice();
     return { tick: d.ticksDone(), busy_cycles: d.busyCycles(), emulated_ns: d.nanos, timer_held: d.timerHeld };
   },
+  profile(request) {
+    const d = requireDevice();
+    if (request.on) {
+      d.startProfile();
+      return {};
+    }
+    return { functions: d.stopProfile() };
+  },
   stacks() {
     const d = requireDevice();
     return { stacks: d.stackUsage() };

@@ -124,3 +124,18 @@ def printed_lines(spans: Sequence[Span]) -> Printed:
     if pending:
         printed.append((first_tick, bytes(pending) + NO_NEWLINE))
     return printed
+
+
+def recording_steps(chunks: Sequence[tuple[int, bytes]], *, after: int = 0) -> list[Step]:
+    """A recorded session (``usbmotion.sim.firmware.read_recording``) as replay steps: each
+    chunk fed at the tick boundary it arrived at, then ``after`` more ticks."""
+    steps: list[Step] = []
+    tick = 0
+    for at, data in chunks:
+        if at > tick:
+            steps.append(Run(at - tick))
+            tick = at
+        steps.append(Feed(data))
+    if after:
+        steps.append(Run(after))
+    return steps

@@ -1,11 +1,13 @@
 // The symbol table of a 32-bit little-endian ELF file (the firmware's .elf), read by name.
 
 const SHT_SYMTAB = 2;
+/** A symbol's type (the low nibble of st_info): a function. */
+export const STT_FUNC = 2;
 
 /**
  * Reads the symbols of an ELF32 file.
  * @param {Uint8Array} bytes the whole file
- * @returns {Map<string, {address: number, size: number}>}
+ * @returns {Map<string, {address: number, size: number, type: number}>}
  */
 export function readElfSymbols(bytes) {
   const view = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
@@ -44,7 +46,11 @@ export function readElfSymbols(bytes) {
       }
       const name = decoder.decode(bytes.subarray(nameOffset, end));
       if (name && !symbols.has(name)) {
-        symbols.set(name, { address: view.getUint32(at + 4, true), size: view.getUint32(at + 8, true) });
+        symbols.set(name, {
+          address: view.getUint32(at + 4, true),
+          size: view.getUint32(at + 8, true),
+          type: bytes[at + 12] & 0xf,
+        });
       }
     }
   }

@@ -12,7 +12,7 @@ import { readFileSync } from 'node:fs';
 import { readBootrom, patchBootrom } from './bootrom.js';
 import { CdcHost } from './cdc-host.js';
 import { DualRP2040 } from './dual-core.js';
-import { readElfSymbols } from './elf.js';
+import { STT_FUNC, readElfSymbols } from './elf.js';
 import { FLASH_BREAKPOINTS, FlashImage, answerFlashBreakpoint } from './flash.js';
 import { parseUf2 } from './uf2.js';
 
@@ -70,6 +70,7 @@ export class EmulatedDevice {
     this.flash = new FlashImage(flash);
     this.flash.flashUf2(parseUf2(new Uint8Array(readFileSync(uf2))));
     this.mcu = null;
+    this.profile = null;
     this.output = [];
     this.onOutput = null; // (bytes) => void, else output is kept for takeOutput()
     this.fault = null;
@@ -245,13 +246,74 @@ export class EmulatedDevice {
   execute(index, core, budget) {
     this.mcu.select(index);
     const target = core.cycles + budget - this.over[index];
-    while (core.cycles < target) {
-      core.executeInstruction();
-      if (core.waiting) {
-        break;
+    const profile = this.profile;
+    if (profile) {
+      const counts = profile.cycles[index];
+      while (core.cycles < target) {
+        const pc = core.PC;
+        const before = core.cycles;
+        core.executeInstruction();
+        counts.set(pc, (counts.get(pc) ?? 0) + core.cycles - before);
+        if (core.waiting) {
+          break;
+        }
+      }
+    } else {
+      while (core.cycles < target) {
+        core.executeInstruction();
+        if (core.waiting) {
+          break;
+        }
       }
     }
     this.over[index] = core.waiting ? 0 : core.cycles - target;
+  }
+
+  /** Starts counting the cycles of every instruction address, per core (slower). */
+  startProfile() {
+    this.profile = { cycles: [new Map(), new Map()] };
+  }
+
+  /**
+   * Stops counting; returns the cycles since startProfile per core and function (by the
+   * ELF's function symbols; 'bootrom' below 0x4000, '?' where no function covers the
+   * address), largest first.
+   * @returns {Array<Array<{name: string, cycles: number}>>}
+   */
+  stopProfile() {
+    const profile = this.profile;
+    this.profile = null;
+    if (!profile) {
+      return [[], []];
+    }
+    const functions = [...this.symbols]
+      .filter(([, symbol]) => symbol.type === STT_FUNC && symbol.size > 0)
+      .map(([name, symbol]) => ({ name, start: symbol.address & ~1, end: (symbol.address & ~1) + symbol.size }))
+      .sort((a, b) => a.start - b.start);
+    const nameOf = (pc) => {
+      let low = 0;
+      let high = functions.length - 1;
+      while (low <= high) {
+        const middle = (low + high) >> 1;
+        const f = functions[middle];
+        if (pc < f.start) {
+          high = middle - 1;
+        } else if (pc >= f.end) {
+          low = middle + 1;
+        } else {
+          return f.name;
+        }
+      }
+      return pc < 0x4000 ? 'bootrom' : '?';
+    };
+    return profile.cycles.map((counts) => {
+      const byName = new Map();
+      for (const [pc, cycles] of counts) {
+        const name = nameOf(pc);
+        byName.set(name, (byName.get(name) ?? 0) + cycles);
+      }
+      return [...byName].map(([name, cycles]) => ({ name, cycles })).sort((a, b) => b.cycles - a.cycles);
+    });
   }
 
   /**

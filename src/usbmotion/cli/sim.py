@@ -69,6 +69,14 @@ def sim(
             "it) instead of the Python devices.",
         ),
     ] = None,
+    record: Annotated[
+        Path | None,
+        typer.Option(
+            "--record",
+            help="With --firmware: write the bytes each device receives, with the servo tick "
+            "they arrived at, to DEVICE.rec in this folder (for a deterministic replay).",
+        ),
+    ] = None,
 ) -> None:
     """Serve simulated devices in real time until SIGINT or SIGTERM.
 
@@ -101,9 +109,11 @@ def sim(
 
     if firmware is not None:
         _serve_firmware(firmware, devices, names, pty=pty > 0, tcp_port=max(tcp, 0),
-                        flash_dir=flash_dir or default_flash_dir() / "rp2040", stop=stop,
-                        on_signal=on_signal)
+                        flash_dir=flash_dir or default_flash_dir() / "rp2040", record=record,
+                        stop=stop, on_signal=on_signal)
         return
+    if record is not None:
+        raise typer.BadParameter("--record needs --firmware", param_hint="--record")
     world = build_world(names, devices, flash_dir or default_flash_dir())
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
@@ -127,6 +137,7 @@ def _serve_firmware(
     pty: bool,
     tcp_port: int,
     flash_dir: Path,
+    record: Path | None,
     stop: threading.Event,
     on_signal: Callable[[int, FrameType | None], None],
 ) -> None:
@@ -135,7 +146,7 @@ def _serve_firmware(
     from usbmotion.sim.firmware import FirmwareServer  # noqa: PLC0415
 
     server = FirmwareServer(image, devices, pty=pty, tcp_port=tcp_port, flash_dir=flash_dir,
-                            names=names)
+                            names=names, record_dir=record)
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
     try:
@@ -152,5 +163,8 @@ def _serve_firmware(
             if server.stopped():
                 sys.stderr.write(f"usbmotion sim: {server.stopped()}\n")
                 raise typer.Exit(1)
+        server.close()
+        if server.messages():
+            sys.stderr.write(f"{server.messages()}\n")
     sys.stdout.write("stopped\n")
     sys.stdout.flush()

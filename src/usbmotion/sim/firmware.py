@@ -321,6 +321,17 @@ class EmulatedDevice:
                       for stack in stacks)
         return usage[0], usage[1]
 
+    def start_profile(self) -> None:
+        """Count the cycles of every instruction from now on, per core (emulation slows)."""
+        self._request({"cmd": "profile", "on": True})
+
+    def stop_profile(self) -> tuple[dict[str, int], dict[str, int]]:
+        """Stop counting: the cycles each core spent in each function since
+        :meth:`start_profile` (by the ELF's function symbols; ``bootrom`` for the ROM)."""
+        reply = self._request({"cmd": "profile", "on": False})["functions"]
+        core0, core1 = ({row["name"]: int(row["cycles"]) for row in rows} for rows in reply)
+        return core0, core1
+
     def read_symbol(self, symbol: str, size: int | None = None) -> bytes:
         """The bytes of a firmware variable, by its ELF symbol (``size`` default: the symbol's)."""
         request: dict[str, Any] = {"cmd": "read", "symbol": symbol}
@@ -346,6 +357,27 @@ class EmulatedDevice:
 # --- real time -------------------------------------------------------------------------------
 
 
+def read_recording(path: Path | str) -> list[tuple[int, bytes]]:
+    """A session recorded by :class:`FirmwareServer` (``record_dir``): each chunk of bytes the
+    device received, with the servo ticks done since its power-up when it arrived, in order.
+
+    Raises:
+        ValueError: a line is not ``TICK HEX`` or the ticks go backwards.
+    """
+    chunks: list[tuple[int, bytes]] = []
+    for number, line in enumerate(Path(path).read_text(encoding="ascii").splitlines(), 1):
+        fields = line.split(" ")
+        try:
+            tick, data = int(fields[0]), bytes.fromhex(fields[1])
+        except (IndexError, ValueError):
+            raise ValueError(f"{path}:{number}: {line[:40]!r} is not `TICK HEX`") from None
+        if len(fields) != 2 or tick < 0 or (chunks and tick < chunks[-1][0]):
+            raise ValueError(f"{path}:{number}: tick {fields[0]} out of order")
+        chunks.append((tick, data))
+    return chunks
+
+
+
 @dataclass(slots=True)
 class FirmwareEndpoint:
     """Where one emulated device is served.
@@ -364,6 +396,8 @@ class FirmwareEndpoint:
     path: str = ""
     name: str = ""
     """The device's name, as it answered ``18 -1`` at start."""
+    recording: Path | None = None
+    """The file of the bytes it received with their ticks, when recording."""
     _process: subprocess.Popen[bytes] | None = None
     _master: int = -1
     _slave: int = -1
@@ -396,6 +430,9 @@ class FirmwareServer:
             temporary folder removed by :meth:`close`.
         names: device names (up to 25 printable ASCII characters) for the first devices,
             written to their flash (call 18) when it holds another.
+        record_dir: write every byte each device receives, with the servo tick it arrived
+            at, to ``<flash file's stem>.rec`` there (lines ``TICK HEX``; see
+            :func:`read_recording`), for a deterministic replay of the session.
         node: the Node.js executable.
         start_timeout_s: longest wait for a device to listen.
 
@@ -415,6 +452,7 @@ class FirmwareServer:
         pty: bool = False,
         flash_dir: Path | str | None = None,
         names: Sequence[str] = (),
+        record_dir: Path | str | None = None,
         node: str = "node",
         start_timeout_s: float = 30.0,
     ) -> None:
@@ -426,6 +464,7 @@ class FirmwareServer:
             if not 0 < len(name) <= _NAME_MAX or not all(32 <= ord(c) <= 126 for c in name):
                 raise ValueError(f"device name {name!r}: 1..{_NAME_MAX} printable ASCII")
         self.names = tuple(names)
+        self.record_dir = Path(record_dir) if record_dir is not None else None
         self.uf2, self.elf = _check_image(Path(uf2), Path(elf) if elf is not None else None)
         self.count = count
         self.tcp_port = tcp_port
@@ -444,12 +483,15 @@ class FirmwareServer:
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._closed = False
+        self._final_messages = ""
 
     def start(self) -> FirmwareServer:
         """Start the emulators (and the pseudo-terminal relay); returns once all listen."""
         if self.endpoints:
             return self
         self.flash_dir.mkdir(parents=True, exist_ok=True)
+        if self.record_dir is not None:
+            self.record_dir.mkdir(parents=True, exist_ok=True)
         script = _script("serve.js")
         try:
             for index in range(self.count):
@@ -483,12 +525,16 @@ class FirmwareServer:
                 self.host,
                 "--exit-with-stdin",
                 "1",
+                *(["--record", str(self.record_dir / f"{stem}.rec")]
+                  if self.record_dir is not None else []),
             ],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=self._stderr,
         )
         endpoint = FirmwareEndpoint(index, self.host, port, flash, _process=process)
+        if self.record_dir is not None:
+            endpoint.recording = self.record_dir / f"{stem}.rec"
         assert process.stdout is not None
         reader = _LineReader(process.stdout)
         try:
@@ -563,8 +609,10 @@ class FirmwareServer:
         return ""
 
     def messages(self) -> str:
-        """What the emulators wrote on their standard error so far (e.g. that one cannot
-        keep up with real time), ``""`` if nothing."""
+        """What the emulators wrote on their standard error so far (that one fell behind
+        real time, and after :meth:`close` how often), ``""`` if nothing."""
+        if self._stderr.closed:
+            return self._final_messages
         self._stderr.seek(0)
         return self._stderr.read().decode("utf-8", "replace").strip()
 
@@ -656,6 +704,7 @@ class FirmwareServer:
             if endpoint._process is not None:
                 _stop_process(endpoint._process)
                 endpoint._process = None
+        self._final_messages = self.messages()
         self._stderr.close()
         if self._temporary is not None:
             self._temporary.cleanup()
