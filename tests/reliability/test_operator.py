@@ -151,3 +151,37 @@ def test_sigterm_mid_run_stops_the_same_way_and_exits_143_with_a_report(
     assert code == 143, output
     assert report["stop_reason"] == "terminated (SIGTERM)"
     assert report["stop_distance_mm"] <= float(report["stop_planned_mm"]) + 0.05, report
+
+
+@pytest.mark.realtime
+def test_the_console_keeps_an_idle_machine_enabled_past_its_watchdog(tmp_path: Path) -> None:
+    """Homed, then left at the prompt for more than twice the watchdog: still enabled, no
+    fault (the console feeds the watchdogs while it waits for the operator)."""
+    import subprocess  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+
+    with served(tmp_path / "flash") as paths:
+        machine_file = bench_machine(tmp_path, paths, watchdog_ms=WATCHDOG_MS)
+        console = subprocess.Popen(
+            [sys.executable, "-m", "usbmotion", "console", "--machine", str(machine_file)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            assert console.stdin is not None and console.stdout is not None
+            console.stdin.write("$r\n")
+            console.stdin.flush()
+            while "homed in" not in (line := console.stdout.readline()):
+                assert line, "the console ended before homing"
+            time.sleep(2.5 * WATCHDOG_MS / 1000)
+            console.stdin.write("?\n$q\n")
+            console.stdin.flush()
+            out, err = console.communicate(timeout=60)
+        finally:
+            if console.poll() is None:
+                console.kill()
+                console.wait()
+        assert console.returncode == 0, out + err
+        axes = [line for line in out.splitlines() if line[:2] in ("X:", "Y:", "Z:")]
+        assert len(axes) == 3, out
+        for line in axes:
+            assert "enabled" in line and "fault none" in line, line
+        _check_left_clean(machine_file)

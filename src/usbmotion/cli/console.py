@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import select
 import sys
 
 import typer
@@ -24,7 +25,9 @@ def console(
     Reads one command per line from standard input (a prompt is shown on a terminal)
     until end of input or $q. $h lists the commands. Ctrl-C during a command brings every
     axis to rest along its deceleration and returns to the prompt; a second one stops at
-    once. On leaving, the servos are disabled (the machine stays homed for the next host).
+    once. While it waits for a command it keeps the devices' watchdogs fed, so an enabled
+    machine stays enabled. On leaving, the servos are disabled (the machine stays homed
+    for the next host).
     """
     from usbmotion.console import Console  # noqa: PLC0415 - keep --help fast
     from usbmotion.host.config import load_config  # noqa: PLC0415
@@ -49,11 +52,15 @@ def console(
                 write(f"notice: {notice}")
             console_session = Console(session, write)
             write(f"usbmotion console on {config.name}: $h for help")
+            keep_alive_s = session.keep_alive_period_s()
             while True:
                 if interactive:
                     sys.stdout.write("> ")
                     sys.stdout.flush()
                 try:
+                    while keep_alive_s and not select.select([sys.stdin], [], [],
+                                                              keep_alive_s)[0]:
+                        session.keep_alive()
                     line = sys.stdin.readline()
                 except KeyboardInterrupt:
                     break

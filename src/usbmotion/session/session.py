@@ -510,6 +510,18 @@ class MachineSession:
         machine.clear_faults()
         self._state = MachineState.IDLE
 
+    # --- waiting ------------------------------------------------------------------------------
+
+    def keep_alive_period_s(self) -> float:
+        """How often a front waiting for its operator must call :meth:`keep_alive` so that
+        no watchdog trips on an enabled axis (0: the machine has no watchdog)."""
+        watchdog_ms = self.config.watchdog_ms
+        return watchdog_ms / 1000.0 / 4 if watchdog_ms > 0 else 0.0
+
+    def keep_alive(self) -> None:
+        """Feed every device's watchdog (a queue query each: any command does)."""
+        self.machine.ping()
+
     # --- leaving ------------------------------------------------------------------------------
 
     def shutdown(self) -> None:
