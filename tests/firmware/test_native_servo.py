@@ -70,6 +70,10 @@ class CurvePlayerC(ctypes.Structure):
     _fields_ = [
         ("buffer", KeyframeC * 8), ("head", c_u8), ("count", c_u8), ("playing", ctypes.c_bool),
         ("elapsed_us", c_i64), ("start_position", c_i32), ("start_tangent", c_i32),
+        ("stepping", ctypes.c_bool), ("step_us", c_i32), ("quotient", c_i64 * 4),
+        ("remainder", (c_u32 * 4) * 4), ("den", c_u32 * 4), ("next_phase", c_u8),
+        ("next_k2", c_i64), ("next_c3", c_i64), ("next_quotient", c_i64 * 4),
+        ("next_remainder", (c_u32 * 4) * 4), ("next_den", c_u32 * 4),
     ]
 
 
@@ -927,6 +931,97 @@ def test_curve_player(lib: ctypes.CDLL) -> None:
     assert bad == []
 
 
+def play(lib: ctypes.CDLL, rnd: random.Random, tick_us: int, keyframes: Iterator[Keyframe],
+         ticks: int, *, refill: float = 0.9) -> tuple[list[str], int]:
+    """Play keyframes on both players tick by tick, appending with probability ``refill``
+    between ticks (so that the buffer sometimes runs dry); the differences, and how many
+    ticks the C player stepped (its cache of forward differences in use)."""
+    player = CurvePlayer()
+    c = CurvePlayerC()
+    desired = rnd.randint(-1000, 1000)
+    bad: list[str] = []
+    stepped = 0
+    for tick in range(ticks):
+        if player.queued < 8 and rnd.random() < refill:
+            keyframe = next(keyframes)
+            player.append(keyframe)
+            lib.curve_append(ctypes.byref(c), keyframe_c(keyframe))
+        was_stepping = c.stepping
+        got = lib.curve_next_position(ctypes.byref(c), desired, tick_us)
+        want = player.next_position(desired, tick_us)
+        stepped += was_stepping and c.stepping
+        if got != want:
+            bad.append(f"tick {tick} at {tick_us} us: C {got} Python {want}")
+        bad += [f"tick {tick}: {name}" for name in player_mismatches(c, player)]
+        desired = core1.wrap_int32(want)
+        if bad:
+            break
+    return bad, stepped
+
+
+def keyframe_stream(rnd: random.Random, *, extreme: bool) -> Iterator[Keyframe]:
+    while True:
+        if extreme:
+            yield random_keyframe(rnd)
+        else:
+            yield Keyframe(rnd.choice([1, 2, 3, 5, 10, 37]), rnd.randint(-30000, 30000),
+                           rnd.randint(-32768, 32767), rnd.randint(-32768, 32767))
+
+
+@pytest.mark.parametrize("tick_us", [100, 200, 300, 700, 1000, 2500, 10000])
+def test_curve_player_long_plays(lib: ctypes.CDLL, tick_us: int) -> None:
+    """Many segments at each period: the stepped ticks equal the exact evaluation."""
+    rnd = random.Random(tick_us)
+    ticks = max(200, 40 * examples() // max(1, tick_us // 100))
+    bad, stepped = play(lib, rnd, tick_us, keyframe_stream(rnd, extreme=False), ticks)
+    assert bad == []
+    assert stepped > ticks // 4 or tick_us >= 2500
+    bad, _ = play(lib, rnd, tick_us, keyframe_stream(rnd, extreme=True), ticks // 4,
+                  refill=0.5)
+    assert bad == []
+
+
+def test_curve_player_appended_at_the_end_of_a_keyframe(lib: ctypes.CDLL) -> None:
+    """A keyframe appended after the last one was reached exactly: the next tick finds a
+    segment nobody prepared (evaluated exactly, then stepped)."""
+    player = CurvePlayer()
+    c = CurvePlayerC()
+    first = Keyframe(1, 500, 1000, -2000)
+    for keyframe in (first,):
+        player.append(keyframe)
+        lib.curve_append(ctypes.byref(c), keyframe_c(keyframe))
+    positions = []
+    for tick in range(40):
+        if tick == 10:   # the tick after the exact end of the first keyframe
+            keyframe = Keyframe(2, -700, 3000, 0)
+            player.append(keyframe)
+            lib.curve_append(ctypes.byref(c), keyframe_c(keyframe))
+        got = lib.curve_next_position(ctypes.byref(c), 0, 100)
+        assert got == player.next_position(0, 100)
+        assert player_mismatches(c, player) == []
+        positions.append(got)
+    assert positions[10] == 500 and positions[30] == -700
+
+
+def test_curve_step_overflow_falls_back_to_exact(lib: ctypes.CDLL) -> None:
+    """A step that moves the position by 2^32 counts or more (from -2^31, overshooting
+    both ends) leaves the forward differences for one exact evaluation."""
+    h = 65_533_001
+    segment = (INT32_MIN, INT32_MAX, -32768, -32768, 65535)
+    change = exact_position(*segment, h + 1) - exact_position(*segment, 1)
+    assert change >= 2**32   # the quotient of the step does not fit 32 bits
+    player = CurvePlayer()
+    c = CurvePlayerC()
+    for keyframe in (Keyframe(65533, INT32_MIN, 0, -32768), Keyframe(65535, INT32_MAX,
+                                                                      -32768, 0)):
+        player.append(keyframe)
+        lib.curve_append(ctypes.byref(c), keyframe_c(keyframe))
+    for _ in range(4):
+        got = lib.curve_next_position(ctypes.byref(c), INT32_MIN, h)
+        assert got == player.next_position(INT32_MIN, h)
+        assert player_mismatches(c, player) == []
+
+
 # --- the servo tick -----------------------------------------------------------------------
 
 SCALAR_STATE = [
@@ -1415,6 +1510,21 @@ def _check_ties(lib: ctypes.CDLL) -> list[object]:
     return list(hermite_mismatches(lib, tie_segments(random.Random(73), 20)))
 
 
+def _check_stepped_ties(lib: ctypes.CDLL) -> list[object]:
+    """Segments from 0 to -1 and back at 10 kHz: stepped ticks land on exact halves."""
+    def stream() -> Iterator[Keyframe]:
+        while True:
+            yield Keyframe(1, -1, 0, 0)
+            yield Keyframe(1, 0, 0, 0)
+    return list(play(lib, random.Random(97), 100, stream(), 400, refill=1.0)[0])
+
+
+def _check_plays(lib: ctypes.CDLL) -> list[object]:
+    """Segments one after the other at 10 kHz: prepared ahead, adopted at their start."""
+    rnd = random.Random(101)
+    return list(play(lib, rnd, 100, keyframe_stream(rnd, extreme=False), 2000)[0])
+
+
 def _check_from_double(lib: ctypes.CDLL) -> list[object]:
     return list(from_double_mismatches(lib, boundary_doubles(random.Random(79), 50, (-20, 5))))
 
@@ -1430,10 +1540,15 @@ def _check_ticks(lib: ctypes.CDLL) -> list[object]:
 MUTANTS = [
     Mutant("sci_mul threshold", "sci.h", "product >= 10000000 ||", "product > 10000000 ||",
            _check_sci),
-    Mutant("hermite ties toward zero", "curve.c",
-           "u128_add(u128_shift_left(magnitude, 1), u128_shift_left(d3, 10))",
-           "u128_sub(u128_add(u128_shift_left(magnitude, 1), u128_shift_left(d3, 10)),"
-           " u128_from_u64(1))", _check_ties),
+    Mutant("hermite ties toward zero", "curve.c", "words_add(n, n, half);   /* |n| + den / 2 */",
+           "words_add(n, n, half); n[0] -= 1u;", _check_ties),
+    Mutant("stepped ties toward zero", "curve.c",
+           "return q - ((r[0] | r[1] | r[2]) == 0 && q <= 0);",
+           "return q - ((r[0] | r[1] | r[2]) == 0 && q < 0);",
+           _check_stepped_ties),
+    Mutant("prepared third difference not adopted", "curve.c",
+           "for (unsigned k = 1; k < 4; k++) {", "for (unsigned k = 1; k < 3; k++) {",
+           _check_plays),
     Mutant("from_float boundary", "sci.c", "grid_value(middle, e) <= magnitude",
            "grid_value(middle, e) < magnitude", _check_from_double),
     Mutant("edge tick one count late", "servo.c", "edge->tick = s->clock + 1;",

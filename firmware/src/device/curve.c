@@ -1,121 +1,168 @@
 /* Curve mode (curve.h): the keyframe buffer, the player, and the Hermite segment evaluated
- * exactly in 128-bit integers built from 32-bit multiplies (the Cortex-M0+ has no wider
- * multiply, and no 128-bit type). */
+ * exactly in 128-bit integers built from 32-bit operations (the Cortex-M0+ multiplies
+ * 32 x 32 -> 32 bits, has no wider type, and GCC's 64-bit code there is slow).
+ *
+ * The exact value of a segment at e microseconds is numerator(e) / den, with
+ *   numerator(e) = 1024 (d^3 p0 + (p1 - p0) e^2 (3d - 2e)) + D e (d - e) (m0 (d - e) - m1 e)
+ *   den = 1024 d^3,  d = 1000 D  (hermite.hermite_position),
+ * rounded to the nearest count, ties away from zero: with numerator + den/2 =
+ * quotient * den + remainder (0 <= remainder < den) the value is the quotient, less one when
+ * the remainder is 0 and the quotient is not positive (a tie, or an exact value, below 0).
+ *
+ * One evaluation (segment_evaluate) costs about 2000 cycles on the chip, too many for every
+ * tick, so the player steps instead. As a polynomial in e,
+ *   numerator(e) = c0 + c1 e + c2 e^2 + c3 e^3,  c0 = 1024 d^3 p0,  c1 = D m0 d^2,
+ *   c2 = d (3072 (p1 - p0) - D (2 m0 + m1)),  c3 = D (m0 + m1) - 2048 (p1 - p0),
+ * and the ticks of a segment advance e by the period h, so the player keeps numerator +
+ * den/2 and its three forward differences, each as a quotient and a remainder by den: a
+ * tick adds each difference to the one before, remainder to remainder (one carry), exactly
+ * (curve_step). The differences are prepared on the ticks that evaluate nothing: a curve's
+ * tick 0 (its value is p0), and the tick that reaches a keyframe exactly (its value is p1),
+ * where the next segment's differences, prepared a phase a tick ahead while the current
+ * segment steps (curve_prepare_ahead), are adopted. A keyframe appended after the curve
+ * reached its last one exactly is prepared by curve_append. Elsewhere (a keyframe reached
+ * between ticks, periods of 512 us and more, a step of 2^32 counts) the player evaluates
+ * exactly and prepares from there. The tests compare every tick with the Python's.
+ *
+ * Ranges: |p| < 2^31, |m| <= 2^15, D < 2^16, e <= d < 2^26, h <= 10^6 < 2^20. Then
+ * |numerator| < 2^121 (|d^3 p0| < 2^109, |(p1 - p0) e^2 (3d - 2e)| <= 2^32 d^3 < 2^110, the
+ * tangent term < 2^16 2^50 2^41 = 2^107), den < 2^88, |c1| < 2^83, |c2| < 2^72,
+ * |c3| < 2^45, and every difference is below 2^123: all fit 128-bit two's complement. */
 #include "curve.h"
 
-#define TANGENT_ONE 1024
+#define WORDS 4
 
-/* --- 128-bit integers: four 32-bit words, little-endian; two's complement when signed --- */
+/* --- 128-bit integers as little-endian 32-bit words ------------------------------------ */
 
-typedef struct {
-    uint32_t w[4];
-} u128_t;
-
-/* a * b in 32-bit multiplies of 16-bit halves. */
-static inline uint64_t mul_32x32(uint32_t a, uint32_t b) {
-    uint32_t a_lo = a & 0xffffu;
-    uint32_t a_hi = a >> 16;
-    uint32_t b_lo = b & 0xffffu;
-    uint32_t b_hi = b >> 16;
-    uint64_t middle = (uint64_t)(a_lo * b_hi) + (a_hi * b_lo);
-    return (uint64_t)(a_lo * b_lo) + (middle << 16) + ((uint64_t)(a_hi * b_hi) << 32);
+static inline uint32_t mul_32x32(uint32_t a, uint32_t b, uint32_t *hi) {
+    return sci_mul_32x32(a, b, hi);
 }
 
-/* a * b for b < 2^16. */
-static inline uint64_t mul_32x16(uint32_t a, uint32_t b) {
-    return (uint64_t)((a & 0xffffu) * b) + ((uint64_t)((a >> 16) * b) << 16);
+static inline void words_copy(uint32_t *out, const uint32_t *a) {
+    uint32_t a0 = a[0], a1 = a[1], a2 = a[2], a3 = a[3];
+    out[0] = a0;
+    out[1] = a1;
+    out[2] = a2;
+    out[3] = a3;
 }
 
-static inline u128_t u128_from_u64(uint64_t value) {
-    u128_t r = {{(uint32_t)value, (uint32_t)(value >> 32), 0, 0}};
-    return r;
-}
-
-/* a * b modulo 2^128. */
-static inline u128_t u128_mul_u32(u128_t a, uint32_t b) {
-    u128_t r;
-    uint64_t carry = 0;
-    for (unsigned i = 0; i < 4; i++) {
-        uint64_t t = mul_32x32(a.w[i], b) + carry;
-        r.w[i] = (uint32_t)t;
-        carry = t >> 32;
-    }
-    return r;
-}
-
-/* a * b, both below 2^64 (the product below 2^128). */
-static inline u128_t u128_mul_u64(uint64_t a, uint64_t b) {
-    uint32_t a0 = (uint32_t)a;
-    uint32_t a1 = (uint32_t)(a >> 32);
-    uint32_t b0 = (uint32_t)b;
-    uint32_t b1 = (uint32_t)(b >> 32);
-    uint64_t p00 = mul_32x32(a0, b0);
-    uint64_t p01 = mul_32x32(a0, b1);
-    uint64_t p10 = mul_32x32(a1, b0);
-    uint64_t p11 = mul_32x32(a1, b1);
-    u128_t r;
-    r.w[0] = (uint32_t)p00;
-    uint64_t t = (p00 >> 32) + (uint32_t)p01 + (uint32_t)p10;
-    r.w[1] = (uint32_t)t;
-    t = (t >> 32) + (p01 >> 32) + (p10 >> 32) + (uint32_t)p11;
-    r.w[2] = (uint32_t)t;
-    r.w[3] = (uint32_t)((t >> 32) + (p11 >> 32));
-    return r;
-}
-
-static inline u128_t u128_add(u128_t a, u128_t b) {
-    u128_t r;
-    uint64_t carry = 0;
-    for (unsigned i = 0; i < 4; i++) {
-        uint64_t t = (uint64_t)a.w[i] + b.w[i] + carry;
-        r.w[i] = (uint32_t)t;
-        carry = t >> 32;
-    }
-    return r;
-}
-
-static inline u128_t u128_sub(u128_t a, u128_t b) {
-    u128_t r;
-    uint32_t borrow = 0;
-    for (unsigned i = 0; i < 4; i++) {
-        uint64_t t = (uint64_t)a.w[i] - b.w[i] - borrow;
-        r.w[i] = (uint32_t)t;
-        borrow = (uint32_t)(t >> 63);
-    }
-    return r;
-}
-
-static inline u128_t u128_negate(u128_t a) {
-    u128_t zero = {{0, 0, 0, 0}};
-    return u128_sub(zero, a);
-}
-
-/* The signed value: the magnitude with this sign (negative: two's complement). */
-static inline u128_t u128_signed(u128_t magnitude, bool negative) {
-    return negative ? u128_negate(magnitude) : magnitude;
-}
-
-static inline bool u128_is_negative(u128_t a) {
-    return (a.w[3] >> 31) != 0;
-}
-
-static inline bool u128_less(u128_t a, u128_t b) {
-    for (unsigned i = 4; i-- > 0;) {
-        if (a.w[i] != b.w[i]) {
-            return a.w[i] < b.w[i];
+/* out[0..n] = a[0..n-1] * b (n + 1 words); out may be a. */
+static inline void words_mul(uint32_t *out, const uint32_t *a, unsigned n, uint32_t b) {
+    uint32_t carry = 0;
+    if (b < 0x10000u) {
+        for (unsigned i = 0; i < n; i++) {
+            uint32_t low = (a[i] & 0xffffu) * b;
+            uint32_t middle = (a[i] >> 16) * b;
+            uint32_t sum = low + (middle << 16);
+            uint32_t high = (middle >> 16) + (sum < low);
+            uint32_t total = sum + carry;
+            out[i] = total;
+            carry = high + (total < sum);
+        }
+    } else {
+        for (unsigned i = 0; i < n; i++) {
+            uint32_t high;
+            uint32_t low = mul_32x32(a[i], b, &high);
+            uint32_t total = low + carry;
+            out[i] = total;
+            carry = high + (total < low);
         }
     }
-    return false;
+    out[n] = carry;
 }
 
-/* a << bits for bits < 32. */
-static inline u128_t u128_shift_left(u128_t a, unsigned bits) {
-    u128_t r;
-    r.w[0] = a.w[0] << bits;
-    for (unsigned i = 1; i < 4; i++) {
-        r.w[i] = (a.w[i] << bits) | (bits ? a.w[i - 1] >> (32u - bits) : 0u);
+/* a *= b modulo 2^128 (two's complement: a signed a times an unsigned b). */
+static inline void words_scale(uint32_t *a, uint32_t b) {
+    uint32_t product[WORDS + 1];
+    words_mul(product, a, WORDS, b);
+    words_copy(a, product);
+}
+
+/* out = a + b modulo 2^128; out may be a or b. (The 4-word helpers are written out: GCC
+ * turns loops over words into calls of memcpy.) */
+static inline void words_add(uint32_t *out, const uint32_t *a, const uint32_t *b) {
+    uint32_t x0 = a[0] + b[0];
+    uint32_t c0 = x0 < b[0];
+    uint32_t t1 = a[1] + c0;
+    uint32_t x1 = t1 + b[1];
+    uint32_t c1 = (t1 < c0) + (x1 < t1);
+    uint32_t t2 = a[2] + c1;
+    uint32_t x2 = t2 + b[2];
+    uint32_t c2 = (t2 < c1) + (x2 < t2);
+    out[3] = a[3] + c2 + b[3];
+    out[2] = x2;
+    out[1] = x1;
+    out[0] = x0;
+}
+
+/* out = a - b modulo 2^128; out may be a or b. */
+static inline void words_sub(uint32_t *out, const uint32_t *a, const uint32_t *b) {
+    uint32_t x0 = a[0] - b[0];
+    uint32_t w0 = a[0] < b[0];
+    uint32_t y1 = b[1] + w0;
+    uint32_t x1 = a[1] - y1;
+    uint32_t w1 = (y1 < w0) | (a[1] < y1);
+    uint32_t y2 = b[2] + w1;
+    uint32_t x2 = a[2] - y2;
+    uint32_t w2 = (y2 < w1) | (a[2] < y2);
+    out[3] = a[3] - b[3] - w2;
+    out[2] = x2;
+    out[1] = x1;
+    out[0] = x0;
+}
+
+static inline void words_negate(uint32_t *a) {
+    const uint32_t zero[WORDS] = {0, 0, 0, 0};
+    words_sub(a, zero, a);
+}
+
+static inline bool words_negative(const uint32_t *a) {
+    return (a[WORDS - 1] >> 31) != 0;
+}
+
+static inline bool words_zero(const uint32_t *a) {
+    return (a[0] | a[1] | a[2] | a[3]) == 0;
+}
+
+/* a < b, unsigned */
+static inline bool words_less(const uint32_t *a, const uint32_t *b) {
+    if (a[3] != b[3]) {
+        return a[3] < b[3];
     }
-    return r;
+    if (a[2] != b[2]) {
+        return a[2] < b[2];
+    }
+    if (a[1] != b[1]) {
+        return a[1] < b[1];
+    }
+    return a[0] < b[0];
+}
+
+/* out = value (sign-extended) */
+static inline void words_from_int64(uint32_t *out, int64_t value) {
+    uint64_t bits = (uint64_t)value;
+    out[0] = (uint32_t)bits;
+    out[1] = (uint32_t)(bits >> 32);
+    out[2] = out[3] = value < 0 ? 0xffffffffu : 0u;
+}
+
+/* a << bits for 0 < bits < 32 */
+static inline void words_shift_left(uint32_t *out, const uint32_t *a, unsigned bits) {
+    uint32_t back = 32u - bits;
+    uint32_t a0 = a[0], a1 = a[1], a2 = a[2], a3 = a[3];
+    out[3] = (a3 << bits) | (a2 >> back);
+    out[2] = (a2 << bits) | (a1 >> back);
+    out[1] = (a1 << bits) | (a0 >> back);
+    out[0] = a0 << bits;
+}
+
+/* a >> 1 */
+static inline void words_half(uint32_t *out, const uint32_t *a) {
+    uint32_t a0 = a[0], a1 = a[1], a2 = a[2], a3 = a[3];
+    out[0] = (a0 >> 1) | (a1 << 31);
+    out[1] = (a1 >> 1) | (a2 << 31);
+    out[2] = (a2 >> 1) | (a3 << 31);
+    out[3] = a3 >> 1;
 }
 
 static inline unsigned bit_length_32(uint32_t x) {
@@ -143,87 +190,506 @@ static inline unsigned bit_length_32(uint32_t x) {
     return bits + x;
 }
 
-/* Bits [shift, shift + 64) of a, for 0 < shift < 64 + 32. */
-static inline uint64_t u128_bits64(u128_t a, unsigned shift) {
+/* Bits [shift, shift + 32) of a, for shift < 96. */
+static inline uint32_t words_bits32(const uint32_t *a, unsigned shift) {
     unsigned word = shift / 32u;
     unsigned bit = shift % 32u;
-    uint32_t w0 = a.w[word];
-    uint32_t w1 = word + 1 < 4 ? a.w[word + 1] : 0u;
-    uint32_t w2 = word + 2 < 4 ? a.w[word + 2] : 0u;
     if (bit == 0) {
-        return ((uint64_t)w1 << 32) | w0;
+        return a[word];
     }
-    uint32_t lo = (w0 >> bit) | (w1 << (32u - bit));
-    uint32_t hi = (w1 >> bit) | (w2 << (32u - bit));
-    return ((uint64_t)hi << 32) | lo;
+    uint32_t next = word + 1 < WORDS ? a[word + 1] : 0u;
+    return (a[word] >> bit) | (next << (32u - bit));
 }
 
-/* floor(n / d) for d >= 2^31 and n < 2^32 * d (the quotient fits 32 bits): one 64-by-32-bit
+/* (floor(n / d), n mod d) for d >= 2^40 (below 2^96) and n < 2^32 * d: one 64-by-32-bit
  * division of the operands shifted so that the divisor keeps 31 bits, then an exact
  * correction. With s the shift, D = d >> s in [2^30, 2^31) and N = n >> s < 2^63:
  * N / (D + 1) < n / d, and N / (D + 1) > (n - 2^s) / (d + 2^s) - 1 >= n / d - 6 (as
  * 2^s <= d * 2^-30 and n / d < 2^32), so at most 6 corrections. */
-static uint32_t u128_divide(u128_t n, u128_t d) {
-    unsigned top = 3;
-    while (d.w[top] == 0) {
-        top--;
-    }
-    unsigned length = top * 32u + bit_length_32(d.w[top]);
-    unsigned shift = length - 31u;
-    uint32_t d_high = (uint32_t)u128_bits64(d, shift);
-    uint64_t n_high = u128_bits64(n, shift);
-    uint32_t q = (uint32_t)(n_high / (d_high + 1u));
-    u128_t rest = u128_sub(n, u128_mul_u32(d, q));
-    while (!u128_less(rest, d)) {
-        rest = u128_sub(rest, d);
+static uint32_t words_divide(const uint32_t *n, const uint32_t *d, uint32_t *rest) {
+    unsigned top = d[2] ? 2u : 1u;
+    unsigned shift = top * 32u + bit_length_32(d[top]) - 31u;
+    uint64_t n_high = ((uint64_t)words_bits32(n, shift + 32u) << 32) | words_bits32(n, shift);
+    uint32_t q = (uint32_t)(n_high / (words_bits32(d, shift) + 1u));
+    uint32_t product[WORDS + 1];
+    words_mul(product, d, 3, q);
+    words_sub(rest, n, product);
+    while (!words_less(rest, d)) {
+        words_sub(rest, rest, d);
         q++;
     }
     return q;
 }
 
+/* --- one segment -------------------------------------------------------------------------- */
+
+typedef struct {
+    int32_t p0, p1, m0, m1;
+    uint32_t duration_ms;
+} segment_t;
+
+/* den = 1024 d^3 */
+static void segment_den(uint32_t d, uint32_t *den) {
+    uint32_t cube[WORDS + 1];
+    cube[0] = mul_32x32(d, d, &cube[1]);   /* d^2 < 2^52 */
+    words_mul(cube, cube, 2, d);            /* d^3 < 2^78 */
+    cube[3] = 0;
+    words_shift_left(den, cube, 10);
+}
+
+/* The numerator at e (0 < e < d) as a magnitude and a sign, from the formula's terms. */
+static bool segment_numerator(const segment_t *s, uint32_t e, uint32_t *magnitude) {
+    uint32_t d = s->duration_ms * 1000u;
+    uint32_t rest = d - e;
+    uint32_t cube[WORDS + 1];
+    cube[0] = mul_32x32(d, d, &cube[1]);
+    words_mul(cube, cube, 2, d);
+    cube[3] = 0;
+    uint32_t position[WORDS + 1];
+    words_mul(position, cube, 3, s->p0 < 0 ? 0u - (uint32_t)s->p0 : (uint32_t)s->p0);
+    if (s->p0 < 0) {
+        words_negate(position);
+    }
+    uint32_t dp = (uint32_t)s->p1 - (uint32_t)s->p0;   /* modulo 2^32 */
+    bool dp_negative = s->p1 < s->p0;
+    uint32_t blend[WORDS + 1];
+    blend[0] = mul_32x32(e, e, &blend[1]);
+    words_mul(blend, blend, 2, 3u * d - 2u * e);   /* e^2 (3d - 2e) <= d^3 < 2^78 */
+    words_mul(blend, blend, 3, dp_negative ? 0u - dp : dp);
+    if (dp_negative) {
+        words_negate(blend);
+    }
+    words_add(position, position, blend);
+    uint32_t numerator[WORDS];
+    words_shift_left(numerator, position, 10);
+    /* D e rest (m0 rest - m1 e): m0 rest - m1 e below 2^41, times D below 2^57 */
+    int64_t slopes = (int64_t)s->m0 * rest - (int64_t)s->m1 * e;
+    uint64_t slopes_magnitude = (uint64_t)(slopes < 0 ? -slopes : slopes);
+    uint32_t scaled[WORDS + 1] = {(uint32_t)slopes_magnitude, (uint32_t)(slopes_magnitude >> 32),
+                                  0, 0, 0};
+    words_mul(scaled, scaled, 2, s->duration_ms);
+    uint32_t span[WORDS + 1];
+    span[0] = mul_32x32(e, rest, &span[1]);   /* < 2^50 */
+    uint32_t tangents[WORDS + 1];
+    words_mul(tangents, span, 2, scaled[0]);
+    uint32_t high[WORDS + 1];
+    high[0] = 0;
+    words_mul(&high[1], span, 2, scaled[1]);   /* times 2^32 */
+    tangents[3] = 0;
+    words_add(tangents, tangents, high);
+    if (slopes < 0) {
+        words_negate(tangents);
+    }
+    words_add(numerator, numerator, tangents);
+    bool negative = words_negative(numerator);
+    if (negative) {
+        words_negate(numerator);
+    }
+    words_copy(magnitude, numerator);
+    return negative;
+}
+
+/* The rounded value at e (0 < e < d) from one exact evaluation, with the quotient and
+ * remainder of numerator + den / 2 by den that the player steps from. */
+static int64_t segment_evaluate(const segment_t *s, uint32_t e, const uint32_t *den,
+                                int64_t *quotient, uint32_t *remainder) {
+    uint32_t n[WORDS];
+    bool negative = segment_numerator(s, e, n);
+    uint32_t half[WORDS];
+    words_half(half, den);
+    words_add(n, n, half);   /* |n| + den / 2 */
+    /* _round_half_away: q = (2|n| + den) // (2 den), with the sign of n */
+    uint32_t rest[WORDS];
+    uint32_t q = words_divide(n, den, rest);
+    if (!negative) {
+        *quotient = q;
+        words_copy(remainder, rest);
+        return q;
+    }
+    /* n + den/2 = den - (|n| + den/2) = (1 - q) den - rest */
+    if (words_zero(rest)) {
+        *quotient = 1 - (int64_t)q;
+        words_copy(remainder, rest);
+    } else {
+        *quotient = -(int64_t)q;
+        words_sub(remainder, den, rest);
+    }
+    return -(int64_t)q;
+}
+
 int64_t curve_hermite_position(int32_t p0, int32_t p1, int32_t m0, int32_t m1,
                                uint32_t duration_ms, uint32_t elapsed_us) {
-    uint32_t d = duration_ms * 1000u;   /* < 2^26 */
-    uint32_t e = elapsed_us;
-    if (e == 0) {
+    uint32_t d = duration_ms * 1000u;
+    if (elapsed_us == 0) {
         return p0;   /* the formula's exact value at the ends */
     }
-    if (e == d) {
+    if (elapsed_us == d) {
         return p1;
     }
-    uint32_t rest = d - e;
-    /* numerator = 1024 * (d^3 p0 + (p1 - p0) e^2 (3d - 2e))
-     *             + duration * e * rest * (m0 * rest - m1 * e)
-     * |d^3 p0| < 2^109, |(p1 - p0) e^2 (3d - 2e)| <= 2^32 d^3 < 2^110, the tangent term
-     * < 2^16 * 2^50 * 2^41 = 2^107: |numerator| < 2^121. */
-    u128_t d3 = u128_mul_u32(u128_from_u64(mul_32x32(d, d)), d);
-    uint32_t p0_magnitude = p0 < 0 ? 0u - (uint32_t)p0 : (uint32_t)p0;
-    u128_t start = u128_signed(u128_mul_u32(d3, p0_magnitude), p0 < 0);
-    int64_t dp = (int64_t)p1 - p0;
-    uint32_t dp_magnitude = (uint32_t)(dp < 0 ? -dp : dp);   /* < 2^32 */
-    u128_t blend = u128_mul_u32(u128_mul_u32(u128_from_u64(mul_32x32(e, e)), 3u * d - 2u * e),
-                                dp_magnitude);
-    u128_t positions = u128_add(start, u128_signed(blend, dp < 0));
-    /* m0 * rest - m1 * e: |m| <= 2^15, rest + e = d, so below 2^41 */
-    uint32_t m0_magnitude = m0 < 0 ? 0u - (uint32_t)m0 : (uint32_t)m0;
-    uint32_t m1_magnitude = m1 < 0 ? 0u - (uint32_t)m1 : (uint32_t)m1;
-    int64_t slope0 = (int64_t)mul_32x16(rest, m0_magnitude);
-    int64_t slope1 = (int64_t)mul_32x16(e, m1_magnitude);
-    int64_t slopes = (m0 < 0 ? -slope0 : slope0) - (m1 < 0 ? -slope1 : slope1);
-    uint64_t slopes_magnitude = (uint64_t)(slopes < 0 ? -slopes : slopes);
-    /* duration * |slopes| < 2^16 * 2^42: 64 bits */
-    uint64_t scaled = mul_32x16((uint32_t)slopes_magnitude, duration_ms) +
-                      (mul_32x16((uint32_t)(slopes_magnitude >> 32), duration_ms) << 32);
-    u128_t tangents = u128_signed(u128_mul_u64(mul_32x32(e, rest), scaled), slopes < 0);
-    u128_t numerator = u128_add(u128_shift_left(positions, 10), tangents);
-    /* _round_half_away: (2|n| + den) // (2 den), den = 1024 d^3, with the sign of n */
-    bool negative = u128_is_negative(numerator);
-    u128_t magnitude = negative ? u128_negate(numerator) : numerator;
-    u128_t twice_den = u128_shift_left(d3, 11);
-    u128_t rounded = u128_add(u128_shift_left(magnitude, 1), u128_shift_left(d3, 10));
-    uint32_t q = u128_divide(rounded, twice_den);
-    return negative ? -(int64_t)q : (int64_t)q;
+    segment_t s = {p0, p1, m0, m1, duration_ms};
+    uint32_t den[WORDS];
+    segment_den(d, den);
+    int64_t quotient;
+    uint32_t remainder[WORDS];
+    return segment_evaluate(&s, elapsed_us, den, &quotient, remainder);
 }
+
+/* out (4 words) = a (2 words) * b (2 words) */
+static inline void words_mul_2x2(uint32_t *out, const uint32_t *a, const uint32_t *b) {
+    uint32_t low[WORDS + 1];
+    words_mul(low, a, 2, b[0]);
+    low[3] = 0;
+    uint32_t high[WORDS + 1];
+    high[0] = 0;
+    words_mul(&high[1], a, 2, b[1]);
+    words_add(out, low, high);
+}
+
+static inline void words_from_magnitude64(uint32_t *out, uint64_t magnitude) {
+    out[0] = (uint32_t)magnitude;
+    out[1] = (uint32_t)(magnitude >> 32);
+}
+
+/* The numerator's polynomial coefficients: c1 = D m0 d^2 and c2 = d (3072 dp - D (2m0 + m1))
+ * as their magnitudes' factors, c3 = D (m0 + m1) - 2048 dp. */
+typedef struct {
+    uint32_t d;
+    uint32_t d2[2];          /* d^2 */
+    int32_t m0;
+    uint32_t dm0;            /* D |m0| < 2^31 */
+    bool m0_negative;
+    uint64_t k2_magnitude;   /* |3072 dp - D (2m0 + m1)| < 2^45 */
+    bool k2_negative;
+    int64_t c3;
+} coefficients_t;
+
+/* D * x for |x| < 2^31, in 32-bit multiplies (a 64-bit multiply is a call on the M0+). */
+static inline int64_t times_duration(uint32_t duration_ms, int32_t x) {
+    uint32_t high;
+    uint32_t low = mul_32x32(duration_ms, x < 0 ? 0u - (uint32_t)x : (uint32_t)x, &high);
+    int64_t product = (int64_t)(((uint64_t)high << 32) | low);
+    return x < 0 ? -product : product;
+}
+
+/* The coefficients with k2 and c3 given (they are what costs). */
+static void segment_coefficients_with(const segment_t *s, int64_t k2, int64_t c3,
+                                      coefficients_t *c) {
+    c->d = s->duration_ms * 1000u;
+    c->d2[0] = mul_32x32(c->d, c->d, &c->d2[1]);
+    c->m0 = s->m0;
+    c->dm0 = s->duration_ms * (uint32_t)(s->m0 < 0 ? -s->m0 : s->m0);
+    c->m0_negative = s->m0 < 0;
+    c->k2_magnitude = (uint64_t)(k2 < 0 ? -k2 : k2);
+    c->k2_negative = k2 < 0;
+    c->c3 = c3;
+}
+
+static int64_t segment_k2(const segment_t *s) {
+    int64_t dp = (int64_t)s->p1 - s->p0;
+    return (int64_t)((uint64_t)dp * 3072u) - times_duration(s->duration_ms, 2 * s->m0 + s->m1);
+}
+
+static int64_t segment_c3(const segment_t *s) {
+    int64_t dp = (int64_t)s->p1 - s->p0;
+    return times_duration(s->duration_ms, s->m0 + s->m1) - (int64_t)((uint64_t)dp * 2048u);
+}
+
+static void segment_coefficients(const segment_t *s, coefficients_t *c) {
+    segment_coefficients_with(s, segment_k2(s), segment_c3(s), c);
+}
+
+/* The forward differences of the numerator at e0 = 0 for steps of h < 2^16: with
+ * a_k = c_k h^k, delta1 = a1 + a2 + a3, delta2 = 2 a2 + 6 a3, delta3 = 6 a3. */
+static void differences_at_start(const coefficients_t *c, uint32_t h, uint32_t delta[3][WORDS]) {
+    uint32_t h2 = h * h;
+    uint32_t factor[2];
+    /* a1 = d^2 (D |m0| h), the factor below 2^47 */
+    factor[0] = mul_32x32(c->dm0, h, &factor[1]);
+    uint32_t a1[WORDS];
+    words_mul_2x2(a1, c->d2, factor);
+    if (c->m0_negative) {
+        words_negate(a1);
+    }
+    /* a2 = d (|k2| h^2): below 2^45 * 2^32 * 2^26 */
+    uint32_t k2[2];
+    words_from_magnitude64(k2, c->k2_magnitude);
+    uint32_t a2[WORDS + 1];
+    words_mul(a2, k2, 2, h2);
+    words_mul(a2, a2, 3, c->d);
+    if (c->k2_negative) {
+        words_negate(a2);
+    }
+    /* a3 = |c3| h^3 */
+    uint32_t c3[2];
+    words_from_magnitude64(c3, (uint64_t)(c->c3 < 0 ? -c->c3 : c->c3));
+    uint32_t h3[2];
+    h3[0] = mul_32x32(h2, h, &h3[1]);
+    uint32_t a3[WORDS];
+    words_mul_2x2(a3, c3, h3);
+    if (c->c3 < 0) {
+        words_negate(a3);
+    }
+    uint32_t twice[WORDS];
+    words_add(twice, a3, a3);
+    words_add(delta[2], twice, twice);
+    words_add(delta[2], delta[2], twice);   /* 6 a3 */
+    words_add(delta[1], a2, a2);
+    words_add(delta[1], delta[1], delta[2]);
+    words_add(delta[0], a1, a2);
+    words_add(delta[0], delta[0], a3);
+}
+
+/* The forward differences at e0 for steps of h (the general case, off the common path):
+ * the polynomial shifted to e0 (c2' = c2 + 3 c3 e0, c1' = c1 + e0 (c2 + c2')) and, with
+ * u = c3 h, delta1 = h (c1' + h (c2' + u)), delta2 = 2 h^2 (c2' + 3u), delta3 = 6 u h^2. */
+static void differences_at(const coefficients_t *c, uint32_t e0, uint32_t h,
+                           uint32_t delta[3][WORDS]) {
+    uint32_t c1[WORDS + 1];
+    words_mul(c1, c->d2, 2, c->dm0);
+    c1[3] = 0;
+    if (c->m0_negative) {
+        words_negate(c1);
+    }
+    uint32_t k2[2];
+    words_from_magnitude64(k2, c->k2_magnitude);
+    uint32_t c2[WORDS + 1];
+    words_mul(c2, k2, 2, c->d);
+    c2[3] = 0;
+    if (c->k2_negative) {
+        words_negate(c2);
+    }
+    uint32_t c3[WORDS];
+    words_from_int64(c3, c->c3);
+    uint32_t t[WORDS];
+    words_copy(t, c3);
+    words_scale(t, 3u * e0);          /* 3 c3 e0 */
+    uint32_t c2_shifted[WORDS];
+    words_add(c2_shifted, c2, t);
+    words_add(t, c2, c2_shifted);     /* c2 + c2' */
+    words_scale(t, e0);
+    words_add(c1, c1, t);
+    words_copy(c2, c2_shifted);
+    uint32_t u[WORDS];
+    words_copy(u, c3);
+    words_scale(u, h);
+    words_add(t, c2, u);
+    words_scale(t, h);
+    words_add(t, t, c1);
+    words_scale(t, h);
+    words_copy(delta[0], t);
+    words_copy(t, u);
+    words_scale(t, h);
+    words_scale(t, 6u * h);
+    words_copy(delta[2], t);
+    words_copy(t, u);
+    words_scale(t, 3u);
+    words_add(t, t, c2);
+    words_scale(t, h);
+    words_scale(t, 2u * h);
+    words_copy(delta[1], t);
+}
+
+/* Whole dens taken off (or added) one at a time before a division: differences of a curve
+ * moving this many counts a tick or fewer need none. */
+#define FLOOR_SUBTRACTIONS 3u
+
+/* (floor(x / den), x mod den) for a signed x; false when the quotient is 2^32 or more in
+ * magnitude. */
+static bool words_floor_divide(const uint32_t *x, const uint32_t *den, int64_t *quotient,
+                               uint32_t *remainder) {
+    uint32_t t[WORDS];
+    words_copy(t, x);
+    int64_t q = 0;
+    uint32_t limit[WORDS] = {0, den[0], den[1], den[2]};   /* den * 2^32 */
+    if (!words_negative(t)) {
+        for (unsigned i = 0; i < FLOOR_SUBTRACTIONS && !words_less(t, den); i++) {
+            words_sub(t, t, den);
+            q++;
+        }
+        if (!words_less(t, den)) {
+            if (!words_less(t, limit)) {
+                return false;
+            }
+            uint32_t rest[WORDS];
+            q += words_divide(t, den, rest);
+            words_copy(t, rest);
+        }
+    } else {
+        for (unsigned i = 0; i < FLOOR_SUBTRACTIONS && words_negative(t); i++) {
+            words_add(t, t, den);
+            q--;
+        }
+        if (words_negative(t)) {
+            words_negate(t);   /* the magnitude below zero */
+            if (!words_less(t, limit)) {
+                return false;
+            }
+            uint32_t rest[WORDS];
+            uint32_t k = words_divide(t, den, rest);
+            if (words_zero(rest)) {
+                q -= k;
+                words_copy(t, rest);
+            } else {
+                q -= (int64_t)k + 1;
+                words_sub(t, den, rest);
+            }
+        }
+    }
+    *quotient = q;
+    words_copy(remainder, t);
+    return true;
+}
+
+/* (qa den + ra) + (qb den + rb) as quotient (returned) and remainder, for remainders below
+ * den; r may be ra or rb. */
+static inline int64_t qr_add(int64_t qa, const uint32_t *ra, int64_t qb, const uint32_t *rb,
+                             const uint32_t *den, uint32_t *r) {
+    words_add(r, ra, rb);
+    if (!words_less(r, den)) {
+        words_sub(r, r, den);
+        return qa + qb + 1;
+    }
+    return qa + qb;
+}
+
+/* floor and modulo of a signed int64 by a positive divisor */
+static inline int64_t floor_divide64(int64_t x, int64_t divisor, int64_t *rest) {
+    int64_t q = x / divisor;
+    int64_t r = x - q * divisor;
+    if (r < 0) {
+        r += divisor;
+        q--;
+    }
+    *rest = r;
+    return q;
+}
+
+/* The exact preparation of the differences at e0 = 0 as quotients and remainders by den
+ * (entries 1 to 3 of quotient and remainder), for h < 2^9 (the periods of 10 kHz to 2 kHz),
+ * from a_k = c_k h^k without dividing 128-bit numbers:
+ *   a1 / den = m0 h / 1024000 (as d = 1000 D), so a1 = q1 den + r1 D d^2;
+ *   a2 / den = k2 h^2 / (1024 d^2), so a2 = q2 den + r2 d;
+ *   a3 = c3 h^3 (below 2^71) divided by den;
+ * then delta1 = a1 + a2 + a3, delta2 = 2 a2 + 6 a3, delta3 = 6 a3. In phases (the player
+ * runs them a tick at a time for the next segment), each a few hundred cycles. */
+#define PREPARE_PHASES 8u
+
+/* The arguments every phase takes. */
+typedef struct {
+    const segment_t *s;
+    const coefficients_t *c;
+    uint32_t h;
+    uint32_t *den;
+    int64_t *quotient;
+    uint32_t (*remainder)[WORDS];
+} phase_t;
+
+static void phase_den(const phase_t *p) {
+    segment_den(p->c->d, p->den);
+}
+
+/* slot 1 = a1 */
+static void phase_a1(const phase_t *p) {
+    const coefficients_t *c = p->c;
+    if (c->m0 == 0) {   /* a curve's first segment */
+        p->quotient[1] = 0;
+        words_from_int64(p->remainder[1], 0);
+        return;
+    }
+    int32_t x1 = c->m0 * (int32_t)p->h;   /* |m0 h| < 2^24 */
+    int32_t q1 = x1 / 1024000;
+    int32_t r1 = x1 - q1 * 1024000;
+    if (r1 < 0) {
+        r1 += 1024000;
+        q1--;
+    }
+    p->quotient[1] = q1;
+    uint32_t factor[2];
+    factor[0] = mul_32x32((uint32_t)r1, p->s->duration_ms, &factor[1]);   /* r1 D < 2^36 */
+    words_mul_2x2(p->remainder[1], factor, c->d2);
+}
+
+/* slot 2 = a2 */
+static void phase_a2(const phase_t *p) {
+    const coefficients_t *c = p->c;
+    int64_t k2 = c->k2_negative ? -(int64_t)c->k2_magnitude : (int64_t)c->k2_magnitude;
+    uint64_t d2 = ((uint64_t)c->d2[1] << 32) | c->d2[0];
+    /* |k2| < 2^45 and h^2 < 2^18; 1024 d^2 < 2^62 */
+    int64_t x2 = (int64_t)((uint64_t)k2 * (p->h * p->h));
+    int64_t divisor = (int64_t)(d2 << 10);
+    int64_t rest;
+    if (x2 >= 0 && x2 < divisor) {   /* the usual case: below one count a tick^2 */
+        p->quotient[2] = 0;
+        rest = x2;
+    } else if (x2 < 0 && x2 >= -divisor) {
+        p->quotient[2] = -1;
+        rest = x2 + divisor;
+    } else {
+        p->quotient[2] = floor_divide64(x2, divisor, &rest);
+    }
+    uint32_t rest_words[2] = {(uint32_t)rest, (uint32_t)((uint64_t)rest >> 32)};
+    uint32_t r2[WORDS + 1];
+    words_mul(r2, rest_words, 2, c->d);
+    r2[3] = 0;
+    words_copy(p->remainder[2], r2);
+}
+
+/* slot 3 = a3 = c3 h^3 (below 2^71), not yet divided */
+static void phase_a3(const phase_t *p) {
+    const coefficients_t *c = p->c;
+    uint64_t c3_magnitude = (uint64_t)(c->c3 < 0 ? -c->c3 : c->c3);
+    uint32_t c3_words[2] = {(uint32_t)c3_magnitude, (uint32_t)(c3_magnitude >> 32)};
+    uint32_t a3[WORDS + 1];
+    words_mul(a3, c3_words, 2, p->h * p->h * p->h);   /* h^3 < 2^27 */
+    a3[3] = 0;
+    if (c->c3 < 0) {
+        words_negate(a3);
+    }
+    words_copy(p->remainder[3], a3);
+}
+
+/* slot 3 divided by den: a quotient below 2^31 */
+static void phase_a3_divide(const phase_t *p) {
+    uint32_t a3[WORDS];
+    words_copy(a3, p->remainder[3]);
+    if (!words_negative(a3) && words_less(a3, p->den)) {
+        p->quotient[3] = 0;   /* the usual case: the cubic term is below one count a tick */
+    } else {
+        (void)words_floor_divide(a3, p->den, &p->quotient[3], p->remainder[3]);
+    }
+}
+
+/* slot 1 = a1 + a2 + a3 */
+static void phase_delta1(const phase_t *p) {
+    int64_t q = qr_add(p->quotient[1], p->remainder[1], p->quotient[2], p->remainder[2], p->den,
+                       p->remainder[1]);
+    p->quotient[1] = qr_add(q, p->remainder[1], p->quotient[3], p->remainder[3], p->den,
+                            p->remainder[1]);
+}
+
+/* slot 3 = 6 a3 */
+static void phase_delta3(const phase_t *p) {
+    uint32_t r_two[WORDS];
+    int64_t q_two = qr_add(p->quotient[3], p->remainder[3], p->quotient[3], p->remainder[3],
+                           p->den, r_two);
+    uint32_t r_four[WORDS];
+    int64_t q_four = qr_add(q_two, r_two, q_two, r_two, p->den, r_four);
+    p->quotient[3] = qr_add(q_four, r_four, q_two, r_two, p->den, p->remainder[3]);
+}
+
+/* slot 2 = 2 a2 + 6 a3 */
+static void phase_delta2(const phase_t *p) {
+    uint32_t r_two[WORDS];
+    int64_t q_a2 = qr_add(p->quotient[2], p->remainder[2], p->quotient[2], p->remainder[2],
+                          p->den, r_two);
+    p->quotient[2] = qr_add(q_a2, r_two, p->quotient[3], p->remainder[3], p->den,
+                            p->remainder[2]);
+}
+
+static void (*const PHASES[PREPARE_PHASES])(const phase_t *) = {
+    phase_den, phase_a1, phase_a2, phase_a3, phase_a3_divide, phase_delta1, phase_delta3,
+    phase_delta2,
+};
 
 /* --- the keyframe buffer and the player (curve.py CurvePlayer) ------------------------- */
 
@@ -234,7 +700,18 @@ static inline const keyframe_t *curve_first(const curve_player_t *curve) {
 static inline void curve_pop(curve_player_t *curve) {
     curve->head = (uint8_t)((curve->head + 1u) % CURVE_BUFFER_CAPACITY);
     curve->count--;
+    curve->stepping = false;
+    curve->next_phase = 0;
 }
+
+static inline segment_t curve_segment(const curve_player_t *curve) {
+    const keyframe_t *target = curve_first(curve);
+    segment_t s = {curve->start_position, target->position_counts, curve->start_tangent,
+                   target->tangent_in, target->duration_ms};
+    return s;
+}
+
+static void curve_prepare_start(curve_player_t *curve, int64_t tick_us);
 
 bool curve_append(curve_player_t *curve, keyframe_t keyframe) {
     if (curve->count >= CURVE_BUFFER_CAPACITY) {
@@ -242,6 +719,11 @@ bool curve_append(curve_player_t *curve, keyframe_t keyframe) {
     }
     curve->buffer[(curve->head + curve->count) % CURVE_BUFFER_CAPACITY] = keyframe;
     curve->count++;
+    if (curve->playing && curve->count == 1 && curve->elapsed_us == 0 && curve->step_us > 0) {
+        /* the curve reached its last keyframe exactly on the last tick and goes on with
+         * this one on the next: prepare its segment here, as that tick would have */
+        curve_prepare_start(curve, curve->step_us);
+    }
     return true;
 }
 
@@ -250,18 +732,138 @@ void curve_clear(curve_player_t *curve) {
     curve->count = 0;
     curve->playing = false;
     curve->elapsed_us = 0;
+    curve->stepping = false;
+    curve->next_phase = 0;
 }
 
 void curve_interrupt(curve_player_t *curve) {
     curve->playing = false;
     curve->elapsed_us = 0;
+    curve->stepping = false;
+    curve->next_phase = 0;
+}
+
+/* The segment after the head one: from the first keyframe to the second. */
+static inline segment_t curve_next_segment(const curve_player_t *curve) {
+    const keyframe_t *from = curve_first(curve);
+    const keyframe_t *to = &curve->buffer[(curve->head + 1u) % CURVE_BUFFER_CAPACITY];
+    segment_t s = {from->position_counts, to->position_counts, from->tangent_out,
+                   to->tangent_in, to->duration_ms};
+    return s;
+}
+
+/* One phase of the next segment's preparation, on a tick that stepped. */
+static void curve_prepare_ahead(curve_player_t *curve) {
+    if (curve->count < 2 || curve->next_phase >= PREPARE_PHASES || curve->step_us >= 512 ||
+        curve->step_us <= 0) {
+        return;
+    }
+    segment_t s = curve_next_segment(curve);
+    if (curve->next_phase == 0) {
+        curve->next_k2 = segment_k2(&s);
+        curve->next_c3 = segment_c3(&s);
+    }
+    coefficients_t c;
+    segment_coefficients_with(&s, curve->next_k2, curve->next_c3, &c);
+    phase_t p = {&s, &c, (uint32_t)curve->step_us, curve->next_den, curve->next_quotient,
+                 curve->next_remainder};
+    PHASES[curve->next_phase](&p);
+    curve->next_phase++;
 }
 
 uint32_t curve_queued(const curve_player_t *curve) {
     return curve->count;
 }
 
+/* Ready the differences of the head segment at elapsed e0 (the numerator's quotient and
+ * remainder, and den, are set), when a later tick of the segment will use them. */
+static void curve_prepare(curve_player_t *curve, uint32_t e0, int64_t tick_us) {
+    curve->stepping = false;
+    uint32_t d = curve_first(curve)->duration_ms * 1000u;
+    if (tick_us <= 0 || (int64_t)e0 + tick_us >= (int64_t)d) {
+        return;
+    }
+    segment_t s = curve_segment(curve);
+    coefficients_t c;
+    segment_coefficients(&s, &c);
+    if (e0 == 0 && tick_us < 512) {
+        phase_t p = {&s, &c, (uint32_t)tick_us, curve->den, curve->quotient, curve->remainder};
+        phase_a1(&p);   /* den is set */
+        phase_a2(&p);
+        phase_a3(&p);
+        phase_a3_divide(&p);
+        phase_delta1(&p);
+        phase_delta3(&p);
+        phase_delta2(&p);
+        curve->stepping = true;
+        return;
+    }
+    uint32_t delta[3][WORDS];
+    if (e0 == 0 && tick_us < 0x10000) {
+        differences_at_start(&c, (uint32_t)tick_us, delta);
+    } else {
+        differences_at(&c, e0, (uint32_t)tick_us, delta);
+    }
+    for (unsigned k = 0; k < 3; k++) {
+        if (!words_floor_divide(delta[k], curve->den, &curve->quotient[k + 1],
+                                curve->remainder[k + 1])) {
+            return;   /* a quotient of 2^32 counts a tick: evaluated tick by tick */
+        }
+    }
+    curve->stepping = true;
+}
+
+/* A segment's first tick (elapsed 0): the value p0 exactly, numerator + den/2 =
+ * p0 den + den/2. */
+static void curve_prepare_start(curve_player_t *curve, int64_t tick_us) {
+    segment_den(curve_first(curve)->duration_ms * 1000u, curve->den);
+    curve->quotient[0] = curve->start_position;
+    words_half(curve->remainder[0], curve->den);
+    curve_prepare(curve, 0, tick_us);
+}
+
+/* The next tick of a stepping segment: each of the numerator and its first two
+ * differences gains the next difference, exactly, remainder by remainder. Remainders are
+ * below den < 2^88, so their sums fit 3 words. */
+static int64_t curve_step(curve_player_t *curve) {
+    const uint32_t *den = curve->den;
+    for (unsigned k = 0; k < 3; k++) {
+        uint32_t *r = curve->remainder[k];
+        const uint32_t *next = curve->remainder[k + 1];
+        uint32_t x0 = r[0] + next[0];
+        uint32_t c0 = x0 < next[0];
+        uint32_t t1 = r[1] + c0;
+        uint32_t x1 = t1 + next[1];
+        uint32_t c1 = (t1 < c0) + (x1 < t1);
+        uint32_t x2 = r[2] + next[2] + c1;
+        int64_t q = curve->quotient[k] + curve->quotient[k + 1];
+        /* x >= den ? */
+        bool over = x2 != den[2] ? x2 > den[2] : x1 != den[1] ? x1 > den[1] : x0 >= den[0];
+        if (over) {
+            uint32_t w0 = x0 < den[0];
+            uint32_t y1 = den[1] + w0;
+            uint32_t w1 = (y1 < w0) | (x1 < y1);
+            x2 = x2 - den[2] - w1;
+            x1 = x1 - y1;
+            x0 = x0 - den[0];
+            q++;
+        }
+        r[0] = x0;
+        r[1] = x1;
+        r[2] = x2;
+        curve->quotient[k] = q;
+    }
+    const uint32_t *r = curve->remainder[0];
+    int64_t q = curve->quotient[0];
+    return q - ((r[0] | r[1] | r[2]) == 0 && q <= 0);
+}
+
 int64_t curve_next_position(curve_player_t *curve, int32_t current_desired, int64_t tick_us) {
+    if (curve->step_us != tick_us) {
+        curve->stepping = false;   /* prepared for another period */
+        curve->next_phase = 0;
+        curve->step_us = (int32_t)tick_us;
+    }
     if (curve->playing) {
         curve->elapsed_us += tick_us;
     } else if (curve->count != 0) {
@@ -269,6 +871,8 @@ int64_t curve_next_position(curve_player_t *curve, int32_t current_desired, int6
         curve->elapsed_us = 0;
         curve->start_position = current_desired;
         curve->start_tangent = 0;
+        curve->stepping = false;
+        curve->next_phase = 0;
     } else {
         return current_desired;
     }
@@ -282,17 +886,47 @@ int64_t curve_next_position(curve_player_t *curve, int32_t current_desired, int6
     }
     if (curve->count == 0) {
         curve->playing = false;
+        curve->stepping = false;
         return curve->start_position;
     }
     const keyframe_t target = *curve_first(curve);
-    int64_t position = curve_hermite_position(curve->start_position, target.position_counts,
-                                              curve->start_tangent, target.tangent_in,
-                                              target.duration_ms, (uint32_t)curve->elapsed_us);
-    if (curve->elapsed_us == (int64_t)target.duration_ms * 1000) {
+    int64_t d = (int64_t)target.duration_ms * 1000;
+    uint32_t e = (uint32_t)curve->elapsed_us;
+    int64_t position;
+    if (e == 0) {
+        position = curve->start_position;   /* hermite_position at 0 is p0 exactly */
+        curve_prepare_start(curve, tick_us);   /* only a curve's first tick is at 0 */
+    } else if (e == d) {
+        position = target.position_counts;   /* and p1 at the end */
+    } else if (curve->stepping) {
+        position = curve_step(curve);
+        curve_prepare_ahead(curve);
+    } else {
+        segment_t s = curve_segment(curve);
+        segment_den(target.duration_ms * 1000u, curve->den);
+        position = segment_evaluate(&s, e, curve->den, &curve->quotient[0],
+                                    curve->remainder[0]);
+        curve_prepare(curve, e, tick_us);   /* the later ticks of this segment */
+    }
+    if (e == d) {
+        bool ready = curve->next_phase == PREPARE_PHASES;
         curve_pop(curve);
         curve->elapsed_us = 0;
         curve->start_position = target.position_counts;
         curve->start_tangent = target.tangent_out;
+        if (curve->count != 0 && ready) {
+            /* the next segment prepared ahead: numerator + den/2 = p0 den + den/2 */
+            words_copy(curve->den, curve->next_den);
+            curve->quotient[0] = curve->start_position;
+            words_half(curve->remainder[0], curve->den);
+            for (unsigned k = 1; k < 4; k++) {
+                curve->quotient[k] = curve->next_quotient[k];
+                words_copy(curve->remainder[k], curve->next_remainder[k]);
+            }
+            curve->stepping = (int64_t)curve_first(curve)->duration_ms * 1000 > tick_us;
+        } else if (curve->count != 0) {
+            curve_prepare_start(curve, tick_us);   /* a tick with nothing to evaluate */
+        }
     }
     return position;
 }

@@ -75,12 +75,14 @@ void motor_step(int64_t *theta_micro, int64_t *omega_micro, sci_t drive,
     int64_t gap = omega - sci_to_int(target);
     sci_t gap_sci = sci_from_int(gap);
     int64_t new_omega = omega - sci_to_int(sci_mul(gap_sci, params->decay));
-    /* omega * tick_us / (steps * 10^6), as the reduced fraction: |omega * travel_num| is at
-     * most 10^12 * 10^6 */
-    int64_t travel = omega * params->travel_num;
+    /* omega * tick_us / (steps * 10^6) truncated toward zero (_trunc_div), as the reduced
+     * fraction: |omega| * travel_num is at most 10^12 * 10^6, travel_num at most 10^6 */
+    uint64_t base = sci_mul_32x64((uint32_t)params->travel_num, sci_magnitude64(omega));
     if (params->travel_den != 1) {
-        travel /= params->travel_den;   /* C truncates toward zero, as _trunc_div */
+        base = params->travel_den < 0x10000 ? sci_div_u64_small(base, (uint32_t)params->travel_den)
+                                             : base / (uint64_t)params->travel_den;
     }
+    int64_t travel = omega < 0 ? -(int64_t)base : (int64_t)base;
     travel -= sci_to_int(sci_mul(gap_sci, params->lag));
     if (direction > 0) {
         new_omega = new_omega > 0 ? new_omega : 0;

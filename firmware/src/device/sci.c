@@ -31,6 +31,9 @@ const uint64_t sci_pow10_u64[20] = {
     10000000000000000000u,
 };
 
+extern inline uint32_t sci_mul_32x32(uint32_t a, uint32_t b, uint32_t *hi);
+extern inline uint64_t sci_mul_32x64(uint32_t a, uint64_t b);
+extern inline uint64_t sci_div_u64_small(uint64_t n, uint32_t d);
 extern inline uint64_t sci_magnitude64(int64_t value);
 extern inline int32_t sci_signed(uint32_t m, bool negative);
 extern inline sci_t sci_normalize_u32(uint32_t m, int32_t e, bool negative);

@@ -28,6 +28,44 @@ typedef struct {
 extern const uint32_t sci_pow10_u32[10];
 extern const uint64_t sci_pow10_u64[20];
 
+/* (hi, lo) = a * b from four 16 x 16-bit products: the Cortex-M0+ multiplies 32 x 32 -> 32
+ * bits only, and a 64-bit multiply is a library call there. */
+inline uint32_t sci_mul_32x32(uint32_t a, uint32_t b, uint32_t *hi) {
+    uint32_t a_lo = a & 0xffffu;
+    uint32_t a_hi = a >> 16;
+    uint32_t b_lo = b & 0xffffu;
+    uint32_t b_hi = b >> 16;
+    uint32_t cross1 = a_lo * b_hi;
+    uint32_t cross2 = a_hi * b_lo;
+    uint32_t middle = cross1 + cross2;
+    uint32_t high = a_hi * b_hi + (middle >> 16) + (middle < cross1 ? 0x10000u : 0u);
+    uint32_t low = a_lo * b_lo;
+    uint32_t sum = low + (middle << 16);
+    *hi = high + (sum < low);
+    return sum;
+}
+
+/* a * b modulo 2^64, for a 32-bit a. */
+inline uint64_t sci_mul_32x64(uint32_t a, uint64_t b) {
+    uint32_t hi;
+    uint32_t lo = sci_mul_32x32(a, (uint32_t)b, &hi);
+    hi += a * (uint32_t)(b >> 32);
+    return ((uint64_t)hi << 32) | lo;
+}
+
+/* floor(n / d) for 0 < d < 2^16: two 32-bit divisions when n < 2^48 (the RP2040's hardware
+ * divider; its 64-bit division takes three and more), else C's 64-bit division. */
+inline uint64_t sci_div_u64_small(uint64_t n, uint32_t d) {
+    if ((n >> 48) != 0) {
+        return n / d;
+    }
+    uint32_t high = (uint32_t)(n >> 16);
+    uint32_t q_high = high / d;
+    uint32_t rest = high - q_high * d;
+    uint32_t q_low = ((rest << 16) | (uint32_t)(n & 0xffffu)) / d;
+    return ((uint64_t)q_high << 16) + q_low;
+}
+
 /* The magnitude of an int64, as uint64 (INT64_MIN included). */
 inline uint64_t sci_magnitude64(int64_t value) {
     return value < 0 ? 0u - (uint64_t)value : (uint64_t)value;
@@ -106,7 +144,7 @@ inline sci_t sci_from_int(int64_t value) {
 inline int64_t sci_to_int(sci_t x) {
     if (x.e >= 0) {
         uint64_t scale = sci_pow10_u64[x.e > 19 ? 19 : x.e];
-        uint64_t m = (uint64_t)(x.c < 0 ? 0u - (uint32_t)x.c : (uint32_t)x.c) * scale;
+        uint64_t m = sci_mul_32x64(x.c < 0 ? 0u - (uint32_t)x.c : (uint32_t)x.c, scale);
         return x.c < 0 ? -(int64_t)m : (int64_t)m;
     }
     if (x.e <= -10) {

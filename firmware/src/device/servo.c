@@ -23,14 +23,14 @@ static inline int32_t wrap_int32(int64_t value) {
     return bits < 0x80000000u ? (int32_t)bits : -(int32_t)(~bits) - 1;
 }
 
-/* theta // 10^6 (floor), as floor(floor(|theta| / 2^6) / 15625) on the magnitude: a divisor
- * of 14 bits, which the RP2040's 64-bit division does in three hardware divisions. */
+/* theta // 10^6 (floor), as floor(floor(|theta| / 2^6) / 15625) on the magnitude (below
+ * 2^52): a 14-bit divisor, two 32-bit divisions. */
 static inline int64_t floor_micro(int64_t theta) {
     if (theta >= 0) {
-        return (int64_t)(((uint64_t)theta >> 6) / 15625u);
+        return (int64_t)sci_div_u64_small((uint64_t)theta >> 6, 15625u);
     }
     uint64_t magnitude = 0u - (uint64_t)theta;
-    return -(int64_t)(((magnitude + (MOTOR_MICRO - 1)) >> 6) / 15625u);
+    return -(int64_t)sci_div_u64_small((magnitude + (MOTOR_MICRO - 1)) >> 6, 15625u);
 }
 
 static void shift_edges(servo_state_t *state, int64_t shift) {
@@ -42,15 +42,20 @@ static void shift_edges(servo_state_t *state, int64_t shift) {
     }
 }
 
-static void ring_put(record_ring_t *ring, const record_t *record) {
+/* The slot the next record goes to, or NULL (counted as dropped) when the ring is full;
+ * ring_commit publishes it. The record is written in place: no copy. */
+static record_t *ring_slot(record_ring_t *ring) {
     uint32_t head = ring->head;
     if (head - ring->tail >= RECORD_RING_SLOTS) {
         ring->dropped = ring->dropped + 1u;
-        return;
+        return 0;
     }
-    ring->slots[head % RECORD_RING_SLOTS] = *record;
+    return &ring->slots[head % RECORD_RING_SLOTS];
+}
+
+static void ring_commit(record_ring_t *ring) {
     atomic_thread_fence(memory_order_release);   /* the record before the head */
-    ring->head = head + 1u;
+    ring->head = ring->head + 1u;
 }
 
 void servo_state_init(servo_state_t *state, int32_t mode) {
@@ -170,11 +175,18 @@ static int32_t encoder(servo_state_t *s, const servo_params_t *p) {
     int64_t count = floor_micro(s->theta);
     s->actual = wrap_int32(count + s->offset);
     int32_t then = s->counts[s->counts_pos];
-    int64_t velocity = (int64_t)wrap_int32((int64_t)s->actual - then) * p->velocity_num;
+    /* wrap32(actual - then) * 10^6 / (window * tick_us) truncated toward zero (trunc_div),
+     * as the reduced fraction: velocity_num <= 10^6, velocity_den <= 10^4 */
+    int32_t moved = wrap_int32((int64_t)s->actual - then);
+    uint32_t moved_magnitude = moved < 0 ? 0u - (uint32_t)moved : (uint32_t)moved;
+    uint32_t high;
+    uint32_t low = sci_mul_32x32(moved_magnitude, (uint32_t)p->velocity_num, &high);
+    uint64_t speed = ((uint64_t)high << 32) | low;
     if (p->velocity_den != 1) {
-        velocity /= p->velocity_den;   /* C truncates toward zero, as trunc_div */
+        speed = p->velocity_den < 0x10000 ? sci_div_u64_small(speed, (uint32_t)p->velocity_den)
+                                          : speed / (uint64_t)p->velocity_den;
     }
-    s->velocity = velocity;
+    s->velocity = moved < 0 ? -(int64_t)speed : (int64_t)speed;
     s->counts[s->counts_pos] = s->actual;
     s->counts_pos += 1;
     if (s->counts_pos >= (uint32_t)p->window) {
@@ -265,7 +277,9 @@ void servo_tick(servo_state_t *s, const servo_params_t *p, record_ring_t *ring) 
             s->stats_max = size;
             s->stats_max_tick = s->clock;
         }
-        int64_t square = (int64_t)((uint64_t)size * (uint64_t)size);
+        uint32_t square_high;
+        uint32_t square_low = sci_mul_32x32((uint32_t)size, (uint32_t)size, &square_high);
+        int64_t square = (int64_t)(((uint64_t)square_high << 32) | square_low);   /* <= 2^62 */
         if (square > STATS_SUM_CAP - s->stats_sum_sq) {
             s->stats_sum_sq = STATS_SUM_CAP;
         } else {
@@ -283,25 +297,35 @@ void servo_tick(servo_state_t *s, const servo_params_t *p, record_ring_t *ring) 
         s->diag_left -= 1;
         if (s->diag_left <= 0) {
             s->diag_left = p->diag_n;
-            record_t record = {
-                .kind = RECORD_DIAGNOSTICS,
-                .clock = s->clock,
-                .desired = s->mode == MODE_VELOCITY ? s->desired_vel : s->desired,
-                .actual = s->actual,
-                .velocity = s->velocity,
-                .out = s->out,
-                .queued = (int32_t)(s->mode == MODE_CURVE ? curve_queued(&s->curve) : mq_level()),
-                .fault = FAULT_NONE,
-            };
-            ring_put(ring, &record);
+            record_t *record = ring_slot(ring);
+            if (record) {
+                record->kind = RECORD_DIAGNOSTICS;
+                record->clock = s->clock;
+                record->desired = s->mode == MODE_VELOCITY ? s->desired_vel : s->desired;
+                record->actual = s->actual;
+                record->velocity = s->velocity;
+                record->out.c = s->out.c;
+                record->out.e = s->out.e;
+                record->queued =
+                    (int32_t)(s->mode == MODE_CURVE ? curve_queued(&s->curve) : mq_level());
+                record->fault = FAULT_NONE;
+                ring_commit(ring);
+            }
         }
     }
     if (new_fault != FAULT_NONE) {
-        record_t alarm = {
-            .kind = RECORD_ALARM,
-            .clock = s->fault_tick,
-            .fault = s->fault,
-        };
-        ring_put(ring, &alarm);
+        record_t *alarm = ring_slot(ring);
+        if (alarm) {
+            alarm->kind = RECORD_ALARM;
+            alarm->clock = s->fault_tick;
+            alarm->desired = 0;
+            alarm->actual = 0;
+            alarm->velocity = 0;
+            alarm->out.c = 0;
+            alarm->out.e = 0;
+            alarm->queued = 0;
+            alarm->fault = s->fault;
+            ring_commit(ring);
+        }
     }
 }

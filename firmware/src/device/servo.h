@@ -43,6 +43,24 @@ typedef struct {
     int64_t elapsed_us;
     int32_t start_position;
     int32_t start_tangent;
+    /* Not in curve.py: the playing segment's exact numerator (plus den / 2) and its three
+     * forward differences, each as quotient * den + remainder (0 <= remainder < den,
+     * little-endian 32-bit words), so that a tick within a segment costs additions
+     * (curve.c). A cache: valid while `stepping`, for ticks of step_us; the curve_*
+     * functions keep it. */
+    bool stepping;
+    int32_t step_us;
+    int64_t quotient[4];
+    uint32_t remainder[4][4];
+    uint32_t den[4];           /* 1024 * (duration_ms * 1000)^3 */
+    /* The next segment's (the first keyframe to the second) differences and den, prepared
+     * a phase a tick ahead of its start; next_phase counts the phases done. */
+    uint8_t next_phase;
+    int64_t next_k2;           /* its coefficients: 3072 (p1 - p0) - D (2 m0 + m1) */
+    int64_t next_c3;           /* and D (m0 + m1) - 2048 (p1 - p0) */
+    int64_t next_quotient[4];
+    uint32_t next_remainder[4][4];
+    uint32_t next_den[4];
 } curve_player_t;
 
 /* The latch of one limit switch (call 36). */
