@@ -311,6 +311,6 @@ def test_usbmotion_run_refuses_a_program_beyond_the_travel_with_exit_2(tmp_path:
                            "--no-plot"], capture_output=True, text=True, timeout=120,
                           check=False)
     assert done.returncode == 2, done.stdout + done.stderr
-    assert f"{program}:3: line 3: X would reach 300.000 mm, beyond the upper end 200 mm" in (
+    assert f"{program}:3: X would reach 300.000 mm, beyond the upper end 200 mm" in (
         done.stderr)
     assert "homing" not in done.stdout and "Traceback" not in done.stderr

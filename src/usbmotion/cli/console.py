@@ -22,12 +22,13 @@ def console(
 ) -> None:
     """Drive the machine from a console: $c cycle start, $r reset and home, $d N demo.
 
-    Reads one command per line from standard input (a prompt is shown on a terminal)
-    until end of input or $q. $h lists the commands. Ctrl-C during a command brings every
-    axis to rest along its deceleration and returns to the prompt; a second one stops at
-    once. While it waits for a command it keeps the devices' watchdogs fed, so an enabled
-    machine stays enabled. On leaving, the servos are disabled (the machine stays homed
-    for the next host).
+    Reads one command per line from standard input (a prompt is shown on a
+    terminal) until end of input or $q. $h lists the commands. Ctrl-C during a
+    command brings every axis to rest along its deceleration and returns to
+    the prompt; a second one stops at once. While it waits for a command it
+    keeps the devices' watchdogs fed, so an enabled machine stays enabled. On
+    leaving, the servos are disabled (the machine stays homed for the next
+    host).
     """
     from usbmotion.console import Console  # noqa: PLC0415 - keep --help fast
     from usbmotion.host.config import load_config  # noqa: PLC0415

@@ -100,19 +100,21 @@ def run(
         " counts, without soft limits.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
-    """Run a G-code program on the machine: home it if it is not homed, plan from where it
-    stands, check the travel, stream, then report and plot.
+    """Run a G-code program on the machine: home it if it is not homed, plan from where it stands,
+    check the travel, stream, then report and plot.
 
-    The program starts from where the machine is (after homing: each axis's home position),
-    never from 0, and a program that leaves an axis's travel is refused before anything
-    moves. At the end, or on Ctrl-C or SIGTERM, every axis comes to rest along its
-    deceleration and the servos are disabled, so the next run finds the machine homed.
+    The program starts from where the machine is (after homing: each axis's
+    home position), never from 0, and a program that leaves an axis's travel
+    is refused before anything moves. At the end, or on Ctrl-C or SIGTERM,
+    every axis comes to rest along its deceleration and the servos are
+    disabled, so the next run finds the machine homed.
 
-    Exit status: 0 the program ran to its end; 1 a device fault, a lost link or a failed
-    homing (every axis stopped; the report says where); 2 the program or the machine file
-    is invalid or leaves the travel (nothing moved); 130 interrupted by Ctrl-C, 143 by
-    SIGTERM (every axis brought to rest along its deceleration, then the servos disabled;
-    a second Ctrl-C stops at once).
+    Exit status: 0 the program ran to its end; 1 a device fault, a lost link
+    or a failed homing (every axis stopped; the report says where); 2 the
+    program or the machine file is invalid or leaves the travel (nothing
+    moved); 130 interrupted by Ctrl-C, 143 by SIGTERM (every axis brought to
+    rest along its deceleration, then the servos disabled; a second Ctrl-C
+    stops at once).
     """
     from usbmotion.host.config import load_config  # noqa: PLC0415 - keep --help fast
     from usbmotion.motion.gcode import parse_gcode, read_gcode_text  # noqa: PLC0415
@@ -171,7 +173,7 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
     try:
         prepared = session.prepare(program, text=text, unhomed=no_home)
     except SoftLimitError as error:
-        typer.echo(f"{program}:{error.line}: {error}", err=True)
+        _refused(program, error)
         return EXIT_BAD_INPUT, None, None, None
     except GCodeError as error:
         typer.echo(f"{error.file}:{error.line}: {error.message}", err=True)
@@ -203,7 +205,7 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
         typer.echo(f"usbmotion run: homing failed: {error}", err=True)
         return unstarted(f"fault: homing failed: {error}", EXIT_FAULT)
     except SoftLimitError as error:
-        typer.echo(f"{program}:{error.line}: {error}", err=True)
+        _refused(program, error)
         return EXIT_BAD_INPUT, None, None, None
     except UsbMotionError as error:
         typer.echo(f"usbmotion run: {error}", err=True)
@@ -223,6 +225,12 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
     if code == EXIT_COMPLETED and report.stop_reason != StopReason.COMPLETED.value:
         code = EXIT_FAULT
     return code, report, trace, prepared
+
+
+def _refused(program: Path, error: SoftLimitError) -> None:
+    """``FILE:LINE: what`` for a program that leaves the travel."""
+    message = str(error).removeprefix(f"line {error.line}: ")
+    typer.echo(f"{program}:{error.line}: {message}", err=True)
 
 
 def _write(report: RunReport, trace: Trace | None, prepared: Prepared | None, program: Path, *,
