@@ -207,7 +207,9 @@ int32_t servo_switches(const servo_state_t *state, const servo_params_t *params)
  * the queue and curve clearing, which the caller does). */
 void servo_shift_position(servo_state_t *state, int64_t shift);
 
-/* Curve mode's buffer (core0 calls these with the servo lock held). */
+/* Curve mode's buffer (core0 calls these with the servo lock held). curve_append of a
+ * keyframe that continues a curve which reached its last keyframe exactly on the last tick
+ * prepares the new segment there (about 2000 cycles), as that tick had nothing to prepare. */
 bool curve_append(curve_player_t *curve, keyframe_t keyframe);  /* false: full */
 void curve_clear(curve_player_t *curve);
 void curve_interrupt(curve_player_t *curve);
