@@ -354,6 +354,113 @@ class EmulatedDevice:
         self.close()
 
 
+# --- in a virtual-time world ---------------------------------------------------------------
+
+
+def _lines(runs: Sequence[tuple[int, bytes]]) -> list[tuple[int, bytes]]:
+    """Output as (tick, line) pairs, each line with its newline."""
+    out: list[tuple[int, bytes]] = []
+    for tick, data in runs:
+        out.extend((tick, line) for line in data.splitlines(keepends=True))
+    return out
+
+
+class FirmwareSimDevice:
+    """The firmware on an emulated chip as a device of a virtual-time world
+    (``usbmotion.sim.world.SimWorld``): a host drives it as it drives a Python device.
+
+    The world runs each device in blocks up to its next event (a diagnostics line, the
+    watchdog, the queue running dry...), which it asks :meth:`ticks_until_event`. An emulated
+    chip cannot say; a Python device given the same bytes at the same ticks (the
+    specification) can, so one runs beside the chip as its shadow. What the host reads is
+    the chip's output; with ``check`` every line of it is compared with the shadow's and a
+    difference raises :class:`~usbmotion.errors.DeviceError` (the firmware no longer answers
+    as the Python device, and the shadow's events cannot be trusted).
+
+    Parameters:
+        uf2: the firmware image (the ELF beside it).
+        name: the device name written to its flash at power-up (call 18), if any.
+        check: compare every line with the shadow's.
+        node: the Node.js executable.
+    """
+
+    def __init__(self, uf2: Path | str, *, name: str = "", check: bool = True,
+                 node: str = "node") -> None:
+        from usbmotion.device import Device, MemoryFlash  # noqa: PLC0415 - optional part
+
+        self.chip = EmulatedDevice(uf2, node=node)
+        self.shadow = Device(flash=MemoryFlash())
+        self.check = check
+        self._ticks = 0
+        self._output: list[tuple[int, bytes]] = []
+        self.lines_compared = 0
+        """Lines of output compared with the shadow's so far."""
+        try:
+            self.chip.power_up(erase_flash=True)
+            if name:
+                codes = " ".join(str(ord(c)) for c in name)
+                self.feed(f"18 {len(name)} {codes}\n".encode("ascii"))
+                self.take_timed_output()
+        except BaseException:
+            self.chip.close()
+            raise
+
+    @property
+    def name(self) -> str:
+        """The device name (as the shadow holds it: the same, or check has failed)."""
+        return self.shadow.name
+
+    @property
+    def tick_us(self) -> int:
+        """The servo period, microseconds."""
+        return self.shadow.tick_us
+
+    @property
+    def ticks(self) -> int:
+        """Servo ticks the chip has run since power-up."""
+        return self._ticks
+
+    def _took(self, span: Span) -> None:
+        self._ticks = span.tick
+        self._output.extend((chunk.tick, chunk.data) for chunk in span.output)
+
+    def feed(self, data: bytes) -> None:
+        """Bytes from USB at the present tick boundary."""
+        self._took(self.chip.feed(data))
+        self.shadow.feed(data)
+
+    def run(self, ticks: int) -> None:
+        """Run ``ticks`` servo ticks."""
+        self._took(self.chip.run(ticks))
+        self.shadow.run(ticks)
+
+    def take_timed_output(self) -> list[tuple[int, bytes]]:
+        """What the chip printed since the last call, in runs of one tick each with how many
+        ticks ago it printed (as ``Device.take_timed_output``)."""
+        output, self._output = self._output, []
+        shadow = [(self._ticks - ago, data) for ago, data in self.shadow.take_timed_output()]
+        if self.check:
+            mine, theirs = _lines(output), _lines(shadow)
+            if mine != theirs:
+                where = next((i for i, (a, b) in enumerate(zip(mine, theirs, strict=False))
+                              if a != b), min(len(mine), len(theirs)))
+                raise DeviceError(
+                    f"the firmware parted from the Python device at tick "
+                    f"{(mine[where:] or theirs[where:])[0][0]}: firmware "
+                    f"{mine[where : where + 1]!r}, Python {theirs[where : where + 1]!r}",
+                    device=self.chip.name)
+            self.lines_compared += len(mine)
+        return [(self._ticks - tick, data) for tick, data in output]
+
+    def ticks_until_event(self, *, diagnostics: bool = True) -> int | None:
+        """Ticks until the device next prints or changes state on its own (the shadow's)."""
+        return self.shadow.ticks_until_event(diagnostics=diagnostics)
+
+    def close(self) -> None:
+        """Stop the emulator."""
+        self.chip.close()
+
+
 # --- real time -------------------------------------------------------------------------------
 
 
