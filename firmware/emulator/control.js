@@ -127,6 +127,20 @@ const commands = {
     }
     return { functions: d.stopProfile() };
   },
+  boot_reply(request) {
+    if (!device) {
+      throw new DeviceError('no firmware loaded: send {"cmd": "load", ...} first');
+    }
+    const result = device.bootToFirstReply(Buffer.from(request.data ?? '2 -1\n', 'latin1'));
+    powered = true;
+    spanStart = { cycles: device.busyCycles(), nanos: device.nanos };
+    return {
+      usb_enabled_ns: result.usbEnabledNs,
+      configured_ns: result.configuredNs,
+      reply_ns: result.replyNs,
+      cycles: result.cycles,
+    };
+  },
   stacks() {
     const d = requireDevice();
     return { stacks: d.stackUsage() };

@@ -286,10 +286,17 @@ export class EmulatedDevice {
     if (!profile) {
       return [[], []];
     }
+    // a function without a size (libgcc's assembly ones) reaches to the next function
     const functions = [...this.symbols]
-      .filter(([, symbol]) => symbol.type === STT_FUNC && symbol.size > 0)
-      .map(([name, symbol]) => ({ name, start: symbol.address & ~1, end: (symbol.address & ~1) + symbol.size }))
-      .sort((a, b) => a.start - b.start);
+      .filter(([, symbol]) => symbol.type === STT_FUNC)
+      .map(([name, symbol]) => ({ name, start: symbol.address & ~1, size: symbol.size }))
+      .sort((a, b) => a.start - b.start || b.size - a.size)
+      .filter((f, index, all) => index === 0 || f.start !== all[index - 1].start)
+      .map((f, index, all) => ({
+        name: f.name,
+        start: f.start,
+        end: f.size > 0 ? f.start + f.size : (all[index + 1]?.start ?? f.start + 2),
+      }));
     const nameOf = (pc) => {
       let low = 0;
       let high = functions.length - 1;
@@ -403,6 +410,45 @@ export class EmulatedDevice {
         `device still busy after ${SETTLE_LIMIT_NS / 1e9} s of emulated time with the timer held`,
       );
     }
+  }
+
+  /**
+   * Free running from reset, as a chip plugged in: the time (emulated ns since reset) the
+   * firmware enabled USB (its pull-up: the host then resets the bus, 10 ms, and enumerates),
+   * the port was configured, `data` was sent the moment it was, and the first byte of the
+   * reply came back, with each core's busy cycles then. The device is left running free (a
+   * deterministic session needs power_up again).
+   * @param {Uint8Array} data
+   */
+  bootToFirstReply(data) {
+    this.powerUp();
+    const usb = this.mcu.usbCtrl;
+    const enabled = usb.onUSBEnabled;
+    let usbEnabledNs = -1;
+    usb.onUSBEnabled = () => {
+      usbEnabledNs = this.nanos;
+      enabled();
+    };
+    let replyNs = -1;
+    this.onOutput = () => {
+      if (replyNs < 0) {
+        replyNs = this.nanos;
+      }
+    };
+    const step = 10e3;
+    while (!this.host.connected && this.nanos < SETTLE_LIMIT_NS) {
+      this.advance(this.nanos + step);
+    }
+    const configuredNs = this.nanos;
+    this.send(data);
+    while (replyNs < 0 && this.nanos < configuredNs + SETTLE_LIMIT_NS) {
+      this.advance(this.nanos + step);
+    }
+    this.onOutput = null;
+    if (replyNs < 0) {
+      throw new DeviceError('no reply after power-up');
+    }
+    return { usbEnabledNs, configuredNs, replyNs, cycles: this.busyCycles() };
   }
 
   /** Deterministic: power-up with the timer held until USB is up and core0 sleeps (tick 0). */

@@ -164,6 +164,18 @@ class DeviceStatus:
 
 
 @dataclass(frozen=True, slots=True)
+class BootTimes:
+    """A power-up, emulated nanoseconds from reset: the firmware enabled USB (its pull-up),
+    the host had configured the port (after its 10 ms bus reset and enumeration), the first
+    byte of the answer to the first line came back; each core's busy cycles by then."""
+
+    usb_enabled_ns: int
+    configured_ns: int
+    reply_ns: int
+    busy_cycles: tuple[int, int]
+
+
+@dataclass(frozen=True, slots=True)
 class StackUsage:
     """One core's stack: the most of it used since power-up and its size, bytes."""
 
@@ -320,6 +332,18 @@ class EmulatedDevice:
                                                             int(stack["size"]))
                       for stack in stacks)
         return usage[0], usage[1]
+
+    def boot_to_first_reply(self, data: bytes = b"2 -1\n") -> BootTimes:
+        """Power on a fresh chip free running, as one plugged in, and send ``data`` the moment
+        its port is configured: when the firmware enabled USB, was configured and answered.
+
+        The chip is left running free: :meth:`power_up` before a deterministic session.
+        """
+        reply = self._request({"cmd": "boot_reply", "data": data.decode("latin-1")})
+        self._powered = True
+        cycles = reply["cycles"]
+        return BootTimes(int(reply["usb_enabled_ns"]), int(reply["configured_ns"]),
+                         int(reply["reply_ns"]), (int(cycles[0]), int(cycles[1])))
 
     def start_profile(self) -> None:
         """Count the cycles of every instruction from now on, per core (emulation slows)."""
