@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[2]
 DEVICE_SOURCES = ROOT / "firmware" / "src" / "device"
 CACHE = ROOT / "build" / "native"
 FLAGS = ("-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", "-Wshadow", "-Wconversion",
-         "-Wno-sign-conversion", "-fno-strict-aliasing")
+         "-Wno-sign-conversion", "-fno-strict-aliasing", "-ffp-contract=off")
 
 
 def compiler() -> str:

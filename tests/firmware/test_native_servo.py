@@ -11,8 +11,8 @@ after every tick, in every mode. The tests of the tests show that the comparison
 one-count change of any state field and that source mutants of one digit or one count fail.
 
 ``USBMOTION_FUZZ_EXAMPLES`` (``tests/fuzz/budget.py``) scales the random cases. The derived
-constants call the host's ``expm1`` on both sides (the Python's ``math.expm1`` and the C's
-are the same libm function here).
+constants call no library function: ``decay_and_lag`` is one fixed sequence of binary64
+operations on both sides, compared bit for bit here.
 """
 
 from __future__ import annotations
@@ -214,6 +214,9 @@ def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
         "sci_to_double": (ctypes.c_double, [Sci]),
         "sci_from_double": (Sci, [ctypes.c_double]),
         "sci_div_pow10_u64": (c_u32, [c_u64, ctypes.c_uint]),
+        "motor_decay_and_lag": (None, [ctypes.c_double, ctypes.c_double,
+                                       ctypes.POINTER(ctypes.c_double),
+                                       ctypes.POINTER(ctypes.c_double)]),
         "motor_derive_constants": (None, [ctypes.POINTER(DeviceVars), c_i64,
                                           ctypes.POINTER(MotorConstantsC)]),
         "motor_step": (None, [ctypes.POINTER(c_i64), ctypes.POINTER(c_i64), Sci,
@@ -1591,3 +1594,21 @@ def test_mutants_are_caught(lib: ctypes.CDLL, mutant_libraries: dict[str, ctypes
     """The check passes on the sources and fails on the sources with the one change."""
     assert mutant.check(lib) == []
     assert mutant.check(mutant_libraries[mutant.name]) != []
+
+
+def test_decay_and_lag_are_bit_for_bit_the_pythons(lib: ctypes.CDLL) -> None:
+    """Every ratio a motor can give, the halving boundary and the extremes: the same bits."""
+    from usbmotion.device.motor import decay_and_lag  # noqa: PLC0415
+
+    rng = random.Random(11)
+    ratios = [1e-300, 1e-30, 1e-12, 1e-6, 0.0471, 0.25, 0.5, math.nextafter(0.5, 1.0), 0.75,
+              1.0, 2.0, 37.5, 745.0, 1e5, 1e30, 1e300]
+    ratios += [10.0 ** rng.uniform(-40.0, 40.0) for _ in range(5000)]
+    decay, lag = ctypes.c_double(), ctypes.c_double()
+    for ratio in ratios:
+        tau = 10.0 ** rng.uniform(-38.0, 50.0)
+        lib.motor_decay_and_lag(ratio, tau, ctypes.byref(decay), ctypes.byref(lag))
+        assert (decay.value, lag.value) == decay_and_lag(ratio, tau), (ratio, tau)
+        assert 0.0 <= decay.value <= 1.0
+    lib.motor_decay_and_lag(0.0471, 0.02123, ctypes.byref(decay), ctypes.byref(lag))
+    assert decay.value == pytest.approx(-math.expm1(-0.0471), rel=1e-15), "the series is expm1"

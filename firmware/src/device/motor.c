@@ -2,7 +2,6 @@
  * operations in the same order. */
 #include "motor.h"
 
-#include <math.h>
 
 static sci_t sci_value(sci_t pair) {
     return sci_normalize(pair.c, pair.e);
@@ -10,6 +9,38 @@ static sci_t sci_value(sci_t pair) {
 
 static sci_t sci_make(int32_t c, int32_t e) {
     return sci_normalize(c, e);
+}
+
+/* motor.py's decay_and_lag: F = 1 - exp(-ratio) and Q = tau (ratio - F) by one fixed
+ * sequence of binary64 operations (no library function: expm1 is not correctly rounded
+ * everywhere, and Q cancels almost all of ratio for a slow motor). */
+void motor_decay_and_lag(double ratio, double tau, double *decay, double *lag) {
+    int halvings = 0;
+    double x = ratio;
+    while (x > 0.5) {
+        x = x / 2.0;
+        halvings++;
+    }
+    double terms[MOTOR_SERIES_TERMS];
+    terms[0] = x * x / 2.0;
+    for (int k = 3; k < MOTOR_SERIES_TERMS + 2; k++) {
+        terms[k - 2] = terms[k - 3] * x / (double)k;
+    }
+    double g = terms[MOTOR_SERIES_TERMS - 1];
+    for (int i = MOTOR_SERIES_TERMS - 2; i >= 0; i--) {
+        g = terms[i] - g;
+    }
+    if (halvings == 0) {
+        *decay = x - g;
+        *lag = tau * g;
+        return;
+    }
+    double survivor = 1.0 - (x - g);
+    for (int i = 0; i < halvings; i++) {
+        survivor = survivor * survivor;
+    }
+    *decay = 1.0 - survivor;
+    *lag = tau * (ratio - *decay);
 }
 
 void motor_derive_constants(const device_vars_t *vars, int64_t tick_us, motor_constants_t *out) {
@@ -30,9 +61,9 @@ void motor_derive_constants(const device_vars_t *vars, int64_t tick_us, motor_co
     sci_t step_s = sci_div(sci_mul(sci_from_int(tick_us), sci_make(1, -6)), sci_from_int(steps));
     /* double arithmetic as the Python's floats: IEEE-754 binary64, round to nearest even */
     double tau = sci_to_double(tau_s);
-    double ratio = sci_to_double(step_s) / tau;
-    double decay = -expm1(-ratio);
-    double lag = tau * (ratio - decay);
+    double decay = 0.0;
+    double lag = 0.0;
+    motor_decay_and_lag(sci_to_double(step_s) / tau, tau, &decay, &lag);
     out->steps = (int32_t)steps;
     out->drive = drive;
     out->friction_speed = friction_speed;

@@ -25,6 +25,11 @@ typedef struct {
     int64_t stop_high_micro;
 } motor_constants_t;
 
+#define MOTOR_SERIES_TERMS 24  /* motor.SERIES_TERMS */
+
+/* motor.decay_and_lag: F = 1 - exp(-ratio) and Q = tau * (ratio - F), bit for bit. */
+void motor_decay_and_lag(double ratio, double tau, double *decay, double *lag);
+
 /* motor.derive_constants(motor, tick_us=tick_us) over the motor variables of `vars`
  * (calls 12, 14-17, 32-34 and the overtravel). tick_us > 0. */
 void motor_derive_constants(const device_vars_t *vars, int64_t tick_us, motor_constants_t *out);

@@ -27,7 +27,6 @@ a hard stop beyond each limit switch stops the shaft dead.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 from usbmotion.errors import DeviceParameterError
@@ -219,9 +218,7 @@ def derive_constants(motor: MotorParams, *, tick_us: int) -> MotorConstants:
     drive = kt / resistance / damping / rad_per_count * SciNumber(1, 6)
     friction_speed = load / damping / rad_per_count * SciNumber(1, 6)
     step_s = SciNumber.from_int(tick_us) * SciNumber(1, -6) / SciNumber.from_int(steps)
-    ratio = float(step_s) / float(tau_s)
-    decay = -math.expm1(-ratio)
-    lag = float(tau_s) * (ratio - decay)
+    decay, lag = decay_and_lag(float(step_s) / float(tau_s), float(tau_s))
     return MotorConstants(
         steps=steps,
         drive=_pair(drive),
@@ -232,6 +229,42 @@ def derive_constants(motor: MotorParams, *, tick_us: int) -> MotorConstants:
         stop_low_micro=(motor.travel_lower_counts - motor.overtravel_counts) * MICRO,
         stop_high_micro=(motor.travel_upper_counts + motor.overtravel_counts + 1) * MICRO - 1,
     )
+
+
+SERIES_TERMS = 24
+"""Terms of the series :func:`decay_and_lag` sums (the last is below 1e-30 of the first)."""
+
+
+def decay_and_lag(ratio: float, tau_s: float) -> tuple[float, float]:
+    """``F = 1 - exp(-ratio)`` and ``Q = tau_s * (ratio - F)``, by one fixed sequence of
+    binary64 additions, multiplications and divisions (no library function), so that every
+    implementation with IEEE-754 arithmetic (Python's floats, a C firmware's soft float)
+    gets the same bits: a library's ``expm1`` is not correctly rounded everywhere, and ``Q``
+    cancels almost all of ``ratio`` for a slow motor, which would magnify its last bit.
+
+    ``x`` is ``ratio`` halved until it is at most 0.5 (exact, in binary); ``g = x - (1 -
+    exp(-x)) = x^2/2! - x^3/3! + ...`` is summed from its smallest term up; then ``F = x - g``
+    and ``Q = tau_s * g`` when no halving was needed, else ``exp(-ratio)`` is ``(1 - (x -
+    g))`` squared once per halving, ``F`` one minus that and ``Q = tau_s * (ratio - F)``.
+    """
+    halvings = 0
+    x = ratio
+    while x > 0.5:
+        x = x / 2.0
+        halvings += 1
+    terms = [x * x / 2.0]
+    for k in range(3, SERIES_TERMS + 2):
+        terms.append(terms[-1] * x / float(k))
+    g = terms[-1]
+    for term in reversed(terms[:-1]):
+        g = term - g
+    if halvings == 0:
+        return x - g, tau_s * g
+    survivor = 1.0 - (x - g)
+    for _ in range(halvings):
+        survivor = survivor * survivor
+    decay = 1.0 - survivor
+    return decay, tau_s * (ratio - decay)
 
 
 def motor_step(
