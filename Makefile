@@ -20,10 +20,15 @@ run: $(STAMP)
 	@mkdir -p out
 	$(BIN)/usbmotion run $(DEMO) --plot out/demo-1.png --report out/demo-1.json
 
+# The Python suite, then the firmware's (firmware-test): a machine without the firmware's
+# toolchain fails only the latter, after saying what to install; the Python suite still runs.
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -x -p no:cacheprovider
-	$(BIN)/ruff check src tests benchmarks
-	$(BIN)/mypy
+	@status=0; \
+	$(BIN)/python -m pytest -q -x -p no:cacheprovider $(EMULATED_IGNORE) || status=1; \
+	$(MAKE) --no-print-directory firmware-test || status=1; \
+	$(BIN)/ruff check src tests benchmarks || status=1; \
+	$(BIN)/mypy || status=1; \
+	exit $$status
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks
@@ -36,8 +41,11 @@ typecheck: $(STAMP)
 FUZZ_EXAMPLES ?= 100000
 
 fuzz: $(STAMP)
+	@status=0; \
 	USBMOTION_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(BIN)/python -m pytest tests/fuzz -q \
-		-p no:cacheprovider -o timeout=0 --hypothesis-show-statistics
+		-p no:cacheprovider -o timeout=0 --hypothesis-show-statistics || status=1; \
+	$(MAKE) --no-print-directory firmware-fuzz || status=1; \
+	exit $$status
 
 # One hour of program on the default machine in virtual time: planned vs executed time and
 # memory (tracemalloc). make test runs three minutes of it.
@@ -62,7 +70,7 @@ PICOTOOL_CONFIG := $(PICOTOOL_PREFIX)/lib/cmake/picotool/picotoolConfig.cmake
 FIRMWARE_BUILD := build/firmware
 EMULATOR := firmware/emulator
 
-.PHONY: firmware firmware-toolchain firmware-test
+.PHONY: firmware firmware-toolchain firmware-test firmware-fuzz
 
 firmware-toolchain:
 	@bash firmware/tools/check-toolchain.sh
@@ -80,6 +88,25 @@ firmware: firmware-toolchain $(PICOTOOL_CONFIG) $(EMULATOR)/node_modules/.packag
 		-DPICO_SDK_PATH=$(PICO_SDK_PATH) -Dpicotool_DIR=$(dir $(PICOTOOL_CONFIG))
 	cmake --build $(FIRMWARE_BUILD) -j2
 
-# The emulator harness's own tests, on the test fixture firmware.
-firmware-test: firmware
+# The firmware's tests beyond the Python suite's native ones (tests/firmware/test_native_*):
+# the emulator harness's own (node, on the test fixture firmware), then the product firmware
+# on the emulated chip against the Python device (tests/firmware/test_emulated_*: every
+# scripted session, a few hundred generated ones, demo 1 end to end).
+EMULATED_TESTS := $(sort $(wildcard tests/firmware/test_emulated_*.py))
+EMULATED_IGNORE := $(addprefix --ignore=,$(EMULATED_TESTS))
+
+firmware-test: firmware $(STAMP)
 	cd $(EMULATOR) && node --test test/
+	$(BIN)/python -m pytest -q -p no:cacheprovider $(EMULATED_TESTS)
+
+# The long run: FIRMWARE_FUZZ_EXAMPLES generated sessions of the full device fuzz strategy
+# (silences of up to 60,001 ticks) on the emulated chip against the Python device, and the
+# native build's generated sessions at FUZZ_EXAMPLES.
+FIRMWARE_FUZZ_EXAMPLES ?= 10000
+
+firmware-fuzz: firmware $(STAMP)
+	USBMOTION_FUZZ_EXAMPLES=$(FIRMWARE_FUZZ_EXAMPLES) $(BIN)/python -m pytest -q \
+		-p no:cacheprovider -o timeout=0 --hypothesis-show-statistics \
+		tests/firmware/test_emulated_fuzz.py
+	USBMOTION_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(BIN)/python -m pytest -q \
+		-p no:cacheprovider -o timeout=0 tests/firmware/test_native_device.py -k "fuzz or random"
