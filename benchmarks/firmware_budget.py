@@ -177,6 +177,7 @@ def memory(elf: Path) -> dict[str, Any]:
         "ram_bytes": sum(ram_sections.values()),
         "ram_total_bytes": 264 * 1024,
         "ram_sections": ram_sections,
+        "runs_from_ram": ".text" in ram_sections,
     }
 
 
@@ -259,8 +260,10 @@ def report(figures: dict[str, Any]) -> str:
             f"{k} {v:.0f}" for k, v in s["profile_batch_per_setpoint"].items()))
     mem = figures["memory"]
     if mem:
+        where = ("the image runs from RAM: copy_to_ram" if mem["runs_from_ram"]
+                 else "the code runs from flash: XIP")
         out.append(f"flash {mem['flash_bytes']} bytes (image); RAM {mem['ram_bytes']} of "
-                   f"{mem['ram_total_bytes']} bytes (the image runs from RAM)")
+                   f"{mem['ram_total_bytes']} bytes ({where})")
     st = figures["stacks"]
     out.append("stacks (high water / size): " + ", ".join(
         f"{core} {v['used']}/{v['size']}" for core, v in st.items() if v))
