@@ -1,13 +1,13 @@
 """The motor constants core0 derives on the chip are the Python's, to the last digit.
 
 core0 derives the simulated motor's integration constants in double arithmetic
-(``motor.derive_constants``: divisions, then ``decay_and_lag``'s fixed series with a
+(``motor.derive_constants``: divisions, then ``decay_and_lag``'s fixed series, with a
 subtraction that cancels almost everything for a slow motor); on the RP2040 that is soft
 float, the compiler's (libgcc), not the SDK's pico_double, whose ``expm1`` (exp(x) - 1)
-once made the lag of a 100 us step -8274e-15 where the Python has 1000e-17. Random motor parameters (calls 5, 12-17, 32, 33) are given to the
-emulated firmware and the constants core1 then runs on are read from its RAM
-(``servo_params``, by its ELF symbol, at the field offsets the Arm compiler gives) and
-compared with ``Device.motor_constants``.
+once made the lag of a 100 us step -8274e-15 where the Python has 1000e-17. Random motor
+parameters (calls 5, 12-17, 32, 33) are given to the emulated firmware and the constants
+core1 then runs on are read from its RAM (``servo_params``, by its ELF symbol, at the field
+offsets the Arm compiler gives) and compared with ``Device.motor_constants``.
 """
 
 from __future__ import annotations
@@ -81,7 +81,7 @@ def _line(call: int, value: int | tuple[int, int]) -> bytes:
     return b" ".join(b"%d" % v for v in (call, *values)) + b"\n"
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=80, deadline=None)
 @given(_PARAMETERS)
 def test_derived_constants_match(chip: tuple[EmulatedFirmware, dict[str, int]],
                                  parameters: dict[int, int | tuple[int, int]]) -> None:
