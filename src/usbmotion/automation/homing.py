@@ -8,7 +8,8 @@ switch changes (call 36), so the zero does not depend on when the host looked:
 2. **back off**: away at the slow speed until the switch has opened and ``backoff_mm`` is
    cleared (a fault when it does not open);
 3. **locate**: back toward it at the slow speed until it closes again: the device's latched
-   count of that closing edge is the reference;
+   count of that closing edge is the reference; the axis goes on a little into the switch
+   (``LOCATE_INTO_MM``) before it stops, so it does not rest on the edge;
 4. **pull off**: the outputs zero the axis from that latched count, once, and move it
    ``pull_off_mm`` off the switch in position mode; a switch still closed then is a fault
    (with no pull-off the axis rests on its switch, as in the seed's sequence).
@@ -43,6 +44,10 @@ from usbmotion.automation.sequence import (
 )
 from usbmotion.errors import OutOfRangeError
 
+LOCATE_INTO_MM = 0.05
+"""How far past the latched edge the slow locate goes before it stops: the axis then rests
+inside the switch, not on its edge, where the position loop's dither of a count would open
+and close it again (and a switch closing in position mode is a fault)."""
 LOCATE_SCALE = 5.0
 """How far the back-off and the slow locate may go, in back-off distances (plus 1 mm),
 before the switch is declared stuck or lost (grbl's locate scalar)."""
@@ -159,6 +164,7 @@ class MoveAxisHome:
         self._edges = 0
         """The switch's edge count when the current phase started."""
         self._reference: SwitchEdgeReading | None = None
+        self._phase_seen: Phase | None = None
         self.seen_closed_mm: float | None = None
         """Where the axis was at the poll that first saw the switch close on the edge it
         was zeroed on: where a host that zeroes on what it polls would have put the zero."""
@@ -272,7 +278,13 @@ class MoveAxisHome:
                 switches: LimitSwitchState) -> Transition:
         edge = inputs.switch_edge(self.axis)
         if switches.at_lower_limit or (edge.edges != self._edges and edge.closed):
-            self.seen_closed_mm = inputs.position_mm(self.axis)
+            position = inputs.position_mm(self.axis)
+            if self.seen_closed_mm is None or self._phase_seen != Phase.LOCATE:
+                self.seen_closed_mm = position
+                self._phase_seen = Phase.LOCATE
+            if edge.closed and position > edge.position_mm - LOCATE_INTO_MM:
+                outputs.set_target_velocity(self.axis, -self.slow_speed_mm_s)
+                return Incomplete
             outputs.set_target_velocity(self.axis, 0.0)
             self._phase = Phase.LOCATE_STOP
             return Incomplete
