@@ -159,7 +159,7 @@ def _integer_lines(draw: st.DrawFn) -> bytes:
 
 
 _FAST = settings(
-    max_examples=6000,
+    max_examples=1500,
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow],
 )
@@ -173,7 +173,7 @@ def test_random_integer_lines_follow_the_model(lines: list[bytes]) -> None:
         _check_line(device, line)
 
 
-@settings(max_examples=4000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=1000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(st.binary(max_size=48).map(lambda b: b.replace(b"\n", b"")), max_size=4))
 def test_random_bytes_follow_the_model(lines: list[bytes]) -> None:
     device = Device()

@@ -52,12 +52,13 @@ def build(name: str, sources: Sequence[Path], *, shared: bool,
         return out
     CACHE.mkdir(parents=True, exist_ok=True)
     includes = sorted({f"-I{s.parent}" for s in sources})
+    partial = f"{out}.{os.getpid()}.tmp"
     command = [compiler(), *options, *includes, *(["-shared", "-fPIC"] if shared else []),
-               "-o", str(out) + ".tmp", *map(str, sources), "-lm"]
+               "-o", partial, *map(str, sources), "-lm"]
     result = subprocess.run(command, capture_output=True, text=True, check=False)
     if result.returncode != 0:
         raise RuntimeError(f"compiling {name} failed:\n{' '.join(command)}\n{result.stderr}")
-    os.replace(str(out) + ".tmp", out)
+    os.replace(partial, out)
     return out
 
 

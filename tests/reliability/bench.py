@@ -75,11 +75,16 @@ def served(flash_dir: Path) -> Iterator[dict[str, str]]:
 
 def bench_machine(folder: Path, paths: dict[str, str], *, watchdog_ms: int) -> Path:
     """The default machine with each axis on its terminal, carriages 5 mm above their lower
-    switches (so homing takes seconds, not minutes, in real time), and this watchdog."""
+    switches, a quicker slow locate (2 mm/s after backing off 0.5 mm: still under a count a
+    tick, so the latched edge is the switch's very count), so homing takes seconds in real
+    time, and this watchdog."""
     text = default_machine().read_text()
     for letter in "XYZ":
         text = text.replace(f'url = "sim://{letter}"', f'url = "{paths[letter + " AXIS"]}"')
     text = re.sub(r"start_mm = [0-9.]+", "start_mm = 5.0", text)
+    text, count = re.subn(r"slow_speed_mm_s = 1\.0, backoff_mm = 1\.0",
+                          "slow_speed_mm_s = 2.0, backoff_mm = 0.5", text)
+    assert count == 3, "every axis locates at 2 mm/s (under a count a tick) after 0.5 mm"
     text, count = re.subn(r"(?m)^watchdog_ms = \d+", f"watchdog_ms = {watchdog_ms}", text)
     assert count == 1
     path = folder / "bench.toml"
