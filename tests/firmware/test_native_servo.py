@@ -66,14 +66,24 @@ class KeyframeC(ctypes.Structure):
     ]
 
 
+class CoefficientsC(ctypes.Structure):
+    _fields_ = [
+        ("d", c_u32), ("d2", c_u32 * 2), ("m0", c_i32), ("dm0", c_u32),
+        ("m0_negative", ctypes.c_bool), ("k2_magnitude", c_u64), ("k2_negative", ctypes.c_bool),
+        ("c3", c_i64),
+    ]
+
+
 class CurvePlayerC(ctypes.Structure):
     _fields_ = [
         ("buffer", KeyframeC * 8), ("head", c_u8), ("count", c_u8), ("playing", ctypes.c_bool),
         ("elapsed_us", c_i64), ("start_position", c_i32), ("start_tangent", c_i32),
         ("stepping", ctypes.c_bool), ("step_us", c_i32), ("quotient", c_i64 * 4),
         ("remainder", (c_u32 * 4) * 4), ("den", c_u32 * 4), ("next_phase", c_u8),
-        ("next_k2", c_i64), ("next_c3", c_i64), ("next_quotient", c_i64 * 4),
-        ("next_remainder", (c_u32 * 4) * 4), ("next_den", c_u32 * 4),
+        ("next_coefficients", CoefficientsC), ("next_quotient", c_i64 * 4),
+        ("next_remainder", (c_u32 * 4) * 4), ("next_den", c_u32 * 4), ("warming", c_u8),
+        ("coefficients", CoefficientsC), ("warm_quotient", c_i64),
+        ("warm_remainder", c_u32 * 4),
     ]
 
 
@@ -145,7 +155,8 @@ class MotorConstantsC(ctypes.Structure):
 
 
 STRUCTS: dict[str, type[ctypes.Structure]] = {
-    "sci_t": Sci, "keyframe_t": KeyframeC, "curve_player_t": CurvePlayerC,
+    "sci_t": Sci, "keyframe_t": KeyframeC, "curve_coefficients_t": CoefficientsC,
+    "curve_player_t": CurvePlayerC,
     "switch_edge_t": SwitchEdgeC, "servo_state_t": ServoState, "servo_params_t": ServoParams,
     "device_vars_t": DeviceVars, "record_t": RecordC, "record_ring_t": RecordRing,
     "motor_constants_t": MotorConstantsC,

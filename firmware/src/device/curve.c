@@ -16,13 +16,15 @@
  * and the ticks of a segment advance e by the period h, so the player keeps numerator +
  * den/2 and its three forward differences, each as a quotient and a remainder by den: a
  * tick adds each difference to the one before, remainder to remainder (one carry), exactly
- * (curve_step). The differences are prepared on the ticks that evaluate nothing: a curve's
- * tick 0 (its value is p0), and the tick that reaches a keyframe exactly (its value is p1),
- * where the next segment's differences, prepared a phase a tick ahead while the current
- * segment steps (curve_prepare_ahead), are adopted. A keyframe appended after the curve
- * reached its last one exactly is prepared by curve_append. Elsewhere (a keyframe reached
- * between ticks, periods of 512 us and more, a step of 2^32 counts) the player evaluates
- * exactly and prepares from there. The tests compare every tick with the Python's.
+ * (curve_step). The next segment's differences are prepared a phase a tick ahead while the
+ * current segment steps (curve_prepare_ahead) and adopted on the tick that reaches its
+ * keyframe exactly (its value is p1). A segment started unprepared (a curve's tick 0, whose
+ * value is p0, a keyframe that came too late to be prepared ahead, or one appended after
+ * the curve reached its last exactly: curve_append) is prepared over its first ticks
+ * (curve_prepare_start, curve_warm_step), each finding its value with what it needs. So no
+ * tick pays for a whole preparation. Elsewhere (a keyframe reached between ticks, periods of
+ * 512 us and more, a step of 2^32 counts) the player evaluates exactly and prepares from
+ * there. The tests compare every tick with the Python's.
  *
  * Ranges: |p| < 2^31, |m| <= 2^15, D < 2^16, e <= d < 2^26, h <= 10^6 < 2^20. Then
  * |numerator| < 2^121 (|d^3 p0| < 2^109, |(p1 - p0) e^2 (3d - 2e)| <= 2^32 d^3 < 2^110, the
@@ -350,18 +352,8 @@ static inline void words_from_magnitude64(uint32_t *out, uint64_t magnitude) {
     out[1] = (uint32_t)(magnitude >> 32);
 }
 
-/* The numerator's polynomial coefficients: c1 = D m0 d^2 and c2 = d (3072 dp - D (2m0 + m1))
- * as their magnitudes' factors, c3 = D (m0 + m1) - 2048 dp. */
-typedef struct {
-    uint32_t d;
-    uint32_t d2[2];          /* d^2 */
-    int32_t m0;
-    uint32_t dm0;            /* D |m0| < 2^31 */
-    bool m0_negative;
-    uint64_t k2_magnitude;   /* |3072 dp - D (2m0 + m1)| < 2^45 */
-    bool k2_negative;
-    int64_t c3;
-} coefficients_t;
+/* The numerator's polynomial coefficients (servo.h). */
+typedef curve_coefficients_t coefficients_t;
 
 /* D * x for |x| < 2^31, in 32-bit multiplies (a 64-bit multiply is a call on the M0+). */
 static inline int64_t times_duration(uint32_t duration_ms, int32_t x) {
@@ -369,19 +361,6 @@ static inline int64_t times_duration(uint32_t duration_ms, int32_t x) {
     uint32_t low = mul_32x32(duration_ms, x < 0 ? 0u - (uint32_t)x : (uint32_t)x, &high);
     int64_t product = (int64_t)(((uint64_t)high << 32) | low);
     return x < 0 ? -product : product;
-}
-
-/* The coefficients with k2 and c3 given (they are what costs). */
-static void segment_coefficients_with(const segment_t *s, int64_t k2, int64_t c3,
-                                      coefficients_t *c) {
-    c->d = s->duration_ms * 1000u;
-    c->d2[0] = mul_32x32(c->d, c->d, &c->d2[1]);
-    c->m0 = s->m0;
-    c->dm0 = s->duration_ms * (uint32_t)(s->m0 < 0 ? -s->m0 : s->m0);
-    c->m0_negative = s->m0 < 0;
-    c->k2_magnitude = (uint64_t)(k2 < 0 ? -k2 : k2);
-    c->k2_negative = k2 < 0;
-    c->c3 = c3;
 }
 
 static int64_t segment_k2(const segment_t *s) {
@@ -395,7 +374,15 @@ static int64_t segment_c3(const segment_t *s) {
 }
 
 static void segment_coefficients(const segment_t *s, coefficients_t *c) {
-    segment_coefficients_with(s, segment_k2(s), segment_c3(s), c);
+    int64_t k2 = segment_k2(s);
+    c->d = s->duration_ms * 1000u;
+    c->d2[0] = mul_32x32(c->d, c->d, &c->d2[1]);
+    c->m0 = s->m0;
+    c->dm0 = s->duration_ms * (uint32_t)(s->m0 < 0 ? -s->m0 : s->m0);
+    c->m0_negative = s->m0 < 0;
+    c->k2_magnitude = (uint64_t)(k2 < 0 ? -k2 : k2);
+    c->k2_negative = k2 < 0;
+    c->c3 = segment_c3(s);
 }
 
 /* The forward differences of the numerator at e0 = 0 for steps of h < 2^16: with
@@ -541,15 +528,33 @@ static bool words_floor_divide(const uint32_t *x, const uint32_t *den, int64_t *
 }
 
 /* (qa den + ra) + (qb den + rb) as quotient (returned) and remainder, for remainders below
- * den; r may be ra or rb. */
+ * den; r may be ra or rb. As den < 2^88, a remainder's top word is 0 and a sum of two fits
+ * three words: the addition and the comparison take three. */
 static inline int64_t qr_add(int64_t qa, const uint32_t *ra, int64_t qb, const uint32_t *rb,
                              const uint32_t *den, uint32_t *r) {
-    words_add(r, ra, rb);
-    if (!words_less(r, den)) {
-        words_sub(r, r, den);
-        return qa + qb + 1;
+    uint32_t x0 = ra[0] + rb[0];
+    uint32_t c0 = x0 < rb[0];
+    uint32_t t1 = ra[1] + c0;
+    uint32_t x1 = t1 + rb[1];
+    uint32_t c1 = (t1 < c0) + (x1 < t1);
+    uint32_t x2 = ra[2] + rb[2] + c1;
+    int64_t q = qa + qb;
+    /* x >= den ? */
+    bool over = x2 != den[2] ? x2 > den[2] : x1 != den[1] ? x1 > den[1] : x0 >= den[0];
+    if (over) {
+        uint32_t w0 = x0 < den[0];
+        uint32_t y1 = den[1] + w0;
+        uint32_t w1 = (y1 < w0) | (x1 < y1);
+        x2 = x2 - den[2] - w1;
+        x1 = x1 - y1;
+        x0 = x0 - den[0];
+        q++;
     }
-    return qa + qb;
+    r[0] = x0;
+    r[1] = x1;
+    r[2] = x2;
+    r[3] = 0;
+    return q;
 }
 
 /* floor and modulo of a signed int64 by a positive divisor */
@@ -571,25 +576,37 @@ static inline int64_t floor_divide64(int64_t x, int64_t divisor, int64_t *rest) 
  *   a2 / den = k2 h^2 / (1024 d^2), so a2 = q2 den + r2 d;
  *   a3 = c3 h^3 (below 2^71) divided by den;
  * then delta1 = a1 + a2 + a3, delta2 = 2 a2 + 6 a3, delta3 = 6 a3. In phases (the player
- * runs them a tick at a time for the next segment), each a few hundred cycles. */
-#define PREPARE_PHASES 8u
+ * runs them a tick at a time for the next segment), each one 128-bit addition or product
+ * or so, about 150 cycles, so that no tick of a curve costs much more than another. */
+#define PREPARE_PHASES 14u
 
-/* The arguments every phase takes. */
+/* The arguments every phase takes: the coefficients (set by the first phase), den (set by
+ * the second), the slots, and a scratch slot. */
 typedef struct {
     const segment_t *s;
-    const coefficients_t *c;
+    coefficients_t *c;
     uint32_t h;
     uint32_t *den;
     int64_t *quotient;
     uint32_t (*remainder)[WORDS];
+    int64_t *scratch_quotient;
+    uint32_t *scratch;
 } phase_t;
 
-static void phase_den(const phase_t *p) {
+/* A phase is called through PHASES a tick at a time, and inlined where one tick runs all. */
+#define PHASE static inline __attribute__((always_inline))
+
+PHASE void phase_coefficients(const phase_t *p) {
+    segment_coefficients(p->s, p->c);
+}
+
+PHASE void phase_den(const phase_t *p) {
     segment_den(p->c->d, p->den);
 }
 
-/* slot 1 = a1 */
-static void phase_a1(const phase_t *p) {
+/* slot 1 = a1: the quotient, and the remainder's factor r1 D (in the scratch) times the
+ * low word of d^2 */
+PHASE void phase_a1(const phase_t *p) {
     const coefficients_t *c = p->c;
     if (c->m0 == 0) {   /* a curve's first segment */
         p->quotient[1] = 0;
@@ -604,13 +621,27 @@ static void phase_a1(const phase_t *p) {
         q1--;
     }
     p->quotient[1] = q1;
-    uint32_t factor[2];
+    uint32_t *factor = p->scratch;
     factor[0] = mul_32x32((uint32_t)r1, p->s->duration_ms, &factor[1]);   /* r1 D < 2^36 */
-    words_mul_2x2(p->remainder[1], factor, c->d2);
+    uint32_t low[WORDS + 1];
+    words_mul(low, factor, 2, c->d2[0]);
+    low[3] = 0;
+    words_copy(p->remainder[1], low);
+}
+
+/* ... plus the factor times the high word of d^2, a word up */
+PHASE void phase_a1_high(const phase_t *p) {
+    if (p->c->m0 == 0) {
+        return;
+    }
+    uint32_t high[WORDS + 1];
+    high[0] = 0;
+    words_mul(&high[1], p->scratch, 2, p->c->d2[1]);
+    words_add(p->remainder[1], p->remainder[1], high);
 }
 
 /* slot 2 = a2 */
-static void phase_a2(const phase_t *p) {
+PHASE void phase_a2(const phase_t *p) {
     const coefficients_t *c = p->c;
     int64_t k2 = c->k2_negative ? -(int64_t)c->k2_magnitude : (int64_t)c->k2_magnitude;
     uint64_t d2 = ((uint64_t)c->d2[1] << 32) | c->d2[0];
@@ -635,7 +666,7 @@ static void phase_a2(const phase_t *p) {
 }
 
 /* slot 3 = a3 = c3 h^3 (below 2^71), not yet divided */
-static void phase_a3(const phase_t *p) {
+PHASE void phase_a3(const phase_t *p) {
     const coefficients_t *c = p->c;
     uint64_t c3_magnitude = (uint64_t)(c->c3 < 0 ? -c->c3 : c->c3);
     uint32_t c3_words[2] = {(uint32_t)c3_magnitude, (uint32_t)(c3_magnitude >> 32)};
@@ -649,7 +680,7 @@ static void phase_a3(const phase_t *p) {
 }
 
 /* slot 3 divided by den: a quotient below 2^31 */
-static void phase_a3_divide(const phase_t *p) {
+PHASE void phase_a3_divide(const phase_t *p) {
     uint32_t a3[WORDS];
     words_copy(a3, p->remainder[3]);
     if (!words_negative(a3) && words_less(a3, p->den)) {
@@ -659,39 +690,73 @@ static void phase_a3_divide(const phase_t *p) {
     }
 }
 
-/* slot 1 = a1 + a2 + a3 */
-static void phase_delta1(const phase_t *p) {
-    int64_t q = qr_add(p->quotient[1], p->remainder[1], p->quotient[2], p->remainder[2], p->den,
-                       p->remainder[1]);
-    p->quotient[1] = qr_add(q, p->remainder[1], p->quotient[3], p->remainder[3], p->den,
-                            p->remainder[1]);
+/* slot 1 = a1 + a2 */
+PHASE void phase_a1_plus_a2(const phase_t *p) {
+    p->quotient[1] = qr_add(p->quotient[1], p->remainder[1], p->quotient[2], p->remainder[2],
+                            p->den, p->remainder[1]);
 }
 
-/* slot 3 = 6 a3 */
-static void phase_delta3(const phase_t *p) {
-    uint32_t r_two[WORDS];
-    int64_t q_two = qr_add(p->quotient[3], p->remainder[3], p->quotient[3], p->remainder[3],
-                           p->den, r_two);
-    uint32_t r_four[WORDS];
-    int64_t q_four = qr_add(q_two, r_two, q_two, r_two, p->den, r_four);
-    p->quotient[3] = qr_add(q_four, r_four, q_two, r_two, p->den, p->remainder[3]);
+/* slot 1 = a1 + a2 + a3: delta1 */
+PHASE void phase_delta1(const phase_t *p) {
+    p->quotient[1] = qr_add(p->quotient[1], p->remainder[1], p->quotient[3], p->remainder[3],
+                            p->den, p->remainder[1]);
 }
 
-/* slot 2 = 2 a2 + 6 a3 */
-static void phase_delta2(const phase_t *p) {
-    uint32_t r_two[WORDS];
-    int64_t q_a2 = qr_add(p->quotient[2], p->remainder[2], p->quotient[2], p->remainder[2],
-                          p->den, r_two);
-    p->quotient[2] = qr_add(q_a2, r_two, p->quotient[3], p->remainder[3], p->den,
-                            p->remainder[2]);
+/* scratch = 2 a3 */
+PHASE void phase_two_a3(const phase_t *p) {
+    *p->scratch_quotient = qr_add(p->quotient[3], p->remainder[3], p->quotient[3],
+                                  p->remainder[3], p->den, p->scratch);
+}
+
+/* slot 3 = 4 a3 */
+PHASE void phase_four_a3(const phase_t *p) {
+    p->quotient[3] = qr_add(*p->scratch_quotient, p->scratch, *p->scratch_quotient, p->scratch,
+                            p->den, p->remainder[3]);
+}
+
+/* slot 3 = 6 a3: delta3 */
+PHASE void phase_delta3(const phase_t *p) {
+    p->quotient[3] = qr_add(p->quotient[3], p->remainder[3], *p->scratch_quotient, p->scratch,
+                            p->den, p->remainder[3]);
+}
+
+/* slot 2 = 2 a2 */
+PHASE void phase_two_a2(const phase_t *p) {
+    p->quotient[2] = qr_add(p->quotient[2], p->remainder[2], p->quotient[2], p->remainder[2],
+                            p->den, p->remainder[2]);
+}
+
+/* slot 2 = 2 a2 + 6 a3: delta2 */
+PHASE void phase_delta2(const phase_t *p) {
+    p->quotient[2] = qr_add(p->quotient[2], p->remainder[2], p->quotient[3], p->remainder[3],
+                            p->den, p->remainder[2]);
 }
 
 static void (*const PHASES[PREPARE_PHASES])(const phase_t *) = {
-    phase_den, phase_a1, phase_a2, phase_a3, phase_a3_divide, phase_delta1, phase_delta3,
-    phase_delta2,
+    phase_coefficients, phase_den, phase_a1, phase_a1_high, phase_a2, phase_a3,
+    phase_a3_divide, phase_a1_plus_a2, phase_delta1, phase_two_a3, phase_four_a3,
+    phase_delta3, phase_two_a2, phase_delta2,
 };
 
+/* The ticks of a warming segment's start (curve_warm_step), the first included; segments
+ * of this many ticks or fewer are prepared on their first. */
+#define WARM_TICKS 4
+
+/* The phases' arguments for the head segment's own slots (its segment set by the caller). */
+static inline phase_t curve_warm_phase(curve_player_t *curve) {
+    phase_t p = {0, &curve->coefficients, (uint32_t)curve->step_us, curve->den,
+                 curve->quotient, curve->remainder, &curve->warm_quotient,
+                 curve->warm_remainder};
+    return p;
+}
+
 /* --- the keyframe buffer and the player (curve.py CurvePlayer) ------------------------- */
+
+/* A keyframe's duration in microseconds (below 2^26: a 32-bit product, where a 64-bit one
+ * is a library call on the M0+). */
+static inline uint32_t segment_us(const keyframe_t *keyframe) {
+    return keyframe->duration_ms * 1000u;
+}
 
 static inline const keyframe_t *curve_first(const curve_player_t *curve) {
     return &curve->buffer[curve->head];
@@ -702,6 +767,7 @@ static inline void curve_pop(curve_player_t *curve) {
     curve->count--;
     curve->stepping = false;
     curve->next_phase = 0;
+    curve->warming = 0;
 }
 
 static inline segment_t curve_segment(const curve_player_t *curve) {
@@ -734,6 +800,7 @@ void curve_clear(curve_player_t *curve) {
     curve->elapsed_us = 0;
     curve->stepping = false;
     curve->next_phase = 0;
+    curve->warming = 0;
 }
 
 void curve_interrupt(curve_player_t *curve) {
@@ -741,6 +808,7 @@ void curve_interrupt(curve_player_t *curve) {
     curve->elapsed_us = 0;
     curve->stepping = false;
     curve->next_phase = 0;
+    curve->warming = 0;
 }
 
 /* The segment after the head one: from the first keyframe to the second. */
@@ -759,14 +827,9 @@ static void curve_prepare_ahead(curve_player_t *curve) {
         return;
     }
     segment_t s = curve_next_segment(curve);
-    if (curve->next_phase == 0) {
-        curve->next_k2 = segment_k2(&s);
-        curve->next_c3 = segment_c3(&s);
-    }
-    coefficients_t c;
-    segment_coefficients_with(&s, curve->next_k2, curve->next_c3, &c);
-    phase_t p = {&s, &c, (uint32_t)curve->step_us, curve->next_den, curve->next_quotient,
-                 curve->next_remainder};
+    phase_t p = {&s, &curve->next_coefficients, (uint32_t)curve->step_us, curve->next_den,
+                 curve->next_quotient, curve->next_remainder, &curve->next_quotient[0],
+                 curve->next_remainder[0]};   /* slot 0 is not prepared ahead */
     PHASES[curve->next_phase](&p);
     curve->next_phase++;
 }
@@ -787,13 +850,21 @@ static void curve_prepare(curve_player_t *curve, uint32_t e0, int64_t tick_us) {
     coefficients_t c;
     segment_coefficients(&s, &c);
     if (e0 == 0 && tick_us < 512) {
-        phase_t p = {&s, &c, (uint32_t)tick_us, curve->den, curve->quotient, curve->remainder};
-        phase_a1(&p);   /* den is set */
+        int64_t scratch_quotient;
+        uint32_t scratch[WORDS];
+        phase_t p = {&s, &c, (uint32_t)tick_us, curve->den, curve->quotient, curve->remainder,
+                     &scratch_quotient, scratch};
+        phase_a1(&p);   /* den is set: the phases after it, called so that they inline */
+        phase_a1_high(&p);
         phase_a2(&p);
         phase_a3(&p);
         phase_a3_divide(&p);
+        phase_a1_plus_a2(&p);
         phase_delta1(&p);
+        phase_two_a3(&p);
+        phase_four_a3(&p);
         phase_delta3(&p);
+        phase_two_a2(&p);
         phase_delta2(&p);
         curve->stepping = true;
         return;
@@ -816,52 +887,91 @@ static void curve_prepare(curve_player_t *curve, uint32_t e0, int64_t tick_us) {
 /* A segment's first tick (elapsed 0): the value p0 exactly, numerator + den/2 =
  * p0 den + den/2. */
 static void curve_prepare_start(curve_player_t *curve, int64_t tick_us) {
-    segment_den(curve_first(curve)->duration_ms * 1000u, curve->den);
+    uint32_t d = segment_us(curve_first(curve));
+    segment_den(d, curve->den);
     curve->quotient[0] = curve->start_position;
     words_half(curve->remainder[0], curve->den);
+    if (tick_us > 0 && tick_us < 512 && (int64_t)d > WARM_TICKS * tick_us) {
+        curve->stepping = false;
+        phase_t p = curve_warm_phase(curve);
+        segment_t s = curve_segment(curve);
+        p.s = &s;
+        phase_coefficients(&p);
+        phase_a1(&p);
+        curve->warming = WARM_TICKS - 1;
+        return;
+    }
     curve_prepare(curve, 0, tick_us);
+}
+
+/* The value of the numerator as it stands: the quotient, less one for a tie or an exact
+ * value below 0 (the rounding, curve.c's head). */
+static inline int64_t numerator_value(const curve_player_t *curve) {
+    const uint32_t *r = curve->remainder[0];
+    int64_t q = curve->quotient[0];
+    return q - ((r[0] | r[1] | r[2]) == 0 && q <= 0);
 }
 
 /* The next tick of a stepping segment: each of the numerator and its first two
  * differences gains the next difference, exactly, remainder by remainder. Remainders are
  * below den < 2^88, so their sums fit 3 words. */
 static int64_t curve_step(curve_player_t *curve) {
-    const uint32_t *den = curve->den;
     for (unsigned k = 0; k < 3; k++) {
-        uint32_t *r = curve->remainder[k];
-        const uint32_t *next = curve->remainder[k + 1];
-        uint32_t x0 = r[0] + next[0];
-        uint32_t c0 = x0 < next[0];
-        uint32_t t1 = r[1] + c0;
-        uint32_t x1 = t1 + next[1];
-        uint32_t c1 = (t1 < c0) + (x1 < t1);
-        uint32_t x2 = r[2] + next[2] + c1;
-        int64_t q = curve->quotient[k] + curve->quotient[k + 1];
-        /* x >= den ? */
-        bool over = x2 != den[2] ? x2 > den[2] : x1 != den[1] ? x1 > den[1] : x0 >= den[0];
-        if (over) {
-            uint32_t w0 = x0 < den[0];
-            uint32_t y1 = den[1] + w0;
-            uint32_t w1 = (y1 < w0) | (x1 < y1);
-            x2 = x2 - den[2] - w1;
-            x1 = x1 - y1;
-            x0 = x0 - den[0];
-            q++;
-        }
-        r[0] = x0;
-        r[1] = x1;
-        r[2] = x2;
-        curve->quotient[k] = q;
+        curve->quotient[k] = qr_add(curve->quotient[k], curve->remainder[k],
+                                    curve->quotient[k + 1], curve->remainder[k + 1], curve->den,
+                                    curve->remainder[k]);
     }
-    const uint32_t *r = curve->remainder[0];
-    int64_t q = curve->quotient[0];
-    return q - ((r[0] | r[1] | r[2]) == 0 && q <= 0);
+    return numerator_value(curve);
+}
+
+/* slot k += slot j (curve_warm_step) */
+static inline void slot_add(curve_player_t *curve, unsigned k, unsigned j) {
+    curve->quotient[k] = qr_add(curve->quotient[k], curve->remainder[k], curve->quotient[j],
+                                curve->remainder[j], curve->den, curve->remainder[k]);
+}
+
+/* The first ticks of a warming segment, e = h, 2h, 3h (N the numerator, D1 to D3 its
+ * differences, _i at tick i): each finds the value with only what it needs prepared.
+ * Tick 1: D1_0 = a1 + a2 + a3, N_1 = N_0 + D1_0. Tick 2: D3 = 6 a3, D2_0 = 2 a2 + 6 a3,
+ * D1_1 = D1_0 + D2_0, N_2 = N_1 + D1_1. Tick 3: D2_1 = D2_0 + D3, D1_2 = D1_1 + D2_1,
+ * D2_2 = D2_1 + D3 (where stepping would stand after tick 2), then the step. */
+static int64_t curve_warm_step(curve_player_t *curve) {
+    phase_t p = curve_warm_phase(curve);
+    segment_t s = curve_segment(curve);
+    p.s = &s;
+    switch (curve->warming--) {
+    case 3:
+        phase_a1_high(&p);
+        phase_a2(&p);
+        phase_a3(&p);
+        phase_a3_divide(&p);
+        phase_a1_plus_a2(&p);
+        phase_delta1(&p);
+        slot_add(curve, 0, 1);
+        return numerator_value(curve);
+    case 2:
+        phase_two_a3(&p);
+        phase_four_a3(&p);
+        phase_delta3(&p);
+        phase_two_a2(&p);
+        phase_delta2(&p);
+        slot_add(curve, 1, 2);
+        slot_add(curve, 0, 1);
+        return numerator_value(curve);
+    default:
+        slot_add(curve, 2, 3);
+        slot_add(curve, 1, 2);
+        slot_add(curve, 2, 3);
+        curve->stepping = true;
+        return curve_step(curve);
+    }
 }
 
 int64_t curve_next_position(curve_player_t *curve, int32_t current_desired, int64_t tick_us) {
     if (curve->step_us != tick_us) {
         curve->stepping = false;   /* prepared for another period */
         curve->next_phase = 0;
+        curve->warming = 0;
         curve->step_us = (int32_t)tick_us;
     }
     if (curve->playing) {
@@ -877,9 +987,9 @@ int64_t curve_next_position(curve_player_t *curve, int32_t current_desired, int6
         return current_desired;
     }
     while (curve->count != 0 &&
-           curve->elapsed_us > (int64_t)curve_first(curve)->duration_ms * 1000) {
+           curve->elapsed_us > (int64_t)segment_us(curve_first(curve))) {
         const keyframe_t *done = curve_first(curve);
-        curve->elapsed_us -= (int64_t)done->duration_ms * 1000;
+        curve->elapsed_us -= (int64_t)segment_us(done);
         curve->start_position = done->position_counts;
         curve->start_tangent = done->tangent_out;
         curve_pop(curve);
@@ -890,7 +1000,7 @@ int64_t curve_next_position(curve_player_t *curve, int32_t current_desired, int6
         return curve->start_position;
     }
     const keyframe_t target = *curve_first(curve);
-    int64_t d = (int64_t)target.duration_ms * 1000;
+    int64_t d = (int64_t)segment_us(&target);
     uint32_t e = (uint32_t)curve->elapsed_us;
     int64_t position;
     if (e == 0) {
@@ -898,6 +1008,8 @@ int64_t curve_next_position(curve_player_t *curve, int32_t current_desired, int6
         curve_prepare_start(curve, tick_us);   /* only a curve's first tick is at 0 */
     } else if (e == d) {
         position = target.position_counts;   /* and p1 at the end */
+    } else if (curve->warming != 0) {
+        position = curve_warm_step(curve);
     } else if (curve->stepping) {
         position = curve_step(curve);
         curve_prepare_ahead(curve);
@@ -923,7 +1035,7 @@ int64_t curve_next_position(curve_player_t *curve, int32_t current_desired, int6
                 curve->quotient[k] = curve->next_quotient[k];
                 words_copy(curve->remainder[k], curve->next_remainder[k]);
             }
-            curve->stepping = (int64_t)curve_first(curve)->duration_ms * 1000 > tick_us;
+            curve->stepping = (int64_t)segment_us(curve_first(curve)) > tick_us;
         } else if (curve->count != 0) {
             curve_prepare_start(curve, tick_us);   /* a tick with nothing to evaluate */
         }

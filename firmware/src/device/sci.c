@@ -31,6 +31,8 @@ const uint64_t sci_pow10_u64[20] = {
     10000000000000000000u,
 };
 
+extern inline uint32_t sci_udiv(uint32_t n, uint32_t d);
+extern inline int32_t sci_sdiv(int32_t n, int32_t d);
 extern inline uint32_t sci_mul_32x32(uint32_t a, uint32_t b, uint32_t *hi);
 extern inline uint64_t sci_mul_32x64(uint32_t a, uint64_t b);
 extern inline uint64_t sci_div_u64_small(uint64_t n, uint32_t d);
@@ -63,7 +65,7 @@ uint32_t sci_div_pow10_u64(uint64_t m, unsigned k) {
      * it is at most 2 below floor(q), never above; m >> s < 10^4 * 2^17 fits 32 bits. */
     uint64_t divisor = sci_pow10_u64[k];
     unsigned s = POW10_SHIFT[k];
-    uint32_t q = (uint32_t)(m >> s) / ((uint32_t)(divisor >> s) + 1u);
+    uint32_t q = sci_udiv((uint32_t)(m >> s), (uint32_t)(divisor >> s) + 1u);
     uint64_t rest = m - mul_small_u64(q, divisor);
     while (rest >= divisor) {
         rest -= divisor;
@@ -77,9 +79,9 @@ sci_t sci_div(sci_t a, sci_t b) {
     if (b.c == 0 || a.c == 0) {
         return r;
     }
-    int32_t d = a.c * SCI_UPPER / b.c;
+    int32_t d = sci_sdiv(a.c * SCI_UPPER, b.c);
     if (d >= SCI_UPPER || d <= -SCI_UPPER) {
-        r.c = d / 10;
+        r.c = sci_sdiv(d, 10);
         r.e = a.e - b.e - SCI_DIGITS + 1;
     } else {
         r.c = d;

@@ -34,6 +34,20 @@ typedef struct {
     int16_t tangent_out;
 } keyframe_t;
 
+/* A segment's numerator as a polynomial in the elapsed e (curve.c): c1 = D m0 d^2 and
+ * c2 = d (3072 dp - D (2m0 + m1)) as their magnitudes' factors, c3 = D (m0 + m1) - 2048 dp,
+ * for d = 1000 D and dp = p1 - p0. */
+typedef struct {
+    uint32_t d;
+    uint32_t d2[2];          /* d^2 */
+    int32_t m0;
+    uint32_t dm0;            /* D |m0| < 2^31 */
+    bool m0_negative;
+    uint64_t k2_magnitude;   /* |3072 dp - D (2m0 + m1)| < 2^45 */
+    bool k2_negative;
+    int64_t c3;
+} curve_coefficients_t;
+
 /* The keyframe buffer and the player of curve mode (device/curve.py CurvePlayer). */
 typedef struct {
     keyframe_t buffer[CURVE_BUFFER_CAPACITY];
@@ -56,11 +70,18 @@ typedef struct {
     /* The next segment's (the first keyframe to the second) differences and den, prepared
      * a phase a tick ahead of its start; next_phase counts the phases done. */
     uint8_t next_phase;
-    int64_t next_k2;           /* its coefficients: 3072 (p1 - p0) - D (2 m0 + m1) */
-    int64_t next_c3;           /* and D (m0 + m1) - 2048 (p1 - p0) */
+    curve_coefficients_t next_coefficients;
     int64_t next_quotient[4];
     uint32_t next_remainder[4][4];
     uint32_t next_den[4];
+    /* A segment started without its differences prepared ahead (a curve's first, or one
+     * whose keyframe came late) prepares them over its first ticks instead of on one:
+     * `warming` counts the ticks of that left (curve.c curve_warm_step), with the
+     * segment's coefficients and a scratch slot meanwhile. */
+    uint8_t warming;
+    curve_coefficients_t coefficients;
+    int64_t warm_quotient;
+    uint32_t warm_remainder[4];
 } curve_player_t;
 
 /* The latch of one limit switch (call 36). */
