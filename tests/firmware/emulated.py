@@ -9,9 +9,12 @@ reached the host at, counted from the session's start as the Python's are.
 
 from __future__ import annotations
 
+import os
 import shutil
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
+
+import pytest
 
 from usbmotion.sim.firmware import (
     EmulatedDevice,
@@ -39,6 +42,26 @@ def missing() -> str | None:
     if not uf2.is_file() or not uf2.with_suffix(".elf").is_file():
         return f"{uf2} is not built"
     return None
+
+
+def require_emulator(why: str | None = None) -> None:
+    """Skip the test when the emulated firmware cannot run here (``missing``, or ``why``);
+    in CI, where ``make test`` builds everything first, fail it instead."""
+    why = why or missing()
+    if why is not None:
+        message = f"{why}: `make firmware` builds the firmware and installs the emulator"
+        if os.environ.get("CI"):
+            pytest.fail(message)
+        pytest.skip(message)
+
+
+def emulated_driver() -> Iterator[EmulatedFirmware]:
+    """A module fixture's body: one emulated chip (each session powers up a fresh one on
+    blank flash), closed after the module."""
+    require_emulator()
+    firmware = EmulatedFirmware()
+    yield firmware
+    firmware.close()
 
 
 class EmulatedFirmware:

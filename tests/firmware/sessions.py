@@ -100,6 +100,17 @@ def first_difference(expected: Printed, actual: Printed) -> str:
     return "identical"
 
 
+def byte_session(data: bytes, cuts: Sequence[int]) -> list[Step]:
+    """``data`` fed in pieces of the ``cuts``' lengths, the rest in one."""
+    steps: list[Step] = []
+    position = 0
+    for cut in cuts:
+        steps.append(Feed(data[position : position + cut]))
+        position += cut
+    steps.append(Feed(data[position:]))
+    return steps
+
+
 def fuzz_steps(steps: Sequence[Lines | Silence | PowerCycle], *,
                motor_steps: int = MOTOR_STEPS_PER_EXAMPLE,
                max_ticks: int | None = None) -> list[Step]:

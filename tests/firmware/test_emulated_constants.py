@@ -12,7 +12,6 @@ offsets the Arm compiler gives) and compared with ``Device.motor_constants``.
 
 from __future__ import annotations
 
-import os
 import re
 import shutil
 import struct
@@ -26,7 +25,7 @@ from hypothesis import strategies as st
 
 from usbmotion.device import Device
 
-from .emulated import EmulatedFirmware, missing
+from .emulated import EmulatedFirmware, missing, require_emulator
 from .native import ROOT
 
 FIELDS = ("steps", "drive", "friction", "decay", "lag")
@@ -48,12 +47,8 @@ def _arm_offsets(tmp: Path) -> dict[str, int]:
 @pytest.fixture(scope="module")
 def chip(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[EmulatedFirmware,
                                                                       dict[str, int]]]:
-    why = missing() or (None if shutil.which("arm-none-eabi-gcc") else "no arm-none-eabi-gcc")
-    if why is not None:
-        message = f"{why}: `make firmware` builds the firmware and installs the emulator"
-        if os.environ.get("CI"):
-            pytest.fail(message)
-        pytest.skip(message)
+    require_emulator(missing() or (None if shutil.which("arm-none-eabi-gcc")
+                                   else "no arm-none-eabi-gcc"))
     firmware = EmulatedFirmware()
     firmware.device.power_up(erase_flash=True)
     yield firmware, _arm_offsets(tmp_path_factory.mktemp("offsets"))

@@ -8,13 +8,12 @@ emulated RP2040 (``firmware/emulator``): identical lines, each at the same servo
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator
 
 import pytest
 
 from . import test_native_device as native
-from .emulated import EmulatedFirmware, missing
+from .emulated import EmulatedFirmware, emulated_driver
 from .sessions import Run, lines
 from .test_native_device import (  # the scripted sessions, run here on the emulated chip
     test_a_fault_alarm_and_the_refusal_to_enable,
@@ -76,15 +75,7 @@ SCRIPTED = (
 @pytest.fixture(scope="module")
 def driver() -> Iterator[EmulatedFirmware]:
     """One emulated chip for the module; each session powers up a fresh one on blank flash."""
-    why = missing()
-    if why is not None:
-        message = f"{why}: `make firmware` builds the firmware and installs the emulator"
-        if os.environ.get("CI"):
-            pytest.fail(message)
-        pytest.skip(message)
-    firmware = EmulatedFirmware()
-    yield firmware
-    firmware.close()
+    yield from emulated_driver()
 
 
 GENERATED = {"test_random_bytes", "test_random_integer_lines", "test_extreme_parameters",

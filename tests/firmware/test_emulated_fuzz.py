@@ -26,15 +26,15 @@ from fuzz.budget import ENV, examples, fuzz_settings, hang_guard
 from fuzz.test_device_fuzz import _STEP, Lines, PowerCycle, Silence
 from usbmotion.sim.firmware import OutputChunk, Span
 
-from .emulated import SPANS_TICKS, EmulatedFirmware, missing, printed_lines
+from .emulated import SPANS_TICKS, EmulatedFirmware, emulated_driver, printed_lines
 from .sessions import (
     EXTREME_PARAMETERS,
     LOUD,
     NO_NEWLINE,
-    Feed,
     Printed,
     Run,
     Step,
+    byte_session,
     extreme_session,
     first_difference,
     fuzz_steps,
@@ -60,15 +60,7 @@ def _examples(quick: int, share: float) -> settings:
 @pytest.fixture(scope="module")
 def driver() -> Iterator[EmulatedFirmware]:
     """One emulated chip; each session powers up a fresh one on blank flash."""
-    why = missing()
-    if why is not None:
-        message = f"{why}: `make firmware` builds the firmware and installs the emulator"
-        if os.environ.get("CI"):
-            pytest.fail(message)
-        pytest.skip(message)
-    firmware = EmulatedFirmware()
-    yield firmware
-    firmware.close()
+    yield from emulated_driver()
 
 
 def assert_same(driver: EmulatedFirmware, steps: Sequence[Step]) -> Printed:
@@ -114,13 +106,7 @@ def test_fuzz_sessions_with_diagnostics_every_tick(
 @given(st.lists(st.binary(max_size=64), min_size=1, max_size=6),
        st.lists(st.integers(1, 40), max_size=6))
 def test_random_bytes(driver: EmulatedFirmware, chunks: list[bytes], cuts: list[int]) -> None:
-    data = b"8 0 1\n8 1 1\n" + b"".join(chunks) + b"\n2 -1\n"
-    steps: list[Step] = []
-    position = 0
-    for cut in cuts:
-        steps.append(Feed(data[position : position + cut]))
-        position += cut
-    steps.append(Feed(data[position:]))
+    steps = byte_session(b"8 0 1\n8 1 1\n" + b"".join(chunks) + b"\n2 -1\n", cuts)
     with hang_guard(HANG_S):
         assert_same(driver, steps)
 

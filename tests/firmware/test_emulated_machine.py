@@ -15,7 +15,6 @@
 
 from __future__ import annotations
 
-import os
 import warnings
 from pathlib import Path
 from typing import Any
@@ -24,7 +23,7 @@ import pytest
 
 from usbmotion.sim.firmware import default_uf2, read_recording
 
-from .emulated import EmulatedFirmware, missing, recording_steps
+from .emulated import EmulatedFirmware, recording_steps, require_emulator
 from .jobs import (
     NAMES,
     RealtimeRun,
@@ -38,12 +37,7 @@ from .sessions import first_difference, python_replay
 
 @pytest.fixture(scope="module")
 def firmware() -> Path:
-    why = missing()
-    if why is not None:
-        message = f"{why}: `make firmware` builds the firmware and installs the emulator"
-        if os.environ.get("CI"):
-            pytest.fail(message)
-        pytest.skip(message)
+    require_emulator()
     return default_uf2()
 
 

@@ -3,7 +3,6 @@ in a virtual-time world (``FirmwareSimDevice``)."""
 
 from __future__ import annotations
 
-import os
 import socket
 import subprocess
 import sys
@@ -22,17 +21,12 @@ from usbmotion.sim.firmware import (
     read_recording,
 )
 
-from .emulated import missing
+from .emulated import require_emulator
 
 
 @pytest.fixture(scope="module")
 def uf2() -> Path:
-    why = missing()
-    if why is not None:
-        message = f"{why}: `make firmware` builds the firmware and installs the emulator"
-        if os.environ.get("CI"):
-            pytest.fail(message)
-        pytest.skip(message)
+    require_emulator()
     return default_uf2()
 
 

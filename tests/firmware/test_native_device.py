@@ -47,6 +47,7 @@ from .sessions import (
     Printed,
     Run,
     Step,
+    byte_session,
     extreme_session,
     first_difference,
     fuzz_steps,
@@ -282,13 +283,7 @@ def test_huge_integers_everywhere(driver: Driver) -> None:
 @given(st.lists(st.binary(max_size=64), min_size=1, max_size=6),
        st.lists(st.integers(1, 40), max_size=6))
 def test_random_bytes(driver: Driver, chunks: list[bytes], cuts: list[int]) -> None:
-    data = b"8 0 1\n8 1 1\n" + b"".join(chunks) + b"\n2 -1\n"
-    steps: list[Step] = []
-    position = 0
-    for cut in cuts:
-        steps.append(Feed(data[position : position + cut]))
-        position += cut
-    steps.append(Feed(data[position:]))
+    steps = byte_session(b"8 0 1\n8 1 1\n" + b"".join(chunks) + b"\n2 -1\n", cuts)
     with hang_guard():
         assert_same(driver, steps)
 
