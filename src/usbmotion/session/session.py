@@ -388,7 +388,7 @@ class MachineSession:
             ) for name, axis in machine.axes.items()},
             clock=self.clock, poll_period_s=1.0 / HOMING_POLL_HZ,
             tick_s=config.servo_period_s, motion_scalar=config.motion_scalar,
-            keep_alive_polls=_keep_alive_polls(config.watchdog_ms),
+            keep_alive_polls=max(1, int((self.keep_alive_period_s() or 1.0) * HOMING_POLL_HZ)),
         )
 
         def make(name: str) -> MoveAxisHome:
@@ -594,12 +594,6 @@ class MachineSession:
             clock.sleep(poll_s)
 
 
-def _keep_alive_polls(watchdog_ms: int) -> int:
-    """Homing polls between keep-alive queries: four within the watchdog, or one a second."""
-    window_s = watchdog_ms / 1000.0 / 4 if watchdog_ms > 0 else 1.0
-    return max(1, int(window_s * HOMING_POLL_HZ))
-
-
 class _Run:
     """One run of a prepared program (:meth:`MachineSession.run`)."""
 
@@ -735,14 +729,16 @@ class _Run:
             clock.sleep(min(FAULT_CHECK_S, max(self.period_s, queued * self.period_s)))
 
     def _settle(self) -> None:
+        """After the last setpoint: until every axis is within SETTLE_COUNTS of it, for at
+        most SETTLE_TIMEOUT_S."""
         clock = self.session.clock
-        deadline = clock.now() + 1.0
+        deadline = clock.now() + SETTLE_TIMEOUT_S
         while clock.now() < deadline:
             statuses = self.machine.status()
             if all(abs(s.desired_counts - s.actual_counts) <= SETTLE_COUNTS
                    for s in statuses.values()):
                 return
-            clock.sleep(0.005)
+            clock.sleep(REST_POLL_S)
 
     def _decelerate(self) -> None:
         """Every axis still enabled to rest along the path at its planned deceleration:
