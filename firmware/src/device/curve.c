@@ -732,6 +732,25 @@ PHASE void phase_delta2(const phase_t *p) {
                             p->den, p->remainder[2]);
 }
 
+/* The phases after a1 up to delta1, and those after delta1 (a preparation on one tick runs
+ * a1 and both; a warming segment one group a tick). */
+PHASE void phases_to_delta1(const phase_t *p) {
+    phase_a1_high(p);
+    phase_a2(p);
+    phase_a3(p);
+    phase_a3_divide(p);
+    phase_a1_plus_a2(p);
+    phase_delta1(p);
+}
+
+PHASE void phases_after_delta1(const phase_t *p) {
+    phase_two_a3(p);
+    phase_four_a3(p);
+    phase_delta3(p);
+    phase_two_a2(p);
+    phase_delta2(p);
+}
+
 static void (*const PHASES[PREPARE_PHASES])(const phase_t *) = {
     phase_coefficients, phase_den, phase_a1, phase_a1_high, phase_a2, phase_a3,
     phase_a3_divide, phase_a1_plus_a2, phase_delta1, phase_two_a3, phase_four_a3,
@@ -854,18 +873,9 @@ static void curve_prepare(curve_player_t *curve, uint32_t e0, int64_t tick_us) {
         uint32_t scratch[WORDS];
         phase_t p = {&s, &c, (uint32_t)tick_us, curve->den, curve->quotient, curve->remainder,
                      &scratch_quotient, scratch};
-        phase_a1(&p);   /* den is set: the phases after it, called so that they inline */
-        phase_a1_high(&p);
-        phase_a2(&p);
-        phase_a3(&p);
-        phase_a3_divide(&p);
-        phase_a1_plus_a2(&p);
-        phase_delta1(&p);
-        phase_two_a3(&p);
-        phase_four_a3(&p);
-        phase_delta3(&p);
-        phase_two_a2(&p);
-        phase_delta2(&p);
+        phase_a1(&p);   /* den is set */
+        phases_to_delta1(&p);
+        phases_after_delta1(&p);
         curve->stepping = true;
         return;
     }
@@ -941,20 +951,11 @@ static int64_t curve_warm_step(curve_player_t *curve) {
     p.s = &s;
     switch (curve->warming--) {
     case 3:
-        phase_a1_high(&p);
-        phase_a2(&p);
-        phase_a3(&p);
-        phase_a3_divide(&p);
-        phase_a1_plus_a2(&p);
-        phase_delta1(&p);
+        phases_to_delta1(&p);
         slot_add(curve, 0, 1);
         return numerator_value(curve);
     case 2:
-        phase_two_a3(&p);
-        phase_four_a3(&p);
-        phase_delta3(&p);
-        phase_two_a2(&p);
-        phase_delta2(&p);
+        phases_after_delta1(&p);
         slot_add(curve, 1, 2);
         slot_add(curve, 0, 1);
         return numerator_value(curve);
