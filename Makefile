@@ -80,6 +80,10 @@ EMULATOR := firmware/emulator
 
 firmware-toolchain:
 	@bash firmware/tools/check-toolchain.sh
+	@for source in $(PICO_SDK_PATH)/pico_sdk_init.cmake $(PICOTOOL_SOURCE)/CMakeLists.txt; do \
+	  [ -f "$$source" ] || { echo "firmware: $$source is missing: the Pico SDK 2.2.0 and" \
+	    "picotool 2.2.0 sources are expected beside the project (../shared/rp2040), or" \
+	    "give PICO_SDK_PATH=... PICOTOOL_SOURCE=... to make" >&2; exit 1; }; done
 
 $(PICOTOOL_CONFIG): | firmware-toolchain
 	cmake -S $(PICOTOOL_SOURCE) -B build/picotool-build -DCMAKE_BUILD_TYPE=Release \
