@@ -12,7 +12,7 @@ from __future__ import annotations
 import contextlib
 import math
 import random
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -242,6 +242,31 @@ class DeviceClient:
     def open(cls, url: str, *, timeout_s: float = 1.0, name: str = "") -> DeviceClient:
         """Open a device by port path or URL (``sim://NAME`` included)."""
         return cls(LineTransport.open(url, label=name or url), name=name, timeout_s=timeout_s)
+
+    # --- listeners -------------------------------------------------------------------------
+
+    @contextlib.contextmanager
+    def listening(
+        self,
+        *,
+        diagnostics: Callable[[Diagnostics], None] | None = None,
+        alarms: Callable[[Alarm], None] | None = None,
+    ) -> Iterator[DeviceClient]:
+        """Hand diagnostics lines and ``ALARM`` lines to these callbacks while the block runs.
+
+        The callbacks given replace the ones in place for the block only; on leaving it,
+        however it is left, the previous ones are back. ``None`` leaves that kind of line
+        to the callback already in place.
+        """
+        previous = (self.on_diagnostics, self.on_alarm)
+        if diagnostics is not None:
+            self.on_diagnostics = diagnostics
+        if alarms is not None:
+            self.on_alarm = alarms
+        try:
+            yield self
+        finally:
+            self.on_diagnostics, self.on_alarm = previous
 
     # --- plumbing ------------------------------------------------------------------------
 
