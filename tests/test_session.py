@@ -20,7 +20,7 @@ from usbmotion.errors import (
     StopRequestedError,
 )
 from usbmotion.host.config import MachineConfig, load_config, parse_config
-from usbmotion.protocol.table import Fault
+from usbmotion.protocol import FaultCode
 from usbmotion.session import (
     TRANSITIONS,
     MachineSession,
@@ -175,7 +175,7 @@ def test_a_stop_mid_run_decelerates_along_the_path_within_v2_over_2a(
         assert steps.max() <= 20.0 * 240 * 1.02, "no jump in the commanded path at the stop"
         assert 3.0 <= report.stopped_at_s <= 3.5, "where it was when asked (progress is sparse)"
         session.shutdown()
-        assert all(d.state.enable == 0 and d.state.fault == Fault.NONE
+        assert all(d.state.enable == 0 and d.state.fault == FaultCode.NONE
                    for d in devices.values()), "servos off, no fault latched"
 
 
@@ -208,7 +208,7 @@ def test_a_stop_during_homing_brings_every_axis_to_rest_unhomed(
         assert session.stop_latency_s < 0.1, "every axis at rest within 100 ms"
         for name, device in _devices(session).items():
             assert device.state.velocity == 0 and device.state.queued == 0, name
-            assert device.state.fault == Fault.NONE
+            assert device.state.fault == FaultCode.NONE
 
 
 def test_no_switch_within_the_search_distance_fails_naming_the_axis() -> None:
@@ -259,12 +259,12 @@ def test_a_fault_an_earlier_host_left_is_reported_cleared_and_needs_homing(
     world.advance(200_000)
     with connect_session(config, world=world) as second:
         assert sorted(second.faults_found) == ["X", "Y", "Z"]
-        assert all(code == Fault.WATCHDOG for code, _ in second.faults_found.values())
+        assert all(code == FaultCode.WATCHDOG for code, _ in second.faults_found.values())
         assert len(second.notices) == 3
         assert "fault 1 (watchdog)" in second.notices[0] and "homing is required" in (
             second.notices[0])
         assert not second.is_homed
-        assert all(s.fault == Fault.NONE for s in second.machine.status().values())
+        assert all(s.fault == FaultCode.NONE for s in second.machine.status().values())
 
 
 def test_motion_an_earlier_host_left_running_is_stopped_along_its_deceleration(

@@ -20,6 +20,7 @@ from pathlib import Path
 from usbmotion.device.core0 import DEFAULT_INTERVAL_DMS, DEFAULT_SCALAR, Gains
 from usbmotion.device.motor import MotorParams
 from usbmotion.protocol.codec import HUGE_DIGITS
+from usbmotion.protocol.names import FaultCode
 from usbmotion.protocol.table import (
     ALARM,
     CALLS,
@@ -34,7 +35,6 @@ from usbmotion.protocol.table import (
     QUEUE_CAPACITY,
     REST_FIELDS,
     CallSpec,
-    Fault,
     Param,
     Template,
 )
@@ -173,7 +173,7 @@ def header() -> str:
         f"#define TABLE_CALLS {len(CALLS)}u",
         f"#define TABLE_MAX_PARAMS {_max_params()}u",
         f"#define TABLE_MAX_DEBUG_FLAG {_max_flag()}u",
-        f"#define TABLE_FAULTS {len(Fault.NAMES)}u",
+        f"#define TABLE_FAULTS {len(FaultCode)}u",
         "",
         "/* core0's RAM variables at power-up (usbmotion.device.core0 and .motor defaults);",
         " * a (coefficient, exponent) pair as the calls carry it. */",
@@ -238,7 +238,7 @@ def source() -> str:
     for spec in CALLS:
         lines += _spec(spec)
     lines += ["};", ""]
-    names = ", ".join(_c_string(Fault.NAMES[code]) for code in range(len(Fault.NAMES)))
+    names = ", ".join(_c_string(code.words) for code in FaultCode)
     lines += [f"const char *const fault_names[TABLE_FAULTS] = {{{names}}};", ""]
     lines += [
         f"const template_t template_diagnostics = {_template(DIAGNOSTICS)};",

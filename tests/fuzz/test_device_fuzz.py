@@ -37,11 +37,12 @@ from usbmotion.protocol import (
     CALLS,
     CURVE_BUFFER_CAPACITY,
     QUEUE_CAPACITY,
+    FaultCode,
     ReplyKind,
     parse_call,
     parse_reply,
 )
-from usbmotion.protocol.table import INT32_MAX, INT32_MIN, Fault
+from usbmotion.protocol.table import INT32_MAX, INT32_MIN
 
 from .budget import fuzz_settings, hang_guard
 
@@ -172,9 +173,9 @@ def _check_state(device: Device) -> None:
     assert state.enable in (0, 1)
     assert state.mode in (1, 2, 3)
     assert 0 <= state.limits <= 3
-    assert state.fault in (Fault.NONE, Fault.WATCHDOG, Fault.FOLLOWING_ERROR,
-                           Fault.LIMIT_SWITCH), "fault 4 is an internal error"
-    if state.fault != Fault.NONE:
+    assert state.fault in (FaultCode.NONE, FaultCode.WATCHDOG, FaultCode.FOLLOWING_ERROR,
+                           FaultCode.LIMIT_SWITCH), "fault 4 is an internal error"
+    if state.fault != FaultCode.NONE:
         assert state.enable == 0, "a latched fault leaves the servo off"
     else:
         assert state.fault_tick == 0

@@ -24,7 +24,7 @@ import pytest
 
 from usbmotion.host.config import load_config
 from usbmotion.host.device import Status
-from usbmotion.protocol.table import Fault
+from usbmotion.protocol import FaultCode
 from usbmotion.session import MachineSession, home_position_mm
 
 from .bench import bench_machine, served
@@ -108,9 +108,9 @@ def test_a_killed_host_leaves_every_servo_disabled_by_its_watchdog(tmp_path: Pat
                 name = axis.device
                 assert name is not None
                 code, fault_tick = session.faults_found[axis.name]
-                assert code == Fault.WATCHDOG
+                assert code == FaultCode.WATCHDOG
                 status: Status = client.status()
-                assert not status.enabled and status.fault == Fault.NONE, "cleared"
+                assert not status.enabled and status.fault == FaultCode.NONE, "cleared"
                 assert status.queued == 0
                 before = time.monotonic()
                 clock = client.clock()
@@ -129,7 +129,7 @@ def test_a_killed_host_leaves_every_servo_disabled_by_its_watchdog(tmp_path: Pat
                 axis = config.axis(letter)
                 travel = axis.sim_travel_counts
                 assert travel is not None
-                assert status.enabled and status.fault == Fault.NONE
+                assert status.enabled and status.fault == FaultCode.NONE
                 zero = session.zeroes[letter]
                 assert zero.edge_counts == travel[0], (
                     f"{letter}: the device latched the switch's closing edge at its very count"

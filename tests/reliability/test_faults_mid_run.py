@@ -30,7 +30,7 @@ from usbmotion.device import Device
 from usbmotion.device.motor import MICRO, MotorParams
 from usbmotion.host.config import MachineConfig, load_config
 from usbmotion.motion.sampler import sample_plan
-from usbmotion.protocol.table import Fault
+from usbmotion.protocol import FaultCode
 from usbmotion.session import RunReport, plan_gcode
 from usbmotion.session.session import FAULT_CHECK_S
 from usbmotion.sim.machine import connect_session
@@ -103,7 +103,7 @@ def _check_every_axis_stopped(outcome: Outcome, fault_tick: int, tick_s: float) 
         assert state.enable == 0, f"{name} is disabled at the end"
         assert state.queued == 0, f"{name}'s queue is empty"
         assert state.output_mv == 0
-        if state.fault == Fault.NONE:
+        if state.fault == FaultCode.NONE:
             stop = outcome.first_stop_after(name, fault_tick)
             slowest = max(slowest, (stop - fault_tick) * tick_s)
     assert slowest <= FAULT_CHECK_S + 0.01, "the host stops the others at its next check"
@@ -125,7 +125,7 @@ def test_a_stalled_motor_trips_on_the_first_tick_beyond_the_following_error_limi
     outcome = _run(config, STALL_PROGRAM, home=False, load_mnm=load_mnm)
     x = outcome.devices["X"].state
     tick_s = config.servo_period_s
-    assert (x.fault, x.enable) == (Fault.FOLLOWING_ERROR, 0)
+    assert (x.fault, x.enable) == (FaultCode.FOLLOWING_ERROR, 0)
     assert x.fault_tick == outcome.start_tick + first_over + 1, "the tick the error passed"
     assert limit < x.desired - x.actual <= limit + int(np.max(np.diff(setpoints[:, 0])))
     assert abs(x.shaft_micro_counts) < MICRO, "a load above stall: the shaft never turned"
@@ -162,7 +162,7 @@ def test_a_limit_switch_mid_run_stops_every_axis_and_says_where() -> None:
 
     outcome = _run(config, LIMIT_PROGRAM, home=False)
     x = outcome.devices["X"].state
-    assert (x.fault, x.enable) == (Fault.LIMIT_SWITCH, 0)
+    assert (x.fault, x.enable) == (FaultCode.LIMIT_SWITCH, 0)
     assert x.limits == 2, "X rests on its upper switch"
     planned_s = reaches * tick_s
     fault_s = (x.fault_tick - outcome.start_tick) * tick_s
@@ -180,7 +180,7 @@ def test_a_limit_switch_mid_run_stops_every_axis_and_says_where() -> None:
     assert fault_s <= fault.time_s <= fault_s + FAULT_CHECK_S + 2 * tick_s
     slowest = _check_every_axis_stopped(outcome, x.fault_tick, tick_s)
     for name in ("Y", "Z"):
-        assert outcome.devices[name].state.fault == Fault.NONE, "stopped by the host"
+        assert outcome.devices[name].state.fault == FaultCode.NONE, "stopped by the host"
     print(f"limit: X tripped at {fault_s:.3f} s (reaches the switch at {planned_s:.3f} s),"
           f" coasted {coast_counts} counts; reported at {fault.time_s:.3f} s; Y and Z stopped"
           f" along the path {slowest * 1e3:.0f} ms later")

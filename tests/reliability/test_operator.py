@@ -21,7 +21,7 @@ import pytest
 
 from usbmotion.host.config import load_config
 from usbmotion.host.machine import Machine
-from usbmotion.protocol.table import Fault
+from usbmotion.protocol import FaultCode
 
 from .bench import bench_machine, logged_writes, served
 from .bench import host as start_host
@@ -52,7 +52,7 @@ def _check_left_clean(machine_file: Path) -> dict[str, int]:
         where = {}
         for name, status in machine.status().items():
             assert not status.enabled, f"{name}: servo disabled at the end"
-            assert status.fault == Fault.NONE, f"{name}: no fault latched ({status})"
+            assert status.fault == FaultCode.NONE, f"{name}: no fault latched ({status})"
             assert status.queued == 0
             where[name] = status.actual_counts
     return where

@@ -14,6 +14,7 @@ from typing import Annotated
 
 import typer
 
+from usbmotion.protocol import device_name_problem, encode_device_name
 from usbmotion.sim.server import DeviceServer
 from usbmotion.sim.world import SimWorld
 
@@ -39,8 +40,7 @@ def build_world(names: list[str], count: int, flash_dir: Path) -> SimWorld:
         stem = _slug(wanted) if wanted else f"device-{index + 1}"
         device = Device(flash=FileFlash(flash_dir / f"{stem}.json"))
         if wanted and device.name != wanted:
-            codes = " ".join(str(ord(c)) for c in wanted)
-            device.feed(f"18 {len(wanted)} {codes}\n".encode("ascii"))
+            device.feed(encode_device_name(wanted))
             device.take_output()
         world.add(device, key=str(index))
     return world
@@ -88,11 +88,9 @@ def sim(
     """
     names = list(name or [])
     for each in names:
-        if not 0 < len(each) <= 25 or not all(32 <= ord(c) <= 126 for c in each):
-            raise typer.BadParameter(
-                f"device name {each!r} must be 1..25 printable ASCII characters",
-                param_hint="--name",
-            )
+        problem = device_name_problem(each, allow_empty=False)
+        if problem is not None:
+            raise typer.BadParameter(problem, param_hint="--name")
     if (pty > 0) == (tcp >= 0):
         raise typer.BadParameter("give exactly one of --pty N or --tcp PORT")
     if pty < 0 or pty > 64:

@@ -56,6 +56,7 @@ from usbmotion.protocol.codec import (
     format_err,
     parse_call,
 )
+from usbmotion.protocol.names import FaultCode, fault_words
 from usbmotion.protocol.table import (
     ALARM,
     BY_NUMBER,
@@ -63,7 +64,6 @@ from usbmotion.protocol.table import (
     ERR,
     MAX_LINE_BYTES,
     QUEUE_CAPACITY,
-    Fault,
 )
 from usbmotion.scimath import SciNumber, sci_to_int
 
@@ -576,7 +576,7 @@ class Device:
 
     def _internal_fault(self, call: str, where: str, error: BaseException) -> None:
         state = self._state
-        state[core1.S_FAULT] = Fault.INTERNAL
+        state[core1.S_FAULT] = FaultCode.INTERNAL
         state[core1.S_FAULT_TICK] = state[core1.S_CLOCK]
         state[core1.S_ENABLE] = 0
         state[core1.S_OUT_C] = 0
@@ -779,9 +779,9 @@ class Device:
         enable = call.args[0]
         if enable == 1 and state[core1.S_ENABLE] == 0:
             fault = int(state[core1.S_FAULT])
-            if fault != Fault.NONE:
+            if fault != FaultCode.NONE:
                 raise _RefusedError(
-                    f"fault {fault} ({Fault.NAMES[fault]}) is latched;"
+                    f"fault {fault} ({fault_words(fault)}) is latched;"
                     " clear it with call 30 before enabling"
                 )
             self._reset_controller()
@@ -1029,7 +1029,7 @@ class Device:
         if call.is_query:
             self._reply(30, int(state[core1.S_FAULT]), int(state[core1.S_FAULT_TICK]))
             return
-        state[core1.S_FAULT] = Fault.NONE
+        state[core1.S_FAULT] = FaultCode.NONE
         state[core1.S_FAULT_TICK] = 0
         self._debug_line(30)
 

@@ -38,19 +38,21 @@ import numpy as np
 import numpy.typing as npt
 
 from usbmotion.device.motor import DIGITS, MICRO, motor_step
-from usbmotion.protocol.table import QUEUE_CAPACITY, Fault
+from usbmotion.protocol.names import ControlMode, FaultCode
+from usbmotion.protocol.table import QUEUE_CAPACITY
 from usbmotion.scimath import sci_add, sci_compare, sci_from_int, sci_mul
 
 IntArray = npt.NDArray[np.int64]
 
-MODE_POSITION = 1
-MODE_VELOCITY = 2
-MODE_CURVE = 3
+# The kernel reads these as plain integer globals.
+MODE_POSITION = int(ControlMode.POSITION)
+MODE_VELOCITY = int(ControlMode.VELOCITY)
+MODE_CURVE = int(ControlMode.CURVE)
 
-FAULT_NONE = Fault.NONE
-FAULT_WATCHDOG = Fault.WATCHDOG
-FAULT_FOLLOWING_ERROR = Fault.FOLLOWING_ERROR
-FAULT_LIMIT_SWITCH = Fault.LIMIT_SWITCH
+FAULT_NONE = int(FaultCode.NONE)
+FAULT_WATCHDOG = int(FaultCode.WATCHDOG)
+FAULT_FOLLOWING_ERROR = int(FaultCode.FOLLOWING_ERROR)
+FAULT_LIMIT_SWITCH = int(FaultCode.LIMIT_SWITCH)
 
 VELOCITY_RESET_US = 60_000_000
 """Velocity mode resets the encoder counter after this much device time in the mode."""

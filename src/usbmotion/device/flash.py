@@ -19,22 +19,19 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from usbmotion.errors import FlashError
-from usbmotion.protocol.table import DEFAULT_DEVICE_NAME, DEVICE_NAME_MAX
+from usbmotion.protocol.codec import device_name_problem
+from usbmotion.protocol.names import ControlMode
+from usbmotion.protocol.table import DEFAULT_DEVICE_NAME
 
 FORMAT = 1
 """Version of the JSON layout written by :class:`FileFlash`."""
 _KEYS = frozenset({"format", "name", "default_control_mode", "writes"})
-_MODES = (1, 2, 3)
+_MODES = tuple(int(mode) for mode in ControlMode)
 
 
 def check_name(name: str) -> str | None:
-    """Why ``name`` cannot be a device name, or None: up to 25 printable ASCII characters."""
-    if len(name) > DEVICE_NAME_MAX:
-        return f"device name {name!r} has {len(name)} characters; at most {DEVICE_NAME_MAX}"
-    bad = [c for c in name if not 32 <= ord(c) <= 126]
-    if bad:
-        return f"device name {name!r} has a character {bad[0]!r} outside printable ASCII"
-    return None
+    """Why ``name`` cannot be a device name, or None (call 18's rule; empty erases)."""
+    return device_name_problem(name)
 
 
 @dataclass(frozen=True, slots=True)

@@ -27,7 +27,13 @@ from usbmotion.errors import ConfigError
 from usbmotion.host.device import AxisScale, to_sci
 from usbmotion.host.urls import parse_sim_url
 from usbmotion.motor_model import DcMotorModel
-from usbmotion.protocol import BY_NUMBER, DEVICE_NAME_MAX, QUEUE_CAPACITY
+from usbmotion.protocol import (
+    BY_NUMBER,
+    DEVICE_NAME_MAX,
+    QUEUE_CAPACITY,
+    CallNumber,
+    device_name_problem,
+)
 from usbmotion.protocol.table import INT32_MAX, INT32_MIN
 
 AXIS_LETTERS = ("X", "Y", "Z", "A", "B", "C", "U", "V", "W")
@@ -94,6 +100,18 @@ class HomingConfig:
     position_mm: float
     pull_off_mm: float = 1.0
     search_mm: float = math.inf
+
+
+SIM_MOTOR_CALLS: tuple[tuple[str, CallNumber], ...] = (
+    ("source_voltage_v", CallNumber.SET_SIM_SOURCE_VOLTAGE),
+    ("torque_constant_mnm_per_a", CallNumber.SET_SIM_TORQUE_CONSTANT),
+    ("winding_resistance_ohm", CallNumber.SET_SIM_WINDING_RESISTANCE),
+    ("inertia_kg_m2", CallNumber.SET_SIM_INERTIA),
+    ("viscous_friction_unm_per_rad_s", CallNumber.SET_SIM_VISCOUS_FRICTION),
+    ("load_torque_mnm", CallNumber.SET_SIM_LOAD_TORQUE),
+)
+"""Each value of :class:`SimMotorConfig` the device takes as 4 significant digits, with the
+call that sets it."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -701,7 +719,7 @@ def _device_name(reader: _Reader) -> str | None:
     if name is None:
         return None
     assert isinstance(name, str)
-    if not 0 < len(name) <= DEVICE_NAME_MAX or not all(32 <= ord(c) <= 126 for c in name):
+    if device_name_problem(name, allow_empty=False) is not None:
         reader.fail("device", f"{name!r} is not a device name; allowed: {allowed}")
     return name
 
@@ -869,7 +887,7 @@ def _travel(reader: _Reader, counts_per_mm: float) -> tuple[float, float]:
     return (low, high)
 
 
-def _sci(reader: _Reader, name: str, value: float, *, call: int, digits: int) -> None:
+def _sci(reader: _Reader, name: str, value: float, *, call: CallNumber, digits: int) -> None:
     """Check that ``value`` can be sent to the device as call ``call``'s ``C E`` pair."""
     coefficient, exponent = to_sci(value, digits=digits, parameter=name)
     if coefficient == 0:
@@ -893,9 +911,10 @@ def _gains(reader: _Reader, name: str, *, defaults: PidGains | None, mode: str) 
     values: dict[str, float] = {}
     velocity = defaults is not None
     for key, call, unit in (
-        ("kp", 9, "V per count/s" if velocity else "V per count"),
-        ("ki", 10, "V per count" if velocity else "V per count-second"),
-        ("kd", 11, "V-seconds per count/s" if velocity else "V-seconds per count"),
+        ("kp", CallNumber.SET_PROPORTIONAL_GAIN, "V per count/s" if velocity else "V per count"),
+        ("ki", CallNumber.SET_INTEGRAL_GAIN, "V per count" if velocity else "V per count-second"),
+        ("kd", CallNumber.SET_DERIVATIVE_GAIN,
+         "V-seconds per count/s" if velocity else "V-seconds per count"),
     ):
         default = _REQUIRED if defaults is None else getattr(defaults, key)
         values[key] = table.number(key, default=default, minimum=0, unit=unit)
@@ -966,14 +985,13 @@ def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
         maximum=servo_interval_dms, unit="tenths of a millisecond, at most servo_interval_dms",
     )
     values: dict[str, float] = {}
-    for key, call, unit, zero in (
-        ("source_voltage_v", 13, "volts", False),
-        ("torque_constant_mnm_per_a", 14, "mNm per ampere", False),
-        ("winding_resistance_ohm", 15, "ohms", False),
-        ("inertia_kg_m2", 17, "kg m^2", False),
-        ("viscous_friction_unm_per_rad_s", 32, "uNm per rad/s", False),
-        ("load_torque_mnm", 33, "mNm, 0 for none", True),
-    ):
+    units = {"source_voltage_v": "volts", "torque_constant_mnm_per_a": "mNm per ampere",
+             "winding_resistance_ohm": "ohms", "inertia_kg_m2": "kg m^2",
+             "viscous_friction_unm_per_rad_s": "uNm per rad/s",
+             "load_torque_mnm": "mNm, 0 for none"}
+    for key, call in SIM_MOTOR_CALLS:
+        unit = units[key]
+        zero = key == "load_torque_mnm"
         if zero:
             values[key] = table.number(key, default=d[key], minimum=0, unit=unit)
         else:
@@ -981,7 +999,8 @@ def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
         _sci(table, key, values[key], call=call, digits=4)
     counts_per_rev = table.integer(
         "counts_per_revolution", default=int(d["counts_per_revolution"]), minimum=1,
-        maximum=BY_NUMBER[16].params[0].maximum, unit="encoder counts per revolution",
+        maximum=BY_NUMBER[CallNumber.SET_SIM_COUNTS_PER_REVOLUTION].params[0].maximum,
+        unit="encoder counts per revolution",
     )
     start = table.number("start_mm", default=(travel[0] + travel[1]) / 2, minimum=travel[0],
                          maximum=travel[1], unit="mm, within travel_mm; default mid-travel")

@@ -14,7 +14,6 @@ import math
 import random
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from enum import IntEnum
 
 from usbmotion.errors import (
     DeviceTimeoutError,
@@ -28,130 +27,37 @@ from usbmotion.hermite import Keyframe
 from usbmotion.host.transport import LineTransport
 from usbmotion.protocol import (
     BY_NUMBER,
-    DEVICE_NAME_MAX,
+    Alarm,
+    ControlMode,
+    Diagnostics,
+    MotionStats,
+    Replaced,
     Reply,
     ReplyKind,
+    Status,
+    SwitchEdge,
     encode_call,
+    encode_device_name,
     parse_diagnostics,
     parse_reply,
     values_crc32,
 )
-from usbmotion.protocol.table import Fault
+from usbmotion.protocol import CallNumber as C
+from usbmotion.protocol.replies import read_replaced
+from usbmotion.protocol.table import HOMED_MARKER_CALL, RESYNC_CALL
 
-RESYNC_CALL = 63
-"""The call whose debug flag marks a resynchronisation: the highest number call 8 takes,
-a call the table does not define, so its flag prints nothing."""
+GAIN_CALLS = (C.SET_PROPORTIONAL_GAIN, C.SET_INTEGRAL_GAIN, C.SET_DERIVATIVE_GAIN)
+"""The PID's gain calls: kp, ki, kd."""
 
-HOMED_MARKER_CALL = 62
-"""The undefined call whose debug flag (a RAM variable: it survives a host, not a power
-cycle) a host sets once it has homed the device: a later host that reads it back knows the
-counter still holds the machine coordinates homing gave it."""
+SIM_SCIENTIFIC_CALLS = (
+    C.SET_SIM_SOURCE_VOLTAGE, C.SET_SIM_TORQUE_CONSTANT, C.SET_SIM_WINDING_RESISTANCE,
+    C.SET_SIM_INERTIA, C.SET_SIM_VISCOUS_FRICTION, C.SET_SIM_LOAD_TORQUE,
+)
+"""The simulated motor's calls that take a value as 4 significant digits."""
 
 _MARKERS = random.Random()
 """Draws the marker values: its own generator, seeded from the operating system, so a
 program that seeds :mod:`random` does not make two hosts draw the same markers."""
-
-
-class ControlMode(IntEnum):
-    """Control modes of call 7."""
-
-    POSITION = 1
-    VELOCITY = 2
-    CURVE = 3
-
-
-@dataclass(frozen=True, slots=True)
-class Status:
-    """The device's one-line status (call 20)."""
-
-    clock: int
-    actual_counts: int
-    desired_counts: int
-    velocity_counts_s: int
-    queued: int
-    enabled: bool
-    mode: ControlMode
-    lower_limit: bool
-    upper_limit: bool
-    fault: int
-
-    @property
-    def fault_name(self) -> str:
-        """The fault in words (``none`` when there is none)."""
-        return Fault.NAMES.get(self.fault, f"fault {self.fault}")
-
-
-@dataclass(frozen=True, slots=True)
-class Diagnostics:
-    """One diagnostics line (call 21)."""
-
-    clock: int
-    desired: int
-    actual_counts: int
-    velocity_counts_s: int
-    output_mv: int
-    queued: int
-
-
-@dataclass(frozen=True, slots=True)
-class Alarm:
-    """An ``ALARM`` line: the device latched a fault and said so unasked."""
-
-    fault: int
-    tick: int
-
-    @property
-    def fault_name(self) -> str:
-        """The fault's name (``following error``, ``limit switch``, ...)."""
-        return Fault.NAMES.get(self.fault, f"fault {self.fault}")
-
-
-@dataclass(frozen=True, slots=True)
-class SwitchEdge:
-    """Call 36: the last edge of one limit switch, latched by the device on its tick.
-
-    ``edges`` counts the switch's edges since power-up (modulo 2**32; 0: none yet),
-    ``closed`` says whether the last one closed it, ``position_counts`` is the counter on
-    that tick (in the counter's current coordinates) and ``tick`` the clock after it.
-    """
-
-    switch: int
-    edges: int
-    closed: bool
-    position_counts: int
-    tick: int
-
-
-@dataclass(frozen=True, slots=True)
-class Replaced:
-    """What call 38 did: queued values kept (due before the tick), new values skipped
-    (already past when the line arrived) and added."""
-
-    kept: int
-    skipped: int
-    added: int
-
-
-@dataclass(frozen=True, slots=True)
-class MotionStats:
-    """Call 35: the device's own account of how it followed, tick by tick, since a reset.
-
-    Counted on every servo tick the servo ran enabled in position or curve mode (after any
-    armed start): ``ticks`` of them, the largest absolute following error and the clock
-    tick it first occurred at, the sum of the squared errors, and the clock tick that last
-    took a value from the motion queue (-1: none).
-    """
-
-    ticks: int
-    max_error_counts: int
-    max_error_tick: int
-    sum_sq_error: int
-    last_take_tick: int
-
-    @property
-    def rms_error_counts(self) -> float:
-        """Root mean square following error over the ticks counted, counts (0 with none)."""
-        return math.sqrt(self.sum_sq_error / self.ticks) if self.ticks else 0.0
 
 
 def to_sci(value: float, *, digits: int, parameter: str) -> tuple[int, int]:
@@ -281,13 +187,13 @@ class DeviceClient:
         """
         if reply.kind is ReplyKind.DIAGNOSTICS:
             if self.on_diagnostics is not None:
-                self.on_diagnostics(Diagnostics(*reply.values))
+                self.on_diagnostics(Diagnostics.from_values(reply.values))
             return True
         if reply.kind is ReplyKind.DEBUG:
             self.debug_lines.append(reply)
             return True
         if reply.kind is ReplyKind.ALARM:
-            alarm = Alarm(*reply.values)
+            alarm = Alarm.from_values(reply.values)
             self.alarms.append(alarm)
             if self.on_alarm is not None:
                 self.on_alarm(alarm)
@@ -309,7 +215,7 @@ class DeviceClient:
             values = parse_diagnostics(line)
             if values is not None:
                 if self.on_diagnostics is not None:
-                    self.on_diagnostics(Diagnostics(*values))
+                    self.on_diagnostics(Diagnostics.from_values(values))
                 continue
             try:
                 reply = parse_reply(line)
@@ -402,8 +308,14 @@ class DeviceClient:
                 why = param.check(value)
                 if why is not None:
                     raise OutOfRangeError(why, call=number, reason=why)
-        self.transport.write(encode_call(number, *args) + encode_call(2, -1))
-        self._await_answer(2, after_error=True)
+        self._confirm(encode_call(number, *args))
+
+    def _confirm(self, line: bytes) -> Reply:
+        """Send ``line`` with a queue-status query behind it, and read up to its answer: an
+        ``ERR`` or a refusal the line caused is raised here, once the link is in step again.
+        """
+        self.transport.write(line + encode_call(C.MOTION_QUEUE, -1))
+        return self._await_answer(C.MOTION_QUEUE, after_error=True)
 
     def sync(self) -> tuple[int, int]:
         """Wait until every call sent so far has been executed; returns (queued, free)."""
@@ -450,15 +362,18 @@ class DeviceClient:
         if not (math.isfinite(wait_s) and wait_s > 0):
             raise OutOfRangeError(f"timeout_s {timeout_s!r} must be > 0", reason="timeout_s")
         value = _MARKERS.randint(1, 255)
-        marker_spec = BY_NUMBER[8].query_reply
+        marker_spec = BY_NUMBER[C.SET_DEBUG_FLAG].query_reply
         assert marker_spec is not None
         marker = marker_spec.format(RESYNC_CALL, value).encode("ascii")
         transport = self.transport
         transport.discard_input()
         transport.write(
-            b"\n" + (encode_call(21, 0) if stop_diagnostics else b"") + encode_call(2, -1)
-            + encode_call(8, RESYNC_CALL, value) + encode_call(8, RESYNC_CALL, -1)
-            + encode_call(8, RESYNC_CALL, 0)
+            b"\n"
+            + (encode_call(C.SET_DIAGNOSTICS_INTERVAL, 0) if stop_diagnostics else b"")
+            + encode_call(C.MOTION_QUEUE, -1)
+            + encode_call(C.SET_DEBUG_FLAG, RESYNC_CALL, value)
+            + encode_call(C.SET_DEBUG_FLAG, RESYNC_CALL, -1)
+            + encode_call(C.SET_DEBUG_FLAG, RESYNC_CALL, 0)
         )
         deadline = transport.clock.now() + wait_s
         skipped = 0
@@ -472,7 +387,7 @@ class DeviceClient:
                 raise DeviceTimeoutError(
                     f"{self.name}: no answer to the resynchronising query"
                     f" `8 {RESYNC_CALL} -1` within {wait_s:g} s ({skipped} other lines"
-                    " skipped)", device=self.name, call=8,
+                    " skipped)", device=self.name, call=C.SET_DEBUG_FLAG,
                 )
             if line.strip() == marker:
                 return skipped
@@ -488,8 +403,7 @@ class DeviceClient:
         Raises:
             QueueFullError: the device answered ``E0``.
         """
-        self.transport.write(encode_call(0, value) + encode_call(2, -1))
-        self._await_answer(2, after_error=True)
+        self._confirm(encode_call(C.ADD_SINGLE, value))
 
     def add_setpoints(self, values: Sequence[int]) -> None:
         """Call 1: queue several setpoints, all or none.
@@ -497,8 +411,7 @@ class DeviceClient:
         Raises:
             QueueFullError: the device answered ``E1`` (nothing was queued).
         """
-        self.transport.write(encode_call(1, len(values), *values) + encode_call(2, -1))
-        self._await_answer(2, after_error=True)
+        self._confirm(encode_call(C.ADD_MULTIPLE, len(values), *values))
 
     def replace_setpoints(self, values: Sequence[int]) -> tuple[int, int]:
         """Calls 4 and 1 in one exchange: empty the queue, then queue these values.
@@ -508,9 +421,8 @@ class DeviceClient:
         Raises:
             QueueFullError: the device answered ``E1`` (nothing was queued).
         """
-        self.transport.write(encode_call(4, 0) + encode_call(1, len(values), *values)
-                             + encode_call(2, -1))
-        queued, free = self._await_answer(2, after_error=True).values
+        queued, free = self._confirm(encode_call(C.CLEAR_MOTION_QUEUE, 0)
+                                     + encode_call(C.ADD_MULTIPLE, len(values), *values)).values
         return queued, free
 
     def replace_from(self, tick: int, values: Sequence[int]) -> Replaced:
@@ -526,58 +438,58 @@ class DeviceClient:
             LinkCorruptedError: the acknowledgement does not match the values sent.
         """
         if not self._replace_acknowledged:
-            self.set_debug_flag(38, 1)
+            self.set_debug_flag(C.REPLACE_FROM, 1)
             self._replace_acknowledged = True
-        self.debug_lines = [r for r in self.debug_lines if r.call != 38]
-        self.transport.write(encode_call(38, tick, len(values), *values) + encode_call(2, -1))
-        self._await_answer(2, after_error=True)
-        acks = [r for r in self.debug_lines if r.call == 38]
-        self.debug_lines = [r for r in self.debug_lines if r.call != 38]
+        self.debug_lines = [r for r in self.debug_lines if r.call != C.REPLACE_FROM]
+        self._confirm(encode_call(C.REPLACE_FROM, tick, len(values), *values))
+        acks = [r for r in self.debug_lines if r.call == C.REPLACE_FROM]
+        self.debug_lines = [r for r in self.debug_lines if r.call != C.REPLACE_FROM]
         if len(acks) != 1:
             raise LinkCorruptedError(
                 f"{self.name}: call 38 was acknowledged {len(acks)} times", device=self.name,
-                call=38)
-        kept, skipped, added, crc = acks[0].values
-        if added != len(values) - skipped or crc != values_crc32(list(values[skipped:])):
+                call=C.REPLACE_FROM)
+        replaced, crc = read_replaced(acks[0].values)
+        if (replaced.added != len(values) - replaced.skipped
+                or crc != values_crc32(list(values[replaced.skipped:]))):
             raise LinkCorruptedError(
                 f"{self.name}: call 38 acknowledged {acks[0].line!r}, which is not what was"
-                f" sent ({len(values)} values)", device=self.name, call=38)
-        return Replaced(kept, skipped, added)
+                f" sent ({len(values)} values)", device=self.name, call=C.REPLACE_FROM)
+        return replaced
 
     def queue_status(self) -> tuple[int, int]:
         """Call 2: (values queued, free slots)."""
-        queued, free = self.query(2, -1).values
+        queued, free = self.query(C.MOTION_QUEUE, -1).values
         return queued, free
 
     def clear_queue(self) -> None:
         """Call 4: empty the motion queue."""
-        self.command(4, 0)
+        self.command(C.CLEAR_MOTION_QUEUE, 0)
 
     # --- RAM variables --------------------------------------------------------------------
 
     def set_servo_enable(self, enable: bool) -> None:
         """Call 3: enable or disable the servo loop."""
-        self.command(3, _flag(enable, "enable"))
+        self.command(C.SET_SERVO_ENABLE, _flag(enable, "enable"))
 
     def servo_enabled(self) -> bool:
         """Call 3 query."""
-        return self.query(3, -1).values[0] == 1
+        return self.query(C.SET_SERVO_ENABLE, -1).values[0] == 1
 
     def set_servo_interval_dms(self, interval_dms: int) -> None:
         """Call 5: servo period in tenths of a millisecond (1 = 10 kHz); clears the queue."""
-        self.command(5, interval_dms)
+        self.command(C.SET_SERVO_UPDATE_INTERVAL, interval_dms)
 
     def servo_interval_us(self) -> int:
         """Call 5 query: servo period in microseconds."""
-        return self.query(5, -1).values[0]
+        return self.query(C.SET_SERVO_UPDATE_INTERVAL, -1).values[0]
 
     def set_motion_scalar(self, scalar: int) -> None:
         """Call 6: servo ticks per queue value; clears the queue."""
-        self.command(6, scalar)
+        self.command(C.SET_MOTION_UPDATE_INTERVAL_SCALAR, scalar)
 
     def motion_scalar(self) -> int:
         """Call 6 query."""
-        return self.query(6, -1).values[0]
+        return self.query(C.SET_MOTION_UPDATE_INTERVAL_SCALAR, -1).values[0]
 
     def motion_period_s(self) -> float:
         """Seconds between queue values: servo period times the scalar."""
@@ -585,23 +497,25 @@ class DeviceClient:
 
     def set_control_mode(self, mode: ControlMode | int) -> None:
         """Call 7: control mode; clears the queue and keyframes."""
-        self.command(7, int(_mode(mode, "mode")))
+        self.command(C.SET_CONTROL_MODE, int(_mode(mode, "mode")))
 
     def control_mode(self) -> ControlMode:
         """Call 7 query."""
-        return ControlMode(self.query(7, -1).values[0])
+        return ControlMode(self.query(C.SET_CONTROL_MODE, -1).values[0])
 
     def set_debug_flag(self, call: int, flag: int) -> None:
         """Call 8: set the debug flag of a call."""
-        self.command(8, call, flag)
+        self.command(C.SET_DEBUG_FLAG, call, flag)
 
     def debug_flag(self, call: int) -> int:
         """Call 8 query."""
-        return self.query(8, call, -1).values[1]
+        return self.query(C.SET_DEBUG_FLAG, call, -1).values[1]
 
     def set_gains(self, *, kp: float, ki: float, kd: float) -> None:
         """Calls 9-11: PID gains (V/count, V/(count s), V s/count), 3 significant digits."""
-        for number, value, label in ((9, kp, "kp"), (10, ki, "ki"), (11, kd, "kd")):
+        for number, value, label in ((C.SET_PROPORTIONAL_GAIN, kp, "kp"),
+                                     (C.SET_INTEGRAL_GAIN, ki, "ki"),
+                                     (C.SET_DERIVATIVE_GAIN, kd, "kd")):
             if value < 0:
                 raise OutOfRangeError(f"{label} {value!r} is negative; gains are >= 0",
                                       reason=label)
@@ -612,24 +526,25 @@ class DeviceClient:
     def gains(self) -> tuple[float, float, float]:
         """Calls 9-11 queries: (kp, ki, kd)."""
         return tuple(  # type: ignore[return-value]
-            from_sci(*self.query(n, -1, 0).values) for n in (9, 10, 11)
+            from_sci(*self.query(n, -1, 0).values) for n in GAIN_CALLS
         )
 
-    def _check_range(self, number: int, args: tuple[int, ...], label: str) -> None:
+    def _check_range(self, number: C, args: tuple[int, ...], label: str) -> None:
         problem = BY_NUMBER[number].problem(args)
         if problem is not None:
             raise OutOfRangeError(f"{label}: {problem[1]}", call=number, reason=problem[1])
 
     def set_sim_interval_dms(self, interval_dms: int) -> None:
         """Call 12: simulated motor integration step, tenths of a millisecond."""
-        self.command(12, interval_dms)
+        self.command(C.SET_SIM_UPDATE_INTERVAL, interval_dms)
 
-    def set_sim_value(self, number: int, value: float, *, label: str) -> None:
+    def set_sim_value(self, number: C, value: float, *, label: str) -> None:
         """Calls 13-15, 17, 32, 33: a simulated-motor value as 4 significant digits."""
-        if number not in (13, 14, 15, 17, 32, 33):
+        if number not in SIM_SCIENTIFIC_CALLS:
             raise OutOfRangeError(
-                f"call {number!r} is not a scientific simulated-motor call "
-                "(13, 14, 15, 17, 32, 33)", reason="call",
+                f"call {number!r} is not a scientific simulated-motor call ("
+                + ", ".join(f"{c.name} {int(c)}" for c in SIM_SCIENTIFIC_CALLS) + ")",
+                reason="call",
             )
         coefficient, exponent = to_sci(value, digits=4, parameter=label)
         if coefficient == 0:
@@ -637,91 +552,77 @@ class DeviceClient:
         self._check_range(number, (coefficient, exponent), label)
         self.command(number, coefficient, exponent)
 
-    def sim_value(self, number: int) -> float:
+    def sim_value(self, number: C) -> float:
         """Query a scientific simulated-motor value."""
         return from_sci(*self.query(number, -1, 0).values)
 
     def set_sim_counts_per_revolution(self, counts: int) -> None:
         """Call 16."""
-        self.command(16, counts)
+        self.command(C.SET_SIM_COUNTS_PER_REVOLUTION, counts)
 
     def set_sim_travel(self, lower_counts: int, upper_counts: int) -> None:
         """Call 34: travel range with a limit switch at each end."""
         if lower_counts >= upper_counts:
             raise OutOfRangeError(
                 f"travel lower {lower_counts!r} must be below upper {upper_counts!r}",
-                call=34, reason="travel",
+                call=C.SET_SIM_TRAVEL, reason="travel",
             )
-        self.command(34, lower_counts, upper_counts)
+        self.command(C.SET_SIM_TRAVEL, lower_counts, upper_counts)
 
     def sim_travel(self) -> tuple[int, int]:
         """Call 34 query."""
-        lower, upper = self.query(34, -1, -1).values
+        lower, upper = self.query(C.SET_SIM_TRAVEL, -1, -1).values
         return lower, upper
 
     # --- flash ------------------------------------------------------------------------------
 
     def set_name(self, name: str) -> None:
         """Call 18: write the device name to flash (up to 25 printable ASCII characters)."""
-        if not isinstance(name, str) or len(name) > DEVICE_NAME_MAX:
-            raise OutOfRangeError(
-                f"device name {name!r} is longer than {DEVICE_NAME_MAX} characters",
-                call=18, reason="name",
-            )
-        bad = [c for c in name if not 32 <= ord(c) <= 126]
-        if bad:
-            raise OutOfRangeError(
-                f"device name {name!r} holds {bad[0]!r}; only printable ASCII (32..126)",
-                call=18, reason="name",
-            )
-        self.command(18, len(name), *(ord(c) for c in name))
+        self._confirm(encode_device_name(name))
 
     def device_name(self) -> str:
         """Call 18 query."""
-        return self.query(18, -1).text
+        return self.query(C.SET_DEVICE_NAME, -1).text
 
     def set_default_mode(self, mode: ControlMode | int) -> None:
         """Call 19: control mode at power-up (flash)."""
-        self.command(19, int(_mode(mode, "default mode")))
+        self.command(C.SET_DEFAULT_CONTROL_MODE, int(_mode(mode, "default mode")))
 
     def default_mode(self) -> ControlMode:
         """Call 19 query."""
-        return ControlMode(self.query(19, -1).values[0])
+        return ControlMode(self.query(C.SET_DEFAULT_CONTROL_MODE, -1).values[0])
 
     # --- status, clock, faults -----------------------------------------------------------------
 
     def status(self) -> Status:
         """Call 20."""
-        v = self.query(20, -1).values
-        return Status(v[0], v[1], v[2], v[3], v[4], v[5] == 1, ControlMode(v[6]),
-                      bool(v[7] & 1), bool(v[7] & 2), v[8])
+        return Status.from_values(self.query(C.STATUS, -1).values)
 
     def set_diagnostics_interval(self, ticks: int) -> None:
         """Call 21: a diagnostics line every ``ticks`` servo ticks (0 = off)."""
-        self.command(21, ticks)
+        self.command(C.SET_DIAGNOSTICS_INTERVAL, ticks)
 
     def zero_clock(self) -> None:
         """Call 22: zero the device clock (sent alone, not confirmed, for time sync)."""
-        self.send(22, 0)
+        self.send(C.CLOCK, 0)
 
     def clock(self) -> int:
         """Call 22 query: device clock in servo ticks."""
-        return self.query(22, -1).values[0]
+        return self.query(C.CLOCK, -1).values[0]
 
     def set_position(self, counts: int) -> None:
         """Call 23: set the position counter to ``counts`` (a change of coordinates, as
         :meth:`shift_position`; clears the queue)."""
-        self.command(23, counts)
+        self.command(C.SET_POSITION, counts)
 
     def shift_position(self, counts: int) -> None:
         """Call 37: add ``counts`` to the position counter (a change of coordinates: the
         desired position and the latched switch edges move with it, the loop goes on)."""
-        self.command(37, counts)
+        self.command(C.SHIFT_POSITION, counts)
 
     def switch_edge(self, switch: int) -> SwitchEdge:
         """Call 36: the last edge of the lower (1) or upper (2) limit switch."""
-        number, edges, closed, position, tick = self.query(36, switch).values
-        return SwitchEdge(number, edges, closed == 1, position, tick)
+        return SwitchEdge.from_values(self.query(C.SWITCH_EDGE, switch).values)
 
     def set_homed_marker(self, value: int) -> None:
         """Mark the device as homed since its power-up (the flag of :data:`HOMED_MARKER_CALL`,
@@ -734,41 +635,41 @@ class DeviceClient:
 
     def limits(self) -> tuple[bool, bool]:
         """Call 24: (lower pressed, upper pressed)."""
-        lower, upper = self.query(24, -1).values
+        lower, upper = self.query(C.LIMITS, -1).values
         return lower == 1, upper == 1
 
     def set_watchdog_ms(self, timeout_ms: int) -> None:
         """Call 28: disable the servo after this long without a command (0 = off)."""
-        self.command(28, timeout_ms)
+        self.command(C.SET_WATCHDOG, timeout_ms)
 
     def set_following_error_limit(self, counts: int) -> None:
         """Call 29: fault when |desired - actual| exceeds this (0 = off)."""
-        self.command(29, counts)
+        self.command(C.SET_FOLLOWING_ERROR_LIMIT, counts)
 
     def clear_fault(self) -> None:
         """Call 30."""
-        self.command(30, 0)
+        self.command(C.CLEAR_FAULT, 0)
 
     def fault(self) -> tuple[int, int]:
         """Call 30 query: (fault code, tick it was set)."""
-        code, tick = self.query(30, -1).values
+        code, tick = self.query(C.CLEAR_FAULT, -1).values
         return code, tick
 
     def reset_motion_stats(self) -> None:
         """Call 35 ``0``: start the motion statistics afresh (the clock is kept)."""
-        self.command(35, 0)
+        self.command(C.MOTION_STATS, 0)
 
     def motion_stats(self) -> MotionStats:
         """Call 35 query: the following error and queue statistics since the last reset."""
-        return MotionStats(*self.query(35, -1).values)
+        return MotionStats.from_values(self.query(C.MOTION_STATS, -1).values)
 
     def start_at(self, tick: int) -> None:
         """Call 31: hold the queue until the device clock reaches ``tick``."""
-        self.command(31, tick)
+        self.command(C.START_AT, tick)
 
     def start_tick(self) -> int:
         """Call 31 query (-1 when no start is armed)."""
-        return self.query(31, -1).values[0]
+        return self.query(C.START_AT, -1).values[0]
 
     # --- curve mode -----------------------------------------------------------------------------
 
@@ -779,18 +680,18 @@ class DeviceClient:
             QueueFullError: the device answered ``E25``.
         """
         self.transport.write(
-            encode_call(25, keyframe.duration_ms, keyframe.position_counts,
-                        keyframe.tangent_in, keyframe.tangent_out) + encode_call(27, -1)
+            encode_call(C.APPEND_KEYFRAME, keyframe.duration_ms, keyframe.position_counts,
+                        keyframe.tangent_in, keyframe.tangent_out) + encode_call(C.CURVE_BUFFER, -1)
         )
-        self._await_answer(27, after_error=True)
+        self._await_answer(C.CURVE_BUFFER, after_error=True)
 
     def clear_keyframes(self) -> None:
         """Call 26."""
-        self.command(26, 0)
+        self.command(C.CLEAR_KEYFRAMES, 0)
 
     def curve_free(self) -> int:
         """Call 27: free keyframe slots."""
-        return self.query(27, -1).values[0]
+        return self.query(C.CURVE_BUFFER, -1).values[0]
 
     # --- units ------------------------------------------------------------------------------------
 
@@ -844,3 +745,22 @@ def _mode(value: ControlMode | int, label: str) -> ControlMode:
             f"{label} {value!r} is not a control mode; allowed 1 (position), 2 (velocity),"
             " 3 (curve)", reason=label,
         ) from None
+
+
+__all__ = [
+    "GAIN_CALLS",
+    "HOMED_MARKER_CALL",
+    "RESYNC_CALL",
+    "SIM_SCIENTIFIC_CALLS",
+    "Alarm",
+    "AxisScale",
+    "ControlMode",
+    "DeviceClient",
+    "Diagnostics",
+    "MotionStats",
+    "Replaced",
+    "Status",
+    "SwitchEdge",
+    "from_sci",
+    "to_sci",
+]

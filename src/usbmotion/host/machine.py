@@ -21,7 +21,7 @@ from usbmotion.errors import (
     DeviceNotFoundError,
     UsbMotionError,
 )
-from usbmotion.host.config import AxisConfig, MachineConfig
+from usbmotion.host.config import SIM_MOTOR_CALLS, AxisConfig, MachineConfig
 from usbmotion.host.device import AxisScale, ControlMode, DeviceClient, Status
 from usbmotion.host.discovery import PROBE_TIMEOUT_S, discover
 from usbmotion.host.timesync import (
@@ -32,6 +32,7 @@ from usbmotion.host.timesync import (
     synchronise_start,
 )
 from usbmotion.host.transport import LineTransport
+from usbmotion.protocol import CallNumber
 
 
 @dataclass(frozen=True, slots=True)
@@ -177,16 +178,9 @@ class Machine:
             travel = settings.sim_travel_counts
             if sim is not None and travel is not None:
                 client.set_sim_interval_dms(sim.update_interval_dms)
-                client.set_sim_value(13, sim.source_voltage_v, label="source_voltage_v")
-                client.set_sim_value(14, sim.torque_constant_mnm_per_a,
-                                     label="torque_constant_mnm_per_a")
-                client.set_sim_value(15, sim.winding_resistance_ohm,
-                                     label="winding_resistance_ohm")
+                for key, call in SIM_MOTOR_CALLS:
+                    client.set_sim_value(call, getattr(sim, key), label=key)
                 client.set_sim_counts_per_revolution(sim.counts_per_revolution)
-                client.set_sim_value(17, sim.inertia_kg_m2, label="inertia_kg_m2")
-                client.set_sim_value(32, sim.viscous_friction_unm_per_rad_s,
-                                     label="viscous_friction_unm_per_rad_s")
-                client.set_sim_value(33, sim.load_torque_mnm, label="load_torque_mnm")
                 client.set_sim_travel(*travel)
 
     # --- the axes together -----------------------------------------------------------------
@@ -229,7 +223,8 @@ class Machine:
                 failures.append(f"{axis.name}: {error}")
         if failures:
             raise DeviceError(f"could not set control mode {int(mode)}: " + "; ".join(failures),
-                              device=", ".join(f.split(":", 1)[0] for f in failures), call=7)
+                              device=", ".join(f.split(":", 1)[0] for f in failures),
+                              call=CallNumber.SET_CONTROL_MODE)
 
     def status(self) -> dict[str, Status]:
         """Each axis's status (call 20), by axis letter."""
@@ -264,10 +259,10 @@ class Machine:
                     self._each("disable", lambda each: each.client.set_servo_enable(False))
                 except DeviceError as also:
                     raise DeviceError(f"{error}; then {also}", device=axis.name,
-                                      call=3) from error
+                                      call=CallNumber.SET_SERVO_ENABLE) from error
                 raise DeviceError(
                     f"axis {axis.name} could not be enabled ({error}); every axis was disabled",
-                    device=axis.name, call=3,
+                    device=axis.name, call=CallNumber.SET_SERVO_ENABLE,
                 ) from error
 
     def ping(self) -> dict[str, tuple[int, int]]:

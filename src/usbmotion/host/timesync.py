@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from usbmotion.clock import Clock
 from usbmotion.errors import DeviceError, OutOfRangeError
 from usbmotion.host.device import DeviceClient
+from usbmotion.protocol import CallNumber
 from usbmotion.protocol.table import INT32_MAX
 
 DEFAULT_SAMPLES = 8
@@ -253,7 +254,7 @@ def arm_start(
         raise DeviceError(
             f"{names}: arming was confirmed only after the start time; the start may have"
             " passed before it was armed: give a larger margin",
-            device=names, call=31,
+            device=names, call=CallNumber.START_AT,
         )
     times = [d.start_s for d in starts]
     spread = max(times) - min(times)

@@ -25,6 +25,7 @@ from usbmotion.errors import (
     UnknownCallError,
     WrongCountError,
 )
+from usbmotion.protocol.names import CallNumber
 from usbmotion.protocol.table import (
     ALARM,
     BY_NUMBER,
@@ -98,7 +99,13 @@ def encode_call(number: int, *args: int) -> bytes:
         UnknownCallError, WrongCountError, OutOfRangeError: see :func:`check_call`.
         NonIntegerTokenError: an input is not an ``int`` (``bool`` included).
     """
-    if type(number) is int and set(map(type, args)) <= {int}:
+    if type(number) is CallNumber:
+        number = int(number)
+    types = set(map(type, args))
+    if CallNumber in types:
+        args = tuple(int(a) if type(a) is CallNumber else a for a in args)
+        types = set(map(type, args))
+    if type(number) is int and types <= {int}:
         check_call(number, args)
         if args:
             return f"{number} {' '.join(map(str, args))}\n".encode("ascii")
@@ -111,6 +118,42 @@ def encode_call(number: int, *args: int) -> bytes:
                 reason="not an integer",
             )
     raise AssertionError("unreachable: a non-int input was found above")
+
+
+def device_name_problem(name: object, *, allow_empty: bool = True) -> str | None:
+    """Why ``name`` cannot be a device name (call 18's length and characters), or ``None``.
+
+    ``allow_empty``: the empty name is allowed (call 18 then erases the name and the
+    device answers to :data:`~usbmotion.protocol.table.DEFAULT_DEVICE_NAME`).
+    """
+    name_call = BY_NUMBER[CallNumber.SET_DEVICE_NAME]
+    longest = name_call.params[-1].maximum
+    character = name_call.item
+    assert character is not None
+    if not isinstance(name, str):
+        return f"device name {name!r} is not text"
+    if not name and not allow_empty:
+        return f"device name {name!r} is empty; a name has 1..{longest} characters"
+    if len(name) > longest:
+        return (f"device name {name!r} is longer than {longest} characters; a name is up to"
+                f" {longest} printable ASCII characters")
+    bad = [c for c in name if not character.minimum <= ord(c) <= character.maximum]
+    if bad:
+        return (f"device name {name!r} holds {bad[0]!r}; only printable ASCII"
+                f" ({character.minimum}..{character.maximum})")
+    return None
+
+
+def encode_device_name(name: str) -> bytes:
+    """Call 18 writing ``name`` to the device's flash, as one line.
+
+    Raises:
+        OutOfRangeError: ``name`` is no device name (see :func:`device_name_problem`).
+    """
+    problem = device_name_problem(name)
+    if problem is not None:
+        raise OutOfRangeError(problem, call=CallNumber.SET_DEVICE_NAME, reason="name")
+    return encode_call(CallNumber.SET_DEVICE_NAME, len(name), *(ord(c) for c in name))
 
 
 def values_crc32(values: Sequence[int] | npt.NDArray[np.integer]) -> int:

@@ -13,6 +13,9 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+from usbmotion.protocol.names import CallNumber
+from usbmotion.protocol.names import CallNumber as C
+
 INT32_MIN = -(2**31)
 INT32_MAX = 2**31 - 1
 MAX_LINE_BYTES = 16384
@@ -102,8 +105,7 @@ class CallSpec:
     or buffer full).
     """
 
-    number: int
-    name: str
+    number: CallNumber
     summary: str
     params: tuple[Param, ...]
     item: Param | None = None
@@ -112,6 +114,11 @@ class CallSpec:
     debug: Mapping[int, Template] = field(default_factory=dict)
     refusal: str | None = None
     notes: str = ""
+
+    @property
+    def name(self) -> str:
+        """The call's name (``STATUS``), as :class:`CallNumber` spells it."""
+        return self.number.name
 
     @property
     def counted(self) -> bool:
@@ -189,11 +196,11 @@ _SCI_C = (1, 9999, "coefficient, up to 4 significant digits")
 _SCI_E = (-12, 6, "decimal exponent")
 
 
-def _gain(number: int, word: str, unit: str) -> CallSpec:
-    key = word.upper() + "_GAIN"
+def _gain(number: CallNumber, unit: str) -> CallSpec:
+    key = number.name.removeprefix("SET_")
+    word = key.removesuffix("_GAIN").capitalize()
     return CallSpec(
         number,
-        f"SET_{key}",
         f"{word} gain of the PID, C*10^E {unit}; halts core1, copies it in, resumes.",
         (_p("coefficient", *_GAIN_C), _p("exponent", *_GAIN_E)),
         query=(-1, 0),
@@ -202,11 +209,11 @@ def _gain(number: int, word: str, unit: str) -> CallSpec:
     )
 
 
-def _sim_sci(number: int, key: str, what: str, unit: str, *, zero: bool = False) -> CallSpec:
+def _sim_sci(number: CallNumber, what: str, unit: str, *, zero: bool = False) -> CallSpec:
+    key = number.name.removeprefix("SET_SIM_")
     low = 0 if zero else _SCI_C[0]
     return CallSpec(
         number,
-        f"SET_SIM_{key}",
         f"Simulated motor: {what}, C*10^E {unit}.",
         (
             _p("coefficient", low, _SCI_C[1], _SCI_C[2] + (", 0 for none" if zero else "")),
@@ -220,8 +227,7 @@ def _sim_sci(number: int, key: str, what: str, unit: str, *, zero: bool = False)
 
 CALLS: tuple[CallSpec, ...] = (
     CallSpec(
-        0,
-        "ADD_SINGLE",
+        C.ADD_SINGLE,
         "Add one integer (position in counts or velocity in counts/s) to the motion queue.",
         (_p("value", INT32_MIN, INT32_MAX, "setpoint: counts (mode 1) or counts/s (mode 2)"),),
         debug={1: _t("S0 {value}")},
@@ -229,8 +235,7 @@ CALLS: tuple[CallSpec, ...] = (
         notes="A full queue refuses the value with `E0` and keeps what it holds.",
     ),
     CallSpec(
-        1,
-        "ADD_MULTIPLE",
+        C.ADD_MULTIPLE,
         "Add N integers to the motion queue, all or none.",
         (_p("count", 1, QUEUE_CAPACITY, "number of values that follow"),),
         item=_p("value", INT32_MIN, INT32_MAX, "setpoint: counts (mode 1) or counts/s (mode 2)"),
@@ -242,16 +247,14 @@ CALLS: tuple[CallSpec, ...] = (
         " host computes over what it sent (`usbmotion.protocol.values_crc32`).",
     ),
     CallSpec(
-        2,
-        "MOTION_QUEUE",
+        C.MOTION_QUEUE,
         "Motion queue status: values queued and free slots.",
         (_p("query", -1, -1, "always -1"),),
         query=(-1,),
         query_reply=_t("MOTION_QUEUE {queued} {free}"),
     ),
     CallSpec(
-        3,
-        "SET_SERVO_ENABLE",
+        C.SET_SERVO_ENABLE,
         "Enable (1) or disable (0) the servo loop.",
         (_p("enable", 0, 1, "1 enables, 0 disables"),),
         query=(-1,),
@@ -261,15 +264,13 @@ CALLS: tuple[CallSpec, ...] = (
         " clear it with call 30 first.",
     ),
     CallSpec(
-        4,
-        "CLEAR_MOTION_QUEUE",
+        C.CLEAR_MOTION_QUEUE,
         "Empty the motion queue; the last desired value is held.",
         (_p("zero", 0, 0, "always 0"),),
         debug={1: _t("MOTION QUEUE CLEARED")},
     ),
     CallSpec(
-        5,
-        "SET_SERVO_UPDATE_INTERVAL",
+        C.SET_SERVO_UPDATE_INTERVAL,
         "Servo loop period in decimilliseconds (1 = 100 us = 10 kHz); clears the queue.",
         (_p("interval_dms", 1, 10000, "servo period in tenths of a millisecond"),),
         query=(-1,),
@@ -278,8 +279,7 @@ CALLS: tuple[CallSpec, ...] = (
         notes="Set in decimilliseconds, answered in microseconds, as seed 000 writes it.",
     ),
     CallSpec(
-        6,
-        "SET_MOTION_UPDATE_INTERVAL_SCALAR",
+        C.SET_MOTION_UPDATE_INTERVAL_SCALAR,
         "Servo ticks per motion-queue value; clears the queue.",
         (_p("scalar", 1, 65535, "servo ticks between queue values"),),
         query=(-1,),
@@ -287,8 +287,7 @@ CALLS: tuple[CallSpec, ...] = (
         debug={1: _t("MOTION UPDATE INTERVAL SCALAR MODIFIED TO {value}")},
     ),
     CallSpec(
-        7,
-        "SET_CONTROL_MODE",
+        C.SET_CONTROL_MODE,
         "Control mode: 1 position (counts), 2 velocity (counts/s), 3 Hermite keyframes;"
         " clears the queue and the keyframe buffer.",
         (_p("mode", 1, 3, "1 position, 2 velocity, 3 curve"),),
@@ -298,8 +297,7 @@ CALLS: tuple[CallSpec, ...] = (
         notes="Seed 000's example `7 0` names no mode; 0 is refused.",
     ),
     CallSpec(
-        8,
-        "SET_DEBUG_FLAG",
+        C.SET_DEBUG_FLAG,
         "Set the debug flag of an executive call (0 = quiet; undefined values act as 0).",
         (
             _p("call", 0, 63, "the executive call whose flag is set"),
@@ -309,34 +307,31 @@ CALLS: tuple[CallSpec, ...] = (
         query_reply=_t("DEBUG_FLAG {call} {flag}"),
         notes="`8 N -1` answers `DEBUG_FLAG N F`. Seed 000's example `6 0 1` means `8 0 1`.",
     ),
-    _gain(9, "Proportional", "V per count"),
-    _gain(10, "Integral", "V per count-second"),
-    _gain(11, "Derivative", "V-seconds per count"),
+    _gain(C.SET_PROPORTIONAL_GAIN, "V per count"),
+    _gain(C.SET_INTEGRAL_GAIN, "V per count-second"),
+    _gain(C.SET_DERIVATIVE_GAIN, "V-seconds per count"),
     CallSpec(
-        12,
-        "SET_SIM_UPDATE_INTERVAL",
+        C.SET_SIM_UPDATE_INTERVAL,
         "Simulated motor: integration step in decimilliseconds (at most one servo period).",
         (_p("interval_dms", 1, 10000, "motor integration step in tenths of a millisecond"),),
         query=(-1,),
         query_reply=_t("SIM_UPDATE_INTERVAL_DMS {value}"),
         debug={1: _t("SIM UPDATE INTERVAL MODIFIED TO {value} DMS")},
     ),
-    _sim_sci(13, "SOURCE_VOLTAGE", "source voltage, the PID output ceiling", "V"),
-    _sim_sci(14, "TORQUE_CONSTANT", "torque constant (= back-EMF constant in SI)", "mNm/A"),
-    _sim_sci(15, "WINDING_RESISTANCE", "winding resistance", "ohm"),
+    _sim_sci(C.SET_SIM_SOURCE_VOLTAGE, "source voltage, the PID output ceiling", "V"),
+    _sim_sci(C.SET_SIM_TORQUE_CONSTANT, "torque constant (= back-EMF constant in SI)", "mNm/A"),
+    _sim_sci(C.SET_SIM_WINDING_RESISTANCE, "winding resistance", "ohm"),
     CallSpec(
-        16,
-        "SET_SIM_COUNTS_PER_REVOLUTION",
+        C.SET_SIM_COUNTS_PER_REVOLUTION,
         "Simulated motor: encoder counts per output revolution (quadrature, x4).",
         (_p("counts", 1, 1_000_000, "counts per revolution"),),
         query=(-1,),
         query_reply=_t("SIM_COUNTS_PER_REVOLUTION {value}"),
         debug={1: _t("SIM COUNTS PER REVOLUTION MODIFIED TO {value}")},
     ),
-    _sim_sci(17, "INERTIA", "rotor plus load inertia at the encoder shaft", "kg m^2"),
+    _sim_sci(C.SET_SIM_INERTIA, "rotor plus load inertia at the encoder shaft", "kg m^2"),
     CallSpec(
-        18,
-        "SET_DEVICE_NAME",
+        C.SET_DEVICE_NAME,
         "Device name as N ASCII codes (32..126), written to flash.",
         (_p("length", 0, DEVICE_NAME_MAX, "number of characters"),),
         item=_p("character", 32, 126, "printable ASCII code"),
@@ -346,8 +341,7 @@ CALLS: tuple[CallSpec, ...] = (
         notes="`18 0` erases the name: the device answers to the default name again.",
     ),
     CallSpec(
-        19,
-        "SET_DEFAULT_CONTROL_MODE",
+        C.SET_DEFAULT_CONTROL_MODE,
         "Control mode at power-up, written to flash.",
         (_p("mode", 1, 3, "1 position, 2 velocity, 3 curve"),),
         query=(-1,),
@@ -355,8 +349,7 @@ CALLS: tuple[CallSpec, ...] = (
         debug={1: _t("DEFAULT CONTROL MODE MODIFIED TO {value}")},
     ),
     CallSpec(
-        20,
-        "STATUS",
+        C.STATUS,
         "Status in one line.",
         (_p("query", -1, -1, "always -1"),),
         query=(-1,),
@@ -368,8 +361,7 @@ CALLS: tuple[CallSpec, ...] = (
         " limits is a bit mask (1 lower, 2 upper); fault is a fault code (0 none).",
     ),
     CallSpec(
-        21,
-        "SET_DIAGNOSTICS_INTERVAL",
+        C.SET_DIAGNOSTICS_INTERVAL,
         "Print a diagnostics line every N servo ticks (0 = off).",
         (_p("ticks", 0, 1_000_000, "servo ticks between diagnostics lines"),),
         query=(-1,),
@@ -378,8 +370,7 @@ CALLS: tuple[CallSpec, ...] = (
         notes="Diagnostics line: `D <clock> <desired> <actual> <velocity> <output_mv> <queued>`.",
     ),
     CallSpec(
-        22,
-        "CLOCK",
+        C.CLOCK,
         "Zero the device clock (0) for time synchronisation, or query it (-1).",
         (_p("zero", 0, 0, "0 zeroes the clock"),),
         query=(-1,),
@@ -387,8 +378,7 @@ CALLS: tuple[CallSpec, ...] = (
         debug={1: _t("CLOCK ZEROED")},
     ),
     CallSpec(
-        23,
-        "SET_POSITION",
+        C.SET_POSITION,
         "Set the position counter to V: the same shift as call 37 by V minus the counter.",
         (_p("position", INT32_MIN, INT32_MAX, "counts"),),
         debug={1: _t("POSITION SET TO {value}")},
@@ -400,16 +390,14 @@ CALLS: tuple[CallSpec, ...] = (
         " the old coordinates.",
     ),
     CallSpec(
-        24,
-        "LIMITS",
+        C.LIMITS,
         "Limit switches: 1 when pressed.",
         (_p("query", -1, -1, "always -1"),),
         query=(-1,),
         query_reply=_t("LIMITS {lower} {upper}"),
     ),
     CallSpec(
-        25,
-        "APPEND_KEYFRAME",
+        C.APPEND_KEYFRAME,
         "Append a Hermite keyframe (curve mode): duration, position, in and out tangents.",
         (
             _p("duration_ms", 1, 65535, "time from the previous keyframe, ms"),
@@ -422,23 +410,20 @@ CALLS: tuple[CallSpec, ...] = (
         notes="A full buffer refuses the keyframe with `E25` and keeps what it holds.",
     ),
     CallSpec(
-        26,
-        "CLEAR_KEYFRAMES",
+        C.CLEAR_KEYFRAMES,
         "Empty the keyframe buffer; the curve holds its current position.",
         (_p("zero", 0, 0, "always 0"),),
         debug={1: _t("KEYFRAMES CLEARED")},
     ),
     CallSpec(
-        27,
-        "CURVE_BUFFER",
+        C.CURVE_BUFFER,
         "Free keyframe slots.",
         (_p("query", -1, -1, "always -1"),),
         query=(-1,),
         query_reply=_t("CURVE_BUFFER {free}"),
     ),
     CallSpec(
-        28,
-        "SET_WATCHDOG",
+        C.SET_WATCHDOG,
         "Watchdog: no command for this long while enabled disables the servo (0 = off).",
         (_p("timeout_ms", 0, 600_000, "milliseconds"),),
         query=(-1,),
@@ -446,8 +431,7 @@ CALLS: tuple[CallSpec, ...] = (
         debug={1: _t("WATCHDOG MODIFIED TO {value} MS")},
     ),
     CallSpec(
-        29,
-        "SET_FOLLOWING_ERROR_LIMIT",
+        C.SET_FOLLOWING_ERROR_LIMIT,
         "Following-error limit: a larger error disables the servo and sets a fault (0 = off).",
         (_p("counts", 0, INT32_MAX, "counts"),),
         query=(-1,),
@@ -455,8 +439,7 @@ CALLS: tuple[CallSpec, ...] = (
         debug={1: _t("FOLLOWING ERROR LIMIT MODIFIED TO {value}")},
     ),
     CallSpec(
-        30,
-        "CLEAR_FAULT",
+        C.CLEAR_FAULT,
         "Clear a latched fault (0), or query it (-1).",
         (_p("zero", 0, 0, "0 clears the fault"),),
         query=(-1,),
@@ -465,8 +448,7 @@ CALLS: tuple[CallSpec, ...] = (
         notes="Fault codes: 0 none, 1 watchdog, 2 following error, 3 limit switch.",
     ),
     CallSpec(
-        31,
-        "START_AT",
+        C.START_AT,
         "Hold the motion queue until the device clock reaches tick T (synchronised start).",
         (_p("tick", 0, INT32_MAX, "device clock tick"),),
         query=(-1,),
@@ -474,12 +456,11 @@ CALLS: tuple[CallSpec, ...] = (
         debug={1: _t("START TICK MODIFIED TO {value}")},
         notes="The query answers -1 when no start is armed.",
     ),
-    _sim_sci(32, "VISCOUS_FRICTION", "viscous friction at the encoder shaft", "uNm per rad/s",
+    _sim_sci(C.SET_SIM_VISCOUS_FRICTION, "viscous friction at the encoder shaft", "uNm per rad/s",
              zero=True),
-    _sim_sci(33, "LOAD_TORQUE", "constant load torque opposing motion", "mNm", zero=True),
+    _sim_sci(C.SET_SIM_LOAD_TORQUE, "constant load torque opposing motion", "mNm", zero=True),
     CallSpec(
-        34,
-        "SET_SIM_TRAVEL",
+        C.SET_SIM_TRAVEL,
         "Simulated axis: travel range in counts; a switch closes at each end.",
         (
             _p("lower", INT32_MIN, INT32_MAX, "lower switch position, counts"),
@@ -492,8 +473,7 @@ CALLS: tuple[CallSpec, ...] = (
         " lower must be below upper.",
     ),
     CallSpec(
-        35,
-        "MOTION_STATS",
+        C.MOTION_STATS,
         "Motion statistics: reset them (0) or query them (-1).",
         (_p("reset", 0, 0, "0 resets the statistics"),),
         query=(-1,),
@@ -510,8 +490,7 @@ CALLS: tuple[CallSpec, ...] = (
         " (-1: none since the reset); a reset keeps the clock.",
     ),
     CallSpec(
-        36,
-        "SWITCH_EDGE",
+        C.SWITCH_EDGE,
         "The last edge of a limit switch, latched by core1 on the tick it happened.",
         (_p("switch", 1, 2, "1 lower, 2 upper"),),
         query=(None,),
@@ -527,8 +506,7 @@ CALLS: tuple[CallSpec, ...] = (
         " late the host looks. Moving the travel with call 34 is no edge.",
     ),
     CallSpec(
-        37,
-        "SHIFT_POSITION",
+        C.SHIFT_POSITION,
         "Shift the position counter by D counts (a change of coordinates; the loop goes on).",
         (_p("shift", INT32_MIN, INT32_MAX, "counts added to the counter"),),
         debug={1: _t("POSITION SHIFTED BY {value}")},
@@ -540,8 +518,7 @@ CALLS: tuple[CallSpec, ...] = (
         " whatever the axis does meanwhile: `37 (switch position - edge position)`.",
     ),
     CallSpec(
-        38,
-        "REPLACE_FROM",
+        C.REPLACE_FROM,
         "Replace the motion queue's future from device tick T with N values, in one step.",
         (
             _p("tick", 0, INT32_MAX, "device clock tick the first new value is for"),
@@ -567,28 +544,21 @@ CALLS: tuple[CallSpec, ...] = (
 BY_NUMBER: Mapping[int, CallSpec] = {spec.number: spec for spec in CALLS}
 BY_NAME: Mapping[str, CallSpec] = {spec.name: spec for spec in CALLS}
 
+RESYNC_CALL = BY_NUMBER[C.SET_DEBUG_FLAG].params[0].maximum
+"""The call whose debug flag marks a resynchronisation: the highest number call 8 takes,
+a call the table does not define, so its flag prints nothing."""
+assert RESYNC_CALL not in BY_NUMBER
+
+HOMED_MARKER_CALL = RESYNC_CALL - 1
+"""The undefined call whose debug flag (a RAM variable: it survives a host, not a power
+cycle) a host sets once it has homed the device: a later host that reads it back knows the
+counter still holds the machine coordinates homing gave it."""
+assert HOMED_MARKER_CALL not in BY_NUMBER
+
 REFUSALS: Mapping[str, int] = {
     spec.refusal: spec.number for spec in CALLS if spec.refusal is not None
 }
 """Refusal line -> the call that gives it."""
-
-
-class Fault:
-    """Fault codes reported by call 20 (``STATUS``) and call 30's query."""
-
-    NONE = 0
-    WATCHDOG = 1
-    FOLLOWING_ERROR = 2
-    LIMIT_SWITCH = 3
-    INTERNAL = 4
-
-    NAMES: Mapping[int, str] = {
-        0: "none",
-        1: "watchdog",
-        2: "following error",
-        3: "limit switch",
-        4: "internal error",
-    }
 
 
 DIAGNOSTICS = Template("D {clock} {desired} {actual} {velocity} {output_mv} {queued}")

@@ -60,7 +60,7 @@ from usbmotion.motion.limits import AxisLimits, PlannerConfig, check_travel
 from usbmotion.motion.planner import Plan, plan_moves
 from usbmotion.motion.sampler import sample_plan
 from usbmotion.motion.stopping import stop_setpoints
-from usbmotion.protocol.table import Fault as FaultCode
+from usbmotion.protocol import FaultCode, fault_words
 from usbmotion.session.report import (
     PLAN_AXES,
     SETTLE_COUNTS,
@@ -223,7 +223,7 @@ class MachineSession:
             if code != FaultCode.NONE:
                 self.faults_found[name] = (code, tick)
                 self.notices.append(
-                    f"axis {name}: fault {code} ({FaultCode.NAMES.get(code, code)}) latched at"
+                    f"axis {name}: fault {code} ({fault_words(code)}) latched at"
                     f" device tick {tick}, left by an earlier host; cleared. The fault"
                     " disabled the servo, so the position may be lost: homing is required")
                 client.clear_fault()

@@ -33,9 +33,10 @@ from pathlib import Path
 from typing import IO, Any
 
 from usbmotion.errors import DeviceError, DeviceTimeoutError
+from usbmotion.protocol import CallNumber, device_name_problem, encode_call, encode_device_name
 
 _PROJECT_ROOT = Path(__file__).resolve().parents[3]
-_NAME_MAX = 25
+_QUEUE_QUERY = encode_call(CallNumber.MOTION_QUEUE, -1)
 _EMULATOR_ENV = "USBMOTION_EMULATOR_DIR"
 _READ_CHUNK = 65536
 _EXIT_WAIT_S = 5.0
@@ -333,7 +334,7 @@ class EmulatedDevice:
                       for stack in stacks)
         return usage[0], usage[1]
 
-    def boot_to_first_reply(self, data: bytes = b"2 -1\n") -> BootTimes:
+    def boot_to_first_reply(self, data: bytes = _QUEUE_QUERY) -> BootTimes:
         """Power on a fresh chip free running, as one plugged in, and send ``data`` the moment
         its port is configured: when the firmware enabled USB, was configured and answered.
 
@@ -422,8 +423,7 @@ class FirmwareSimDevice:
         try:
             self.chip.power_up(erase_flash=True)
             if name:
-                codes = " ".join(str(ord(c)) for c in name)
-                self.feed(f"18 {len(name)} {codes}\n".encode("ascii"))
+                self.feed(encode_device_name(name))
                 self.take_timed_output()
         except BaseException:
             self.chip.close()
@@ -592,8 +592,9 @@ class FirmwareServer:
         if len(names) > count:
             raise ValueError(f"{len(names)} names for {count} devices")
         for name in names:
-            if not 0 < len(name) <= _NAME_MAX or not all(32 <= ord(c) <= 126 for c in name):
-                raise ValueError(f"device name {name!r}: 1..{_NAME_MAX} printable ASCII")
+            problem = device_name_problem(name, allow_empty=False)
+            if problem is not None:
+                raise ValueError(problem)
         self.names = tuple(names)
         self.record_dir = Path(record_dir) if record_dir is not None else None
         self.uf2, self.elf = _check_image(Path(uf2), Path(elf) if elf is not None else None)
@@ -699,7 +700,7 @@ class FirmwareServer:
             received = bytearray()
 
             def ask() -> str:
-                link.sendall(b"18 -1\n")
+                link.sendall(encode_call(CallNumber.SET_DEVICE_NAME, -1))
                 while True:
                     for line in bytes(received).split(b"\n")[:-1]:
                         if line.startswith(b"DEVICE_NAME "):
@@ -718,8 +719,7 @@ class FirmwareServer:
 
             name = ask()
             if wanted and name != wanted:
-                codes = " ".join(str(ord(c)) for c in wanted)
-                link.sendall(f"18 {len(wanted)} {codes}\n".encode("ascii"))
+                link.sendall(encode_device_name(wanted))
                 name = ask()
                 if name != wanted:
                     raise DeviceError(f"emulated device {endpoint.index} kept the name {name!r} "

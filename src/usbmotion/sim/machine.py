@@ -23,6 +23,7 @@ from usbmotion.host.device import to_sci
 from usbmotion.host.discovery import PROBE_TIMEOUT_S
 from usbmotion.host.machine import Axis, Machine
 from usbmotion.host.urls import parse_sim_url
+from usbmotion.protocol import encode_device_name
 from usbmotion.session import MachineSession
 from usbmotion.sim.registry import drop_world, set_world
 from usbmotion.sim.world import SimWorld
@@ -63,8 +64,7 @@ def _add_simulated(world: SimWorld, key: str, axis: AxisConfig) -> None:
     assert travel is not None
     device = Device(flash=MemoryFlash(), motor=sim_motor_params(axis.sim, travel_counts=travel))
     name = axis.device or key
-    codes = " ".join(str(ord(c)) for c in name)
-    device.feed(f"18 {len(name)} {codes}\n".encode("ascii"))
+    device.feed(encode_device_name(name))
     device.take_output()
     world.add(device, key=key)
 

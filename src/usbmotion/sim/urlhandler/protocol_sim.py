@@ -19,6 +19,7 @@ from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
 from usbmotion.errors import LinkLostError
 from usbmotion.host.urls import parse_sim_url
+from usbmotion.protocol import encode_device_name
 from usbmotion.sim.registry import get_world
 from usbmotion.sim.world import SimLink, SimWorld, VirtualClock
 
@@ -32,8 +33,7 @@ def _ensure_device(world: SimWorld, name: str) -> None:
     from usbmotion.device import Device  # noqa: PLC0415 - the device is only needed here
 
     device = Device()
-    codes = " ".join(str(ord(c)) for c in name)
-    device.feed(f"18 {len(name)} {codes}\n".encode("ascii"))
+    device.feed(encode_device_name(name))
     device.take_output()
     world.add(device, key=name)
 

@@ -1,0 +1,207 @@
+"""Typed replies: the lines a device answers, as records with named fields.
+
+Each record is built from its template in the command table by field name (``STATUS
+{clock} {actual} ...``), never by position: a reply format changes in one place, the table,
+and a record whose template no longer carries a field it reads fails at import.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+from usbmotion.errors import UnexpectedReplyError
+from usbmotion.protocol.names import CallNumber, ControlMode, fault_words
+from usbmotion.protocol.table import ALARM, BY_NUMBER, DIAGNOSTICS, Template
+
+
+def _reply_template(number: CallNumber) -> Template:
+    template = BY_NUMBER[number].query_reply
+    assert template is not None, f"call {number.name} answers no query"
+    return template
+
+
+def _debug_template(number: CallNumber, flag: int) -> Template:
+    return BY_NUMBER[number].debug[flag]
+
+
+def _checked(template: Template, *wanted: str) -> Template:
+    """``template``, once it is known to carry every field a record reads from it."""
+    missing = [name for name in wanted if name not in template.fields]
+    if missing:
+        raise AssertionError(f"reply format {template.text!r} lacks fields {missing}")
+    return template
+
+
+_STATUS = _checked(_reply_template(CallNumber.STATUS), "clock", "actual", "desired",
+                   "velocity", "queued", "enable", "mode", "limits", "fault")
+_DIAGNOSTICS = _checked(DIAGNOSTICS, "clock", "desired", "actual", "velocity", "output_mv",
+                        "queued")
+_ALARM = _checked(ALARM, "fault", "tick")
+_SWITCH_EDGE = _checked(_reply_template(CallNumber.SWITCH_EDGE), "switch", "edges", "closed",
+                        "position", "tick")
+_MOTION_STATS = _checked(_reply_template(CallNumber.MOTION_STATS), "ticks", "max_error",
+                         "max_error_tick", "sum_sq_error", "last_take_tick")
+REPLACED = _checked(_debug_template(CallNumber.REPLACE_FROM, 1), "kept", "skipped", "added",
+                    "crc")
+"""Call 38's acknowledgement (debug flag 1) and the fields it carries."""
+
+
+def _read(template: Template, values: Sequence[int]) -> Mapping[str, int]:
+    """The values of a line of ``template`` by field name.
+
+    Raises:
+        UnexpectedReplyError: the values are not as many as the template's fields.
+    """
+    if len(values) != len(template.fields):
+        raise UnexpectedReplyError(
+            f"{template.head}: {len(values)} values for the {len(template.fields)} fields of"
+            f" {template.text!r}")
+    return dict(zip(template.fields, values, strict=True))
+
+
+LOWER_SWITCH = 1
+"""Call 36's number for the lower limit switch, and its bit in the status mask."""
+UPPER_SWITCH = 2
+"""Call 36's number for the upper limit switch, and its bit in the status mask."""
+
+
+@dataclass(frozen=True, slots=True)
+class Status:
+    """The device's one-line status (call 20)."""
+
+    clock: int
+    actual_counts: int
+    desired_counts: int
+    velocity_counts_s: int
+    queued: int
+    enabled: bool
+    mode: ControlMode
+    lower_limit: bool
+    upper_limit: bool
+    fault: int
+
+    @classmethod
+    def from_values(cls, values: Sequence[int]) -> Status:
+        """The status from the values of a ``STATUS`` line."""
+        v = _read(_STATUS, values)
+        return cls(
+            clock=v["clock"], actual_counts=v["actual"], desired_counts=v["desired"],
+            velocity_counts_s=v["velocity"], queued=v["queued"], enabled=v["enable"] == 1,
+            mode=ControlMode(v["mode"]), lower_limit=bool(v["limits"] & LOWER_SWITCH),
+            upper_limit=bool(v["limits"] & UPPER_SWITCH), fault=v["fault"],
+        )
+
+    @property
+    def fault_name(self) -> str:
+        """The fault in words (``none`` when there is none)."""
+        return fault_words(self.fault)
+
+
+@dataclass(frozen=True, slots=True)
+class Diagnostics:
+    """One diagnostics line (call 21)."""
+
+    clock: int
+    desired: int
+    actual_counts: int
+    velocity_counts_s: int
+    output_mv: int
+    queued: int
+
+    @classmethod
+    def from_values(cls, values: Sequence[int]) -> Diagnostics:
+        """The record from the values of a ``D`` line."""
+        v = _read(_DIAGNOSTICS, values)
+        return cls(clock=v["clock"], desired=v["desired"], actual_counts=v["actual"],
+                   velocity_counts_s=v["velocity"], output_mv=v["output_mv"],
+                   queued=v["queued"])
+
+
+@dataclass(frozen=True, slots=True)
+class Alarm:
+    """An ``ALARM`` line: the device latched a fault and said so unasked."""
+
+    fault: int
+    tick: int
+
+    @classmethod
+    def from_values(cls, values: Sequence[int]) -> Alarm:
+        """The alarm from the values of an ``ALARM`` line."""
+        v = _read(_ALARM, values)
+        return cls(fault=v["fault"], tick=v["tick"])
+
+    @property
+    def fault_name(self) -> str:
+        """The fault's name (``following error``, ``limit switch``, ...)."""
+        return fault_words(self.fault)
+
+
+@dataclass(frozen=True, slots=True)
+class SwitchEdge:
+    """Call 36: the last edge of one limit switch, latched by the device on its tick.
+
+    ``edges`` counts the switch's edges since power-up (modulo 2**32; 0: none yet),
+    ``closed`` says whether the last one closed it, ``position_counts`` is the counter on
+    that tick (in the counter's current coordinates) and ``tick`` the clock after it.
+    """
+
+    switch: int
+    edges: int
+    closed: bool
+    position_counts: int
+    tick: int
+
+    @classmethod
+    def from_values(cls, values: Sequence[int]) -> SwitchEdge:
+        """The edge from the values of a ``SWITCH_EDGE`` line."""
+        v = _read(_SWITCH_EDGE, values)
+        return cls(switch=v["switch"], edges=v["edges"], closed=v["closed"] == 1,
+                   position_counts=v["position"], tick=v["tick"])
+
+
+@dataclass(frozen=True, slots=True)
+class Replaced:
+    """What call 38 did: queued values kept (due before the tick), new values skipped
+    (already past when the line arrived) and added."""
+
+    kept: int
+    skipped: int
+    added: int
+
+
+@dataclass(frozen=True, slots=True)
+class MotionStats:
+    """Call 35: the device's own account of how it followed, tick by tick, since a reset.
+
+    Counted on every servo tick the servo ran enabled in position or curve mode (after any
+    armed start): ``ticks`` of them, the largest absolute following error and the clock
+    tick it first occurred at, the sum of the squared errors, and the clock tick that last
+    took a value from the motion queue (-1: none).
+    """
+
+    ticks: int
+    max_error_counts: int
+    max_error_tick: int
+    sum_sq_error: int
+    last_take_tick: int
+
+    @classmethod
+    def from_values(cls, values: Sequence[int]) -> MotionStats:
+        """The statistics from the values of a ``MOTION_STATS`` line."""
+        v = _read(_MOTION_STATS, values)
+        return cls(ticks=v["ticks"], max_error_counts=v["max_error"],
+                   max_error_tick=v["max_error_tick"], sum_sq_error=v["sum_sq_error"],
+                   last_take_tick=v["last_take_tick"])
+
+    @property
+    def rms_error_counts(self) -> float:
+        """Root mean square following error over the ticks counted, counts (0 with none)."""
+        return math.sqrt(self.sum_sq_error / self.ticks) if self.ticks else 0.0
+
+
+def read_replaced(values: Sequence[int]) -> tuple[Replaced, int]:
+    """Call 38's acknowledgement: what it did, and the CRC-32 of the values it added."""
+    v = _read(REPLACED, values)
+    return Replaced(kept=v["kept"], skipped=v["skipped"], added=v["added"]), v["crc"]
