@@ -3,23 +3,12 @@
 :class:`MachineSession` is what ``usbmotion run``, the console and every front drive.
 """
 
-from usbmotion.session.report import (
-    AxisResult,
-    FaultRecord,
-    IgnoredWordRecord,
-    RunReport,
-    Trace,
-    describe,
-)
-from usbmotion.session.session import (
-    MachineSession,
-    Prepared,
-    home_position_mm,
-    homed_mark,
-    plan_gcode,
-    planner_inputs,
-    trace_period_s,
-)
+from usbmotion.session.homing import home_position_mm, homed_mark
+from usbmotion.session.planning import Prepared, plan_gcode, planner_inputs
+from usbmotion.session.report import AxisResult, FaultRecord, IgnoredWordRecord, RunReport, Trace
+from usbmotion.session.report_text import describe
+from usbmotion.session.run import trace_period_s
+from usbmotion.session.session import MachineSession
 from usbmotion.session.state import TRANSITIONS, MachineState, StopReason, check_transition
 
 __all__ = [

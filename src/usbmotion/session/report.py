@@ -1,12 +1,12 @@
 """What a run says about itself: the report (figures, faults, why it stopped, the G-code
-words it ignored) and the trace of the devices' own diagnostics, for plots."""
+words it ignored) and the trace of the devices' own diagnostics, for plots. Its text for a
+person is :mod:`usbmotion.session.report_text`'s."""
 
 from __future__ import annotations
 
 from array import array
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -305,53 +305,6 @@ def _endpoint_misses(program: GCodeProgram, trace: Trace) -> tuple[int, float]:
         gaps = seg_offsets + along[:, None] * seg_spans
         worst = max(worst, float(np.sqrt(np.min(np.einsum("ij,ij->i", gaps, gaps)))))
     return int(ends.shape[0]), worst
-
-
-def describe(report: RunReport) -> str:
-    """The report as a few lines of text for a person."""
-    lines = [
-        f"program        {Path(report.program).name} ({report.moves} moves,"
-        f" {report.setpoints_per_axis} setpoints per axis)",
-        f"machine        {report.machine}",
-        f"homing         {report.homing_time_s:.3f} s",
-        f"planned time   {report.planned_time_s:.3f} s",
-        f"executed time  {report.executed_time_s:.3f} s (settled at {report.settle_time_s:.3f} s)",
-        "following error (every servo tick, desired - actual):",
-    ]
-    for axis in report.axes:
-        lines.append(
-            f"  {axis.name}  max {axis.max_error_mm:8.4f} mm ({axis.max_error_counts:5d} counts)"
-            f" at {axis.max_error_time_s:.3f} s, line {axis.max_error_line}"
-            f"   rms {axis.rms_error_mm:8.4f} mm ({axis.rms_error_counts:8.2f} counts)"
-        )
-    position = "  ".join(f"{k} {v:.3f}" for k, v in report.end_position_mm.items())
-    lines.append(f"end position   {position} mm")
-    if report.endpoints_checked:
-        lines.append(f"end points     {report.endpoints_checked} programmed, the actual path passed"
-                     f" within {report.max_endpoint_miss_mm:.4f} mm of each")
-    lines.append(f"result         {report.stop_reason}")
-    lines.append("faults         " + ("; ".join(
-        f"axis {f.axis}: {f.fault} at {f.time_s:.3f} s, line {f.line}" for f in report.faults
-    ) or "none"))
-    lines.append("ignored words  " + (", ".join(
-        f"{w.word} (line {w.line}: {w.meaning})" for w in report.ignored_words) or "none"))
-    if report.link_error:
-        lines.append(f"LINK LOST      {report.link_error}")
-    for note in report.notes:
-        lines.append(f"note           {note}")
-    if not report.completed:
-        what = "last setpoint the device confirmed" if report.link_error else "setpoint"
-        lines.append(f"STOPPED ({report.stop_reason}) at program line {report.stopped_at_line},"
-                     f" {what} {report.stopped_at_setpoint} of {report.setpoints_per_axis},"
-                     f" {report.stopped_at_s:.3f} s into the program")
-        if report.stop_latency_s and not (report.stop_planned_mm or report.stop_distance_mm):
-            lines.append(f"stop           every axis at rest {report.stop_latency_s * 1000:.0f} ms"
-                         " after it was asked")
-        if report.stop_planned_mm or report.stop_distance_mm:
-            lines.append(f"stop           along the path to rest in {report.stop_distance_mm:.3f}"
-                         f" mm (planned deceleration v^2/2a {report.stop_planned_mm:.3f} mm),"
-                         f" at rest {report.stop_latency_s * 1000:.0f} ms after it was asked")
-    return "\n".join(lines)
 
 
 def unstarted_report(program: GCodeProgram, machine_name: str, plan: Plan, *,

@@ -1,0 +1,344 @@
+"""One run of a prepared program (:meth:`MachineSession.run`).
+
+Every axis is started on the same device tick and streamed its setpoints; the run watches
+the alarms the devices print (and, now and then, their status) and the operator's stop
+requests. A fault or a stop brings every axis to rest along the program's path at its
+planned deceleration; a lost link stops every axis at once. The report says why the run
+ended and how the axes followed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import dataclass
+from functools import partial
+from typing import TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+
+from usbmotion.errors import (
+    DeviceError,
+    DeviceTimeoutError,
+    LinkCorruptedError,
+    LinkLostError,
+    UsbMotionError,
+)
+from usbmotion.host.device import Alarm, MotionStats, Status
+from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams
+from usbmotion.motion.sampler import sample_plan
+from usbmotion.motion.stopping import stop_setpoints
+from usbmotion.protocol import FaultCode
+from usbmotion.session.planning import Prepared
+from usbmotion.session.report import (
+    PLAN_AXES,
+    SETTLE_COUNTS,
+    FaultRecord,
+    RunReport,
+    Trace,
+    build_report,
+    line_at,
+)
+from usbmotion.session.rest import REST_POLL_S, SETTLE_TIMEOUT_S, STOP_LEAD_S, wait_for_rest
+from usbmotion.session.state import MachineState, StopReason
+
+if TYPE_CHECKING:
+    from usbmotion.session.session import MachineSession
+
+DIAGNOSTICS_PERIOD_S = 0.01
+"""The shortest period of the diagnostics lines of the trace (plots, end points, settling):
+the peak and RMS error come from the devices' own statistics (call 35), so the trace need
+not be dense."""
+TRACE_POINTS = 10_000
+"""The most diagnostics lines per axis the trace aims at: a longer program gets a sparser
+trace (10 minutes, one line every 60 ms; an hour, every 0.36 s)."""
+START_MARGIN_S = 0.2
+FAULT_CHECK_S = 0.05
+"""The longest a run goes without reading the alarms the devices printed (no exchange:
+lines that came); it reads them whenever it wakes, at least this often."""
+STATUS_CHECK_S = 1.0
+"""How often a run also asks every device its status, in case an alarm line was lost."""
+
+
+def trace_period_s(duration_s: float) -> float:
+    """The diagnostics period of the trace of a program lasting ``duration_s``."""
+    return max(DIAGNOSTICS_PERIOD_S, duration_s / TRACE_POINTS)
+
+
+@dataclass(frozen=True, slots=True)
+class _Ending:
+    """How the streaming ended: the reason in the report's words and, when a link was
+    lost, its error and the axis it was (when known)."""
+
+    reason: str
+    link_error: str = ""
+    lost_axis: str = ""
+
+
+class Run:
+    """One run of a prepared program on a session's machine; :meth:`go` runs it once.
+
+    Parameters:
+        session: the session, in Run.
+        prepared: the program, prepared from where the machine stands.
+        on_progress: called with (program seconds done, program seconds) as setpoints go.
+        homing_s: how long the homing before the run took, for the report.
+    """
+
+    def __init__(self, session: MachineSession, prepared: Prepared,
+                 on_progress: Callable[[float, float], None] | None, homing_s: float) -> None:
+        self.session = session
+        self.machine = session.machine
+        self.config = session.config
+        self.clock = session.clock
+        self.prepared = prepared
+        self.plan = prepared.plan
+        self.on_progress = on_progress
+        self.homing_s = homing_s
+        self.faults: list[FaultRecord] = []
+        self.notes: list[str] = [] if prepared.homed else [
+            "the machine is not homed: the program ran in the devices' own counts and soft"
+            " limits were not checked"]
+        self.period_s = self.config.motion_period_s
+        self.tick_s = self.config.servo_period_s
+        counts_per_mm = [self.config.axis(n).counts_per_mm for n in PLAN_AXES]
+        self.counts_per_mm = np.array(counts_per_mm)
+        self.setpoints: npt.NDArray[np.int32] = sample_plan(
+            self.plan, period_s=self.period_s, counts_per_mm=counts_per_mm)
+        self.trace = Trace(tick_s=self.tick_s, start_tick=0,
+                           counts_per_mm={n: self.machine.axis(n).config.counts_per_mm
+                                          for n in self.machine.axes})
+        self.streams: dict[str, SetpointStream] = {}
+        self.start_tick = 0
+        self.status_checked_s = 0.0
+        """When the run last asked every device its status (the session's clock)."""
+        self.stop_distance_mm = 0.0
+        self.stop_planned_mm = 0.0
+        self.stop_latency_s = 0.0
+        self.stopped_index: float | None = None
+        self.faulted_axes: list[str] = []
+        """The axes whose device was in a fault when the run ended."""
+        self.faulted = False
+        """True when the run ended on a fault or a lost link (the machine is in Alarm)."""
+
+    def go(self) -> tuple[RunReport, Trace]:
+        """The run: its report and its trace (the devices' diagnostics lines are the
+        trace's, and their alarms the run's faults, only while it runs)."""
+        with ExitStack() as listening:
+            self._enable_axes()
+            for name, axis in self.machine.axes.items():
+                listening.enter_context(axis.client.listening(diagnostics=self.trace.record(name)))
+            self._start_together()
+            self._open_streams()
+            for name, axis in self.machine.axes.items():
+                listening.enter_context(axis.client.listening(alarms=partial(self._on_alarm, name)))
+            ending = self._stream()
+            return self._finish(ending)
+
+    # --- the steps of a run ---------------------------------------------------------------------
+
+    def _enable_axes(self) -> None:
+        """Every axis of the program with an empty queue, its servo enabled."""
+        for name in PLAN_AXES:
+            client = self.machine.axis(name).client
+            client.clear_queue()
+            client.set_servo_enable(True)
+
+    def _start_together(self) -> None:
+        """Every axis of the program to start on the same device tick, its statistics
+        reset, its diagnostics lines at the trace's period."""
+        diag_ticks = max(1, round(trace_period_s(self.plan.duration_s) / self.tick_s))
+        self.sync = self.machine.synchronise(margin_s=START_MARGIN_S, axes=PLAN_AXES)
+        self.start_tick = self.trace.start_tick = self.sync.devices[0].start_tick
+        for name in PLAN_AXES:
+            client = self.machine.axis(name).client
+            client.reset_motion_stats()
+            client.set_diagnostics_interval(diag_ticks)
+
+    def _open_streams(self) -> None:
+        for index, name in enumerate(PLAN_AXES):
+            self.streams[name] = SetpointStream(
+                self.machine.axis(name).client, self.setpoints[:, index], period_s=self.period_s,
+                verify=True, on_progress=self._progress)
+
+    def _stream(self) -> _Ending:
+        """Stream the program until it has played out and settled, or a fault or a stop
+        brings every axis to rest along the path, or a link is lost (every axis stopped at
+        once)."""
+        self.status_checked_s = self.clock.now()
+        try:
+            run_streams(list(self.streams.values()), should_stop=self._should_stop,
+                        max_wait_s=FAULT_CHECK_S)
+            if not self._interrupted():
+                self._wait_drained()
+            if not self._interrupted():
+                self._settle()
+            if not self._interrupted():
+                return _Ending(StopReason.COMPLETED.value)
+            reason = (f"fault: {self._fault_words()}" if self.faults
+                      else self.session.stop_requested)
+            self.session._enter(MachineState.HOLD)
+            self._decelerate()
+            return _Ending(reason)
+        except (LinkLostError, LinkCorruptedError, DeviceTimeoutError) as error:
+            lost_axis = next((n for n in PLAN_AXES if self.machine.axis(n).client.name
+                              == getattr(error, "device", None)), "")
+            try:
+                self.machine.stop()
+            except UsbMotionError as also:
+                self.notes.append(f"stopping: {also}")
+            return _Ending(f"{StopReason.LINK.value}: {error}", link_error=str(error),
+                           lost_axis=lost_axis)
+
+    def _finish(self, ending: _Ending) -> tuple[RunReport, Trace]:
+        """The report, from what every device says at the end; its diagnostics off."""
+        reason = ending.reason
+        if self.faults and not reason.startswith("fault"):
+            reason = f"fault: {self._fault_words()}"
+        statuses: dict[str, Status] = {}
+        stats: dict[str, MotionStats] = {}
+        for name in PLAN_AXES:
+            client = self.machine.axis(name).client
+            try:
+                statuses[name] = client.status()
+                stats[name] = client.motion_stats()
+                client.set_diagnostics_interval(0)
+            except UsbMotionError as error:
+                self.notes.append(f"axis {name}: {error}")
+        report = build_report(
+            self.prepared.program, self.machine, self.plan, self.setpoints.shape[0], self.trace,
+            self.homing_s, statuses, stats, self.faults,
+            completed=reason == StopReason.COMPLETED.value,
+            consumed=self._confirmed(ending, statuses), skew_s=self.sync.estimated_skew_s,
+            stop_reason=reason, stop_distance_mm=self.stop_distance_mm,
+            stop_planned_mm=self.stop_planned_mm, stop_latency_s=self.stop_latency_s,
+            link_error=ending.link_error, notes=tuple(self.notes))
+        self.faulted_axes = [name for name, status in statuses.items()
+                             if status.fault != FaultCode.NONE]
+        self.faulted = bool(self.faults) or bool(ending.link_error) or bool(self.faulted_axes)
+        return report, self.trace
+
+    # --- watching -------------------------------------------------------------------------------
+
+    def _progress(self, update: StreamProgress) -> None:
+        if self.on_progress is not None:
+            done = min(s.consumed_estimate for s in self.streams.values())
+            self.on_progress(min(done * self.period_s, self.plan.duration_s),
+                             self.plan.duration_s)
+
+    def _on_alarm(self, axis: str, alarm: Alarm) -> None:
+        self._record(axis, alarm.fault_name, alarm.tick)
+
+    def _record(self, axis: str, fault: str, tick: int) -> None:
+        if any(f.axis == axis for f in self.faults):
+            return
+        elapsed = (tick - self.trace.start_tick) * self.tick_s
+        self.faults.append(FaultRecord(axis, fault, elapsed, line_at(self.plan, elapsed)))
+
+    def _should_stop(self) -> bool:
+        """Whether the streaming stops: a stop was asked, or a device faulted. Reads the
+        alarm lines that came, and every :data:`STATUS_CHECK_S` asks every device its
+        status in case one was lost."""
+        if self.session.stop_requested:
+            return True
+        now = self.clock.now()
+        for axis in self.machine.axes.values():
+            axis.client.read_pending()
+        if now - self.status_checked_s >= STATUS_CHECK_S:
+            self.status_checked_s = now
+            for name, axis in self.machine.axes.items():
+                status = axis.client.status()
+                if status.fault != FaultCode.NONE:
+                    _, fault_tick = axis.client.fault()
+                    self._record(name, status.fault_name, fault_tick)
+        return bool(self.faults)
+
+    def _interrupted(self) -> bool:
+        """A fault was seen or a stop asked."""
+        return bool(self.faults or self.session.stop_requested)
+
+    def _fault_words(self) -> str:
+        return "; ".join(f"axis {f.axis} {f.fault}" for f in self.faults)
+
+    def _wait_drained(self) -> None:
+        """Until every queue is empty (the last setpoint being executed), or a stop."""
+        clients = [self.machine.axis(n).client for n in PLAN_AXES]
+        while True:
+            if self._should_stop():
+                return
+            queued = max(client.queue_status()[0] for client in clients)
+            if not queued:
+                return
+            self.clock.sleep(min(FAULT_CHECK_S, max(self.period_s, queued * self.period_s)))
+
+    def _settle(self) -> None:
+        """After the last setpoint: until every axis is within SETTLE_COUNTS of it, for at
+        most SETTLE_TIMEOUT_S."""
+        deadline = self.clock.now() + SETTLE_TIMEOUT_S
+        while self.clock.now() < deadline:
+            statuses = self.machine.status()
+            if all(abs(s.desired_counts - s.actual_counts) <= SETTLE_COUNTS
+                   for s in statuses.values()):
+                return
+            self.clock.sleep(REST_POLL_S)
+
+    # --- stopping -------------------------------------------------------------------------------
+
+    def _decelerate(self) -> None:
+        """Every axis still enabled to rest along the path at its planned deceleration:
+        the queued future replaced from a device tick just ahead (call 38)."""
+        session, machine, clock = self.session, self.machine, self.clock
+        estimate = self.sync.devices[0].estimate
+        tick = math.ceil(estimate.ticks_at(clock.now()) + STOP_LEAD_S / self.tick_s)
+        scalar = self.config.motion_scalar
+        sent = min(stream.sent for stream in self.streams.values())
+        index = min(max(0, -(-(tick - self.start_tick) // scalar)), sent)
+        tick = max(tick, self.start_tick + index * scalar)
+        accel = [self.config.axis(n).max_accel_mm_s2 * self.config.axis(n).counts_per_mm
+                 for n in PLAN_AXES]
+        asked_s = session._requests.at_s if session.stop_requested else clock.now()
+        if index == 0 or index >= self.setpoints.shape[0]:
+            stop_rows = np.zeros((0, 3), dtype=np.int64)
+            end = float(min(index, self.setpoints.shape[0]) - 1)
+        else:
+            stop = stop_setpoints(self.setpoints, index, period_s=self.period_s,
+                                  accel_counts_s2=accel)
+            stop_rows, end = stop.setpoints, stop.end_index
+            speed_mm_s = float(np.linalg.norm(np.array(stop.velocity_counts_s)
+                                              / self.counts_per_mm))
+            decel_mm_s2 = stop.step * speed_mm_s / self.period_s
+            if decel_mm_s2 > 0:
+                self.stop_planned_mm = speed_mm_s**2 / (2 * decel_mm_s2)
+        for column, name in enumerate(PLAN_AXES):
+            client = machine.axis(name).client
+            try:
+                client.replace_from(tick, stop_rows[:, column].tolist())
+            except UsbMotionError as error:
+                self.notes.append(f"axis {name}: could not replace its queue ({error})")
+        self.stopped_index = end
+        try:
+            wait_for_rest(machine, list(PLAN_AXES), stop_now=session._stop_now_requested)
+        except DeviceError as error:
+            self.notes.append(f"stop: {error}")
+            machine.stop()
+        self.stop_latency_s = clock.now() - asked_s
+        if index > 0:
+            statuses = machine.status()
+            rest = np.array([statuses[n].actual_counts for n in PLAN_AXES], dtype=np.float64)
+            began = self.setpoints[index - 1].astype(np.float64)
+            self.stop_distance_mm = float(np.linalg.norm((rest - began) / self.counts_per_mm))
+        if session._stop_now_requested():
+            self.notes.append("a second stop request stopped every axis at once (servos off:"
+                              " the axes coasted)")
+
+    def _confirmed(self, ending: _Ending, statuses: dict[str, Status]) -> int:
+        """How many setpoints of every axis the devices are known to have executed."""
+        if ending.link_error:
+            return self.streams[ending.lost_axis].sent if ending.lost_axis else min(
+                s.sent for s in self.streams.values())
+        if self.stopped_index is not None:
+            return max(0, math.floor(self.stopped_index) + 1)
+        return min(self.streams[n].sent - statuses[n].queued for n in PLAN_AXES
+                   if n in statuses)
