@@ -124,26 +124,25 @@ def step_response(
     if step == 0:
         raise OutOfRangeError(f"step_mm {step_mm!r} is under one count", reason="step_mm")
     records: list[Diagnostics] = []
-    client.on_diagnostics = records.append
     limit = target.config.following_error_limit_counts
-    if limit:
-        client.set_following_error_limit(max(limit, 2 * abs(step)))
-    client.set_control_mode(ControlMode.POSITION)
-    client.set_servo_enable(True)
-    start = client.status().actual_counts
-    lead = max(1, round(lead_s / period_s))
-    hold = max(1, round(duration_s / period_s))
-    client.set_diagnostics_interval(1)
-    client.start_at(client.clock() + 2)
-    values = [start] * lead + [start + step] * hold
-    for first in range(0, len(values), 500):
-        while client.queue_status()[1] < 500:
-            machine.clock.sleep(0.2)
-        client.add_setpoints(values[first:first + 500])
-    machine.clock.sleep((lead + hold) * period_s + 0.05)
-    client.set_diagnostics_interval(0)
-    client.sync()
-    client.on_diagnostics = None
+    with client.listening(diagnostics=records.append):
+        if limit:
+            client.set_following_error_limit(max(limit, 2 * abs(step)))
+        client.set_control_mode(ControlMode.POSITION)
+        client.set_servo_enable(True)
+        start = client.status().actual_counts
+        lead = max(1, round(lead_s / period_s))
+        hold = max(1, round(duration_s / period_s))
+        client.set_diagnostics_interval(1)
+        client.start_at(client.clock() + 2)
+        values = [start] * lead + [start + step] * hold
+        for first in range(0, len(values), 500):
+            while client.queue_status()[1] < 500:
+                machine.clock.sleep(0.2)
+            client.add_setpoints(values[first:first + 500])
+        machine.clock.sleep((lead + hold) * period_s + 0.05)
+        client.set_diagnostics_interval(0)
+        client.sync()
     client.set_following_error_limit(limit)
     status = client.status()
     if status.fault:
@@ -325,22 +324,24 @@ def measure_reach(
             reason="distance_mm",
         )
     records: list[Diagnostics] = []
-    client.on_diagnostics = records.append
     limit = target.config.following_error_limit_counts
     try:
-        client.set_following_error_limit(0)
-        machine.set_mode(ControlMode.POSITION, axes=[axis])
-        client.set_servo_enable(True)
-        client.set_diagnostics_interval(1)
-        start = client.status().actual_counts
-        direction = 1 if distance_mm > 0 else -1
-        first = _saturated_run(machine, axis, records, direction, room, run_timeout_s)
-        back_room = abs(client.status().actual_counts - start)
-        second = _saturated_run(machine, axis, records, -direction, back_room, run_timeout_s)
+        with client.listening(diagnostics=records.append):
+            try:
+                client.set_following_error_limit(0)
+                machine.set_mode(ControlMode.POSITION, axes=[axis])
+                client.set_servo_enable(True)
+                client.set_diagnostics_interval(1)
+                start = client.status().actual_counts
+                direction = 1 if distance_mm > 0 else -1
+                first = _saturated_run(machine, axis, records, direction, room, run_timeout_s)
+                back_room = abs(client.status().actual_counts - start)
+                second = _saturated_run(machine, axis, records, -direction, back_room,
+                                        run_timeout_s)
+            finally:
+                client.set_diagnostics_interval(0)
+                client.sync()
     finally:
-        client.set_diagnostics_interval(0)
-        client.sync()
-        client.on_diagnostics = None
         client.set_following_error_limit(limit)
     runs = (first, second)
     supply_v = max(float(np.max(np.abs(run.output_v))) for run in runs)
