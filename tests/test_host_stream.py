@@ -77,19 +77,11 @@ def _stream_everything(rig: Rig) -> None:
     progress: list[StreamProgress] = []
     # verify: the device acknowledges every batch it queues (ADDED N CRC c) and the stream
     # checks it; the acknowledgements must cover the setpoints once, in order
-    streams = [SetpointStream(c, _setpoints(i), period_s=period_s, verify=True,
-                              on_progress=progress.append) for i, c in enumerate(clients)]
     acked: dict[int, list[tuple[int, int]]] = {i: [] for i in range(len(clients))}
-    for index, stream in enumerate(streams):
-        check = stream._take
-
-        def spy(line: bytes, index: int = index, check=check) -> tuple[int, int] | None:  # type: ignore[no-untyped-def]
-            words = line.decode().split()
-            if words[:1] == ["ADDED"]:
-                acked[index].append((int(words[1]), int(words[3])))
-            return check(line)
-
-        stream._take = spy  # type: ignore[method-assign]
+    streams = [SetpointStream(c, _setpoints(i), period_s=period_s, verify=True,
+                              on_progress=progress.append,
+                              on_acknowledgement=lambda n, crc, i=i: acked[i].append((n, crc)))
+               for i, c in enumerate(clients)]
     run_streams(streams)
     wait_until_drained(clients, period_s=period_s)
     for index, (client, stream) in enumerate(zip(clients, streams, strict=True)):

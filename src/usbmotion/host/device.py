@@ -15,6 +15,7 @@ import random
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 
+from usbmotion.clock import Clock
 from usbmotion.errors import (
     DeviceTimeoutError,
     ErrReplyError,
@@ -176,9 +177,26 @@ class DeviceClient:
 
     # --- plumbing ------------------------------------------------------------------------
 
+    @property
+    def link_clock(self) -> Clock:
+        """The clock this device's link waits on (the wall clock, or a simulation's)."""
+        return self.transport.clock
+
     def send(self, number: int, *args: int) -> None:
         """Validate and send one call without waiting for anything."""
         self.transport.write(encode_call(number, *args))
+
+    def send_with_status(self, number: int, *args: int) -> None:
+        """Send one call and a queue-status query behind it in the same write, without
+        waiting: the status answer (:meth:`next_reply`) says the call has executed."""
+        self.transport.write(encode_call(number, *args) + encode_call(C.MOTION_QUEUE, -1))
+
+    def take_debug_lines(self, number: int) -> list[Reply]:
+        """The debug lines of call ``number`` read so far (oldest first), no longer kept."""
+        taken = [r for r in self.debug_lines if r.call == number]
+        if taken:
+            self.debug_lines = [r for r in self.debug_lines if r.call != number]
+        return taken
 
     def take_aside(self, reply: Reply) -> bool:
         """Consume lines that are not answers (diagnostics, debug echoes, alarms).
@@ -225,16 +243,21 @@ class DeviceClient:
             if not self.take_aside(reply):
                 self.stray_lines += 1
 
-    def next_reply(self) -> Reply:
-        """The next line that is not a diagnostics or debug line.
+    def next_reply(self, timeout_s: float | None = None) -> Reply:
+        """The next line that is not a diagnostics, debug or alarm line (those are taken
+        aside as :meth:`take_aside` does): an answer, an ``ERR`` or a refusal.
+
+        Parameters:
+            timeout_s: how long to wait, on the link's clock (default: the reply timeout).
 
         Raises:
             DeviceTimeoutError: nothing within the timeout.
-            UnexpectedReplyError: a line that is no reply of the protocol.
+            UnexpectedReplyError: a line that is no reply of the protocol (it is consumed).
         """
+        wait_s = self.timeout_s if timeout_s is None else timeout_s
         while True:
             try:
-                line = self.transport.read_line(self.timeout_s)
+                line = self.transport.read_line(wait_s)
             except DeviceTimeoutError as error:
                 raise DeviceTimeoutError(str(error), device=self.name) from error
             try:
@@ -440,10 +463,9 @@ class DeviceClient:
         if not self._replace_acknowledged:
             self.set_debug_flag(C.REPLACE_FROM, 1)
             self._replace_acknowledged = True
-        self.debug_lines = [r for r in self.debug_lines if r.call != C.REPLACE_FROM]
+        self.take_debug_lines(C.REPLACE_FROM)
         self._confirm(encode_call(C.REPLACE_FROM, tick, len(values), *values))
-        acks = [r for r in self.debug_lines if r.call == C.REPLACE_FROM]
-        self.debug_lines = [r for r in self.debug_lines if r.call != C.REPLACE_FROM]
+        acks = self.take_debug_lines(C.REPLACE_FROM)
         if len(acks) != 1:
             raise LinkCorruptedError(
                 f"{self.name}: call 38 was acknowledged {len(acks)} times", device=self.name,

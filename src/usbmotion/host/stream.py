@@ -37,10 +37,9 @@ from usbmotion.protocol import (
     QUEUE_CAPACITY,
     Reply,
     ReplyKind,
-    encode_call,
-    parse_reply,
     values_crc32,
 )
+from usbmotion.protocol import CallNumber as C
 from usbmotion.protocol.table import INT32_MAX, INT32_MIN
 
 
@@ -107,6 +106,8 @@ class SetpointStream:
             (call 8 ``8 1 2`` is sent) and check it against the values sent, so values
             mangled on the link are caught, not executed silently.
         on_progress: called after every service.
+        on_acknowledgement: with ``verify``, called with (count, CRC-32) of every batch the
+            device acknowledges, as it is read.
     """
 
     def __init__(
@@ -120,6 +121,7 @@ class SetpointStream:
         max_batch: int = 600,
         verify: bool = False,
         on_progress: ProgressCallback | None = None,
+        on_acknowledgement: Callable[[int, int], None] | None = None,
     ) -> None:
         if not (math.isfinite(period_s) and period_s > 0):
             raise OutOfRangeError(f"period_s {period_s!r} must be > 0", reason="period_s")
@@ -151,6 +153,7 @@ class SetpointStream:
         self.high_water = high_water
         self.max_batch = max_batch
         self.on_progress = on_progress
+        self.on_acknowledgement = on_acknowledgement
         self.verify = verify
         self.sent = 0
         self.batches = 0
@@ -166,7 +169,7 @@ class SetpointStream:
         self._failed_batches = 0
         self._errors_at_batch = 0
         self._queued = 0
-        self._status_time = client.transport.clock.now()
+        self._status_time = client.link_clock.now()
         self._min_queued = QUEUE_CAPACITY
         self._max_queued = 0
         self._started = self._status_time
@@ -188,7 +191,7 @@ class SetpointStream:
         return self.sent - self._predicted(self._now())
 
     def _now(self) -> float:
-        return self.client.transport.clock.now()
+        return self.client.link_clock.now()
 
     def _predicted(self, now: float) -> int:
         consumed = int((now - self._status_time) / self.period_s)
@@ -235,7 +238,7 @@ class SetpointStream:
 
     def _top_up(self) -> None:
         if self.verify and not self._verify_armed:
-            self.client.set_debug_flag(1, 2)
+            self.client.set_debug_flag(C.ADD_MULTIPLE, 2)
             self._verify_armed = True
         queued, free = self._status()
         if queued > self.low_water + (self.high_water - self.low_water) // 10 and self.batches:
@@ -251,7 +254,7 @@ class SetpointStream:
     def _status(self) -> tuple[int, int]:
         """Queue status, asked again (after draining the link) when garbled or lost."""
         for _ in range(RESYNC_ATTEMPTS):
-            self.client.transport.write(encode_call(2, -1))
+            self.client.send(C.MOTION_QUEUE, -1)
             self.status_queries += 1
             answer = self._exchange()
             if answer is not None:
@@ -261,7 +264,7 @@ class SetpointStream:
         raise DeviceTimeoutError(
             f"{self.client.name}: no readable queue status after {RESYNC_ATTEMPTS} tries"
             f" ({self.garbled_lines} garbled lines); {self.sent} setpoints confirmed",
-            device=self.client.name, call=2,
+            device=self.client.name, call=C.MOTION_QUEUE,
         )
 
     def _send_batch(self, batch: list[int], *, crc: int) -> bool:
@@ -284,7 +287,7 @@ class SetpointStream:
         self._refused = False
         self._errors_at_batch = self.errors
         garbled_before = self.garbled_lines
-        self.client.transport.write(encode_call(1, len(batch), *batch) + encode_call(2, -1))
+        self.client.send_with_status(C.ADD_MULTIPLE, len(batch), *batch)
         self.status_queries += 1
         answer = self._exchange()
         if answer is not None:
@@ -296,7 +299,7 @@ class SetpointStream:
                     f"{self.client.name}: the answer to a batch of {len(batch)} setpoints was"
                     f" lost, so whether it was queued is unknown; {self.sent} setpoints were"
                     " confirmed (stream with verify=True to recover from this)",
-                    device=self.client.name, call=1,
+                    device=self.client.name, call=C.ADD_MULTIPLE,
                 )
             self._status()
         if self._ack is None and self.garbled_lines > garbled_before:
@@ -304,7 +307,7 @@ class SetpointStream:
                 f"{self.client.name}: {self.garbled_lines - garbled_before} unreadable line(s)"
                 f" came back after a batch of {len(batch)} setpoints, so whether it was queued"
                 f" cannot be known: the link is corrupting bytes; {self.sent} setpoints were"
-                " confirmed", device=self.client.name, call=1, confirmed=self.sent,
+                " confirmed", device=self.client.name, call=C.ADD_MULTIPLE, confirmed=self.sent,
             )
         if self._ack is not None:
             if self._ack != (len(batch), crc):
@@ -312,7 +315,7 @@ class SetpointStream:
                     f"{self.client.name}: the device queued values other than those sent"
                     f" (setpoints {self.sent}..{self.sent + len(batch) - 1}): the link is"
                     f" corrupting bytes; {self.sent} setpoints were confirmed intact",
-                    device=self.client.name, call=1, confirmed=self.sent,
+                    device=self.client.name, call=C.ADD_MULTIPLE, confirmed=self.sent,
                 )
             self._failed_batches = 0
             return True
@@ -322,7 +325,7 @@ class SetpointStream:
                 raise LinkCorruptedError(
                     f"{self.client.name}: {self._failed_batches} batches in a row were damaged"
                     f" on the link and not queued; {self.sent} setpoints were confirmed",
-                    device=self.client.name, call=1, confirmed=self.sent,
+                    device=self.client.name, call=C.ADD_MULTIPLE, confirmed=self.sent,
                 )
             return False
         return True
@@ -344,7 +347,7 @@ class SetpointStream:
         errors, garbled = self.errors, self.garbled_lines
         while True:
             try:
-                line = self.client.transport.read_line(self.client.timeout_s)
+                reply = self._read(self.client.timeout_s)
             except DeviceTimeoutError as error:
                 self.timeouts += 1
                 if self.errors > errors or self.garbled_lines > garbled:
@@ -352,9 +355,9 @@ class SetpointStream:
                 raise DeviceTimeoutError(
                     f"{self.client.name}: no answer within {self.client.timeout_s:g} s: the"
                     f" link is stalled or gone; {self.sent} setpoints were confirmed",
-                    device=self.client.name, call=2,
+                    device=self.client.name, call=C.MOTION_QUEUE,
                 ) from error
-            answer = self._take(line)
+            answer = self._account(reply)
             if answer is not None:
                 return answer
 
@@ -363,28 +366,38 @@ class SetpointStream:
         quiet_s = min(self.client.timeout_s, 0.25)
         while True:
             try:
-                line = self.client.transport.read_line(quiet_s)
+                reply = self._read(quiet_s)
             except DeviceTimeoutError:
                 return
-            self._take(line)
+            self._account(reply)
 
-    def _take(self, line: bytes) -> tuple[int, int] | None:
-        """Account for one line; return (queued, free) if it is a queue-status answer."""
+    def _read(self, timeout_s: float) -> Reply | None:
+        """The client's next answer (None for an unreadable line, counted as garbled); the
+        batch acknowledgements read on the way are taken in whatever happens.
+
+        Raises:
+            DeviceTimeoutError: nothing came within ``timeout_s``.
+        """
         try:
-            reply = parse_reply(line)
+            return self.client.next_reply(timeout_s)
         except UnexpectedReplyError:
             self.garbled_lines += 1
             return None
-        if reply.kind is ReplyKind.DEBUG and reply.call == 1:
-            echo = _acknowledgement(reply)
-            if echo is None:
-                self.garbled_lines += 1
-            else:
-                self._ack = echo
+        finally:
+            for ack in self.client.take_debug_lines(C.ADD_MULTIPLE):
+                echo = _acknowledgement(ack)
+                if echo is None:
+                    self.garbled_lines += 1
+                else:
+                    self._ack = echo
+                    if self.on_acknowledgement is not None:
+                        self.on_acknowledgement(*echo)
+
+    def _account(self, reply: Reply | None) -> tuple[int, int] | None:
+        """Account for one answer; return (queued, free) if it is a queue-status answer."""
+        if reply is None:
             return None
-        if self.client.take_aside(reply):
-            return None
-        if reply.kind is ReplyKind.REFUSAL and reply.call == 1:
+        if reply.kind is ReplyKind.REFUSAL and reply.call == C.ADD_MULTIPLE:
             self.refusals += 1
             self.client.refusals += 1
             self._refused = True
@@ -393,7 +406,8 @@ class SetpointStream:
             self.errors += 1
             self._refused = True
             return None
-        if reply.kind is ReplyKind.QUERY and reply.call == 2 and len(reply.values) == 2:
+        if (reply.kind is ReplyKind.QUERY and reply.call == C.MOTION_QUEUE
+                and len(reply.values) == 2):
             return reply.values[0], reply.values[1]
         self.garbled_lines += 1
         return None
@@ -429,7 +443,7 @@ class KeyframeStream:
         self.refusals = 0
         self.status_queries = 0
         self._free = CURVE_BUFFER_CAPACITY
-        self._status_time = client.transport.clock.now()
+        self._status_time = client.link_clock.now()
         self._started = self._status_time
 
     @property
@@ -459,7 +473,7 @@ class KeyframeStream:
         try:
             self._free = self.client.curve_free()
             self.status_queries += 1
-            self._status_time = self.client.transport.clock.now()
+            self._status_time = self.client.link_clock.now()
             while self._free > 0 and not self.done_sending:
                 try:
                     self.client.append_keyframe(self.keyframes[self.sent])
@@ -478,7 +492,7 @@ class KeyframeStream:
         if self.on_progress is not None:
             self.on_progress(StreamProgress(
                 self.client.name, self.sent, self.total,
-                CURVE_BUFFER_CAPACITY - self._free, self.client.transport.clock.now(),
+                CURVE_BUFFER_CAPACITY - self._free, self.client.link_clock.now(),
             ))
 
 
@@ -497,7 +511,7 @@ def run_streams(
     """
     if not streams:
         return
-    clock = streams[0].client.transport.clock
+    clock = streams[0].client.link_clock
     while True:
         if should_stop is not None and should_stop():
             return
@@ -525,7 +539,7 @@ def wait_until_drained(
     """Wait until every client's motion queue is empty (the last value is being executed)."""
     if not clients:
         return
-    clock = clients[0].transport.clock
+    clock = clients[0].link_clock
     left = list(clients)
     while left:
         if should_stop is not None and should_stop():

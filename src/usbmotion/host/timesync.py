@@ -141,20 +141,14 @@ def shared_clock(clients: Sequence[DeviceClient]) -> Clock:
     """
     if not clients:
         raise OutOfRangeError("no devices to synchronise", reason="clients")
-    clocks = [c.transport.clock for c in clients]
-    keys = {_clock_key(c) for c in clocks}
-    if len(keys) != 1:
+    clocks = [c.link_clock for c in clients]
+    if any(clock is not clocks[0] for clock in clocks):
         raise OutOfRangeError(
             "devices " + ", ".join(c.name for c in clients) + " wait on different clocks"
             " (virtual and wall, or two simulated worlds); they cannot start together",
             reason="clients",
         )
     return clocks[0]
-
-
-def _clock_key(clock: Clock) -> object:
-    world = getattr(clock, "world", None)
-    return world if world is not None else clock
 
 
 def zero_clocks(clients: Sequence[DeviceClient]) -> None:
@@ -192,7 +186,7 @@ def measure_clock(
         tick_s = client.servo_interval_us() / 1e6
     if not (math.isfinite(tick_s) and tick_s > 0):
         raise OutOfRangeError(f"tick_s {tick_s!r} must be > 0", reason="tick_s")
-    clock = client.transport.clock
+    clock = client.link_clock
     client.clock()
     taken: list[ClockSample] = []
     for index in range(samples):

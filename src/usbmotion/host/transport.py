@@ -21,6 +21,7 @@ import serial
 
 from usbmotion.clock import WALL_CLOCK, Clock
 from usbmotion.errors import DeviceTimeoutError, LinkLostError
+from usbmotion.ports import ClockedPort, ExactResetPort
 from usbmotion.protocol import LineSplitter, Overlong
 
 _MAX_REPLY_LINE = 1 << 16
@@ -37,7 +38,7 @@ class LineTransport:
     def __init__(self, port: Any, *, label: str = "") -> None:
         self.port = port
         self.label = label or str(getattr(port, "port", "") or "serial port")
-        clock = getattr(port, "usbmotion_clock", None)
+        clock = port.usbmotion_clock if isinstance(port, ClockedPort) else None
         self.clock: Clock = clock if clock is not None else WALL_CLOCK
         self._splitter = LineSplitter(max_bytes=_MAX_REPLY_LINE)
         self._lines: deque[bytes] = deque()
@@ -169,7 +170,8 @@ class LineTransport:
             self.port.reset_input_buffer()
         except (serial.SerialException, OSError) as error:
             raise LinkLostError(f"{self.label}: {error}", device=self.label) from error
-        self._drop_to_newline = getattr(self.port, "usbmotion_exact_reset", False) is not True
+        exact = isinstance(self.port, ExactResetPort) and self.port.usbmotion_exact_reset is True
+        self._drop_to_newline = not exact
 
     def sleep(self, seconds: float) -> None:
         """Wait on the link's clock."""

@@ -164,6 +164,9 @@ class SimWorld:
         self._time_us = 0
         self.realtime = realtime
         self._wall_origin = time.monotonic()
+        self.clock = VirtualClock(self)
+        """The world's one clock: every port onto its devices waits on this object, so
+        links share a clock exactly when they share a world."""
 
     @property
     def time_us(self) -> int:

@@ -4,10 +4,10 @@ The device ``NAME`` (URL-quoted: ``sim://X%20AXIS``) of the world ``W`` (default
 ``default``) is opened; a device that is not there yet is created with the defaults and
 that name. Reading with a timeout advances the world's virtual clock instead of
 sleeping, so host code written for real ports runs in virtual time unchanged. The
-port's ``usbmotion_clock`` attribute is the world's :class:`VirtualClock`; its
-``usbmotion_exact_reset`` is true because resetting its input buffer drops every byte the
-device has printed, in flight or not, and the device prints whole lines: the next byte the
-host reads starts a line.
+port is a :class:`~usbmotion.ports.ClockedPort` whose clock is the world's one
+:class:`VirtualClock`, and an :class:`~usbmotion.ports.ExactResetPort`: resetting its
+input buffer drops every byte the device has printed, in flight or not, and the device
+prints whole lines, so the next byte the host reads starts a line.
 """
 
 from __future__ import annotations
@@ -59,7 +59,7 @@ class Serial(SerialBase):  # type: ignore[misc]
         world = get_world(world_name)
         _ensure_device(world, name)
         self.link = world.connect(name, latency_us=latency_us)
-        self.usbmotion_clock = VirtualClock(world)
+        self.usbmotion_clock = world.clock
         self.is_open = True
 
     def close(self) -> None:

@@ -1,0 +1,190 @@
+"""The layering holds: the host knows only ports, and calls are named, not numbered.
+
+These scan the source tree, so a change that breaks the layering fails here at once.
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src" / "usbmotion"
+
+HOST_SIDE = ("host", "motion", "automation", "session")
+"""Packages that drive devices through ports and must not know how a device is made."""
+
+FORBIDDEN = ("usbmotion.sim", "usbmotion.device")
+
+NUMBERED = ("protocol", "device")
+"""Where call numbers are defined (the table) and implemented (the Python device)."""
+
+CALL_TAKERS = frozenset({
+    "command", "query", "send", "encode_call", "check_call", "set_sim_value", "sim_value",
+    "_check_range", "_await_answer", "set_debug_flag", "debug_flag", "spec",
+})
+"""Functions whose first argument is a call number."""
+
+CALL_KEYWORDS = frozenset({"call", "number"})
+
+LINE_TEXT = re.compile(r"^\d{1,2}(?: -?\d+)*(?: |\\n|\n|$)")
+"""A protocol line written out as text (``"20 -1"``, ``f"18 {n} ..."``)."""
+
+
+def _python_files(*packages: str) -> Iterator[Path]:
+    for package in packages:
+        yield from sorted((SRC / package).rglob("*.py"))
+
+
+def _imports(tree: ast.AST) -> Iterator[tuple[int, str]]:
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node.lineno, alias.name
+        elif isinstance(node, ast.ImportFrom) and node.module is not None:
+            if node.level:
+                continue
+            yield node.lineno, node.module
+            for alias in node.names:
+                yield node.lineno, f"{node.module}.{alias.name}"
+
+
+def layering_violations(paths: list[Path]) -> list[str]:
+    """``file:line imports module`` for every import of the simulator or the device."""
+    found: dict[tuple[str, int], str] = {}
+    for path in paths:
+        tree = ast.parse(path.read_text(), filename=str(path))
+        where = str(path.relative_to(SRC.parent))
+        for line, module in _imports(tree):
+            if module.startswith(FORBIDDEN):
+                found.setdefault((where, line), f"{where}:{line} imports {module}")
+    return sorted(found.values())
+
+
+def _int_literal(node: ast.AST | None) -> bool:
+    return (isinstance(node, ast.Constant) and type(node.value) is int) or (
+        isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub)
+        and _int_literal(node.operand))
+
+
+def _callee(node: ast.Call) -> str:
+    if isinstance(node.func, ast.Attribute):
+        return node.func.attr
+    if isinstance(node.func, ast.Name):
+        return node.func.id
+    return ""
+
+
+def _text_start(node: ast.AST) -> str | None:
+    if isinstance(node, ast.Constant) and isinstance(node.value, str | bytes):
+        value = node.value
+        return value.decode("latin-1") if isinstance(value, bytes) else value
+    if isinstance(node, ast.JoinedStr) and node.values:
+        first = node.values[0]
+        if isinstance(first, ast.Constant) and isinstance(first.value, str):
+            return first.value
+    return None
+
+
+def literal_call_numbers(paths: list[Path]) -> list[str]:
+    """``file:line what`` for every call number written as a literal."""
+    found: list[str] = []
+    for path in paths:
+        tree = ast.parse(path.read_text(), filename=str(path))
+        where = str(path.relative_to(SRC.parent))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call):
+                name = _callee(node)
+                if name in CALL_TAKERS and node.args and _int_literal(node.args[0]):
+                    found.append(f"{where}:{node.lineno} {name}({ast.unparse(node.args[0])}, ...)")
+                for keyword in node.keywords:
+                    if keyword.arg in CALL_KEYWORDS and _int_literal(keyword.value):
+                        value = ast.unparse(keyword.value)
+                        found.append(f"{where}:{node.lineno} {keyword.arg}={value}")
+            elif isinstance(node, ast.Subscript):
+                if (isinstance(node.value, ast.Name) and node.value.id == "BY_NUMBER"
+                        and _int_literal(node.slice)):
+                    found.append(f"{where}:{node.lineno} BY_NUMBER[{ast.unparse(node.slice)}]")
+            elif isinstance(node, ast.Compare):
+                left = node.left
+                if (isinstance(left, ast.Attribute) and left.attr == "call"
+                        and any(_int_literal(c) for c in node.comparators)):
+                    found.append(f"{where}:{node.lineno} {ast.unparse(node)}")
+            else:
+                text = _text_start(node)
+                if text is not None and LINE_TEXT.match(text) and (
+                        isinstance(node, ast.JoinedStr) or text.endswith("\n")):
+                    found.append(f"{where}:{node.lineno} line text {text!r}")
+    return sorted(set(found))
+
+
+def _all_but(*packages: str) -> list[Path]:
+    return [path for path in sorted(SRC.rglob("*.py"))
+            if path.relative_to(SRC).parts[0] not in packages]
+
+
+def test_the_host_side_imports_neither_the_simulator_nor_the_device() -> None:
+    assert layering_violations(list(_python_files(*HOST_SIDE))) == []
+
+
+def test_importing_the_host_loads_neither_the_simulator_nor_the_device() -> None:
+    probe = ("import usbmotion.host, usbmotion.host.machine, usbmotion.host.stream, sys;"
+             " print(sorted(m for m in sys.modules"
+             " if m.startswith(('usbmotion.sim', 'usbmotion.device'))))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         check=True).stdout
+    assert out.strip() == "[]"
+
+
+def test_importing_the_host_leaves_pyserials_url_handlers_alone() -> None:
+    probe = ("import serial; before = list(serial.protocol_handler_packages);"
+             " import usbmotion.host.device, usbmotion.host.machine;"
+             " print(serial.protocol_handler_packages == before)")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         check=True).stdout
+    assert out.strip() == "True"
+
+
+def test_no_literal_call_numbers_outside_the_protocol_and_the_device() -> None:
+    assert literal_call_numbers(_all_but(*NUMBERED)) == []
+
+
+@pytest.mark.parametrize("source, caught", [
+    ("from usbmotion.sim.world import SimWorld\n", "imports usbmotion.sim.world"),
+    ("import usbmotion.device\n", "imports usbmotion.device"),
+    ("from usbmotion import sim\n", "imports usbmotion.sim"),
+])
+def test_the_import_check_catches_an_import_of_the_simulator(
+        tmp_path: Path, source: str, caught: str) -> None:
+    module = SRC / "host" / "_probe_layering.py"
+    module.write_text(source)
+    try:
+        found = layering_violations([module])
+    finally:
+        module.unlink()
+    assert len(found) == 1 and caught in found[0]
+
+
+@pytest.mark.parametrize("source", [
+    "client.command(29, 5)\n",
+    "client.query(20, -1)\n",
+    "encode_call(2, -1)\n",
+    "raise OutOfRangeError('x', call=18)\n",
+    "spec = BY_NUMBER[38]\n",
+    "if reply.call == 38: pass\n",
+    "line = f'18 {len(name)} {codes}\\n'\n",
+    "port.write(b'21 0\\n')\n",
+])
+def test_the_call_number_check_catches_a_literal(source: str) -> None:
+    module = SRC / "host" / "_probe_numbers.py"
+    module.write_text(source)
+    try:
+        found = literal_call_numbers([module])
+    finally:
+        module.unlink()
+    assert len(found) == 1, found
