@@ -13,6 +13,7 @@ from usbmotion.host.config import (
     load_config,
     parse_config,
 )
+from usbmotion.sim.urls import URL_CHECKS
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -65,7 +66,7 @@ def line_of(text: str, fragment: str) -> int:
 def fails(tmp_path: Path, text: str) -> ConfigError:
     path = write(tmp_path, text)
     with pytest.raises(ConfigError) as caught:
-        load_config(path)
+        load_config(path, url_checks=URL_CHECKS)
     error = caught.value
     assert str(path) in str(error)
     assert error.path == str(path)

@@ -26,8 +26,9 @@ from usbmotion.host.config import parse_config
 from usbmotion.host.device import DeviceClient
 from usbmotion.host.transport import LineTransport
 from usbmotion.protocol import ReplyKind, parse_reply
+from usbmotion.sim import register_url_handler
 from usbmotion.sim.machine import SimulatedMachine
-from usbmotion.sim.registry import register_url_handler, set_world
+from usbmotion.sim.registry import set_world
 from usbmotion.sim.world import SimWorld
 
 PACKET_BYTES = 7

@@ -31,12 +31,11 @@ def console(
     host).
     """
     from usbmotion.console import Console  # noqa: PLC0415 - keep --help fast
-    from usbmotion.host.config import load_config  # noqa: PLC0415
     from usbmotion.session import MachineSession  # noqa: PLC0415
-    from usbmotion.sim.machine import connect_session  # noqa: PLC0415
+    from usbmotion.sim.machine import connect_session, load_machine_file  # noqa: PLC0415
 
     try:
-        config = load_config(machine or default_machine())
+        config = load_machine_file(machine or default_machine())
     except ConfigError as error:
         typer.echo(f"usbmotion console: {error}", err=True)
         raise typer.Exit(EXIT_BAD_INPUT) from None

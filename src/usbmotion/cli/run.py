@@ -116,14 +116,13 @@ def run(
     rest along its deceleration, then the servos disabled; a second Ctrl-C
     stops at once).
     """
-    from usbmotion.host.config import load_config  # noqa: PLC0415 - keep --help fast
     from usbmotion.motion.gcode import parse_gcode, read_gcode_text  # noqa: PLC0415
     from usbmotion.session import MachineSession  # noqa: PLC0415
-    from usbmotion.sim.machine import connect_session  # noqa: PLC0415
+    from usbmotion.sim.machine import connect_session, load_machine_file  # noqa: PLC0415
     from usbmotion.sim.world import SimWorld  # noqa: PLC0415
 
     try:
-        config = load_config(machine or default_machine())
+        config = load_machine_file(machine or default_machine())
         text = read_gcode_text(program)
         parse_gcode(text, file=str(program))
     except GCodeError as error:

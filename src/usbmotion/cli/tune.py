@@ -59,10 +59,10 @@ def tune(
     can do (keep --distance-mm free ahead of the axis) and prints the reach line that lets
     the machine file refuse limits the motor cannot reach.
     """
-    from usbmotion.host.config import load_config  # noqa: PLC0415
+    from usbmotion.sim.machine import load_machine_file  # noqa: PLC0415
 
     try:
-        config = load_config(machine or default_machine())
+        config = load_machine_file(machine or default_machine())
         axis_config = config.axis(axis.upper())
     except (ConfigError, KeyError) as error:
         typer.echo(f"usbmotion tune: {error}", err=True)

@@ -18,14 +18,13 @@ import difflib
 import math
 import re
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn
 
 from usbmotion.errors import ConfigError
 from usbmotion.host.device import AxisScale, to_sci
-from usbmotion.host.urls import parse_sim_url
 from usbmotion.motor_model import DcMotorModel
 from usbmotion.protocol import (
     BY_NUMBER,
@@ -399,8 +398,18 @@ class MachineConfig:
 # --- loading ---------------------------------------------------------------------------------
 
 
-def load_config(path: str | Path) -> MachineConfig:
+UrlChecks = Mapping[str, Callable[[str], str | None]]
+"""URL scheme (``sim``) -> why a URL of that scheme is wrong, or ``None``: the checks of
+the links this host cannot read itself (:data:`usbmotion.sim.urls.URL_CHECKS`)."""
+
+
+def load_config(path: str | Path, *, url_checks: UrlChecks | None = None) -> MachineConfig:
     """Read and validate a machine configuration file.
+
+    Parameters:
+        path: the file.
+        url_checks: checks of the axes' URLs by scheme; a URL of a scheme with no check is
+            only required to be a non-empty string (its port says more when opened).
 
     Raises:
         ConfigError: the file cannot be read, is not valid TOML, or holds an unknown key,
@@ -413,20 +422,22 @@ def load_config(path: str | Path) -> MachineConfig:
     except (OSError, UnicodeDecodeError) as error:
         raise ConfigError(f"{file}: cannot read the machine configuration: {error}",
                           path=str(file)) from error
-    return parse_config(text, path=file)
+    return parse_config(text, path=file, url_checks=url_checks)
 
 
-def parse_config(text: str, *, path: str | Path = "<string>") -> MachineConfig:
+def parse_config(text: str, *, path: str | Path = "<string>",
+                 url_checks: UrlChecks | None = None) -> MachineConfig:
     """Validate a machine configuration given as TOML text.
 
     Parameters:
         text: the TOML document.
         path: the file it came from, for messages and ``MachineConfig.path``.
+        url_checks: as :func:`load_config`.
 
     Raises:
         ConfigError: as :func:`load_config`.
     """
-    source = _Source(Path(path), text)
+    source = _Source(Path(path), text, url_checks=url_checks or {})
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
@@ -456,8 +467,9 @@ def _key_path(dotted: str) -> tuple[str, ...]:
 class _Source:
     """The text of a configuration file, for finding the line a key is written on."""
 
-    def __init__(self, path: Path, text: str) -> None:
+    def __init__(self, path: Path, text: str, *, url_checks: UrlChecks) -> None:
         self.path = path
+        self.url_checks = url_checks
         self._entries: list[tuple[int, tuple[str, ...], bool]] = []
         table: tuple[str, ...] = ()
         for number, line in enumerate(text.splitlines(), start=1):
@@ -732,17 +744,10 @@ def _url(reader: _Reader) -> str | None:
     assert isinstance(url, str)
     if not url.strip():
         reader.fail("url", f"{url!r} is empty; allowed: {allowed}")
-    if url.lower().startswith(SIM_SCHEME):
-        try:
-            parse_sim_url(url)
-        except Exception as error:  # pyserial's SerialException names the problem
-            reader.fail("url", f"{error}; allowed: {allowed}")
-        if "world=" in url.split("?", 1)[-1]:
-            reader.fail(
-                "url", f"{url!r} names a world; the machine chooses the world its simulated"
-                " devices live in (Machine.connect(world=...)); allowed: sim://NAME"
-                "[?latency_us=N]",
-            )
+    check = reader.source.url_checks.get(url.split("://", 1)[0].lower()) if "://" in url else None
+    problem = check(url) if check is not None else None
+    if problem is not None:
+        reader.fail("url", f"{problem}; allowed: {allowed}")
     return url
 
 

@@ -14,21 +14,33 @@ from __future__ import annotations
 import dataclasses
 import itertools
 from collections.abc import Sequence
+from pathlib import Path
 from urllib.parse import quote
 
 from usbmotion.device import Device, MemoryFlash
 from usbmotion.device.motor import MotorParams
-from usbmotion.host.config import AxisConfig, MachineConfig, SimMotorConfig
+from usbmotion.errors import ConfigError
+from usbmotion.host.config import AxisConfig, MachineConfig, SimMotorConfig, load_config
 from usbmotion.host.device import to_sci
 from usbmotion.host.discovery import PROBE_TIMEOUT_S
 from usbmotion.host.machine import Axis, Machine
-from usbmotion.host.urls import parse_sim_url
 from usbmotion.protocol import encode_device_name
 from usbmotion.session import MachineSession
 from usbmotion.sim.registry import drop_world, set_world
+from usbmotion.sim.urls import URL_CHECKS, machine_url_problem, parse_sim_url
 from usbmotion.sim.world import SimWorld
 
 _aliases = itertools.count(1)
+
+
+def load_machine_file(path: str | Path) -> MachineConfig:
+    """A machine file read as :func:`usbmotion.host.config.load_config` reads it, its
+    ``sim://`` URLs checked too.
+
+    Raises:
+        ConfigError: as ``load_config``; a bad ``sim://`` URL names the axis's key and line.
+    """
+    return load_config(path, url_checks=URL_CHECKS)
 
 
 def sim_motor_params(sim: SimMotorConfig, *, travel_counts: tuple[int, int]) -> MotorParams:
@@ -83,6 +95,10 @@ def simulate(config: MachineConfig, world: SimWorld, alias: str) -> MachineConfi
     for axis in config.axes:
         if axis.is_simulated:
             assert axis.url is not None
+            problem = machine_url_problem(axis.url)
+            if problem is not None:
+                raise ConfigError(f"{config.path}: axes.{axis.name}.url: {problem}",
+                                  path=str(config.path), key=f"axes.{axis.name}.url")
             key, _, latency_us = parse_sim_url(axis.url)
             _add_simulated(world, key, axis)
             axis = dataclasses.replace(axis, url=_sim_url(key, alias, latency_us))

@@ -2,12 +2,9 @@
 
 from __future__ import annotations
 
-import serial
-
 from usbmotion.sim.world import SimWorld
 
 _WORLDS: dict[str, SimWorld] = {}
-HANDLER_PACKAGE = "usbmotion.sim.urlhandler"
 
 
 def get_world(name: str = "default") -> SimWorld:
@@ -26,9 +23,3 @@ def set_world(name: str, world: SimWorld) -> None:
 def drop_world(name: str) -> None:
     """Forget a world (its devices stop being reachable by URL)."""
     _WORLDS.pop(name, None)
-
-
-def register_url_handler() -> None:
-    """Let ``serial.serial_for_url`` open ``sim://`` URLs (idempotent)."""
-    if HANDLER_PACKAGE not in serial.protocol_handler_packages:
-        serial.protocol_handler_packages.append(HANDLER_PACKAGE)

@@ -18,9 +18,9 @@ from typing import Any
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
 from usbmotion.errors import LinkLostError
-from usbmotion.host.urls import parse_sim_url
 from usbmotion.protocol import encode_device_name
 from usbmotion.sim.registry import get_world
+from usbmotion.sim.urls import parse_sim_url
 from usbmotion.sim.world import SimLink, SimWorld, VirtualClock
 
 _FOREVER_US = 10_000_000

@@ -1,12 +1,15 @@
-"""The grammar of the links a host opens that are not plain serial ports.
+"""The ``sim://`` URL: ``sim://NAME[?world=W&latency_us=N]`` names a simulated device.
 
-``sim://NAME[?world=W&latency_us=N]`` names a simulated device (``usbmotion.sim`` serves
-it; the host only needs to read the URL); every other URL is pyserial's (``socket://``,
-``loop://``) or a port path.
+The host opens it as any pyserial URL and never reads it; the simulator parses it when
+the port is opened (:mod:`usbmotion.sim.urlhandler`) and when it wires a machine file's
+simulated axes to their devices. :data:`URL_CHECKS` is what a loader of machine files
+passes to :func:`usbmotion.host.config.load_config` so a bad ``sim://`` URL is refused
+with the file, the key and the line.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from urllib.parse import parse_qs, unquote, urlsplit
 
 from serial.serialutil import SerialException
@@ -44,3 +47,20 @@ def parse_sim_url(url: str) -> tuple[str, str, int]:
                 f"unknown option {option!r} in {url!r}; known options are world, latency_us"
             )
     return name, world, latency_us
+
+
+def machine_url_problem(url: str) -> str | None:
+    """Why a machine file's ``sim://`` URL is wrong, or ``None``: it must parse, and it
+    names no world (the machine chooses the world its simulated devices live in)."""
+    try:
+        parse_sim_url(url)
+    except SerialException as error:
+        return str(error)
+    if "world=" in url.split("?", 1)[-1]:
+        return (f"{url!r} names a world; the machine chooses the world its simulated devices"
+                " live in (SimulatedMachine.connect(world=...))")
+    return None
+
+
+URL_CHECKS: Mapping[str, Callable[[str], str | None]] = {"sim": machine_url_problem}
+"""The simulator's URL schemes and how a machine file's URL of each is checked."""
