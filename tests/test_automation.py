@@ -20,7 +20,7 @@ from usbmotion.automation import (
     Transition,
     run_sequence,
 )
-from usbmotion.errors import OutOfRangeError, SequenceFaultError, StopRequestedError
+from usbmotion.errors import ArgumentError, SequenceFaultError, StopRequestedError
 
 
 @dataclass
@@ -273,7 +273,7 @@ def test_home_in_order_z_first() -> None:
 
 
 def test_home_rejects_an_axis_named_twice() -> None:
-    with pytest.raises(OutOfRangeError, match="twice"):
+    with pytest.raises(ArgumentError, match="twice"):
         Home("XY", lambda n: MoveAxisHome(n, 1.0), order=["X", ["X", "Y"]])
 
 
@@ -286,7 +286,7 @@ def test_home_rejects_an_axis_named_twice() -> None:
     ({"homing_speed_mm_s": 5.0, "slow_speed_mm_s": -1.0}, "slow_speed_mm_s"),
 ])
 def test_bad_homing_parameters(kwargs: dict[str, float], word: str) -> None:
-    with pytest.raises(OutOfRangeError, match=word):
+    with pytest.raises(ArgumentError, match=word):
         MoveAxisHome("X", **kwargs)
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from usbmotion.device import Device
-from usbmotion.errors import OutOfRangeError
+from usbmotion.errors import ArgumentError, OutOfRangeError
 from usbmotion.host.device import DeviceClient
 from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams, wait_until_drained
 from usbmotion.host.transport import LineTransport
@@ -219,11 +219,11 @@ def test_every_method_validates_before_sending(sim_rig: Rig, call, message: str)
 
 def test_stream_arguments_are_validated(sim_rig: Rig) -> None:
     client = sim_rig.clients[0]
-    with pytest.raises(OutOfRangeError, match="period_s 0"):
+    with pytest.raises(ArgumentError, match="period_s 0"):
         SetpointStream(client, [1], period_s=0)
-    with pytest.raises(OutOfRangeError, match="low 900, high 800"):
+    with pytest.raises(ArgumentError, match="low 900, high 800"):
         SetpointStream(client, [1], period_s=0.001, low_water=900, high_water=800)
-    with pytest.raises(OutOfRangeError, match="outside int32"):
+    with pytest.raises(ArgumentError, match="outside int32"):
         SetpointStream(client, [2**40], period_s=0.001)
-    with pytest.raises(OutOfRangeError, match="must be integers"):
+    with pytest.raises(ArgumentError, match="must be integers"):
         SetpointStream(client, np.array([1.5]), period_s=0.001)

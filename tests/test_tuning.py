@@ -15,7 +15,7 @@ import pytest
 from usbmotion.cli.run import default_machine
 from usbmotion.clock import WALL_CLOCK
 from usbmotion.device import Device, MemoryFlash
-from usbmotion.errors import ConfigError, DeviceError, OutOfRangeError
+from usbmotion.errors import ArgumentError, ConfigError, DeviceError
 from usbmotion.host.config import MachineConfig, load_config, parse_config
 from usbmotion.host.machine import Machine
 from usbmotion.sim.machine import SimulatedMachine
@@ -67,7 +67,7 @@ def test_the_fit_recovers_a_first_order_run() -> None:
 )
 def test_the_fit_refuses_what_is_no_run(times: np.ndarray, moved: np.ndarray,
                                         message: str) -> None:
-    with pytest.raises(OutOfRangeError, match=message):
+    with pytest.raises(ArgumentError, match=message):
         fit_saturated_run(times, moved)
 
 
@@ -127,14 +127,14 @@ def test_the_reach_of_the_heavier_z_axis_and_toward_lower_positions() -> None:
 
 
 def test_a_distance_too_short_to_reach_top_speed_asks_for_more() -> None:
-    with pytest.raises(OutOfRangeError, match=r"axis X: still accelerating after .* mm \(.* ms,"
+    with pytest.raises(ArgumentError, match=r"axis X: still accelerating after .* mm \(.* ms,"
                        r" .* time constants of .* ms; at least 3 needed\): give the test at"
                        r" least 1\d mm") as caught:
         measured("X", distance_mm=4.0)
     assert caught.value.reason == "distance_mm"
-    with pytest.raises(OutOfRangeError, match=r"distance_mm 0\.0 must be a finite non-zero"):
+    with pytest.raises(ArgumentError, match=r"distance_mm 0\.0 must be a finite non-zero"):
         measured("X", distance_mm=0.0)
-    with pytest.raises(OutOfRangeError, match="is 72 counts; a reach test needs at least 100"):
+    with pytest.raises(ArgumentError, match="is 72 counts; a reach test needs at least 100"):
         measured("X", distance_mm=0.3)
 
 

@@ -15,8 +15,8 @@ from pathlib import Path
 
 from usbmotion.demos import DEMOS, demo_path
 from usbmotion.errors import (
+    ArgumentError,
     GCodeError,
-    OutOfRangeError,
     PlanningError,
     StopRequestedError,
     UsbMotionError,
@@ -98,7 +98,7 @@ class Console:
             return
         try:
             path = demo_path(number)
-        except OutOfRangeError as error:
+        except ArgumentError as error:
             self.write(f"error: {error}")
             return
         self._load(path)

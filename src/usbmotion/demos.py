@@ -5,7 +5,7 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
-from usbmotion.errors import OutOfRangeError
+from usbmotion.errors import ArgumentError
 
 DEMOS: dict[int, tuple[str, str]] = {
     1: ("rounded square", "1-rounded-square.ngc"),
@@ -19,10 +19,10 @@ def demo_path(number: int) -> Path:
     """The file of demo ``number`` (1..3).
 
     Raises:
-        OutOfRangeError: no such demo.
+        ArgumentError: no such demo.
     """
     if number not in DEMOS:
-        raise OutOfRangeError(
+        raise ArgumentError(
             f"demo {number!r} does not exist; choose 1..{len(DEMOS)}"
             f" ({', '.join(f'{n} {t}' for n, (t, _) in DEMOS.items())})",
             reason="demo",

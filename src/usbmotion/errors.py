@@ -19,6 +19,29 @@ class SciMathError(UsbMotionError, ValueError):
     """A scientific-notation number could not be built or computed."""
 
 
+# --- host arguments ------------------------------------------------------------------------
+
+
+class ArgumentError(UsbMotionError, ValueError):
+    """An argument given to the host library is not allowed: a timeout, a period, a
+    watermark, a distance, a demo number. Values bound for the wire that the protocol
+    cannot carry are :class:`OutOfRangeError` instead.
+
+    ``reason`` names the parameter.
+    """
+
+    def __init__(self, message: str, *, reason: str = "") -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+class NoSuchDeviceError(UsbMotionError, KeyError):
+    """A simulated world holds no device by that key."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
+
+
 # --- the wire protocol ---------------------------------------------------------------------
 
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from usbmotion.errors import DeviceError, DeviceFaultError, OutOfRangeError
+from usbmotion.errors import ArgumentError, DeviceError, DeviceFaultError
 from usbmotion.host.config import AxisReach, PidGains
 from usbmotion.host.device import ControlMode, Diagnostics
 from usbmotion.host.machine import Machine
@@ -49,12 +49,12 @@ def step_metrics(times_s: FloatArray, position: FloatArray, *, start: float,
     """Figures of a step from ``start`` by ``step_counts`` applied at time 0.
 
     Raises:
-        OutOfRangeError: a zero step, or arrays of different lengths or empty.
+        ArgumentError: a zero step, or arrays of different lengths or empty.
     """
     if step_counts == 0:
-        raise OutOfRangeError("step_counts 0: a step must move", reason="step_counts")
+        raise ArgumentError("step_counts 0: a step must move", reason="step_counts")
     if times_s.shape != position.shape or times_s.size == 0:
-        raise OutOfRangeError(
+        raise ArgumentError(
             f"times {times_s.shape} and positions {position.shape} must match and not be empty",
             reason="arrays",
         )
@@ -109,20 +109,20 @@ def step_response(
     Raises:
         DeviceFaultError: the device faulted during the test.
 
-        OutOfRangeError: a step of zero or not finite, or a non-positive duration.
+        ArgumentError: a step of zero or not finite, or a non-positive duration.
     """
     if not (math.isfinite(step_mm) and step_mm != 0):
-        raise OutOfRangeError(f"step_mm {step_mm!r} must be a finite non-zero distance",
+        raise ArgumentError(f"step_mm {step_mm!r} must be a finite non-zero distance",
                               reason="step_mm")
     if not (math.isfinite(duration_s) and duration_s > 0):
-        raise OutOfRangeError(f"duration_s {duration_s!r} must be > 0", reason="duration_s")
+        raise ArgumentError(f"duration_s {duration_s!r} must be > 0", reason="duration_s")
     target = machine.axis(axis)
     client = target.client
     period_s = machine.config.motion_period_s
     tick_s = machine.config.servo_period_s
     step = target.scale.to_counts(step_mm)
     if step == 0:
-        raise OutOfRangeError(f"step_mm {step_mm!r} is under one count", reason="step_mm")
+        raise ArgumentError(f"step_mm {step_mm!r} is under one count", reason="step_mm")
     records: list[Diagnostics] = []
     limit = target.config.following_error_limit_counts
     with client.listening(diagnostics=records.append):
@@ -206,18 +206,18 @@ def fit_saturated_run(times_s: FloatArray, moved_counts: FloatArray) -> Saturate
     time to ten times the record.
 
     Raises:
-        OutOfRangeError: fewer than 3 samples, arrays of different shapes, times not
+        ArgumentError: fewer than 3 samples, arrays of different shapes, times not
             positive and increasing, or a run that did not move forward.
     """
     if times_s.shape != moved_counts.shape or times_s.size < 3:
-        raise OutOfRangeError(
+        raise ArgumentError(
             f"times {times_s.shape} and distances {moved_counts.shape} must match, with at"
             " least 3 samples", reason="arrays",
         )
     if times_s[0] <= 0 or np.any(np.diff(times_s) <= 0):
-        raise OutOfRangeError("times must be positive and increasing", reason="times_s")
+        raise ArgumentError("times must be positive and increasing", reason="times_s")
     if moved_counts[-1] <= 0:
-        raise OutOfRangeError(f"the run moved {moved_counts[-1]:g} counts: it must move forward",
+        raise ArgumentError(f"the run moved {moved_counts[-1]:g} counts: it must move forward",
                               reason="moved_counts")
 
     def solve(tau: float) -> tuple[float, float]:
@@ -306,20 +306,20 @@ def measure_reach(
     is left enabled in position mode, holding.
 
     Raises:
-        OutOfRangeError: a distance of zero or under 100 counts, or a run that was still
+        ArgumentError: a distance of zero or under 100 counts, or a run that was still
             accelerating when it had used its room (give more distance).
         DeviceError: the axis did not move, the output did not saturate, or it did not come
             to rest in time.
         DeviceFaultError: the device faulted during the test.
     """
     if not (math.isfinite(distance_mm) and distance_mm != 0):
-        raise OutOfRangeError(f"distance_mm {distance_mm!r} must be a finite non-zero distance",
+        raise ArgumentError(f"distance_mm {distance_mm!r} must be a finite non-zero distance",
                               reason="distance_mm")
     target = machine.axis(axis)
     client = target.client
     room = abs(target.scale.to_counts(distance_mm))
     if room < 100:
-        raise OutOfRangeError(
+        raise ArgumentError(
             f"distance_mm {distance_mm!r} is {room} counts; a reach test needs at least 100",
             reason="distance_mm",
         )
@@ -411,7 +411,7 @@ def _saturated_run(machine: Machine, axis: str, records: list[Diagnostics], dire
     fit = fit_saturated_run(times, moved_counts)
     if times[-1] < _MIN_TIME_CONSTANTS * fit.time_constant_s:
         scale = machine.axis(axis).config.counts_per_mm
-        raise OutOfRangeError(
+        raise ArgumentError(
             f"axis {axis}: still accelerating after {moved_counts[-1] / scale:.3g} mm"
             f" ({times[-1] * 1000:.0f} ms, {times[-1] / fit.time_constant_s:.1f} time constants"
             f" of {fit.time_constant_s * 1000:.1f} ms; at least {_MIN_TIME_CONSTANTS:g}"

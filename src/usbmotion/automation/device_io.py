@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 from usbmotion.automation.homing import LimitSwitchState, SwitchEdgeReading
 from usbmotion.clock import Clock
-from usbmotion.errors import DeviceFaultError, OutOfRangeError
+from usbmotion.errors import ArgumentError, DeviceFaultError
 from usbmotion.host.device import AxisScale, ControlMode, DeviceClient, Status, SwitchEdge
 from usbmotion.motion.profiles import trapezoid_profile
 from usbmotion.protocol import QUEUE_CAPACITY
@@ -127,12 +127,12 @@ class DeviceHomingIO:
     ) -> None:
         for name, value in (("poll_period_s", poll_period_s), ("tick_s", tick_s)):
             if not (math.isfinite(value) and value > 0):
-                raise OutOfRangeError(f"{name} {value!r} must be > 0", reason=name)
+                raise ArgumentError(f"{name} {value!r} must be > 0", reason=name)
         if cover_polls < 2:
-            raise OutOfRangeError(f"cover_polls {cover_polls!r} must be >= 2",
+            raise ArgumentError(f"cover_polls {cover_polls!r} must be >= 2",
                                   reason="cover_polls")
         if keep_alive_polls < 1:
-            raise OutOfRangeError(f"keep_alive_polls {keep_alive_polls!r} must be >= 1",
+            raise ArgumentError(f"keep_alive_polls {keep_alive_polls!r} must be >= 1",
                                   reason="keep_alive_polls")
         self.axes = dict(axes)
         self.clock = clock

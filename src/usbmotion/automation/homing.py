@@ -42,7 +42,7 @@ from usbmotion.automation.sequence import (
     Incomplete,
     Transition,
 )
-from usbmotion.errors import OutOfRangeError
+from usbmotion.errors import ArgumentError
 
 LOCATE_INTO_MM = 0.05
 """How far past the latched edge the slow locate goes before it stops: the axis then rests
@@ -131,7 +131,7 @@ class MoveAxisHome:
         pull_off_mm: how far the axis ends off the switch (>= 0).
 
     Raises:
-        OutOfRangeError: a speed or distance out of its range.
+        ArgumentError: a speed or distance out of its range.
     """
 
     def __init__(
@@ -150,7 +150,7 @@ class MoveAxisHome:
         _not_negative(backoff_mm, "backoff_mm")
         _not_negative(pull_off_mm, "pull_off_mm")
         if math.isnan(search_mm) or search_mm <= 0:
-            raise OutOfRangeError(f"search_mm {search_mm!r} must be > 0", reason="search_mm")
+            raise ArgumentError(f"search_mm {search_mm!r} must be > 0", reason="search_mm")
         self.axis = axis
         self.homing_speed_mm_s = homing_speed_mm_s
         self.slow_speed_mm_s = slow
@@ -335,7 +335,7 @@ class Home:
                 groups.append([group] if isinstance(group, str) else list(group))
         named = [name for group in groups for name in group]
         if len(set(named)) != len(named):
-            raise OutOfRangeError(f"homing order {order!r} names an axis twice", reason="order")
+            raise ArgumentError(f"homing order {order!r} names an axis twice", reason="order")
         self.axes: dict[str, MoveAxisHome] = {name: make(name) for name in named}
         """The one-axis sequences, by axis name."""
         stages: list[AutomationSequence[HomingInputs, HomingOutputs]] = [
@@ -354,9 +354,9 @@ class Home:
 
 def _positive(value: float, name: str) -> None:
     if not (math.isfinite(value) and value > 0):
-        raise OutOfRangeError(f"{name} {value!r} must be a finite number > 0", reason=name)
+        raise ArgumentError(f"{name} {value!r} must be a finite number > 0", reason=name)
 
 
 def _not_negative(value: float, name: str) -> None:
     if not (math.isfinite(value) and value >= 0):
-        raise OutOfRangeError(f"{name} {value!r} must be a finite number >= 0", reason=name)
+        raise ArgumentError(f"{name} {value!r} must be a finite number >= 0", reason=name)

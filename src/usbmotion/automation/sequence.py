@@ -15,7 +15,7 @@ from enum import Enum
 from typing import Generic, Protocol, TypeVar
 
 from usbmotion.clock import Clock
-from usbmotion.errors import OutOfRangeError, SequenceFaultError, StopRequestedError
+from usbmotion.errors import ArgumentError, SequenceFaultError, StopRequestedError
 
 
 class FaultKind(Enum):
@@ -193,7 +193,7 @@ def run_sequence(
         StopRequestedError: ``should_stop`` answered why it should stop.
     """
     if not (math.isfinite(rate_hz) and rate_hz > 0):
-        raise OutOfRangeError(f"rate_hz {rate_hz!r} must be > 0", reason="rate_hz")
+        raise ArgumentError(f"rate_hz {rate_hz!r} must be > 0", reason="rate_hz")
     period = 1.0 / rate_hz
     start = clock.now()
     polls = 0

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, MachineOption, default_machine
-from usbmotion.errors import ConfigError, OutOfRangeError, UsbMotionError
+from usbmotion.errors import ArgumentError, ConfigError, UsbMotionError
 
 if TYPE_CHECKING:
     from usbmotion.host.config import AxisConfig, MachineConfig
@@ -144,7 +144,7 @@ def _reach(config: MachineConfig, axis_config: AxisConfig, distance_mm: float | 
                 measured = measure_reach(connected, axis_config.name, distance_mm=distance)
             finally:
                 connected.stop()
-    except OutOfRangeError as error:
+    except ArgumentError as error:
         typer.echo(f"usbmotion tune: {error}", err=True)
         raise typer.Exit(EXIT_BAD_INPUT) from None
     except UsbMotionError as error:

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 from usbmotion.clock import Clock
 from usbmotion.errors import (
+    ArgumentError,
     DeviceTimeoutError,
     ErrReplyError,
     LinkCorruptedError,
@@ -94,7 +95,7 @@ class AxisScale:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.counts_per_mm) and self.counts_per_mm > 0):
-            raise OutOfRangeError(
+            raise ArgumentError(
                 f"counts_per_mm {self.counts_per_mm!r} must be a finite number > 0",
                 reason="counts_per_mm",
             )
@@ -129,7 +130,7 @@ class DeviceClient:
         on_diagnostics: Callable[[Diagnostics], None] | None = None,
     ) -> None:
         if not (math.isfinite(timeout_s) and timeout_s > 0):
-            raise OutOfRangeError(f"timeout_s {timeout_s!r} must be > 0", reason="timeout_s")
+            raise ArgumentError(f"timeout_s {timeout_s!r} must be > 0", reason="timeout_s")
         self.transport = transport
         self.name = name or transport.label
         self.timeout_s = timeout_s
@@ -383,7 +384,7 @@ class DeviceClient:
         """
         wait_s = self.timeout_s if timeout_s is None else timeout_s
         if not (math.isfinite(wait_s) and wait_s > 0):
-            raise OutOfRangeError(f"timeout_s {timeout_s!r} must be > 0", reason="timeout_s")
+            raise ArgumentError(f"timeout_s {timeout_s!r} must be > 0", reason="timeout_s")
         value = _MARKERS.randint(1, 255)
         marker_spec = BY_NUMBER[C.SET_DEBUG_FLAG].query_reply
         assert marker_spec is not None
@@ -563,7 +564,7 @@ class DeviceClient:
     def set_sim_value(self, number: C, value: float, *, label: str) -> None:
         """Calls 13-15, 17, 32, 33: a simulated-motor value as 4 significant digits."""
         if number not in SIM_SCIENTIFIC_CALLS:
-            raise OutOfRangeError(
+            raise ArgumentError(
                 f"call {number!r} is not a scientific simulated-motor call ("
                 + ", ".join(f"{c.name} {int(c)}" for c in SIM_SCIENTIFIC_CALLS) + ")",
                 reason="call",
@@ -719,7 +720,7 @@ class DeviceClient:
 
     def _scale(self) -> AxisScale:
         if self.scale is None:
-            raise OutOfRangeError(
+            raise ArgumentError(
                 f"{self.name}: no axis scale set; give DeviceClient(scale=AxisScale(...))",
                 reason="scale",
             )

@@ -23,10 +23,10 @@ import numpy as np
 import numpy.typing as npt
 
 from usbmotion.errors import (
+    ArgumentError,
     DeviceTimeoutError,
     LinkCorruptedError,
     LinkLostError,
-    OutOfRangeError,
     QueueFullError,
     UnexpectedReplyError,
 )
@@ -124,27 +124,27 @@ class SetpointStream:
         on_acknowledgement: Callable[[int, int], None] | None = None,
     ) -> None:
         if not (math.isfinite(period_s) and period_s > 0):
-            raise OutOfRangeError(f"period_s {period_s!r} must be > 0", reason="period_s")
+            raise ArgumentError(f"period_s {period_s!r} must be > 0", reason="period_s")
         if not 0 <= low_water < high_water <= QUEUE_CAPACITY:
-            raise OutOfRangeError(
+            raise ArgumentError(
                 f"watermarks low {low_water!r}, high {high_water!r} must satisfy"
                 f" 0 <= low < high <= {QUEUE_CAPACITY}", reason="watermarks",
             )
         if not 1 <= max_batch <= QUEUE_CAPACITY:
-            raise OutOfRangeError(
+            raise ArgumentError(
                 f"max_batch {max_batch!r} is out of range 1..{QUEUE_CAPACITY}", reason="max_batch"
             )
         array = np.asarray(values)
         if array.ndim != 1:
-            raise OutOfRangeError(f"values must be one-dimensional, got shape {array.shape}",
+            raise ArgumentError(f"values must be one-dimensional, got shape {array.shape}",
                                   reason="values")
         if array.size and (array.min() < INT32_MIN or array.max() > INT32_MAX):
-            raise OutOfRangeError(
+            raise ArgumentError(
                 f"a setpoint is outside int32 ({int(array.min())}..{int(array.max())})",
                 reason="values",
             )
         if array.size and not np.issubdtype(array.dtype, np.integer):
-            raise OutOfRangeError(f"setpoints must be integers, got dtype {array.dtype}",
+            raise ArgumentError(f"setpoints must be integers, got dtype {array.dtype}",
                                   reason="values")
         self.client = client
         self._values = array.astype(np.int64)

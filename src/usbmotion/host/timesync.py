@@ -26,7 +26,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from usbmotion.clock import Clock
-from usbmotion.errors import DeviceError, OutOfRangeError
+from usbmotion.errors import ArgumentError, DeviceError
 from usbmotion.host.device import DeviceClient
 from usbmotion.protocol import CallNumber
 from usbmotion.protocol.table import INT32_MAX
@@ -136,14 +136,14 @@ def shared_clock(clients: Sequence[DeviceClient]) -> Clock:
     """The clock every client's link waits on.
 
     Raises:
-        OutOfRangeError: no clients, or their links wait on different clocks (a simulated
+        ArgumentError: no clients, or their links wait on different clocks (a simulated
             world and the wall clock, or two worlds): they cannot be synchronised.
     """
     if not clients:
-        raise OutOfRangeError("no devices to synchronise", reason="clients")
+        raise ArgumentError("no devices to synchronise", reason="clients")
     clocks = [c.link_clock for c in clients]
     if any(clock is not clocks[0] for clock in clocks):
-        raise OutOfRangeError(
+        raise ArgumentError(
             "devices " + ", ".join(c.name for c in clients) + " wait on different clocks"
             " (virtual and wall, or two simulated worlds); they cannot start together",
             reason="clients",
@@ -178,14 +178,14 @@ def measure_clock(
         tick_s: the device's servo period, seconds (queried with call 5 when not given).
 
     Raises:
-        OutOfRangeError: ``samples`` < 1 or ``tick_s`` <= 0.
+        ArgumentError: ``samples`` < 1 or ``tick_s`` <= 0.
     """
     if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
-        raise OutOfRangeError(f"samples {samples!r} must be an integer >= 1", reason="samples")
+        raise ArgumentError(f"samples {samples!r} must be an integer >= 1", reason="samples")
     if tick_s is None:
         tick_s = client.servo_interval_us() / 1e6
     if not (math.isfinite(tick_s) and tick_s > 0):
-        raise OutOfRangeError(f"tick_s {tick_s!r} must be > 0", reason="tick_s")
+        raise ArgumentError(f"tick_s {tick_s!r} must be > 0", reason="tick_s")
     clock = client.link_clock
     client.clock()
     taken: list[ClockSample] = []
@@ -220,12 +220,12 @@ def arm_start(
     step then start on the same tick even when their estimates differ by a fraction.
 
     Raises:
-        OutOfRangeError: the lists differ in length, or a start tick is outside 0..2**31-1.
+        ArgumentError: the lists differ in length, or a start tick is outside 0..2**31-1.
         DeviceError: a device confirmed its arming only after its start tick may have
             passed (give a larger margin).
     """
     if len(clients) != len(estimates):
-        raise OutOfRangeError(
+        raise ArgumentError(
             f"{len(clients)} devices but {len(estimates)} clock estimates", reason="estimates"
         )
     clock = shared_clock(clients)
@@ -236,7 +236,7 @@ def arm_start(
     for client, estimate in zip(clients, estimates, strict=True):
         tick = round(estimate.ticks_at(start_s))
         if not 0 <= tick <= INT32_MAX:
-            raise OutOfRangeError(
+            raise ArgumentError(
                 f"{client.name}: start tick {tick!r} is out of range 0..{INT32_MAX};"
                 " zero the clocks first", reason="start_tick",
             )
@@ -276,11 +276,11 @@ def synchronise_start(
         zero: zero the clocks first (call 22).
 
     Raises:
-        OutOfRangeError: a bad argument, or clients on different clocks.
+        ArgumentError: a bad argument, or clients on different clocks.
         DeviceError: the start passed before a device was armed.
     """
     if not (math.isfinite(margin_s) and margin_s >= 0):
-        raise OutOfRangeError(f"margin_s {margin_s!r} must be >= 0", reason="margin_s")
+        raise ArgumentError(f"margin_s {margin_s!r} must be >= 0", reason="margin_s")
     clock = shared_clock(clients)
     if zero:
         zero_clocks(clients)

@@ -16,6 +16,8 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from usbmotion.errors import ArgumentError, NoSuchDeviceError
+
 
 class SimulatedDevice(Protocol):
     """What the world needs of a device (``usbmotion.device.Device`` provides it)."""
@@ -92,7 +94,8 @@ class SimLink:
 
     def __init__(self, world: SimWorld, key: str, *, latency_us: int = 0) -> None:
         if latency_us < 0:
-            raise ValueError(f"latency_us {latency_us!r} is negative; it must be >= 0")
+            raise ArgumentError(f"latency_us {latency_us!r} is negative; it must be >= 0",
+                                reason="latency_us")
         self.world = world
         self.key = key
         self.latency_us = latency_us
@@ -186,7 +189,7 @@ class SimWorld:
         """
         key = device.name if key is None else key
         if key in self._members:
-            raise ValueError(f"device key {key!r} is already in this world")
+            raise ArgumentError(f"device key {key!r} is already in this world", reason="key")
         self._members[key] = _Member(device, time_us=self._time_us)
         return key
 
@@ -198,7 +201,8 @@ class SimWorld:
         """
         member = self._members.get(key)
         if member is None:
-            raise KeyError(f"no simulated device {key!r}; this world has {sorted(self._members)}")
+            raise NoSuchDeviceError(
+                f"no simulated device {key!r}; this world has {sorted(self._members)}")
         return member.device
 
     def connect(self, key: str, *, latency_us: int = 0) -> SimLink:
