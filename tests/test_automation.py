@@ -10,8 +10,8 @@ from usbmotion.automation import (
     All,
     Chain,
     Complete,
-    Fault,
-    FaultKind,
+    Failure,
+    FailureKind,
     Home,
     Incomplete,
     LimitSwitchState,
@@ -117,7 +117,7 @@ def test_polling_without_hitting_limits_makes_an_axis_move_backwards() -> None:
 def test_actuating_the_upper_limit_is_a_fault() -> None:
     bench = Bench({"7": Carriage(50.0, upper_mm=40.0)})
     seq = MoveAxisHome("7", 100.0)
-    assert seq.poll(bench, bench) == Fault.unexpected_upper_limit("7")
+    assert seq.poll(bench, bench) == Failure.unexpected_upper_limit("7")
     assert bench.commands[-1] == ("7", 0.0)
 
 
@@ -131,7 +131,7 @@ def test_the_seeds_sequence_zeroes_on_the_seek_edge_without_a_back_off() -> None
 def test_homing_an_axis_that_does_not_exist_is_a_fault() -> None:
     seq = MoveAxisHome("9", 100.0)
     bench = Bench({})
-    assert seq.poll(bench, bench) == Fault.axis_not_found("9")
+    assert seq.poll(bench, bench) == Failure.axis_not_found("9")
 
 
 def test_grbls_cycle_seek_back_off_locate_pull_off() -> None:
@@ -160,8 +160,8 @@ def test_grbls_cycle_seek_back_off_locate_pull_off() -> None:
 def test_no_switch_within_the_search_distance_is_a_fault_naming_it() -> None:
     bench = Bench({"X": Carriage(50.0, switch_mm=-1e6)})
     result = bench.run(MoveAxisHome("X", 10.0, search_mm=30.0))
-    assert isinstance(result, Fault)
-    assert result.kind is FaultKind.SWITCH_NOT_FOUND
+    assert isinstance(result, Failure)
+    assert result.kind is FailureKind.SWITCH_NOT_FOUND
     assert result.axis == "X" and "within 30 mm" in result.detail
     assert bench.commands[-1] == ("X", 0.0), "the axis is stopped"
     assert 30.0 < 50.0 - bench.carriages["X"].position_mm < 30.5
@@ -170,8 +170,8 @@ def test_no_switch_within_the_search_distance_is_a_fault_naming_it() -> None:
 def test_a_switch_that_never_opens_is_a_fault() -> None:
     bench = Bench({"X": Carriage(0.0, stuck=True)})
     result = bench.run(MoveAxisHome("X", 20.0, backoff_mm=1.0))
-    assert isinstance(result, Fault)
-    assert result.kind is FaultKind.LIMIT_NOT_RELEASED
+    assert isinstance(result, Failure)
+    assert result.kind is FailureKind.LIMIT_NOT_RELEASED
     assert bench.commands[-1] == ("X", 0.0)
 
 
@@ -185,8 +185,8 @@ def test_a_switch_still_closed_after_the_pull_off_is_a_fault() -> None:
         if result is not Incomplete:
             break
         bench.step()
-    assert isinstance(result, Fault)
-    assert result.kind is FaultKind.LIMIT_NOT_RELEASED
+    assert isinstance(result, Failure)
+    assert result.kind is FailureKind.LIMIT_NOT_RELEASED
     assert "after homing" in result.detail
 
 
@@ -230,7 +230,7 @@ def test_all_polls_every_live_child_and_completes_when_all_have() -> None:
 
 def test_all_first_fault_wins_and_stops_the_rest() -> None:
     log: list[str] = []
-    fault = Fault(FaultKind.DEVICE, "Y", "following error")
+    fault = Failure(FailureKind.DEVICE, "Y", "following error")
     a = Script("a", [Incomplete, Incomplete], log)
     b = Script("b", [fault], log)
     c = Script("c", [Incomplete], log)
@@ -250,7 +250,7 @@ def test_chain_runs_one_after_another_and_stops_at_a_fault() -> None:
     assert log == ["a"]
     assert seq.poll(None, None) is Complete
     assert log == ["a", "a", "b"], "a completed child hands over in the same poll"
-    fault = Fault(FaultKind.DEVICE, "Z")
+    fault = Failure(FailureKind.DEVICE, "Z")
     log.clear()
     c = Script("c", [fault], log)
     d = Script("d", [Complete], log)
@@ -308,7 +308,7 @@ def test_runner_polls_at_a_fixed_rate_and_raises_faults() -> None:
     seq = Script("a", [Incomplete] * 4 + [Complete], log)
     run_sequence(seq, None, None, clock=clock, rate_hz=50, on_poll=lambda n: polls.append(clock.t))
     assert polls == pytest.approx([0.0, 0.02, 0.04, 0.06, 0.08])
-    bad = Script("b", [Incomplete, Fault(FaultKind.DEVICE, "X", "watchdog")], log)
+    bad = Script("b", [Incomplete, Failure(FailureKind.DEVICE, "X", "watchdog")], log)
     with pytest.raises(SequenceFaultError) as caught:
         run_sequence(bad, None, None, clock=clock)
     assert caught.value.axis == "X"

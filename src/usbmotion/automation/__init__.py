@@ -1,4 +1,4 @@
-"""Automation sequences: polled until Complete or Fault; combinators; homing."""
+"""Automation sequences: polled until Complete or Failure; combinators; homing."""
 
 from usbmotion.automation.homing import (
     Home,
@@ -13,8 +13,8 @@ from usbmotion.automation.sequence import (
     AutomationSequence,
     Chain,
     Complete,
-    Fault,
-    FaultKind,
+    Failure,
+    FailureKind,
     Incomplete,
     Transition,
     at_end,
@@ -26,8 +26,8 @@ __all__ = [
     "AutomationSequence",
     "Chain",
     "Complete",
-    "Fault",
-    "FaultKind",
+    "Failure",
+    "FailureKind",
     "Home",
     "HomingInputs",
     "HomingOutputs",

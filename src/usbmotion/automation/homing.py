@@ -37,8 +37,8 @@ from usbmotion.automation.sequence import (
     AutomationSequence,
     Chain,
     Complete,
-    Fault,
-    FaultKind,
+    Failure,
+    FailureKind,
     Incomplete,
     Transition,
 )
@@ -186,7 +186,7 @@ class MoveAxisHome:
             outputs.set_target_velocity(self.axis, 0.0)
             self._phase = Phase.DONE
 
-    def _fault(self, outputs: HomingOutputs, fault: Fault) -> Transition:
+    def _fault(self, outputs: HomingOutputs, fault: Failure) -> Transition:
         outputs.set_target_velocity(self.axis, 0.0)
         self._phase = Phase.DONE
         return fault
@@ -203,9 +203,9 @@ class MoveAxisHome:
         switches = inputs.limit_switches(self.axis)
         if switches is None:
             self._phase = Phase.DONE
-            return Fault.axis_not_found(self.axis)
+            return Failure.axis_not_found(self.axis)
         if switches.at_upper_limit:
-            return self._fault(outputs, Fault.unexpected_upper_limit(self.axis))
+            return self._fault(outputs, Failure.unexpected_upper_limit(self.axis))
         if not self._started:
             self._started = True
             self._begin(Phase.SEEK, inputs)
@@ -233,7 +233,7 @@ class MoveAxisHome:
         # PULL_OFF: the planned move has played out.
         self._phase = Phase.DONE
         if switches.at_lower_limit and self.pull_off_mm > 0:
-            return Fault(FaultKind.LIMIT_NOT_RELEASED, self.axis,
+            return Failure(FailureKind.LIMIT_NOT_RELEASED, self.axis,
                          f"still closed {self.pull_off_mm:g} mm off the switch after homing")
         return Complete
 
@@ -246,8 +246,8 @@ class MoveAxisHome:
             return Incomplete
         travelled = self._mark_mm - inputs.position_mm(self.axis)
         if travelled > self.search_mm:
-            return self._fault(outputs, Fault(
-                FaultKind.SWITCH_NOT_FOUND, self.axis,
+            return self._fault(outputs, Failure(
+                FailureKind.SWITCH_NOT_FOUND, self.axis,
                 f"no switch within {self.search_mm:g} mm of the seek (travelled"
                 f" {travelled:.3f} mm); check the switch, its wiring and homing.direction"))
         outputs.set_target_velocity(self.axis, -self.homing_speed_mm_s)
@@ -259,8 +259,8 @@ class MoveAxisHome:
         if switches.at_lower_limit:
             travelled = position - self._mark_mm
             if travelled > LOCATE_SCALE * self.backoff_mm + 1.0:
-                return self._fault(outputs, Fault(
-                    FaultKind.LIMIT_NOT_RELEASED, self.axis,
+                return self._fault(outputs, Failure(
+                    FailureKind.LIMIT_NOT_RELEASED, self.axis,
                     f"still closed {travelled:.3f} mm off the switch"))
             outputs.set_target_velocity(self.axis, self.slow_speed_mm_s)
             return Incomplete
@@ -291,8 +291,8 @@ class MoveAxisHome:
         travelled = self._mark_mm - inputs.position_mm(self.axis)
         reach = LOCATE_SCALE * self.backoff_mm + 1.0
         if travelled > reach:
-            return self._fault(outputs, Fault(
-                FaultKind.SWITCH_NOT_FOUND, self.axis,
+            return self._fault(outputs, Failure(
+                FailureKind.SWITCH_NOT_FOUND, self.axis,
                 f"the switch did not close again within {reach:g} mm of the slow locate"))
         outputs.set_target_velocity(self.axis, -self.slow_speed_mm_s)
         return Incomplete
@@ -300,8 +300,8 @@ class MoveAxisHome:
     def _zero(self, inputs: HomingInputs, outputs: HomingOutputs) -> Transition:
         edge = inputs.switch_edge(self.axis)
         if not edge.closed or edge.edges == 0:
-            return self._fault(outputs, Fault(
-                FaultKind.SWITCH_NOT_FOUND, self.axis,
+            return self._fault(outputs, Failure(
+                FailureKind.SWITCH_NOT_FOUND, self.axis,
                 "the device latched no closing edge of the switch"))
         self._reference = edge
         outputs.zero_and_pull_off(self.axis, edge, self.pull_off_mm)

@@ -1,4 +1,4 @@
-"""Automation sequences: polled until they report ``Complete`` or ``Fault``.
+"""Automation sequences: polled until they report ``Complete`` or ``Failure``.
 
 A sequence does a little work each time it is polled and answers with a
 :class:`Transition`. Combinators build bigger sequences from small ones: :class:`All`
@@ -18,7 +18,7 @@ from usbmotion.clock import Clock
 from usbmotion.errors import ArgumentError, SequenceFaultError, StopRequestedError
 
 
-class FaultKind(Enum):
+class FailureKind(Enum):
     """Why a sequence failed."""
 
     AXIS_NOT_FOUND = "axis not found"
@@ -31,10 +31,10 @@ class FaultKind(Enum):
 
 
 @dataclass(frozen=True, slots=True)
-class Fault:
+class Failure:
     """What went wrong, and on which axis."""
 
-    kind: FaultKind
+    kind: FailureKind
     axis: str = ""
     detail: str = ""
 
@@ -43,14 +43,14 @@ class Fault:
         return where + self.kind.value + (f" ({self.detail})" if self.detail else "")
 
     @classmethod
-    def axis_not_found(cls, axis: str) -> Fault:
+    def axis_not_found(cls, axis: str) -> Failure:
         """The named axis does not exist."""
-        return cls(FaultKind.AXIS_NOT_FOUND, axis)
+        return cls(FailureKind.AXIS_NOT_FOUND, axis)
 
     @classmethod
-    def unexpected_upper_limit(cls, axis: str) -> Fault:
+    def unexpected_upper_limit(cls, axis: str) -> Failure:
         """The upper switch closed first: limits wired backwards, or the axis ran away."""
-        return cls(FaultKind.UNEXPECTED_UPPER_LIMIT, axis)
+        return cls(FailureKind.UNEXPECTED_UPPER_LIMIT, axis)
 
 
 class _Complete:
@@ -72,12 +72,12 @@ Complete = _Complete()
 Incomplete = _Incomplete()
 """The sequence is still running: poll it again."""
 
-Transition = _Complete | _Incomplete | Fault
+Transition = _Complete | _Incomplete | Failure
 """What one poll of a sequence reports."""
 
 
 def at_end(transition: Transition) -> bool:
-    """True for ``Complete`` and any ``Fault``."""
+    """True for ``Complete`` and any ``Failure``."""
     return transition is not Incomplete
 
 
@@ -122,7 +122,7 @@ class All(Generic[InT, OutT]):
             if transition is Incomplete:
                 continue
             self._live[index] = None
-            if isinstance(transition, Fault):
+            if isinstance(transition, Failure):
                 for other in self._live:
                     stop = getattr(other, "stop", None)
                     if other is not None and callable(stop):
@@ -153,7 +153,7 @@ class Chain(Generic[InT, OutT]):
             transition = self._children[self._index].poll(inputs, outputs)
             if transition is Incomplete:
                 return Incomplete
-            if isinstance(transition, Fault):
+            if isinstance(transition, Failure):
                 self._index = len(self._children)
                 return transition
             self._index += 1
@@ -210,7 +210,7 @@ def run_sequence(
             on_poll(polls)
         if transition is Complete:
             return
-        if isinstance(transition, Fault):
+        if isinstance(transition, Failure):
             raise SequenceFaultError(str(transition), axis=transition.axis,
                                      reason=transition.kind.value)
         elapsed = clock.now() - start
@@ -219,8 +219,8 @@ def run_sequence(
             if callable(stop):
                 stop(outputs)
             raise SequenceFaultError(
-                f"{FaultKind.TIMEOUT.value}: still running after {timeout_s:g} s",
-                reason=FaultKind.TIMEOUT.value,
+                f"{FailureKind.TIMEOUT.value}: still running after {timeout_s:g} s",
+                reason=FailureKind.TIMEOUT.value,
             )
         next_poll = start + polls * period
         while True:
