@@ -59,11 +59,15 @@ def layering_violations(paths: list[Path]) -> list[str]:
     found: dict[tuple[str, int], str] = {}
     for path in paths:
         tree = ast.parse(path.read_text(), filename=str(path))
-        where = str(path.relative_to(SRC.parent))
+        where = _where(path)
         for line, module in _imports(tree):
             if module.startswith(FORBIDDEN):
                 found.setdefault((where, line), f"{where}:{line} imports {module}")
     return sorted(found.values())
+
+
+def _where(path: Path) -> str:
+    return str(path.relative_to(SRC.parent)) if path.is_relative_to(SRC) else path.name
 
 
 def _int_literal(node: ast.AST | None) -> bool:
@@ -96,7 +100,7 @@ def literal_call_numbers(paths: list[Path]) -> list[str]:
     found: list[str] = []
     for path in paths:
         tree = ast.parse(path.read_text(), filename=str(path))
-        where = str(path.relative_to(SRC.parent))
+        where = _where(path)
         for node in ast.walk(tree):
             if isinstance(node, ast.Call):
                 name = _callee(node)
@@ -132,22 +136,24 @@ def test_the_host_side_imports_neither_the_simulator_nor_the_device() -> None:
     assert layering_violations(list(_python_files(*HOST_SIDE))) == []
 
 
+def _in_fresh_python(code: str) -> str:
+    """What ``code`` prints, run in a Python process of its own (nothing imported yet)."""
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=True).stdout.strip()
+
+
 def test_importing_the_host_loads_neither_the_simulator_nor_the_device() -> None:
-    probe = ("import usbmotion.host, usbmotion.host.machine, usbmotion.host.stream, sys;"
-             " print(sorted(m for m in sys.modules"
-             " if m.startswith(('usbmotion.sim', 'usbmotion.device'))))")
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
-                         check=True).stdout
-    assert out.strip() == "[]"
+    assert _in_fresh_python(
+        "import usbmotion.host, usbmotion.host.machine, usbmotion.host.stream, sys;"
+        " print(sorted(m for m in sys.modules"
+        " if m.startswith(('usbmotion.sim', 'usbmotion.device'))))") == "[]"
 
 
 def test_importing_the_host_leaves_pyserials_url_handlers_alone() -> None:
-    probe = ("import serial; before = list(serial.protocol_handler_packages);"
-             " import usbmotion.host.device, usbmotion.host.machine;"
-             " print(serial.protocol_handler_packages == before)")
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
-                         check=True).stdout
-    assert out.strip() == "True"
+    assert _in_fresh_python(
+        "import serial; before = list(serial.protocol_handler_packages);"
+        " import usbmotion.host.device, usbmotion.host.machine;"
+        " print(serial.protocol_handler_packages == before)") == "True"
 
 
 def test_no_literal_call_numbers_outside_the_protocol_and_the_device() -> None:
@@ -161,12 +167,9 @@ def test_no_literal_call_numbers_outside_the_protocol_and_the_device() -> None:
 ])
 def test_the_import_check_catches_an_import_of_the_simulator(
         tmp_path: Path, source: str, caught: str) -> None:
-    module = SRC / "host" / "_probe_layering.py"
+    module = tmp_path / "planted.py"
     module.write_text(source)
-    try:
-        found = layering_violations([module])
-    finally:
-        module.unlink()
+    found = layering_violations([module])
     assert len(found) == 1 and caught in found[0]
 
 
@@ -180,11 +183,8 @@ def test_the_import_check_catches_an_import_of_the_simulator(
     "line = f'18 {len(name)} {codes}\\n'\n",
     "port.write(b'21 0\\n')\n",
 ])
-def test_the_call_number_check_catches_a_literal(source: str) -> None:
-    module = SRC / "host" / "_probe_numbers.py"
+def test_the_call_number_check_catches_a_literal(tmp_path: Path, source: str) -> None:
+    module = tmp_path / "planted.py"
     module.write_text(source)
-    try:
-        found = literal_call_numbers([module])
-    finally:
-        module.unlink()
+    found = literal_call_numbers([module])
     assert len(found) == 1, found
