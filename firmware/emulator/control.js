@@ -8,6 +8,7 @@ import { createInterface } from 'node:readline';
 
 import { parseArgs } from './lib/args.js';
 import { DeviceError, EmulatedDevice } from './lib/emulated-device.js';
+import { PIN_MAP, sweepEncoder } from './lib/pins.js';
 
 const options = parseArgs(process.argv.slice(2), ['bootrom']);
 let device = null;
@@ -158,10 +159,56 @@ const commands = {
     }
     return { address: symbol.address, hex: Buffer.from(bytes).toString('hex') };
   },
+  motor(request) {
+    const d = requireDevice();
+    const world = d.attachMotor(request.options ?? {});
+    return { world: world.state };
+  },
+  world() {
+    const d = requireDevice();
+    if (!d.world) {
+      throw new DeviceError('no motor attached: send {"cmd": "motor", "options": {...}} first');
+    }
+    return { world: d.world.state, pins: pinLevels(d) };
+  },
+  sweep(request) {
+    const d = requireDevice();
+    const { counts, counts_per_s: countsPerS, skip = [] } = request;
+    if (!Number.isInteger(counts) || counts === 0) {
+      throw new DeviceError(`sweep needs "counts": a whole number other than 0, not ${JSON.stringify(counts)}`);
+    }
+    if (typeof countsPerS !== 'number' || !(countsPerS > 0) || countsPerS > 62.5e6) {
+      throw new DeviceError(`sweep needs "counts_per_s" within 0..62,500,000 (two clock cycles), not ${JSON.stringify(countsPerS)}`);
+    }
+    if (!Array.isArray(skip) || !skip.every((k) => Number.isInteger(k) && k >= 1)) {
+      throw new DeviceError(`sweep "skip" must list counts numbered from 1, not ${JSON.stringify(skip)}`);
+    }
+    const startNanos = d.nanos + 2e3;
+    const endNanos = sweepEncoder(d.pins, {
+      startNanos, counts, countsPerS, startCount: sweepState.count, skip,
+    });
+    sweepState.count += counts;
+    d.releaseTimer();
+    d.advance(endNanos + 2e3);
+    d.settle();
+    return { ...span(), start_ns: startNanos, end_ns: endNanos };
+  },
   quit() {
     return {};
   },
 };
+
+/** Where the encoder pins were left by the sweeps (a count; power-up keeps them). */
+const sweepState = { count: 0 };
+
+function pinLevels(d) {
+  const levels = {};
+  for (const [name, pin] of Object.entries(PIN_MAP)) {
+    const gpio = d.mcu.gpio[pin];
+    levels[name] = gpio.outputEnable ? gpio.outputValue : gpio.inputValue;
+  }
+  return levels;
+}
 
 const lines = createInterface({ input: process.stdin, crlfDelay: Infinity });
 for await (const line of lines) {

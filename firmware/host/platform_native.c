@@ -194,3 +194,20 @@ bool platform_flash_program(unsigned sector, uint32_t offset, const uint8_t *pag
     programs++;
     return !fails;
 }
+
+/* The motor on the pins: the native build has none, so it reads a bare board (the counter
+ * stands still, both switches open) and drives nothing. */
+void platform_motor_pins_start(void) {}
+
+void platform_motor_pins_sample(motor_pins_sample_t *sample) {
+    *sample = (motor_pins_sample_t){0};
+}
+
+void platform_motor_pins_drive(int32_t level, bool enable) {
+    (void)level;
+    (void)enable;
+}
+
+int32_t platform_motor_pins_full(void) {
+    return 6250;
+}

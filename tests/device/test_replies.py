@@ -51,6 +51,7 @@ def test_seed_000_strings_to_the_letter(
 
 POWER_UP_QUERIES = {
     "2 -1": "MOTION_QUEUE 0 1000",
+    "39 -1": "MOTOR 0 0",
     "3 -1": "SERVO_ENABLE 0",
     "5 -1": "SERVO_UPDATE_INTERVAL_US 1000",
     "6 -1": "MOTION_UPDATE_INTERVAL_SCALAR 1",
@@ -116,6 +117,7 @@ SET_THEN_QUERY = [
     ("17 5 -5", "17 -1 0", "SIM_INERTIA 5 -5"),
     ("18 3 65 66 67", "18 -1", "DEVICE_NAME ABC"),
     ("19 2", "19 -1", "DEFAULT_CONTROL_MODE 2"),
+    ("39 0", "39 -1", "MOTOR 0 0"),
     ("21 50", "21 -1", "DIAGNOSTICS_INTERVAL 50"),
     ("23 -5", "20 -1", "STATUS 0 -5 -5 0 0 0 1 0 0"),
     ("28 250", "28 -1", "WATCHDOG_MS 250"),
@@ -172,6 +174,7 @@ DEBUG_LINES = [
     ([], "35 0", "MOTION STATS RESET"),
     ([], "37 -3", "POSITION SHIFTED BY -3"),
     ([], "38 0 2 5 -5", "REPLACED 0 0 2 CRC 2082170553"),
+    ([], "39 1", "MOTOR MODIFIED TO 1"),
 ]
 
 

@@ -104,6 +104,8 @@ class ServoState(ctypes.Structure):
         ("history", c_i64 * 10), ("counts", c_i32 * 10), ("stats_ticks", c_i64),
         ("stats_max", c_i64), ("stats_max_tick", c_i64), ("stats_sum_sq", c_i64),
         ("last_take", c_i64), ("edges", SwitchEdgeC * 2), ("curve", CurvePlayerC),
+        ("pins_started", ctypes.c_bool), ("pins_enabled", ctypes.c_bool),
+        ("pins_edges", c_u32 * 2),
     ]
 
 
@@ -113,7 +115,8 @@ class ServoParams(ctypes.Structure):
         ("vs", Sci), ("integral_limit", c_i64), ("watchdog_us", c_i64), ("fe_limit", c_i64),
         ("diag_n", c_i64), ("steps", c_i32), ("drive", Sci), ("friction", Sci), ("decay", Sci),
         ("lag", Sci), ("lower", c_i32), ("upper", c_i32), ("stop_low", c_i64),
-        ("stop_high", c_i64), ("window", c_i32), ("travel_num", c_i64), ("travel_den", c_i64),
+        ("stop_high", c_i64), ("window", c_i32), ("motor_pins", c_i32),
+        ("pins_level_per_volt", Sci), ("travel_num", c_i64), ("travel_den", c_i64),
         ("velocity_num", c_i64), ("velocity_den", c_i64),
     ]
 
@@ -127,7 +130,7 @@ class DeviceVars(ctypes.Structure):
         ("viscous_friction_unm_per_rad_s", Sci), ("load_torque_mnm", Sci),
         ("travel_lower_counts", c_i32), ("travel_upper_counts", c_i32),
         ("overtravel_counts", c_i32), ("diag_n", c_i32), ("watchdog_ms", c_i32),
-        ("fe_limit", c_i32),
+        ("fe_limit", c_i32), ("motor_pins", c_i32),
     ]
 
 
@@ -206,6 +209,16 @@ def _shim_source() -> str:
         "int32_t mq_peek(uint32_t index) {",
         "    return queue[(queue_head + index) % MOTION_QUEUE_CAPACITY];",
         "}",
+        "/* the motor on the pins: a bare board */",
+        "void platform_motor_pins_start(void) {}",
+        "void platform_motor_pins_sample(motor_pins_sample_t *s) {",
+        "    *s = (motor_pins_sample_t){0};",
+        "}",
+        "void platform_motor_pins_drive(int32_t level, bool enable) {",
+        "    (void)level;",
+        "    (void)enable;",
+        "}",
+        "int32_t platform_motor_pins_full(void) { return 6250; }",
         f"const size_t test_layout[] = {{{', '.join(layout)}}};",
         "const size_t test_layout_count = sizeof test_layout / sizeof test_layout[0];",
         "",

@@ -14,6 +14,7 @@ import { CdcHost } from './cdc-host.js';
 import { DualRP2040 } from './dual-core.js';
 import { STT_FUNC, readElfSymbols } from './elf.js';
 import { FLASH_BREAKPOINTS, FlashImage, answerFlashBreakpoint } from './flash.js';
+import { MotorWorld, PioClock } from './pins.js';
 import { parseUf2 } from './uf2.js';
 
 const SRAM_BASE = 0x20000000;
@@ -30,6 +31,8 @@ const STACK_PAINT = 0x5a;
 export const QUANTUM_BOTH_CYCLES = 64;
 /** ... and when the other sleeps (it wakes at the next quantum at the latest). */
 export const QUANTUM_ONE_CYCLES = 1024;
+/** The longest slice of emulated time the motor outside the chip holds its voltage for. */
+export const WORLD_SLICE_NS = 5e3;
 /** Emulated time a device may take to finish handling input before it counts as hung. */
 const SETTLE_LIMIT_NS = 10e9;
 
@@ -74,6 +77,29 @@ export class EmulatedDevice {
     this.output = [];
     this.onOutput = null; // (bytes) => void, else output is kept for takeOutput()
     this.fault = null;
+    this.worldOptions = null; // the motor outside the chip (attachMotor), kept across power cycles
+    this.world = null;
+    this.turnCore = null;
+  }
+
+  /**
+   * Wires a DC motor, its encoder and two limit switches to the chip's pins (lib/pins.js
+   * MotorWorld; options as its constructor's): from now on and on every later power-up,
+   * where the motor then is.
+   */
+  attachMotor(options = {}) {
+    this.worldOptions = options;
+    this.world = new MotorWorld(this.pins, this.mcu, options);
+    return this.world;
+  }
+
+  /** The emulated time of the instruction executing now (or the clock's between turns), ns. */
+  nowNanos() {
+    const core = this.turnCore;
+    if (core) {
+      return this.turnStartNanos + (core.cycles - this.turnStartCycles) * this.cycleNanos;
+    }
+    return this.clock.nanos;
   }
 
   /**
@@ -100,6 +126,12 @@ export class EmulatedDevice {
     this.mcu = mcu;
     this.clock = mcu.clock;
     this.sram = mcu.sramView;
+    this.cycleNanos = 1e9 / mcu.clkSys;
+    this.pins = new PioClock(mcu, () => this.nowNanos());
+    if (this.worldOptions) {
+      const where = this.world ? this.world.theta : this.worldOptions.startCount ?? 0;
+      this.world = new MotorWorld(this.pins, mcu, { ...this.worldOptions, startCount: where });
+    }
     for (const stack of this.stacks) {
       if (stack) {
         mcu.sram.fill(STACK_PAINT, stack.bottom, stack.top);
@@ -120,7 +152,14 @@ export class EmulatedDevice {
     this.timer = timer;
     this.heldAt = -1; // timer time (ns) while held, else -1
     this.timerLagNs = 0; // how far the timer is behind the clock: the time it was held
+    // alarms of free-running hardware, which never make the device busy: the timer's, and
+    // the PWM counters' (the bridge's, with the motor on the pins)
     this.timerAlarms = new Set(timer.alarms.map((alarm) => alarm.clockAlarm));
+    for (const channel of this.mcu.pwm.channels) {
+      for (const alarm of [channel.alarmA, channel.alarmB, channel.alarmBottom]) {
+        this.timerAlarms.add(alarm.clockAlarm);
+      }
+    }
     const device = this;
     timer.clock = {
       get nanos() {
@@ -245,6 +284,9 @@ export class EmulatedDevice {
 
   execute(index, core, budget) {
     this.mcu.select(index);
+    this.turnCore = core;
+    this.turnStartCycles = core.cycles;
+    this.turnStartNanos = this.clock.nanos;
     const target = core.cycles + budget - this.over[index];
     const profile = this.profile;
     if (profile) {
@@ -267,6 +309,7 @@ export class EmulatedDevice {
       }
     }
     this.over[index] = core.waiting ? 0 : core.cycles - target;
+    this.turnCore = null;
   }
 
   /** Starts counting the cycles of every instruction address, per core (slower). */
@@ -364,6 +407,7 @@ export class EmulatedDevice {
       if (next && next.nanos - now < slice) {
         slice = next.nanos - now;
       }
+      const world = this.heldAt < 0 ? this.world : null; // the world stands still with the timer
       if (!run0 && !run1) {
         if (settle && this.quiescent()) {
           return 'settled';
@@ -372,15 +416,23 @@ export class EmulatedDevice {
           if (endNanos === Infinity) {
             return 'idle';
           }
-          clock.tick(endNanos - now);
-          continue;
+          slice = endNanos - now;
         }
+        if (world) {
+          slice = Math.min(slice, WORLD_SLICE_NS);
+          world.advance(now, now + slice);
+        }
+        this.pins.catchUp(now + slice);
         clock.tick(slice);
         continue;
       }
       const quantum = (run0 && run1 ? this.quantumCycles : QUANTUM_ONE_CYCLES) * cycleNanos;
       if (quantum < slice) {
         slice = quantum;
+      }
+      if (world) {
+        slice = Math.min(slice, WORLD_SLICE_NS);
+        world.advance(now, now + slice);
       }
       if (slice > 0) {
         const budget = slice / cycleNanos;
@@ -391,6 +443,7 @@ export class EmulatedDevice {
           this.execute(1, core1, budget);
         }
       }
+      this.pins.catchUp(now + slice);
       if (targetTicks >= 0 && this.ticksDone() >= targetTicks) {
         // hold before the clock moves on, so the next tick's alarm cannot fire
         this.holdTimer();

@@ -14,10 +14,11 @@
 #define AT_MODE 8u
 #define AT_NAME_LENGTH 9u
 #define AT_NAME 10u
+#define AT_MOTOR 35u             /* call 39; the name's spare byte, 0 in records before it */
 #define AT_CRC 36u               /* CRC-32 of bytes 0 .. AT_CRC - 1 */
 #define RECORD_BYTES 40u
 
-_Static_assert(AT_NAME + TABLE_DEVICE_NAME_MAX <= AT_CRC, "the name fits its record");
+_Static_assert(AT_NAME + TABLE_DEVICE_NAME_MAX <= AT_MOTOR, "the name fits its record");
 _Static_assert(RECORD_BYTES <= PLATFORM_FLASH_PAGE_BYTES, "a record fits a page");
 
 static const uint32_t crc_nibbles[16] = {
@@ -68,7 +69,8 @@ static bool record_read(const uint8_t *page, flash_vars_t *vars) {
     }
     uint8_t mode = page[AT_MODE];
     uint8_t length = page[AT_NAME_LENGTH];
-    if (mode < 1 || mode > 3 || length > TABLE_DEVICE_NAME_MAX) {
+    uint8_t motor = page[AT_MOTOR];
+    if (mode < 1 || mode > 3 || length > TABLE_DEVICE_NAME_MAX || motor > 1) {
         return false;
     }
     for (unsigned i = 0; i < length; i++) {
@@ -80,6 +82,7 @@ static bool record_read(const uint8_t *page, flash_vars_t *vars) {
     vars->name[length] = '\0';
     vars->name_length = length;
     vars->default_control_mode = mode;
+    vars->motor = motor;
     vars->writes = read_u32(page + AT_SEQUENCE);
     return true;
 }
@@ -114,12 +117,13 @@ const char *flashvars_device_name(const flash_vars_t *vars) {
 }
 
 bool flashvars_store(flash_vars_t *vars, const char *name, uint8_t name_length,
-                     uint8_t default_control_mode, const char **reason) {
+                     uint8_t default_control_mode, uint8_t motor, const char **reason) {
     flash_vars_t next;
     memset(&next, 0, sizeof next);
     memcpy(next.name, name, name_length);
     next.name_length = name_length;
     next.default_control_mode = default_control_mode;
+    next.motor = motor;
     next.writes = vars->writes + 1;
 
     uint8_t page[PLATFORM_FLASH_PAGE_BYTES];
@@ -130,6 +134,7 @@ bool flashvars_store(flash_vars_t *vars, const char *name, uint8_t name_length,
     page[AT_NAME_LENGTH] = name_length;
     memset(page + AT_NAME, 0, AT_CRC - AT_NAME);
     memcpy(page + AT_NAME, name, name_length);
+    page[AT_MOTOR] = motor;
     write_u32(page + AT_CRC, crc32_update(0, page, AT_CRC));
 
     /* The sector in use: the newest record's (sector 0 on blank flash). The record goes to

@@ -6,7 +6,7 @@
  * sector in use is full the other one is erased and the record goes to its first page, so
  * the newest record is never erased while its successor is written: a power cut at any
  * point leaves the old value or the new one. Blank flash (no valid record) is the default
- * name and mode 1. */
+ * name, mode 1 and the simulated motor. */
 #ifndef USBMOTION_FLASHVARS_H
 #define USBMOTION_FLASHVARS_H
 
@@ -20,6 +20,7 @@ typedef struct {
     char name[TABLE_DEVICE_NAME_MAX + 1]; /* NUL-terminated; "" when erased */
     uint8_t name_length;
     uint8_t default_control_mode;         /* 1..3 */
+    uint8_t motor;                        /* call 39: 0 simulated, 1 on the pins */
     uint32_t writes;                      /* every write since the flash was new */
 } flash_vars_t;
 
@@ -33,7 +34,7 @@ const char *flashvars_device_name(const flash_vars_t *vars);
  * record. On success *vars becomes the new contents; on failure *vars is unchanged, the
  * old record still holds, and *reason says what failed. */
 bool flashvars_store(flash_vars_t *vars, const char *name, uint8_t name_length,
-                     uint8_t default_control_mode, const char **reason);
+                     uint8_t default_control_mode, uint8_t motor, const char **reason);
 
 /* The CRC-32 of zlib (IEEE 802.3), continued from `crc` (0 to start). */
 uint32_t crc32_update(uint32_t crc, const uint8_t *data, size_t length);

@@ -771,9 +771,10 @@ static void call_32(const call_t *call) { sci_call(call, &vars.viscous_friction_
 static void call_33(const call_t *call) { sci_call(call, &vars.load_torque_mnm); }
 
 /* _write_flash: the ERR line when the write fails (the value unchanged). */
-static bool write_flash(uint32_t number, const char *name, uint8_t name_length, uint8_t mode) {
+static bool write_flash(uint32_t number, const char *name, uint8_t name_length, uint8_t mode,
+                        uint8_t motor) {
     const char *reason = "";
-    if (flashvars_store(&flash, name, name_length, mode, &reason)) {
+    if (flashvars_store(&flash, name, name_length, mode, motor, &reason)) {
         return true;
     }
     message_t m = {.length = 0};
@@ -792,7 +793,8 @@ static void call_18(const call_t *call) {
     for (uint32_t i = 0; i < call->item_count; i++) {
         name[i] = (char)interp_items[i];
     }
-    if (!write_flash(18, name, (uint8_t)call->item_count, flash.default_control_mode)) {
+    if (!write_flash(18, name, (uint8_t)call->item_count, flash.default_control_mode,
+                     flash.motor)) {
         return;
     }
     debug_line(18, (field_t[]){TEXT(flashvars_device_name(&flash))});
@@ -803,10 +805,22 @@ static void call_19(const call_t *call) {
         reply(19, (field_t[]){NUMBER(flash.default_control_mode)});
         return;
     }
-    if (!write_flash(19, flash.name, flash.name_length, (uint8_t)call->args[0])) {
+    if (!write_flash(19, flash.name, flash.name_length, (uint8_t)call->args[0], flash.motor)) {
         return;
     }
     debug_line(19, (field_t[]){NUMBER(call->args[0])});
+}
+
+static void call_39(const call_t *call) {
+    if (call->is_query) {
+        reply(39, (field_t[]){NUMBER(flash.motor), NUMBER(vars.motor_pins)});
+        return;
+    }
+    if (!write_flash(39, flash.name, flash.name_length, flash.default_control_mode,
+                     (uint8_t)call->args[0])) {
+        return;
+    }
+    debug_line(39, (field_t[]){NUMBER(call->args[0])});
 }
 
 static void call_20(const call_t *call) {
@@ -1061,7 +1075,7 @@ static const handler_t handlers[TABLE_CALLS] = {
     call_8,  call_9,  call_10, call_11, call_12, call_13, call_14, call_15,
     call_16, call_17, call_18, call_19, call_20, call_21, call_22, call_23,
     call_24, call_25, call_26, call_27, call_28, call_29, call_30, call_31,
-    call_32, call_33, call_34, call_35, call_36, call_37, call_38,
+    call_32, call_33, call_34, call_35, call_36, call_37, call_38, call_39,
 };
 
 /* --- lines ------------------------------------------------------------------------------- */
@@ -1120,6 +1134,12 @@ void device_power_up(void) {
     out_length = 0;
     memset(debug_flags, 0, sizeof debug_flags);
     ram_defaults();
+    vars.motor_pins = flash.motor;
+    motor_pins_sample_t pins = {0};
+    if (vars.motor_pins) {
+        platform_motor_pins_start();
+        platform_motor_pins_sample(&pins);
+    }
     derive();
     platform_servo_lock();
     servo_state_init(&servo_state, flash.default_control_mode);
@@ -1128,7 +1148,11 @@ void device_power_up(void) {
     records.head = 0;
     records.tail = 0;
     records.dropped = 0;
-    servo_state.limits = servo_switches(&servo_state, &servo_params);
+    if (vars.motor_pins) {
+        servo_pins_power_up(&servo_state, &pins);
+    } else {
+        servo_state.limits = servo_switches(&servo_state, &servo_params);
+    }
     platform_servo_unlock();
 }
 
@@ -1168,7 +1192,11 @@ void device_poll(void) {
 
 void device_servo_tick(void) {
     platform_servo_lock();
-    servo_tick(&servo_state, &servo_params, &records);
+    if (servo_params.motor_pins) {
+        servo_tick_pins(&servo_state, &servo_params, &records);
+    } else {
+        servo_tick(&servo_state, &servo_params, &records);
+    }
     platform_servo_unlock();
 }
 

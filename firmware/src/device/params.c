@@ -1,5 +1,6 @@
 /* core0's _copy_in (core0.py): the params core1 runs with, from the RAM variables. */
 #include "motor.h"
+#include "platform.h"
 #include "servo.h"
 
 #define INTEGRAL_CAP ((int64_t)1 << 62)
@@ -78,6 +79,9 @@ void servo_params_derive(const device_vars_t *vars, servo_params_t *params) {
     params->ki_dt = ki_dt;
     params->kd_dt = kd_dt;
     params->vs = vs;
+    params->motor_pins = vars->motor_pins;
+    params->pins_level_per_volt =
+        vars->motor_pins ? sci_div(sci_from_int(platform_motor_pins_full()), vs) : sci_normalize(0, 0);
     params->integral_limit = integral_limit;
     params->watchdog_us = (int64_t)vars->watchdog_ms * 1000;
     params->fe_limit = vars->fe_limit;

@@ -170,9 +170,10 @@ static void pid(servo_state_t *s, const servo_params_t *p) {
 }
 
 /* 4. encoder, switches, the edge latch and the velocity-mode counter reset; returns the
- * switches that closed on this tick */
-static int32_t encoder(servo_state_t *s, const servo_params_t *p) {
-    int64_t count = floor_micro(s->theta);
+ * switches that closed on this tick. `count` is the shaft's count, `limits` the switches;
+ * `pins` the edges the switches' pins latched (NULL: the simulated travel's, latched here). */
+static inline int32_t encoder(servo_state_t *s, const servo_params_t *p, int64_t count,
+                              int32_t limits, const motor_pins_sample_t *pins) {
     s->actual = wrap_int32(count + s->offset);
     int32_t then = s->counts[s->counts_pos];
     /* wrap32(actual - then) * 10^6 / (window * tick_us) truncated toward zero (trunc_div),
@@ -192,17 +193,23 @@ static int32_t encoder(servo_state_t *s, const servo_params_t *p) {
     if (s->counts_pos >= (uint32_t)p->window) {
         s->counts_pos = 0;
     }
-    int32_t limits = 0;
-    if (count <= p->lower) {
-        limits = 1;
-    }
-    if (count >= p->upper) {
-        limits |= 2;
-    }
     int32_t closing = limits & ~s->limits;
     int32_t changed = limits ^ s->limits;
     s->limits = limits;
-    if (changed != 0) {
+    if (pins) {
+        int64_t tick_after = s->clock + 1;
+        for (unsigned i = 0; i < 2; i++) {
+            uint32_t new_edges = pins->edges[i] - s->pins_edges[i];
+            if (new_edges != 0u) {
+                switch_edge_t *edge = &s->edges[i];
+                edge->edges += new_edges;   /* modulo 2^32 */
+                edge->closed = (limits >> i) & 1;
+                edge->position = wrap_int32((int64_t)pins->edge_count[i] + s->offset);
+                edge->tick = tick_after;
+                s->pins_edges[i] = pins->edges[i];
+            }
+        }
+    } else if (changed != 0) {
         for (unsigned i = 0; i < 2; i++) {
             if (changed & (1 << i)) {
                 switch_edge_t *edge = &s->edges[i];
@@ -228,7 +235,20 @@ static int32_t encoder(servo_state_t *s, const servo_params_t *p) {
     return closing;
 }
 
-void servo_tick(servo_state_t *s, const servo_params_t *p, record_ring_t *ring) {
+/* The switch bits the simulated travel gives at this shaft count. */
+static inline int32_t travel_switches(int64_t count, const servo_params_t *p) {
+    int32_t limits = 0;
+    if (count <= p->lower) {
+        limits = 1;
+    }
+    if (count >= p->upper) {
+        limits |= 2;
+    }
+    return limits;
+}
+
+/* 1-2: the motion update and the PID (0 V while disabled); returns whether it ran enabled */
+static inline bool tick_start(servo_state_t *s, const servo_params_t *p) {
     bool enabled = s->enable == 1;
     if (enabled) {
         motion_update(s, p);
@@ -237,15 +257,12 @@ void servo_tick(servo_state_t *s, const servo_params_t *p, record_ring_t *ring) 
         s->out.c = 0;
         s->out.e = 0;
     }
+    return enabled;
+}
 
-    /* 3. motor */
-    sci_t drive = sci_mul(s->out, p->drive);
-    for (int32_t step = 0; step < p->steps; step++) {
-        motor_step(&s->theta, &s->omega, drive, p);
-    }
-
-    int32_t closing = encoder(s, p);
-
+/* 5-6: faults, clock, statistics, fault latch, diagnostics, after the encoder step */
+static inline void tick_finish(servo_state_t *s, const servo_params_t *p, record_ring_t *ring,
+                               bool enabled, int32_t closing) {
     /* 5. faults */
     s->since_command_us += p->tick_us;
     if (s->since_command_us > TIMER_CAP_US) {
@@ -328,4 +345,44 @@ void servo_tick(servo_state_t *s, const servo_params_t *p, record_ring_t *ring) 
             ring_commit(ring);
         }
     }
+}
+
+void servo_tick(servo_state_t *s, const servo_params_t *p, record_ring_t *ring) {
+    bool enabled = tick_start(s, p);
+
+    /* 3. motor */
+    sci_t drive = sci_mul(s->out, p->drive);
+    for (int32_t step = 0; step < p->steps; step++) {
+        motor_step(&s->theta, &s->omega, drive, p);
+    }
+
+    int64_t count = floor_micro(s->theta);
+    int32_t closing = encoder(s, p, count, travel_switches(count, p), NULL);
+    tick_finish(s, p, ring, enabled, closing);
+}
+
+/* The bridge's level for the output voltage: out * full / supply, truncated toward zero. */
+static inline int32_t pins_level(sci_t out, const servo_params_t *p) {
+    return (int32_t)sci_to_int(sci_mul(out, p->pins_level_per_volt));
+}
+
+void servo_tick_pins(servo_state_t *s, const servo_params_t *p, record_ring_t *ring) {
+    motor_pins_sample_t pins;
+    platform_motor_pins_sample(&pins);
+    if (s->pins_started) {
+        int32_t closing = encoder(s, p, pins.count, pins.switches, &pins);
+        tick_finish(s, p, ring, s->pins_enabled, closing);
+    }
+    s->pins_started = true;
+    s->pins_enabled = tick_start(s, p);
+    platform_motor_pins_drive(pins_level(s->out, p), s->enable == 1);
+}
+
+void servo_pins_power_up(servo_state_t *s, const motor_pins_sample_t *sample) {
+    s->limits = sample->switches;
+    s->pins_edges[0] = sample->edges[0];
+    s->pins_edges[1] = sample->edges[1];
+    s->offset = wrap_int32(-(int64_t)sample->count);
+    s->actual = 0;
+    s->pins_started = false;
 }

@@ -7,6 +7,7 @@
 #include <stdbool.h>
 #include <stdint.h>
 
+#include "platform.h"
 #include "sci.h"
 
 #define MODE_POSITION 1
@@ -126,6 +127,13 @@ typedef struct {
     int64_t last_take;
     switch_edge_t edges[2];    /* lower, upper */
     curve_player_t curve;
+    /* Not in core1.py: the motor on the pins (servo_tick_pins). A tick there reads the
+     * encoder and the switches as it starts, which completes the tick before it (its
+     * encoder step, faults, clock, statistics and records, with `pins_enabled` as it ran),
+     * then runs its own motion update, PID and output. */
+    bool pins_started;         /* a tick has started and waits for the next to complete it */
+    bool pins_enabled;         /* ... and it ran enabled */
+    uint32_t pins_edges[2];    /* the switches' edges taken into edges[] so far */
 } servo_state_t;
 
 /* What core0 copies in when a variable changes (core1.py P_*). */
@@ -150,6 +158,10 @@ typedef struct {
     int64_t stop_low;          /* hard stops, micro-counts */
     int64_t stop_high;
     int32_t window;            /* derivative window, ticks (1..SERVO_HISTORY_SLOTS) */
+    /* Not in core1.py: the motor on the pins (call 39, at power-up) and the bridge's level
+     * per volt of output (platform_motor_pins_full over the supply voltage). */
+    int32_t motor_pins;
+    sci_t pins_level_per_volt;
     /* Not in core1.py: the tick's two divisions as reduced fractions, set by
      * servo_params_finish from tick_us, steps and window (servo_params_derive calls it), so
      * that the usual periods divide by a small number or not at all. */
@@ -179,6 +191,7 @@ typedef struct {
     int32_t diag_n;                     /* call 21 */
     int32_t watchdog_ms;                /* call 28 */
     int32_t fe_limit;                   /* call 29 */
+    int32_t motor_pins;                 /* call 39 as the flash held it at power-up */
 } device_vars_t;
 
 /* The records core1 writes for core0 to print, in order: a diagnostics line (call 21) or an
@@ -220,6 +233,14 @@ void servo_params_finish(servo_params_t *params);
  * Writes to `ring`, in this order, a diagnostics record when one is due and an alarm record
  * when a fault latched on this tick; a full ring counts the record in `dropped` instead. */
 void servo_tick(servo_state_t *state, const servo_params_t *params, record_ring_t *ring);
+
+/* One servo tick with the motor on the pins (params->motor_pins): the tick before this one
+ * completed on the encoder count and the switches read now, then this one's motion update,
+ * PID and bridge output. The caller holds the servo lock. */
+void servo_tick_pins(servo_state_t *state, const servo_params_t *params, record_ring_t *ring);
+
+/* Power-up with the motor on the pins: the switches as they read, no edge yet. */
+void servo_pins_power_up(servo_state_t *state, const motor_pins_sample_t *sample);
 
 /* The switch bits the shaft position gives (core0._switches). */
 int32_t servo_switches(const servo_state_t *state, const servo_params_t *params);

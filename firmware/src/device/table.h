@@ -15,7 +15,7 @@
 #define TABLE_DEVICE_NAME_MAX 25u
 #define TABLE_DEFAULT_DEVICE_NAME "GENERIC USB MOTION DEVICE"
 #define TABLE_HUGE_DIGITS 18u
-#define TABLE_CALLS 39u
+#define TABLE_CALLS 40u
 #define TABLE_MAX_PARAMS 4u
 #define TABLE_MAX_DEBUG_FLAG 2u
 #define TABLE_FAULTS 5u
@@ -79,6 +79,7 @@
 #define CALL_SWITCH_EDGE 36
 #define CALL_SHIFT_POSITION 37
 #define CALL_REPLACE_FROM 38
+#define CALL_SET_MOTOR 39
 
 /* One supporting input: its name and inclusive range (Param). */
 typedef struct {

@@ -369,6 +369,16 @@ const call_spec_t call_table[TABLE_CALLS] = {
         .debug = {[1] = {"REPLACED {kept} {skipped} {added} CRC {crc}", 4, 0x0}},
         .refusal = "E38",
     },
+    [39] = {
+        .name = "SET_MOTOR",
+        .param_count = 1,
+        .params = {{"motor", 0, 1}},
+        .query_count = 1,
+        .query_any = 0x0,
+        .query = {-1},
+        .query_reply = {"MOTOR {stored} {running}", 2, 0x0},
+        .debug = {[1] = {"MOTOR MODIFIED TO {value}", 1, 0x0}},
+    },
 };
 
 const char *const fault_names[TABLE_FAULTS] = {"none", "watchdog", "following error", "limit switch", "internal error"};

@@ -17,6 +17,9 @@ void servo_start(void);
 /* core1's entry: flash lockout victim, the periodic servo alarm, then sleep between ticks */
 void servo_core1_main(void);
 
+/* core1, before its first tick: the switches' interrupt, when the motor is on the pins */
+void motor_pins_core1_init(void);
+
 /* core0: bring up USB and run the main loop; never returns */
 void usb_cdc_run(void);
 

@@ -103,6 +103,7 @@ void servo_start(void) {
 
 void servo_core1_main(void) {
     flash_safe_execute_core_init(); /* core0's flash writes lock this core out */
+    motor_pins_core1_init();
     hardware_alarm_claim(SERVO_ALARM_NUM);
     irq_set_exclusive_handler(SERVO_ALARM_IRQ, servo_alarm_irq);
     hw_set_bits(&timer_hw->inte, SERVO_ALARM_BIT);

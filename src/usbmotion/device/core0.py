@@ -905,6 +905,13 @@ class Device:
         self._write_flash(default_control_mode=call.args[0])
         self._debug_line(19, call.args[0])
 
+    def _call_39(self, call: Call) -> None:
+        if call.is_query:
+            self._reply(39, self._flash.read().motor, 0)  # no pins: always simulated
+            return
+        self._write_flash(motor=call.args[0])
+        self._debug_line(39, call.args[0])
+
     def _write_flash(self, **changes: str | int) -> FlashContents:
         try:
             return self._flash.write(**changes)  # type: ignore[arg-type]

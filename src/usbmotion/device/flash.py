@@ -25,7 +25,8 @@ from usbmotion.protocol.table import DEFAULT_DEVICE_NAME
 
 FORMAT = 1
 """Version of the JSON layout written by :class:`FileFlash`."""
-_KEYS = frozenset({"format", "name", "default_control_mode", "writes"})
+_KEYS = frozenset({"format", "name", "default_control_mode", "motor", "writes"})
+_MOTORS = (0, 1)
 _MODES = tuple(int(mode) for mode in ControlMode)
 
 
@@ -44,6 +45,8 @@ class FlashContents:
 
     name: str = ""
     default_control_mode: int = 1
+    motor: int = 0
+    """Call 39: the motor the device runs at power-up, 0 simulated, 1 on the pins."""
     writes: int = 0
 
     @property
@@ -63,9 +66,8 @@ class Flash(ABC):
     def _commit(self, contents: FlashContents) -> None:
         """Store ``contents`` durably (its ``writes`` already counts this write)."""
 
-    def write(self, *, name: str | None = None, default_control_mode: int | None = None) -> (
-        FlashContents
-    ):
+    def write(self, *, name: str | None = None, default_control_mode: int | None = None,
+              motor: int | None = None) -> FlashContents:
         """Change one or both variables and count the write; returns the new contents.
 
         Raises:
@@ -81,6 +83,8 @@ class Flash(ABC):
             raise ValueError(
                 f"default control mode {default_control_mode!r} is not one of {_MODES}"
             )
+        if motor is not None and motor not in _MOTORS:
+            raise ValueError(f"motor {motor!r} is not one of {_MOTORS}")
         new = replace(
             old,
             name=old.name if name is None else name,
@@ -89,6 +93,7 @@ class Flash(ABC):
                 if default_control_mode is None
                 else default_control_mode
             ),
+            motor=old.motor if motor is None else motor,
             writes=old.writes + 1,
         )
         self._commit(new)
@@ -161,10 +166,13 @@ class FileFlash(Flash):
         mode = data.get("default_control_mode", 1)
         if type(mode) is not int or mode not in _MODES:
             raise FlashError(f"{where}: bad default_control_mode {mode!r}; one of {_MODES}")
+        motor = data.get("motor", 0)
+        if type(motor) is not int or motor not in _MOTORS:
+            raise FlashError(f"{where}: bad motor {motor!r}; one of {_MOTORS}")
         writes = data.get("writes", 0)
         if type(writes) is not int or writes < 0:
             raise FlashError(f"{where}: bad writes {writes!r}; a count >= 0")
-        return FlashContents(name=name, default_control_mode=mode, writes=writes)
+        return FlashContents(name=name, default_control_mode=mode, motor=motor, writes=writes)
 
     def _commit(self, contents: FlashContents) -> None:
         text = json.dumps(
@@ -172,6 +180,7 @@ class FileFlash(Flash):
                 "format": FORMAT,
                 "name": contents.name,
                 "default_control_mode": contents.default_control_mode,
+                "motor": contents.motor,
                 "writes": contents.writes,
             },
             indent=1,

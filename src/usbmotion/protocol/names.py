@@ -52,6 +52,7 @@ class CallNumber(IntEnum):
     SWITCH_EDGE = 36
     SHIFT_POSITION = 37
     REPLACE_FROM = 38
+    SET_MOTOR = 39
 
 
 class ControlMode(IntEnum):

@@ -540,6 +540,22 @@ CALLS: tuple[CallSpec, ...] = (
         " (like calls 0 and 1). Debug flag 1 acknowledges what was done: `added` = N -"
         " `skipped` and `crc` the CRC-32 of the added values, as call 1's flag 2.",
     ),
+    CallSpec(
+        C.SET_MOTOR,
+        "Motor at power-up: the simulated one (0) or the one on the pins (1), written to flash.",
+        (_p("motor", 0, 1, "0 the simulated motor, 1 the motor on the pins"),),
+        query=(-1,),
+        query_reply=_t("MOTOR {stored} {running}"),
+        debug={1: _t("MOTOR MODIFIED TO {value}")},
+        notes="Takes effect at the next power-up; blank flash is 0, so a bare board runs the"
+        " simulated motor. `stored` is what the next power-up runs, `running` what runs now."
+        " With the motor on the pins (firmware/README.md has the pin map) the encoder"
+        " counter, the limit switches and their edge latch are the pins', the output drives"
+        " the H-bridge, and calls 12-17 and 32-34 still set the simulated motor, which then"
+        " does not run (call 13's supply voltage stays the output's ceiling and is the"
+        " bridge's supply). The Python device stores and answers the choice and always runs"
+        " its simulated motor (it has no pins): its `running` is 0.",
+    ),
 )
 BY_NUMBER: Mapping[int, CallSpec] = {spec.number: spec for spec in CALLS}
 BY_NAME: Mapping[str, CallSpec] = {spec.name: spec for spec in CALLS}

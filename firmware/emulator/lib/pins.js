@@ -1,0 +1,416 @@
+// What the firmware's pins need from the emulated chip beyond rp2040js, and the world on the
+// other side of them.
+//
+// rp2040js runs its PIO on the host's event loop (1,000 steps per setTimeout, unrelated to
+// the emulated clock) and gives core1 no GPIO interrupt enables. PioClock steps the state
+// machines in lockstep with the emulated clock instead, one instruction per system clock
+// cycle (the firmware's programs use no delays and a clock divider of 1): lazily, up to the
+// time of each input pin change and of each access to a PIO register by either core. A
+// machine whose state repeats pass after pass with its RX FIFO full and no input change is
+// fast-forwarded by whole passes (what it would do there is unobservable). The GPIO
+// interrupt registers of core1 (PROC1_INTE/INTF/INTS) are those of core0: one set of enables
+// serves both cores (the firmware enables GPIO interrupts on core1 only).
+//
+// MotorWorld is the motor outside the chip: a brushed DC motor on a two-input H-bridge (its
+// voltage from the PWM compare levels of the bridge's two outputs, the supply times the
+// difference of their duties, sampled at the start of each slice of emulated time: the
+// electrical time constant of such a motor, about a millisecond, is far above the PWM
+// period), integrated exactly under that constant voltage with the simulated motor's model
+// (PROTOCOL.md, "The model": a first-order velocity with Coulomb friction that stops the
+// shaft instead of reversing it, and hard stops beyond the switches), in binary64; its
+// quadrature encoder's A/B pins (an edge at each count, at the time the motion crosses it)
+// and its two limit switches (closed, low, at or beyond their positions; open, high through
+// the pull-up, otherwise), optionally bouncing. EncoderSweep drives the encoder pins alone
+// at a set rate, for the decoder's own tests.
+
+const IO_BANK0_KEY = 0x40014;
+const PADS_BANK0_KEY = 0x4001c;
+const PROC0_INTE0 = 0x100;
+const PROC1_INTE0 = 0x130;
+const PROC1_INTS3 = 0x15c;
+const PWM_CHANNEL_BYTES = 0x14;
+const PWM_CC = 0x0c;
+const PWM_TOP = 0x10;
+const PWM_CSR_EN = 1;
+/** (B, A) of each count modulo 4, forward: A rises, B rises, A falls, B falls. */
+const GRAY = [0b00, 0b01, 0b11, 0b10];
+/** Steps a machine must run since its last input change before it may be fast-forwarded. */
+const SETTLE_STEPS = 64;
+
+/** Locks the chip's PIO blocks to its clock and gives core1 GPIO interrupts. */
+export class PioClock {
+  /**
+   * @param {object} mcu the DualRP2040
+   * @param {() => number} now the emulated time of the instruction executing, ns
+   */
+  constructor(mcu, now) {
+    this.mcu = mcu;
+    this.now = now;
+    this.cycleNanos = 1e9 / mcu.clkSys;
+    this.nanos = 0; // every machine has run up to here
+    this.events = []; // [{nanos, pin, value}] in time order
+    this.marks = new Map(); // machine -> its state at the start of a pass, for fast-forward
+    this.sinceInput = 0; // steps since the last input change
+    for (const pio of mcu.pio) {
+      pio.run = () => {}; // stepped here, not on the host's event loop
+      const read = pio.readUint32.bind(pio);
+      const write = pio.writeUint32.bind(pio);
+      pio.readUint32 = (offset) => {
+        this.catchUp(this.now());
+        return read(offset);
+      };
+      pio.writeUint32 = (offset, value) => {
+        this.catchUp(this.now());
+        write(offset, value);
+      };
+    }
+    const io = mcu.peripherals[IO_BANK0_KEY];
+    const ioRead = io.readUint32.bind(io);
+    const ioWrite = io.writeUint32.bind(io);
+    const shared = (offset) =>
+      offset >= PROC1_INTE0 && offset <= PROC1_INTS3 ? offset - (PROC1_INTE0 - PROC0_INTE0) : offset;
+    io.readUint32 = (offset) => ioRead(shared(offset));
+    io.writeUint32 = (offset, value) => ioWrite(shared(offset), value);
+    // an input nothing outside drives reads what its pad's pull resistor gives it
+    this.driven = new Set();
+    const pads = mcu.peripherals[PADS_BANK0_KEY];
+    const padsWrite = pads.writeUint32.bind(pads);
+    pads.writeUint32 = (offset, value) => {
+      padsWrite(offset, value);
+      this.applyPulls();
+    };
+  }
+
+  applyPulls() {
+    for (const pin of this.mcu.gpio) {
+      if (!this.driven.has(pin.index) && pin.pullupEnabled !== pin.rawInputValue) {
+        pin.setInputValue(pin.pullupEnabled && !pin.pulldownEnabled);
+      }
+    }
+  }
+
+  /** Pins driven from outside from now on (their pulls no longer matter). */
+  drive(...pins) {
+    for (const pin of pins) {
+      this.driven.add(pin);
+    }
+  }
+
+  /** An input pin takes `value` at `nanos` (not before the time already run). */
+  schedule(nanos, pin, value) {
+    const events = this.events;
+    let index = events.length;
+    while (index > 0 && events[index - 1].nanos > nanos) {
+      index--;
+    }
+    events.splice(index, 0, { nanos, pin, value });
+  }
+
+  /** Time of the next scheduled input change, or Infinity. */
+  get nextEventNanos() {
+    return this.events.length > 0 ? this.events[0].nanos : Infinity;
+  }
+
+  /** Runs every enabled state machine up to `nanos`, applying the input changes due. */
+  catchUp(nanos) {
+    const events = this.events;
+    while (events.length > 0 && events[0].nanos <= nanos) {
+      const event = events.shift();
+      this.stepTo(event.nanos);
+      this.mcu.gpio[event.pin].setInputValue(event.value);
+      this.sinceInput = 0;
+      this.marks.clear();
+    }
+    this.stepTo(nanos);
+  }
+
+  stepTo(nanos) {
+    const steps = Math.floor((nanos - this.nanos) / this.cycleNanos);
+    if (steps <= 0) {
+      return;
+    }
+    this.nanos += steps * this.cycleNanos;
+    for (const pio of this.mcu.pio) {
+      if (pio.stopped) {
+        continue;
+      }
+      for (const machine of pio.machines) {
+        if (machine.enabled) {
+          this.run(machine, steps);
+        }
+      }
+      pio.checkChangedPins();
+    }
+    this.sinceInput += steps;
+  }
+
+  run(machine, steps) {
+    let left = steps;
+    let since = this.sinceInput;
+    while (left > 0) {
+      if (since >= SETTLE_STEPS && machine.pc === machine.wrapBottom && machine.rxFIFO.full) {
+        const mark = this.marks.get(machine);
+        if (mark && sameState(mark, machine)) {
+          const period = mark.left - left;
+          if (period > 0 && left >= period) {
+            left -= Math.floor(left / period) * period;
+            mark.left = left;
+            continue;
+          }
+        } else {
+          this.marks.set(machine, snapshot(machine, left));
+        }
+      }
+      machine.step();
+      left--;
+      since++;
+    }
+  }
+}
+
+function snapshot(machine, left) {
+  return {
+    left,
+    pc: machine.pc,
+    x: machine.x,
+    y: machine.y,
+    isr: machine.inputShiftReg,
+    isc: machine.inputShiftCount,
+    osr: machine.outputShiftReg,
+    osc: machine.outputShiftCount,
+  };
+}
+
+function sameState(mark, machine) {
+  return (
+    mark.pc === machine.pc &&
+    mark.x === machine.x &&
+    mark.y === machine.y &&
+    mark.isr === machine.inputShiftReg &&
+    mark.isc === machine.inputShiftCount &&
+    mark.osr === machine.outputShiftReg &&
+    mark.osc === machine.outputShiftCount &&
+    !machine.waiting
+  );
+}
+
+/** The default motor of PROTOCOL.md (calls 13-17, 32, 33 at power-up). */
+export const DEFAULT_MOTOR = {
+  supplyV: 12,
+  torqueConstantNmPerA: 0.3346,
+  resistanceOhm: 2.182,
+  inertiaKgM2: 1.1e-3,
+  viscousNmPerRadS: 500e-6,
+  loadNm: 0.05,
+  countsPerRevolution: 1920,
+};
+
+const MOTOR_KEYS = new Set([
+  ...Object.keys(DEFAULT_MOTOR),
+  'pins', 'lower', 'upper', 'overtravel', 'bounce', 'bounceNanos', 'startCount',
+]);
+
+/** The firmware's pin map (firmware/src/rp2040/pins.h). */
+export const PIN_MAP = { encoderA: 2, encoderB: 3, in1: 6, in2: 7, enable: 8, lower: 10, upper: 11 };
+
+export class MotorWorld {
+  /**
+   * @param {PioClock} clock
+   * @param {object} mcu
+   * @param {object} options the motor (DEFAULT_MOTOR's keys), `lower`/`upper` switch
+   *   positions in counts from power-up (default: none), `overtravel` (200 counts from each
+   *   switch to its hard stop), `bounce` (each switch edge bounces this many times, 0) and
+   *   `bounceNanos` (apart, 50 us), `startCount` (the shaft's count at power-up, 0)
+   */
+  constructor(clock, mcu, options = {}) {
+    for (const key of Object.keys(options)) {
+      if (!MOTOR_KEYS.has(key)) {
+        throw new Error(`motor option ${JSON.stringify(key)} is unknown; known: ${[...MOTOR_KEYS].join(', ')}`);
+      }
+    }
+    const m = { ...DEFAULT_MOTOR, ...options };
+    for (const key of Object.keys(DEFAULT_MOTOR)) {
+      if (!(typeof m[key] === 'number' && m[key] > 0) && !(key === 'viscousNmPerRadS' || key === 'loadNm')) {
+        throw new Error(`motor ${key} ${JSON.stringify(m[key])} must be a number above 0`);
+      }
+    }
+    this.clock = clock;
+    this.mcu = mcu;
+    this.pins = PIN_MAP;
+    const radPerCount = (2 * Math.PI) / m.countsPerRevolution;
+    const damping = (m.torqueConstantNmPerA ** 2) / m.resistanceOhm + m.viscousNmPerRadS;
+    this.supplyV = m.supplyV;
+    this.tauS = m.inertiaKgM2 / damping;
+    this.countsPerSPerV = m.torqueConstantNmPerA / m.resistanceOhm / damping / radPerCount;
+    this.frictionCountsPerS = m.loadNm / damping / radPerCount;
+    this.lower = options.lower ?? -Infinity;
+    this.upper = options.upper ?? Infinity;
+    const overtravel = options.overtravel ?? 200;
+    this.stopLow = this.lower - overtravel;
+    this.stopHigh = this.upper + overtravel;
+    this.bounce = options.bounce ?? 0;
+    this.bounceNanos = options.bounceNanos ?? 50e3;
+    this.theta = options.startCount ?? 0; // counts, not wrapped
+    this.omega = 0; // counts/s
+    this.count = Math.floor(this.theta);
+    this.edgesEmitted = 0;
+    this.switchEdges = 0;
+    this.closed = [this.count <= this.lower, this.count >= this.upper];
+    clock.drive(PIN_MAP.encoderA, PIN_MAP.encoderB, PIN_MAP.lower, PIN_MAP.upper);
+    this.setEncoderPins(this.count, 0);
+    for (let i = 0; i < 2; i++) {
+      mcu.gpio[i === 0 ? PIN_MAP.lower : PIN_MAP.upper].setInputValue(!this.closed[i]);
+    }
+  }
+
+  setEncoderPins(count, nanos) {
+    const state = GRAY[((count % 4) + 4) % 4];
+    if (nanos <= 0) {
+      this.mcu.gpio[PIN_MAP.encoderA].setInputValue((state & 1) !== 0);
+      this.mcu.gpio[PIN_MAP.encoderB].setInputValue((state & 2) !== 0);
+    }
+    return state;
+  }
+
+  /** The bridge's voltage now: the supply times IN1's duty less IN2's. */
+  get voltage() {
+    const pwm = this.mcu.pwm;
+    const slice = PIN_MAP.in1 >> 1;
+    const csr = pwm.readUint32(slice * PWM_CHANNEL_BYTES);
+    if (!(csr & PWM_CSR_EN)) {
+      return 0;
+    }
+    const cc = pwm.readUint32(slice * PWM_CHANNEL_BYTES + PWM_CC);
+    const full = pwm.readUint32(slice * PWM_CHANNEL_BYTES + PWM_TOP) + 1;
+    const duty = (level) => Math.min(level, full) / full;
+    return this.supplyV * (duty(cc & 0xffff) - duty(cc >>> 16));
+  }
+
+  get enabled() {
+    return this.mcu.gpio[PIN_MAP.enable].outputValue;
+  }
+
+  /** Integrates the motor over [fromNanos, toNanos) of emulated time and schedules its pins. */
+  advance(fromNanos, toNanos) {
+    const h = (toNanos - fromNanos) / 1e9;
+    if (h <= 0) {
+      return;
+    }
+    const v = this.voltage;
+    const drive = this.countsPerSPerV * v;
+    let direction = Math.sign(this.omega);
+    if (direction === 0) {
+      if (Math.abs(drive) <= this.frictionCountsPerS) {
+        return;
+      }
+      direction = Math.sign(drive);
+    }
+    const target = drive - direction * this.frictionCountsPerS;
+    const decay = -Math.expm1(-h / this.tauS);
+    const lag = h - this.tauS * decay;
+    const gap = this.omega - target;
+    let omega = this.omega - gap * decay;
+    let travel = this.omega * h - gap * lag;
+    if (direction > 0) {
+      omega = Math.max(omega, 0);
+      travel = Math.max(travel, 0);
+    } else {
+      omega = Math.min(omega, 0);
+      travel = Math.min(travel, 0);
+    }
+    let theta = this.theta + travel;
+    if (theta <= this.stopLow) {
+      theta = this.stopLow;
+      omega = 0;
+    } else if (theta >= this.stopHigh) {
+      theta = this.stopHigh;
+      omega = 0;
+    }
+    // an edge at each count crossed, at the time the motion (linear over the slice) crosses it
+    const from = this.theta;
+    const newCount = Math.floor(theta);
+    while (this.count !== newCount) {
+      const next = newCount > this.count ? this.count + 1 : this.count - 1;
+      const boundary = newCount > this.count ? next : this.count;
+      const at = fromNanos + ((boundary - from) / (theta - from)) * (toNanos - fromNanos);
+      this.emitCount(next, Math.min(Math.max(at, fromNanos), toNanos));
+      this.count = next;
+    }
+    this.theta = theta;
+    this.omega = omega;
+  }
+
+  emitCount(count, nanos) {
+    const before = GRAY[((this.count % 4) + 4) % 4];
+    const after = GRAY[((count % 4) + 4) % 4];
+    const changed = before ^ after;
+    const pin = changed & 1 ? PIN_MAP.encoderA : PIN_MAP.encoderB;
+    this.clock.schedule(nanos, pin, ((changed & 1 ? after : after >> 1) & 1) !== 0);
+    this.edgesEmitted++;
+    const closed = [count <= this.lower, count >= this.upper];
+    for (let i = 0; i < 2; i++) {
+      if (closed[i] !== this.closed[i]) {
+        this.closed[i] = closed[i];
+        this.switchEdges++;
+        const pinNumber = i === 0 ? PIN_MAP.lower : PIN_MAP.upper;
+        const level = !closed[i]; // closed pulls the pin low
+        this.clock.schedule(nanos, pinNumber, level);
+        for (let b = 0; b < this.bounce; b++) {
+          this.clock.schedule(nanos + (b + 0.5) * this.bounceNanos, pinNumber, !level);
+          this.clock.schedule(nanos + (b + 1) * this.bounceNanos, pinNumber, level);
+        }
+      }
+    }
+  }
+
+  /** What the world holds, for the tests. */
+  get state() {
+    return {
+      count: this.count,
+      theta: this.theta,
+      omega: this.omega,
+      voltage: this.voltage,
+      enabled: this.enabled,
+      closed: this.closed.slice(),
+      edges: this.edgesEmitted,
+      switchEdges: this.switchEdges,
+    };
+  }
+}
+
+/**
+ * The encoder pins alone, stepping `counts` counts (negative: backwards) from `startNanos`,
+ * evenly at `countsPerS`; `skip` lists the counts (1-based) at which both pins change at once
+ * instead of one: an edge the decoder cannot see, for the test of the test.
+ */
+export function sweepEncoder(clock, { startNanos, counts, countsPerS, startCount = 0, skip = [] }) {
+  const step = counts >= 0 ? 1 : -1;
+  const spacing = 1e9 / countsPerS;
+  const skipped = new Set(skip);
+  clock.drive(PIN_MAP.encoderA, PIN_MAP.encoderB);
+  let count = startCount;
+  let state = GRAY[((count % 4) + 4) % 4];
+  // the pins at startCount's state first (from the pull-ups' 3, say: both pins at once, so
+  // not a count), a microsecond before the sweep
+  clock.schedule(startNanos - 1e3, PIN_MAP.encoderA, (state & 1) !== 0);
+  clock.schedule(startNanos - 1e3, PIN_MAP.encoderB, (state & 2) !== 0);
+  for (let k = 1; k <= Math.abs(counts); k++) {
+    const at = startNanos + k * spacing;
+    if (skipped.has(k) && k < Math.abs(counts)) {
+      count += 2 * step;
+      k++;
+      const next = GRAY[((count % 4) + 4) % 4];
+      const changed = state ^ next;
+      if (changed & 1) clock.schedule(at, PIN_MAP.encoderA, (next & 1) !== 0);
+      if (changed & 2) clock.schedule(at, PIN_MAP.encoderB, (next & 2) !== 0);
+      state = next;
+      continue;
+    }
+    count += step;
+    const next = GRAY[((count % 4) + 4) % 4];
+    const changed = state ^ next;
+    clock.schedule(at, changed & 1 ? PIN_MAP.encoderA : PIN_MAP.encoderB, (changed & 1 ? next : next >> 1) % 2 === 1);
+    state = next;
+  }
+  return startNanos + Math.abs(counts) * spacing;
+}

@@ -1,0 +1,231 @@
+/* The motor on the pins: quadrature decoding in a PIO state machine, PWM to a two-input
+ * H-bridge, two debounced limit switches whose edges latch the counter at once, and the
+ * enable output (pins.h has the pin map).
+ *
+ * The quadrature program, assembled by hand (the SDK's pioasm is not built here), 4x
+ * counting. X holds the count. The ISR holds the pin history: each pass shifts the two
+ * encoder pins in (`in pins, 2`, shifting left), so its low four bits are the previous
+ * (B, A) and the new (B, A); `out pc, 4` jumps through the table at addresses 0-15, which
+ * sends each of the 16 transitions to increment, decrement or nothing (no change, or both
+ * pins changed at once: an invalid step, not counted). Every pass then pushes X to the RX
+ * FIFO without blocking (dropped while the FIFO is full), keeping the history in Y
+ * meanwhile. A pass takes 8 cycles (no change), 9 (down) or 12 (up): the pins are sampled
+ * at least every 12 system clock cycles, 96 ns at 125 MHz, so every edge is counted as long
+ * as two edges are more than 96 ns apart: QUADRATURE_MAX_COUNTS_PER_S (10.4 M counts/s with
+ * evenly spaced edges; a real encoder's phase error brings its edges closer together).
+ *
+ *   addr  code    instruction
+ *    0-15         the table: jmp up (19), jmp down (23) or jmp publish (24), by
+ *                 index = previous (B, A) << 2 | new (B, A); forward is (B, A) = 0, 1, 3, 2
+ *   16    0x4002  sample:   in pins, 2          ; .wrap_target
+ *   17    0xa0e6            mov osr, isr
+ *   18    0x60a4            out pc, 4
+ *   19    0xa029  up:       mov x, ~x           ; x + 1 = ~(~x - 1)
+ *   20    0x0055            jmp x--, 21
+ *   21    0xa029            mov x, ~x
+ *   22    0x0018            jmp publish
+ *   23    0x0058  down:     jmp x--, publish    ; falls through to publish when x was 0
+ *   24    0xa046  publish:  mov y, isr
+ *   25    0xa0c1            mov isr, x
+ *   26    0x8000            push noblock
+ *   27    0xa0c2            mov isr, y          ; .wrap (to 16)
+ *   28    0x4002  start:    in pins, 2          ; the pins as they are: no count at start
+ *   29    0x0018            jmp publish
+ *
+ * The program must sit at address 0 (`out pc` jumps to absolute addresses). */
+#include <stdbool.h>
+#include <stdint.h>
+
+#include "hardware/gpio.h"
+#include "hardware/irq.h"
+#include "hardware/pio.h"
+#include "hardware/pwm.h"
+#include "hardware/sync.h"
+#include "hardware/timer.h"
+#include "pico/platform.h"
+
+#include "pins.h"
+#include "platform.h"
+#include "rp2040_platform.h"
+
+#define UP 0x0013u      /* jmp 19 */
+#define DOWN 0x0017u    /* jmp 23 */
+#define NONE 0x0018u    /* jmp 24 */
+#define QUADRATURE_WRAP_TARGET 16u
+#define QUADRATURE_WRAP 27u
+#define QUADRATURE_START 28u
+
+static const uint16_t quadrature_instructions[] = {
+    /* previous (B, A) = 0: new 0, 1, 2, 3 */
+    NONE, UP, DOWN, NONE,
+    /* previous 1 */
+    DOWN, NONE, NONE, UP,
+    /* previous 2 */
+    UP, NONE, NONE, DOWN,
+    /* previous 3 */
+    NONE, DOWN, UP, NONE,
+    0x4002u, 0xa0e6u, 0x60a4u,                 /* 16 sample */
+    0xa029u, 0x0055u, 0xa029u, 0x0018u,        /* 19 up */
+    0x0058u,                                   /* 23 down */
+    0xa046u, 0xa0c1u, 0x8000u, 0xa0c2u,        /* 24 publish */
+    0x4002u, 0x0018u,                          /* 28 start */
+};
+_Static_assert(sizeof quadrature_instructions / sizeof quadrature_instructions[0] == 30,
+               "the quadrature program has 30 instructions");
+
+static const pio_program_t quadrature_program = {
+    .instructions = quadrature_instructions,
+    .length = (uint8_t)(sizeof quadrature_instructions / sizeof quadrature_instructions[0]),
+    .origin = 0,
+};
+
+/* One limit switch: its debounced state, written by the GPIO interrupt and by the tick's
+ * sample (both on core1, the sample with interrupts off). */
+typedef struct {
+    uint32_t pin;
+    bool closed;
+    bool settling;         /* edge_us is less than the debounce time ago */
+    uint32_t edge_us;
+    uint32_t edges;
+    int32_t edge_count;
+} limit_switch_t;
+
+static limit_switch_t switches[2] = {{.pin = PIN_SWITCH_LOWER}, {.pin = PIN_SWITCH_UPPER}};
+static uint32_t pwm_slice;
+static int32_t pwm_full;   /* the compare level of a whole period high: TOP + 1 */
+static bool started;
+
+/* The counter now: the FIFO's stale values dropped, then the next pass's push (at most 12
+ * PIO cycles away). Interrupts off (the caller's). */
+static int32_t __not_in_flash_func(read_count)(void) {
+    PIO pio = QUADRATURE_PIO;
+    for (unsigned i = 0; i < 5u && !pio_sm_is_rx_fifo_empty(pio, QUADRATURE_SM); i++) {
+        (void)pio->rxf[QUADRATURE_SM];
+    }
+    while (pio_sm_is_rx_fifo_empty(pio, QUADRATURE_SM)) {
+    }
+    return (int32_t)pio->rxf[QUADRATURE_SM];
+}
+
+/* A switch reads `closed` at `now_us`: an edge, unless it is still settling from the last. */
+static void __not_in_flash_func(switch_reads)(limit_switch_t *sw, bool closed, uint32_t now_us) {
+    if (sw->settling && now_us - sw->edge_us >= USBMOTION_SWITCH_DEBOUNCE_US) {
+        sw->settling = false;
+    }
+    if (closed == sw->closed || sw->settling) {
+        return;
+    }
+    sw->closed = closed;
+    sw->edges += 1u;
+    sw->edge_count = read_count();
+    sw->edge_us = now_us;
+    sw->settling = true;
+}
+
+static void __not_in_flash_func(switch_irq)(void) {
+    uint32_t now_us = timer_hw->timerawl;
+    for (unsigned i = 0; i < 2u; i++) {
+        limit_switch_t *sw = &switches[i];
+        uint32_t events = gpio_get_irq_event_mask(sw->pin);
+        if (events != 0u) {
+            gpio_acknowledge_irq(sw->pin, events);
+            switch_reads(sw, !gpio_get(sw->pin), now_us);
+        }
+    }
+}
+
+void platform_motor_pins_start(void) {
+    PIO pio = QUADRATURE_PIO;
+    for (uint32_t pin = PIN_ENCODER_A; pin <= PIN_ENCODER_B; pin++) {
+        gpio_init(pin);
+        gpio_set_dir(pin, GPIO_IN);
+        gpio_pull_up(pin);
+    }
+    pio_add_program_at_offset(pio, &quadrature_program, 0);
+    pio_sm_config config = pio_get_default_sm_config();
+    sm_config_set_wrap(&config, QUADRATURE_WRAP_TARGET, QUADRATURE_WRAP);
+    sm_config_set_in_pins(&config, PIN_ENCODER_A);
+    sm_config_set_in_shift(&config, false, false, 32);   /* left, no autopush */
+    sm_config_set_out_shift(&config, true, false, 32);   /* right: out takes the low bits */
+    sm_config_set_clkdiv_int_frac(&config, 1, 0);
+    pio_sm_set_consecutive_pindirs(pio, QUADRATURE_SM, PIN_ENCODER_A, 2, false);
+    pio_sm_init(pio, QUADRATURE_SM, QUADRATURE_START, &config);
+    pio_sm_set_enabled(pio, QUADRATURE_SM, true);
+
+    gpio_set_function(PIN_BRIDGE_IN1, GPIO_FUNC_PWM);
+    gpio_set_function(PIN_BRIDGE_IN2, GPIO_FUNC_PWM);
+    pwm_slice = pwm_gpio_to_slice_num(PIN_BRIDGE_IN1);
+    pwm_full = (int32_t)(SYS_CLK_HZ / USBMOTION_PWM_HZ);
+    pwm_config pwm = pwm_get_default_config();
+    pwm_config_set_clkdiv_int(&pwm, 1);
+    pwm_config_set_wrap(&pwm, (uint16_t)(pwm_full - 1));
+    pwm_init(pwm_slice, &pwm, false);
+    pwm_set_both_levels(pwm_slice, (uint16_t)pwm_full, (uint16_t)pwm_full);   /* 0 V: brake */
+    pwm_set_enabled(pwm_slice, true);
+
+    gpio_init(PIN_ENABLE);
+    gpio_put(PIN_ENABLE, false);
+    gpio_set_dir(PIN_ENABLE, GPIO_OUT);
+
+    for (unsigned i = 0; i < 2u; i++) {
+        limit_switch_t *sw = &switches[i];
+        gpio_init(sw->pin);
+        gpio_set_dir(sw->pin, GPIO_IN);
+        gpio_pull_up(sw->pin);
+    }
+    busy_wait_at_least_cycles(SYS_CLK_HZ / 100000u);   /* 10 us: the pull-ups charge the lines */
+    for (unsigned i = 0; i < 2u; i++) {
+        switches[i].closed = !gpio_get(switches[i].pin);
+    }
+    started = true;
+}
+
+void motor_pins_core1_init(void) {
+    if (!started) {
+        return;
+    }
+    irq_set_exclusive_handler(IO_IRQ_BANK0, switch_irq);
+    for (unsigned i = 0; i < 2u; i++) {
+        gpio_set_irq_enabled(switches[i].pin, GPIO_IRQ_EDGE_FALL | GPIO_IRQ_EDGE_RISE, true);
+    }
+    /* above the servo alarm: an edge latches the counter even during a tick */
+    irq_set_priority(IO_IRQ_BANK0, PICO_HIGHEST_IRQ_PRIORITY);
+    irq_set_enabled(IO_IRQ_BANK0, true);
+}
+
+void __not_in_flash_func(platform_motor_pins_sample)(motor_pins_sample_t *sample) {
+    uint32_t saved = save_and_disable_interrupts();
+    sample->count = read_count();
+    uint32_t now_us = timer_hw->timerawl;
+    int32_t closed = 0;
+    for (unsigned i = 0; i < 2u; i++) {
+        limit_switch_t *sw = &switches[i];
+        switch_reads(sw, !gpio_get(sw->pin), now_us);   /* the end of a debounce wait */
+        closed |= sw->closed ? (int32_t)(1u << i) : 0;
+        sample->edges[i] = sw->edges;
+        sample->edge_count[i] = sw->edge_count;
+    }
+    sample->switches = closed;
+    restore_interrupts(saved);
+}
+
+void __not_in_flash_func(platform_motor_pins_drive)(int32_t level, bool enable) {
+    /* slow decay (drive / brake): one input stays high, the other is low for |level| of
+     * the period, so the motor sees the supply or a short, |level| / full of the time */
+    uint32_t magnitude = level < 0 ? 0u - (uint32_t)level : (uint32_t)level;
+    if (magnitude > (uint32_t)pwm_full) {
+        magnitude = (uint32_t)pwm_full;
+    }
+    uint16_t high = (uint16_t)pwm_full;
+    uint16_t pulsed = (uint16_t)((uint32_t)pwm_full - magnitude);
+    if (level >= 0) {
+        pwm_set_both_levels(pwm_slice, high, pulsed);
+    } else {
+        pwm_set_both_levels(pwm_slice, pulsed, high);
+    }
+    gpio_put(PIN_ENABLE, enable);
+}
+
+int32_t platform_motor_pins_full(void) {
+    return (int32_t)(SYS_CLK_HZ / USBMOTION_PWM_HZ);
+}

@@ -1,0 +1,48 @@
+/* The pin map of the motor on the pins (call 39), for a Raspberry Pi Pico: a brushed DC motor
+ * through a two-input H-bridge (DRV8871: IN1, IN2), its two-channel quadrature encoder and
+ * two limit switches. Every pin the firmware drives or reads is named here and only here;
+ * firmware/README.md draws the wiring. GP numbers are the RP2040's GPIOs (the Pico's pin
+ * numbers are in the README). */
+#ifndef USBMOTION_PINS_H
+#define USBMOTION_PINS_H
+
+/* Encoder channels A and B: two consecutive GPIOs (the PIO state machine reads them as one
+ * 2-bit value, A in bit 0), with the chip's pull-ups (open-collector encoders need them). */
+#define PIN_ENCODER_A 2u
+#define PIN_ENCODER_B 3u
+
+/* H-bridge inputs: GP6 and GP7 are PWM slice 3's outputs A and B, so both run on one
+ * counter at one frequency. */
+#define PIN_BRIDGE_IN1 6u
+#define PIN_BRIDGE_IN2 7u
+
+/* Enable output: high while the servo runs enabled (a driver's EN or nSLEEP, a relay, a
+ * lamp); low otherwise. */
+#define PIN_ENABLE 8u
+
+/* Limit switches, each between its pin and GND, with the chip's pull-ups: closed reads low. */
+#define PIN_SWITCH_LOWER 10u
+#define PIN_SWITCH_UPPER 11u
+
+/* The PIO block and state machine of the quadrature decoder. */
+#define QUADRATURE_PIO pio0
+#define QUADRATURE_SM 0u
+
+/* PWM frequency, Hz: above the audible range by default. Configure with
+ * -DUSBMOTION_PWM_HZ=...; at the 125 MHz system clock the duty has 125 MHz / f steps. */
+#ifndef USBMOTION_PWM_HZ
+#define USBMOTION_PWM_HZ 20000u
+#endif
+#define USBMOTION_PWM_HZ_MIN 1000u   /* the counter's 16 bits: at most 65,536 steps */
+#define USBMOTION_PWM_HZ_MAX 200000u /* DRV8871's highest PWM frequency */
+_Static_assert(USBMOTION_PWM_HZ >= USBMOTION_PWM_HZ_MIN && USBMOTION_PWM_HZ <= USBMOTION_PWM_HZ_MAX,
+               "USBMOTION_PWM_HZ must be within 1000..200000 Hz");
+
+/* Switch debouncing: an edge is taken at once (its count latched then), and the switch is
+ * then ignored for this long, microseconds; if it reads otherwise after that, that is its
+ * next edge. */
+#ifndef USBMOTION_SWITCH_DEBOUNCE_US
+#define USBMOTION_SWITCH_DEBOUNCE_US 1000u
+#endif
+
+#endif

@@ -1,0 +1,185 @@
+"""The firmware with the motor on its pins (call 39), the motor outside the emulated chip.
+
+- Call 39 is stored in flash and takes effect at the next power-up; the Python device gives
+  the same answers (and keeps simulating).
+- The PIO quadrature decoder counts every edge exactly over a sweep of rates up to its
+  stated maximum (QUADRATURE_MAX_COUNTS_PER_S, firmware/src/rp2040/motor_pins.c), both ways;
+  the test of the test: an edge the decoder cannot see, and a rate above the maximum, are
+  both caught by the same comparison.
+- Closed loop through the pins (PWM to the bridge, the encoder, the switches) on a motor
+  with the on-chip simulated motor's model and constants: a step, a move and its return, and
+  a homing (velocity mode onto the lower switch, the edge latch, the shift to machine zero)
+  follow as on the on-chip motor, their following errors within FOLLOWING_BOUND_COUNTS of
+  it at every tick.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+
+import pytest
+
+from usbmotion.device import Device
+
+from .emulated import require_emulator
+from .pins import PinsChip
+
+QUADRATURE_MAX_COUNTS_PER_S = 10_400_000
+"""Two edges more than 12 PIO cycles (96 ns at 125 MHz) apart are both counted."""
+
+FOLLOWING_BOUND_COUNTS = 3
+"""The pins' quantisation, in counts of following error at any tick (firmware/README.md,
+"The motor on the pins"). The count is the same integer on both, read as the tick starts
+instead of computed after the motor's step (which changes when it is read, not its value);
+the bridge's voltage is the output truncated to one of 6,250 duty steps (up to 1.9 mV less
+at 12 V), and the motor outside integrates in binary64 where the on-chip one rounds each
+product to four digits. Each moves the shaft by far less than a count, but where the two
+shafts straddle a count boundary the counts differ by one, and the PID answers that count
+at once (Kp 1 V, and Kd over the 1 ms window 7 V for one tick): the two loops then part by
+a count or two for a few ticks until both settle again. Three counts bounds that, at any
+tick of a move near the motor's top speed."""
+
+
+@pytest.fixture(scope="module")
+def pins_chip() -> Iterator[PinsChip]:
+    require_emulator()
+    with PinsChip(pins=True) as chip:
+        yield chip
+
+
+def test_call_39_is_kept_in_flash_and_runs_at_power_up() -> None:
+    require_emulator()
+    python = Device()
+    with PinsChip(pins=False) as chip:
+        for line in ("39 -1", "8 39 1", "39 1", "39 -1", "39 2", "39"):
+            python.feed(line.encode("ascii") + b"\n")
+            assert chip.feed(line + "\n") == python.take_output().decode("ascii").splitlines()
+        assert chip.feed("39 -1\n") == ["MOTOR 1 0"]
+        chip.request(cmd="power_cycle")
+        assert chip.feed("39 -1\n") == ["MOTOR 1 1"]
+        chip.feed("39 0\n")
+        chip.request(cmd="power_cycle")
+        assert chip.feed("39 -1\n") == ["MOTOR 0 0"]
+
+
+def sweep_total(chip: PinsChip, counts: int, rate: float, skip: tuple[int, ...] = ()) -> int:
+    """The counter's change over a sweep of ``counts`` at ``rate`` counts/s."""
+    before = chip.status()[1]
+    chip.request(cmd="sweep", counts=counts, counts_per_s=rate, skip=list(skip))
+    chip.run(2)
+    return chip.status()[1] - before
+
+
+@pytest.mark.parametrize("rate", [100, 10_000, 200_000, 1_000_000, 4_000_000, 8_000_000,
+                                  QUADRATURE_MAX_COUNTS_PER_S])
+def test_the_decoder_counts_every_edge_up_to_its_maximum(pins_chip: PinsChip,
+                                                         rate: int) -> None:
+    counts = min(4001, max(41, rate // 100))
+    assert sweep_total(pins_chip, counts, rate) == counts
+    assert sweep_total(pins_chip, -counts, rate) == -counts
+
+
+def test_the_sweep_catches_a_missed_edge(pins_chip: PinsChip) -> None:
+    # the same comparison as above, on edges the decoder cannot have counted
+    assert sweep_total(pins_chip, 1000, 1_000_000, skip=(500,)) != 1000
+    assert sweep_total(pins_chip, 1000, 2 * QUADRATURE_MAX_COUNTS_PER_S) != 1000
+
+
+SETUP = "21 1\n"
+
+
+def following_errors(lines: list[str]) -> dict[int, int]:
+    """desired - actual of every diagnostics line, by its clock."""
+    errors: dict[int, int] = {}
+    for line in lines:
+        if line.startswith("D "):
+            clock, desired, actual = (int(word) for word in line.split()[1:4])
+            errors[clock] = desired - actual
+    return errors
+
+
+def motion(chip: PinsChip, positions: list[int], ticks: int) -> dict[int, int]:
+    """Queue ``positions`` (one per tick), enable, run ``ticks``: the following errors."""
+    lines = chip.feed(SETUP + "23 0\n")
+    for start in range(0, len(positions), 500):
+        batch = positions[start : start + 500]
+        lines += chip.feed(f"1 {len(batch)} {' '.join(map(str, batch))}\n")
+        if start == 0:
+            lines += chip.feed("3 1\n")
+        lines += chip.run(min(500, ticks))
+        ticks -= min(500, ticks)
+    lines += chip.run(ticks)
+    lines += chip.feed("3 0\n21 0\n")
+    return following_errors(lines)
+
+
+def move_profile(distance: int, ticks: int) -> list[int]:
+    """A smooth (cosine) move of ``distance`` counts over ``ticks`` ticks, and back."""
+    there = [round(distance * (1 - math.cos(math.pi * k / ticks)) / 2) for k in range(ticks)]
+    return there + [distance] * 200 + [distance - p for p in there] + [0] * 200
+
+
+@pytest.mark.parametrize("name, positions, ticks", [
+    ("step", [1000] * 400, 400),
+    ("move", move_profile(3000, 600), 1700),
+])
+def test_closed_loop_through_the_pins_follows_as_the_on_chip_motor(
+        name: str, positions: list[int], ticks: int) -> None:
+    require_emulator()
+    with PinsChip(pins=False) as simulated, PinsChip(pins=True) as outside:
+        outside.request(cmd="motor", options={})
+        on_chip = motion(simulated, positions, ticks)
+        pins = motion(outside, positions, ticks)
+    common = sorted(set(on_chip) & set(pins))
+    assert len(common) >= ticks - 2
+    worst = max(abs(pins[c] - on_chip[c]) for c in common)
+    peak_on_chip = max(abs(on_chip[c]) for c in common)
+    peak_pins = max(abs(pins[c]) for c in common)
+    print(f"{name}: worst difference {worst} counts over {len(common)} ticks; peak following"
+          f" error {peak_on_chip} on chip, {peak_pins} through the pins")
+    differences = [pins[c] - on_chip[c] for c in common]
+    print(f"{name}: ticks by difference",
+          {d: differences.count(d) for d in sorted(set(differences))})
+    assert worst <= FOLLOWING_BOUND_COUNTS
+
+
+def homing(chip: PinsChip) -> tuple[list[int], list[int]]:
+    """Velocity mode onto the lower switch at -2000 counts/s, as usbmotion homes: the latch,
+    the shift that puts the edge at machine zero, the status after it."""
+    chip.feed("9 7 -3\n10 1 0\n11 0 0\n7 2\n3 1\n")
+    for _ in range(40):
+        chip.feed("1 50 " + " ".join(["-2000"] * 50) + "\n")
+        chip.run(50)
+        edge = [int(w) for w in chip.feed("36 1\n")[0].split()[1:]]
+        if edge[1] > 0:
+            break
+    chip.feed("3 0\n")
+    chip.run(300)
+    chip.feed(f"37 {-edge[3]}\n")
+    return edge, chip.status()
+
+
+def test_homing_through_the_pins_latches_the_edge_at_the_switch() -> None:
+    require_emulator()
+    lower = -1500
+    with PinsChip(pins=False) as simulated, PinsChip(pins=True) as outside:
+        simulated.feed(f"34 {lower} 100000\n")
+        outside.request(cmd="motor", options={"lower": lower, "upper": 100000})
+        edge_on_chip, status_on_chip = homing(simulated)
+        edge_pins, status_pins = homing(outside)
+        world = outside.request(cmd="world")["world"]
+    print(f"homing: edge latched at {edge_pins[3]} through the pins, {edge_on_chip[3]} on"
+          f" chip; the switch at {lower}; after the shift {status_pins[1]} and"
+          f" {status_on_chip[1]}")
+    assert edge_pins[1] == 1 and edge_pins[2] == 1
+    # the pins latch the count the instant the switch closed: the switch's own count
+    assert edge_pins[3] == lower
+    # the on-chip motor latches at the tick after it (2 counts a tick at 2000 counts/s)
+    assert lower - 2 <= edge_on_chip[3] <= lower
+    # machine zero exactly at the switch: the counter after the shift is where the shaft
+    # rests, counted from the switch
+    assert status_pins[1] == world["count"] - lower
+    # where each axis rests: velocity mode integrates its small differences of speed into
+    # position (no position loop), so only roughly alike
+    assert abs(status_pins[1] - status_on_chip[1]) <= 20
