@@ -204,7 +204,7 @@ def test_axes_named_by_device_are_found_in_the_world() -> None:
         assert machine.axis("Y").client.device_name() == "BENCH Y"
 
 
-def test_simulated_and_real_axes_cannot_share_a_machine() -> None:
+def test_simulated_and_real_axes_cannot_share_a_machine(default_world: str) -> None:
     config = parse_config(machine_text({"X": 'url = "sim://X"', "Y": 'url = "loop://"'}))
     with pytest.raises(ConfigError, match="must all be simulated in one world"):
         Machine.connect(config)

@@ -20,6 +20,11 @@ def set_world(name: str, world: SimWorld) -> None:
     _WORLDS[name] = world
 
 
+def registered_worlds() -> tuple[str, ...]:
+    """The names of the worlds registered now (made by :func:`get_world` or :func:`set_world`)."""
+    return tuple(_WORLDS)
+
+
 def drop_world(name: str) -> None:
     """Forget a world (its devices stop being reachable by URL)."""
     _WORLDS.pop(name, None)
