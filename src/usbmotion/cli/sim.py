@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
 import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Iterator
 from pathlib import Path
 from types import FrameType
 from typing import Annotated
@@ -80,11 +81,16 @@ def sim(
 ) -> None:
     """Serve simulated devices in real time until SIGINT or SIGTERM.
 
-    Prints one line per device: its name and its pseudo-terminal path (``--pty``) or its
-    ``socket://`` URL (``--tcp``). With ``--firmware``, each device is the device firmware
-    running on an emulated RP2040 (``make firmware`` builds ``build/firmware/usbmotion.uf2``;
-    the emulator needs Node.js 20 and ``npm ci`` in ``firmware/emulator``), its flash kept in
-    ``--flash-dir`` (default: ``$XDG_STATE_HOME/usbmotion/flash/rp2040``).
+    Prints one line per device, once it answers: its name and its pseudo-terminal path
+    (``--pty``) or its ``socket://`` URL (``--tcp``). SIGINT (Ctrl-C) or SIGTERM closes every
+    terminal and port, prints ``stopped`` and exits with status 0 (the way a server ends); a
+    second signal meanwhile, or one before the devices answer, ends it at once (status 130
+    or 143 in a shell). Status 1: the serving failed; 2: bad arguments.
+
+    With ``--firmware``, each device is the device firmware running on an emulated RP2040
+    (``make firmware`` builds ``build/firmware/usbmotion.uf2``; the emulator needs Node.js 20
+    and ``npm ci`` in ``firmware/emulator``), its flash kept in ``--flash-dir`` (default:
+    ``$XDG_STATE_HOME/usbmotion/flash/rp2040``).
     """
     names = list(name or [])
     for each in names:
@@ -100,31 +106,75 @@ def sim(
     devices = pty if pty > 0 else (count or max(1, len(names)))
     if not 1 <= devices <= 64:
         raise typer.BadParameter(f"--count {devices!r} must be 1..64")
+    with _signals_end_start_up():
+        if firmware is not None:
+            _serve_firmware(firmware, devices, names, pty=pty > 0, tcp_port=max(tcp, 0),
+                            flash_dir=flash_dir or default_flash_dir() / "rp2040",
+                            record=record)
+        else:
+            if record is not None:
+                raise typer.BadParameter("--record needs --firmware", param_hint="--record")
+            _serve(build_world(names, devices, flash_dir or default_flash_dir()),
+                   pty=pty > 0, tcp_port=max(tcp, 0))
+    sys.stdout.write("stopped\n")
+    sys.stdout.flush()
+
+
+_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextlib.contextmanager
+def _signals_end_start_up() -> Iterator[None]:
+    """While inside, SIGINT and SIGTERM end the process at once (their default action, for
+    SIGINT too), until :func:`_signals_stop_serving` takes them over.
+
+    Starting up imports numba and loads or compiles the servo kernel for seconds; an
+    exception raised there by a handler (``KeyboardInterrupt``) may be caught on the way
+    and serving start all the same. Nothing is served yet: the kernel closes what is open.
+    """
+    previous = {each: signal.signal(each, signal.SIG_DFL) for each in _SIGNALS}
+    try:
+        yield
+    finally:
+        for each, handler in previous.items():
+            signal.signal(each, handler)
+
+
+@contextlib.contextmanager
+def _signals_stop_serving() -> Iterator[threading.Event]:
+    """While inside, the first SIGINT or SIGTERM sets the event it yields (nothing more: the
+    serving ends between two waits) and gives the signals back their default action, so a
+    second one ends the process at once."""
     stop = threading.Event()
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
+        for each in _SIGNALS:
+            signal.signal(each, signal.SIG_DFL)
         stop.set()
 
-    if firmware is not None:
-        _serve_firmware(firmware, devices, names, pty=pty > 0, tcp_port=max(tcp, 0),
-                        flash_dir=flash_dir or default_flash_dir() / "rp2040", record=record,
-                        stop=stop, on_signal=on_signal)
-        return
-    if record is not None:
-        raise typer.BadParameter("--record needs --firmware", param_hint="--record")
-    world = build_world(names, devices, flash_dir or default_flash_dir())
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
-    with DeviceServer(world, pty=pty > 0, tcp_port=max(tcp, 0)) as server:
-        for endpoint in server.endpoints:
-            where = endpoint.path if pty > 0 else f"socket://127.0.0.1:{endpoint.port}"
-            sys.stdout.write(f"{endpoint.name} {where}\n")
-        sys.stdout.flush()
-        server.start()
-        while not stop.wait(0.2):
-            pass
-    sys.stdout.write("stopped\n")
-    sys.stdout.flush()
+    previous = {each: signal.signal(each, on_signal) for each in _SIGNALS}
+    try:
+        yield stop
+    finally:
+        for each, handler in previous.items():
+            signal.signal(each, handler)
+
+
+def _serve(world: SimWorld, *, pty: bool, tcp_port: int) -> None:
+    """Serve ``world``'s devices until a signal; print each one's address once it answers."""
+    with DeviceServer(world, pty=pty, tcp_port=tcp_port) as server:
+        server.warm_up()
+        with _signals_stop_serving() as stop:
+            for endpoint in server.endpoints:
+                where = endpoint.path if pty else f"socket://127.0.0.1:{endpoint.port}"
+                sys.stdout.write(f"{endpoint.name} {where}\n")
+            sys.stdout.flush()
+            server.start()
+            while not stop.wait(0.2):
+                if not server.serving:
+                    sys.stderr.write(
+                        f"usbmotion sim: the serving loop failed: {server.error!r}\n")
+                    raise typer.Exit(1)
 
 
 def _serve_firmware(
@@ -136,33 +186,29 @@ def _serve_firmware(
     tcp_port: int,
     flash_dir: Path,
     record: Path | None,
-    stop: threading.Event,
-    on_signal: Callable[[int, FrameType | None], None],
 ) -> None:
-    """``sim --firmware``: ``devices`` emulated RP2040s, served until ``stop`` is set."""
+    """``sim --firmware``: ``devices`` emulated RP2040s, served until a signal."""
     from usbmotion.errors import DeviceError  # noqa: PLC0415 - keeps start-up light
     from usbmotion.sim.firmware import FirmwareServer  # noqa: PLC0415
 
     server = FirmwareServer(image, devices, pty=pty, tcp_port=tcp_port, flash_dir=flash_dir,
                             names=names, record_dir=record)
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
     try:
         server.start()
     except (FileNotFoundError, DeviceError) as error:
         server.close()
         sys.stderr.write(f"usbmotion sim: {error}\n")
         raise typer.Exit(2) from None
-    with server:
-        for endpoint in server.endpoints:
-            sys.stdout.write(f"{endpoint.name} {endpoint.url}\n")
-        sys.stdout.flush()
-        while not stop.wait(0.2):
-            if server.stopped():
-                sys.stderr.write(f"usbmotion sim: {server.stopped()}\n")
-                raise typer.Exit(1)
+    try:
+        with _signals_stop_serving() as stop:
+            for endpoint in server.endpoints:
+                sys.stdout.write(f"{endpoint.name} {endpoint.url}\n")
+            sys.stdout.flush()
+            while not stop.wait(0.2):
+                if server.stopped():
+                    sys.stderr.write(f"usbmotion sim: {server.stopped()}\n")
+                    raise typer.Exit(1)
+    finally:
         server.close()
         if server.messages():
             sys.stderr.write(f"{server.messages()}\n")
-    sys.stdout.write("stopped\n")
-    sys.stdout.flush()

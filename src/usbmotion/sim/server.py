@@ -1,7 +1,9 @@
 """Serve simulated devices in real time on pseudo-terminals or TCP ports.
 
 One thread runs a loop: wait up to a millisecond for bytes from any client, hand them to
-the device, advance the world to the wall clock, and send the devices' output back. A
+the device, advance the world towards the wall clock (at most 20 ms of device time a round,
+so a loop that fell behind still sends output and sees :meth:`DeviceServer.stop` between
+rounds), and send the devices' output back. A
 pseudo-terminal's slave side stays open in the server, so clients may come and go; a TCP
 port accepts one client at a time and accepts the next when it leaves.
 """
@@ -17,10 +19,15 @@ import time
 import tty
 from dataclasses import dataclass, field
 
+from usbmotion.protocol import CallNumber, encode_call
 from usbmotion.sim.world import SimLink, SimWorld
 
 _POLL_S = 0.001
 _READ_CHUNK = 65536
+_MAX_STEP_US = 20_000
+"""The most device time one round of the serving loop advances the world by."""
+_NAME_QUERY = encode_call(CallNumber.SET_DEVICE_NAME, -1)
+"""The device name asked for (a read, changing nothing)."""
 
 
 @dataclass(slots=True)
@@ -66,6 +73,7 @@ class DeviceServer:
         self.endpoints: list[Endpoint] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
         self._closed = False
         try:
             for index, key in enumerate(world.keys):
@@ -98,10 +106,38 @@ class DeviceServer:
         endpoint.port = listener.getsockname()[1]
         self._selector.register(listener, selectors.EVENT_READ, endpoint)
 
+    def warm_up(self, *, timeout_s: float = 1.0) -> None:
+        """Ask every device for its name and run it a tick past the answer, in the world's
+        virtual time, before any client connects: whatever a device's first exchange loads
+        (the compiled servo kernel, from numba's cache or compiled afresh: seconds) is
+        loaded now, and a client's first exchange is answered at once.
+
+        Parameters:
+            timeout_s: device time each device has to answer, seconds.
+
+        Raises:
+            DeviceTimeoutError: a device did not answer.
+            RuntimeError: the serving loop is running already.
+        """
+        from usbmotion.errors import DeviceTimeoutError  # noqa: PLC0415 - keeps import light
+
+        if self._thread is not None:
+            raise RuntimeError("warm_up() must come before start()")
+        for endpoint in self.endpoints:
+            link = endpoint.link
+            link.write(_NAME_QUERY)
+            if not self.world.wait_for(link, int(timeout_s * 1e6)):
+                raise DeviceTimeoutError(
+                    f"simulated device {endpoint.key!r} did not answer {_NAME_QUERY!r}"
+                    f" within {timeout_s} s of device time")
+            self.world.advance(link.device.tick_us)
+            link.discard_input()
+
     def start(self) -> DeviceServer:
         """Run the serving loop in a background thread."""
         if self._thread is None:
-            self._thread = threading.Thread(target=self.serve, name="usbmotion-sim", daemon=True)
+            self._thread = threading.Thread(target=self._serve_logged, name="usbmotion-sim",
+                                            daemon=True)
             self._thread.start()
         return self
 
@@ -109,13 +145,31 @@ class DeviceServer:
         """Ask the serving loop to end."""
         self._stop.set()
 
+    @property
+    def serving(self) -> bool:
+        """True while the background serving loop runs."""
+        return self._thread is not None and self._thread.is_alive()
+
+    @property
+    def error(self) -> BaseException | None:
+        """What ended the background serving loop, if an exception did."""
+        return self._error
+
+    def _serve_logged(self) -> None:
+        try:
+            self.serve()
+        except BaseException as error:
+            self._error = error
+            raise
+
     def serve(self) -> None:
         """Serve until :meth:`stop` (blocking)."""
         origin = time.monotonic() - self.world.time_us / 1e6
         while not self._stop.is_set():
             for key, _ in self._selector.select(timeout=_POLL_S):
                 self._readable(key.data, key.fileobj)
-            self.world.advance_to(int((time.monotonic() - origin) * 1e6))
+            wall_us = int((time.monotonic() - origin) * 1e6)
+            self.world.advance_to(min(wall_us, self.world.time_us + _MAX_STEP_US))
             for endpoint in self.endpoints:
                 self._flush(endpoint)
 
@@ -191,7 +245,7 @@ class DeviceServer:
         self._closed = True
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout=5)
+            self._thread.join()  # within a round: its descriptors are closed below
         for endpoint in self.endpoints:
             self._drop_client(endpoint)
             for fd in (endpoint._master, endpoint._slave):
