@@ -26,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from _common import argument_parser, emit, parse_arguments
 from _load import busy_cores
+from _processes import sigterm_unwinds
 from reliability.bench import bench_machine, served
 from usbmotion.host.config import load_config
 from usbmotion.session import MachineSession
@@ -38,7 +39,8 @@ def measure(homings: int, load: int | None, seed: int = 7) -> dict[str, Any]:
     shifts: dict[str, list[int]] = {}
     polled: dict[str, list[int]] = {}
     seconds: list[float] = []
-    with tempfile.TemporaryDirectory() as folder, served(Path(folder) / "flash") as paths:
+    with (sigterm_unwinds(), tempfile.TemporaryDirectory() as folder,
+          served(Path(folder) / "flash") as paths):
         machine_file = bench_machine(Path(folder), paths, watchdog_ms=0)
         config = load_config(machine_file)
         with busy_cores(load) as loops, MachineSession.connect(config) as session:

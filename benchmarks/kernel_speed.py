@@ -31,7 +31,6 @@ import math
 import os
 import platform
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -42,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from _common import argument_parser, emit, median_of, parse_arguments, table_row
+from _processes import run
 from usbmotion.device import Device, core1, kernel
 from usbmotion.device.core1 import IntArray
 from usbmotion.sim.world import SimWorld
@@ -136,8 +136,10 @@ def compile_cost(runs: int) -> dict[str, float]:
             env = {**os.environ, "NUMBA_CACHE_DIR": cache}
             for first, total in ((cold_first, cold_total), (warm_first, warm_total)):
                 started = time.perf_counter()
-                out = subprocess.run([sys.executable, "-c", _COMPILE_SCRIPT], env=env,
-                                     check=True, capture_output=True, text=True).stdout
+                done = run([sys.executable, "-c", _COMPILE_SCRIPT], env=env, timeout_s=600)
+                if done.returncode != 0:
+                    raise RuntimeError(f"compiling the kernel failed:\n{done.stderr}")
+                out = done.stdout
                 total.append(time.perf_counter() - started)
                 first.append(float(out.strip()))
     return {

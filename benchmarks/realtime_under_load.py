@@ -10,7 +10,7 @@ passed. A test that fails one round in ten is a defect, in the test or in the pr
 
 from __future__ import annotations
 
-import subprocess
+import signal
 import sys
 import tempfile
 import time
@@ -20,15 +20,19 @@ from xml.etree import ElementTree
 
 from _common import argument_parser, emit, parse_arguments
 from _load import busy_cores
+from _processes import run
 
 ROOT = Path(__file__).resolve().parents[1]
+ROUND_TIMEOUT_S = 1800
+"""The most one round of the real-time tests may take."""
 
 
 def _round(report: Path) -> dict[str, bool]:
     """One ``pytest -m realtime`` run: test id -> passed."""
-    subprocess.run([sys.executable, "-m", "pytest", "-m", "realtime", "-q",
-                    "-p", "no:cacheprovider", f"--junitxml={report}"], cwd=ROOT,
-                   capture_output=True, text=True, check=False)
+    # SIGINT first if it must stop: pytest then tears its fixtures down (their servers too)
+    run([sys.executable, "-m", "pytest", "-m", "realtime", "-q", "-p", "no:cacheprovider",
+         f"--junitxml={report}"], cwd=ROOT, timeout_s=ROUND_TIMEOUT_S, grace_s=30,
+        first_signal=signal.SIGINT)
     results: dict[str, bool] = {}
     for case in ElementTree.parse(report).getroot().iter("testcase"):
         name = f"{case.get('classname')}::{case.get('name')}"

@@ -46,12 +46,13 @@ import os
 import platform
 import random
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
+
+from _processes import run
 
 MACHINE = Path(__file__).with_name("machine-10khz.toml")
 TARGET_MULTIPLE = 100.0
@@ -117,7 +118,7 @@ def _run_command(
     command = [sys.executable, "-m", "usbmotion", "run", str(program), "--machine",
                str(machine), "--report", str(report), "--no-plot", "-q"]
     started = time.perf_counter()
-    done = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
+    done = run(command, env=env, timeout_s=1800)
     elapsed = time.perf_counter() - started
     if done.returncode != 0:
         raise RuntimeError(f"usbmotion run failed ({done.returncode}):\n{done.stderr}"

@@ -3,11 +3,12 @@
     python benchmarks/streaming.py [--devices 1 3 6] [--seconds 3] [--runs 3] [--json]
 
 ``usbmotion sim --pty N`` serves N simulated devices in real time (a separate process,
-ticking by the wall clock); the host opens each pseudo-terminal with pyserial, sets the
-devices to a 10 kHz servo period with one setpoint per tick (the fastest the protocol
-allows: each device takes 10,000 setpoints/s) and streams ``--seconds`` of setpoints into
-every device at once with ``SetpointStream`` and ``run_streams`` (flow control by
-predicted consumption and call-2 checks), then waits until the queues are drained.
+ticking by the wall clock, reaped however a run ends); the host opens each pseudo-terminal
+with pyserial, sets the devices to a 10 kHz servo period with one setpoint per tick (the
+fastest the protocol allows: each device takes 10,000 setpoints/s) and streams
+``--seconds`` of setpoints into every device at once with ``SetpointStream`` and
+``run_streams`` (flow control by predicted consumption and call-2 checks), then waits until
+the queues are drained.
 
 Figures, each the median of ``--runs`` runs:
 
@@ -27,10 +28,10 @@ ceiling) and a host whose capacity exceeds it.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import platform
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -41,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from _common import argument_parser, emit, parse_arguments, table_row
+from _processes import sim_server
 from usbmotion.host.device import DeviceClient
 from usbmotion.host.stream import SetpointStream, run_streams, wait_until_drained
 from usbmotion.host.transport import LineTransport
@@ -72,44 +74,32 @@ class Run:
 
 def one_run(devices: int, seconds: float) -> Run:
     """Serve ``devices`` devices on ptys and stream ``seconds`` of setpoints into each."""
-    with tempfile.TemporaryDirectory(prefix="usbmotion-bench-") as flash_dir:
-        server = subprocess.Popen(
-            [sys.executable, "-m", "usbmotion", "sim", "--pty", str(devices),
-             "--flash-dir", flash_dir],
-            stdout=subprocess.PIPE, text=True,
-        )
-        clients: list[DeviceClient] = []
-        try:
-            assert server.stdout is not None
-            paths = [server.stdout.readline().rsplit(" ", 1)[1].strip() for _ in range(devices)]
-            for index, path in enumerate(paths):
-                clients.append(DeviceClient(LineTransport.open(path), name=f"device {index}",
-                                            timeout_s=2.0))
-            for client in clients:
-                client.set_servo_interval_dms(SERVO_INTERVAL_DMS)
-                client.set_motion_scalar(1)
-                client.set_servo_enable(True)
-            period_s = clients[0].motion_period_s()
-            count = round(seconds / period_s)
-            ramp = np.arange(count, dtype=np.int64) // 8
-            streams = [SetpointStream(client, ramp * (index + 1), period_s=period_s)
-                       for index, client in enumerate(clients)]
-            host_before = time.process_time()
-            server_before = _process_cpu_s(server.pid)
-            started = time.perf_counter()
-            run_streams(streams)
-            wait_until_drained(clients, period_s=period_s, poll_s=0.002)
-            wall_s = time.perf_counter() - started
-            host_cpu_s = time.process_time() - host_before
-            server_cpu_s = _process_cpu_s(server.pid) - server_before
-            results = [stream.result() for stream in streams]
-            for client in clients:
-                client.set_servo_enable(False)
-        finally:
-            for client in clients:
-                client.close()
-            server.terminate()
-            server.wait(timeout=10)
+    with (tempfile.TemporaryDirectory(prefix="usbmotion-bench-") as flash_dir,
+          sim_server(devices, Path(flash_dir)) as (server_pid, paths),
+          contextlib.ExitStack() as opened):
+        clients = [opened.enter_context(DeviceClient(LineTransport.open(path),
+                                                     name=f"device {index}", timeout_s=2.0))
+                   for index, path in enumerate(paths)]
+        for client in clients:
+            client.set_servo_interval_dms(SERVO_INTERVAL_DMS)
+            client.set_motion_scalar(1)
+            client.set_servo_enable(True)
+        period_s = clients[0].motion_period_s()
+        count = round(seconds / period_s)
+        ramp = np.arange(count, dtype=np.int64) // 8
+        streams = [SetpointStream(client, ramp * (index + 1), period_s=period_s)
+                   for index, client in enumerate(clients)]
+        host_before = time.process_time()
+        server_before = _process_cpu_s(server_pid)
+        started = time.perf_counter()
+        run_streams(streams)
+        wait_until_drained(clients, period_s=period_s, poll_s=0.002)
+        wall_s = time.perf_counter() - started
+        host_cpu_s = time.process_time() - host_before
+        server_cpu_s = _process_cpu_s(server_pid) - server_before
+        results = [stream.result() for stream in streams]
+        for client in clients:
+            client.set_servo_enable(False)
     return Run(
         setpoints=sum(result.sent for result in results),
         wall_s=wall_s,
