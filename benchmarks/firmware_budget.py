@@ -58,6 +58,8 @@ MODES: dict[str, tuple[str, ...]] = {
               "25 30 2000 100 -100", "25 25 -3000 0 0"),
 }
 MODES["curve start"] = MODES["curve"]
+MODES["position, pins"] = MODES["position"]
+MODES["curve, pins"] = MODES["curve"]
 """Each mode's set-up after ``5 1`` (10 kHz): a diagnostics line every tick, the servo
 enabled, motion to follow (and again: _refeed). The statistics count in position and curve
 mode."""
@@ -75,18 +77,29 @@ def _refeed(device: EmulatedDevice, mode: str, index: int) -> None:
     segments are prepared a phase a tick ahead); in "curve start" a new curve 30 ticks after
     the last one ended, the motor still settling (its first segment is prepared as it
     starts: the costliest ticks of curve mode)."""
-    again = ((mode == "curve" and index % 800 == 799)
-             or (mode == "curve start" and index % 900 == 879))
+    kind = mode.removesuffix(", pins")
+    again = ((kind == "curve" and index % 800 == 799)
+             or (kind == "curve start" and index % 900 == 879))
     if again:
         device.feed(_lines(*_CURVE_AGAIN))
-    elif mode in ("position", "velocity") and index % 900 == 899:
+    elif kind in ("position", "velocity") and index % 900 == 899:
         device.feed(_lines(MODES[mode][-1]))
+
+
+def _power_up(device: EmulatedDevice, mode: str) -> None:
+    """Blank flash; for a mode ", pins" the motor on the pins (call 39, a power cycle) with
+    the default motor outside the chip (the harness's motor request)."""
+    device.power_up(erase_flash=True)
+    if mode.endswith(", pins"):
+        device.feed(_lines("39 1"))
+        device.power_cycle()
+        device._request({"cmd": "motor", "options": {}})  # noqa: SLF001 - the harness's own
 
 
 def tick_cycles(device: EmulatedDevice, mode: str, ticks: int, *,
                 profile: bool) -> dict[str, Any]:
     """core1's cycles of each of ``ticks`` ticks in ``mode`` at 10 kHz, one at a time."""
-    device.power_up(erase_flash=True)
+    _power_up(device, mode)
     device.feed(_lines("5 1", *MODES[mode]))
     per_tick: list[int] = []
     core0: list[int] = []
@@ -106,7 +119,7 @@ def tick_cycles(device: EmulatedDevice, mode: str, ticks: int, *,
         "core0_median_cycles": statistics.median(core0),
     }
     if profile:
-        device.power_up(erase_flash=True)
+        _power_up(device, mode)
         device.feed(_lines("5 1", *MODES[mode]))
         for index in range(worst):
             _refeed(device, mode, index)
