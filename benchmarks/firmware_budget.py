@@ -93,7 +93,7 @@ def _power_up(device: EmulatedDevice, mode: str) -> None:
     if mode.endswith(", pins"):
         device.feed(_lines("39 1"))
         device.power_cycle()
-        device._request({"cmd": "motor", "options": {}})  # noqa: SLF001 - the harness's own
+        device._request({"cmd": "motor", "options": {}})  # the harness request, no API yet
 
 
 def tick_cycles(device: EmulatedDevice, mode: str, ticks: int, *,
