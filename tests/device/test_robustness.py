@@ -38,6 +38,7 @@ _MAY_CHANGE: dict[int, set[str]] = {
     17: {"motor"},
     18: {"name", "flash_writes"},
     19: {"default_control_mode", "flash_writes"},
+    39: {"flash_writes"},
     21: {"diagnostics_interval"},
     22: {"clock"},
     23: {"queue", "keyframes", "actual", "desired"},
