@@ -30,7 +30,7 @@ import numpy as np
 
 from _common import argument_parser, emit, median_seconds, table_row
 from usbmotion.hermite import Keyframe, hermite_position, sample_keyframes
-from usbmotion.motion.moves import Arc, Linear, Move, Plane, Rapid, Vec3
+from usbmotion.motion.moves import Arc, Linear, Move, Plane, Point, Rapid
 from usbmotion.motion.planner import AxisLimits, Plan, PlannerConfig, plan_moves
 from usbmotion.motion.sampler import sample_plan, sample_times
 
@@ -45,7 +45,7 @@ def random_program(count: int, *, seed: int, arcs: bool = True) -> list[Move]:
     kind = rng.random(count)
     unit = rng.random((count, 8))
     moves: list[Move] = []
-    position: Vec3 = (0.0, 0.0, 0.0)
+    position: Point = (0.0, 0.0, 0.0)
     for i in range(count):
         u = unit[i]
         roll = kind[i]

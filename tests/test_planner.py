@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from usbmotion.errors import PlanningError
-from usbmotion.motion.moves import Arc, Dwell, Linear, Move, Plane, Rapid, Vec3
+from usbmotion.motion.moves import Arc, Dwell, Linear, Move, Plane, Point, Rapid
 from usbmotion.motion.planner import (
     AxisLimits,
     Plan,
@@ -24,7 +24,7 @@ UNEVEN = (AxisLimits(100.0, 500.0), AxisLimits(250.0, 2000.0), AxisLimits(40.0, 
 CONFIG = PlannerConfig()
 
 
-def chain(points: list[Vec3], feed_mm_min: float, *, first_line: int = 1) -> list[Move]:
+def chain(points: list[Point], feed_mm_min: float, *, first_line: int = 1) -> list[Move]:
     return [
         Linear(first_line + i, points[i], points[i + 1], feed_mm_min)
         for i in range(len(points) - 1)
@@ -206,7 +206,7 @@ def reference_passes(plan: Plan) -> np.ndarray:
 
 def test_vectorised_passes_equal_the_loops() -> None:
     rng = np.random.default_rng(7)
-    points: list[Vec3] = [(0.0, 0.0, 0.0)]
+    points: list[Point] = [(0.0, 0.0, 0.0)]
     for _ in range(400):
         step = rng.normal(size=3) * rng.choice([0.05, 1.0, 30.0])
         x, y, z = (np.array(points[-1]) + step).tolist()

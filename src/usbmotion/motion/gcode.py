@@ -39,6 +39,11 @@ Words that do not move the machine (S, T, D, H, M0 M1 M3-M9 M48-M53 M60 M61, G40
 G61 G61.1 G64 G94 G96 G97 G98 G99 and their P/Q) are accepted and listed in
 :attr:`GCodeProgram.ignored`. Words that would change the geometry and are not supported
 raise :class:`~usbmotion.errors.UnsupportedGCodeError` naming the word and the reason.
+
+The axes are the machine's linear axes among X Y Z U V W (``axes``, ``"XYZ"`` by default):
+moves carry one coordinate per axis of the set, in that order; a word of an axis the set
+lacks is refused naming it, and an arc needs both axes of its plane. Other controllers'
+readings (grbl, Marlin) are the dialects of :mod:`usbmotion.motion.dialects`.
 """
 
 from __future__ import annotations
@@ -50,11 +55,23 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from usbmotion.errors import GCodeError, UnsupportedGCodeError
+from usbmotion.motion.dialects import GRBL_COMMANDS, RULES, Dialect, DialectRules
 from usbmotion.motion.gcode_lexer import Block, Word, parse_blocks, tokenize, word_columns
-from usbmotion.motion.moves import Arc, Dwell, Linear, Move, Plane, Rapid, Vec3
+from usbmotion.motion.moves import (
+    AXIS_ORDER,
+    DEFAULT_AXES,
+    Arc,
+    Dwell,
+    Linear,
+    Move,
+    Plane,
+    Point,
+    Rapid,
+)
 
 __all__ = [
     "Block",
+    "Dialect",
     "GCodeProgram",
     "IgnoredWord",
     "Word",
@@ -164,6 +181,7 @@ _G_UNSUPPORTED |= dict.fromkeys(
 _G_UNSUPPORTED |= dict.fromkeys(range(810, 900, 10), "canned cycles are not supported")
 
 _M_END = {2: "M2", 30: "M30"}
+_DIALECT_M_GROUP = 1000  # a dialect's own M code is the only one of group 1000 + code
 # code -> (modal group, meaning)
 _M_CODES: dict[int, tuple[int, str]] = {
     0: (4, "program pause"),
@@ -195,12 +213,9 @@ _M_UNSUPPORTED |= dict.fromkeys(range(62, 69), "digital and analog I/O is not su
 _M_UNSUPPORTED |= dict.fromkeys(range(70, 74), "modal state save and restore is not supported")
 
 _LETTERS_UNSUPPORTED = {
-    "A": "the rotary axis A is not supported (axes are X, Y, Z)",
-    "B": "the rotary axis B is not supported (axes are X, Y, Z)",
-    "C": "the rotary axis C is not supported (axes are X, Y, Z)",
-    "U": "the axis U is not supported (axes are X, Y, Z)",
-    "V": "the axis V is not supported (axes are X, Y, Z)",
-    "W": "the axis W is not supported (axes are X, Y, Z)",
+    "A": "the rotary axis A is not supported",
+    "B": "the rotary axis B is not supported",
+    "C": "the rotary axis C is not supported",
     "E": "E words (an extruder axis, G76 or M66) are not supported",
     "L": "L words (G10, canned cycles, M66) are not supported",
 }
@@ -232,7 +247,6 @@ _G_SPELLINGS = _spellings([*_G_CODES, *_G_UNSUPPORTED])
 _PLANE_OF_CODE = {170: Plane.XY, 180: Plane.XZ, 190: Plane.YZ}
 # plane -> (letter of the first axis's centre offset, of the second's, the forbidden one)
 _CENTRE_LETTERS = {Plane.XY: ("I", "J", "K"), Plane.XZ: ("K", "I", "J"), Plane.YZ: ("J", "K", "I")}
-_AXIS_LETTERS = "XYZ"
 _GROUP_NAMES = {
     0: "non-modal codes",
     1: "motion",
@@ -280,8 +294,11 @@ class GCodeProgram:
 
     ``moves`` are in program order, lengths in mm at absolute machine positions.
     ``ignored`` lists the accepted words that do not move the machine. ``ended_by`` is
-    ``"M2"``, ``"M30"`` or ``"%"``, and ``end_line`` its line; a program returned with an
-    error by :func:`interpret_until_error` has ``ended_by == ""`` and ``end_line == 0``.
+    ``"M2"``, ``"M30"`` or ``"%"``, and ``end_line`` its line; in a dialect that needs no
+    end, a program that has none has ``ended_by == "end of text"`` and its last line; a
+    program returned with an error by :func:`interpret_until_error` has ``ended_by == ""``
+    and ``end_line == 0``. ``axes`` are the letters of the moves' coordinates, ``dialect``
+    the dialect it was read in.
     """
 
     moves: tuple[Move, ...]
@@ -289,44 +306,99 @@ class GCodeProgram:
     file: str
     end_line: int
     ended_by: str
+    axes: str = DEFAULT_AXES
+    dialect: Dialect = Dialect.LINUXCNC
 
 
-def parse_gcode(text: str, *, file: str = "<string>",
-                start: Vec3 = (0.0, 0.0, 0.0)) -> GCodeProgram:
+@dataclass(frozen=True, slots=True)
+class MachineAxes:
+    """What the interpreter needs to know of the machine a program is read for.
+
+    Fields:
+        axes: its linear axes, a subsequence of ``"XYZUVW"`` (one to six letters).
+        home_mm: where homing leaves each axis (machine coordinates, mm), for grbl's
+            ``$H`` and Marlin's ``G28``; zeros (the default machine's) when not given.
+        homing_order: the groups of axes homed together, in order (``("Z", "XY")``);
+            every axis of ``axes`` in one group; one group of all axes when empty.
+
+    Raises:
+        ValueError: the axes are not a non-empty subsequence of ``"XYZUVW"``, the home
+            position has not one coordinate per axis, or the order misses or repeats one.
+    """
+
+    axes: str = DEFAULT_AXES
+    home_mm: Point | None = None
+    homing_order: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        axes = self.axes
+        if not axes or axes != "".join(a for a in AXIS_ORDER if a in axes) or len(
+                set(axes)) != len(axes):
+            raise ValueError(f"axes {axes!r} must be one to six of {AXIS_ORDER!r}, in that"
+                             " order, each once")
+        if self.home_mm is not None and len(self.home_mm) != len(axes):
+            raise ValueError(f"home_mm {self.home_mm!r} needs one coordinate per axis of"
+                             f" {axes!r}")
+        grouped = "".join(self.homing_order)
+        if self.homing_order and sorted(grouped) != sorted(axes):
+            raise ValueError(f"homing_order {self.homing_order!r} must hold every axis of"
+                             f" {axes!r} once")
+
+
+DEFAULT_MACHINE = MachineAxes()
+
+
+def parse_gcode(text: str, *, file: str = "<string>", start: Point | None = None,
+                machine: MachineAxes = DEFAULT_MACHINE,
+                dialect: Dialect = Dialect.LINUXCNC) -> GCodeProgram:
     """Interpret a G-code program into moves.
 
     Parameters:
         text: the program.
         file: the name used in errors and in the result.
-        start: where the machine stands when the program starts (machine coordinates, mm):
-            the first move starts there, as LinuxCNC's interpreter starts from the
-            machine's current position.
+        start: where the machine stands when the program starts (machine coordinates, mm,
+            one per axis of ``machine.axes``; zeros when not given): the first move
+            starts there, as LinuxCNC's interpreter starts from the machine's current
+            position.
+        machine: the axes (X, Y, Z by default), and where homing leaves them.
+        dialect: whose reading of G-code the program follows (LinuxCNC's by default).
 
     Raises:
         UnsupportedGCodeError: a word that would change the geometry is not supported.
         GCodeError: the program is invalid (bad syntax, bad arc, no feed rate, no
             program end, ...); ``file``, ``line``, ``column`` and ``word`` locate it.
     """
-    program, error = interpret_until_error(text, file=file, start=start)
+    program, error = interpret_until_error(text, file=file, start=start, machine=machine,
+                                           dialect=dialect)
     if error is not None:
         raise error
     return program
 
 
 def interpret_until_error(
-    text: str, *, file: str = "<string>", start: Vec3 = (0.0, 0.0, 0.0)
+    text: str, *, file: str = "<string>", start: Point | None = None,
+    machine: MachineAxes = DEFAULT_MACHINE, dialect: Dialect = Dialect.LINUXCNC,
 ) -> tuple[GCodeProgram, GCodeError | None]:
     """Interpret a G-code program, keeping the moves made before an error.
 
     Returns the program (complete, or up to the block before the error) and the error,
-    or ``None`` when the program is valid. Never raises for bad G-code. ``start`` is where
-    the machine stands (see :func:`parse_gcode`).
+    or ``None`` when the program is valid. Never raises for bad G-code. ``start``,
+    ``machine`` and ``dialect`` are as :func:`parse_gcode`'s.
+
+    Raises:
+        ValueError: ``start`` has not one coordinate per axis of ``machine.axes``.
     """
-    interpreter = _Interpreter(file)
-    interpreter.position = [float(start[0]), float(start[1]), float(start[2])]
+    interpreter = _Interpreter(file, machine, RULES[dialect])
+    if start is not None:
+        if len(start) != len(machine.axes):
+            raise ValueError(f"start {start!r} needs one coordinate per axis of"
+                             f" {machine.axes!r}")
+        interpreter.position = [float(value) for value in start]
+    rules = interpreter.rules
     error: GCodeError | None = None
     try:
-        interpreter.run(tokenize(text, file=file), text)
+        interpreter.run(tokenize(text, file=file, commands=rules.controller_commands,
+                                 messages=rules.message_codes), text)
     except GCodeError as exc:
         error = exc
     return interpreter.result(), error
@@ -345,25 +417,27 @@ def read_gcode_text(path: str | os.PathLike[str]) -> str:
         return data.decode("latin-1")
 
 
-def load_gcode(path: str | os.PathLike[str], *,
-               start: Vec3 = (0.0, 0.0, 0.0)) -> GCodeProgram:
+def load_gcode(path: str | os.PathLike[str], *, start: Point | None = None,
+               machine: MachineAxes = DEFAULT_MACHINE,
+               dialect: Dialect = Dialect.LINUXCNC) -> GCodeProgram:
     """Read and interpret a G-code file (see :func:`parse_gcode`).
 
     Raises:
         OSError: the file cannot be read.
         GCodeError: as :func:`parse_gcode`, with ``file`` set to ``path``.
     """
-    return parse_gcode(read_gcode_text(path), file=os.fspath(path), start=start)
+    return parse_gcode(read_gcode_text(path), file=os.fspath(path), start=start,
+                       machine=machine, dialect=dialect)
 
 
-def move_record(move: Move) -> dict[str, object]:
+def move_record(move: Move, *, axes: str = DEFAULT_AXES) -> dict[str, object]:
     """A move as a JSON-ready record in the conformance schema (lengths in mm).
 
     Rapid, linear and arc records have ``line``, ``type``, ``start`` and ``end``; linear
     and arc add ``feed`` (mm/min); arcs add ``plane`` (``"XY"``, ``"XZ"``, ``"YZ"``),
     ``direction`` (``"cw"``/``"ccw"``), ``rotation`` and ``centre`` (the coordinate
     along the plane's normal is ``None``). Dwells have ``line``, ``type``, ``seconds``
-    and ``position``.
+    and ``position``. Points have one coordinate per letter of ``axes``.
     """
     if isinstance(move, Rapid):
         return {
@@ -381,9 +455,10 @@ def move_record(move: Move) -> dict[str, object]:
             "feed": move.feed_mm_min,
         }
     if isinstance(move, Arc):
-        normal = move.plane.axes[2]
+        normal = move.plane.indices(axes)[2]
         centre: list[float | None] = list(move.centre)
-        centre[normal] = None
+        if normal >= 0:
+            centre[normal] = None
         return {
             "line": move.line,
             "type": "arc",
@@ -411,38 +486,57 @@ class _Interpreter:
 
     __slots__ = (
         "arc_incremental",
+        "axes",
+        "axis_set",
         "end_line",
         "ended_by",
         "feed_mm_min",
         "file",
+        "g_codes",
         "homes",
         "ignored",
+        "ignored_letters",
         "incremental",
+        "m_codes",
+        "machine",
         "motion",
         "moves",
         "offset",
         "plane",
+        "planes",
         "position",
+        "refused_letters",
+        "rules",
         "saved_offset",
         "scale",
     )
 
-    def __init__(self, file: str) -> None:
+    def __init__(self, file: str, machine: MachineAxes = DEFAULT_MACHINE,
+                 rules: DialectRules = RULES[Dialect.LINUXCNC]) -> None:
         self.file = file
-        self.position = [0.0, 0.0, 0.0]  # machine, mm
-        self.offset = [0.0, 0.0, 0.0]  # G92, mm
-        self.saved_offset = [0.0, 0.0, 0.0]  # LinuxCNC parameters 5211-5213
-        self.homes = {280: (0.0, 0.0, 0.0), 300: (0.0, 0.0, 0.0)}  # machine, mm
+        self.machine = machine
+        self.rules = rules
+        axes = machine.axes
+        self.axes = axes
+        self.axis_set = frozenset(axes)
+        zeros = (0.0,) * len(axes)
+        self.position = list(zeros)  # machine, mm
+        self.offset = list(zeros)  # G92, mm
+        self.saved_offset = list(zeros)  # LinuxCNC parameters 5211-5216
+        self.homes = {280: zeros, 300: zeros}  # machine, mm
         self.scale = 1.0  # mm per program unit
         self.incremental = False
         self.arc_incremental = True
         self.plane = Plane.XY
-        self.motion = -1  # G code x10 of the motion mode; -1: none (G80)
+        self.motion = rules.start_motion  # G code x10 of the motion mode; -1: none (G80)
         self.feed_mm_min = 0.0
         self.moves: list[Move] = []
         self.ignored: list[IgnoredWord] = []
         self.ended_by = ""
         self.end_line = 0
+        self.planes = _plane_indices(axes)
+        self.refused_letters, self.ignored_letters = _letter_tables(axes, rules)
+        self.g_codes, self.m_codes = _code_tables(rules)
 
     def result(self) -> GCodeProgram:
         return GCodeProgram(
@@ -451,6 +545,8 @@ class _Interpreter:
             file=self.file,
             end_line=self.end_line,
             ended_by=self.ended_by,
+            axes=self.axes,
+            dialect=self.rules.dialect,
         )
 
     def run(self, blocks: Iterable[Block], text: str) -> None:
@@ -478,6 +574,10 @@ class _Interpreter:
             if self.ended_by:
                 return
         last_line = max(1, text.count("\n") + (0 if text.endswith("\n") else 1))
+        if not self.rules.needs_end and not percent:
+            self.ended_by = "end of text"
+            self.end_line = last_line
+            return
         if percent:
             message = "the program opens with '%' but ends without a closing '%' line (or M2/M30)"
         else:
@@ -493,7 +593,8 @@ class _Interpreter:
         line that has no motion G code), or its first word.
         """
         if index < 0:
-            index = next((i for i, c in enumerate(block.letters) if c in "XYZIJK"), 0)
+            coveted = self.axes + "IJK"
+            index = next((i for i, c in enumerate(block.letters) if c in coveted), 0)
         column = word_columns(block)[index]
         word = block.letters[index] + block.numbers[index]
         return GCodeError(message, file=self.file, line=block.line, column=column, word=word)
@@ -521,6 +622,10 @@ class _Interpreter:
         m_codes: dict[int, int] = {}  # modal group -> code
         m_where: dict[int, int] = {}
         ignored: list[tuple[int, str]] = []  # (word index, meaning)
+        g_table = self.g_codes
+        m_table = self.m_codes
+        refused = self.refused_letters
+        ignored_letters = self.ignored_letters
 
         # Read the words in order, as LinuxCNC's read_items does.
         for index, letter in enumerate(letters):
@@ -528,10 +633,9 @@ class _Interpreter:
                 code = _G_SPELLINGS.get(numbers[index])
                 if code is None:
                     code = self.g_code(block, index)
-                entry = _G_CODES.get(code)
+                entry = g_table.get(code)
                 if entry is None:
-                    reason = _G_UNSUPPORTED.get(code, "it is not a G code LinuxCNC knows")
-                    raise self.unsupported(block, index, reason)
+                    raise self.unsupported(block, index, self.g_reason(code))
                 group, kind, meaning = entry
                 previous = g_codes.get(group)
                 if previous is not None and code != 800 and previous != 800:
@@ -548,16 +652,17 @@ class _Interpreter:
                     ignored.append((index, meaning))
             elif letter == "M":
                 code = self.m_code(block, index)
-                m_entry = _M_CODES.get(code)
+                m_entry = m_table.get(code)
                 if m_entry is None:
-                    raise self.unsupported(block, index, _m_reason(code))
+                    raise self.unsupported(block, index, self.m_reason(code))
                 group, meaning = m_entry
                 if group in m_codes:
                     raise self.error(
                         block,
                         index,
                         f"M{numbers[index]} and M{m_codes[group]} are both in the "
-                        f"{_M_GROUP_NAMES[group]} group; a line may hold one of each group",
+                        f"{_M_GROUP_NAMES.get(group, f'M{code}')} group; a line may hold"
+                        " one of each group",
                     )
                 if len(m_codes) == _MAX_M_CODES:
                     raise self.error(block, index, f"more than {_MAX_M_CODES} M codes on one line")
@@ -575,8 +680,11 @@ class _Interpreter:
                     f"and {letter}{numbers[index]}); a word may appear once per line",
                 )
             else:
-                if letter in _LETTERS_UNSUPPORTED:
-                    raise self.unsupported(block, index, _LETTERS_UNSUPPORTED[letter])
+                if letter in refused:
+                    if letter == "$":
+                        self.controller_command(block)
+                        return
+                    raise self.unsupported(block, index, refused[letter])
                 value = values[index]
                 if not -_LARGEST < value < _LARGEST:
                     raise self.error(
@@ -593,10 +701,12 @@ class _Interpreter:
                     )
                 params[letter] = value
                 where[letter] = index
-                letter_meaning = _LETTERS_IGNORED.get(letter)
+                letter_meaning = ignored_letters.get(letter)
                 if letter_meaning is not None:
                     ignored.append((index, letter_meaning))
 
+        if m_codes and self.rules.m_codes:
+            self.take_m_parameters(block, m_codes, params, where, ignored)
         motion = self.check(block, params, where, g_codes, g_where, m_codes, m_where, ignored)
 
         # Act, in LinuxCNC's order of execution.
@@ -680,14 +790,14 @@ class _Interpreter:
         """Check the block as a whole; return the motion it makes (G code x10, or -1)."""
         group0 = g_codes.get(0, -1)
         motion_word = g_codes.get(1, -1)
-        has_axis = "X" in params or "Y" in params or "Z" in params
+        has_axis = not self.axis_set.isdisjoint(params)
         covets_axes = group0 in (280, 300, 920)
         if motion_word != -1:
             if motion_word == 800:
                 if has_axis and not covets_axes:
                     raise self.error(
                         block,
-                        _first_of(where, _AXIS_LETTERS),
+                        _first_of(where, self.axes),
                         "axis words cannot be used with G80, which cancels the motion mode",
                     )
             elif covets_axes:
@@ -702,7 +812,7 @@ class _Interpreter:
             if self.motion == -1:
                 raise self.error(
                     block,
-                    _first_of(where, _AXIS_LETTERS),
+                    _first_of(where, self.axes),
                     "axis word with no motion mode: no G0, G1, G2 or G3 is active (a "
                     "program starts with none, and G80 cancels it); add one to this line",
                 )
@@ -715,23 +825,14 @@ class _Interpreter:
             motion = self.motion  # a line such as "I1" continues the arc mode
         else:
             motion = -1
-        if group0 == 920 and not has_axis:
-            raise self.error(block, g_where[0], "G92 needs at least one axis word (X, Y or Z)")
+        if group0 == 920 and not has_axis and not (
+                "E" in params and "E" in self.ignored_letters):
+            raise self.error(block, g_where[0], "G92 needs at least one axis word "
+                             f"({', '.join(self.axes)})")
 
         arc = motion in (20, 30)
         if group0 == 40:
-            if "P" not in params:
-                raise self.error(block, g_where[0], "G4 needs P, the dwell time in seconds")
-            if arc:
-                raise self.error(
-                    block, g_where[0], "G4 cannot share a line with G2 or G3: both use P"
-                )
-            if params["P"] < 0.0:
-                raise self.error(
-                    block,
-                    where["P"],
-                    f"G4 P{block.numbers[where['P']]}: a dwell time is not negative",
-                )
+            self.check_dwell(block, params, where, g_where[0], arc, ignored)
         if not arc:
             for letter in "IJKR":
                 if letter in params:
@@ -771,38 +872,144 @@ class _Interpreter:
             )
         return motion
 
+    def check_dwell(self, block: Block, params: dict[str, float], where: dict[str, int],
+                    g4: int, arc: bool, ignored: list[tuple[int, str]]) -> None:
+        """Refuse a G4 without its time, or with a negative one; in a dialect where
+        ``G4 S`` is seconds, its S is the dwell's and not an ignored word."""
+        rules = self.rules
+        unit = "seconds" if rules.dwell_p_seconds == 1.0 else "milliseconds"
+        letters = "PS" if rules.dwell_s else "P"
+        given = [letter for letter in letters if letter in params]
+        if not given:
+            allowed = f"P, the dwell time in {unit}" + (
+                ", or S, in seconds" if rules.dwell_s else "")
+            raise self.error(block, g4, f"G4 needs {allowed}")
+        if len(given) > 1:
+            raise self.error(block, where["S"], "G4 with both P and S: give one dwell time")
+        if arc and "P" in params:
+            raise self.error(block, g4, "G4 cannot share a line with G2 or G3: both use P")
+        letter = given[0]
+        if params[letter] < 0.0:
+            raise self.error(
+                block,
+                where[letter],
+                f"G4 {letter}{block.numbers[where[letter]]}: a dwell time is not negative",
+            )
+        if letter == "S":
+            ignored[:] = [entry for entry in ignored if entry[0] != where["S"]]
+
     def dwell(self, block: Block, params: dict[str, float]) -> None:
-        self.moves.append(Dwell(block.line, _point(self.position), params["P"]))
+        seconds = params["P"] * self.rules.dwell_p_seconds if "P" in params else params["S"]
+        self.moves.append(Dwell(block.line, _point(self.position), seconds))
 
     def non_modal(self, block: Block, code: int, params: dict[str, float]) -> None:
-        if code in (280, 300):
+        if code == 280 and self.rules.g28_homes:
+            named = "".join(letter for letter in self.axes if letter in params)
+            self.home(block.line, named or self.axes)
+        elif code in (280, 300):
             self.traverse(block.line, self.ends(params))
             home = self.homes[code]
-            named = [axis for axis, letter in enumerate(_AXIS_LETTERS) if letter in params]
+            named_axes = [axis for axis, letter in enumerate(self.axes) if letter in params]
             end = list(self.position)
-            for axis in named or (0, 1, 2):
+            for axis in named_axes or range(len(self.axes)):
                 end[axis] = home[axis]
             self.traverse(block.line, end)
         elif code in (281, 301):
             self.homes[code - 1] = _point(self.position)
         elif code == 920:
-            for axis, letter in enumerate(_AXIS_LETTERS):
+            for axis, letter in enumerate(self.axes):
                 if letter in params:
                     self.offset[axis] = self.position[axis] - params[letter] * self.scale
             self.saved_offset = list(self.offset)
         elif code == 921:
-            self.offset = [0.0, 0.0, 0.0]
-            self.saved_offset = [0.0, 0.0, 0.0]
+            self.offset = [0.0] * len(self.axes)
+            self.saved_offset = [0.0] * len(self.axes)
         elif code == 922:
-            self.offset = [0.0, 0.0, 0.0]
+            self.offset = [0.0] * len(self.axes)
         else:  # 923
             self.offset = list(self.saved_offset)
+
+    def home(self, line: int, named: str) -> None:
+        """Homing the axes ``named`` on a homed machine: a rapid, group by group in the
+        machine's homing order, to where homing leaves each axis."""
+        machine = self.machine
+        home = machine.home_mm or (0.0,) * len(self.axes)
+        for group in machine.homing_order or (self.axes,):
+            end = list(self.position)
+            for letter in group:
+                if letter in named:
+                    axis = self.axes.index(letter)
+                    end[axis] = home[axis]
+            if end != self.position:
+                self.traverse(line, end)
+
+    def controller_command(self, block: Block) -> None:
+        """A ``$`` line (grbl): ``$H`` homes every axis, ``$HX`` (``$HY``, ...) one axis;
+        every other command is refused by name."""
+        command = block.numbers[0].upper()
+        if command == "H":
+            self.home(block.line, self.axes)
+            return
+        if command.startswith("H") and all(letter in AXIS_ORDER for letter in command[1:]):
+            missing = [letter for letter in command[1:] if letter not in self.axis_set]
+            if missing:
+                raise self.unsupported(block, 0, f"the machine has no axis {missing[0]} (its"
+                                       f" axes are {', '.join(self.axes)})")
+            self.home(block.line, command[1:])
+            return
+        name = command.split("=", 1)[0]
+        if name[:1].isdigit():
+            what = "a grbl setting ($N=value)"
+        elif name[:3] in GRBL_COMMANDS:
+            what = GRBL_COMMANDS[name[:3]]
+        elif name[:1] in GRBL_COMMANDS:
+            what = GRBL_COMMANDS[name[:1]]
+        else:
+            what = "a command grbl does not know"
+        raise self.unsupported(block, 0, f"{what} belongs to the operator at the controller,"
+                               " not to a program; of the $ commands a program may hold $H"
+                               " (home every axis) and $HX, $HY, ... (one axis)")
+
+    def take_m_parameters(self, block: Block, m_codes: dict[int, int],
+                          params: dict[str, float], where: dict[str, int],
+                          ignored: list[tuple[int, str]]) -> None:
+        """The parameters of a dialect's M codes (``M201 X500``): out of ``params`` (they
+        are not axis words) and into ``ignored`` as the M code's."""
+        extra = self.rules.m_codes
+        for code in m_codes.values():
+            entry = extra.get(code)
+            if entry is None or not entry.parameters:
+                continue
+            for letter in entry.parameters:
+                if letter in params:
+                    index = where.pop(letter)
+                    del params[letter]
+                    ignored[:] = [item for item in ignored if item[0] != index]
+                    ignored.append((index, f"parameter of M{code}: {entry.meaning}"))
+
+    def g_reason(self, code: int) -> str:
+        """Why the G code ``code`` (x10) is refused."""
+        reason = self.rules.g_refused.get(code) or _G_UNSUPPORTED.get(code)
+        if reason is not None:
+            return reason
+        dialect = self.rules.dialect
+        if dialect is Dialect.LINUXCNC:
+            return "it is not a G code LinuxCNC knows"
+        return f"it is not a G code of the {dialect.value} dialect"
+
+    def m_reason(self, code: int) -> str:
+        """Why the M code ``code`` is refused."""
+        dialect = self.rules.dialect
+        if dialect is Dialect.LINUXCNC:
+            return _m_reason(code)
+        reason = _M_UNSUPPORTED.get(code)
+        return reason or f"it is not an M code of the {dialect.value} dialect"
 
     def ends(self, params: dict[str, float]) -> list[float]:
         """The end point named by the axis words (absolute or incremental), in mm."""
         end = list(self.position)
         scale = self.scale
-        for axis, letter in enumerate(_AXIS_LETTERS):
+        for axis, letter in enumerate(self.axes):
             value = params.get(letter)
             if value is not None:
                 if self.incremental:
@@ -862,7 +1069,11 @@ class _Interpreter:
     ) -> None:
         name = "G2" if motion == 20 else "G3"
         plane = self.plane
-        first, second, normal = plane.axes
+        indices = self.planes[plane]
+        if isinstance(indices, str):
+            raise self.unsupported(block, blame, f"{name} in the {plane.value} plane"
+                                   f" (G{_plane_code(plane)}): {indices}")
+        first, second, _normal = indices
         first_letter, second_letter, other_letter = _CENTRE_LETTERS[plane]
         radius_format = "R" in params
         centre_format = "I" in params or "J" in params or "K" in params
@@ -877,7 +1088,7 @@ class _Interpreter:
         if radius_format and centre_format:
             raise self.error(block, where["R"], f"{name} arc with both R and I/J/K: use one form")
         self.require_feed(block, blame, name)
-        first_axis, second_axis = _AXIS_LETTERS[first], _AXIS_LETTERS[second]
+        first_axis, second_axis = self.axes[first], self.axes[second]
         if centre_format:
             if other_letter in params:
                 raise self.error(
@@ -920,10 +1131,9 @@ class _Interpreter:
                 centre2 = offset2 + self.offset[second]
             self.check_radii(block, blame, plane, start1, start2, centre1, centre2, end1, end2)
         turns = round(params["P"]) if "P" in params else 1
-        centre = [0.0, 0.0, 0.0]
+        centre = list(start)
         centre[first] = centre1
         centre[second] = centre2
-        centre[normal] = start[normal]
         self.moves.append(
             Arc(
                 block.line,
@@ -989,8 +1199,8 @@ class _Interpreter:
         end2: float,
     ) -> str:
         """``start=(X..,Y..) centre=(..) end=(..)`` in program coordinates."""
-        first, second, _normal = plane.axes
-        a, b = _AXIS_LETTERS[first], _AXIS_LETTERS[second]
+        first, second = plane.indices(self.axes)[:2]
+        a, b = self.axes[first], self.axes[second]
         offset1, offset2 = self.offset[first], self.offset[second]
         scale = self.scale
 
@@ -1046,9 +1256,58 @@ class _Interpreter:
         return mid1 + offset * math.cos(theta), mid2 + offset * math.sin(theta)
 
 
-def _point(values: list[float]) -> Vec3:
-    """The first three values (x, y, z in mm) as a point."""
-    return (values[0], values[1], values[2])
+def _point(values: list[float]) -> Point:
+    """A position (a coordinate per axis, mm) as a point."""
+    return tuple(values)
+
+
+def _plane_indices(axes: str) -> dict[Plane, tuple[int, int, int] | str]:
+    """Each plane's axis indices in ``axes`` (the normal -1 when absent), or why an arc in
+    it is impossible there."""
+    planes: dict[Plane, tuple[int, int, int] | str] = {}
+    for plane in Plane:
+        missing = [letter for letter in plane.letters[:2] if letter not in axes]
+        if missing:
+            planes[plane] = (f"an arc needs both axes {plane.letters[0]} and "
+                             f"{plane.letters[1]}, and the machine has no axis {missing[0]}"
+                             f" (its axes are {', '.join(axes)})")
+        else:
+            planes[plane] = plane.indices(axes)
+    return planes
+
+
+def _letter_tables(axes: str, rules: DialectRules) -> tuple[dict[str, str], dict[str, str]]:
+    """The letters refused (letter -> reason) and those ignored (letter -> meaning) for a
+    machine of ``axes`` in a dialect; ``$`` is among the refused when the dialect has
+    controller commands (the interpreter reads them there)."""
+    where = f"its axes are {', '.join(axes)}"
+    refused = {letter: f"{reason} ({where})" if letter in "ABC" else reason
+               for letter, reason in _LETTERS_UNSUPPORTED.items()}
+    for letter in AXIS_ORDER:
+        if letter not in axes:
+            refused[letter] = f"the machine has no axis {letter} ({where})"
+    ignored = dict(_LETTERS_IGNORED) | rules.letter_meanings
+    for letter, meaning in rules.letters.items():
+        refused.pop(letter, None)
+        ignored[letter] = meaning
+    if rules.controller_commands:
+        refused["$"] = "controller commands"
+    return refused, ignored
+
+
+def _code_tables(
+    rules: DialectRules,
+) -> tuple[dict[int, tuple[int, int, str]], dict[int, tuple[int, str]]]:
+    """The G and M codes a dialect accepts: LinuxCNC's, less what it lacks or refuses,
+    with its own M codes (each its own modal group, numbered past LinuxCNC's)."""
+    if rules.dialect is Dialect.LINUXCNC:
+        return _G_CODES, _M_CODES
+    g_codes = {code: entry for code, entry in _G_CODES.items() if code not in rules.g_refused}
+    m_codes = {code: entry for code, entry in _M_CODES.items() if code not in rules.m_removed}
+    for code, extra in rules.m_codes.items():
+        group = m_codes[code][0] if code in m_codes else _DIALECT_M_GROUP + code
+        m_codes[code] = (group, extra.meaning)
+    return g_codes, m_codes
 
 
 def _first_of(where: dict[str, int], letters: str) -> int:

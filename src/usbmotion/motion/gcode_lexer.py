@@ -11,7 +11,17 @@ are about characters rather than machine state:
 - a RepRap checksum ``*NN`` ending the line must equal the XOR of the line's UTF-8 bytes
   before the ``*``; it is then dropped;
 - an ``N`` word (line number, also decimal such as ``N4567.789``) may only start a line;
-- number forms ``1``, ``-1.5``, ``+2``, ``I0.``, ``J.103``; anything else is malformed.
+- number forms ``1``, ``-1.5``, ``+2``, ``I0.``, ``J.103``; anything else is malformed;
+- a line is at most as long as LinuxCNC reads one: its ``fgets`` into a ``LINELEN`` (255)
+  byte buffer takes 254 bytes, line break included, and a line that fills them is refused
+  (``NCE_COMMAND_TOO_LONG``). So a line holds at most 252 bytes before a ``\n``, 251
+  before a ``\r\n``, 253 when it is the last and has no line break (UTF-8 bytes: a
+  character outside ASCII in a comment counts for two to four).
+
+Two dialect options (:mod:`usbmotion.motion.dialects`) change what a line may hold:
+``commands`` reads a line that starts with ``$`` as one controller command (grbl's
+``$H``), and ``messages`` names M codes whose text runs to the end of the line (Marlin's
+``M117 Printing...``).
 
 Expressions (``[``), parameters (``#``), O-words and polar coordinates (``@``, ``^``) are
 rejected with :class:`~usbmotion.errors.UnsupportedGCodeError`; every other problem is a
@@ -99,12 +109,19 @@ _SPECIAL = re.compile(r"[();/%*NnOo]")
 _LINE_NUMBER = re.compile(r"[0-9]+(?:\.[0-9]+)?")
 _CHECKSUM_DIGITS = re.compile(r"[0-9]+")
 _BLANKS = " \t\r"
-_LONGEST_FAST_LINE = 256  # longer lines take the careful path, which also checks magnitude
+LINE_BUFFER_BYTES = 254
+"""LinuxCNC's fgets reads at most LINELEN - 1 = 254 bytes of a line, its break included; a
+line that fills them is too long."""
+_LONGEST_FAST_LINE = 251  # longer lines take the careful path, which checks their length
+_MESSAGE = re.compile(
+    r"[ \t\r]*(?:[Nn][0-9.]*[ \t\r]*)?[Mm][ \t\r]*0*([0-9]+)(?![0-9.])[ \t\r]*(.*)"
+)
 _NOTHING: tuple[str, ...] = ()
 _new = tuple.__new__
 
 
-def tokenize(text: str, *, file: str = "<string>") -> Iterator[Block]:
+def tokenize(text: str, *, file: str = "<string>", commands: bool = False,
+             messages: frozenset[int] = frozenset()) -> Iterator[Block]:
     """Read G-code text lazily into blocks, one per line that holds anything.
 
     Blank lines and block-deleted lines (first character ``/``) yield nothing.
@@ -112,13 +129,22 @@ def tokenize(text: str, *, file: str = "<string>") -> Iterator[Block]:
     Parameters:
         text: the program; ``\\n`` or ``\\r\\n`` line breaks; a leading BOM is skipped.
         file: the name used in errors.
+        commands: a line whose first character (after blanks) is ``$`` is a controller
+            command: a block of one word, letter ``$``, whose number is the text after
+            the ``$`` with blanks removed (``"H"``, ``"J=G91X1F100"``) and value 0.
+        messages: M codes whose text runs to the end of the line: such a line is a block
+            of its N word (if any) and the M word, the text its one comment.
 
     Raises:
         GCodeError: a malformed number, an unclosed or nested comment, a checksum
-            mismatch, an ``N`` word that is not first, an unexpected character.
+            mismatch, an ``N`` word that is not first, an unexpected character, a line
+            longer than LinuxCNC reads (names its length and the limit).
         UnsupportedGCodeError: expressions, parameters, O-words, polar coordinates.
     """
+    ending_bytes = 1
     if "\r" in text:
+        if "\r\n" in text:
+            ending_bytes = 2
         text = text.replace("\r\n", "\n")
     if text.startswith("\ufeff"):
         text = text[1:]
@@ -128,9 +154,17 @@ def tokenize(text: str, *, file: str = "<string>") -> Iterator[Block]:
     new = _new
     block_type = Block
     nothing = _NOTHING
-    for number, raw in enumerate(text.split("\n"), 1):
+    lines = text.split("\n")
+    last = len(lines)
+    for number, raw in enumerate(lines, 1):
         if not raw:
             continue
+        if messages:
+            message = _message_block(raw, number, messages)
+            if message is not None:
+                _check_length(raw, number, 0 if number == last else ending_bytes, file)
+                yield message
+                continue
         first = special(raw)
         if len(raw) <= _LONGEST_FAST_LINE and (
             first is None or (first.start() == 0 and raw[0] in "Nn" and special(raw, 1) is None)
@@ -151,7 +185,9 @@ def tokenize(text: str, *, file: str = "<string>") -> Iterator[Block]:
                         (number, "".join(letters).upper(), values, numbers, nothing, raw, False),
                     )
                     continue
-        block = _read_line_carefully(raw, number, file)
+        if len(raw) > _LONGEST_FAST_LINE:
+            _check_length(raw, number, 0 if number == last else ending_bytes, file)
+        block = _read_line_carefully(raw, number, file, commands=commands)
         if block is not None:
             yield block
 
@@ -188,12 +224,52 @@ def word_columns(block: Block) -> tuple[int, ...]:
     return tuple(match.start(1) + 1 for match in _TOKEN.finditer(code) if match.group(1))
 
 
-def _read_line_carefully(raw: str, number: int, file: str) -> Block | None:
+def _check_length(raw: str, number: int, ending_bytes: int, file: str) -> None:
+    """Refuse a line that LinuxCNC's reader would find too long."""
+    size = len(raw.encode("utf-8")) + ending_bytes
+    if size < LINE_BUFFER_BYTES:
+        return
+    longest = LINE_BUFFER_BYTES - 1 - ending_bytes
+    ending = {0: "as the last line, with no line break", 1: "before a \\n line break",
+              2: "before a \\r\\n line break"}[ending_bytes]
+    raise GCodeError(
+        f"line too long: {size - ending_bytes} bytes; LinuxCNC reads a line into a"
+        f" {LINE_BUFFER_BYTES + 1}-byte buffer (LINELEN), so a line holds at most {longest}"
+        f" bytes {ending}: split it or shorten its comments",
+        file=file, line=number, column=longest + 1, word="",
+    )
+
+
+def _message_block(raw: str, number: int, messages: frozenset[int]) -> Block | None:
+    """The block of a message line (``M117 text``), or ``None`` when it is not one."""
+    match = _MESSAGE.match(raw)
+    if match is None or int(match.group(1)) not in messages:
+        return None
+    head = raw[: match.start(2)]
+    letters: list[str] = []
+    values: list[float] = []
+    numbers: list[str] = []
+    for token in _TOKEN.finditer(head):
+        letter, digits = token.group(1), token.group(2)
+        if letter is not None:
+            text = "".join(digits.split())
+            letters.append(letter.upper())
+            values.append(float(text) if letter in "Nn" and text else float(match.group(1)))
+            numbers.append(text)
+    return Block(number, "".join(letters), tuple(values), tuple(numbers),
+                 (match.group(2),), raw, False)
+
+
+def _read_line_carefully(raw: str, number: int, file: str, *,
+                         commands: bool = False) -> Block | None:
     stripped = raw.strip(_BLANKS)
     if not stripped or stripped[0] == "/":
         return None
     if stripped == "%":
         return Block(number, "", (), (), (), raw, True)
+    if commands and stripped[0] == "$":
+        command = "".join(stripped[1:].split())
+        return Block(number, "$", (0.0,), (command,), (), raw, False)
     code = _checked_code(raw, number, file)
     letters: list[str] = []
     values: list[float] = []

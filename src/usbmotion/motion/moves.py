@@ -1,7 +1,9 @@
 """The typed moves a G-code program turns into: plain frozen data, lengths in mm.
 
 These are the interface between the interpreter (``motion.gcode``) and the planner
-(``motion.planner``). Coordinates are absolute machine positions ``(x, y, z)`` in mm.
+(``motion.planner``). Coordinates are absolute machine positions in mm, one per axis of the
+program's axis set (:data:`AXIS_ORDER`'s letters the machine has, in that order; ``"XYZ"``
+by default, so a point is ``(x, y, z)``).
 """
 
 from __future__ import annotations
@@ -9,7 +11,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
-Vec3 = tuple[float, float, float]
+Point = tuple[float, ...]
+"""A machine position in mm, one coordinate per axis of the program's axis set."""
+
+AXIS_ORDER = "XYZUVW"
+"""The linear axes G-code can move, in LinuxCNC's order; an axis set is a subsequence."""
+DEFAULT_AXES = "XYZ"
 
 
 class Plane(Enum):
@@ -24,8 +31,29 @@ class Plane(Enum):
         """Indices into ``(x, y, z)`` of the first, second and normal axis."""
         return _PLANE_AXES[self]
 
+    @property
+    def letters(self) -> tuple[str, str, str]:
+        """The letters of the first, second and normal axis: ``("Z", "X", "Y")`` for XZ."""
+        return _PLANE_LETTERS[self]
+
+    def indices(self, axes: str) -> tuple[int, int, int]:
+        """Indices into a point of the axis set ``axes`` of the first, second and normal
+        axis; the normal is -1 when the set lacks it (no helix is possible then).
+
+        Raises:
+            ValueError: the set lacks one of the plane's two axes (the message names it).
+        """
+        first, second, normal = _PLANE_LETTERS[self]
+        for letter in (first, second):
+            if letter not in axes:
+                raise ValueError(
+                    f"the {self.value} plane needs axis {letter}, which axes {axes!r} lack"
+                )
+        return axes.index(first), axes.index(second), axes.find(normal)
+
 
 _PLANE_AXES = {Plane.XY: (0, 1, 2), Plane.XZ: (2, 0, 1), Plane.YZ: (1, 2, 0)}
+_PLANE_LETTERS = {Plane.XY: ("X", "Y", "Z"), Plane.XZ: ("Z", "X", "Y"), Plane.YZ: ("Y", "Z", "X")}
 
 
 @dataclass(frozen=True, slots=True)
@@ -33,8 +61,8 @@ class Rapid:
     """G0: straight move at the axes' own limits."""
 
     line: int
-    start: Vec3
-    end: Vec3
+    start: Point
+    end: Point
 
 
 @dataclass(frozen=True, slots=True)
@@ -42,8 +70,8 @@ class Linear:
     """G1: straight move at the programmed feed."""
 
     line: int
-    start: Vec3
-    end: Vec3
+    start: Point
+    end: Point
     feed_mm_min: float
 
 
@@ -51,17 +79,17 @@ class Linear:
 class Arc:
     """G2/G3: circular or helical move.
 
-    ``centre`` is the absolute centre; its coordinate along the plane normal is the
-    start's (it carries no meaning). ``rotation`` is LinuxCNC's turn count: -P for G2
-    (clockwise), +P for G3, so -1 / +1 is one ordinary pass and a full circle has
-    ``end == start`` in the plane. The end may differ from the start along the normal
-    (a helix).
+    ``centre`` is the absolute centre; its coordinate along the plane normal (when the
+    axis set has the normal axis) is the start's (it carries no meaning). ``rotation`` is
+    LinuxCNC's turn count: -P for G2 (clockwise), +P for G3, so -1 / +1 is one ordinary
+    pass and a full circle has ``end == start`` in the plane. The end may differ from the
+    start along the normal (a helix).
     """
 
     line: int
-    start: Vec3
-    end: Vec3
-    centre: Vec3
+    start: Point
+    end: Point
+    centre: Point
     plane: Plane
     rotation: int
     feed_mm_min: float
@@ -77,7 +105,7 @@ class Dwell:
     """G4: stay at ``position`` for ``seconds``."""
 
     line: int
-    position: Vec3
+    position: Point
     seconds: float
 
 

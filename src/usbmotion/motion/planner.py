@@ -52,7 +52,7 @@ import numpy.typing as npt
 
 from usbmotion.errors import PlanningError
 from usbmotion.motion.limits import AXIS_NAMES, AxisLimits, PlannerConfig
-from usbmotion.motion.moves import Arc, Dwell, Linear, Move, Plane, Rapid, Vec3
+from usbmotion.motion.moves import Arc, Dwell, Linear, Move, Plane, Point, Rapid
 
 __all__ = [
     "AxisLimits",
@@ -99,8 +99,8 @@ class PlannedSegment:
         start_time_s: time of the segment's start from the plan's start.
     """
 
-    start: Vec3
-    end: Vec3
+    start: Point
+    end: Point
     length_mm: float
     v_entry_mm_s: float
     v_cruise_mm_s: float
@@ -198,13 +198,13 @@ class Plan:
         return int(self.length_mm.shape[0])
 
     @property
-    def start(self) -> Vec3:
+    def start(self) -> Point:
         """Where the program starts, mm."""
         x, y, z = self.vertices_mm[0].tolist()
         return (x, y, z)
 
     @property
-    def end(self) -> Vec3:
+    def end(self) -> Point:
         """Where the program ends, mm."""
         x, y, z = self.vertices_mm[-1].tolist()
         return (x, y, z)
@@ -238,7 +238,7 @@ class Plan:
         return tuple(PlannedSegment(*row) for row in rows)
 
 
-def _check_point(name: str, point: object) -> Vec3:
+def _check_point(name: str, point: object) -> Point:
     if not isinstance(point, tuple) or len(point) != 3:
         raise PlanningError(f"{name} {point!r} is not an (x, y, z) tuple in mm")
     for value in point:
@@ -267,7 +267,7 @@ def _as_float(value: object) -> float:
     return float(value)
 
 
-def _check_join(move: Move, where: Vec3, expected: Vec3, tolerance: float) -> None:
+def _check_join(move: Move, where: Point, expected: Point, tolerance: float) -> None:
     """Refuse a move starting at ``where`` farther than ``tolerance`` from ``expected``."""
     if (
         abs(where[0] - expected[0]) <= tolerance
@@ -305,7 +305,7 @@ def plan_moves(
     limits: Sequence[AxisLimits],
     config: PlannerConfig,
     *,
-    start: Vec3 = (0.0, 0.0, 0.0),
+    start: Point = (0.0, 0.0, 0.0),
 ) -> Plan:
     """Plan ``moves`` into timed segments within every axis's limits.
 
@@ -483,7 +483,7 @@ def plan_moves(
 
 def _plan_columns(
     *,
-    origin: Vec3,
+    origin: Point,
     limits: tuple[AxisLimits, AxisLimits, AxisLimits],
     config: PlannerConfig,
     move_count: int,

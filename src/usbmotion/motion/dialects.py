@@ -1,0 +1,178 @@
+"""G-code dialects: what a program written for LinuxCNC, grbl or Marlin means.
+
+The interpreter (:mod:`usbmotion.motion.gcode`) reads RS274/NGC as LinuxCNC does; a
+:class:`Dialect` says where another controller reads the same text differently, as data
+the interpreter consults (:data:`RULES`):
+
+- ``linuxcnc``, the default: LinuxCNC 2.9's interpreter, as the conformance cases check.
+- ``grbl``: grbl 1.1 as a laser or small mill runs it. The motion mode at power-on is G0
+  (a line of axis words alone is a rapid), a program needs no M2/M30/``%``, and lines
+  that start with ``$`` are controller commands: ``$H`` (and ``$HX``, ``$HY``, ... of one
+  axis) homes, every other one is refused by name. ``G4 P`` is seconds, as LinuxCNC's.
+- ``marlin``: a 3D printer's file from a slicer. ``G4 P`` is milliseconds and ``G4 S``
+  seconds; ``G28`` homes the axes it names (all of them when it names none); ``E`` words
+  (the extruder) and the temperature, fan, progress and printer-setting M codes are
+  accepted and reported as ignored with their meaning; a program needs no end; ``M117``
+  and ``M118`` carry a message to the end of the line. Codes that would change the
+  geometry (bed levelling, firmware retraction's Z hop) stay refused.
+
+Homing inside a program (grbl's ``$H``, Marlin's ``G28``) is, on a machine the run has
+homed, a move at rapid to where homing leaves each axis, in the machine's homing order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+
+__all__ = ["GRBL_COMMANDS", "RULES", "Dialect", "DialectRules", "MCode", "dialect_named"]
+
+
+class Dialect(Enum):
+    """The controller whose reading of G-code a program follows."""
+
+    LINUXCNC = "linuxcnc"
+    GRBL = "grbl"
+    MARLIN = "marlin"
+
+
+@dataclass(frozen=True, slots=True)
+class MCode:
+    """An M code a dialect accepts and ignores: what it is for, and the letters on its line
+    that are its parameters (not axis words: ``M201 X500`` sets an acceleration)."""
+
+    meaning: str
+    parameters: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class DialectRules:
+    """How a dialect reads G-code where it differs from LinuxCNC.
+
+    Fields:
+        dialect: which one.
+        start_motion: the motion mode at power-on, ten times its G number (0: G0), or -1
+            for none (an axis word needs a G0-G3 first).
+        needs_end: a program must end with M2, M30 or ``%``.
+        controller_commands: lines starting with ``$`` are controller commands.
+        message_codes: M codes whose text runs to the end of the line (Marlin's M117).
+        dwell_p_seconds: seconds per unit of ``G4 P``.
+        dwell_s: ``G4 S`` is a dwell in seconds.
+        g28_homes: ``G28`` homes the named axes instead of going to the stored position.
+        m_codes: M codes the dialect adds or means differently (code -> meaning and the
+            letters that are its parameters).
+        m_removed: LinuxCNC's M codes the dialect does not have.
+        g_refused: G codes refused with the dialect's own reason (code x10 -> reason).
+        letters: letters ignored with this meaning instead of refused (Marlin's ``E``).
+        letter_meanings: what an ignored letter is for in this dialect, when it differs.
+    """
+
+    dialect: Dialect
+    start_motion: int = -1
+    needs_end: bool = True
+    controller_commands: bool = False
+    message_codes: frozenset[int] = frozenset()
+    dwell_p_seconds: float = 1.0
+    dwell_s: bool = False
+    g28_homes: bool = False
+    m_codes: dict[int, MCode] = field(default_factory=dict)
+    m_removed: frozenset[int] = frozenset()
+    g_refused: dict[int, str] = field(default_factory=dict)
+    letters: dict[str, str] = field(default_factory=dict)
+    letter_meanings: dict[str, str] = field(default_factory=dict)
+
+
+GRBL_COMMANDS: dict[str, str] = {
+    "$": "grbl's settings listing ($$)",
+    "#": "grbl's parameter listing ($#)",
+    "G": "grbl's parser state report ($G)",
+    "I": "grbl's build information ($I)",
+    "N": "grbl's startup blocks ($N)",
+    "C": "grbl's check mode ($C)",
+    "X": "grbl's alarm unlock ($X)",
+    "J": "a jog ($J=)",
+    "RST": "restoring grbl's settings ($RST=)",
+    "SLP": "grbl's sleep mode ($SLP)",
+}
+"""grbl's ``$`` commands other than homing (the text after ``$``, up to ``=`` or a digit),
+each refused by name: they are the operator's, not a program's."""
+
+_MARLIN_M_CODES: dict[int, MCode] = {
+    73: MCode("print progress (percent done, minutes left)", "PRQSC"),
+    82: MCode("extruder positions absolute (no extruder)"),
+    83: MCode("extruder positions relative (no extruder)"),
+    84: MCode("disable the motors (the run disables the servos when it ends)", "SXYZE"),
+    18: MCode("disable the motors (the run disables the servos when it ends)", "SXYZE"),
+    104: MCode("set the hotend temperature (no hotend)", "STBFI"),
+    105: MCode("report the temperatures (no heaters)", "TR"),
+    106: MCode("fan on (no fan)", "SPT"),
+    107: MCode("fan off (no fan)", "P"),
+    109: MCode("wait for the hotend temperature (no hotend)", "SRTBFI"),
+    117: MCode("display a message"),
+    118: MCode("send a message to the host"),
+    140: MCode("set the bed temperature (no heated bed)", "SI"),
+    141: MCode("set the chamber temperature (no heated chamber)", "S"),
+    155: MCode("temperature auto-report interval (no heaters)", "S"),
+    190: MCode("wait for the bed temperature (no heated bed)", "SRI"),
+    191: MCode("wait for the chamber temperature (no heated chamber)", "SR"),
+    201: MCode("maximum accelerations (the machine file sets them)", "XYZEFT"),
+    203: MCode("maximum feed rates (the machine file sets them)", "XYZET"),
+    204: MCode("default accelerations (the machine file sets them)", "PRTS"),
+    205: MCode("jerk and minimum speeds (the planner's junction deviation rules)", "XYZEBSTJ"),
+    220: MCode("feed rate percentage (not applied: feeds run as programmed)", "SBR"),
+    221: MCode("extrusion flow percentage (no extruder)", "ST"),
+    300: MCode("play a tone", "SP"),
+    400: MCode("wait for the moves to finish (they run in order)"),
+    900: MCode("linear advance factor (no extruder)", "KLST"),
+}
+_LINUXCNC_ONLY_M_CODES = frozenset((48, 49, 50, 51, 52, 53, 60, 61))
+
+RULES: dict[Dialect, DialectRules] = {
+    Dialect.LINUXCNC: DialectRules(Dialect.LINUXCNC),
+    Dialect.GRBL: DialectRules(
+        Dialect.GRBL,
+        start_motion=0,
+        needs_end=False,
+        controller_commands=True,
+        m_codes={
+            3: MCode("spindle on clockwise, or the laser on at constant power (laser mode)"),
+            4: MCode("spindle on counter-clockwise, or the laser on with power scaled to the"
+                     " speed (laser mode)"),
+            5: MCode("spindle or laser off"),
+            56: MCode("parking motion override control", "P"),
+        },
+        m_removed=_LINUXCNC_ONLY_M_CODES,
+        letter_meanings={"S": "spindle speed or laser power"},
+    ),
+    Dialect.MARLIN: DialectRules(
+        Dialect.MARLIN,
+        needs_end=False,
+        message_codes=frozenset((117, 118)),
+        dwell_p_seconds=0.001,
+        dwell_s=True,
+        g28_homes=True,
+        m_codes=_MARLIN_M_CODES,
+        m_removed=_LINUXCNC_ONLY_M_CODES,
+        g_refused={
+            100: "firmware retraction (G10) is not supported: it may lift Z",
+            110: "firmware retraction (G11) is not supported: it may lower Z",
+            290: "bed levelling (G29) changes the geometry and is not supported",
+        },
+        letters={"E": "extruder position (no extruder)"},
+        letter_meanings={"S": "spindle speed, laser power or the parameter of its M code"},
+    ),
+}
+"""Every dialect's rules."""
+
+
+def dialect_named(name: str) -> Dialect:
+    """The dialect called ``name`` (``"linuxcnc"``, ``"grbl"``, ``"marlin"``).
+
+    Raises:
+        ValueError: no dialect has that name (the message lists the names).
+    """
+    try:
+        return Dialect(name)
+    except ValueError:
+        names = ", ".join(d.value for d in Dialect)
+        raise ValueError(f"dialect {name!r} is not one of {names}") from None
