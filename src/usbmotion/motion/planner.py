@@ -51,8 +51,18 @@ import numpy as np
 import numpy.typing as npt
 
 from usbmotion.errors import PlanningError
-from usbmotion.motion.limits import AXIS_NAMES, AxisLimits, PlannerConfig
-from usbmotion.motion.moves import Arc, Dwell, Linear, Move, Plane, Point, Rapid
+from usbmotion.motion.limits import AxisLimits, PlannerConfig
+from usbmotion.motion.moves import (
+    AXIS_ORDER,
+    DEFAULT_AXES,
+    Arc,
+    Dwell,
+    Linear,
+    Move,
+    Plane,
+    Point,
+    Rapid,
+)
 
 __all__ = [
     "AxisLimits",
@@ -72,7 +82,6 @@ _SPLIT_SHIFT = 2.0**32
 _BLOCK = 32768
 
 _ArcRow = tuple[int, int, float, float, float, float, float, float, float, float]
-_AXES_BY_FIRST = {plane.axes[0]: plane.axes for plane in Plane}
 
 
 class SegmentKind(IntEnum):
@@ -164,8 +173,9 @@ class Plan:
     lengths mm, speeds mm/s, accelerations mm/s^2.
 
     Fields:
-        vertices_mm: (n + 1, 3) positions; row 0 is the start, the last row the end.
-        unit: (n, 3) unit directions (zero rows for dwells).
+        vertices_mm: (n + 1, k) positions, one column per axis of ``axes``; row 0 is the
+            start, the last row the end.
+        unit: (n, k) unit directions (zero rows for dwells).
         kind: (n,) ``SegmentKind`` codes.
         line: (n,) G-code lines.
         length_mm, v_entry_mm_s, v_cruise_mm_s, v_exit_mm_s, accel_mm_s2, t_accel_s,
@@ -175,6 +185,7 @@ class Plan:
             as slow as it is.
         duration_s: total time of the program.
         move_count: how many input moves were planned.
+        axes: the letters of the columns (``"XYZ"``, ``"XY"``, ...).
     """
 
     vertices_mm: FloatArray
@@ -193,6 +204,7 @@ class Plan:
     v_junction_max_mm_s: FloatArray
     duration_s: float
     move_count: int
+    axes: str = DEFAULT_AXES
 
     def __len__(self) -> int:
         return int(self.length_mm.shape[0])
@@ -200,14 +212,12 @@ class Plan:
     @property
     def start(self) -> Point:
         """Where the program starts, mm."""
-        x, y, z = self.vertices_mm[0].tolist()
-        return (x, y, z)
+        return tuple(self.vertices_mm[0].tolist())
 
     @property
     def end(self) -> Point:
         """Where the program ends, mm."""
-        x, y, z = self.vertices_mm[-1].tolist()
-        return (x, y, z)
+        return tuple(self.vertices_mm[-1].tolist())
 
     @property
     def segment_duration_s(self) -> FloatArray:
@@ -238,26 +248,35 @@ class Plan:
         return tuple(PlannedSegment(*row) for row in rows)
 
 
-def _check_point(name: str, point: object) -> Point:
-    if not isinstance(point, tuple) or len(point) != 3:
-        raise PlanningError(f"{name} {point!r} is not an (x, y, z) tuple in mm")
+def _check_point(name: str, point: object, axes: str) -> Point:
+    if not isinstance(point, tuple) or len(point) != len(axes):
+        raise PlanningError(f"{name} {point!r} is not a tuple of {len(axes)} coordinates in"
+                            f" mm, one per axis {', '.join(axes)}")
     for value in point:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise PlanningError(f"{name} {point!r} holds {value!r}, which is not a number")
         if not math.isfinite(value):
             raise PlanningError(f"{name} {point!r} holds {value!r}; coordinates must be finite")
-    return (float(point[0]), float(point[1]), float(point[2]))
+    return tuple(float(value) for value in point)
 
 
-def _check_limits(limits: Sequence[AxisLimits]) -> tuple[AxisLimits, AxisLimits, AxisLimits]:
-    if isinstance(limits, (str, bytes)) or len(limits) != 3:
+def _check_axes(axes: object) -> str:
+    if (not isinstance(axes, str) or not axes or len(set(axes)) != len(axes)
+            or axes != "".join(a for a in AXIS_ORDER if a in axes)):
+        raise PlanningError(f"axes {axes!r} must be one to six of {AXIS_ORDER!r}, in that"
+                            " order, each once")
+    return axes
+
+
+def _check_limits(limits: Sequence[AxisLimits], axes: str) -> tuple[AxisLimits, ...]:
+    if isinstance(limits, (str, bytes)) or len(limits) != len(axes):
         raise PlanningError(
-            f"limits {limits!r} must be three AxisLimits, one per axis {', '.join(AXIS_NAMES)}"
+            f"limits {limits!r} must be {len(axes)} AxisLimits, one per axis {', '.join(axes)}"
         )
-    for name, axis in zip(AXIS_NAMES, limits, strict=True):
+    for name, axis in zip(axes, limits, strict=True):
         if not isinstance(axis, AxisLimits):
             raise PlanningError(f"limits for axis {name} {axis!r} is not an AxisLimits")
-    return (limits[0], limits[1], limits[2])
+    return tuple(limits)
 
 
 def _as_float(value: object) -> float:
@@ -269,11 +288,10 @@ def _as_float(value: object) -> float:
 
 def _check_join(move: Move, where: Point, expected: Point, tolerance: float) -> None:
     """Refuse a move starting at ``where`` farther than ``tolerance`` from ``expected``."""
-    if (
-        abs(where[0] - expected[0]) <= tolerance
-        and abs(where[1] - expected[1]) <= tolerance
-        and abs(where[2] - expected[2]) <= tolerance
-    ):
+    if len(where) != len(expected):
+        raise PlanningError(f"line {move.line}: position {where!r} has {len(where)}"
+                            f" coordinates; the program's axes have {len(expected)}")
+    if all(abs(a - b) <= tolerance for a, b in zip(where, expected, strict=True)):
         return
     if not all(math.isfinite(value) for value in (*where, *expected)):
         raise PlanningError(
@@ -305,16 +323,19 @@ def plan_moves(
     limits: Sequence[AxisLimits],
     config: PlannerConfig,
     *,
-    start: Point = (0.0, 0.0, 0.0),
+    start: Point | None = None,
+    axes: str = DEFAULT_AXES,
 ) -> Plan:
     """Plan ``moves`` into timed segments within every axis's limits.
 
     Parameters:
         moves: the program's moves in order; each must start where the previous one ended
             (the first at ``start``), within ``config.continuity_tolerance_mm``.
-        limits: ``AxisLimits`` for X, Y and Z.
+        limits: ``AxisLimits`` for each axis of ``axes``.
         config: arc tolerance, junction deviation, minimum segment.
-        start: the machine's position before the first move, mm.
+        start: the machine's position before the first move, mm (zeros when not given).
+        axes: the letters of the moves' coordinates (X, Y, Z by default; one to six of
+            X Y Z U V W).
 
     Returns a ``Plan`` that starts and ends at rest.
 
@@ -324,10 +345,11 @@ def plan_moves(
             between moves, or an object that is not a move; the message names the G-code line
             and the value.
     """
-    axis_limits = _check_limits(limits)
+    axes = _check_axes(axes)
+    axis_limits = _check_limits(limits, axes)
     if not isinstance(config, PlannerConfig):
         raise PlanningError(f"config {config!r} is not a PlannerConfig")
-    origin = _check_point("start", start)
+    origin = _check_point("start", (0.0,) * len(axes) if start is None else start, axes)
 
     tolerance = config.continuity_tolerance_mm
     min_segment = config.min_segment_mm
@@ -339,13 +361,11 @@ def plan_moves(
     item_feed: list[float] = []
     item_dwell: list[float] = []
     item_count: list[int] = []
-    end_x: list[float] = []
-    end_y: list[float] = []
-    end_z: list[float] = []
+    end_points: list[Point] = []
     arc_rows: list[_ArcRow] = []
     arc_planes: list[tuple[int, int, int]] = []
 
-    kx, ky, kz = origin
+    kept = origin
     expected = origin
     total = 0
     inf = math.inf
@@ -353,7 +373,10 @@ def plan_moves(
     atan2 = math.atan2
     acos = math.acos
     ceil = math.ceil
-    plane_axes = {plane: plane.axes for plane in Plane}
+    plane_axes: dict[object, tuple[int, int, int]] = {}
+    for plane in Plane:
+        if plane.letters[0] in axes and plane.letters[1] in axes:
+            plane_axes[plane] = plane.indices(axes)
 
     for move in moves:
         cls = type(move)
@@ -364,11 +387,7 @@ def plan_moves(
                 _check_join(move, s, expected, tolerance)
             e = line_move.end
             expected = e
-            ex, ey, ez = e
-            dx = ex - kx
-            dy = ey - ky
-            dz = ez - kz
-            if dx * dx + dy * dy + dz * dz < min_segment_sq:
+            if sum([(a - b) * (a - b) for a, b in zip(e, kept, strict=True)]) < min_segment_sq:
                 continue
             if cls is Linear:
                 kind = 1
@@ -385,10 +404,11 @@ def plan_moves(
                 _check_join(move, s, expected, tolerance)
             e = arc.end
             expected = e
-            axes = plane_axes.get(arc.plane)
-            if axes is None:
-                raise PlanningError(f"line {arc.line}: arc plane {arc.plane!r} is not a Plane")
-            a1, a2, an = axes
+            indices = plane_axes.get(arc.plane)
+            if indices is None:
+                raise PlanningError(f"line {arc.line}: arc plane {arc.plane!r} is not a Plane"
+                                    f" of two of the axes {', '.join(axes)}")
+            a1, a2, an = indices
             c = arc.centre
             su = s[a1] - c[a1]
             sv = s[a2] - c[a2]
@@ -404,7 +424,7 @@ def plan_moves(
                 )
             theta0 = atan2(sv, su)
             sweep = _arc_sweep(arc, theta0, atan2(ev, eu), hypot(eu - su, ev - sv))
-            normal_travel = e[an] - s[an]
+            normal_travel = e[an] - s[an] if an >= 0 else 0.0
             turn = sweep if sweep > 0.0 else -sweep
             r_min, r_max = (r0, r1) if r0 < r1 else (r1, r0)
             planar = turn * 0.5 * (r0 + r1)
@@ -425,7 +445,7 @@ def plan_moves(
                         r1 - r0,
                         theta0,
                         sweep,
-                        s[an],
+                        s[an] if an >= 0 else 0.0,
                         normal_travel,
                     )
                 )
@@ -433,7 +453,6 @@ def plan_moves(
             kind = 2
             feed = arc.feed_mm_min
             dwell_s = 0.0
-            ex, ey, ez = e
         elif cls is Dwell:
             dwell: Dwell = move  # type: ignore[assignment]
             p = dwell.position
@@ -450,7 +469,7 @@ def plan_moves(
             feed = 0.0
             dwell_s = float(seconds)
             count = 1
-            ex, ey, ez = kx, ky, kz
+            e = kept
         else:
             raise PlanningError(f"moves holds {move!r}, which is not a Rapid, Linear, Arc or Dwell")
         item_kind.append(kind)
@@ -458,10 +477,8 @@ def plan_moves(
         item_line.append(move.line)
         item_dwell.append(dwell_s)
         item_count.append(count)
-        end_x.append(ex)
-        end_y.append(ey)
-        end_z.append(ez)
-        kx, ky, kz = ex, ey, ez
+        end_points.append(e)
+        kept = e
         total += count
 
     return _plan_columns(
@@ -475,16 +492,17 @@ def plan_moves(
         item_feed=item_feed,
         item_dwell=item_dwell,
         item_count=item_count,
-        ends=(end_x, end_y, end_z),
+        ends=end_points,
         arc_rows=arc_rows,
         arc_planes=arc_planes,
+        axes=axes,
     )
 
 
 def _plan_columns(
     *,
     origin: Point,
-    limits: tuple[AxisLimits, AxisLimits, AxisLimits],
+    limits: tuple[AxisLimits, ...],
     config: PlannerConfig,
     move_count: int,
     total: int,
@@ -493,9 +511,10 @@ def _plan_columns(
     item_feed: list[float],
     item_dwell: list[float],
     item_count: list[int],
-    ends: tuple[list[float], list[float], list[float]],
+    ends: list[Point],
     arc_rows: list[_ArcRow],
     arc_planes: list[tuple[int, int, int]],
+    axes: str,
 ) -> Plan:
     counts = np.array(item_count, dtype=np.int64)
     kinds_item = np.array(item_kind, dtype=np.int8)
@@ -514,13 +533,13 @@ def _plan_columns(
         )
     speed_item = feed_item / 60.0
 
-    # Columns: vertices[axis, i]; the Plan exposes the (n + 1, 3) transpose.
-    vertices = np.empty((3, total + 1), dtype=np.float64)
+    # Columns: vertices[axis, i]; the Plan exposes the (n + 1, k) transpose.
+    k = len(axes)
+    vertices = np.empty((k, total + 1), dtype=np.float64)
     vertices[:, 0] = origin
     last_vertex = np.cumsum(counts)
-    vertices[0, last_vertex] = ends[0]
-    vertices[1, last_vertex] = ends[1]
-    vertices[2, last_vertex] = ends[2]
+    if ends:
+        vertices[:, last_vertex] = np.array(ends, dtype=np.float64).T
     if arc_rows:
         _fill_arc_vertices(vertices, arc_rows, arc_planes)
 
@@ -541,7 +560,7 @@ def _plan_columns(
 
     # Elementwise work runs in blocks that stay in cache; only the passes span the program.
     # Dwells (zero length) divide by zero in the blocks and are set right afterwards.
-    unit = np.empty((3, total), dtype=np.float64)
+    unit = np.empty((k, total), dtype=np.float64)
     length = np.empty(total, dtype=np.float64)
     v_nominal_sq = np.empty(total, dtype=np.float64)
     accel = np.empty(total, dtype=np.float64)
@@ -616,22 +635,38 @@ def _plan_columns(
         v_junction_max_mm_s=_readonly(np.sqrt(junction_sq)),  # type: ignore[arg-type]
         duration_s=duration,
         move_count=move_count,
+        axes=axes,
     )
 
 
 def _geometry(
     vertices: FloatArray, speed: FloatArray, inv_v: list[float], inv_a: list[float]
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Unit directions (3, m), lengths, squared nominal speeds and accelerations of a block."""
+    """Unit directions (k, m), lengths, squared nominal speeds and accelerations of a block."""
     delta = vertices[:, 1:] - vertices[:, :-1]
-    dx, dy, dz = delta
-    length = np.sqrt(dx * dx + dy * dy + dz * dz)
+    length = np.sqrt(_sum_of_squares(delta))
     unit = delta / length
-    ax, ay, az = np.abs(unit)
-    v_share = np.maximum(np.maximum(ax * inv_v[0], ay * inv_v[1]), az * inv_v[2])
-    a_share = np.maximum(np.maximum(ax * inv_a[0], ay * inv_a[1]), az * inv_a[2])
+    share = np.abs(unit)
+    v_share = _largest_share(share, inv_v)
+    a_share = _largest_share(share, inv_a)
     v_nominal = np.minimum(speed, 1.0 / v_share)
     return unit, length, v_nominal * v_nominal, 1.0 / a_share
+
+
+def _sum_of_squares(rows: FloatArray) -> FloatArray:
+    """Per column, the sum of the squares of the rows (added in row order)."""
+    total: FloatArray = rows[0] * rows[0]
+    for row in rows[1:]:
+        total = total + row * row
+    return total
+
+
+def _largest_share(shares: FloatArray, inverse: list[float]) -> FloatArray:
+    """Per column, the largest ``shares[k] * inverse[k]`` over the axes ``k``."""
+    largest: FloatArray = shares[0] * inverse[0]
+    for row, factor in zip(shares[1:], inverse[1:], strict=True):
+        largest = np.maximum(largest, row * factor)
+    return largest
 
 
 def _trapezoids(
@@ -671,6 +706,7 @@ def _fill_arc_vertices(
     ``_BLOCK`` vertices."""
     rows = np.array(arc_rows, dtype=np.float64)
     plane_of = np.array([axes[0] for axes in arc_planes], dtype=np.int64)
+    axes_by_first = {axes[0]: axes for axes in arc_planes}
     for first_axis in np.unique(plane_of).tolist():
         selected = rows[plane_of == first_axis]
         inner = selected[:, 1].astype(np.int64) - 1
@@ -678,7 +714,7 @@ def _fill_arc_vertices(
         begin = 0
         while begin < len(selected):
             stop = max(begin + 1, int(np.searchsorted(ends, ends[begin] + _BLOCK, side="left")))
-            _arc_block(vertices, selected[begin:stop], _AXES_BY_FIRST[first_axis])
+            _arc_block(vertices, selected[begin:stop], axes_by_first[first_axis])
             begin = stop
 
 
@@ -695,7 +731,9 @@ def _arc_block(vertices: FloatArray, rows: FloatArray, axes: tuple[int, int, int
     index = np.repeat(first, inner) + step
     vertices[axis1, index] = np.repeat(rows[:, 2], inner) + radius * np.cos(angle)
     vertices[axis2, index] = np.repeat(rows[:, 3], inner) + radius * np.sin(angle)
-    vertices[normal, index] = np.repeat(rows[:, 8], inner) + np.repeat(rows[:, 9], inner) * fraction
+    if normal >= 0:
+        vertices[normal, index] = (np.repeat(rows[:, 8], inner)
+                                   + np.repeat(rows[:, 9], inner) * fraction)
 
 
 def _junction_limits(
@@ -711,21 +749,13 @@ def _junction_limits(
     A straight continuation (``cos_half == 0``) divides by zero to an infinite limit, and its
     undefined junction direction (0 / 0) is skipped by ``fmin``: the nominal speeds rule.
     """
-    ux, uy, uz = unit
-    wx = ux[1:] - ux[:-1]
-    wy = uy[1:] - uy[:-1]
-    wz = uz[1:] - uz[:-1]
-    sx = ux[1:] + ux[:-1]
-    sy = uy[1:] + uy[:-1]
-    sz = uz[1:] + uz[:-1]
+    turn = unit[:, 1:] - unit[:, :-1]
+    straight = unit[:, 1:] + unit[:, :-1]
     # theta is the angle at the corner: cos(theta/2) = |u2 - u1| / 2, sin(theta/2) = |u2 + u1| / 2.
-    w_length = np.sqrt(wx * wx + wy * wy + wz * wz)
+    w_length = np.sqrt(_sum_of_squares(turn))
     cos_half = 0.5 * w_length
-    sin_half = np.minimum(0.5 * np.sqrt(sx * sx + sy * sy + sz * sz), 1.0)
-    np.abs(wx, out=wx)
-    np.abs(wy, out=wy)
-    np.abs(wz, out=wz)
-    a_share = np.maximum(np.maximum(wx * inv_a[0], wy * inv_a[1]), wz * inv_a[2])
+    sin_half = np.minimum(0.5 * np.sqrt(_sum_of_squares(straight)), 1.0)
+    a_share = _largest_share(np.abs(turn), inv_a)
     a_junction = np.fmin(w_length / a_share, np.minimum(accel[1:], accel[:-1]))
     deviation_sq = a_junction * deviation_mm * sin_half * (1.0 + sin_half) / (cos_half * cos_half)
     centripetal_sq = a_junction * 0.5 * np.minimum(length[1:], length[:-1]) * sin_half / cos_half

@@ -54,10 +54,10 @@ _COLUMNS = 9
 class _Table:
     scalars: FloatArray  # (n, _COLUMNS)
     starts: FloatArray  # (n,) segment start times
-    origin: FloatArray  # (n, 3) start vertices
-    finish: FloatArray  # (n, 3) end vertices
-    unit: FloatArray  # (n, 3)
-    end: FloatArray  # (3,) the program's end
+    origin: FloatArray  # (n, k) start vertices
+    finish: FloatArray  # (n, k) end vertices
+    unit: FloatArray  # (n, k)
+    end: FloatArray  # (k,) the program's end
 
 
 def _table(plan: Plan) -> _Table:
@@ -93,9 +93,10 @@ def _check_period(period_s: float) -> float:
     return float(period_s)
 
 
-def _check_counts_per_mm(counts_per_mm: Sequence[float]) -> FloatArray:
-    if isinstance(counts_per_mm, (str, bytes)) or len(counts_per_mm) != 3:
-        raise PlanningError(f"counts_per_mm {counts_per_mm!r} must be three numbers (X, Y, Z)")
+def _check_counts_per_mm(counts_per_mm: Sequence[float], axes: str) -> FloatArray:
+    if isinstance(counts_per_mm, (str, bytes)) or len(counts_per_mm) != len(axes):
+        raise PlanningError(f"counts_per_mm {counts_per_mm!r} must be {len(axes)} numbers"
+                            f" ({', '.join(axes)})")
     for value in counts_per_mm:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise PlanningError(f"counts_per_mm {counts_per_mm!r} holds {value!r}: not a number")
@@ -111,7 +112,7 @@ def _check_range(plan: Plan, scale: FloatArray, axes: tuple[int, ...]) -> None:
     worst = int(np.argmax(extent))
     if extent[worst] + 0.5 > _INT32_MAX:
         raise PlanningError(
-            f"axis {'XYZ'[axes[worst]]} reaches {float(extent[worst])!r} counts at "
+            f"axis {plan.axes[axes[worst]]} reaches {float(extent[worst])!r} counts at "
             f"{float(scale[worst])!r} counts/mm; setpoints must fit int32 (+-{_INT32_MAX})"
         )
 
@@ -183,7 +184,8 @@ def _positions(table: _Table, times: FloatArray, axes: tuple[int, ...]) -> Float
 
 
 def positions_at_mm(plan: Plan, times_s: npt.ArrayLike) -> FloatArray:
-    """Positions (mm, shape ``(n, 3)``) at arbitrary times in seconds from the plan's start.
+    """Positions (mm, shape ``(n, k)``, a column per axis of the plan) at arbitrary times in
+    seconds from the plan's start.
 
     Times before 0 give the start, times after the end give the end.
 
@@ -194,7 +196,7 @@ def positions_at_mm(plan: Plan, times_s: npt.ArrayLike) -> FloatArray:
     times = np.atleast_1d(np.asarray(times_s, dtype=np.float64))
     if np.isnan(times).any():
         raise PlanningError(f"times_s {times_s!r} holds NaN")
-    return _positions(table, times.ravel(), (0, 1, 2))
+    return _positions(table, times.ravel(), _all(plan))
 
 
 def _chunks(
@@ -212,6 +214,11 @@ def _chunks(
         yield positions
 
 
+def _all(plan: Plan) -> tuple[int, ...]:
+    """The column of every axis of the plan."""
+    return tuple(range(len(plan.axes)))
+
+
 def _check_chunk(chunk_samples: int) -> int:
     if isinstance(chunk_samples, bool) or not isinstance(chunk_samples, int) or chunk_samples < 1:
         raise PlanningError(f"chunk_samples {chunk_samples!r} must be a positive integer")
@@ -221,15 +228,15 @@ def _check_chunk(chunk_samples: int) -> int:
 def sample_positions_mm(
     plan: Plan, *, period_s: float, chunk_samples: int = DEFAULT_CHUNK_SAMPLES
 ) -> FloatArray:
-    """Positions in mm, shape ``(sample_count, 3)``, at every ``period_s`` (unrounded).
+    """Positions in mm, shape ``(sample_count, k)``, at every ``period_s`` (unrounded).
 
     Raises:
         PlanningError: a bad period or chunk size.
     """
     chunk = _check_chunk(chunk_samples)
-    out = np.empty((sample_count(plan, period_s), 3), dtype=np.float64)
+    out = np.empty((sample_count(plan, period_s), len(plan.axes)), dtype=np.float64)
     first = 0
-    for block in _chunks(plan, period_s, (0, 1, 2), chunk):
+    for block in _chunks(plan, period_s, _all(plan), chunk):
         out[first : first + block.shape[0]] = block
         first += block.shape[0]
     return out
@@ -247,13 +254,15 @@ def iter_sample_chunks(
     Raises:
         PlanningError: as ``sample_plan`` (checked before the first block).
     """
-    scale = _check_counts_per_mm(counts_per_mm)
+    if not isinstance(plan, Plan):
+        raise PlanningError(f"plan {plan!r} is not a Plan")
+    scale = _check_counts_per_mm(counts_per_mm, plan.axes)
     _check_period(period_s)
     chunk = _check_chunk(chunk_samples)
-    _check_range(plan, scale, (0, 1, 2))
+    _check_range(plan, scale, _all(plan))
     return (
         np.rint(block * scale).astype(np.int32)
-        for block in _chunks(plan, period_s, (0, 1, 2), chunk)
+        for block in _chunks(plan, period_s, _all(plan), chunk)
     )
 
 
@@ -264,12 +273,13 @@ def sample_plan(
     counts_per_mm: Sequence[float],
     chunk_samples: int = DEFAULT_CHUNK_SAMPLES,
 ) -> npt.NDArray[np.int32]:
-    """Integer setpoints of every axis at every ``period_s``: int32, shape ``(n, 3)``.
+    """Integer setpoints of every axis at every ``period_s``: int32, shape ``(n, k)``, a
+    column per axis of ``plan.axes``.
 
     Parameters:
         plan: the planned program.
         period_s: the motion-update period, s.
-        counts_per_mm: encoder counts per mm of X, Y and Z (non-zero).
+        counts_per_mm: encoder counts per mm of each axis of ``plan.axes`` (non-zero).
         chunk_samples: samples computed per numpy pass (memory bound, not semantics).
 
     Returns ``sample_count(plan, period_s)`` rows; row k is the position at ``k * period_s``
@@ -278,12 +288,14 @@ def sample_plan(
     Raises:
         PlanningError: bad period, counts per mm or chunk size, or setpoints beyond int32.
     """
-    scale = _check_counts_per_mm(counts_per_mm)
+    if not isinstance(plan, Plan):
+        raise PlanningError(f"plan {plan!r} is not a Plan")
+    scale = _check_counts_per_mm(counts_per_mm, plan.axes)
     chunk = _check_chunk(chunk_samples)
-    _check_range(plan, scale, (0, 1, 2))
-    out = np.empty((sample_count(plan, period_s), 3), dtype=np.int32)
+    _check_range(plan, scale, _all(plan))
+    out = np.empty((sample_count(plan, period_s), len(plan.axes)), dtype=np.int32)
     first = 0
-    for block in _chunks(plan, period_s, (0, 1, 2), chunk):
+    for block in _chunks(plan, period_s, _all(plan), chunk):
         rows = block.shape[0]
         np.rint(block * scale, out=block)
         out[first : first + rows] = block
@@ -299,16 +311,20 @@ def sample_axis(
     counts_per_mm: float,
     chunk_samples: int = DEFAULT_CHUNK_SAMPLES,
 ) -> npt.NDArray[np.int32]:
-    """Integer setpoints of one axis (0 = X, 1 = Y, 2 = Z): int32, shape ``(n,)``.
+    """Integer setpoints of one axis (its column in ``plan.axes``: 0 = X ...): int32, shape
+    ``(n,)``.
 
     Same samples as the matching column of ``sample_plan``.
 
     Raises:
         PlanningError: a bad axis, period, counts per mm or chunk size, or int32 overflow.
     """
-    if isinstance(axis, bool) or axis not in (0, 1, 2):
-        raise PlanningError(f"axis {axis!r} must be 0 (X), 1 (Y) or 2 (Z)")
-    scale = _check_counts_per_mm((counts_per_mm, 1.0, 1.0))[:1]
+    if not isinstance(plan, Plan):
+        raise PlanningError(f"plan {plan!r} is not a Plan")
+    columns = ", ".join(f"{i} ({letter})" for i, letter in enumerate(plan.axes))
+    if isinstance(axis, bool) or axis not in range(len(plan.axes)):
+        raise PlanningError(f"axis {axis!r} must be one of {columns}")
+    scale = _check_counts_per_mm((counts_per_mm,), plan.axes[axis])
     chunk = _check_chunk(chunk_samples)
     _check_range(plan, scale, (axis,))
     out = np.empty(sample_count(plan, period_s), dtype=np.int32)
