@@ -126,7 +126,8 @@ class Console:
             self.write("homing first: the machine is not homed")
             homing_s = session.home()
             prepared = session.prepare(self.path, text=self.text)
-        start = "  ".join(f"{a} {v:.3f}" for a, v in zip("XYZ", prepared.start_mm, strict=True))
+        start = "  ".join(f"{a} {v:.3f}" for a, v in zip(prepared.axes, prepared.start_mm,
+                                                          strict=True))
         self.write(f"cycle start: {self.path} from {start} mm, {prepared.plan.duration_s:.2f} s")
         report, _ = session.run(prepared, homing_s=homing_s)
         self.last_result = report.stop_reason

@@ -43,62 +43,66 @@ def _path_segments(plan: Plan, rapid: bool, columns: tuple[int, int]) -> Any:
 
 
 def plot_run(path: Path, plan: Plan, trace: Trace, report: RunReport) -> Path:
-    """The run in three views: the XY path (feed moves coloured by Z, rapids dashed, the
-    actual path over them), the XZ side view, and the following error over time; where a
-    fault or a stop ended the run is marked on all three."""
+    """The run in views of the machine's axes: the path in the plane of the first two
+    program axes (feed moves coloured by the third when there is one, rapids dashed, the
+    actual path over them), a side view of the first and third, and the following error of
+    every program axis over time (a one-axis machine: its position over time instead of a
+    path); where a fault or a stop ended the run is marked on every view."""
     from matplotlib.collections import LineCollection  # noqa: PLC0415
 
-    plt = _pyplot()
-    fig, (ax_path, ax_side, ax_error) = plt.subplots(
-        1, 3, figsize=(18, 6), dpi=100, gridspec_kw={"width_ratios": [1.2, 1.0, 1.2]})
-    z_all = plan.vertices_mm[:, 2]
-    z_low, z_high = float(z_all.min()), float(z_all.max())
-    norm = plt.Normalize(z_low, z_high if z_high > z_low else z_low + 1.0)
-    feed_xy = _path_segments(plan, False, (0, 1))
-    if len(feed_xy):
-        from usbmotion.motion.planner import SegmentKind  # noqa: PLC0415
+    from usbmotion.motion.planner import SegmentKind  # noqa: PLC0415
 
-        feeds = (plan.kind != SegmentKind.RAPID) & (plan.kind != SegmentKind.DWELL)
-        z_mid = (plan.vertices_mm[:-1, 2] + plan.vertices_mm[1:, 2])[feeds] / 2
-        lines = LineCollection(feed_xy, cmap="viridis", norm=norm, lw=2.5,
-                               label="commanded feed moves")
-        lines.set_array(z_mid)
-        ax_path.add_collection(lines)
-        fig.colorbar(lines, ax=ax_path, label="Z (mm)", shrink=0.8)
-    for axis, columns in ((ax_path, (0, 1)), (ax_side, (0, 2))):
-        rapids = _path_segments(plan, True, columns)
-        if len(rapids):
-            axis.add_collection(LineCollection(rapids, colors="0.55", lw=1.0,
-                                               linestyles="dashed", label="rapids (G0)"))
-    side_feed = _path_segments(plan, False, (0, 2))
-    if len(side_feed):
-        ax_side.add_collection(LineCollection(side_feed, colors="0.35", lw=2.0,
-                                              label="commanded feed moves"))
-    actual = {name: trace.arrays(name)[2] / trace.counts_per_mm[name] for name in "XYZ"}
+    plt = _pyplot()
+    axes = plan.axes
+    views = [(0, 1)] if len(axes) >= 2 else []
+    if len(axes) >= 3:
+        views.append((0, 2))
+    ratios = [*[1.2, 1.0][: len(views)], 1.2]
+    fig, panels = plt.subplots(1, len(views) + 1, figsize=(6 * (len(views) + 1), 6), dpi=100,
+                               gridspec_kw={"width_ratios": ratios}, squeeze=False)
+    *view_panels, ax_error = panels[0]
+    actual = {name: trace.arrays(name)[2] / trace.counts_per_mm[name] for name in axes}
     n = min(values.size for values in actual.values())
-    if n:
-        ax_path.plot(actual["X"][:n], actual["Y"][:n], color="tab:red", lw=0.8,
-                     label="actual (device encoder)")
-        ax_side.plot(actual["X"][:n], actual["Z"][:n], color="tab:red", lw=0.8,
-                     label="actual (device encoder)")
     ended = "" if report.completed else report.stop_reason
-    if ended and n:
-        for axis, second in ((ax_path, "Y"), (ax_side, "Z")):
-            axis.plot([actual["X"][n - 1]], [actual[second][n - 1]], marker="X",
-                      color="black", markersize=12, linestyle="none",
-                      label=f"ended: {ended}")
-    for axis, (xlabel, ylabel, title) in (
-        (ax_path, ("X (mm)", "Y (mm)", "XY path (colour: Z)")),
-        (ax_side, ("X (mm)", "Z (mm)", "XZ side view")),
-    ):
-        axis.autoscale_view()
-        axis.set_aspect("equal", adjustable="datalim")
-        axis.set_xlabel(xlabel)
-        axis.set_ylabel(ylabel)
-        axis.set_title(title)
-        axis.legend(loc="best", fontsize="small")
-        axis.grid(True, alpha=0.3)
-    for name, colour in zip(("X", "Y", "Z"), ("tab:blue", "tab:orange", "tab:green"), strict=True):
+    for panel, (first, second) in zip(view_panels, views, strict=True):
+        feed = _path_segments(plan, False, (first, second))
+        if len(feed):
+            if panel is view_panels[0] and len(axes) >= 3:
+                third = plan.vertices_mm[:, 2]
+                low, high = float(third.min()), float(third.max())
+                norm = plt.Normalize(low, high if high > low else low + 1.0)
+                feeds = (plan.kind != SegmentKind.RAPID) & (plan.kind != SegmentKind.DWELL)
+                middle = (plan.vertices_mm[:-1, 2] + plan.vertices_mm[1:, 2])[feeds] / 2
+                lines = LineCollection(feed, cmap="viridis", norm=norm, lw=2.5,
+                                       label="commanded feed moves")
+                lines.set_array(middle)
+                panel.add_collection(lines)
+                fig.colorbar(lines, ax=panel, label=f"{axes[2]} (mm)", shrink=0.8)
+            else:
+                panel.add_collection(LineCollection(feed, colors="0.35", lw=2.0,
+                                                    label="commanded feed moves"))
+        rapids = _path_segments(plan, True, (first, second))
+        if len(rapids):
+            panel.add_collection(LineCollection(rapids, colors="0.55", lw=1.0,
+                                                linestyles="dashed", label="rapids (G0)"))
+        a, b = axes[first], axes[second]
+        if n:
+            panel.plot(actual[a][:n], actual[b][:n], color="tab:red", lw=0.8,
+                       label="actual (device encoder)")
+            if ended:
+                panel.plot([actual[a][n - 1]], [actual[b][n - 1]], marker="X", color="black",
+                           markersize=12, linestyle="none", label=f"ended: {ended}")
+        panel.autoscale_view()
+        panel.set_aspect("equal", adjustable="datalim")
+        panel.set_xlabel(f"{a} (mm)")
+        panel.set_ylabel(f"{b} (mm)")
+        title = f"{a}{b} path" + (f" (colour: {axes[2]})" if panel is view_panels[0]
+                                  and len(axes) >= 3 else "")
+        panel.set_title(title if panel is view_panels[0] else f"{a}{b} side view")
+        panel.legend(loc="best", fontsize="small")
+        panel.grid(True, alpha=0.3)
+    colours = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink")
+    for name, colour in zip(axes, colours, strict=False):
         times, desired, actual_counts = trace.arrays(name)
         keep = times >= 0
         if np.any(keep):

@@ -25,6 +25,7 @@ from usbmotion.errors import (
 )
 
 if TYPE_CHECKING:
+    from usbmotion.motion.dialects import Dialect
     from usbmotion.session import MachineSession, Prepared, RunReport, Trace
 
 EXIT_COMPLETED = 0
@@ -99,6 +100,9 @@ def run(
         "--no-home", help="Do not home a machine that is not homed: run in the devices' own"
         " counts, without soft limits.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    dialect: Annotated[str | None, typer.Option(
+        "--dialect", help="Read the program as linuxcnc, grbl or marlin reads it (default:"
+        " the machine file's dialect, linuxcnc when it names none).")] = None,
 ) -> None:
     """Run a G-code program on the machine: home it if it is not homed, plan from where it stands,
     check the travel, stream, then report and plot.
@@ -116,15 +120,25 @@ def run(
     rest along its deceleration, then the servos disabled; a second Ctrl-C
     stops at once).
     """
+    from usbmotion.motion.dialects import dialect_named  # noqa: PLC0415
     from usbmotion.motion.gcode import parse_gcode, read_gcode_text  # noqa: PLC0415
     from usbmotion.session import MachineSession  # noqa: PLC0415
+    from usbmotion.session.planning import machine_axes, machine_dialect  # noqa: PLC0415
     from usbmotion.sim.machine import connect_session, load_machine_file  # noqa: PLC0415
     from usbmotion.sim.world import SimWorld  # noqa: PLC0415
 
+    chosen: Dialect | None = None
+    if dialect is not None:
+        try:
+            chosen = dialect_named(dialect)
+        except ValueError as error:
+            typer.echo(f"usbmotion run: --dialect: {error}", err=True)
+            raise typer.Exit(EXIT_BAD_INPUT) from None
     try:
         config = load_machine_file(machine or default_machine())
         text = read_gcode_text(program)
-        parse_gcode(text, file=str(program))
+        parse_gcode(text, file=str(program), machine=machine_axes(config),
+                    dialect=machine_dialect(config, chosen))
     except GCodeError as error:
         typer.echo(f"{error.file}:{error.line}: {error.message}", err=True)
         raise typer.Exit(EXIT_BAD_INPUT) from None
@@ -147,7 +161,7 @@ def run(
         for notice in session.notices:
             typer.echo(f"notice         {notice}", err=True)
         code, report, trace, prepared = _job(session, program, text, no_home=no_home,
-                                              quiet=quiet)
+                                              quiet=quiet, dialect=chosen)
         try:
             session.shutdown()
         except UsbMotionError as error:
@@ -162,7 +176,8 @@ def run(
 
 
 def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
-         quiet: bool) -> tuple[int, RunReport | None, Trace | None, Prepared | None]:
+         quiet: bool, dialect: Dialect | None = None,
+         ) -> tuple[int, RunReport | None, Trace | None, Prepared | None]:
     """Prepare, home if needed, run: (exit status, report, trace, the prepared program)."""
     from usbmotion.motion.sampler import sample_count  # noqa: PLC0415
     from usbmotion.session import StopReason  # noqa: PLC0415
@@ -170,7 +185,7 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
 
     homing_s = 0.0
     try:
-        prepared = session.prepare(program, text=text, unhomed=no_home)
+        prepared = session.prepare(program, text=text, unhomed=no_home, dialect=dialect)
     except SoftLimitError as error:
         _refused(program, error)
         return EXIT_BAD_INPUT, None, None, None
@@ -196,7 +211,7 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
     try:
         if not (no_home or session.is_homed):
             homing_s = session.home()
-            prepared = session.prepare(program, text=text)
+            prepared = session.prepare(program, text=text, dialect=dialect)
     except StopRequestedError as error:
         reason = f"{error.reason} (while homing)"
         return unstarted(reason, exit_code(error.reason))

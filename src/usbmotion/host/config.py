@@ -36,6 +36,8 @@ from usbmotion.protocol import (
 from usbmotion.protocol.table import INT32_MAX, INT32_MIN
 
 AXIS_LETTERS = ("X", "Y", "Z", "A", "B", "C", "U", "V", "W")
+DIALECTS = ("linuxcnc", "grbl", "marlin")
+"""The G-code dialects a machine file may name (those of ``usbmotion.motion.dialects``)."""
 """Axis names a machine may use: the RS274/NGC axis letters."""
 
 SIM_SCHEME = "sim://"
@@ -349,6 +351,8 @@ class MachineConfig:
         reply_timeout_s: how long the host waits for a device's answer, seconds.
         ports: extra ports or URLs discovery searches for device names, besides the
             computer's serial ports (``socket://host:port`` of a ``usbmotion sim --tcp``).
+        dialect: how the machine's G-code programs are read: ``"linuxcnc"`` (the
+            default), ``"grbl"`` or ``"marlin"`` (:data:`DIALECTS`).
     """
 
     path: Path
@@ -362,6 +366,7 @@ class MachineConfig:
     watchdog_ms: int
     reply_timeout_s: float
     ports: tuple[str, ...]
+    dialect: str = "linuxcnc"
 
     @property
     def axis_names(self) -> tuple[str, ...]:
@@ -624,7 +629,7 @@ def _unknown_key(name: str, known: tuple[str, ...]) -> str:
 
 _MACHINE_KEYS = (
     "name", "servo_interval_dms", "motion_scalar", "junction_deviation_mm", "arc_tolerance_mm",
-    "watchdog_ms", "reply_timeout_s", "ports", "homing_order", "axes",
+    "watchdog_ms", "reply_timeout_s", "ports", "homing_order", "axes", "dialect",
 )
 _AXIS_KEYS = (
     "device", "url", "counts_per_mm", "max_velocity_mm_s", "max_accel_mm_s2", "max_jerk_mm_s3",
@@ -674,6 +679,11 @@ def _machine(top: _Reader) -> MachineConfig:
     reply_timeout_s = top.number("reply_timeout_s", default=1.0, above=0, maximum=60,
                                  unit="seconds")
     ports = _string_list(top, "ports", "a list of port paths or URLs to search for devices")
+    dialects = ", ".join(repr(name) for name in DIALECTS)
+    dialect = top.string("dialect", default="linuxcnc",
+                         allowed=f"the G-code dialect of the machine's programs: {dialects}")
+    if dialect not in DIALECTS:
+        top.fail("dialect", f"{dialect!r} is not a G-code dialect; allowed: {dialects}")
     axes_table = top.table(
         "axes", required=True,
         allowed=f"a table of axes, [axes.X], [axes.Y], ... (letters {', '.join(AXIS_LETTERS)})",
@@ -686,7 +696,7 @@ def _machine(top: _Reader) -> MachineConfig:
         path=path, name=name, axes=axes, servo_interval_dms=servo_interval_dms,
         motion_scalar=motion_scalar, junction_deviation_mm=junction_deviation_mm,
         arc_tolerance_mm=arc_tolerance_mm, homing_order=order, watchdog_ms=watchdog_ms,
-        reply_timeout_s=reply_timeout_s, ports=ports,
+        reply_timeout_s=reply_timeout_s, ports=ports, dialect=dialect,
     )
 
 

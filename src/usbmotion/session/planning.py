@@ -1,6 +1,10 @@
 """Planning a program for a machine: G-code interpreted and planned from a start position
 with the machine's limits, and checked against every axis's travel (soft limits).
 
+A program moves the machine's linear axes (X Y Z U V W, those it has, in that order: its
+*program axes*); it is read in the dialect the machine file names unless the caller names
+another.
+
 Pure functions and a frozen dataclass: no device, no clock. Where the machine stands (the
 start) is the session's to say (:meth:`MachineSession.start_position_mm`).
 """
@@ -11,28 +15,77 @@ from dataclasses import dataclass
 
 from usbmotion.errors import ConfigError
 from usbmotion.host.config import AxisConfig, MachineConfig
-from usbmotion.motion.gcode import GCodeProgram, parse_gcode
+from usbmotion.motion.dialects import Dialect, dialect_named
+from usbmotion.motion.gcode import GCodeProgram, MachineAxes, parse_gcode
 from usbmotion.motion.limits import AxisLimits, PlannerConfig, check_travel
+from usbmotion.motion.moves import AXIS_ORDER, Point
 from usbmotion.motion.planner import Plan, plan_moves
-from usbmotion.session.report import PLAN_AXES
+from usbmotion.session.homing import home_position_mm
 
 
 @dataclass(frozen=True, slots=True)
 class Prepared:
     """A program interpreted and planned from a start position, checked against the travel.
 
-    ``start_mm`` is where the plan starts (X, Y, Z); ``homed`` whether that is a homed
-    position (soft limits checked) or the devices' own counts (not homed, not checked).
+    ``start_mm`` is where the plan starts (one coordinate per axis of ``axes``, the
+    program axes); ``homed`` whether that is a homed position (soft limits checked) or the
+    devices' own counts (not homed, not checked).
     """
 
     program: GCodeProgram
     plan: Plan
-    start_mm: tuple[float, float, float]
+    start_mm: Point
     homed: bool
 
+    @property
+    def axes(self) -> str:
+        """The program axes: the letters of the plan's columns."""
+        return self.plan.axes
 
-def prepare_program(config: MachineConfig, text: str, *, file: str,
-                    start_mm: tuple[float, float, float], homed: bool) -> Prepared:
+
+def program_axes(config: MachineConfig) -> str:
+    """The letters of the machine's linear axes, in X Y Z U V W order: the axes a program
+    moves.
+
+    Raises:
+        ConfigError: the machine has none (only rotary axes).
+    """
+    axes = "".join(letter for letter in AXIS_ORDER if letter in config.axis_names)
+    if not axes:
+        raise ConfigError(
+            f"{config.path}: G-code programs move linear axes ({', '.join(AXIS_ORDER)}); this"
+            f" machine has {', '.join(config.axis_names)}",
+            path=str(config.path), key="axes",
+        )
+    return axes
+
+
+def machine_axes(config: MachineConfig) -> MachineAxes:
+    """What the interpreter needs of the machine: its program axes, where homing leaves
+    them, and the order it homes them in.
+
+    Raises:
+        ConfigError: as :func:`program_axes`.
+    """
+    axes = program_axes(config)
+    order = tuple(
+        group for group in ("".join(name for name in names if name in axes)
+                            for names in config.homing_order) if group)
+    ordered = "".join(order)
+    if order and len(ordered) != len(axes):
+        order = (*order, "".join(a for a in axes if a not in ordered))
+    return MachineAxes(axes=axes,
+                       home_mm=tuple(home_position_mm(config.axis(a)) for a in axes),
+                       homing_order=order)
+
+
+def machine_dialect(config: MachineConfig, dialect: Dialect | None = None) -> Dialect:
+    """``dialect`` when given, else the machine file's."""
+    return dialect if dialect is not None else dialect_named(config.dialect)
+
+
+def prepare_program(config: MachineConfig, text: str, *, file: str, start_mm: Point,
+                    homed: bool, dialect: Dialect | None = None) -> Prepared:
     """Interpret and plan a program for a machine from ``start_mm``; a homed start is also
     checked against every axis's travel.
 
@@ -40,53 +93,50 @@ def prepare_program(config: MachineConfig, text: str, *, file: str,
         GCodeError, PlanningError: as :func:`plan_gcode`.
         SoftLimitError: a move leaves an axis's travel (names the line, the axis, the
             coordinate and the limit).
-        ConfigError: the machine lacks an X, Y or Z axis.
+        ConfigError: the machine has no linear axis.
     """
-    program, plan = plan_gcode(config, text, file=file, start_mm=start_mm)
+    program, plan = plan_gcode(config, text, file=file, start_mm=start_mm, dialect=dialect)
     if homed:
         check_travel(plan.vertices_mm, plan.line, [a.travel_mm for a in plan_axes(config)],
-                     axes=PLAN_AXES)
+                     axes=tuple(plan.axes))
     return Prepared(program, plan, start_mm, homed)
 
 
 def plan_gcode(config: MachineConfig, text: str, *, file: str = "<string>",
-               start_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+               start_mm: Point | None = None, dialect: Dialect | None = None
                ) -> tuple[GCodeProgram, Plan]:
-    """Interpret and plan a program for a machine from ``start_mm`` (pure: no machine is
-    needed; :meth:`MachineSession.prepare` adds where the machine stands and soft limits).
+    """Interpret and plan a program for a machine from ``start_mm`` (zeros when not
+    given), in ``dialect`` or the machine file's (pure: no machine is needed;
+    :meth:`MachineSession.prepare` adds where the machine stands and soft limits).
 
     Raises:
         GCodeError, PlanningError: as :meth:`MachineSession.prepare`.
-        ConfigError: the machine lacks an X, Y or Z axis.
+        ConfigError: the machine has no linear axis.
     """
     limits, planner, _ = planner_inputs(config)
-    program = parse_gcode(text, file=file, start=start_mm)
-    return program, plan_moves(program.moves, limits, planner, start=start_mm)
+    axes = machine_axes(config)
+    program = parse_gcode(text, file=file, start=start_mm, machine=axes,
+                          dialect=machine_dialect(config, dialect))
+    return program, plan_moves(program.moves, limits, planner, start=start_mm,
+                               axes=axes.axes)
 
 
 def plan_axes(config: MachineConfig) -> list[AxisConfig]:
-    """The configs of the axes a program moves: X, Y and Z.
+    """The configs of the axes a program moves (:func:`program_axes`), in that order.
 
     Raises:
-        ConfigError: the machine lacks an X, Y or Z axis.
+        ConfigError: the machine has no linear axis.
     """
-    planner_inputs(config)
-    return [config.axis(name) for name in PLAN_AXES]
+    return [config.axis(name) for name in program_axes(config)]
 
 
 def planner_inputs(config: MachineConfig) -> tuple[list[AxisLimits], PlannerConfig, list[float]]:
-    """Per-axis limits, planner settings and counts per mm of X, Y, Z from a machine config.
+    """Per-axis limits, planner settings and counts per mm of the program axes.
 
     Raises:
-        ConfigError: the machine lacks an X, Y or Z axis.
+        ConfigError: the machine has no linear axis.
     """
-    missing = [name for name in PLAN_AXES if name not in config.axis_names]
-    if missing:
-        raise ConfigError(
-            f"{config.path}: G-code programs need axes X, Y and Z; missing {', '.join(missing)}",
-            path=str(config.path), key="axes",
-        )
-    axes = [config.axis(name) for name in PLAN_AXES]
+    axes = plan_axes(config)
     limits = [AxisLimits(a.max_velocity_mm_s, a.max_accel_mm_s2) for a in axes]
     planner = PlannerConfig(
         junction_deviation_mm=config.junction_deviation_mm,

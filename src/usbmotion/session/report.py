@@ -17,7 +17,6 @@ from usbmotion.host.machine import Machine
 from usbmotion.motion.gcode import GCodeProgram, IgnoredWord
 from usbmotion.motion.planner import Plan
 
-PLAN_AXES = ("X", "Y", "Z")
 SETTLE_COUNTS = 2
 
 
@@ -196,7 +195,8 @@ def build_report(
     results: list[AxisResult] = []
     executed_s = 0.0
     settle_s = 0.0
-    for name in PLAN_AXES:
+    axes = plan.axes
+    for name in axes:
         times, desired, actual = trace.arrays(name)
         in_run = times >= 0
         error = (desired - actual)[in_run]
@@ -223,7 +223,7 @@ def build_report(
         for name, status in statuses.items()
     }
     stopped_time = consumed * period_s
-    checked, miss = _endpoint_misses(program, trace) if completed else (0, 0.0)
+    checked, miss = _endpoint_misses(program, trace, axes) if completed else (0, 0.0)
     return RunReport(
         program=program.file,
         machine=config.name,
@@ -253,27 +253,28 @@ def build_report(
     )
 
 
-def _actual_path_mm(trace: Trace) -> npt.NDArray[np.float64]:
-    """The actual XYZ positions (mm) at the diagnostics ticks all three axes reported."""
-    clocks = [trace.column(trace.clock, n) for n in PLAN_AXES]
+def _actual_path_mm(trace: Trace, axes: str) -> npt.NDArray[np.float64]:
+    """The actual positions (mm) of the program axes at the diagnostics ticks all of them
+    reported."""
+    clocks = [trace.column(trace.clock, n) for n in axes]
     common = clocks[0]
     for other in clocks[1:]:
         common = np.intersect1d(common, other)
     columns = []
-    for name, clock in zip(PLAN_AXES, clocks, strict=True):
+    for name, clock in zip(axes, clocks, strict=True):
         actual = trace.column(trace.actual, name).astype(np.float64)
         index = np.searchsorted(clock, common)
         columns.append(actual[index] / trace.counts_per_mm[name])
-    return np.stack(columns, axis=1) if common.size else np.empty((0, 3))
+    return np.stack(columns, axis=1) if common.size else np.empty((0, len(axes)))
 
 
-def _endpoint_misses(program: GCodeProgram, trace: Trace) -> tuple[int, float]:
+def _endpoint_misses(program: GCodeProgram, trace: Trace, axes: str) -> tuple[int, float]:
     """How many programmed end points, and how far the actual path passed from the worst.
 
     The path is the polyline through the recorded positions: the distance to an end point
     is to the nearest point of a segment, not of a sample.
     """
-    path = _actual_path_mm(trace)
+    path = _actual_path_mm(trace, axes)
     ends = np.array([m.end for m in program.moves if hasattr(m, "end")], dtype=np.float64)
     if not path.size or not ends.size:
         return 0, 0.0

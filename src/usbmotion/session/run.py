@@ -33,7 +33,6 @@ from usbmotion.motion.stopping import stop_setpoints
 from usbmotion.protocol import FaultCode
 from usbmotion.session.planning import Prepared
 from usbmotion.session.report import (
-    PLAN_AXES,
     SETTLE_COUNTS,
     FaultRecord,
     RunReport,
@@ -103,7 +102,9 @@ class Run:
             " limits were not checked"]
         self.period_s = self.config.motion_period_s
         self.tick_s = self.config.servo_period_s
-        counts_per_mm = [self.config.axis(n).counts_per_mm for n in PLAN_AXES]
+        self.axes = prepared.axes
+        """The program axes: the axes the run streams to."""
+        counts_per_mm = [self.config.axis(n).counts_per_mm for n in self.axes]
         self.counts_per_mm = np.array(counts_per_mm)
         self.setpoints: npt.NDArray[np.int32] = sample_plan(
             self.plan, period_s=self.period_s, counts_per_mm=counts_per_mm)
@@ -141,7 +142,7 @@ class Run:
 
     def _enable_axes(self) -> None:
         """Every axis of the program with an empty queue, its servo enabled."""
-        for name in PLAN_AXES:
+        for name in self.axes:
             client = self.machine.axis(name).client
             client.clear_queue()
             client.set_servo_enable(True)
@@ -150,15 +151,15 @@ class Run:
         """Every axis of the program to start on the same device tick, its statistics
         reset, its diagnostics lines at the trace's period."""
         diag_ticks = max(1, round(trace_period_s(self.plan.duration_s) / self.tick_s))
-        self.sync = self.machine.synchronise(margin_s=START_MARGIN_S, axes=PLAN_AXES)
+        self.sync = self.machine.synchronise(margin_s=START_MARGIN_S, axes=tuple(self.axes))
         self.start_tick = self.trace.start_tick = self.sync.devices[0].start_tick
-        for name in PLAN_AXES:
+        for name in self.axes:
             client = self.machine.axis(name).client
             client.reset_motion_stats()
             client.set_diagnostics_interval(diag_ticks)
 
     def _open_streams(self) -> None:
-        for index, name in enumerate(PLAN_AXES):
+        for index, name in enumerate(self.axes):
             self.streams[name] = SetpointStream(
                 self.machine.axis(name).client, self.setpoints[:, index], period_s=self.period_s,
                 verify=True, on_progress=self._progress)
@@ -183,7 +184,7 @@ class Run:
             self._decelerate()
             return _Ending(reason)
         except (LinkLostError, LinkCorruptedError, DeviceTimeoutError) as error:
-            lost_axis = next((n for n in PLAN_AXES if self.machine.axis(n).client.name
+            lost_axis = next((n for n in self.axes if self.machine.axis(n).client.name
                               == getattr(error, "device", None)), "")
             try:
                 self.machine.stop()
@@ -199,7 +200,7 @@ class Run:
             reason = f"fault: {self._fault_words()}"
         statuses: dict[str, Status] = {}
         stats: dict[str, MotionStats] = {}
-        for name in PLAN_AXES:
+        for name in self.axes:
             client = self.machine.axis(name).client
             try:
                 statuses[name] = client.status()
@@ -264,7 +265,7 @@ class Run:
 
     def _wait_drained(self) -> None:
         """Until every queue is empty (the last setpoint being executed), or a stop."""
-        clients = [self.machine.axis(n).client for n in PLAN_AXES]
+        clients = [self.machine.axis(n).client for n in self.axes]
         while True:
             if self._should_stop():
                 return
@@ -297,10 +298,10 @@ class Run:
         index = min(max(0, -(-(tick - self.start_tick) // scalar)), sent)
         tick = max(tick, self.start_tick + index * scalar)
         accel = [self.config.axis(n).max_accel_mm_s2 * self.config.axis(n).counts_per_mm
-                 for n in PLAN_AXES]
+                 for n in self.axes]
         asked_s = session._requests.at_s if session.stop_requested else clock.now()
         if index == 0 or index >= self.setpoints.shape[0]:
-            stop_rows = np.zeros((0, 3), dtype=np.int64)
+            stop_rows = np.zeros((0, len(self.axes)), dtype=np.int64)
             end = float(min(index, self.setpoints.shape[0]) - 1)
         else:
             stop = stop_setpoints(self.setpoints, index, period_s=self.period_s,
@@ -311,7 +312,7 @@ class Run:
             decel_mm_s2 = stop.step * speed_mm_s / self.period_s
             if decel_mm_s2 > 0:
                 self.stop_planned_mm = speed_mm_s**2 / (2 * decel_mm_s2)
-        for column, name in enumerate(PLAN_AXES):
+        for column, name in enumerate(self.axes):
             client = machine.axis(name).client
             try:
                 client.replace_from(tick, stop_rows[:, column].tolist())
@@ -319,14 +320,14 @@ class Run:
                 self.notes.append(f"axis {name}: could not replace its queue ({error})")
         self.stopped_index = end
         try:
-            wait_for_rest(machine, list(PLAN_AXES), stop_now=session._stop_now_requested)
+            wait_for_rest(machine, list(self.axes), stop_now=session._stop_now_requested)
         except DeviceError as error:
             self.notes.append(f"stop: {error}")
             machine.stop()
         self.stop_latency_s = clock.now() - asked_s
         if index > 0:
             statuses = machine.status()
-            rest = np.array([statuses[n].actual_counts for n in PLAN_AXES], dtype=np.float64)
+            rest = np.array([statuses[n].actual_counts for n in self.axes], dtype=np.float64)
             began = self.setpoints[index - 1].astype(np.float64)
             self.stop_distance_mm = float(np.linalg.norm((rest - began) / self.counts_per_mm))
         if session._stop_now_requested():
@@ -340,5 +341,5 @@ class Run:
                 s.sent for s in self.streams.values())
         if self.stopped_index is not None:
             return max(0, math.floor(self.stopped_index) + 1)
-        return min(self.streams[n].sent - statuses[n].queued for n in PLAN_AXES
+        return min(self.streams[n].sent - statuses[n].queued for n in self.axes
                    if n in statuses)

@@ -45,11 +45,13 @@ from usbmotion.errors import (
 )
 from usbmotion.host.config import MachineConfig
 from usbmotion.host.machine import Machine
+from usbmotion.motion.dialects import Dialect
 from usbmotion.motion.gcode import read_gcode_text
+from usbmotion.motion.moves import Point
 from usbmotion.protocol import FaultCode, fault_words
 from usbmotion.session.homing import HomingCycle, home_position_mm, homed_mark
 from usbmotion.session.planning import Prepared, plan_axes, prepare_program
-from usbmotion.session.report import PLAN_AXES, RunReport, Trace
+from usbmotion.session.report import RunReport, Trace
 from usbmotion.session.rest import STOP_LEAD_S, wait_for_rest
 from usbmotion.session.run import Run
 from usbmotion.session.state import MachineState, StopReason, check_transition
@@ -205,22 +207,20 @@ class MachineSession:
                 for (name, axis), status in zip(self.machine.axes.items(),
                                                 self.machine.status().values(), strict=True)}
 
-    def start_position_mm(self, *, unhomed: bool = False) -> tuple[
-            tuple[float, float, float], bool]:
-        """Where the next program starts, and whether that is a homed position: where the
-        machine stands when it is homed (or, with ``unhomed``, in the devices' own counts);
-        otherwise where homing will leave it."""
+    def start_position_mm(self, *, unhomed: bool = False) -> tuple[Point, bool]:
+        """Where the next program starts (a coordinate per program axis), and whether that
+        is a homed position: where the machine stands when it is homed (or, with
+        ``unhomed``, in the devices' own counts); otherwise where homing will leave it."""
         axes = plan_axes(self.config)
         if self.is_homed or unhomed:
             where = self.positions_mm()
-            return (where["X"], where["Y"], where["Z"]), self.is_homed
-        x, y, z = (home_position_mm(axis) for axis in axes)
-        return (x, y, z), True
+            return tuple(where[axis.name] for axis in axes), self.is_homed
+        return tuple(home_position_mm(axis) for axis in axes), True
 
     # --- programs -----------------------------------------------------------------------------
 
     def prepare(self, source: str | Path, *, text: str | None = None,
-                unhomed: bool = False) -> Prepared:
+                unhomed: bool = False, dialect: Dialect | None = None) -> Prepared:
         """Interpret and plan a program from where the machine will start it, and check it
         against every axis's travel; nothing moves.
 
@@ -232,6 +232,7 @@ class MachineSession:
             source: the file (its text is read) or, with ``text``, the name to report.
             text: the program's text, when it is not read from ``source``.
             unhomed: plan an unhomed machine from where it stands.
+            dialect: read the program in this dialect instead of the machine file's.
 
         Raises:
             GCodeError: the program does not parse (names the line).
@@ -243,7 +244,7 @@ class MachineSession:
         start_mm, homed = self.start_position_mm(unhomed=unhomed)
         body = read_gcode_text(source) if text is None else text
         self.program = prepare_program(self.config, body, file=str(source), start_mm=start_mm,
-                                       homed=homed)
+                                       homed=homed, dialect=dialect)
         return self.program
 
     # --- stop requests ------------------------------------------------------------------------
@@ -335,8 +336,8 @@ class MachineSession:
             raise MachineStateError("the program was prepared for a homed machine: home it"
                                     " first", state=state)
         where = self.positions_mm()
-        here = (where["X"], where["Y"], where["Z"])
-        counts = [self.config.axis(name).counts_per_mm for name in PLAN_AXES]
+        here = tuple(where[name] for name in prepared.axes)
+        counts = [self.config.axis(name).counts_per_mm for name in prepared.axes]
         if any(abs(a - b) * scale > 1.0 for a, b, scale in zip(here, prepared.start_mm, counts,
                                                                strict=True)):
             raise MachineStateError(
