@@ -11,7 +11,7 @@ import typer
 
 from usbmotion.motion.gcode import (
     GCodeProgram,
-    IgnoredWord,
+    distinct_ignored,
     interpret_until_error,
     move_record,
     read_gcode_text,
@@ -79,17 +79,12 @@ def _write_moves(program: GCodeProgram) -> None:
 
 
 def _ignored_notes(program: GCodeProgram) -> list[str]:
-    """One line per distinct ignored word, at its first use, with how often it occurs."""
-    first: dict[str, IgnoredWord] = {}
-    count: dict[str, int] = {}
-    for word in program.ignored:
-        first.setdefault(word.word, word)
-        count[word.word] = count.get(word.word, 0) + 1
+    """One line per kind of ignored word, at its first use, with how often it occurs."""
     notes = []
-    for text, word in first.items():
-        times = f", {count[text]} times" if count[text] > 1 else ""
+    for word, count in distinct_ignored(program.ignored):
+        times = f", {count} times" if count > 1 else ""
         notes.append(
-            f"{program.file}:{word.line}: ignored {text} ({word.meaning}; does not move "
+            f"{program.file}:{word.line}: ignored {word.word} ({word.meaning}; does not move "
             f"the machine){times}"
         )
     return notes

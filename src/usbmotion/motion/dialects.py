@@ -56,6 +56,7 @@ class DialectRules:
         needs_end: a program must end with M2, M30 or ``%``.
         controller_commands: lines starting with ``$`` are controller commands.
         message_codes: M codes whose text runs to the end of the line (Marlin's M117).
+        flags: a letter with no number is a word of value 0 (Marlin's ``G28 X Y``).
         dwell_p_seconds: seconds per unit of ``G4 P``.
         dwell_s: ``G4 S`` is a dwell in seconds.
         g28_homes: ``G28`` homes the named axes instead of going to the stored position.
@@ -72,6 +73,7 @@ class DialectRules:
     needs_end: bool = True
     controller_commands: bool = False
     message_codes: frozenset[int] = frozenset()
+    flags: bool = False
     dwell_p_seconds: float = 1.0
     dwell_s: bool = False
     g28_homes: bool = False
@@ -148,6 +150,7 @@ RULES: dict[Dialect, DialectRules] = {
         Dialect.MARLIN,
         needs_end=False,
         message_codes=frozenset((117, 118)),
+        flags=True,
         dwell_p_seconds=0.001,
         dwell_s=True,
         g28_homes=True,

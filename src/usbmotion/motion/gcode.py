@@ -74,7 +74,9 @@ __all__ = [
     "Dialect",
     "GCodeProgram",
     "IgnoredWord",
+    "MachineAxes",
     "Word",
+    "distinct_ignored",
     "interpret_until_error",
     "load_gcode",
     "move_record",
@@ -287,6 +289,26 @@ class IgnoredWord:
     column: int
     meaning: str
 
+    @property
+    def kind(self) -> tuple[str, str]:
+        """What makes two ignored words the same for a report: the code of a G or M word
+        (``"M104"``), the letter of any other (every ``E`` word is one), and the meaning
+        (``S`` of M104 and ``S`` of M140 differ)."""
+        letter = self.word[:1]
+        return (self.word if letter in "GM" else letter, self.meaning)
+
+
+def distinct_ignored(words: Iterable[IgnoredWord]) -> list[tuple[IgnoredWord, int]]:
+    """Each kind of ignored word once (:attr:`IgnoredWord.kind`), at its first use, with
+    how many times it occurs."""
+    first: dict[tuple[str, str], IgnoredWord] = {}
+    count: dict[tuple[str, str], int] = {}
+    for word in words:
+        kind = word.kind
+        first.setdefault(kind, word)
+        count[kind] = count.get(kind, 0) + 1
+    return [(word, count[kind]) for kind, word in first.items()]
+
 
 @dataclass(frozen=True, slots=True)
 class GCodeProgram:
@@ -398,7 +420,7 @@ def interpret_until_error(
     error: GCodeError | None = None
     try:
         interpreter.run(tokenize(text, file=file, commands=rules.controller_commands,
-                                 messages=rules.message_codes), text)
+                                 messages=rules.message_codes, flags=rules.flags), text)
     except GCodeError as exc:
         error = exc
     return interpreter.result(), error

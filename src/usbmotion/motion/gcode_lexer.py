@@ -121,7 +121,7 @@ _new = tuple.__new__
 
 
 def tokenize(text: str, *, file: str = "<string>", commands: bool = False,
-             messages: frozenset[int] = frozenset()) -> Iterator[Block]:
+             messages: frozenset[int] = frozenset(), flags: bool = False) -> Iterator[Block]:
     """Read G-code text lazily into blocks, one per line that holds anything.
 
     Blank lines and block-deleted lines (first character ``/``) yield nothing.
@@ -134,6 +134,8 @@ def tokenize(text: str, *, file: str = "<string>", commands: bool = False,
             the ``$`` with blanks removed (``"H"``, ``"J=G91X1F100"``) and value 0.
         messages: M codes whose text runs to the end of the line: such a line is a block
             of its N word (if any) and the M word, the text its one comment.
+        flags: a letter with no number is a word of value 0 and number ``""`` (Marlin's
+            ``G28 X Y``) instead of an error.
 
     Raises:
         GCodeError: a malformed number, an unclosed or nested comment, a checksum
@@ -187,7 +189,7 @@ def tokenize(text: str, *, file: str = "<string>", commands: bool = False,
                     continue
         if len(raw) > _LONGEST_FAST_LINE:
             _check_length(raw, number, 0 if number == last else ending_bytes, file)
-        block = _read_line_carefully(raw, number, file, commands=commands)
+        block = _read_line_carefully(raw, number, file, commands=commands, flags=flags)
         if block is not None:
             yield block
 
@@ -260,8 +262,8 @@ def _message_block(raw: str, number: int, messages: frozenset[int]) -> Block | N
                  (match.group(2),), raw, False)
 
 
-def _read_line_carefully(raw: str, number: int, file: str, *,
-                         commands: bool = False) -> Block | None:
+def _read_line_carefully(raw: str, number: int, file: str, *, commands: bool = False,
+                         flags: bool = False) -> Block | None:
     stripped = raw.strip(_BLANKS)
     if not stripped or stripped[0] == "/":
         return None
@@ -291,7 +293,8 @@ def _read_line_carefully(raw: str, number: int, file: str, *,
                     word=word,
                     reason=reason,
                 )
-            value, text = _word_value(upper, digits, code, match.end(), number, column, file)
+            value, text = _word_value(upper, digits, code, match.end(), number, column, file,
+                                      flags=flags)
             if upper == "N":
                 if letters:
                     raise GCodeError(
@@ -325,13 +328,16 @@ def _read_line_carefully(raw: str, number: int, file: str, *,
 
 
 def _word_value(
-    letter: str, digits: str, code: str, end: int, line: int, column: int, file: str
+    letter: str, digits: str, code: str, end: int, line: int, column: int, file: str, *,
+    flags: bool = False,
 ) -> tuple[float, str]:
     text = digits
     if " " in text or "\t" in text or "\r" in text:
         text = "".join(text.split())
     if not text:
         following = code[end : end + 1]
+        if flags and following not in ("[", "#") and letter not in "GMN":
+            return 0.0, ""
         if following in ("[", "#"):
             reason = (
                 "expressions in brackets are not supported"

@@ -14,7 +14,7 @@ import numpy.typing as npt
 
 from usbmotion.host.device import Diagnostics, MotionStats, Status
 from usbmotion.host.machine import Machine
-from usbmotion.motion.gcode import GCodeProgram, IgnoredWord
+from usbmotion.motion.gcode import GCodeProgram, IgnoredWord, distinct_ignored
 from usbmotion.motion.planner import Plan
 
 SETTLE_COUNTS = 2
@@ -54,17 +54,24 @@ class FaultRecord:
 
 @dataclass(frozen=True, slots=True)
 class IgnoredWordRecord:
-    """A G-code word the run accepted without acting on it: the word as written, its line
-    and what it is for (spindle, coolant, ...)."""
+    """A kind of G-code word the run accepted without acting on it: the word as first
+    written, its line, what it is for (spindle, coolant, ...) and how many times the
+    program holds one of its kind (every ``E`` word is one kind, each M code another)."""
 
     word: str
     line: int
     meaning: str
+    count: int = 1
 
     @classmethod
-    def of(cls, word: IgnoredWord) -> IgnoredWordRecord:
+    def of(cls, word: IgnoredWord, count: int = 1) -> IgnoredWordRecord:
         """The record of an interpreter's ignored word."""
-        return cls(word.word, word.line, word.meaning)
+        return cls(word.word, word.line, word.meaning, count)
+
+    @classmethod
+    def all_of(cls, program: GCodeProgram) -> tuple[IgnoredWordRecord, ...]:
+        """One record per kind of word the program ignored, in the order of first use."""
+        return tuple(cls.of(word, count) for word, count in distinct_ignored(program.ignored))
 
 
 @dataclass(frozen=True, slots=True)
@@ -235,7 +242,7 @@ def build_report(
         homing_time_s=homing_s,
         axes=tuple(results),
         faults=tuple(faults),
-        ignored_words=tuple(IgnoredWordRecord.of(w) for w in program.ignored),
+        ignored_words=IgnoredWordRecord.all_of(program),
         end_position_mm=end_positions,
         completed=completed and not faults,
         stop_reason=stop_reason,
@@ -318,7 +325,7 @@ def unstarted_report(program: GCodeProgram, machine_name: str, plan: Plan, *,
         program=program.file, machine=machine_name, moves=len(program.moves),
         setpoints_per_axis=setpoints_per_axis, planned_time_s=plan.duration_s,
         executed_time_s=0.0, settle_time_s=0.0, homing_time_s=homing_s, axes=(), faults=(),
-        ignored_words=tuple(IgnoredWordRecord.of(w) for w in program.ignored),
+        ignored_words=IgnoredWordRecord.all_of(program),
         end_position_mm=dict(end_position_mm), completed=False, stop_reason=stop_reason,
         stopped_at_s=0.0, stopped_at_line=0, stopped_at_setpoint=0,
         stop_latency_s=stop_latency_s, notes=notes)

@@ -35,7 +35,8 @@ def describe(report: RunReport) -> str:
         f"axis {f.axis}: {f.fault} at {f.time_s:.3f} s, line {f.line}" for f in report.faults
     ) or "none"))
     lines.append("ignored words  " + (", ".join(
-        f"{w.word} (line {w.line}: {w.meaning})" for w in report.ignored_words) or "none"))
+        f"{w.word} (line {w.line}: {w.meaning}{f'; {w.count} times' if w.count > 1 else ''})"
+        for w in report.ignored_words) or "none"))
     if report.link_error:
         lines.append(f"LINK LOST      {report.link_error}")
     for note in report.notes:
