@@ -624,11 +624,13 @@ class _Interpreter:
     def unsupported(self, block: Block, index: int, reason: str) -> UnsupportedGCodeError:
         """The error for word ``index`` of ``block``, which is not supported for ``reason``."""
         word = block.letters[index] + block.numbers[index]
+        dollar = block.letters == "$"
+        column = block.source.index("$") + 1 if dollar else word_columns(block)[index]
         return UnsupportedGCodeError(
             f"{word}: {reason}",
             file=self.file,
             line=block.line,
-            column=word_columns(block)[index],
+            column=column,
             word=word,
             reason=reason,
         )

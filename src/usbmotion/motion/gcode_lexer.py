@@ -187,7 +187,8 @@ def tokenize(text: str, *, file: str = "<string>", commands: bool = False,
                         (number, "".join(letters).upper(), values, numbers, nothing, raw, False),
                     )
                     continue
-        if len(raw) > _LONGEST_FAST_LINE:
+        if len(raw) > _LONGEST_FAST_LINE or (len(raw) > _LONGEST_FAST_LINE // 4
+                                              and not raw.isascii()):
             _check_length(raw, number, 0 if number == last else ending_bytes, file)
         block = _read_line_carefully(raw, number, file, commands=commands, flags=flags)
         if block is not None:

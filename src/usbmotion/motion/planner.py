@@ -734,6 +734,15 @@ def _arc_block(vertices: FloatArray, rows: FloatArray, axes: tuple[int, int, int
     if normal >= 0:
         vertices[normal, index] = (np.repeat(rows[:, 8], inner)
                                    + np.repeat(rows[:, 9], inner) * fraction)
+    others = [axis for axis in range(vertices.shape[0]) if axis not in (axis1, axis2, normal)]
+    if others:
+        # Axes outside the plane and its normal (U V W with an XY arc) move linearly
+        # along the arc, as its normal does in a helix.
+        start = np.repeat(first, inner)
+        end = np.repeat(first + chords, inner)
+        for axis in others:
+            begin = vertices[axis, start]
+            vertices[axis, index] = begin + (vertices[axis, end] - begin) * fraction
 
 
 def _junction_limits(
