@@ -427,8 +427,8 @@ SIM_KEYS = ("counts_per_revolution, inertia_kg_m2, load_torque_mnm, source_volta
          "unknown key 'acel_mm_s2'; did you mean 'accel_mm_s2'? allowed keys here: accel_mm_s2,"
          " velocity_mm_s"),
         ("servo_interval_dms = 10", "servo_interval_dms = 10\ncolour = 'red'", "colour",
-         "unknown key 'colour'; allowed keys here: arc_tolerance_mm, axes, homing_order,"
-         " junction_deviation_mm, motion_scalar, name, ports, reply_timeout_s,"
+         "unknown key 'colour'; allowed keys here: arc_tolerance_mm, axes, dialect,"
+         " homing_order, junction_deviation_mm, motion_scalar, name, ports, reply_timeout_s,"
          " servo_interval_dms, watchdog_ms"),
     ],
 )
