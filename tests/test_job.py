@@ -104,7 +104,8 @@ def test_usbmotion_run_a_demo_as_a_user_does(tmp_path: Path) -> None:
         assert axis["samples"] > 1000
     assert abs(report["executed_time_s"] - report["planned_time_s"]) < 0.01
     assert report["ignored_words"] == [
-        {"word": "G94", "line": 3, "meaning": "units-per-minute feed mode, the only one"}]
+        {"word": "G94", "line": 3, "meaning": "units-per-minute feed mode, the only one",
+         "count": 1}]
     assert report["stop_reason"] == "completed"
     plot = tmp_path / "square.png"
     assert plot.stat().st_size > 20_000, "a real plot was written next to the program"
@@ -259,7 +260,7 @@ def test_end_points_are_measured_against_the_whole_path() -> None:
     ends = path[rng.integers(0, len(path), 40)] + rng.normal(0.0, 0.3, size=(40, 3))
     program = parse_gcode("G21 G90\n" + "".join(
         f"G1 X{x:.3f} Y{y:.3f} Z{z:.3f} F600\n" for x, y, z in ends) + "M2\n")
-    checked, worst = _endpoint_misses(program, trace)
+    checked, worst = _endpoint_misses(program, trace, "XYZ")
 
     points = np.stack([np.asarray(trace.actual[n], dtype=float) / 1000 for n in "XYZ"], axis=1)
     starts, spans = points[:-1], np.diff(points, axis=0)
