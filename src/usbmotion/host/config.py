@@ -349,6 +349,12 @@ class MachineConfig:
         reply_timeout_s: how long the host waits for a device's answer, seconds.
         ports: extra ports or URLs discovery searches for device names, besides the
             computer's serial ports (``socket://host:port`` of a ``usbmotion sim --tcp``).
+        tool_table: the tool table in LinuxCNC's ``tool.tbl`` format (lengths in mm),
+            relative paths from the machine file's folder; ``None``: no table, every tool
+            of zero length. A named file that does not exist also means zero lengths.
+        parameter_file: where work offsets and G28/G30 positions persist across runs, in
+            LinuxCNC's ``.var`` format and numbers; by default the machine file's name
+            with ``.var`` (``machine.toml`` -> ``machine.var``), next to it.
     """
 
     path: Path
@@ -362,6 +368,13 @@ class MachineConfig:
     watchdog_ms: int
     reply_timeout_s: float
     ports: tuple[str, ...]
+    tool_table: Path | None = None
+    parameter_file: Path | None = None
+
+    @property
+    def parameter_path(self) -> Path:
+        """The parameter file: ``parameter_file``, or the machine file's name with ``.var``."""
+        return self.parameter_file or self.path.with_suffix(".var")
 
     @property
     def axis_names(self) -> tuple[str, ...]:
@@ -624,7 +637,8 @@ def _unknown_key(name: str, known: tuple[str, ...]) -> str:
 
 _MACHINE_KEYS = (
     "name", "servo_interval_dms", "motion_scalar", "junction_deviation_mm", "arc_tolerance_mm",
-    "watchdog_ms", "reply_timeout_s", "ports", "homing_order", "axes",
+    "watchdog_ms", "reply_timeout_s", "ports", "homing_order", "tool_table", "parameter_file",
+    "axes",
 )
 _AXIS_KEYS = (
     "device", "url", "counts_per_mm", "max_velocity_mm_s", "max_accel_mm_s2", "max_jerk_mm_s3",
@@ -674,6 +688,10 @@ def _machine(top: _Reader) -> MachineConfig:
     reply_timeout_s = top.number("reply_timeout_s", default=1.0, above=0, maximum=60,
                                  unit="seconds")
     ports = _string_list(top, "ports", "a list of port paths or URLs to search for devices")
+    tool_table = _file(top, "tool_table", "a LinuxCNC tool.tbl file (T1 P1 Z12.5 D6 lines,"
+                       " mm), relative to the machine file")
+    parameter_file = _file(top, "parameter_file", "a LinuxCNC .var parameter file for the work"
+                           " offsets, relative to the machine file")
     axes_table = top.table(
         "axes", required=True,
         allowed=f"a table of axes, [axes.X], [axes.Y], ... (letters {', '.join(AXIS_LETTERS)})",
@@ -686,8 +704,22 @@ def _machine(top: _Reader) -> MachineConfig:
         path=path, name=name, axes=axes, servo_interval_dms=servo_interval_dms,
         motion_scalar=motion_scalar, junction_deviation_mm=junction_deviation_mm,
         arc_tolerance_mm=arc_tolerance_mm, homing_order=order, watchdog_ms=watchdog_ms,
-        reply_timeout_s=reply_timeout_s, ports=ports,
+        reply_timeout_s=reply_timeout_s, ports=ports, tool_table=tool_table,
+        parameter_file=parameter_file,
     )
+
+
+def _file(reader: _Reader, name: str, allowed: str) -> Path | None:
+    """A file named relative to the machine file's folder, or ``None`` when absent."""
+    value = reader.raw(name, default=None, allowed=allowed)
+    if value is None:
+        return None
+    if not isinstance(value, str) or not value.strip():
+        reader.fail(name, f"{_show(value)} is not a file name; allowed: {allowed}")
+    file = Path(value).expanduser()
+    if file.is_absolute():
+        return file
+    return reader.source.path.parent / file
 
 
 def _string_list(reader: _Reader, name: str, allowed: str) -> tuple[str, ...]:

@@ -53,7 +53,7 @@ from usbmotion.errors import GCodeError, UnsupportedGCodeError
 from usbmotion.motion.cycles import CYCLE_NAMES, DWELL, RAPID, Cycle, expand_cycle
 from usbmotion.motion.gcode_lexer import Block, Word, parse_blocks, tokenize, word_columns
 from usbmotion.motion.moves import Arc, Dwell, Linear, Move, Plane, Rapid, Vec3
-from usbmotion.motion.offsets import COORDINATE_SYSTEMS, Frame, WorkOffsets
+from usbmotion.motion.offsets import COORDINATE_SYSTEMS, NO_OFFSETS, Frame, WorkOffsets
 from usbmotion.motion.tools import NO_TOOLS, ToolTable
 
 __all__ = [
@@ -62,6 +62,7 @@ __all__ = [
     "IgnoredWord",
     "ToolChange",
     "Word",
+    "interpret_setting",
     "interpret_until_error",
     "load_gcode",
     "move_record",
@@ -317,7 +318,7 @@ class GCodeProgram:
     file: str
     end_line: int
     ended_by: str
-    offsets: WorkOffsets = WorkOffsets()
+    offsets: WorkOffsets = NO_OFFSETS
     tool_changes: tuple[ToolChange, ...] = ()
 
 
@@ -334,7 +335,8 @@ def parse_gcode(text: str, *, file: str = "<string>", start: Vec3 = (0.0, 0.0, 0
             machine's current position.
         tools: the tool table (default: none, every tool of zero length).
         offsets: the work offsets and stored positions the program starts with (default:
-            all zero, G54; a parameter file's :func:`~usbmotion.motion.offsets.read_parameter_file`).
+            all zero, G54; a parameter file's offsets:
+            :func:`~usbmotion.motion.offsets.read_parameter_file`).
 
     Raises:
         UnsupportedGCodeError: a word that would change the geometry is not supported.
@@ -366,6 +368,33 @@ def interpret_until_error(
     except GCodeError as exc:
         error = exc
     return interpreter.result(), error
+
+
+def interpret_setting(
+    text: str, *, file: str = "<console>", start: Vec3 = (0.0, 0.0, 0.0),
+    tools: ToolTable = NO_TOOLS, offsets: WorkOffsets | None = None,
+) -> WorkOffsets:
+    """Carry out lines that set offsets without moving (``G10 L20 P1 X0 Y0``, ``G10 L2``,
+    ``G92``, ``G28.1``), as a console's command line does, with the machine at ``start``;
+    returns the work offsets they leave.
+
+    Raises:
+        GCodeError: a line is invalid, or it would move the machine or end a program (the
+            message says what is allowed).
+    """
+    interpreter = _Interpreter(file, tools, offsets or WorkOffsets())
+    interpreter.position = [float(start[0]), float(start[1]), float(start[2])]
+    for block in tokenize(text, file=file):
+        if block.delimiter:
+            continue
+        interpreter.execute(block)
+        if interpreter.moves or interpreter.ended_by:
+            raise GCodeError(
+                "this line would move the machine or end a program; allowed here: lines that "
+                "set offsets (G10 L2, G10 L20, G92, G92.1-G92.3, G28.1, G30.1)",
+                file=file, line=block.line, column=1,
+            )
+    return interpreter.frame.snapshot()
 
 
 def read_gcode_text(path: str | os.PathLike[str]) -> str:

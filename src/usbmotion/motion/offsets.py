@@ -32,6 +32,7 @@ from usbmotion.errors import ConfigError
 
 __all__ = [
     "COORDINATE_SYSTEMS",
+    "NO_OFFSETS",
     "Frame",
     "WorkOffsets",
     "format_parameter_file",
@@ -115,6 +116,10 @@ class WorkOffsets:
         return values
 
 
+NO_OFFSETS = WorkOffsets()
+"""Every offset and stored position at 0, G54 active: LinuxCNC with no parameter file."""
+
+
 def _known_numbers() -> frozenset[int]:
     numbers = {G92_ENABLED_PARAMETER, SYSTEM_PARAMETER}
     for base in (G28_PARAMETER, G30_PARAMETER, G92_PARAMETER):
@@ -149,7 +154,7 @@ def parse_parameter_file(text: str, *, path: str = "<string>") -> WorkOffsets:
         fields = raw.split()
         if not fields:
             continue
-        if len(fields) < 2:  # noqa: PLR2004 - a number and its value
+        if len(fields) < 2:
             raise fail(number, f"{raw.strip()!r} is not a parameter line; allowed: a parameter"
                        " number and its value, such as '5221 10.0'")
         try:
@@ -157,7 +162,7 @@ def parse_parameter_file(text: str, *, path: str = "<string>") -> WorkOffsets:
         except ValueError:
             raise fail(number, f"parameter number {fields[0]!r} is not a whole number;"
                        " allowed: 1..5602") from None
-        if not 1 <= parameter <= 5602:  # noqa: PLR2004 - LinuxCNC's RS274NGC_MAX_PARAMETERS
+        if not 1 <= parameter <= 5602:
             raise fail(number, f"parameter number {parameter} is out of range; allowed: 1..5602")
         try:
             value = float(fields[1])
@@ -247,8 +252,19 @@ class Frame:
     rotation (``rotated`` false), which is what the interpreter's fast path adds.
     """
 
-    __slots__ = ("g28", "g30", "g5x", "g92", "g92_enabled", "other", "rotated", "rotation_deg",
-                 "system", "tool", "translation")
+    __slots__ = (
+        "g5x",
+        "g28",
+        "g30",
+        "g92",
+        "g92_enabled",
+        "other",
+        "rotated",
+        "rotation_deg",
+        "system",
+        "tool",
+        "translation",
+    )
 
     def __init__(self, offsets: WorkOffsets) -> None:
         self.g5x = [list(point) for point in offsets.g5x]

@@ -13,7 +13,9 @@ from usbmotion.errors import ConfigError
 from usbmotion.host.config import AxisConfig, MachineConfig
 from usbmotion.motion.gcode import GCodeProgram, parse_gcode
 from usbmotion.motion.limits import AxisLimits, PlannerConfig, check_travel
+from usbmotion.motion.offsets import NO_OFFSETS, WorkOffsets
 from usbmotion.motion.planner import Plan, plan_moves
+from usbmotion.motion.tools import NO_TOOLS, ToolTable
 from usbmotion.session.report import PLAN_AXES
 
 
@@ -23,18 +25,24 @@ class Prepared:
 
     ``start_mm`` is where the plan starts (X, Y, Z); ``homed`` whether that is a homed
     position (soft limits checked) or the devices' own counts (not homed, not checked).
+    ``offsets`` are the work offsets the program started with (``program.offsets`` those it
+    leaves).
     """
 
     program: GCodeProgram
     plan: Plan
     start_mm: tuple[float, float, float]
     homed: bool
+    offsets: WorkOffsets = NO_OFFSETS
 
 
 def prepare_program(config: MachineConfig, text: str, *, file: str,
-                    start_mm: tuple[float, float, float], homed: bool) -> Prepared:
-    """Interpret and plan a program for a machine from ``start_mm``; a homed start is also
-    checked against every axis's travel.
+                    start_mm: tuple[float, float, float], homed: bool,
+                    tools: ToolTable = NO_TOOLS,
+                    offsets: WorkOffsets | None = None) -> Prepared:
+    """Interpret and plan a program for a machine from ``start_mm`` with a tool table and
+    work offsets (machine coordinates result); a homed start is also checked against every
+    axis's travel.
 
     Raises:
         GCodeError, PlanningError: as :func:`plan_gcode`.
@@ -42,15 +50,18 @@ def prepare_program(config: MachineConfig, text: str, *, file: str,
             coordinate and the limit).
         ConfigError: the machine lacks an X, Y or Z axis.
     """
-    program, plan = plan_gcode(config, text, file=file, start_mm=start_mm)
+    offsets = offsets or WorkOffsets()
+    program, plan = plan_gcode(config, text, file=file, start_mm=start_mm, tools=tools,
+                               offsets=offsets)
     if homed:
         check_travel(plan.vertices_mm, plan.line, [a.travel_mm for a in plan_axes(config)],
                      axes=PLAN_AXES)
-    return Prepared(program, plan, start_mm, homed)
+    return Prepared(program, plan, start_mm, homed, offsets)
 
 
 def plan_gcode(config: MachineConfig, text: str, *, file: str = "<string>",
-               start_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+               start_mm: tuple[float, float, float] = (0.0, 0.0, 0.0),
+               tools: ToolTable = NO_TOOLS, offsets: WorkOffsets | None = None,
                ) -> tuple[GCodeProgram, Plan]:
     """Interpret and plan a program for a machine from ``start_mm`` (pure: no machine is
     needed; :meth:`MachineSession.prepare` adds where the machine stands and soft limits).
@@ -60,7 +71,7 @@ def plan_gcode(config: MachineConfig, text: str, *, file: str = "<string>",
         ConfigError: the machine lacks an X, Y or Z axis.
     """
     limits, planner, _ = planner_inputs(config)
-    program = parse_gcode(text, file=file, start=start_mm)
+    program = parse_gcode(text, file=file, start=start_mm, tools=tools, offsets=offsets)
     return program, plan_moves(program.moves, limits, planner, start=start_mm)
 
 
