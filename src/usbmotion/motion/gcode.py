@@ -5,13 +5,22 @@ interpreted here block by block into :data:`~usbmotion.motion.moves.Move` values
 at absolute machine positions. LinuxCNC's interpreter is the reference; the conformance
 cases in ``shared/gcode-conformance`` are run by the tests.
 
-Start state (LinuxCNC's): G21 (mm), G17, G90, G91.1, G94, feed 0, no motion mode (so an
-axis word before any G0-G3 is an error), position 0, no offsets, G28/G30 positions 0
-(there is no parameter file).
+Start state (LinuxCNC's): G21 (mm), G17, G90, G91.1, G94, G98, feed 0, no motion mode (so
+an axis word before any G0-G3 is an error), no tool length offset, tool 0 in the spindle,
+and the work offsets and G28/G30 positions the caller passes (a parameter file's, by
+default all zero in G54).
 
-Supported: G0 G1 G2 G3 (I/J/K or R; P turns; helices), G4 (P seconds), G17 G18 G19,
-G20 G21, G90 G91, G90.1 G91.1, G28 G28.1 G30 G30.1, G80, G92 G92.1 G92.2 G92.3, F, N,
-comments, M2 M30, ``%`` delimiters, block delete, RepRap checksums.
+Supported: G0 G1 G2 G3 (I/J/K or R; P turns; helices), G4 (P seconds), G10 L2 (P0-P9, R
+rotation) and G10 L20, G17 G18 G19, G20 G21, G28 G28.1 G30 G30.1, G43 (H, or the spindle
+tool) G43.1 G49, G53, G54-G59.3, G73 G81 G82 G83 G85 G89 (R Q P L) with G98/G99, G80, G90
+G91, G90.1 G91.1, G92 G92.1 G92.2 G92.3, F, T, M6, M61, N, comments, M2 M30, ``%``
+delimiters, block delete, RepRap checksums. Moves come out at machine positions::
+
+    machine = rotate_XY(program + G92, R of the system) + G5x offset + tool offset
+
+(:mod:`usbmotion.motion.offsets`); canned cycles are expanded into G0/G1 moves and dwells
+(:mod:`usbmotion.motion.cycles`); tools come from a LinuxCNC tool table
+(:mod:`usbmotion.motion.tools`).
 
 Decisions worth knowing, each LinuxCNC's:
 
@@ -27,16 +36,20 @@ Decisions worth knowing, each LinuxCNC's:
   keeps the programmed centre (the path is a slight spiral).
 - R-format arcs: a radius shorter than half the chord by more than 0.00005 inch
   (0.00127 mm) is refused; negative R takes the arc over 180 degrees.
-- G92 values are always absolute; G28/G30 go first to the intermediate point given by the
-  axis words (absolute or incremental per G90/G91), then, for the named axes only (all of
-  them when none is named), to the stored position.
+- G92 and G10 values are always absolute; G28/G30 go first to the intermediate point given
+  by the axis words (absolute or incremental per G90/G91), then, for the named axes only
+  (all of them when none is named), to the stored machine position.
+- An offset change (G10 on the active system, G92, G43, G49, G54-G59.3) does not move the
+  machine: the axes the next move does not name stay where they are.
+- M2, M30 and a closing ``%`` make G54 the active system again (``GCodeProgram.offsets``).
+- Arcs in a system rotated by ``G10 L2 R`` are supported in G17 only.
 - Two words of the same letter, two G codes of one modal group, or words that nothing in
   the block uses (I, J, K, R, P, Q) are errors.
 - A program must end with M2, M30 or ``%`` (when it opened with ``%``); the end of the
   text without one is an error, and nothing after the end is read.
 
-Words that do not move the machine (S, T, D, H, M0 M1 M3-M9 M48-M53 M60 M61, G40 G49 G54
-G61 G61.1 G64 G94 G96 G97 G98 G99 and their P/Q) are accepted and listed in
+Words that do not move the machine (S, D, H without G43, M0 M1 M3-M5 M7-M9 M48-M53 M60,
+G40 G61 G61.1 G64 G94 G96 G97 and their P/Q) are accepted and listed in
 :attr:`GCodeProgram.ignored`. Words that would change the geometry and are not supported
 raise :class:`~usbmotion.errors.UnsupportedGCodeError` naming the word and the reason.
 """
