@@ -157,6 +157,8 @@ def test_m6_selects_the_tool_and_g43_applies_it() -> None:
         ("G0 Z5\nG81 X1 Z-1 R1 L0 F10\n", "L0", "L, the number of holes, is a whole number"),
         ("G0 Z5\nG81 X1 Z-1 R1\n", "G81", "feed rate 0"),
         ("G0 X1 L2\n", "L2", "L word with no G10 or canned cycle"),
+        ("G0 Z5\nG83 X1 Z-1000 R1 Q0.001 F10\n", "G83", "at most 100,000 pecks"),
+        ("G0 Z5\nG81 X1 Z-1 R1 L1000000 F10\n", "G81", "would make 1000000 hole(s)"),
         ("G43 H1.5\n", "H1.5", "H is a tool number"),
     ],
 )

@@ -94,6 +94,7 @@ _RADIUS_TOL_MM = 0.00005 * MM_PER_INCH  # RADIUS_TOLERANCE_INCH, in mm
 _TINY = 1e-12  # arc_data_r: a chord this close to the diameter is a semicircle
 _LARGEST = 1e9  # magnitude limit of any number, in program units
 _MAX_M_CODES = 4
+_MOST_CYCLE_PASSES = 100_000  # holes x pecks of one canned cycle block
 
 # --- the code tables ----------------------------------------------------------------------
 # G codes are keyed by ten times their number (G90.1 -> 901), as LinuxCNC does.
@@ -1229,6 +1230,15 @@ class _Interpreter:
                 f"{name}: R{r_mm / scale:g} (the retract level) is less than "
                 f"{drill}{bottom_mm / scale:g} (the bottom of the hole); R must be at or "
                 f"above {drill} in the {self.plane.value} plane",
+            )
+        pecks = 1
+        if motion in (730, 830):
+            pecks = math.ceil((r_mm - bottom_mm) / series.peck_mm)
+        if repeats * pecks > _MOST_CYCLE_PASSES:
+            raise self.error(
+                block, blame,
+                f"{name} would make {repeats} hole(s) of {pecks} peck(s); at most "
+                f"{_MOST_CYCLE_PASSES:,} pecks in one block (fewer holes, L, or a larger Q)",
             )
         clear_mm = r_mm if self.retract_to_r else max(initial, r_mm)
         steps = expand_cycle(Cycle(
