@@ -209,9 +209,9 @@ class PinsMotor:
         lower_counts, upper_counts: where each switch closes, counts from the first power-up
             (the shaft's position then is count 0); ``None``: no switch.
         overtravel_counts: from each switch to the hard stop beyond it, counts.
-        bounces: each switch edge bounces back and forth this many times ...
-        bounce_interval_us: ... this far apart (the pin is back at the edge's level half
-            way), microseconds.
+        bounces: each switch edge is followed by this many bounces ...
+        bounce_interval_us: ... each this long, microseconds: half way through one the pin
+            goes back to its level before the edge, at its end it returns.
     """
 
     supply_v: float = 12.0
