@@ -27,16 +27,19 @@ ROUND_TIMEOUT_S = 1800
 """The most one round of the real-time tests may take."""
 
 
-def _round(report: Path) -> dict[str, bool]:
-    """One ``pytest -m realtime`` run: test id -> passed."""
+def _round(report: Path) -> dict[str, str | None]:
+    """One ``pytest -m realtime`` run: test id -> None if it passed, else why it failed
+    (the first line of its failure message)."""
     # SIGINT first if it must stop: pytest then tears its fixtures down (their servers too)
     run([sys.executable, "-m", "pytest", "-m", "realtime", "-q", "-p", "no:cacheprovider",
          f"--junitxml={report}"], cwd=ROOT, timeout_s=ROUND_TIMEOUT_S, grace_s=30,
         first_signal=signal.SIGINT)
-    results: dict[str, bool] = {}
+    results: dict[str, str | None] = {}
     for case in ElementTree.parse(report).getroot().iter("testcase"):
         name = f"{case.get('classname')}::{case.get('name')}"
-        results[name] = not any(child.tag in ("failure", "error") for child in case)
+        failed = [child for child in case if child.tag in ("failure", "error")]
+        results[name] = None if not failed else (
+            (failed[0].get("message") or failed[0].tag).splitlines() or [failed[0].tag])[0][:300]
     return results
 
 
@@ -44,15 +47,19 @@ def measure(rounds: int, load: int | None) -> dict[str, Any]:
     """Pass counts per real-time test over ``rounds`` rounds under load."""
     passes: dict[str, int] = {}
     seen: dict[str, int] = {}
+    why: dict[str, list[str]] = {}
     started = time.monotonic()
     with busy_cores(load) as loops, tempfile.TemporaryDirectory() as folder:
         for index in range(rounds):
-            for name, passed in _round(Path(folder) / f"round-{index}.xml").items():
+            for name, failure in _round(Path(folder) / f"round-{index}.xml").items():
                 seen[name] = seen.get(name, 0) + 1
-                passes[name] = passes.get(name, 0) + int(passed)
+                passes[name] = passes.get(name, 0) + int(failure is None)
+                if failure is not None:
+                    why.setdefault(name, []).append(f"round {index + 1}: {failure}")
     return {"rounds": rounds, "busy_loops": loops, "wall_s": time.monotonic() - started,
             "passed": {name: passes[name] for name in sorted(seen)},
-            "ran": {name: seen[name] for name in sorted(seen)}}
+            "ran": {name: seen[name] for name in sorted(seen)},
+            "failures": {name: why[name] for name in sorted(why)}}
 
 
 def _text(figures: dict[str, Any]) -> str:
@@ -60,6 +67,7 @@ def _text(figures: dict[str, Any]) -> str:
              f" busy loops loading the cores ({figures['wall_s'] / 60:.1f} min)"]
     for name, passed in figures["passed"].items():
         lines.append(f"  {passed:3d} / {figures['ran'][name]:<3d} {name}")
+        lines.extend(f"        {failure}" for failure in figures["failures"].get(name, ()))
     return "\n".join(lines)
 
 

@@ -403,7 +403,8 @@ SIM_KEYS = ("counts_per_revolution, inertia_kg_m2, load_torque_mnm, source_volta
         ("servo_interval_dms = 10", "servo_interval_ms = 10", "servo_interval_ms",
          "unknown key 'servo_interval_ms'; did you mean 'servo_interval_dms'? allowed keys here:"
          " arc_tolerance_mm, axes, dialect, homing_order, junction_deviation_mm, motion_scalar,"
-         " name, ports, reply_timeout_s, servo_interval_dms, watchdog_ms"),
+         " name, parameter_file, ports, reply_timeout_s, servo_interval_dms, tool_table,"
+         " watchdog_ms"),
         ("max_accel_mm_s2 = 500", "max_acel_mm_s2 = 500", "axes.X.max_acel_mm_s2",
          "unknown key 'max_acel_mm_s2'; did you mean 'max_accel_mm_s2'? allowed keys here: "
          + AXIS_KEYS),
@@ -428,8 +429,8 @@ SIM_KEYS = ("counts_per_revolution, inertia_kg_m2, load_torque_mnm, source_volta
          " velocity_mm_s"),
         ("servo_interval_dms = 10", "servo_interval_dms = 10\ncolour = 'red'", "colour",
          "unknown key 'colour'; allowed keys here: arc_tolerance_mm, axes, dialect,"
-         " homing_order, junction_deviation_mm, motion_scalar, name, ports, reply_timeout_s,"
-         " servo_interval_dms, watchdog_ms"),
+         " homing_order, junction_deviation_mm, motion_scalar, name, parameter_file, ports,"
+         " reply_timeout_s, servo_interval_dms, tool_table, watchdog_ms"),
     ],
 )
 def test_a_misspelt_key_is_named_as_unknown_with_the_closest_key(

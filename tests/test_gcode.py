@@ -19,6 +19,7 @@ from usbmotion.errors import GCodeError, UnsupportedGCodeError
 from usbmotion.motion.gcode import (
     GCodeProgram,
     IgnoredWord,
+    ToolChange,
     interpret_until_error,
     load_gcode,
     move_record,
@@ -575,7 +576,7 @@ def test_repeated_word() -> None:
     ("line", "word", "what"),
     [
         ("G0 X1 I2", "I2", "I word with no G2 or G3"),
-        ("G0 X1 R2", "R2", "R word with no G2 or G3"),
+        ("G0 X1 R2", "R2", "R word with no G2, G3, canned cycle or G10 L2"),
         ("G0 X1 P2", "P2", "P word"),
         ("G0 X1 Q2", "Q2", "Q word"),
         ("M61", "M61", "needs Q"),
@@ -601,12 +602,11 @@ def test_code_numbers() -> None:
     [
         ("G41 D1", "G41", "cutter radius compensation"),
         ("G42.1 D1", "G42.1", "cutter radius compensation"),
-        ("G43 H1 Z1", "G43", "tool length offsets"),
-        ("G81 X1 Y1 Z-1 R1", "G81", "canned cycles"),
-        ("G73 X1 Z-1 R1 Q1", "G73", "canned cycles"),
-        ("G10 L2 P1 X0", "G10", "G10"),
-        ("G53 G0 X0", "G53", "machine coordinates"),
-        ("G55", "G55", "other than G54"),
+        ("G43.2 H1", "G43.2", "adding to the tool length offset"),
+        ("G84 X1 Y1 Z-1 R1", "G84", "tapping"),
+        ("G86 X1 Y1 Z-1 R1", "G86", "boring cycles"),
+        ("G10 L1 P1 Z1", "L1", "only G10 L2 and G10 L20"),
+        ("G52 X1", "G52", "local coordinate offsets"),
         ("G33 Z-1 K1", "G33", "spindle-synchronized"),
         ("G38.2 Z-1 F10", "G38.2", "probing"),
         ("G5 X1 I1 J1 P1 Q1", "G5", "spline"),
@@ -648,13 +648,9 @@ def test_ignored_words_are_listed() -> None:
         "M2\n"
     )
     assert [(w.word, w.line, w.column) for w in program.ignored] == [
-        ("G54", 1, 5),
         ("G40", 1, 9),
-        ("G49", 1, 13),
         ("G94", 1, 17),
         ("G61", 1, 25),
-        ("T1", 2, 1),
-        ("M6", 2, 4),
         ("S12000", 3, 1),
         ("M3", 3, 8),
         ("M8", 3, 11),
@@ -669,8 +665,9 @@ def test_ignored_words_are_listed() -> None:
         ("M1", 7, 7),
     ]
     assert all(isinstance(w, IgnoredWord) and w.meaning for w in program.ignored)
-    assert program.ignored[7].meaning == "spindle speed"
+    assert program.ignored[3].meaning == "spindle speed"
     assert len(program.moves) == 1
+    assert program.tool_changes == (ToolChange(2, 1, 0, True),)  # G54, G49, T1 M6 act
 
 
 def test_ignored_words_of_a_rejected_line_are_not_listed() -> None:

@@ -163,6 +163,32 @@ def test_a_stalled_link_times_out_with_a_typed_error(rig) -> None:  # type: igno
     _assert_prefix(device, caught.value, client, link)
 
 
+def test_an_answer_that_comes_late_is_not_taken_for_the_next_one(rig) -> None:  # type: ignore[no-untyped-def]
+    client, _device, link = rig
+    link.faults.stalled = True
+    with pytest.raises(DeviceTimeoutError):
+        client.status()
+    link.faults.stalled = False  # the held STATUS line now arrives, late
+    assert client.queue_status() == (0, 1000), "the answer to this query, not the late one"
+    assert client.servo_enabled()
+    client.set_watchdog_ms(0)
+    assert client.stray_lines == 1, "the late STATUS line was skipped"
+
+
+def test_a_late_answer_is_realigned_without_losing_an_alarm(rig) -> None:  # type: ignore[no-untyped-def]
+    client, _device, link = rig
+    client.set_following_error_limit(1)
+    link.faults.stalled = True
+    with pytest.raises(DeviceTimeoutError):
+        client.status()
+    client.send(0, 500)  # a jump the servo cannot follow: following error, ALARM 2
+    link.world.advance(50_000)
+    link.faults.stalled = False
+    code, _tick = client.fault()
+    assert code == 2
+    assert [alarm.fault for alarm in client.alarms] == [2], "the alarm read on the way is kept"
+
+
 def test_a_disconnect_mid_stream_says_how_many_were_confirmed(rig) -> None:  # type: ignore[no-untyped-def]
     client, _device, link = rig
     stream = SetpointStream(client, WANTED, period_s=0.001, verify=True)

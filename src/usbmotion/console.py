@@ -3,8 +3,12 @@
 Commands are ``$`` and a letter, then values: ``$c`` runs the loaded program from where the
 machine stands, ``$r`` stops the machine, clears any alarm and homes it, ``$d N`` loads demo
 program N, ``$l FILE`` loads a G-code file, ``?`` reports the state, ``$h`` lists the
-commands, ``$q`` leaves. Every command answers with at least one line; unknown input
-answers one ``error:`` line. A cycle start plans the program from where the machine is, so
+commands, ``$q`` leaves. ``$z [AXES]`` sets the work origin (G54) where the machine stands
+for the named axes (all by default), as a sender's zero button does, and a line of G-code
+that sets offsets without moving (``G10 L20 P1 X0 Y0``, ``G10 L2 P2 X50``, ``G28.1``) is
+carried out at the machine's position; both keep the offsets in the machine's parameter
+file. Every command answers with at least one line; unknown input answers one ``error:``
+line. A cycle start plans the program from where the machine is, so
 two in a row run it twice from wherever the first ended.
 """
 
@@ -21,14 +25,18 @@ from usbmotion.errors import (
     StopRequestedError,
     UsbMotionError,
 )
-from usbmotion.motion.gcode import parse_gcode, read_gcode_text
+from usbmotion.motion.gcode import interpret_setting, parse_gcode, read_gcode_text
+from usbmotion.motion.offsets import format_point
 from usbmotion.session import MachineSession, MachineState, describe
+from usbmotion.session.planning import machine_axes, machine_dialect, program_axes
 
 HELP = """\
 $c        cycle start: run the loaded program from where the machine stands
 $r        reset: stop every axis, clear any alarm, then home
 $d N      load demo program N (1 rounded square, 2 star, 3 spiral)
 $l FILE   load a G-code file
+$z [AXES] zero: the work origin (G54) where the machine stands, for the named axes (default all)
+G10 ...   set offsets at the machine's position: G10 L20 P1 X0 Y0, G10 L2 P1 Z-5, G28.1
 ?         status: state, loaded program, homed, positions, faults
 $h        this help
 $q        quit"""
@@ -72,6 +80,10 @@ class Console:
                 self._load_demo(value)
             elif command == "$l":
                 self._load_file(value)
+            elif command == "$z":
+                self._zero(value)
+            elif text[:1] in "Gg":
+                self._set_offsets(text)
             else:
                 self.write(f"error: unknown command {text!r}; $h lists the commands")
         except StopRequestedError as error:
@@ -86,7 +98,9 @@ class Console:
 
     def _load(self, path: Path) -> None:
         text = read_gcode_text(path)
-        program = parse_gcode(text, file=str(path))
+        config = self.session.config
+        program = parse_gcode(text, file=str(path), machine=machine_axes(config),
+                              dialect=machine_dialect(config))
         self.path, self.text = path, text
         self.write(f"loaded {path.name}: {len(program.moves)} moves")
 
@@ -135,6 +149,41 @@ class Console:
             self.write(line)
         self.write("done" if report.completed else f"stopped ({report.stop_reason}):"
                    " $r resets and homes")
+
+    def _zero(self, value: str) -> None:
+        session = self.session
+        axes = program_axes(session.config)
+        names = value.upper().split() or list(axes)
+        bad = [name for name in names if name not in axes]
+        if bad:
+            self.write(f"error: $z takes axes {', '.join(axes)}; got {' '.join(bad)!r}")
+            return
+        if not session.is_homed:
+            self.write("error: the machine is not homed, so its position means nothing;"
+                       " $r homes it")
+            return
+        where = session.positions_mm()
+        offsets = session.set_work_origin({name: where[name] for name in names})
+        self.write(f"G54 origin {format_point(offsets.g5x[0], axes)} mm (machine), saved in"
+                   f" {session.config.parameter_path}")
+
+    def _set_offsets(self, text: str) -> None:
+        session = self.session
+        if not session.is_homed:
+            self.write("error: the machine is not homed, so its position means nothing;"
+                       " $r homes it")
+            return
+        where = session.positions_mm()
+        machine = machine_axes(session.config)
+        offsets = interpret_setting(text, start=tuple(where[a] for a in machine.axes),
+                                    machine=machine, dialect=machine_dialect(session.config),
+                                    tools=session.tool_table(),
+                                    offsets=session.work_offsets())
+        session.save_work_offsets(offsets)
+        system = offsets.coordinate_system
+        self.write(f"G{53 + system if system <= 6 else f'59.{system - 6}'} is active; G54"
+                   f" origin {format_point(offsets.g5x[0], machine.axes)} mm (machine), saved in"
+                   f" {session.config.parameter_path}")
 
     def _reset(self) -> None:
         session = self.session

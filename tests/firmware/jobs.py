@@ -31,10 +31,10 @@ from pathlib import Path
 from typing import Any
 
 from usbmotion.device import Device, MemoryFlash
-from usbmotion.host.config import MachineConfig, load_config
+from usbmotion.host.config import AxisConfig, MachineConfig, load_config
 from usbmotion.motion.gcode import read_gcode_text
-from usbmotion.sim.firmware import FirmwareSimDevice, default_uf2
-from usbmotion.sim.machine import connect_session
+from usbmotion.sim.firmware import FirmwareSimDevice, PinsMotor, default_uf2
+from usbmotion.sim.machine import connect_session, sim_motor_params
 from usbmotion.sim.world import SimWorld
 
 from .native import ROOT
@@ -76,10 +76,22 @@ class VirtualRun:
     wall_s: float
 
 
-def virtual_report(config: MachineConfig, *, firmware: Path | None) -> VirtualRun:
-    """Home the machine and run demo 1 in virtual time; ``firmware``: on emulated chips
-    running this image, else on Python devices (made as the firmware's are: default motor,
-    blank flash, the name written by call 18)."""
+def pins_motor(axis: AxisConfig) -> PinsMotor:
+    """The motor outside the chip for ``axis``: the one its ``sim`` table gives the on-chip
+    simulated motor (calls 12-17, 32-34 as the host sends them), its switches where the
+    travel's are."""
+    assert axis.sim is not None and axis.sim_travel_counts is not None
+    return PinsMotor.like(sim_motor_params(axis.sim, travel_counts=axis.sim_travel_counts))
+
+
+def virtual_report(config: MachineConfig, *, firmware: Path | None, pins: bool = False,
+                   program: Path = DEMO) -> VirtualRun:
+    """Home the machine and run ``program`` (demo 1) in virtual time; ``firmware``: on
+    emulated chips running this image, else on Python devices (made as the firmware's are:
+    default motor, blank flash, the name written by call 18). ``pins``: each chip drives the
+    axis's motor outside it through its pins (call 39 1 and a power cycle first; its lines
+    are then not compared with the Python shadow's)."""
+    assert firmware is not None or not pins
     world = SimWorld()
     emulated: dict[str, FirmwareSimDevice] = {}
     started = time.monotonic()
@@ -88,7 +100,8 @@ def virtual_report(config: MachineConfig, *, firmware: Path | None) -> VirtualRu
             assert axis.url is not None and axis.device is not None
             key = axis.url.removeprefix("sim://")
             if firmware is not None:
-                emulated[axis.name] = FirmwareSimDevice(firmware, name=axis.device)
+                emulated[axis.name] = FirmwareSimDevice(
+                    firmware, name=axis.device, motor=pins_motor(axis) if pins else None)
                 world.add(emulated[axis.name], key=key)
             else:
                 device = Device(flash=MemoryFlash())
@@ -96,10 +109,10 @@ def virtual_report(config: MachineConfig, *, firmware: Path | None) -> VirtualRu
                 device.feed(f"18 {len(axis.device)} {codes}\n".encode("ascii"))
                 device.take_output()
                 world.add(device, key=key)
-        text = read_gcode_text(DEMO)
+        text = read_gcode_text(program)
         with connect_session(config, world=world) as session:
             homing_s = session.home()
-            prepared = session.prepare(DEMO, text=text)
+            prepared = session.prepare(program, text=text)
             report, _ = session.run(prepared, homing_s=homing_s)
             session.shutdown()
         return VirtualRun(report.to_json(),

@@ -183,3 +183,60 @@ def test_homing_through_the_pins_latches_the_edge_at_the_switch() -> None:
     # where each axis rests: velocity mode integrates its small differences of speed into
     # position (no position loop), so only roughly alike
     assert abs(status_pins[1] - status_on_chip[1]) <= 20
+
+
+DEBOUNCE_US = 1000
+"""USBMOTION_SWITCH_DEBOUNCE_US (firmware/src/rp2040/pins.h): after an edge a switch is
+ignored this long."""
+
+
+def onto_bouncing_switch(chip: PinsChip, lower: int, *, bounces: int,
+                         interval_us: float) -> tuple[list[int], dict[str, object]]:
+    """Velocity mode onto the lower switch at -2000 counts/s, the switch bouncing ``bounces``
+    times ``interval_us`` apart at each edge; 300 ticks after the edge, the lower switch's
+    call 36 record and the world."""
+    chip.request(cmd="motor", options={"lower": lower, "upper": 100000, "bounce": bounces,
+                                       "bounceNanos": interval_us * 1e3})
+    chip.feed("9 7 -3\n10 1 0\n11 0 0\n7 2\n3 1\n")
+    for _ in range(40):
+        chip.feed("1 50 " + " ".join(["-2000"] * 50) + "\n")
+        chip.run(50)
+        if chip.request(cmd="world")["world"]["closed"][0]:
+            break
+    chip.feed("3 0\n")
+    chip.run(300)
+    edge = [int(w) for w in chip.feed("36 1\n")[0].split()[1:]]
+    return edge, chip.request(cmd="world")["world"]
+
+
+@pytest.mark.parametrize("bounces, interval_us", [(1, 400), (5, 100), (9, 100)])
+def test_a_bounce_within_the_debounce_time_is_one_edge_at_the_switch(
+        bounces: int, interval_us: float) -> None:
+    # the bounce lasts bounces x interval_us, at most 900 us: inside the 1 ms after the edge
+    assert bounces * interval_us < DEBOUNCE_US
+    require_emulator()
+    lower = -1500
+    with PinsChip(pins=True) as chip:
+        edge, world = onto_bouncing_switch(chip, lower, bounces=bounces,
+                                           interval_us=interval_us)
+    print(f"bounce {bounces} x {interval_us} us: the pin changed {world['switchPinChanges']}"
+          f" times, the firmware took {edge[1]} edge(s), latched at {edge[3]}")
+    # the switch's pin did bounce: the edge and each bounce's opening and closing
+    assert world["switchPinChanges"] == 1 + 2 * bounces
+    # one edge, closed, latched at the switch's own count (the first contact)
+    assert edge[1:4] == [1, 1, lower]
+
+
+def test_a_bounce_longer_than_the_debounce_time_is_caught() -> None:
+    # the test of the test: a bounce the debounce does not cover (the switch opens again
+    # 1.5 ms after it closed and closes once more at 3 ms, each past the 1 ms) is taken as
+    # three edges, and the comparisons above catch it: more than one edge, and the latch at
+    # the last contact instead of the first
+    require_emulator()
+    lower = -1500
+    with PinsChip(pins=True) as chip:
+        edge, world = onto_bouncing_switch(chip, lower, bounces=1, interval_us=3000)
+    print(f"bounce 1 x 3000 us: the firmware took {edge[1]} edges, latched at {edge[3]}")
+    assert world["switchPinChanges"] == 3
+    assert edge[1] == 3 and edge[2] == 1
+    assert edge[1:4] != [1, 1, lower]

@@ -50,6 +50,7 @@ export class PioClock {
     this.nanos = 0; // every machine has run up to here
     this.events = []; // [{nanos, pin, value}] in time order
     this.marks = new Map(); // machine -> its state at the start of a pass, for fast-forward
+    this.positions = new Map(); // machine -> the steps it has run
     this.sinceInput = 0; // steps since the last input change
     for (const pio of mcu.pio) {
       pio.run = () => {}; // stepped here, not on the host's event loop
@@ -145,32 +146,39 @@ export class PioClock {
   }
 
   run(machine, steps) {
+    // `position`: the steps this machine has run; a mark holds the position it was taken at,
+    // so a pass's length is measured within one call or across calls alike
     let left = steps;
     let since = this.sinceInput;
+    let position = this.positions.get(machine) ?? 0;
     while (left > 0) {
       if (since >= SETTLE_STEPS && machine.pc === machine.wrapBottom && machine.rxFIFO.full) {
         const mark = this.marks.get(machine);
         if (mark && sameState(mark, machine)) {
-          const period = mark.left - left;
+          const period = position - mark.position;
           if (period > 0 && left >= period) {
-            left -= Math.floor(left / period) * period;
-            mark.left = left;
+            const skipped = Math.floor(left / period) * period;
+            left -= skipped;
+            position += skipped;
+            mark.position = position;
             continue;
           }
         } else {
-          this.marks.set(machine, snapshot(machine, left));
+          this.marks.set(machine, snapshot(machine, position));
         }
       }
       machine.step();
       left--;
       since++;
+      position++;
     }
+    this.positions.set(machine, position);
   }
 }
 
-function snapshot(machine, left) {
+function snapshot(machine, position) {
   return {
-    left,
+    position,
     pc: machine.pc,
     x: machine.x,
     y: machine.y,
@@ -255,6 +263,7 @@ export class MotorWorld {
     this.count = Math.floor(this.theta);
     this.edgesEmitted = 0;
     this.switchEdges = 0;
+    this.switchPinChanges = 0; // the switch edges and their bounces, as the pins saw them
     this.closed = [this.count <= this.lower, this.count >= this.upper];
     clock.drive(PIN_MAP.encoderA, PIN_MAP.encoderB, PIN_MAP.lower, PIN_MAP.upper);
     this.setEncoderPins(this.count, 0);
@@ -355,6 +364,7 @@ export class MotorWorld {
         const pinNumber = i === 0 ? PIN_MAP.lower : PIN_MAP.upper;
         const level = !closed[i]; // closed pulls the pin low
         this.clock.schedule(nanos, pinNumber, level);
+        this.switchPinChanges += 1 + 2 * this.bounce;
         for (let b = 0; b < this.bounce; b++) {
           this.clock.schedule(nanos + (b + 0.5) * this.bounceNanos, pinNumber, !level);
           this.clock.schedule(nanos + (b + 1) * this.bounceNanos, pinNumber, level);
@@ -374,6 +384,7 @@ export class MotorWorld {
       closed: this.closed.slice(),
       edges: this.edgesEmitted,
       switchEdges: this.switchEdges,
+      switchPinChanges: this.switchPinChanges,
     };
   }
 }

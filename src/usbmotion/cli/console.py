@@ -11,7 +11,7 @@ from usbmotion.cli.run import (
     EXIT_BAD_INPUT,
     EXIT_FAULT,
     MachineOption,
-    default_machine,
+    load_machine,
     stop_on_signals,
 )
 from usbmotion.errors import ConfigError, UsbMotionError
@@ -32,10 +32,10 @@ def console(
     """
     from usbmotion.console import Console  # noqa: PLC0415 - keep --help fast
     from usbmotion.session import MachineSession  # noqa: PLC0415
-    from usbmotion.sim.machine import connect_session, load_machine_file  # noqa: PLC0415
+    from usbmotion.sim.machine import connect_session  # noqa: PLC0415
 
     try:
-        config = load_machine_file(machine or default_machine())
+        config = load_machine(machine)
     except ConfigError as error:
         typer.echo(f"usbmotion console: {error}", err=True)
         raise typer.Exit(EXIT_BAD_INPUT) from None

@@ -10,6 +10,7 @@ from usbmotion.cli.gcode import gcode_app
 from usbmotion.cli.run import run
 from usbmotion.cli.sim import sim
 from usbmotion.cli.tune import tune
+from usbmotion.cli.zero import zero
 
 app = typer.Typer(
     name="usbmotion",
@@ -34,6 +35,7 @@ app.command()(run)
 app.command()(console)
 app.command()(tune)
 app.command()(sim)
+app.command()(zero)
 app.add_typer(gcode_app, name="gcode")
 
 

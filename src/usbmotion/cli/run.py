@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import json
+import math
+import os
+import re
 import signal
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 from types import FrameType
@@ -25,6 +29,7 @@ from usbmotion.errors import (
 )
 
 if TYPE_CHECKING:
+    from usbmotion.host.config import MachineConfig
     from usbmotion.motion.dialects import Dialect
     from usbmotion.session import MachineSession, Prepared, RunReport, Trace
 
@@ -50,6 +55,62 @@ when it is not given)."""
 def default_machine() -> Path:
     """The built-in simulated 3-axis machine (the same file as ``examples/machine.toml``)."""
     return Path(str(resources.files("usbmotion") / "data" / "machine.toml"))
+
+
+def state_dir() -> Path:
+    """Where the built-in machine keeps its parameter file: ``$USBMOTION_STATE_DIR``, else
+    ``$XDG_STATE_HOME/usbmotion``, else ``~/.local/state/usbmotion`` (the package's own
+    folder is not for writing)."""
+    if os.environ.get("USBMOTION_STATE_DIR"):
+        return Path(os.environ["USBMOTION_STATE_DIR"])
+    base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(base) / "usbmotion"
+
+
+def load_machine(machine: Path | None) -> MachineConfig:
+    """The machine file's configuration (the built-in machine when ``None``, its parameter
+    file in :func:`state_dir`).
+
+    Raises:
+        ConfigError: the file is invalid.
+    """
+    from usbmotion.sim.machine import load_machine_file  # noqa: PLC0415
+
+    config = load_machine_file(machine or default_machine())
+    if machine is None and config.parameter_file is None:
+        config = replace(config, parameter_file=state_dir() / "machine.var")
+    return config
+
+
+_ORIGIN_WORD = re.compile(r"\s*([XYZUVWxyzuvw])\s*([-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+))\s*")
+
+
+def parse_origin(values: list[str]) -> dict[str, float]:
+    """``["X100 Y100", "Z60"]`` -> ``{"X": 100.0, "Y": 100.0, "Z": 60.0}`` (mm).
+
+    Raises:
+        typer.BadParameter: a word that is not an axis letter (X Y Z U V W) and a number,
+            or an axis twice. (Whether the machine has the axis is the session's to check.)
+    """
+    origin: dict[str, float] = {}
+    for value in values:
+        position = 0
+        for match in _ORIGIN_WORD.finditer(value):
+            if match.start() != position:
+                break
+            letter = match.group(1).upper()
+            if letter in origin:
+                raise typer.BadParameter(f"{letter} is given twice in {value!r}; allowed: each"
+                                         " axis once", param_hint="--origin")
+            origin[letter] = float(match.group(2))
+            position = match.end()
+        if position != len(value) or not value.strip():
+            raise typer.BadParameter(
+                f"{value!r} is not an origin; allowed: axis words in machine mm, such as"
+                " 'X100 Y100 Z60'", param_hint="--origin")
+    if any(not math.isfinite(v) for v in origin.values()):
+        raise typer.BadParameter("origin values must be finite", param_hint="--origin")
+    return origin
 
 
 @contextmanager
@@ -103,6 +164,9 @@ def run(
     dialect: Annotated[str | None, typer.Option(
         "--dialect", help="Read the program as linuxcnc, grbl or marlin reads it (default:"
         " the machine file's dialect, linuxcnc when it names none).")] = None,
+    origin: Annotated[list[str] | None, typer.Option(
+        "--origin", help="Set the work origin (G54) first, in machine mm: --origin 'X100 Y100"
+        " Z60' (or X100Y100Z60, or repeated); kept in the machine's parameter file.")] = None,
 ) -> None:
     """Run a G-code program on the machine: home it if it is not homed, plan from where it stands,
     check the travel, stream, then report and plot.
@@ -119,12 +183,18 @@ def run(
     moved); 130 interrupted by Ctrl-C, 143 by SIGTERM (every axis brought to
     rest along its deceleration, then the servos disabled; a second Ctrl-C
     stops at once).
+
+    The program runs in the work offsets of the machine's parameter file (set by
+    --origin, usbmotion zero, or a program's G10), with the tool table the machine
+    file names.
     """
     from usbmotion.motion.dialects import dialect_named  # noqa: PLC0415
     from usbmotion.motion.gcode import parse_gcode, read_gcode_text  # noqa: PLC0415
+    from usbmotion.motion.offsets import format_point, read_parameter_file  # noqa: PLC0415
+    from usbmotion.motion.tools import NO_TOOLS, load_tool_table  # noqa: PLC0415
     from usbmotion.session import MachineSession  # noqa: PLC0415
     from usbmotion.session.planning import machine_axes, machine_dialect  # noqa: PLC0415
-    from usbmotion.sim.machine import connect_session, load_machine_file  # noqa: PLC0415
+    from usbmotion.sim.machine import connect_session  # noqa: PLC0415
     from usbmotion.sim.world import SimWorld  # noqa: PLC0415
 
     chosen: Dialect | None = None
@@ -134,11 +204,14 @@ def run(
         except ValueError as error:
             typer.echo(f"usbmotion run: --dialect: {error}", err=True)
             raise typer.Exit(EXIT_BAD_INPUT) from None
+    origin_mm = parse_origin(origin or [])
     try:
-        config = load_machine_file(machine or default_machine())
+        config = load_machine(machine)
         text = read_gcode_text(program)
         parse_gcode(text, file=str(program), machine=machine_axes(config),
-                    dialect=machine_dialect(config, chosen))
+                    dialect=machine_dialect(config, chosen),
+                    tools=load_tool_table(config.tool_table) if config.tool_table else NO_TOOLS,
+                    offsets=read_parameter_file(config.parameter_path))
     except GCodeError as error:
         typer.echo(f"{error.file}:{error.line}: {error.message}", err=True)
         raise typer.Exit(EXIT_BAD_INPUT) from None
@@ -160,6 +233,11 @@ def run(
     with session, stop_on_signals(session):
         for notice in session.notices:
             typer.echo(f"notice         {notice}", err=True)
+        if origin_mm:
+            offsets = session.set_work_origin(origin_mm)
+            shown = format_point(offsets.g5x[0], machine_axes(config).axes)
+            typer.echo(f"work origin    G54 {shown} mm (machine), saved in"
+                       f" {config.parameter_path}", err=True)
         code, report, trace, prepared = _job(session, program, text, no_home=no_home,
                                               quiet=quiet, dialect=chosen)
         try:

@@ -353,6 +353,12 @@ class MachineConfig:
             computer's serial ports (``socket://host:port`` of a ``usbmotion sim --tcp``).
         dialect: how the machine's G-code programs are read: ``"linuxcnc"`` (the
             default), ``"grbl"`` or ``"marlin"`` (:data:`DIALECTS`).
+        tool_table: the tool table in LinuxCNC's ``tool.tbl`` format (lengths in mm),
+            relative paths from the machine file's folder; ``None``: no table, every tool
+            of zero length. A named file that does not exist also means zero lengths.
+        parameter_file: where work offsets and G28/G30 positions persist across runs, in
+            LinuxCNC's ``.var`` format and numbers; by default the machine file's name
+            with ``.var`` (``machine.toml`` -> ``machine.var``), next to it.
     """
 
     path: Path
@@ -367,6 +373,13 @@ class MachineConfig:
     reply_timeout_s: float
     ports: tuple[str, ...]
     dialect: str = "linuxcnc"
+    tool_table: Path | None = None
+    parameter_file: Path | None = None
+
+    @property
+    def parameter_path(self) -> Path:
+        """The parameter file: ``parameter_file``, or the machine file's name with ``.var``."""
+        return self.parameter_file or self.path.with_suffix(".var")
 
     @property
     def axis_names(self) -> tuple[str, ...]:
@@ -630,6 +643,7 @@ def _unknown_key(name: str, known: tuple[str, ...]) -> str:
 _MACHINE_KEYS = (
     "name", "servo_interval_dms", "motion_scalar", "junction_deviation_mm", "arc_tolerance_mm",
     "watchdog_ms", "reply_timeout_s", "ports", "homing_order", "axes", "dialect",
+    "tool_table", "parameter_file",
 )
 _AXIS_KEYS = (
     "device", "url", "counts_per_mm", "max_velocity_mm_s", "max_accel_mm_s2", "max_jerk_mm_s3",
@@ -684,6 +698,10 @@ def _machine(top: _Reader) -> MachineConfig:
                          allowed=f"the G-code dialect of the machine's programs: {dialects}")
     if dialect not in DIALECTS:
         top.fail("dialect", f"{dialect!r} is not a G-code dialect; allowed: {dialects}")
+    tool_table = _file(top, "tool_table", "a LinuxCNC tool.tbl file (T1 P1 Z12.5 D6 lines,"
+                       " mm), relative to the machine file")
+    parameter_file = _file(top, "parameter_file", "a LinuxCNC .var parameter file for the work"
+                           " offsets, relative to the machine file")
     axes_table = top.table(
         "axes", required=True,
         allowed=f"a table of axes, [axes.X], [axes.Y], ... (letters {', '.join(AXIS_LETTERS)})",
@@ -696,8 +714,22 @@ def _machine(top: _Reader) -> MachineConfig:
         path=path, name=name, axes=axes, servo_interval_dms=servo_interval_dms,
         motion_scalar=motion_scalar, junction_deviation_mm=junction_deviation_mm,
         arc_tolerance_mm=arc_tolerance_mm, homing_order=order, watchdog_ms=watchdog_ms,
-        reply_timeout_s=reply_timeout_s, ports=ports, dialect=dialect,
+        reply_timeout_s=reply_timeout_s, ports=ports, dialect=dialect, tool_table=tool_table,
+        parameter_file=parameter_file,
     )
+
+
+def _file(reader: _Reader, name: str, allowed: str) -> Path | None:
+    """A file named relative to the machine file's folder, or ``None`` when absent."""
+    value = reader.raw(name, default=None, allowed=allowed)
+    if value is None:
+        return None
+    if not isinstance(value, str) or not value.strip():
+        reader.fail(name, f"{_show(value)} is not a file name; allowed: {allowed}")
+    file = Path(value).expanduser()
+    if file.is_absolute():
+        return file
+    return reader.source.path.parent / file
 
 
 def _string_list(reader: _Reader, name: str, allowed: str) -> tuple[str, ...]:

@@ -145,6 +145,9 @@ class DeviceClient:
         self.stray_lines = 0
         """Lines :meth:`read_pending` found that no call was waiting for (dropped)."""
         self._replace_acknowledged = False
+        self._answer_owed = False
+        """An answer did not come in time: it may still come, so the next exchange first
+        brings the link back in step (:meth:`_realign`)."""
 
     @classmethod
     def open(cls, url: str, *, timeout_s: float = 1.0, name: str = "") -> DeviceClient:
@@ -276,8 +279,42 @@ class DeviceClient:
             DeviceTimeoutError: no answer in time (names the device and the call).
             UnexpectedReplyError: an answer that belongs to no query of this call.
         """
+        self._realign()
         self.send(number, *args)
         return self._await_answer(number)
+
+    def _realign(self) -> None:
+        """After an answer that did not come in time, make sure it cannot be taken for the
+        answer to a later call: send a marker (the debug flag of call :data:`RESYNC_CALL`
+        set to a random value, queried, set back to 0) and read up to its answer, skipping
+        the late answers before it. Diagnostics and alarm lines on the way are taken as
+        always (unlike :meth:`resynchronise`, nothing is discarded unread).
+
+        Raises:
+            DeviceTimeoutError: the marker did not come back either (the link stays owed).
+        """
+        if not self._answer_owed:
+            return
+        value = _MARKERS.randint(1, 255)
+        self.transport.write(encode_call(C.SET_DEBUG_FLAG, RESYNC_CALL, value)
+                             + encode_call(C.SET_DEBUG_FLAG, RESYNC_CALL, -1)
+                             + encode_call(C.SET_DEBUG_FLAG, RESYNC_CALL, 0))
+        while True:
+            try:
+                reply = self.next_reply()
+            except UnexpectedReplyError:
+                self.stray_lines += 1
+                continue
+            except DeviceTimeoutError as error:
+                raise DeviceTimeoutError(
+                    f"{self.name}: no answer within {self.timeout_s:g} s, twice: the link is"
+                    " stalled or the device is gone", device=self.name,
+                    call=C.SET_DEBUG_FLAG) from error
+            if (reply.kind is ReplyKind.QUERY and reply.call == C.SET_DEBUG_FLAG
+                    and reply.values == (RESYNC_CALL, value)):
+                self._answer_owed = False
+                return
+            self.stray_lines += 1
 
     def _await_answer(self, number: int, *, after_error: bool = False) -> Reply:
         """Read up to the answer of call ``number``.
@@ -291,6 +328,7 @@ class DeviceClient:
             try:
                 reply = self.next_reply()
             except DeviceTimeoutError as error:
+                self._answer_owed = True
                 raise DeviceTimeoutError(
                     f"{self.name}: no answer to call {number} within {self.timeout_s:g} s",
                     device=self.name, call=number,
@@ -338,6 +376,7 @@ class DeviceClient:
         """Send ``line`` with a queue-status query behind it, and read up to its answer: an
         ``ERR`` or a refusal the line caused is raised here, once the link is in step again.
         """
+        self._realign()
         self.transport.write(line + encode_call(C.MOTION_QUEUE, -1))
         return self._await_answer(C.MOTION_QUEUE, after_error=True)
 
@@ -414,6 +453,7 @@ class DeviceClient:
                     " skipped)", device=self.name, call=C.SET_DEBUG_FLAG,
                 )
             if line.strip() == marker:
+                self._answer_owed = False
                 return skipped
             skipped += 1
             if on_skipped is not None:
@@ -702,6 +742,7 @@ class DeviceClient:
         Raises:
             QueueFullError: the device answered ``E25``.
         """
+        self._realign()
         self.transport.write(
             encode_call(C.APPEND_KEYFRAME, keyframe.duration_ms, keyframe.position_counts,
                         keyframe.tangent_in, keyframe.tangent_out) + encode_call(C.CURVE_BUFFER, -1)

@@ -9,12 +9,15 @@ the interpreter consults (:data:`RULES`):
   (a line of axis words alone is a rapid), a program needs no M2/M30/``%``, and lines
   that start with ``$`` are controller commands: ``$H`` (and ``$HX``, ``$HY``, ... of one
   axis) homes, every other one is refused by name. ``G4 P`` is seconds, as LinuxCNC's.
+  What grbl lacks is refused by name: canned cycles, ``G43`` from a tool table (grbl has
+  ``G43.1``), ``G59.1``-``G59.3``, ``G92.2`` and ``G92.3``.
 - ``marlin``: a 3D printer's file from a slicer. ``G4 P`` is milliseconds and ``G4 S``
   seconds; ``G28`` homes the axes it names (all of them when it names none); ``E`` words
   (the extruder) and the temperature, fan, progress and printer-setting M codes are
   accepted and reported as ignored with their meaning; a program needs no end; ``M117``
   and ``M118`` carry a message to the end of the line. Codes that would change the
-  geometry (bed levelling, firmware retraction's Z hop) stay refused.
+  geometry (bed levelling, firmware retraction's Z hop, its G30 probe) stay refused, and
+  so do the codes Marlin lacks (canned cycles, tool length offsets, G28.1 and G30.1).
 
 Homing inside a program (grbl's ``$H``, Marlin's ``G28``) is, on a machine the run has
 homed, a move at rapid to where homing leaves each axis, in the machine's homing order.
@@ -144,6 +147,13 @@ RULES: dict[Dialect, DialectRules] = {
             56: MCode("parking motion override control", "P"),
         },
         m_removed=_LINUXCNC_ONLY_M_CODES,
+        g_refused={
+            **dict.fromkeys((730, 810, 820, 830, 850, 890), "grbl has no canned cycles"),
+            430: "grbl has no tool table: its tool length offset is G43.1 (give it) and G49",
+            **dict.fromkeys((591, 592, 593), "grbl's coordinate systems are G54-G59"),
+            922: "grbl has no G92.2 (G92.1 clears the offset)",
+            923: "grbl has no G92.3",
+        },
         letter_meanings={"S": "spindle speed or laser power"},
     ),
     Dialect.MARLIN: DialectRules(
@@ -160,6 +170,10 @@ RULES: dict[Dialect, DialectRules] = {
             100: "firmware retraction (G10) is not supported: it may lift Z",
             110: "firmware retraction (G11) is not supported: it may lower Z",
             290: "bed levelling (G29) changes the geometry and is not supported",
+            300: "Marlin's G30 probes the bed at one point: not supported (no probe)",
+            **dict.fromkeys((281, 301), "Marlin keeps no stored positions (its G28 homes)"),
+            **dict.fromkeys((430, 431), "Marlin has no tool length offsets"),
+            **dict.fromkeys((730, 810, 820, 830, 850, 890), "Marlin has no canned cycles"),
         },
         letters={"E": "extruder position (no extruder)"},
         letter_meanings={"S": "spindle speed, laser power or the parameter of its M code"},

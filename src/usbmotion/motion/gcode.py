@@ -5,13 +5,22 @@ interpreted here block by block into :data:`~usbmotion.motion.moves.Move` values
 at absolute machine positions. LinuxCNC's interpreter is the reference; the conformance
 cases in ``shared/gcode-conformance`` are run by the tests.
 
-Start state (LinuxCNC's): G21 (mm), G17, G90, G91.1, G94, feed 0, no motion mode (so an
-axis word before any G0-G3 is an error), position 0, no offsets, G28/G30 positions 0
-(there is no parameter file).
+Start state (LinuxCNC's): G21 (mm), G17, G90, G91.1, G94, G98, feed 0, no motion mode (so
+an axis word before any G0-G3 is an error), no tool length offset, tool 0 in the spindle,
+and the work offsets and G28/G30 positions the caller passes (a parameter file's, by
+default all zero in G54).
 
-Supported: G0 G1 G2 G3 (I/J/K or R; P turns; helices), G4 (P seconds), G17 G18 G19,
-G20 G21, G90 G91, G90.1 G91.1, G28 G28.1 G30 G30.1, G80, G92 G92.1 G92.2 G92.3, F, N,
-comments, M2 M30, ``%`` delimiters, block delete, RepRap checksums.
+Supported: G0 G1 G2 G3 (I/J/K or R; P turns; helices), G4 (P seconds), G10 L2 (P0-P9, R
+rotation) and G10 L20, G17 G18 G19, G20 G21, G28 G28.1 G30 G30.1, G43 (H, or the spindle
+tool) G43.1 G49, G53, G54-G59.3, G73 G81 G82 G83 G85 G89 (R Q P L) with G98/G99, G80, G90
+G91, G90.1 G91.1, G92 G92.1 G92.2 G92.3, F, T, M6, M61, N, comments, M2 M30, ``%``
+delimiters, block delete, RepRap checksums. Moves come out at machine positions::
+
+    machine = rotate_XY(program + G92, R of the system) + G5x offset + tool offset
+
+(:mod:`usbmotion.motion.offsets`); canned cycles are expanded into G0/G1 moves and dwells
+(:mod:`usbmotion.motion.cycles`); tools come from a LinuxCNC tool table
+(:mod:`usbmotion.motion.tools`).
 
 Decisions worth knowing, each LinuxCNC's:
 
@@ -27,16 +36,20 @@ Decisions worth knowing, each LinuxCNC's:
   keeps the programmed centre (the path is a slight spiral).
 - R-format arcs: a radius shorter than half the chord by more than 0.00005 inch
   (0.00127 mm) is refused; negative R takes the arc over 180 degrees.
-- G92 values are always absolute; G28/G30 go first to the intermediate point given by the
-  axis words (absolute or incremental per G90/G91), then, for the named axes only (all of
-  them when none is named), to the stored position.
+- G92 and G10 values are always absolute; G28/G30 go first to the intermediate point given
+  by the axis words (absolute or incremental per G90/G91), then, for the named axes only
+  (all of them when none is named), to the stored machine position.
+- An offset change (G10 on the active system, G92, G43, G49, G54-G59.3) does not move the
+  machine: the axes the next move does not name stay where they are.
+- M2, M30 and a closing ``%`` make G54 the active system again (``GCodeProgram.offsets``).
+- Arcs in a system rotated by ``G10 L2 R`` are supported in G17 only.
 - Two words of the same letter, two G codes of one modal group, or words that nothing in
   the block uses (I, J, K, R, P, Q) are errors.
 - A program must end with M2, M30 or ``%`` (when it opened with ``%``); the end of the
   text without one is an error, and nothing after the end is read.
 
-Words that do not move the machine (S, T, D, H, M0 M1 M3-M9 M48-M53 M60 M61, G40 G49 G54
-G61 G61.1 G64 G94 G96 G97 G98 G99 and their P/Q) are accepted and listed in
+Words that do not move the machine (S, D, H without G43, M0 M1 M3-M5 M7-M9 M48-M53 M60,
+G40 G61 G61.1 G64 G94 G96 G97 and their P/Q) are accepted and listed in
 :attr:`GCodeProgram.ignored`. Words that would change the geometry and are not supported
 raise :class:`~usbmotion.errors.UnsupportedGCodeError` naming the word and the reason.
 
@@ -55,6 +68,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from usbmotion.errors import GCodeError, UnsupportedGCodeError
+from usbmotion.motion.cycles import CYCLE_NAMES, DWELL, RAPID, Cycle, expand_cycle
 from usbmotion.motion.dialects import GRBL_COMMANDS, RULES, Dialect, DialectRules
 from usbmotion.motion.gcode_lexer import Block, Word, parse_blocks, tokenize, word_columns
 from usbmotion.motion.moves import (
@@ -68,6 +82,8 @@ from usbmotion.motion.moves import (
     Point,
     Rapid,
 )
+from usbmotion.motion.offsets import COORDINATE_SYSTEMS, NO_OFFSETS, Frame, WorkOffsets
+from usbmotion.motion.tools import NO_TOOLS, ToolTable
 
 __all__ = [
     "Block",
@@ -75,8 +91,10 @@ __all__ = [
     "GCodeProgram",
     "IgnoredWord",
     "MachineAxes",
+    "ToolChange",
     "Word",
     "distinct_ignored",
+    "interpret_setting",
     "interpret_until_error",
     "load_gcode",
     "move_record",
@@ -95,12 +113,14 @@ _RADIUS_TOL_MM = 0.00005 * MM_PER_INCH  # RADIUS_TOLERANCE_INCH, in mm
 _TINY = 1e-12  # arc_data_r: a chord this close to the diameter is a semicircle
 _LARGEST = 1e9  # magnitude limit of any number, in program units
 _MAX_M_CODES = 4
+_MOST_CYCLE_PASSES = 100_000  # holes x pecks of one canned cycle block
 
 # --- the code tables ----------------------------------------------------------------------
 # G codes are keyed by ten times their number (G90.1 -> 901), as LinuxCNC does.
 
 _MOTION, _DWELL, _PLANE, _UNITS, _DISTANCE, _ARC_DISTANCE, _HOME, _HOME_SET, _OFFSET = range(9)
 _IGNORED, _UNSUPPORTED = 9, 10
+_SET_OFFSETS, _TOOL_LENGTH, _MACHINE, _SYSTEM, _RETRACT = 11, 12, 13, 14, 15
 
 # code -> (modal group, kind, meaning or reason)
 _G_CODES: dict[int, tuple[int, int, str]] = {
@@ -109,6 +129,12 @@ _G_CODES: dict[int, tuple[int, int, str]] = {
     20: (1, _MOTION, "clockwise arc"),
     30: (1, _MOTION, "counter-clockwise arc"),
     800: (1, _MOTION, "cancel motion mode"),
+    730: (1, _MOTION, "peck drilling cycle with chip breaking"),
+    810: (1, _MOTION, "drilling cycle"),
+    820: (1, _MOTION, "drilling cycle with dwell"),
+    830: (1, _MOTION, "peck drilling cycle"),
+    850: (1, _MOTION, "boring cycle, feed out"),
+    890: (1, _MOTION, "boring cycle, dwell, feed out"),
     40: (0, _DWELL, "dwell"),
     170: (2, _PLANE, "XY plane"),
     180: (2, _PLANE, "XZ plane"),
@@ -127,17 +153,23 @@ _G_CODES: dict[int, tuple[int, int, str]] = {
     921: (0, _OFFSET, "reset the G92 offset and its stored value"),
     922: (0, _OFFSET, "reset the G92 offset"),
     923: (0, _OFFSET, "restore the stored G92 offset"),
+    100: (0, _SET_OFFSETS, "set a coordinate system's offset"),
+    530: (0, _MACHINE, "move in machine coordinates"),
+    430: (8, _TOOL_LENGTH, "tool length offset from the tool table"),
+    431: (8, _TOOL_LENGTH, "tool length offset given by the axis words"),
+    490: (8, _TOOL_LENGTH, "cancel the tool length offset"),
+    **{code: (12, _SYSTEM, f"coordinate system {name}")
+       for code, name in zip((540, 550, 560, 570, 580, 590, 591, 592, 593), COORDINATE_SYSTEMS,
+                             strict=True)},
+    980: (10, _RETRACT, "canned cycles retract to the initial level"),
+    990: (10, _RETRACT, "canned cycles retract to R"),
     400: (7, _IGNORED, "cutter radius compensation off (it is never on)"),
-    490: (8, _IGNORED, "tool length offset cancel (no offset is ever applied)"),
-    540: (12, _IGNORED, "coordinate system 1, the only one, with zero offset"),
     610: (13, _IGNORED, "exact path mode (path blending belongs to the planner)"),
     611: (13, _IGNORED, "exact stop mode (path blending belongs to the planner)"),
     640: (13, _IGNORED, "path blending tolerance (path blending belongs to the planner)"),
     940: (5, _IGNORED, "units-per-minute feed mode, the only one"),
     960: (14, _IGNORED, "constant surface speed (spindle)"),
     970: (14, _IGNORED, "spindle RPM mode"),
-    980: (10, _IGNORED, "canned cycle retract mode (no canned cycles)"),
-    990: (10, _IGNORED, "canned cycle retract mode (no canned cycles)"),
 }
 _G_UNSUPPORTED: dict[int, str] = {
     50: "cubic spline moves are not supported",
@@ -146,7 +178,6 @@ _G_UNSUPPORTED: dict[int, str] = {
     53: "NURBS moves are not supported",
     70: "lathe diameter mode is not supported",
     80: "lathe radius mode is not supported",
-    100: "setting coordinate systems and tool data (G10) is not supported",
     171: "the UV plane is not supported",
     181: "the WU plane is not supported",
     191: "the VW plane is not supported",
@@ -160,30 +191,25 @@ _G_UNSUPPORTED: dict[int, str] = {
     411: "cutter radius compensation is not supported",
     420: "cutter radius compensation is not supported",
     421: "cutter radius compensation is not supported",
-    430: "tool length offsets are not supported",
-    431: "tool length offsets are not supported",
-    432: "tool length offsets are not supported",
+    432: "adding to the tool length offset (G43.2) is not supported",
     520: "local coordinate offsets are not supported",
-    530: "moves in machine coordinates are not supported",
     700: "lathe finishing cycles are not supported",
     710: "lathe roughing cycles are not supported",
     711: "lathe roughing cycles are not supported",
     720: "lathe roughing cycles are not supported",
     721: "lathe roughing cycles are not supported",
-    730: "canned cycles are not supported",
-    740: "canned cycles are not supported",
+    740: "left-hand tapping cycles are not supported",
     760: "threading cycles are not supported",
     930: "inverse time feed is not supported",
     950: "feed per revolution is not supported",
 }
 _G_UNSUPPORTED |= dict.fromkeys(
-    (550, 560, 570, 580, 590, 591, 592, 593),
-    "coordinate systems other than G54 are not supported",
+    (840, 860, 870, 880), "tapping and G86-G88 boring cycles are not supported"
 )
-_G_UNSUPPORTED |= dict.fromkeys(range(810, 900, 10), "canned cycles are not supported")
 
 _M_END = {2: "M2", 30: "M30"}
 _DIALECT_M_GROUP = 1000  # a dialect's own M code is the only one of group 1000 + code
+_M_ACTING = (2, 30, 6, 61)  # M codes that are not merely listed as ignored
 # code -> (modal group, meaning)
 _M_CODES: dict[int, tuple[int, str]] = {
     0: (4, "program pause"),
@@ -219,15 +245,15 @@ _LETTERS_UNSUPPORTED = {
     "B": "the rotary axis B is not supported",
     "C": "the rotary axis C is not supported",
     "E": "E words (an extruder axis, G76 or M66) are not supported",
-    "L": "L words (G10, canned cycles, M66) are not supported",
 }
 _NOT_NEGATIVE = {"F": "feed rate", "S": "spindle speed", "T": "tool number"}
 _LETTERS_IGNORED = {
     "S": "spindle speed",
-    "T": "tool select",
     "D": "cutter compensation index (no cutter compensation)",
-    "H": "tool length offset index (no tool length offsets)",
 }
+_H_WITHOUT_G43 = "tool length offset index with no G43 to use it"
+_G10_NAMES = {2: "G10 L2", 20: "G10 L20"}
+_G10_UNSUPPORTED = "only G10 L2 and G10 L20 (coordinate system offsets) are supported"
 
 
 def _spellings(codes: Iterable[int]) -> dict[str, int]:
@@ -311,16 +337,32 @@ def distinct_ignored(words: Iterable[IgnoredWord]) -> list[tuple[IgnoredWord, in
 
 
 @dataclass(frozen=True, slots=True)
+class ToolChange:
+    """An ``M6`` (or ``M61``): tool ``tool`` goes in the spindle at ``line``.
+
+    ``pocket`` is its pocket in the tool table (0 when there is no table or no tool);
+    ``manual`` is false for M61, which only says which tool is in the spindle.
+    """
+
+    line: int
+    tool: int
+    pocket: int
+    manual: bool
+
+
+@dataclass(frozen=True, slots=True)
 class GCodeProgram:
     """An interpreted G-code program.
 
-    ``moves`` are in program order, lengths in mm at absolute machine positions.
-    ``ignored`` lists the accepted words that do not move the machine. ``ended_by`` is
-    ``"M2"``, ``"M30"`` or ``"%"``, and ``end_line`` its line; in a dialect that needs no
-    end, a program that has none has ``ended_by == "end of text"`` and its last line; a
-    program returned with an error by :func:`interpret_until_error` has ``ended_by == ""``
-    and ``end_line == 0``. ``axes`` are the letters of the moves' coordinates, ``dialect``
-    the dialect it was read in.
+    ``moves`` are in program order, lengths in mm at absolute machine positions (work, G92
+    and tool offsets applied). ``ignored`` lists the accepted words that do not move the
+    machine. ``ended_by`` is ``"M2"``, ``"M30"`` or ``"%"``, and ``end_line`` its line; in a
+    dialect that needs no end, a program that has none has ``ended_by == "end of text"`` and
+    its last line; a program returned with an error by :func:`interpret_until_error` has
+    ``ended_by == ""`` and ``end_line == 0``. ``axes`` are the letters of the moves'
+    coordinates, ``dialect`` the dialect it was read in. ``offsets`` are the work offsets
+    and stored positions as the program leaves them (what a parameter file keeps for the
+    next run); ``tool_changes`` the tool changes in order.
     """
 
     moves: tuple[Move, ...]
@@ -330,6 +372,8 @@ class GCodeProgram:
     ended_by: str
     axes: str = DEFAULT_AXES
     dialect: Dialect = Dialect.LINUXCNC
+    offsets: WorkOffsets = NO_OFFSETS
+    tool_changes: tuple[ToolChange, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -372,7 +416,8 @@ DEFAULT_MACHINE = MachineAxes()
 
 def parse_gcode(text: str, *, file: str = "<string>", start: Point | None = None,
                 machine: MachineAxes = DEFAULT_MACHINE,
-                dialect: Dialect = Dialect.LINUXCNC) -> GCodeProgram:
+                dialect: Dialect = Dialect.LINUXCNC, tools: ToolTable = NO_TOOLS,
+                offsets: WorkOffsets | None = None) -> GCodeProgram:
     """Interpret a G-code program into moves.
 
     Parameters:
@@ -384,6 +429,10 @@ def parse_gcode(text: str, *, file: str = "<string>", start: Point | None = None
             position.
         machine: the axes (X, Y, Z by default), and where homing leaves them.
         dialect: whose reading of G-code the program follows (LinuxCNC's by default).
+        tools: the tool table (default: none, every tool of zero length).
+        offsets: the work offsets and stored positions the program starts with (default:
+            all zero, G54; a parameter file's offsets:
+            :func:`~usbmotion.motion.offsets.read_parameter_file`).
 
     Raises:
         UnsupportedGCodeError: a word that would change the geometry is not supported.
@@ -391,7 +440,7 @@ def parse_gcode(text: str, *, file: str = "<string>", start: Point | None = None
             program end, ...); ``file``, ``line``, ``column`` and ``word`` locate it.
     """
     program, error = interpret_until_error(text, file=file, start=start, machine=machine,
-                                           dialect=dialect)
+                                           dialect=dialect, tools=tools, offsets=offsets)
     if error is not None:
         raise error
     return program
@@ -400,22 +449,19 @@ def parse_gcode(text: str, *, file: str = "<string>", start: Point | None = None
 def interpret_until_error(
     text: str, *, file: str = "<string>", start: Point | None = None,
     machine: MachineAxes = DEFAULT_MACHINE, dialect: Dialect = Dialect.LINUXCNC,
+    tools: ToolTable = NO_TOOLS, offsets: WorkOffsets | None = None,
 ) -> tuple[GCodeProgram, GCodeError | None]:
     """Interpret a G-code program, keeping the moves made before an error.
 
     Returns the program (complete, or up to the block before the error) and the error,
     or ``None`` when the program is valid. Never raises for bad G-code. ``start``,
-    ``machine`` and ``dialect`` are as :func:`parse_gcode`'s.
+    ``machine``, ``dialect``, ``tools`` and ``offsets`` are as :func:`parse_gcode`'s.
 
     Raises:
         ValueError: ``start`` has not one coordinate per axis of ``machine.axes``.
     """
-    interpreter = _Interpreter(file, machine, RULES[dialect])
-    if start is not None:
-        if len(start) != len(machine.axes):
-            raise ValueError(f"start {start!r} needs one coordinate per axis of"
-                             f" {machine.axes!r}")
-        interpreter.position = [float(value) for value in start]
+    interpreter = _Interpreter(file, machine, RULES[dialect], tools, offsets or NO_OFFSETS)
+    interpreter.start_at(start)
     rules = interpreter.rules
     error: GCodeError | None = None
     try:
@@ -424,6 +470,37 @@ def interpret_until_error(
     except GCodeError as exc:
         error = exc
     return interpreter.result(), error
+
+
+def interpret_setting(
+    text: str, *, file: str = "<console>", start: Point | None = None,
+    machine: MachineAxes = DEFAULT_MACHINE, dialect: Dialect = Dialect.LINUXCNC,
+    tools: ToolTable = NO_TOOLS, offsets: WorkOffsets | None = None,
+) -> WorkOffsets:
+    """Carry out lines that set offsets without moving (``G10 L20 P1 X0 Y0``, ``G10 L2``,
+    ``G92``, ``G28.1``), as a console's command line does, with the machine at ``start``
+    (one coordinate per axis of ``machine.axes``); returns the work offsets they leave.
+
+    Raises:
+        GCodeError: a line is invalid, or it would move the machine or end a program (the
+            message says what is allowed).
+        ValueError: ``start`` has not one coordinate per axis of ``machine.axes``.
+    """
+    interpreter = _Interpreter(file, machine, RULES[dialect], tools, offsets or NO_OFFSETS)
+    interpreter.start_at(start)
+    rules = interpreter.rules
+    for block in tokenize(text, file=file, commands=rules.controller_commands,
+                          messages=rules.message_codes, flags=rules.flags):
+        if block.delimiter:
+            continue
+        interpreter.execute(block)
+        if interpreter.moves or interpreter.ended_by:
+            raise GCodeError(
+                "this line would move the machine or end a program; allowed here: lines that "
+                "set offsets (G10 L2, G10 L20, G92, G92.1-G92.3, G28.1, G30.1)",
+                file=file, line=block.line, column=1,
+            )
+    return interpreter.frame.snapshot()
 
 
 def read_gcode_text(path: str | os.PathLike[str]) -> str:
@@ -440,8 +517,8 @@ def read_gcode_text(path: str | os.PathLike[str]) -> str:
 
 
 def load_gcode(path: str | os.PathLike[str], *, start: Point | None = None,
-               machine: MachineAxes = DEFAULT_MACHINE,
-               dialect: Dialect = Dialect.LINUXCNC) -> GCodeProgram:
+               machine: MachineAxes = DEFAULT_MACHINE, dialect: Dialect = Dialect.LINUXCNC,
+               tools: ToolTable = NO_TOOLS, offsets: WorkOffsets | None = None) -> GCodeProgram:
     """Read and interpret a G-code file (see :func:`parse_gcode`).
 
     Raises:
@@ -449,7 +526,7 @@ def load_gcode(path: str | os.PathLike[str], *, start: Point | None = None,
         GCodeError: as :func:`parse_gcode`, with ``file`` set to ``path``.
     """
     return parse_gcode(read_gcode_text(path), file=os.fspath(path), start=start,
-                       machine=machine, dialect=dialect)
+                       machine=machine, dialect=dialect, tools=tools, offsets=offsets)
 
 
 def move_record(move: Move, *, axes: str = DEFAULT_AXES) -> dict[str, object]:
@@ -510,12 +587,13 @@ class _Interpreter:
         "arc_incremental",
         "axes",
         "axis_set",
+        "cycle",
         "end_line",
         "ended_by",
         "feed_mm_min",
         "file",
+        "frame",
         "g_codes",
-        "homes",
         "ignored",
         "ignored_letters",
         "incremental",
@@ -528,24 +606,29 @@ class _Interpreter:
         "planes",
         "position",
         "refused_letters",
+        "retract_to_r",
         "rules",
-        "saved_offset",
         "scale",
+        "tool_changes",
+        "tools",
     )
 
     def __init__(self, file: str, machine: MachineAxes = DEFAULT_MACHINE,
-                 rules: DialectRules = RULES[Dialect.LINUXCNC]) -> None:
+                 rules: DialectRules = RULES[Dialect.LINUXCNC], tools: ToolTable = NO_TOOLS,
+                 offsets: WorkOffsets = NO_OFFSETS) -> None:
         self.file = file
         self.machine = machine
         self.rules = rules
         axes = machine.axes
         self.axes = axes
         self.axis_set = frozenset(axes)
-        zeros = (0.0,) * len(axes)
-        self.position = list(zeros)  # machine, mm
-        self.offset = list(zeros)  # G92, mm
-        self.saved_offset = list(zeros)  # LinuxCNC parameters 5211-5216
-        self.homes = {280: zeros, 300: zeros}  # machine, mm
+        self.position = [0.0] * len(axes)  # machine, mm
+        self.frame = Frame(offsets, axes)
+        self.offset = self.frame.translation  # G5x + G92 + tool, mm (with no rotation)
+        self.tools = _ToolState(tools)
+        self.tool_changes: list[ToolChange] = []
+        self.cycle = _CycleSeries()
+        self.retract_to_r = False  # G99; G98 (retract to the initial level) at the start
         self.scale = 1.0  # mm per program unit
         self.incremental = False
         self.arc_incremental = True
@@ -569,7 +652,34 @@ class _Interpreter:
             ended_by=self.ended_by,
             axes=self.axes,
             dialect=self.rules.dialect,
+            offsets=self.frame.snapshot(),
+            tool_changes=tuple(self.tool_changes),
         )
+
+    def start_at(self, start: Point | None) -> None:
+        """Stand the machine at ``start`` (one coordinate per axis; zeros when ``None``).
+
+        Raises:
+            ValueError: ``start`` has not one coordinate per axis.
+        """
+        if start is None:
+            return
+        if len(start) != len(self.axes):
+            raise ValueError(f"start {start!r} needs one coordinate per axis of"
+                             f" {self.axes!r}")
+        self.position = [float(value) for value in start]
+
+    def reframe(self) -> None:
+        """Take up a change of offsets: the machine stays where it is."""
+        self.frame.update()
+        self.offset = self.frame.translation
+
+    def end_program(self, ended_by: str, line: int) -> None:
+        """M2, M30 or '%': as LinuxCNC, the coordinate system goes back to G54."""
+        self.ended_by = ended_by
+        self.end_line = line
+        self.frame.system = 0
+        self.reframe()
 
     def run(self, blocks: Iterable[Block], text: str) -> None:
         percent = False
@@ -581,8 +691,7 @@ class _Interpreter:
                     first = False
                     continue
                 if percent:
-                    self.ended_by = "%"
-                    self.end_line = block.line
+                    self.end_program("%", block.line)
                     return
                 raise GCodeError(
                     "'%' ends a program only when the program also opens with a '%' line",
@@ -615,7 +724,7 @@ class _Interpreter:
         line that has no motion G code), or its first word.
         """
         if index < 0:
-            coveted = self.axes + "IJK"
+            coveted = self.axes + "IJKR"
             index = next((i for i, c in enumerate(block.letters) if c in coveted), 0)
         column = word_columns(block)[index]
         word = block.letters[index] + block.numbers[index]
@@ -692,7 +801,7 @@ class _Interpreter:
                     raise self.error(block, index, f"more than {_MAX_M_CODES} M codes on one line")
                 m_codes[group] = code
                 m_where[group] = index
-                if code not in _M_END:
+                if code not in _M_ACTING:
                     ignored.append((index, meaning))
             elif letter == "N":
                 continue
@@ -736,10 +845,15 @@ class _Interpreter:
         # Act, in LinuxCNC's order of execution.
         if "F" in params:
             self.feed_mm_min = params["F"] * self.scale
+        if "T" in params or 6 in m_codes:
+            self.change_tool(block, params, where, m_codes, m_where)
         if len(g_codes) > (1 in g_codes):  # G codes besides the motion one
-            self.set_modes(block, g_codes, params)
+            self.set_modes(block, g_codes, g_where, params, where)
         if motion != -1:
-            self.move(block, motion, params, where, g_where.get(1, -1))
+            if g_codes.get(0) == 530:
+                self.machine_move(block, motion, params)
+            else:
+                self.move(block, motion, params, where, g_where.get(1, -1))
         if ignored:
             columns = word_columns(block)
             self.ignored.extend(
@@ -748,10 +862,10 @@ class _Interpreter:
             )
         stop = m_codes.get(4)
         if stop in _M_END:
-            self.ended_by = _M_END[stop]
-            self.end_line = block.line
+            self.end_program(_M_END[stop], block.line)
 
-    def set_modes(self, block: Block, g_codes: dict[int, int], params: dict[str, float]) -> None:
+    def set_modes(self, block: Block, g_codes: dict[int, int], g_where: dict[int, int],
+                  params: dict[str, float], where: dict[str, int]) -> None:
         """Apply the block's G codes other than motion, in LinuxCNC's order."""
         if g_codes.get(0) == 40:
             self.dwell(block, params)
@@ -761,14 +875,26 @@ class _Interpreter:
         units = g_codes.get(6)
         if units is not None:
             self.scale = MM_PER_INCH if units == 200 else 1.0
+        tool_length = g_codes.get(8)
+        if tool_length is not None:
+            self.tool_length(block, tool_length, g_where[8], params, where)
+        system = g_codes.get(12)
+        if system is not None:
+            self.frame.system = _SYSTEM_INDEX[system]
+            self.reframe()
         distance = g_codes.get(3)
         if distance is not None:
             self.incremental = distance == 910
         arc_distance = g_codes.get(4)
         if arc_distance is not None:
             self.arc_incremental = arc_distance == 911
+        retract = g_codes.get(10)
+        if retract is not None:
+            self.retract_to_r = retract == 990
         group0 = g_codes.get(0)
-        if group0 is not None and group0 != 40:
+        if group0 == 100:
+            self.set_offsets(block, g_where[0], params, where)
+        elif group0 is not None and group0 not in (40, 530):
             self.non_modal(block, group0, params)
 
     def g_code(self, block: Block, index: int) -> int:
@@ -815,7 +941,9 @@ class _Interpreter:
         group0 = g_codes.get(0, -1)
         motion_word = g_codes.get(1, -1)
         has_axis = not self.axis_set.isdisjoint(params)
-        covets_axes = group0 in (280, 300, 920)
+        tool_length = g_codes.get(8, -1)
+        covets_axes = group0 in (280, 300, 920, 100) or tool_length == 431
+        coveter = group0 if group0 in (280, 300, 920, 100) else tool_length
         if motion_word != -1:
             if motion_word == 800:
                 if has_axis and not covets_axes:
@@ -828,7 +956,7 @@ class _Interpreter:
                 raise self.error(
                     block,
                     g_where[1],
-                    f"G{_code_text(motion_word)} and G{_code_text(group0)} both use the "
+                    f"G{_code_text(motion_word)} and G{_code_text(coveter)} both use the "
                     "axis words; put them on separate lines",
                 )
             motion = motion_word
@@ -853,16 +981,26 @@ class _Interpreter:
                 "E" in params and "E" in self.ignored_letters):
             raise self.error(block, g_where[0], "G92 needs at least one axis word "
                              f"({', '.join(self.axes)})")
+        if group0 == 530:
+            self.check_machine_move(block, g_where[0], motion, g_codes)
 
         arc = motion in (20, 30)
+        cycle = motion in CYCLE_NAMES
         if group0 == 40:
-            self.check_dwell(block, params, where, g_where[0], arc, ignored)
+            self.check_dwell(block, params, where, g_where[0], motion, ignored)
         if not arc:
-            for letter in "IJKR":
+            for letter in "IJK":
                 if letter in params:
                     raise self.error(
                         block, where[letter], f"{letter} word with no G2 or G3 to use it"
                     )
+            if "R" in params and not cycle and group0 != 100:
+                raise self.error(
+                    block, where["R"],
+                    "R word with no G2, G3, canned cycle or G10 L2 to use it",
+                )
+        if "L" in params and not cycle and group0 != 100:
+            raise self.error(block, where["L"], "L word with no G10 or canned cycle to use it")
         path_control = g_codes.get(13)
         override = m_codes.get(9)
         if "P" in params:
@@ -876,30 +1014,39 @@ class _Interpreter:
                         f"P{block.numbers[index]} with G2/G3 is the number of turns: a whole "
                         "number, 1 or more",
                     )
+            elif motion in (820, 890) or group0 == 100:
+                pass
             elif group0 != 40:
                 if path_control != 640 and override not in (50, 51, 52, 53):
                     raise self.error(
-                        block, index, "P word with no G2, G3, G4, G64 or M50-M53 to use it"
+                        block, index,
+                        "P word with no G2, G3, G4, G10, G82, G89, G64 or M50-M53 to use it",
                     )
                 ignored.append((index, "parameter of an ignored code (G64, M50-M53)"))
-        if "Q" in params:
+        if "Q" in params and motion not in (730, 830):
             if path_control != 640 and m_codes.get(6) != 61:
-                raise self.error(block, where["Q"], "Q word with no G64 or M61 to use it")
-            ignored.append((where["Q"], "parameter of an ignored code (G64, M61)"))
-        if m_codes.get(6) == 61 and "Q" not in params:
-            raise self.error(block, m_where[6], "M61 needs Q, the tool number")
+                raise self.error(
+                    block, where["Q"], "Q word with no G73, G83, G64 or M61 to use it"
+                )
+            if m_codes.get(6) != 61:
+                ignored.append((where["Q"], "parameter of an ignored code (G64)"))
+        if m_codes.get(6) == 61:
+            if "Q" not in params:
+                raise self.error(block, m_where[6], "M61 needs Q, the tool number")
+            self.check_tool_number(block, where["Q"], "M61 Q", params["Q"])
+        if "H" in params and tool_length != 430:
+            ignored.append((where["H"], _H_WITHOUT_G43))
         if g_codes.get(14) == 960 and "S" not in params:
             raise self.error(block, g_where[14], "G96 needs S, the surface speed")
-        if "T" in params and params["T"] != round(params["T"]):
-            raise self.error(
-                block, where["T"], f"T{block.numbers[where['T']]}: a tool number is whole"
-            )
+        if "T" in params:
+            self.check_tool_number(block, where["T"], "T", params["T"])
         return motion
 
     def check_dwell(self, block: Block, params: dict[str, float], where: dict[str, int],
-                    g4: int, arc: bool, ignored: list[tuple[int, str]]) -> None:
-        """Refuse a G4 without its time, or with a negative one; in a dialect where
-        ``G4 S`` is seconds, its S is the dwell's and not an ignored word."""
+                    g4: int, motion: int, ignored: list[tuple[int, str]]) -> None:
+        """Refuse a G4 without its time, with a negative one, or beside a motion that uses P
+        too (an arc's turns, a cycle's dwell); in a dialect where ``G4 S`` is seconds, its S
+        is the dwell's and not an ignored word."""
         rules = self.rules
         unit = "seconds" if rules.dwell_p_seconds == 1.0 else "milliseconds"
         letters = "PS" if rules.dwell_s else "P"
@@ -910,8 +1057,11 @@ class _Interpreter:
             raise self.error(block, g4, f"G4 needs {allowed}")
         if len(given) > 1:
             raise self.error(block, where["S"], "G4 with both P and S: give one dwell time")
-        if arc and "P" in params:
+        if motion in (20, 30) and "P" in params:
             raise self.error(block, g4, "G4 cannot share a line with G2 or G3: both use P")
+        if motion in CYCLE_NAMES:
+            raise self.error(block, g4,
+                             f"G4 cannot share a line with {CYCLE_NAMES[motion]}: both use P")
         letter = given[0]
         if params[letter] < 0.0:
             raise self.error(
@@ -927,31 +1077,199 @@ class _Interpreter:
         self.moves.append(Dwell(block.line, _point(self.position), seconds))
 
     def non_modal(self, block: Block, code: int, params: dict[str, float]) -> None:
+        frame = self.frame
         if code == 280 and self.rules.g28_homes:
             named = "".join(letter for letter in self.axes if letter in params)
             self.home(block.line, named or self.axes)
-        elif code in (280, 300):
+            return
+        if code in (280, 300):
             self.traverse(block.line, self.ends(params))
-            home = self.homes[code]
+            home = frame.g28 if code == 280 else frame.g30
             named_axes = [axis for axis, letter in enumerate(self.axes) if letter in params]
             end = list(self.position)
             for axis in named_axes or range(len(self.axes)):
                 end[axis] = home[axis]
             self.traverse(block.line, end)
-        elif code in (281, 301):
-            self.homes[code - 1] = _point(self.position)
-        elif code == 920:
-            for axis, letter in enumerate(self.axes):
-                if letter in params:
-                    self.offset[axis] = self.position[axis] - params[letter] * self.scale
-            self.saved_offset = list(self.offset)
+            return
+        if code in (281, 301):
+            if code == 281:
+                frame.g28 = list(self.position)
+            else:
+                frame.g30 = list(self.position)
+            return
+        if code == 920:
+            frame.set_g92(self.position, {
+                axis: params[letter] * self.scale
+                for axis, letter in enumerate(self.axes) if letter in params
+            })
         elif code == 921:
-            self.offset = [0.0] * len(self.axes)
-            self.saved_offset = [0.0] * len(self.axes)
+            frame.g92 = [0.0] * len(self.axes)
+            frame.g92_enabled = False
         elif code == 922:
-            self.offset = [0.0] * len(self.axes)
+            frame.g92_enabled = False
         else:  # 923
-            self.offset = list(self.saved_offset)
+            frame.g92_enabled = True
+        self.reframe()
+
+    def set_offsets(self, block: Block, index: int, params: dict[str, float],
+                    where: dict[str, int]) -> None:
+        """G10 L2 (a system's offset, and R its rotation) or G10 L20 (a system's offset
+        such that the current point reads the given values). Values are absolute."""
+        if "L" not in params:
+            raise self.error(block, index, "G10 needs L: L2 or L20 (coordinate system offsets)")
+        level = params["L"]
+        if level not in (2.0, 20.0):
+            raise self.unsupported(block, where["L"], _G10_UNSUPPORTED)
+        name = _G10_NAMES[int(level)]
+        if "P" not in params:
+            raise self.error(
+                block, index,
+                f"{name} needs P, the coordinate system: 0 (the active one) or 1 (G54) to "
+                "9 (G59.3)",
+            )
+        number = params["P"]
+        if number != round(number) or not 0 <= number <= len(COORDINATE_SYSTEMS):
+            raise self.error(
+                block, where["P"],
+                f"{name} P{block.numbers[where['P']]}: the coordinate system is 0 (the active "
+                "one) or 1 (G54) to 9 (G59.3)",
+            )
+        frame = self.frame
+        system = int(number) - 1 if number else frame.system
+        values = {axis: params[letter] * self.scale
+                  for axis, letter in enumerate(self.axes) if letter in params}
+        if level == 2.0:
+            offset = frame.g5x[system]
+            for axis, value in values.items():
+                offset[axis] = value
+            if "R" in params:
+                if params["R"] != 0.0 and not frame.has_xy:
+                    raise self.unsupported(
+                        block, where["R"],
+                        "a rotation turns X and Y, and the machine lacks one (its axes are "
+                        f"{', '.join(self.axes)})",
+                    )
+                frame.rotation_deg[system] = params["R"]
+        else:
+            if "R" in params:
+                raise self.error(
+                    block, where["R"],
+                    "G10 L20 takes no R: set a rotation with G10 L2 R",
+                )
+            frame.set_l20(system, self.position, values)
+        self.reframe()
+
+    def tool_length(self, block: Block, code: int, index: int, params: dict[str, float],
+                    where: dict[str, int]) -> None:
+        """G43 (H, or the tool in the spindle), G43.1 (the axis words), G49."""
+        frame = self.frame
+        if code == 490:
+            frame.tool = [0.0] * len(self.axes)
+        elif code == 431:
+            frame.tool = [params.get(letter, 0.0) * self.scale for letter in self.axes]
+        else:
+            if "H" in params:
+                number = params["H"]
+                if number != round(number) or number < 0:
+                    raise self.error(
+                        block, where["H"],
+                        f"G43 H{block.numbers[where['H']]}: H is a tool number, a whole "
+                        "number 0 or more",
+                    )
+                tool = int(number)
+                blame = where["H"]
+            else:
+                tool = self.tools.spindle
+                blame = index
+            offset = self.tools.table.offset_mm(tool)
+            if offset is None:
+                raise self.error(
+                    block, blame,
+                    f"G43: tool {tool} is not in {self.tools.table.describe()}",
+                )
+            frame.tool = self.tool_offset(block, blame, tool, offset)
+        self.reframe()
+
+    def tool_offset(self, block: Block, blame: int, tool: int, offset: Point) -> list[float]:
+        """A tool table offset (X Y Z U V W) on the machine's axes; an offset on an axis the
+        machine lacks is refused (the tool would not be where the table says)."""
+        for letter, value in zip(AXIS_ORDER, offset, strict=True):
+            if value != 0.0 and letter not in self.axis_set:
+                raise self.unsupported(
+                    block, blame,
+                    f"tool {tool} of {self.tools.table.describe()} is offset {value:g} mm on "
+                    f"axis {letter}, and the machine has no axis {letter} (its axes are "
+                    f"{', '.join(self.axes)})",
+                )
+        return [offset[AXIS_ORDER.index(letter)] for letter in self.axes]
+
+    def check_tool_number(self, block: Block, index: int, what: str, value: float) -> None:
+        """A T word or M61 Q: a whole number, of a tool the table holds (0: no tool)."""
+        if value != round(value):
+            raise self.error(
+                block, index, f"{what}{block.numbers[index]}: a tool number is whole"
+            )
+        if value < 0:
+            raise self.error(
+                block, index, f"{what}{block.numbers[index]}: a tool number is not negative"
+            )
+        if self.tools.table.offset_mm(int(value)) is None:
+            raise self.error(
+                block, index,
+                f"{what}{block.numbers[index]}: tool {int(value)} is not in "
+                f"{self.tools.table.describe()}",
+            )
+
+    def change_tool(self, block: Block, params: dict[str, float], where: dict[str, int],
+                    m_codes: dict[int, int], m_where: dict[int, int]) -> None:
+        """T selects a tool; M6 puts the selected tool in the spindle, M61 Q names it."""
+        tools = self.tools
+        if "T" in params:
+            tools.selected = int(params["T"])
+        change = m_codes.get(6)
+        if change == 6:
+            tools.spindle = tools.selected
+            self.tool_changes.append(
+                ToolChange(block.line, tools.spindle, tools.pocket(tools.spindle), True)
+            )
+        elif change == 61:
+            tools.spindle = int(params["Q"])
+            self.tool_changes.append(
+                ToolChange(block.line, tools.spindle, tools.pocket(tools.spindle), False)
+            )
+
+    def check_machine_move(self, block: Block, index: int, motion: int,
+                           g_codes: dict[int, int]) -> None:
+        """G53 needs G0 or G1 and absolute distances, as in LinuxCNC."""
+        if motion not in (0, 10):
+            raise self.error(
+                block, index,
+                "G53 moves in machine coordinates with G0 or G1 only: put G0 or G1 on this "
+                "line, or make one the active motion mode",
+            )
+        distance = g_codes.get(3)
+        if distance == 910 or (distance is None and self.incremental):
+            raise self.error(
+                block, index,
+                "G53 cannot be used with incremental distances (G91): machine coordinates "
+                "are absolute; use G90",
+            )
+
+    def machine_move(self, block: Block, motion: int, params: dict[str, float]) -> None:
+        """G0/G1 with G53: the axis words are machine coordinates (offsets not applied)."""
+        self.motion = motion
+        self.cycle.level = None
+        end = list(self.position)
+        for axis, letter in enumerate(self.axes):
+            if letter in params:
+                end[axis] = params[letter] * self.scale
+        if motion == 0:
+            self.traverse(block.line, end)
+            return
+        self.require_feed(block, -1, "G1")
+        self.moves.append(Linear(block.line, _point(self.position), _point(end),
+                                 self.feed_mm_min))
+        self.position = end
 
     def home(self, line: int, named: str) -> None:
         """Homing the axes ``named`` on a homed machine: a rapid, group by group in the
@@ -1031,6 +1349,8 @@ class _Interpreter:
 
     def ends(self, params: dict[str, float]) -> list[float]:
         """The end point named by the axis words (absolute or incremental), in mm."""
+        if self.frame.rotated:
+            return self.rotated_ends(params)
         end = list(self.position)
         scale = self.scale
         for axis, letter in enumerate(self.axes):
@@ -1041,6 +1361,17 @@ class _Interpreter:
                 else:
                     end[axis] = value * scale + self.offset[axis]
         return end
+
+    def rotated_ends(self, params: dict[str, float]) -> list[float]:
+        """:meth:`ends` in a coordinate system with an XY rotation."""
+        frame = self.frame
+        end = frame.to_program(self.position)
+        for axis, letter in enumerate(self.axes):
+            value = params.get(letter)
+            if value is not None:
+                end[axis] = end[axis] + value * self.scale if self.incremental else (
+                    value * self.scale)
+        return frame.to_machine(end)
 
     def traverse(self, line: int, end: list[float]) -> None:
         self.moves.append(Rapid(line, _point(self.position), _point(end)))
@@ -1066,10 +1397,16 @@ class _Interpreter:
     ) -> None:
         if motion == 800:
             self.motion = -1
+            self.cycle.level = None
             return
+        previous = self.motion
         self.motion = motion
         # The word to blame: the motion G code, else (-1) the first axis or centre word.
         blame = motion_index
+        if motion in CYCLE_NAMES:
+            self.canned(block, motion, previous, params, where, blame)
+            return
+        self.cycle.level = None
         if motion == 0:
             self.traverse(block.line, self.ends(params))
             return
@@ -1082,6 +1419,135 @@ class _Interpreter:
             self.position = end
             return
         self.arc(block, motion, params, where, blame)
+
+    def canned(
+        self,
+        block: Block,
+        motion: int,
+        previous: int,
+        params: dict[str, float],
+        where: dict[str, int],
+        blame: int,
+    ) -> None:
+        """A canned cycle block (G73 G81 G82 G83 G85 G89), expanded as LinuxCNC does."""
+        name = CYCLE_NAMES[motion]
+        plane = self.plane
+        first_letter, second_letter, drill = plane.letters
+        for letter in plane.letters:
+            if letter not in self.axis_set:
+                raise self.unsupported(
+                    block, blame if blame >= 0 else 0,
+                    f"{name} in the {plane.value} plane (G{_plane_code(plane)}) needs axes "
+                    f"{', '.join(plane.letters)}, and the machine has no axis {letter} (its "
+                    f"axes are {', '.join(self.axes)})",
+                )
+        first, second, normal = axes = (self.axes.index(first_letter),
+                                         self.axes.index(second_letter), self.axes.index(drill))
+        series = self.cycle
+        scale = self.scale
+        changed = previous != motion
+        if changed:
+            for letter, what in ((drill, "the bottom of the hole"), ("R", "the retract level")):
+                if letter not in params:
+                    raise self.error(
+                        block, blame,
+                        f"{name} needs {letter}, {what}: the first block of a cycle, or one "
+                        f"that changes the cycle, gives both R and {drill} "
+                        f"({self.plane.value} plane)",
+                    )
+        if motion in (730, 830):
+            series.peck_mm = self.cycle_word(block, params, where, blame, name, "Q", changed,
+                                             series.peck_mm, "the peck depth", positive=True)
+        if motion in (820, 890):
+            series.dwell_s = self.cycle_word(block, params, where, blame, name, "P", changed,
+                                             series.dwell_s, "the dwell in seconds",
+                                             positive=False)
+        repeats = 1
+        if "L" in params:
+            count = params["L"]
+            if count != round(count) or count < 1:
+                raise self.error(
+                    block, where["L"],
+                    f"{name} L{block.numbers[where['L']]}: L, the number of holes, is a whole "
+                    "number 1 or more",
+                )
+            repeats = int(count)
+        self.require_feed(block, blame, name)
+        program = self.frame.to_program(self.position)
+        if series.level is None:
+            series.level = program[normal]
+        initial = series.level
+        if "R" in params:
+            series.r_word_mm = params["R"] * scale
+        if drill in params:
+            series.bottom_word_mm = params[drill] * scale
+        if self.incremental:
+            r_mm = initial + series.r_word_mm
+            bottom_mm = r_mm + series.bottom_word_mm
+            step = (params.get(first_letter, 0.0) * scale, params.get(second_letter, 0.0) * scale)
+            hole = (program[first] + step[0], program[second] + step[1])
+        else:
+            r_mm, bottom_mm = series.r_word_mm, series.bottom_word_mm
+            step = (0.0, 0.0)
+            hole = (
+                params[first_letter] * scale if first_letter in params else program[first],
+                params[second_letter] * scale if second_letter in params else program[second],
+            )
+        if r_mm < bottom_mm:
+            raise self.error(
+                block, where.get("R", blame),
+                f"{name}: R{r_mm / scale:g} (the retract level) is less than "
+                f"{drill}{bottom_mm / scale:g} (the bottom of the hole); R must be at or "
+                f"above {drill} in the {self.plane.value} plane",
+            )
+        pecks = 1
+        if motion in (730, 830):
+            pecks = math.ceil((r_mm - bottom_mm) / series.peck_mm)
+        if repeats * pecks > _MOST_CYCLE_PASSES:
+            raise self.error(
+                block, blame,
+                f"{name} would make {repeats} hole(s) of {pecks} peck(s); at most "
+                f"{_MOST_CYCLE_PASSES:,} pecks in one block (fewer holes, L, or a larger Q)",
+            )
+        clear_mm = r_mm if self.retract_to_r else max(initial, r_mm)
+        steps = expand_cycle(Cycle(
+            motion, axes, tuple(program), hole, step, initial, r_mm,
+            bottom_mm,
+            clear_mm, repeats, series.peck_mm, series.dwell_s,
+        ))
+        to_machine = self.frame.to_machine
+        line = block.line
+        feed = self.feed_mm_min
+        for move in steps:
+            if move.kind == DWELL:
+                self.moves.append(Dwell(line, _point(self.position), move.seconds))
+                continue
+            end = to_machine(list(move.point))
+            if move.kind == RAPID:
+                self.traverse(line, end)
+            else:
+                self.moves.append(Linear(line, _point(self.position), _point(end), feed))
+                self.position = end
+
+    def cycle_word(self, block: Block, params: dict[str, float], where: dict[str, int],
+                   blame: int, name: str, letter: str, changed: bool, kept: float,
+                   what: str, *, positive: bool) -> float:
+        """A cycle's Q (mm, > 0) or P (seconds, >= 0): this block's, else the series' own."""
+        if letter not in params:
+            if changed:
+                raise self.error(
+                    block, blame,
+                    f"{name} needs {letter}, {what} (the first block of a cycle gives it)",
+                )
+            return kept
+        value = params[letter]
+        if (positive and value <= 0.0) or value < 0.0:
+            bound = "greater than 0" if positive else "0 or more"
+            raise self.error(
+                block, where[letter],
+                f"{name} {letter}{block.numbers[where[letter]]}: {what} is {bound}",
+            )
+        return value * self.scale if letter == "Q" else value
 
     def arc(
         self,
@@ -1101,6 +1567,12 @@ class _Interpreter:
         first_letter, second_letter, other_letter = _CENTRE_LETTERS[plane]
         radius_format = "R" in params
         centre_format = "I" in params or "J" in params or "K" in params
+        if self.frame.rotated and plane is not Plane.XY:
+            raise self.unsupported(
+                block, blame if blame >= 0 else max(0, _first_of(where, "XYZIJKR")),
+                f"{name} in the {plane.value} plane of a coordinate system rotated by G10 L2 R "
+                "is not supported (arcs in a rotated system: G17 only)",
+            )
         if not radius_format and not centre_format:
             raise self.error(
                 block,
@@ -1148,7 +1620,9 @@ class _Interpreter:
         else:
             offset1 = params.get(first_letter, 0.0) * scale
             offset2 = params.get(second_letter, 0.0) * scale
-            if self.arc_incremental:
+            if self.frame.rotated:
+                centre1, centre2 = self.rotated_centre(start, offset1, offset2)
+            elif self.arc_incremental:
                 centre1, centre2 = start1 + offset1, start2 + offset2
             else:
                 centre1 = offset1 + self.offset[first]
@@ -1170,6 +1644,19 @@ class _Interpreter:
             )
         )
         self.position = end
+
+    def rotated_centre(self, start: list[float], offset1: float,
+                       offset2: float) -> tuple[float, float]:
+        """An XY arc's centre (machine X, Y) from I, J in a rotated coordinate system."""
+        frame = self.frame
+        x, y = frame.x, frame.y
+        if self.arc_incremental:
+            dx, dy = frame.rotate_vector(offset1, offset2)
+            return start[x] + dx, start[y] + dy
+        program = frame.to_program(start)
+        program[x], program[y] = offset1, offset2
+        centre = frame.to_machine(program)
+        return centre[x], centre[y]
 
     def check_radii(
         self,
@@ -1225,11 +1712,14 @@ class _Interpreter:
         """``start=(X..,Y..) centre=(..) end=(..)`` in program coordinates."""
         first, second = plane.indices(self.axes)[:2]
         a, b = self.axes[first], self.axes[second]
-        offset1, offset2 = self.offset[first], self.offset[second]
         scale = self.scale
+        position = self.position
 
         def point(value1: float, value2: float) -> str:
-            return f"({a}{(value1 - offset1) / scale:.4f},{b}{(value2 - offset2) / scale:.4f})"
+            machine = list(position)
+            machine[first], machine[second] = value1, value2
+            program = self.frame.to_program(machine)
+            return f"({a}{program[first] / scale:.4f},{b}{program[second] / scale:.4f})"
 
         return (
             f"start={point(start1, start2)} centre={point(centre1, centre2)} "
@@ -1278,6 +1768,40 @@ class _Interpreter:
             theta = direction + math.pi / 2.0
         offset = abs_radius * math.cos(math.asin(half_length / abs_radius))
         return mid1 + offset * math.cos(theta), mid2 + offset * math.sin(theta)
+
+
+_SYSTEM_INDEX = {code: index for index, code in
+                 enumerate((540, 550, 560, 570, 580, 590, 591, 592, 593))}
+
+
+class _ToolState:
+    """The tool table, the selected tool (T) and the tool in the spindle (M6, M61)."""
+
+    __slots__ = ("selected", "spindle", "table")
+
+    def __init__(self, table: ToolTable) -> None:
+        self.table = table
+        self.selected = 0
+        self.spindle = 0
+
+    def pocket(self, tool: int) -> int:
+        entry = self.table.tools.get(tool)
+        return entry.pocket if entry is not None else 0
+
+
+class _CycleSeries:
+    """What a series of canned cycle blocks keeps (until G80 or another motion mode):
+    the initial level along the drill axis (program mm; ``None`` outside a series) and
+    the last R, bottom (as written: incremental in G91), Q and P."""
+
+    __slots__ = ("bottom_word_mm", "dwell_s", "level", "peck_mm", "r_word_mm")
+
+    def __init__(self) -> None:
+        self.level: float | None = None
+        self.r_word_mm = 0.0
+        self.bottom_word_mm = 0.0
+        self.peck_mm = 0.0
+        self.dwell_s = 0.0
 
 
 def _point(values: list[float]) -> Point:

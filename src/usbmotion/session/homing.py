@@ -109,12 +109,16 @@ class HomingCycle:
         except StopRequestedError:
             self._settle()
             raise
-        except (SequenceFaultError, UsbMotionError):
-            sequence.stop(io)
+        except (SequenceFaultError, UsbMotionError) as error:
             try:
+                sequence.stop(io)
                 self._settle()
-            except UsbMotionError:
-                machine.stop()
+            except UsbMotionError as also:
+                error.add_note(f"bringing the axes to rest afterwards failed too: {also}")
+                try:
+                    machine.stop()
+                except UsbMotionError as stop_failed:
+                    error.add_note(f"and disabling them failed: {stop_failed}")
             raise
         zeroes: dict[str, MachineZero] = {}
         for name, zero in io.zeroes.items():

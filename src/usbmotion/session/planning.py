@@ -19,7 +19,9 @@ from usbmotion.motion.dialects import Dialect, dialect_named
 from usbmotion.motion.gcode import GCodeProgram, MachineAxes, parse_gcode
 from usbmotion.motion.limits import AxisLimits, PlannerConfig, check_travel
 from usbmotion.motion.moves import AXIS_ORDER, Point
+from usbmotion.motion.offsets import NO_OFFSETS, WorkOffsets
 from usbmotion.motion.planner import Plan, plan_moves
+from usbmotion.motion.tools import NO_TOOLS, ToolTable
 from usbmotion.session.homing import home_position_mm
 
 
@@ -29,13 +31,15 @@ class Prepared:
 
     ``start_mm`` is where the plan starts (one coordinate per axis of ``axes``, the
     program axes); ``homed`` whether that is a homed position (soft limits checked) or the
-    devices' own counts (not homed, not checked).
+    devices' own counts (not homed, not checked). ``offsets`` are the work offsets the
+    program started with (``program.offsets`` those it leaves).
     """
 
     program: GCodeProgram
     plan: Plan
     start_mm: Point
     homed: bool
+    offsets: WorkOffsets = NO_OFFSETS
 
     @property
     def axes(self) -> str:
@@ -85,9 +89,11 @@ def machine_dialect(config: MachineConfig, dialect: Dialect | None = None) -> Di
 
 
 def prepare_program(config: MachineConfig, text: str, *, file: str, start_mm: Point,
-                    homed: bool, dialect: Dialect | None = None) -> Prepared:
-    """Interpret and plan a program for a machine from ``start_mm``; a homed start is also
-    checked against every axis's travel.
+                    homed: bool, dialect: Dialect | None = None, tools: ToolTable = NO_TOOLS,
+                    offsets: WorkOffsets | None = None) -> Prepared:
+    """Interpret and plan a program for a machine from ``start_mm`` with a tool table and
+    work offsets (machine coordinates result); a homed start is also checked against every
+    axis's travel.
 
     Raises:
         GCodeError, PlanningError: as :func:`plan_gcode`.
@@ -95,15 +101,18 @@ def prepare_program(config: MachineConfig, text: str, *, file: str, start_mm: Po
             coordinate and the limit).
         ConfigError: the machine has no linear axis.
     """
-    program, plan = plan_gcode(config, text, file=file, start_mm=start_mm, dialect=dialect)
+    offsets = offsets or NO_OFFSETS
+    program, plan = plan_gcode(config, text, file=file, start_mm=start_mm, dialect=dialect,
+                               tools=tools, offsets=offsets)
     if homed:
         check_travel(plan.vertices_mm, plan.line, [a.travel_mm for a in plan_axes(config)],
                      axes=tuple(plan.axes))
-    return Prepared(program, plan, start_mm, homed)
+    return Prepared(program, plan, start_mm, homed, offsets)
 
 
 def plan_gcode(config: MachineConfig, text: str, *, file: str = "<string>",
-               start_mm: Point | None = None, dialect: Dialect | None = None
+               start_mm: Point | None = None, dialect: Dialect | None = None,
+               tools: ToolTable = NO_TOOLS, offsets: WorkOffsets | None = None,
                ) -> tuple[GCodeProgram, Plan]:
     """Interpret and plan a program for a machine from ``start_mm`` (zeros when not
     given), in ``dialect`` or the machine file's (pure: no machine is needed;
@@ -116,7 +125,8 @@ def plan_gcode(config: MachineConfig, text: str, *, file: str = "<string>",
     limits, planner, _ = planner_inputs(config)
     axes = machine_axes(config)
     program = parse_gcode(text, file=file, start=start_mm, machine=axes,
-                          dialect=machine_dialect(config, dialect))
+                          dialect=machine_dialect(config, dialect), tools=tools,
+                          offsets=offsets)
     return program, plan_moves(program.moves, limits, planner, start=start_mm,
                                axes=axes.axes)
 

@@ -37,6 +37,7 @@ from pathlib import Path
 
 from usbmotion.automation.device_io import MachineZero
 from usbmotion.errors import (
+    ArgumentError,
     DeviceError,
     MachineStateError,
     SequenceFaultError,
@@ -47,10 +48,12 @@ from usbmotion.host.config import MachineConfig
 from usbmotion.host.machine import Machine
 from usbmotion.motion.dialects import Dialect
 from usbmotion.motion.gcode import read_gcode_text
-from usbmotion.motion.moves import Point
+from usbmotion.motion.moves import AXIS_ORDER, Point
+from usbmotion.motion.offsets import WorkOffsets, read_parameter_file, write_parameter_file
+from usbmotion.motion.tools import NO_TOOLS, ToolTable, load_tool_table
 from usbmotion.protocol import FaultCode, fault_words
 from usbmotion.session.homing import HomingCycle, home_position_mm, homed_mark
-from usbmotion.session.planning import Prepared, plan_axes, prepare_program
+from usbmotion.session.planning import Prepared, plan_axes, prepare_program, program_axes
 from usbmotion.session.report import RunReport, Trace
 from usbmotion.session.rest import STOP_LEAD_S, wait_for_rest
 from usbmotion.session.run import Run
@@ -234,18 +237,74 @@ class MachineSession:
             unhomed: plan an unhomed machine from where it stands.
             dialect: read the program in this dialect instead of the machine file's.
 
+        The program runs with the machine's tool table and the work offsets of its
+        parameter file (:attr:`MachineConfig.parameter_path`).
+
         Raises:
             GCodeError: the program does not parse (names the line).
             SoftLimitError: a move leaves an axis's travel (names the line, the axis, the
                 coordinate and the limit).
             PlanningError: a move the machine cannot make.
+            ConfigError: the tool table or the parameter file is malformed.
             OSError: the file cannot be read.
         """
         start_mm, homed = self.start_position_mm(unhomed=unhomed)
         body = read_gcode_text(source) if text is None else text
         self.program = prepare_program(self.config, body, file=str(source), start_mm=start_mm,
-                                       homed=homed, dialect=dialect)
+                                       homed=homed, dialect=dialect,
+                                       tools=self.tool_table(), offsets=self.work_offsets())
         return self.program
+
+    def tool_table(self) -> ToolTable:
+        """The machine's tool table (none: every tool of zero length).
+
+        Raises:
+            ConfigError: the table is malformed (names the file and the line).
+        """
+        table = self.config.tool_table
+        return load_tool_table(table) if table is not None else NO_TOOLS
+
+    def work_offsets(self) -> WorkOffsets:
+        """The work offsets and stored positions of the machine's parameter file.
+
+        Raises:
+            ConfigError: the file is malformed (names the file and the line).
+        """
+        return read_parameter_file(self.config.parameter_path)
+
+    def save_work_offsets(self, offsets: WorkOffsets) -> None:
+        """Write the parameter file (atomically).
+
+        Raises:
+            OSError: it cannot be written.
+        """
+        write_parameter_file(self.config.parameter_path, offsets)
+
+    def set_work_origin(self, origin_mm: dict[str, float], *, system: int = 1) -> WorkOffsets:
+        """Set coordinate system ``system`` (1 = G54) so that its zero is at ``origin_mm``
+        (machine coordinates, mm, for the named axes; the others keep their offsets), and
+        save it in the parameter file.
+
+        Raises:
+            ArgumentError: an axis that is not one of the machine's program axes, or a value
+                that is not finite.
+            ConfigError: the parameter file is malformed, or the machine has no linear axis.
+            OSError: it cannot be written.
+        """
+        axes = program_axes(self.config)
+        offsets = self.work_offsets()
+        offset = list(offsets.g5x[system - 1])
+        for name, value in origin_mm.items():
+            if name not in axes:
+                raise ArgumentError(f"origin axis {name!r}: allowed {', '.join(axes)} (the"
+                                    " machine's axes)", reason="origin")
+            if not math.isfinite(value):
+                raise ArgumentError(f"origin {name}{value!r}: not a finite number",
+                                    reason="origin")
+            offset[AXIS_ORDER.index(name)] = value
+        offsets = offsets.with_g5x(system, tuple(offset))
+        self.save_work_offsets(offsets)
+        return offsets
 
     # --- stop requests ------------------------------------------------------------------------
 
@@ -323,7 +382,9 @@ class MachineSession:
 
         The machine must be where the program was prepared from (prepare it again after
         anything moved). A device fault stops every other axis along its deceleration; a
-        stop request does so for every axis; the report says why the run ended.
+        stop request does so for every axis; the report says why the run ended. A program
+        that ran to its end and changed the work offsets or the stored positions (G10, G92,
+        G28.1, G30.1) leaves them in the parameter file for the next run.
 
         Raises:
             MachineStateError: not Idle, or the machine moved since the program was prepared.
@@ -349,6 +410,8 @@ class MachineSession:
         self._state = MachineState.ALARM if run.faulted else MachineState.IDLE
         for name in run.faulted_axes:
             self.homed[name] = False
+        if report.completed and prepared.program.offsets != prepared.offsets:
+            self.save_work_offsets(prepared.program.offsets)
         return report, trace
 
     # --- after a fault ------------------------------------------------------------------------

@@ -30,10 +30,14 @@ import tty
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
-from usbmotion.errors import DeviceError, DeviceTimeoutError
+from usbmotion.errors import ArgumentError, DeviceError, DeviceTimeoutError
 from usbmotion.protocol import CallNumber, device_name_problem, encode_call, encode_device_name
+from usbmotion.protocol.table import INT32_MAX, INT32_MIN
+
+if TYPE_CHECKING:
+    from usbmotion.device.motor import MotorParams
 
 _PROJECT_ROOT = Path(__file__).resolve().parents[3]
 _QUEUE_QUERY = encode_call(CallNumber.MOTION_QUEUE, -1)
@@ -182,6 +186,144 @@ class StackUsage:
 
     used: int
     size: int
+
+
+@dataclass(frozen=True, slots=True)
+class PinsMotor:
+    """A brushed DC motor on an H-bridge, its quadrature encoder and two limit switches,
+    outside the emulated chip and wired to the firmware's pins (``firmware/src/rp2040/pins.h``;
+    the harness's ``lib/pins.js`` MotorWorld): the bridge's voltage read from the PWM levels,
+    the motor integrated exactly in binary64 with the on-chip simulated motor's model
+    (PROTOCOL.md, "The model"), an encoder edge at each count crossed, the switches driven
+    low while the shaft is at or beyond them. The defaults are the on-chip motor's at
+    power-up; :meth:`like` copies an on-chip motor's parameters.
+
+    Fields:
+        supply_v: the bridge's supply, V.
+        torque_constant_nm_per_a: torque (and back-EMF) constant at the output shaft, N m/A.
+        resistance_ohm: winding resistance, ohm.
+        inertia_kg_m2: inertia at the output shaft, kg m^2.
+        viscous_nm_per_rad_s: viscous friction, N m per rad/s.
+        load_nm: constant torque opposing motion, N m.
+        counts_per_revolution: encoder counts per output revolution (quadrature x4).
+        lower_counts, upper_counts: where each switch closes, counts from the first power-up
+            (the shaft's position then is count 0); ``None``: no switch.
+        overtravel_counts: from each switch to the hard stop beyond it, counts.
+        bounces: each switch edge is followed by this many bounces ...
+        bounce_interval_us: ... each this long, microseconds: half way through one the pin
+            goes back to its level before the edge, at its end it returns.
+    """
+
+    supply_v: float = 12.0
+    torque_constant_nm_per_a: float = 0.3346
+    resistance_ohm: float = 2.182
+    inertia_kg_m2: float = 1.1e-3
+    viscous_nm_per_rad_s: float = 500e-6
+    load_nm: float = 0.05
+    counts_per_revolution: int = 1920
+    lower_counts: int | None = None
+    upper_counts: int | None = None
+    overtravel_counts: int = 200
+    bounces: int = 0
+    bounce_interval_us: float = 50.0
+
+    def __post_init__(self) -> None:
+        for label in ("supply_v", "torque_constant_nm_per_a", "resistance_ohm",
+                      "inertia_kg_m2", "counts_per_revolution", "bounce_interval_us"):
+            value = getattr(self, label)
+            if not value > 0:
+                raise ArgumentError(f"motor {label} {value!r} must be above 0", reason=label)
+        for label in ("viscous_nm_per_rad_s", "load_nm", "overtravel_counts", "bounces"):
+            value = getattr(self, label)
+            if not value >= 0:
+                raise ArgumentError(f"motor {label} {value!r} must be 0 or more", reason=label)
+        if (self.lower_counts is not None and self.upper_counts is not None
+                and self.lower_counts >= self.upper_counts):
+            raise ArgumentError(f"motor lower_counts {self.lower_counts!r} must be below "
+                                f"upper_counts {self.upper_counts!r}", reason="lower_counts")
+
+    @classmethod
+    def like(cls, params: MotorParams, *, bounces: int = 0,
+             bounce_interval_us: float = 50.0) -> PinsMotor:
+        """The motor the on-chip simulated motor of ``params`` models (each value as the
+        device holds it, its significant digits), its switches at the travel's ends (none
+        where the travel is the whole counter)."""
+        def value(pair: tuple[int, int]) -> float:
+            return float(pair[0] * 10.0 ** pair[1])
+
+        return cls(
+            supply_v=value(params.source_voltage_v),
+            torque_constant_nm_per_a=value(params.torque_constant_mnm_per_a) / 1e3,
+            resistance_ohm=value(params.winding_resistance_ohm),
+            inertia_kg_m2=value(params.inertia_kg_m2),
+            viscous_nm_per_rad_s=value(params.viscous_friction_unm_per_rad_s) / 1e6,
+            load_nm=value(params.load_torque_mnm) / 1e3,
+            counts_per_revolution=params.counts_per_revolution,
+            lower_counts=(None if params.travel_lower_counts == INT32_MIN
+                          else params.travel_lower_counts),
+            upper_counts=(None if params.travel_upper_counts == INT32_MAX
+                          else params.travel_upper_counts),
+            overtravel_counts=params.overtravel_counts,
+            bounces=bounces,
+            bounce_interval_us=bounce_interval_us,
+        )
+
+    def options(self) -> dict[str, Any]:
+        """The harness's ``motor`` request options (``lib/pins.js`` MotorWorld's keys)."""
+        options: dict[str, Any] = {
+            "supplyV": self.supply_v,
+            "torqueConstantNmPerA": self.torque_constant_nm_per_a,
+            "resistanceOhm": self.resistance_ohm,
+            "inertiaKgM2": self.inertia_kg_m2,
+            "viscousNmPerRadS": self.viscous_nm_per_rad_s,
+            "loadNm": self.load_nm,
+            "countsPerRevolution": self.counts_per_revolution,
+            "overtravel": self.overtravel_counts,
+            "bounce": self.bounces,
+            "bounceNanos": self.bounce_interval_us * 1e3,
+        }
+        if self.lower_counts is not None:
+            options["lower"] = self.lower_counts
+        if self.upper_counts is not None:
+            options["upper"] = self.upper_counts
+        return options
+
+
+@dataclass(frozen=True, slots=True)
+class MotorState:
+    """The motor outside the chip as it is (:meth:`EmulatedDevice.world`).
+
+    Fields:
+        count: the encoder's count (from the first power-up, not wrapped).
+        position_counts: the shaft's exact position, counts.
+        velocity_counts_s: its velocity, counts/s.
+        voltage_v: the bridge's output, V (the supply times the difference of the duties).
+        enabled: the enable output is high.
+        lower_closed, upper_closed: each switch is closed (the shaft at or beyond it).
+        encoder_edges: encoder edges sent to the chip since the motor was attached.
+        switch_edges: switch changes since then (bounces not counted).
+        switch_pin_changes: the switch pins' changes since then, each bounce's two included.
+    """
+
+    count: int
+    position_counts: float
+    velocity_counts_s: float
+    voltage_v: float
+    enabled: bool
+    lower_closed: bool
+    upper_closed: bool
+    encoder_edges: int
+    switch_edges: int
+    switch_pin_changes: int
+
+    @classmethod
+    def from_reply(cls, world: dict[str, Any]) -> MotorState:
+        """From the harness's ``world`` field."""
+        lower, upper = world["closed"]
+        return cls(int(world["count"]), float(world["theta"]), float(world["omega"]),
+                   float(world["voltage"]), bool(world["enabled"]), bool(lower), bool(upper),
+                   int(world["edges"]), int(world["switchEdges"]),
+                   int(world["switchPinChanges"]))
 
 
 class EmulatedDevice:
@@ -346,6 +488,40 @@ class EmulatedDevice:
         return BootTimes(int(reply["usb_enabled_ns"]), int(reply["configured_ns"]),
                          int(reply["reply_ns"]), (int(cycles[0]), int(cycles[1])))
 
+
+    def attach_motor(self, motor: PinsMotor | None = None) -> MotorState:
+        """Wire ``motor`` (default: :class:`PinsMotor`'s) to the chip's pins, from now on and
+        at every later power-up, where the shaft then is. The firmware drives it once call 39
+        selected the motor on the pins and a power cycle followed (:meth:`use_pins_motor`).
+        """
+        motor = motor if motor is not None else PinsMotor()
+        return MotorState.from_reply(
+            self._request({"cmd": "motor", "options": motor.options()})["world"])
+
+    def use_pins_motor(self, motor: PinsMotor | None = None) -> MotorState:
+        """Select the motor on the pins (call 39 1, kept in flash), power cycle, and wire
+        ``motor`` to the pins: the firmware then drives it instead of its simulated motor.
+
+        Raises:
+            DeviceError: the firmware did not answer call 39 so (it runs the simulated motor).
+        """
+        answer = self.feed(encode_call(CallNumber.SET_MOTOR, 1) + encode_call(
+            CallNumber.SET_MOTOR, -1)).data
+        lines = answer.splitlines()
+        if not lines or not lines[-1].startswith(b"MOTOR 1 "):
+            raise DeviceError(f"the firmware answered {answer!r} to selecting the motor on "
+                              "the pins", device=self.name, call=int(CallNumber.SET_MOTOR))
+        self.power_cycle()
+        return self.attach_motor(motor)
+
+    def world(self) -> MotorState:
+        """The motor outside the chip now.
+
+        Raises:
+            DeviceError: no motor is attached.
+        """
+        return MotorState.from_reply(self._request({"cmd": "world"})["world"])
+
     def start_profile(self) -> None:
         """Count the cycles of every instruction from now on, per core (emulation slows)."""
         self._request({"cmd": "profile", "on": True})
@@ -402,26 +578,46 @@ class FirmwareSimDevice:
     difference raises :class:`~usbmotion.errors.DeviceError` (the firmware no longer answers
     as the Python device, and the shadow's events cannot be trusted).
 
+    With ``motor`` the firmware drives that motor outside the chip through its pins (call 39
+    1 and a power cycle before the name is written). The shadow still simulates its motor on
+    the chip, so the lines part (diagnostics, statistics, where the switches close) and are
+    not compared; the shadow's events stay those of a like motor, so the world still runs the
+    chip in blocks to about the right ticks, and what the host reads is the chip's.
+
     Parameters:
         uf2: the firmware image (the ELF beside it).
         name: the device name written to its flash at power-up (call 18), if any.
-        check: compare every line with the shadow's.
+        check: compare every line with the shadow's (default: unless ``motor`` is given;
+            with ``motor`` it cannot be).
+        motor: the motor outside the chip, on the firmware's pins; ``None``: the firmware's
+            on-chip simulated motor.
         node: the Node.js executable.
+
+    Raises:
+        ArgumentError: ``check`` asked for with ``motor``.
     """
 
-    def __init__(self, uf2: Path | str, *, name: str = "", check: bool = True,
-                 node: str = "node") -> None:
+    def __init__(self, uf2: Path | str, *, name: str = "", check: bool | None = None,
+                 motor: PinsMotor | None = None, node: str = "node") -> None:
         from usbmotion.device import Device, MemoryFlash  # noqa: PLC0415 - optional part
 
+        if check and motor is not None:
+            raise ArgumentError("check compares the chip's lines with a Python device that "
+                                "simulates its motor on the chip; with a motor on the pins "
+                                "they part: give check=False or no motor", reason="check")
         self.chip = EmulatedDevice(uf2, node=node)
         self.shadow = Device(flash=MemoryFlash())
-        self.check = check
+        self.motor = motor
+        """The motor outside the chip, or ``None`` (the on-chip simulated motor)."""
+        self.check = motor is None if check is None else check
         self._ticks = 0
         self._output: list[tuple[int, bytes]] = []
         self.lines_compared = 0
         """Lines of output compared with the shadow's so far."""
         try:
             self.chip.power_up(erase_flash=True)
+            if motor is not None:
+                self.chip.use_pins_motor(motor)
             if name:
                 self.feed(encode_device_name(name))
                 self.take_timed_output()
