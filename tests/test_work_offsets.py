@@ -4,6 +4,7 @@ zero``, the console's ``$z`` and G10 lines, and CAM-style programs on the simula
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -202,18 +203,27 @@ def test_parse_origin_refuses_what_is_not_an_origin(value: str) -> None:
 
 
 def test_a_cam_program_runs_after_origin_and_is_refused_without(tmp_path: Path) -> None:
+    """A grbl job with its origin at the stock's top corner (Z +5 to -3 mm, no M2)."""
     machine = _machine_file(tmp_path)
     program = PROGRAMS / "cam_corner.ngc"
+    text = program.read_text()
+    assert "M2" not in text and "M30" not in text and "%" not in text
     runner = CliRunner()
-    refused = runner.invoke(app, ["run", str(program), "--machine", str(machine), "--no-plot",
-                                  "--quiet"])
+    base = ["run", str(program), "--machine", str(machine), "--no-plot", "--quiet"]
+    unended = runner.invoke(app, base)  # read as LinuxCNC reads it, it lacks its end
+    assert unended.exit_code == 2 and "ends without M2, M30" in unended.output, unended.output
+    refused = runner.invoke(app, [*base, "--dialect", "grbl"])
     assert refused.exit_code == 2, refused.output
-    assert f"{program}:7:" in refused.output and "Z" in refused.output, refused.output
-    assert "travel" in refused.output or "limit" in refused.output, refused.output
-    done = runner.invoke(app, ["run", str(program), "--machine", str(machine), "--no-plot",
-                               "--quiet", "--origin", "X100 Y100 Z60"])
+    assert f"{program}:10:" in refused.output, refused.output  # the plunge, G1 Z-3
+    assert "axis Z" in refused.output and "nothing was moved" in refused.output, refused.output
+    assert not (tmp_path / "mill.var").exists()
+    report = tmp_path / "cam.json"
+    done = runner.invoke(app, [*base, "--dialect", "grbl", "--origin", "X100 Y100 Z60",
+                               "--report", str(report)])
     assert done.exit_code == 0, done.output
     assert read_parameter_file(tmp_path / "mill.var").g5x[0] == _xyz(100.0, 100.0, 60.0)
+    figures = json.loads(report.read_text())
+    assert figures["completed"] is True, figures
 
 
 def test_a_fusion_style_program_with_tools_offsets_and_cycles_runs_to_the_end(
