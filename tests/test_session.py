@@ -29,6 +29,7 @@ from usbmotion.session import (
     check_transition,
     home_position_mm,
 )
+from usbmotion.session.progress import Progress
 from usbmotion.sim.machine import connect_session
 from usbmotion.sim.world import SimWorld
 
@@ -139,8 +140,8 @@ def _stop_mid_run(session: MachineSession, at_s: float, *, twice: bool = False) 
     """Ask the session to stop once the program reaches ``at_s`` (from its progress)."""
     asked = [False]
 
-    def progress(done_s: float, total_s: float) -> None:
-        if done_s >= at_s and not asked[0]:
+    def progress(update: Progress) -> None:
+        if update.done_s >= at_s and not asked[0]:
             asked[0] = True
             session.request_stop()
             if twice:

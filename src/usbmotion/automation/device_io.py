@@ -196,6 +196,12 @@ class DeviceHomingIO:
             return LimitSwitchState(status.lower_limit, status.upper_limit)
         return LimitSwitchState(status.upper_limit, status.lower_limit)
 
+    def read_positions_mm(self) -> dict[str, float]:
+        """Each axis whose status this poll read: its actual position, mm, in machine
+        orientation (device counts scaled until the axis's zero is set)."""
+        return {name: self.axes[name].scale.to_mm(drive.status.actual_counts)
+                for name, drive in self._drives.items() if drive.status is not None}
+
     def position_mm(self, axis: str) -> float:
         """Where the axis is, mm, in the homing orientation."""
         return self._sign(axis) * self.axes[axis].scale.to_mm(self._status(axis).actual_counts)

@@ -31,6 +31,7 @@ from usbmotion.errors import (
 if TYPE_CHECKING:
     from usbmotion.host.config import MachineConfig
     from usbmotion.session import MachineSession, Prepared, RunReport, Trace
+    from usbmotion.session.progress import Progress as SessionProgress
 
 EXIT_COMPLETED = 0
 EXIT_FAULT = 1
@@ -271,7 +272,7 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
 
     try:
         if not (no_home or session.is_homed):
-            homing_s = session.home()
+            homing_s = _home_with_progress(session, quiet=quiet)
             prepared = session.prepare(program, text=text)
     except StopRequestedError as error:
         reason = f"{error.reason} (while homing)"
@@ -337,14 +338,23 @@ def _with_progress(session: MachineSession, prepared: Prepared,
         TimeRemainingColumn,
     )
 
-    columns = (TextColumn("[bold]{task.description}"), BarColumn(),
+    columns = (TextColumn("{task.description}"), BarColumn(),
                TextColumn("{task.completed:.2f}/{task.total:.2f} s program time"),
                TimeRemainingColumn())
     with Progress(*columns, transient=True, disable=not sys.stderr.isatty()) as progress:
-        task = progress.add_task("running", total=prepared.plan.duration_s)
+        task = progress.add_task("Run", total=prepared.plan.duration_s)
 
-        def update(done_s: float, total_s: float) -> None:
-            progress.update(task, completed=done_s)
+        def update(report: SessionProgress) -> None:
+            progress.update(task, completed=report.done_s, description=report.describe())
 
         return session.run(prepared, on_progress=update, homing_s=homing_s)
+
+
+def _home_with_progress(session: MachineSession, *, quiet: bool) -> float:
+    """Home the machine, a progress line showing the state and the positions unless
+    ``quiet``; returns the seconds."""
+    from usbmotion.cli.status import progress_line  # noqa: PLC0415
+
+    with progress_line(not quiet) as show:
+        return session.home(on_progress=show)
 
