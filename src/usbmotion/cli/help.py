@@ -9,6 +9,7 @@ without repeating them.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from typing import Any
 
@@ -33,13 +34,18 @@ def _clean(params: list[Any]) -> list[Any]:
                                                  "VALUE")
         elif isinstance(param, TyperArgument) and param.name:
             param.metavar = param.name.upper()
+            # The argument's name says what it is; typer would add its type (<path>).
+            param.display_type_rich = _no_type
     return params
+
+
+def _no_type(ctx: Any) -> None:
+    return None
 
 
 def _usage(pieces: list[str]) -> list[str]:
     """``PROGRAM`` for a required argument, as usage lines write it, not ``{PROGRAM}``."""
-    return [piece[1:-1] if piece.startswith("{") and piece.endswith("}") else piece
-            for piece in pieces]
+    return [re.sub(r"^\{(.*)\}((?:\.\.\.)?)$", r"\1\2", piece) for piece in pieces]
 
 
 class UsbMotionCommand(TyperCommand):

@@ -51,7 +51,7 @@ def parse_steps(words: list[str]) -> dict[str, float]:
         letter = match.group(1).upper()
         if letter in steps:
             raise ValueError(f"axis {letter} is given twice")
-        steps[letter] = float(match.group(2))
+        steps[letter] = float(match.group(2)) + 0.0  # -0 is 0
         at = match.end()
     if not steps:
         raise ValueError("give at least one AXIS DISTANCE pair (X 10, Y-2.5)")

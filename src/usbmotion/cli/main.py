@@ -59,7 +59,7 @@ app.command()(status)
 app.command()(home)
 app.command(context_settings={"ignore_unknown_options": True})(jog)
 app.command()(get)
-app.command(name="set")(set_parameter)
+app.command(name="set", context_settings={"ignore_unknown_options": True})(set_parameter)
 app.command()(devices)
 app.add_typer(gcode_app, name="gcode")
 

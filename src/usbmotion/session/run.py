@@ -224,8 +224,11 @@ class Run:
     # --- watching -------------------------------------------------------------------------------
 
     def _progress(self, update: StreamProgress) -> None:
+        self._tell(min(s.consumed_estimate for s in self.streams.values()))
+
+    def _tell(self, done: float) -> None:
+        """Report progress: ``done`` setpoints of every axis executed."""
         if self.on_progress is not None:
-            done = min(s.consumed_estimate for s in self.streams.values())
             done_s = min(done * self.period_s, self.plan.duration_s)
             row = self.setpoints[min(max(0, int(done) - 1), self.setpoints.shape[0] - 1)]
             where = {name: float(row[index]) / self.counts_per_mm[index]
@@ -274,6 +277,7 @@ class Run:
             if self._should_stop():
                 return
             queued = max(client.queue_status()[0] for client in clients)
+            self._tell(min(stream.sent for stream in self.streams.values()) - queued)
             if not queued:
                 return
             self.clock.sleep(min(FAULT_CHECK_S, max(self.period_s, queued * self.period_s)))
