@@ -34,13 +34,15 @@ def _clean(params: list[Any]) -> list[Any]:
                                                  "VALUE")
         elif isinstance(param, TyperArgument) and param.name:
             param.metavar = param.name.upper()
-            # The argument's name says what it is; typer would add its type (<path>).
-            param.display_type_rich = _no_type
+            param.__class__ = _NamedArgument
     return params
 
 
-def _no_type(ctx: Any) -> None:
-    return None
+class _NamedArgument(TyperArgument):
+    """An argument whose name says what it is: typer would add its type (``<path>``)."""
+
+    def display_type_rich(self, ctx: Any) -> str | None:
+        return None
 
 
 def _usage(pieces: list[str]) -> list[str]:
