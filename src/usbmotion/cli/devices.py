@@ -14,16 +14,18 @@ from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT
 
 def devices(
     port: Annotated[list[str] | None, typer.Option(
-        "--port", "-p", help="Also probe this port path or URL (socket://HOST:PORT); repeat"
-        " for several.", show_default=False)] = None,
+        "--port", "-p", metavar="PORT", help="Also probe this port path or URL"
+        " (socket://HOST:PORT); repeat for several.", show_default=False)] = None,
     machine: Annotated[Path | None, typer.Option(
         "--machine", "-m", help="Also probe the ports and URLs this machine file names.",
         show_default=False)] = None,
     timeout_s: Annotated[float, typer.Option(
         "--timeout-s", help="How long each port has to answer, seconds.")] = 0.5,
 ) -> None:
-    """List the USB Motion Devices found: each port probed, and the device name it
-    answered with (call 18) or why it gave none (busy, no answer, not a device).
+    """List the USB Motion Devices found on serial ports and usbmotion sim's terminals.
+
+    Each port probed is printed with the device name it answered with (call 18) or why
+    it gave none (busy, no answer, not a device).
 
     Probed, in order: the --port ports, the ports and URLs of the --machine file, the
     pseudo-terminals that running usbmotion sim --pty servers announce, and the

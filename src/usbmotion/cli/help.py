@@ -1,5 +1,5 @@
 """How the ``usbmotion`` command's help reads: flags without a ``<bool>`` placeholder,
-arguments and values named in capitals (``PROGRAM``, ``FILE``), never a type in angle
+arguments and values named in capitals (``PROGRAM``, ``PATH``), never a type in angle
 brackets.
 
 :class:`UsbMotionTyper` is the ``typer.Typer`` of the command and its groups: every
@@ -17,7 +17,7 @@ import typer
 from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 from typer.models import CommandFunctionType
 
-_NAMED_TYPES = {"path": "FILE", "int": "N", "float": "NUMBER", "str": "TEXT"}
+_NAMED_TYPES = {"path": "PATH", "int": "N", "float": "NUMBER", "str": "TEXT"}
 """The placeholder of an option's value by its type, when the option names none."""
 
 

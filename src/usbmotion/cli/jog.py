@@ -70,8 +70,10 @@ def jog(
         " counts, without soft limits.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress line.")] = False,
 ) -> None:
-    """Jog: move axes by these distances from where they stand, at a feed, in machine
-    coordinates (work offsets do not apply), with each axis's acceleration.
+    """Move axes by these distances at a feed, within the soft limits.
+
+    The distances are in machine coordinates (work offsets do not apply) from where the
+    axes stand; the move is planned with each axis's acceleration.
 
     A jog that would leave an axis's travel (the soft limits) is refused naming the axis
     and the limit, and nothing moves. A machine that is not homed is homed first, as

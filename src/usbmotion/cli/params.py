@@ -57,7 +57,7 @@ def get(
         help="The parameter; every parameter when omitted.", show_default=False)] = None,
     machine: MachineOption = None,
 ) -> None:
-    """Print device parameters by name, with their units: what each axis's device holds now.
+    """Print device parameters by name, with their units, as each device holds them.
 
     The parameters: kp, ki, kd (the PID's gains), watchdog_ms, following_error_limit_counts,
     servo_interval_us, motion_scalar, diagnostics_interval_ticks, control_mode, and in
@@ -101,8 +101,9 @@ def set_parameter(
         " velocity, curve), or the device name as text.", show_default=False)],
     machine: MachineOption = None,
 ) -> None:
-    """Set one device parameter by name, checked against its allowed range first; prints
-    the value the device then answers with, and whether it is kept in flash or RAM.
+    """Set one device parameter by name, checked against its allowed range first.
+
+    Prints the value the device then answers with, and whether it is kept in flash or RAM.
 
     A value outside the parameter's range is refused before anything is sent, naming
     the parameter, the value and what is allowed.

@@ -164,8 +164,10 @@ def run(
         "--origin", help="Set the work origin (G54) first, in machine mm: --origin 'X100 Y100"
         " Z60' (or X100Y100Z60, or repeated); kept in the machine's parameter file.")] = None,
 ) -> None:
-    """Run a G-code program on the machine: home it if it is not homed, plan from where it stands,
-    check the travel, stream, then report and plot.
+    """Run a G-code program: home if needed, plan from where the machine stands, stream, report.
+
+    Before streaming, the program is checked against every axis's travel; at the end
+    the report is printed and the commanded and actual paths plotted.
 
     The program starts from where the machine is (after homing: each axis's
     home position), never from 0, and a program that leaves an axis's travel

@@ -52,25 +52,27 @@ def sim(
     pty: Annotated[int, typer.Option("--pty", help="Serve N devices on pseudo-terminals.",
                                      show_default=False)] = 0,
     tcp: Annotated[int | None, typer.Option(
-        "--tcp", help="Serve on TCP from this port up, one port per device (0: free ports).",
+        "--tcp", metavar="PORT",
+        help="Serve on TCP from this port up, one port per device (0: free ports).",
         show_default=False)] = None,
     count: Annotated[int, typer.Option(
         "--count", help="Number of devices with --tcp (default: one per --name, at least 1).",
         show_default=False)] = 0,
     name: Annotated[
         list[str] | None,
-        typer.Option("--name", help="Device name (repeat for several devices), max 25 chars.",
+        typer.Option("--name", metavar="NAME",
+                     help="Device name (repeat for several devices), max 25 chars.",
                      show_default=False),
     ] = None,
     flash_dir: Annotated[
         Path | None, typer.Option(
-            "--flash-dir", help="Folder of the devices' flash files (default:"
+            "--flash-dir", metavar="DIR", help="Folder of the devices' flash files (default:"
             " $XDG_STATE_HOME/usbmotion/flash).", show_default=False)
     ] = None,
     firmware: Annotated[
         Path | None,
         typer.Option(
-            "--firmware",
+            "--firmware", metavar="IMAGE",
             help="Serve emulated RP2040s running this firmware image (.uf2, its .elf beside "
             "it) instead of the Python devices.", show_default=False,
         ),
@@ -78,7 +80,7 @@ def sim(
     record: Annotated[
         Path | None,
         typer.Option(
-            "--record",
+            "--record", metavar="DIR",
             help="With --firmware: write the bytes each device receives, with the servo tick "
             "they arrived at, to DEVICE.rec in this folder (for a deterministic replay).",
             show_default=False,

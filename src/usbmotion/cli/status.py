@@ -26,9 +26,10 @@ if TYPE_CHECKING:
 
 
 def status(machine: MachineOption = None) -> None:
-    """Print the machine's state and every axis's state, position, servo, switches and
-    latched fault, as the devices hold them; nothing is changed (a fault is reported,
-    not cleared).
+    """Print the state, position, servo, switches and latched fault of every axis.
+
+    What the devices hold is read and nothing changed: a latched fault is reported, not
+    cleared.
 
     An axis is in Alarm with a latched fault, Run while its servo is on with setpoints
     queued, else Idle; the machine is in the worst of its axes' states. Positions are
@@ -115,8 +116,10 @@ def home(
     machine: MachineOption = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress line.")] = False,
 ) -> None:
-    """Home the machine's axes (grbl's cycle, in the machine file's homing order) and
-    leave them at their home positions, servos off, homed for the next command.
+    """Home every axis, or those named, and leave them homed for the next command.
+
+    grbl's cycle, in the machine file's homing order; the axes are left at their home
+    positions with their servos off.
 
     While homing, a progress line shows the state and each axis's position. Ctrl-C or
     SIGTERM brings every axis to rest along its deceleration (a second Ctrl-C stops at
