@@ -345,3 +345,13 @@ def test_the_commands_on_devices_served_on_pseudo_terminals(
         assert busy.returncode == 1
         assert busy.stderr == (f"usbmotion status: cannot open {paths['Z AXIS']!r}: busy:"
                                " another program has it open\n")
+
+
+def test_a_jog_is_in_machine_coordinates_whatever_the_work_offsets(tmp_path: Path) -> None:
+    machine = tmp_path / "machine.toml"
+    machine.write_text(default_machine().read_text())
+    with connect_session(load_machine_file(machine)) as session:
+        session.set_work_origin({"X": 50.0, "Y": 20.0})
+    code, out, err = invoke("jog", "X", "5", "--feed", "600", "-m", str(machine))
+    assert code == 0, err
+    assert out.endswith(": X 5.000  Y 0.000  Z 0.000 mm (machine coordinates)\n"), out

@@ -1,4 +1,5 @@
-"""``usbmotion jog``: an incremental jog, planned and run as a one-move program."""
+"""``usbmotion jog``: an incremental jog, planned and run as a one-move program in machine
+coordinates (G53)."""
 
 from __future__ import annotations
 
@@ -72,8 +73,8 @@ def jog(
 ) -> None:
     """Move axes by these distances at a feed, within the soft limits.
 
-    The distances are in machine coordinates (work offsets do not apply) from where the
-    axes stand; the move is planned with each axis's acceleration.
+    The distances are in machine coordinates (a G53 move: work and tool offsets do not
+    apply) from where the axes stand; the move is planned with each axis's acceleration.
 
     A jog that would leave an axis's travel (the soft limits) is refused naming the axis
     and the limit, and nothing moves. A machine that is not homed is homed first, as
@@ -151,7 +152,7 @@ def _jog(session: MachineSession, moves: dict[str, float], feed_mm_min: float, *
             return EXIT_BAD_INPUT
     words = " ".join(f"{letter}{start[letter] + distance:.6f}"
                      for letter, distance in moves.items())
-    text = f"G90 G21 G94\nG1 {words} F{feed_mm_min:.6f}\nM2\n"
+    text = f"G90 G21 G94\nG53 G1 {words} F{feed_mm_min:.6f}\nM2\n"
     try:
         prepared = session.prepare("jog", text=text, unhomed=no_home)
     except PlanningError as error:
