@@ -79,7 +79,7 @@ class HomingCycle:
             ) for name, axis in machine.axes.items() if name in self.names},
             clock=machine.clock, poll_period_s=1.0 / HOMING_POLL_HZ,
             tick_s=config.servo_period_s, motion_scalar=config.motion_scalar,
-            keep_alive_polls=max(1, int((keep_alive_period_s or 1.0) * HOMING_POLL_HZ)),
+            keep_alive_s=keep_alive_period_s or 1.0,
         )
         groups = [[name for name in group if name in self.names]
                   for group in config.homing_order]
