@@ -8,14 +8,14 @@ fault). Either way the line names the file or the port, never a traceback.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
 import typer
 
-from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, default_machine
+from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, default_machine, stop_on_signals
 from usbmotion.errors import ConfigError, UsbMotionError
 
 if TYPE_CHECKING:
@@ -84,3 +84,20 @@ def taken_over(config: MachineConfig, command: str) -> Iterator[MachineSession]:
         for notice in session.notices:
             typer.echo(f"notice: {notice}", err=True)
         yield session
+
+
+def act_on_session(config: MachineConfig, command: str,
+                   action: Callable[[MachineSession], int]) -> None:
+    """Take the machine over, run ``action`` on its session (Ctrl-C and SIGTERM bring it to
+    rest along its deceleration), then shut the session down (servos off, the machine left
+    homed for the next command); end the command with the action's exit status, or a
+    fault's if the shutdown failed."""
+    with taken_over(config, command) as session, stop_on_signals(session):
+        code = action(session)
+        try:
+            session.shutdown()
+        except UsbMotionError as error:
+            typer.echo(f"usbmotion {command}: {error}", err=True)
+            code = code or EXIT_FAULT
+    if code:
+        raise typer.Exit(code)

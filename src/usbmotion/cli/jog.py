@@ -9,14 +9,13 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from usbmotion.cli.connect import SIMULATED_NOTE, fail, load_machine, taken_over
+from usbmotion.cli.connect import SIMULATED_NOTE, act_on_session, fail, load_machine
 from usbmotion.cli.run import (
     EXIT_BAD_INPUT,
     EXIT_COMPLETED,
     EXIT_FAULT,
     MachineOption,
     exit_code,
-    stop_on_signals,
 )
 from usbmotion.cli.status import progress_line
 from usbmotion.errors import (
@@ -98,15 +97,8 @@ def jog(
              f" {config.path}", EXIT_BAD_INPUT)
     if not (math.isfinite(feed) and feed > 0):
         fail("jog", f"--feed {feed!r} must be a speed > 0 mm/min", EXIT_BAD_INPUT)
-    with taken_over(config, "jog") as session, stop_on_signals(session):
-        code = _jog(session, moves, feed, no_home=no_home, quiet=quiet)
-        try:
-            session.shutdown()
-        except UsbMotionError as error:
-            typer.echo(f"usbmotion jog: {error}", err=True)
-            code = code or EXIT_FAULT
-    if code:
-        raise typer.Exit(code)
+    act_on_session(config, "jog",
+                   lambda session: _jog(session, moves, feed, no_home=no_home, quiet=quiet))
 
 
 jog.__doc__ = f"{jog.__doc__}\n    {SIMULATED_NOTE}\n"

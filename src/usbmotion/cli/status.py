@@ -9,13 +9,18 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from usbmotion.cli.connect import SIMULATED_NOTE, fail, load_machine, opened_machine, taken_over
+from usbmotion.cli.connect import (
+    SIMULATED_NOTE,
+    act_on_session,
+    fail,
+    load_machine,
+    opened_machine,
+)
 from usbmotion.cli.run import (
     EXIT_BAD_INPUT,
     EXIT_FAULT,
     MachineOption,
     exit_code,
-    stop_on_signals,
 )
 from usbmotion.errors import SequenceFaultError, StopRequestedError, UsbMotionError
 
@@ -136,15 +141,7 @@ def home(
         fail("home", f"no axis {', '.join(map(repr, unknown))}; {config.path} has"
              f" {', '.join(config.axis_names)}", EXIT_BAD_INPUT)
     chosen = list(dict.fromkeys(letters)) or None
-    with taken_over(config, "home") as session, stop_on_signals(session):
-        code = _home(session, chosen, quiet=quiet)
-        try:
-            session.shutdown()
-        except UsbMotionError as error:
-            typer.echo(f"usbmotion home: {error}", err=True)
-            code = code or EXIT_FAULT
-    if code:
-        raise typer.Exit(code)
+    act_on_session(config, "home", lambda session: _home(session, chosen, quiet=quiet))
 
 
 home.__doc__ = f"{home.__doc__}\n    {SIMULATED_NOTE}\n"
