@@ -292,7 +292,7 @@ def test_a_missing_name_lists_every_port_searched_and_its_answer(
     assert "device 'Z AXIS' not found; searched 4 port(s)" in message
     assert f"sim://x?world={world_name}: 'X AXIS'" in message
     assert f"{quiet_url}: no answer within 0.1 s" in message
-    assert f"{missing}: could not open" in message
+    assert f"{missing}: no such port" in message
     assert "loop://: answered '21 0', not a device name" in message
 
 

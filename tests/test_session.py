@@ -29,6 +29,7 @@ from usbmotion.session import (
     check_transition,
     home_position_mm,
 )
+from usbmotion.session.progress import Progress
 from usbmotion.sim.machine import connect_session
 from usbmotion.sim.world import SimWorld
 
@@ -139,8 +140,8 @@ def _stop_mid_run(session: MachineSession, at_s: float, *, twice: bool = False) 
     """Ask the session to stop once the program reaches ``at_s`` (from its progress)."""
     asked = [False]
 
-    def progress(done_s: float, total_s: float) -> None:
-        if done_s >= at_s and not asked[0]:
+    def progress(update: Progress) -> None:
+        if update.done_s >= at_s and not asked[0]:
             asked[0] = True
             session.request_stop()
             if twice:
@@ -314,3 +315,24 @@ def test_usbmotion_run_refuses_a_program_beyond_the_travel_with_exit_2(tmp_path:
     assert f"{program}:3: X would reach 300.000 mm, beyond the upper end 200 mm" in (
         done.stderr)
     assert "homing" not in done.stdout and "Traceback" not in done.stderr
+
+
+def test_homing_feeds_every_watchdog_however_slowly_its_polls_come(
+        config: MachineConfig) -> None:
+    from dataclasses import replace  # noqa: PLC0415
+
+    from usbmotion.session.homing import HomingCycle  # noqa: PLC0415
+
+    watched = replace(config, watchdog_ms=1250)
+    with connect_session(watched) as session:
+        machine = session.machine
+        cycle = HomingCycle(machine, keep_alive_period_s=session.keep_alive_period_s(),
+                            stop_now=lambda: False)
+        cycle.enter_velocity_mode()
+        for _ in range(10):  # polls 0.6 s apart (a host far behind its 50 Hz): 6 s
+            machine.clock.sleep(0.6)
+            cycle.io.after_poll()
+        devices = _devices(session)
+        assert all(d.state.enable == 1 and d.state.fault == FaultCode.NONE
+                   for d in devices.values()), "no watchdog fault on any axis"
+        machine.stop()

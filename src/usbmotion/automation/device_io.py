@@ -94,7 +94,8 @@ class _Drive:
     status_at_s: float = 0.0
     previous_actual: int | None = None
     edge: SwitchEdge | None = None
-    quiet_polls: int = 0
+    heard_at_s: float = 0.0
+    """When the host last read this axis's status (any command keeps its watchdog fed)."""
 
 
 class DeviceHomingIO:
@@ -111,7 +112,8 @@ class DeviceHomingIO:
         poll_period_s: how often the sequence is polled.
         tick_s: the servo period; motion_scalar: servo ticks per queue value.
         cover_polls: polling periods a held velocity lasts on the device.
-        keep_alive_polls: an axis nothing reached gets a query every this many polls.
+        keep_alive_s: an axis whose status nothing read for this long (on ``clock``) gets a
+            query, so its watchdog never starves however slowly the polls come.
     """
 
     def __init__(
@@ -123,17 +125,15 @@ class DeviceHomingIO:
         tick_s: float,
         motion_scalar: int,
         cover_polls: int = 4,
-        keep_alive_polls: int = 1,
+        keep_alive_s: float = 0.5,
     ) -> None:
-        for name, value in (("poll_period_s", poll_period_s), ("tick_s", tick_s)):
+        for name, value in (("poll_period_s", poll_period_s), ("tick_s", tick_s),
+                            ("keep_alive_s", keep_alive_s)):
             if not (math.isfinite(value) and value > 0):
                 raise ArgumentError(f"{name} {value!r} must be > 0", reason=name)
         if cover_polls < 2:
             raise ArgumentError(f"cover_polls {cover_polls!r} must be >= 2",
                                   reason="cover_polls")
-        if keep_alive_polls < 1:
-            raise ArgumentError(f"keep_alive_polls {keep_alive_polls!r} must be >= 1",
-                                  reason="keep_alive_polls")
         self.axes = dict(axes)
         self.clock = clock
         self.poll_period_s = poll_period_s
@@ -141,11 +141,11 @@ class DeviceHomingIO:
         self.motion_scalar = motion_scalar
         self.period_s = tick_s * motion_scalar
         self.cover_polls = cover_polls
-        self.keep_alive_polls = keep_alive_polls
+        self.keep_alive_s = keep_alive_s
         self.velocity_commands = 0
         self.zeroes: dict[str, MachineZero] = {}
         """Axis -> how its machine zero was set (once it was)."""
-        self._drives = {name: _Drive() for name in self.axes}
+        self._drives = {name: _Drive(heard_at_s=clock.now()) for name in self.axes}
 
     # --- set-up ------------------------------------------------------------------------------
 
@@ -157,7 +157,7 @@ class DeviceHomingIO:
             client.set_gains(kp=kp, ki=ki, kd=kd)
             client.set_control_mode(ControlMode.VELOCITY)
             client.set_servo_enable(True)
-            self._drives[name] = _Drive()
+            self._drives[name] = _Drive(heard_at_s=self.clock.now())
 
     # --- reading -----------------------------------------------------------------------------
 
@@ -167,8 +167,7 @@ class DeviceHomingIO:
             axis = self.axes[name]
             status = axis.client.status()
             drive.status = status
-            drive.status_at_s = self.clock.now()
-            drive.quiet_polls = 0
+            drive.status_at_s = drive.heard_at_s = self.clock.now()
             if status.queued <= len(drive.queue):
                 del drive.queue[: len(drive.queue) - status.queued]
             else:
@@ -195,6 +194,12 @@ class DeviceHomingIO:
         if self.axes[axis].direction < 0:
             return LimitSwitchState(status.lower_limit, status.upper_limit)
         return LimitSwitchState(status.upper_limit, status.lower_limit)
+
+    def read_positions_mm(self) -> dict[str, float]:
+        """Each axis whose status this poll read: its actual position, mm, in machine
+        orientation (device counts scaled until the axis's zero is set)."""
+        return {name: self.axes[name].scale.to_mm(drive.status.actual_counts)
+                for name, drive in self._drives.items() if drive.status is not None}
 
     def position_mm(self, axis: str) -> float:
         """Where the axis is, mm, in the homing orientation."""
@@ -358,10 +363,10 @@ class DeviceHomingIO:
             if drive.status is not None:
                 drive.previous_actual = drive.status.actual_counts
             self._top_up(name)
-            drive.quiet_polls += 1
-            if drive.quiet_polls >= self.keep_alive_polls and drive.status is None:
+            now = self.clock.now()
+            if drive.status is None and now - drive.heard_at_s >= self.keep_alive_s:
                 self.axes[name].client.queue_status()
-                drive.quiet_polls = 0
+                drive.heard_at_s = now
             drive.status = None
             drive.edge = None
 

@@ -9,6 +9,7 @@ from typing import Annotated
 
 import typer
 
+from usbmotion.cli.help import UsbMotionTyper
 from usbmotion.motion.gcode import (
     GCodeProgram,
     distinct_ignored,
@@ -17,7 +18,7 @@ from usbmotion.motion.gcode import (
     read_gcode_text,
 )
 
-gcode_app = typer.Typer(
+gcode_app = UsbMotionTyper(
     name="gcode",
     help="Interpret G-code programs (RS274/NGC, as LinuxCNC reads them).",
     no_args_is_help=True,

@@ -2,17 +2,26 @@
 
 from __future__ import annotations
 
+import sys
+from typing import Annotated
+
 import typer
 
 from usbmotion import __version__
 from usbmotion.cli.console import console
+from usbmotion.cli.devices import devices
 from usbmotion.cli.gcode import gcode_app
+from usbmotion.cli.help import UsbMotionTyper
+from usbmotion.cli.jog import jog
+from usbmotion.cli.params import get, set_parameter
 from usbmotion.cli.run import run
 from usbmotion.cli.sim import sim
+from usbmotion.cli.status import home, status
 from usbmotion.cli.tune import tune
 from usbmotion.cli.zero import zero
+from usbmotion.errors import UsbMotionError
 
-app = typer.Typer(
+app = UsbMotionTyper(
     name="usbmotion",
     help="Closed-loop DC servo motion over USB serial: simulate, drive and test devices.",
     no_args_is_help=True,
@@ -20,8 +29,18 @@ app = typer.Typer(
 )
 
 
+def _print_version(asked: bool) -> None:
+    if asked:
+        typer.echo(__version__)
+        raise typer.Exit()
+
+
 @app.callback()
-def _root() -> None:
+def _root(
+    version: Annotated[bool, typer.Option(
+        "--version", help="Print the package version and exit.", is_eager=True,
+        callback=_print_version)] = False,
+) -> None:
     """Closed-loop DC servo motion over USB serial."""
 
 
@@ -36,9 +55,20 @@ app.command()(console)
 app.command()(tune)
 app.command()(sim)
 app.command()(zero)
+app.command()(status)
+app.command()(home)
+app.command(context_settings={"ignore_unknown_options": True})(jog)
+app.command()(get)
+app.command(name="set", context_settings={"ignore_unknown_options": True})(set_parameter)
+app.command()(devices)
 app.add_typer(gcode_app, name="gcode")
 
 
 def main() -> None:
-    """Run the command line."""
-    app()
+    """Run the command line: an error of the package or the system that a command let
+    through is one line, exit status 1, not a traceback."""
+    try:
+        app()
+    except (UsbMotionError, OSError) as error:
+        sys.stderr.write(f"usbmotion: {error}\n")
+        sys.exit(1)

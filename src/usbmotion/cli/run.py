@@ -32,6 +32,7 @@ if TYPE_CHECKING:
     from usbmotion.host.config import MachineConfig
     from usbmotion.motion.dialects import Dialect
     from usbmotion.session import MachineSession, Prepared, RunReport, Trace
+    from usbmotion.session.progress import Progress as SessionProgress
 
 EXIT_COMPLETED = 0
 EXIT_FAULT = 1
@@ -168,8 +169,10 @@ def run(
         "--origin", help="Set the work origin (G54) first, in machine mm: --origin 'X100 Y100"
         " Z60' (or X100Y100Z60, or repeated); kept in the machine's parameter file.")] = None,
 ) -> None:
-    """Run a G-code program on the machine: home it if it is not homed, plan from where it stands,
-    check the travel, stream, then report and plot.
+    """Run a G-code program: home if needed, plan from where the machine stands, stream, report.
+
+    Before streaming, the program is checked against every axis's travel; at the end
+    the report is printed and the commanded and actual paths plotted.
 
     The program starts from where the machine is (after homing: each axis's
     home position), never from 0, and a program that leaves an axis's travel
@@ -288,7 +291,7 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
 
     try:
         if not (no_home or session.is_homed):
-            homing_s = session.home()
+            homing_s = _home_with_progress(session, quiet=quiet)
             prepared = session.prepare(program, text=text, dialect=dialect)
     except StopRequestedError as error:
         reason = f"{error.reason} (while homing)"
@@ -350,14 +353,23 @@ def _with_progress(session: MachineSession, prepared: Prepared,
         TimeRemainingColumn,
     )
 
-    columns = (TextColumn("[bold]{task.description}"), BarColumn(),
+    columns = (TextColumn("{task.description}"), BarColumn(),
                TextColumn("{task.completed:.2f}/{task.total:.2f} s program time"),
                TimeRemainingColumn())
     with Progress(*columns, transient=True, disable=not sys.stderr.isatty()) as progress:
-        task = progress.add_task("running", total=prepared.plan.duration_s)
+        task = progress.add_task("Run", total=prepared.plan.duration_s)
 
-        def update(done_s: float, total_s: float) -> None:
-            progress.update(task, completed=done_s)
+        def update(report: SessionProgress) -> None:
+            progress.update(task, completed=report.done_s, description=report.describe())
 
         return session.run(prepared, on_progress=update, homing_s=homing_s)
+
+
+def _home_with_progress(session: MachineSession, *, quiet: bool) -> float:
+    """Home the machine, a progress line showing the state and the positions unless
+    ``quiet``; returns the seconds."""
+    from usbmotion.cli.status import progress_line  # noqa: PLC0415
+
+    with progress_line(not quiet) as show:
+        return session.home(on_progress=show)
 

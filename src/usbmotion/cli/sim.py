@@ -16,6 +16,7 @@ from typing import Annotated
 import typer
 
 from usbmotion.protocol import device_name_problem, encode_device_name
+from usbmotion.sim.pty_dir import announced
 from usbmotion.sim.server import DeviceServer
 from usbmotion.sim.world import SimWorld
 
@@ -48,74 +49,82 @@ def build_world(names: list[str], count: int, flash_dir: Path) -> SimWorld:
 
 
 def sim(
-    pty: Annotated[int, typer.Option("--pty", help="Serve N devices on pseudo-terminals.")] = 0,
-    tcp: Annotated[
-        int, typer.Option("--tcp", help="Serve on TCP from this port up, one port per device.")
-    ] = -1,
-    count: Annotated[
-        int, typer.Option("--count", help="Number of devices with --tcp (default: names or 1).")
-    ] = 0,
+    pty: Annotated[int, typer.Option("--pty", help="Serve N devices on pseudo-terminals.",
+                                     show_default=False)] = 0,
+    tcp: Annotated[int | None, typer.Option(
+        "--tcp", metavar="PORT",
+        help="Serve on TCP from this port up, one port per device (0: free ports).",
+        show_default=False)] = None,
+    count: Annotated[int, typer.Option(
+        "--count", help="Number of devices with --tcp (default: one per --name, at least 1).",
+        show_default=False)] = 0,
     name: Annotated[
         list[str] | None,
-        typer.Option("--name", help="Device name (repeat for several devices), max 25 chars."),
+        typer.Option("--name", metavar="NAME",
+                     help="Device name (repeat for several devices), max 25 chars.",
+                     show_default=False),
     ] = None,
     flash_dir: Annotated[
-        Path | None, typer.Option("--flash-dir", help="Folder of the devices' flash files.")
+        Path | None, typer.Option(
+            "--flash-dir", metavar="DIR", help="Folder of the devices' flash files (default:"
+            " $XDG_STATE_HOME/usbmotion/flash).", show_default=False)
     ] = None,
     firmware: Annotated[
         Path | None,
         typer.Option(
-            "--firmware",
+            "--firmware", metavar="IMAGE",
             help="Serve emulated RP2040s running this firmware image (.uf2, its .elf beside "
-            "it) instead of the Python devices.",
+            "it) instead of the Python devices.", show_default=False,
         ),
     ] = None,
     record: Annotated[
         Path | None,
         typer.Option(
-            "--record",
+            "--record", metavar="DIR",
             help="With --firmware: write the bytes each device receives, with the servo tick "
             "they arrived at, to DEVICE.rec in this folder (for a deterministic replay).",
+            show_default=False,
         ),
     ] = None,
 ) -> None:
     """Serve simulated devices in real time until SIGINT or SIGTERM.
 
     Prints one line per device, once it answers: its name and its pseudo-terminal path
-    (``--pty``) or its ``socket://`` URL (``--tcp``). SIGINT (Ctrl-C) or SIGTERM closes every
-    terminal and port, prints ``stopped`` and exits with status 0 (the way a server ends); a
-    second signal meanwhile, or one before the devices answer, ends it at once (status 130
-    or 143 in a shell). Status 1: the serving failed; 2: bad arguments.
+    (--pty) or its socket:// URL (--tcp); usbmotion devices lists the terminals too.
+    SIGINT (Ctrl-C) or SIGTERM closes every terminal and port, prints "stopped" and exits
+    with status 0 (the way a server ends); a second signal meanwhile, or one before the
+    devices answer, ends it at once (status 130 or 143 in a shell). Status 1: the serving
+    failed (a TCP port already in use, say); 2: bad arguments.
 
-    With ``--firmware``, each device is the device firmware running on an emulated RP2040
-    (``make firmware`` builds ``build/firmware/usbmotion.uf2``; the emulator needs Node.js 20
-    and ``npm ci`` in ``firmware/emulator``), its flash kept in ``--flash-dir`` (default:
-    ``$XDG_STATE_HOME/usbmotion/flash/rp2040``).
+    With --firmware, each device is the device firmware running on an emulated RP2040
+    (make firmware builds build/firmware/usbmotion.uf2; the emulator needs Node.js 20 and
+    npm ci in firmware/emulator), its flash kept in --flash-dir (default:
+    $XDG_STATE_HOME/usbmotion/flash/rp2040).
     """
     names = list(name or [])
     for each in names:
         problem = device_name_problem(each, allow_empty=False)
         if problem is not None:
             raise typer.BadParameter(problem, param_hint="--name")
-    if (pty > 0) == (tcp >= 0):
+    if (pty > 0) == (tcp is not None):
         raise typer.BadParameter("give exactly one of --pty N or --tcp PORT")
     if pty < 0 or pty > 64:
         raise typer.BadParameter(f"--pty {pty!r} must be 1..64")
-    if tcp > 65535:
+    if tcp is not None and not 0 <= tcp <= 65535:
         raise typer.BadParameter(f"--tcp {tcp!r} must be a port number 0..65535")
     devices = pty if pty > 0 else (count or max(1, len(names)))
     if not 1 <= devices <= 64:
         raise typer.BadParameter(f"--count {devices!r} must be 1..64")
     with _signals_end_start_up():
         if firmware is not None:
-            _serve_firmware(firmware, devices, names, pty=pty > 0, tcp_port=max(tcp, 0),
+            _serve_firmware(firmware, devices, names, pty=pty > 0, tcp_port=tcp or 0,
                             flash_dir=flash_dir or default_flash_dir() / "rp2040",
                             record=record)
         else:
             if record is not None:
                 raise typer.BadParameter("--record needs --firmware", param_hint="--record")
             _serve(build_world(names, devices, flash_dir or default_flash_dir()),
-                   pty=pty > 0, tcp_port=max(tcp, 0))
+                   pty=pty > 0, tcp_port=tcp or 0)
     sys.stdout.write("stopped\n")
     sys.stdout.flush()
 
@@ -161,10 +170,17 @@ def _signals_stop_serving() -> Iterator[threading.Event]:
 
 
 def _serve(world: SimWorld, *, pty: bool, tcp_port: int) -> None:
-    """Serve ``world``'s devices until a signal; print each one's address once it answers."""
-    with DeviceServer(world, pty=pty, tcp_port=tcp_port) as server:
+    """Serve ``world``'s devices until a signal; print each one's address once it answers
+    (and announce its terminal to ``usbmotion devices``)."""
+    try:
+        server = DeviceServer(world, pty=pty, tcp_port=tcp_port)
+    except OSError as error:
+        sys.stderr.write(f"usbmotion sim: {error.strerror or error}\n")
+        raise typer.Exit(1) from None
+    with server:
         server.warm_up()
-        with _signals_stop_serving() as stop:
+        paths = [endpoint.path for endpoint in server.endpoints] if pty else []
+        with _signals_stop_serving() as stop, announced(paths):
             for endpoint in server.endpoints:
                 where = endpoint.path if pty else f"socket://127.0.0.1:{endpoint.port}"
                 sys.stdout.write(f"{endpoint.name} {where}\n")
@@ -199,8 +215,9 @@ def _serve_firmware(
         server.close()
         sys.stderr.write(f"usbmotion sim: {error}\n")
         raise typer.Exit(2) from None
+    paths = [endpoint.url for endpoint in server.endpoints] if pty else []
     try:
-        with _signals_stop_serving() as stop:
+        with _signals_stop_serving() as stop, announced(paths):
             for endpoint in server.endpoints:
                 sys.stdout.write(f"{endpoint.name} {endpoint.url}\n")
             sys.stdout.flush()

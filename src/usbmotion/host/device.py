@@ -665,6 +665,10 @@ class DeviceClient:
         """Call 21: a diagnostics line every ``ticks`` servo ticks (0 = off)."""
         self.command(C.SET_DIAGNOSTICS_INTERVAL, ticks)
 
+    def diagnostics_interval(self) -> int:
+        """Call 21 query: servo ticks between diagnostics lines (0 = off)."""
+        return self.query(C.SET_DIAGNOSTICS_INTERVAL, -1).values[0]
+
     def zero_clock(self) -> None:
         """Call 22: zero the device clock (sent alone, not confirmed, for time sync)."""
         self.send(C.CLOCK, 0)
@@ -705,9 +709,17 @@ class DeviceClient:
         """Call 28: disable the servo after this long without a command (0 = off)."""
         self.command(C.SET_WATCHDOG, timeout_ms)
 
+    def watchdog_ms(self) -> int:
+        """Call 28 query: the watchdog timeout, ms (0 = off)."""
+        return self.query(C.SET_WATCHDOG, -1).values[0]
+
     def set_following_error_limit(self, counts: int) -> None:
         """Call 29: fault when |desired - actual| exceeds this (0 = off)."""
         self.command(C.SET_FOLLOWING_ERROR_LIMIT, counts)
+
+    def following_error_limit(self) -> int:
+        """Call 29 query: the following-error limit, counts (0 = off)."""
+        return self.query(C.SET_FOLLOWING_ERROR_LIMIT, -1).values[0]
 
     def clear_fault(self) -> None:
         """Call 30."""

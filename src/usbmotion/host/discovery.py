@@ -25,7 +25,7 @@ from usbmotion.errors import (
     UnexpectedReplyError,
 )
 from usbmotion.host.device import DeviceClient
-from usbmotion.host.transport import LineTransport
+from usbmotion.host.transport import LineTransport, open_problem
 from usbmotion.protocol import parse_reply
 
 PROBE_TIMEOUT_S = 0.5
@@ -42,9 +42,9 @@ class PortAnswer:
     Fields:
         url: the port path or URL.
         name: the device name it answered with, or ``None``.
-        problem: why there is no name: ``"no answer within 0.5 s"``, ``"could not open:
-            ..."``, ``"answered 'xyz', not a device name"``, ``"no device name: ..."``;
-            empty when a name came back.
+        problem: why there is no name: ``"no answer within 0.5 s"``, ``"busy: another
+            program has it open"``, ``"no such port"``, ``"answered 'xyz', not a device
+            name"``, ``"no device name: ..."``; empty when a name came back.
     """
 
     url: str
@@ -75,7 +75,7 @@ def probe(url: str, *, timeout_s: float = PROBE_TIMEOUT_S) -> PortAnswer:
     try:
         transport = LineTransport.open(url)
     except LinkLostError as error:
-        return PortAnswer(url, None, f"could not open: {error.__cause__ or error}")
+        return PortAnswer(url, None, open_problem(error.__cause__ or error))
     skipped: list[bytes] = []
 
     def keep(line: bytes) -> None:

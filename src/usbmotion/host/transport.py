@@ -14,6 +14,7 @@ link therefore resynchronises with a query of its own
 from __future__ import annotations
 
 import contextlib
+import errno
 from collections import deque
 from typing import Any
 
@@ -25,6 +26,23 @@ from usbmotion.ports import ClockedPort, ExactResetPort
 from usbmotion.protocol import LineSplitter, Overlong
 
 _MAX_REPLY_LINE = 1 << 16
+
+
+def open_problem(error: BaseException) -> str:
+    """Why a port could not be opened, in a few words: pyserial's message names the port
+    again and nests the system's error (``[Errno 2] could not open port /dev/x: [Errno 2]
+    No such file or directory: '/dev/x'``); the system's reason is enough."""
+    code = getattr(error, "errno", None)
+    text = str(error)
+    if code in (errno.EAGAIN, errno.EBUSY) or "exclusively lock" in text:
+        return "busy: another program has it open"
+    if code == errno.ECONNREFUSED or "Connection refused" in text:
+        return "connection refused: nothing serves that address"
+    if code == errno.ENOENT or "No such file or directory" in text:
+        return "no such port"
+    if code == errno.EACCES or "Permission denied" in text:
+        return "permission denied"
+    return text
 
 
 class LineTransport:
@@ -55,10 +73,15 @@ class LineTransport:
         Raises:
             LinkLostError: the port cannot be opened (the message names it and why).
         """
+        # A port path is locked for this host alone: a second host on one device would
+        # garble both hosts' exchanges.
+        exclusive = {} if "://" in url else {"exclusive": True}
         try:
-            port = serial.serial_for_url(url, baudrate=baudrate, timeout=0, write_timeout=5)
+            port = serial.serial_for_url(url, baudrate=baudrate, timeout=0, write_timeout=5,
+                                         **exclusive)
         except (serial.SerialException, OSError, ValueError) as error:
-            raise LinkLostError(f"cannot open {url!r}: {error}", device=label or url) from error
+            raise LinkLostError(f"cannot open {url!r}: {open_problem(error)}",
+                                device=label or url) from error
         return cls(port, label=label or url)
 
     @property

@@ -8,7 +8,7 @@ latched, and the homed mark a device carries afterwards.
 from __future__ import annotations
 
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 from usbmotion.automation.device_io import DeviceHomingIO, HomingAxis, MachineZero
@@ -55,16 +55,19 @@ class HomingCycle:
 
     Parameters:
         machine: the connected machine.
+        axes: the axes to home (default: every axis).
         keep_alive_period_s: how often the devices' watchdogs need a command (0: none).
         stop_now: True once a stop must not wait for the deceleration (every axis is then
             stopped at once).
     """
 
     def __init__(self, machine: Machine, *, keep_alive_period_s: float,
-                 stop_now: Callable[[], bool]) -> None:
+                 stop_now: Callable[[], bool], axes: Sequence[str] | None = None) -> None:
         self.machine = machine
         self.stop_now = stop_now
         config = machine.config
+        self.names = list(machine.axes) if axes is None else list(axes)
+        """The axes this cycle homes."""
         self.io = DeviceHomingIO(
             {name: HomingAxis(
                 client=axis.client, scale=axis.scale, direction=axis.config.homing.direction,
@@ -73,13 +76,17 @@ class HomingCycle:
                 velocity_gains=(axis.config.velocity_gains.kp, axis.config.velocity_gains.ki,
                                 axis.config.velocity_gains.kd),
                 gains=(axis.config.gains.kp, axis.config.gains.ki, axis.config.gains.kd),
-            ) for name, axis in machine.axes.items()},
+            ) for name, axis in machine.axes.items() if name in self.names},
             clock=machine.clock, poll_period_s=1.0 / HOMING_POLL_HZ,
             tick_s=config.servo_period_s, motion_scalar=config.motion_scalar,
-            keep_alive_polls=max(1, int((keep_alive_period_s or 1.0) * HOMING_POLL_HZ)),
+            keep_alive_s=keep_alive_period_s or 1.0,
         )
-        order = [list(group) for group in config.homing_order] or None
-        self.sequence = Home(list(machine.axes), self._axis_home, order=order)
+        groups = [[name for name in group if name in self.names]
+                  for group in config.homing_order]
+        order = [group for group in groups if group] or None
+        self.sequence = Home(self.names, self._axis_home, order=order)
+        self.positions_mm: dict[str, float] = {}
+        """Axis -> its position as last read while homing, mm."""
 
     def _axis_home(self, name: str) -> MoveAxisHome:
         homing = self.machine.axis(name).config.homing
@@ -91,9 +98,13 @@ class HomingCycle:
         """Every axis in velocity mode with its velocity gains, queue empty, servo enabled."""
         self.io.enter_velocity_mode()
 
-    def run(self, *, should_stop: Callable[[], str]) -> dict[str, MachineZero]:
+    def run(self, *, should_stop: Callable[[], str],
+            on_positions: Callable[[dict[str, float]], None] | None = None,
+            ) -> dict[str, MachineZero]:
         """Run the cycle (after :meth:`enter_velocity_mode`); returns each axis's machine
         zero. A stop or a fault brings every axis to rest before the error propagates.
+        ``on_positions`` is called at every poll with each axis's position as last read,
+        mm (device counts scaled until its zero is set).
 
         Raises:
             StopRequestedError: ``should_stop`` gave a reason.
@@ -105,7 +116,8 @@ class HomingCycle:
         try:
             run_sequence(sequence, io, io, clock=machine.clock, rate_hz=HOMING_POLL_HZ,
                          timeout_s=homing_timeout_s(machine.config),
-                         on_poll=lambda _: io.after_poll(), should_stop=should_stop)
+                         on_poll=lambda _: self._after_poll(on_positions),
+                         should_stop=should_stop)
         except StopRequestedError:
             self._settle()
             raise
@@ -128,11 +140,17 @@ class HomingCycle:
             zeroes[name] = replace(zero, seen_counts=seen)
         return zeroes
 
+    def _after_poll(self, on_positions: Callable[[dict[str, float]], None] | None) -> None:
+        if on_positions is not None:
+            self.positions_mm.update(self.io.read_positions_mm())
+            on_positions(dict(self.positions_mm))
+        self.io.after_poll()
+
     def _settle(self) -> None:
         """After a stopped homing: wait until every axis has ramped to rest."""
         machine, io = self.machine, self.io
         deadline = machine.clock.now() + REST_TIMEOUT_S
-        names = list(machine.axes)
+        names = self.names
         while True:
             if self.stop_now():
                 machine.stop()

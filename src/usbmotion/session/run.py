@@ -32,6 +32,7 @@ from usbmotion.motion.sampler import sample_plan
 from usbmotion.motion.stopping import stop_setpoints
 from usbmotion.protocol import FaultCode
 from usbmotion.session.planning import Prepared
+from usbmotion.session.progress import Progress
 from usbmotion.session.report import (
     SETTLE_COUNTS,
     FaultRecord,
@@ -82,12 +83,12 @@ class Run:
     Parameters:
         session: the session, in Run.
         prepared: the program, prepared from where the machine stands.
-        on_progress: called with (program seconds done, program seconds) as setpoints go.
+        on_progress: called with the run's progress as setpoints go.
         homing_s: how long the homing before the run took, for the report.
     """
 
     def __init__(self, session: MachineSession, prepared: Prepared,
-                 on_progress: Callable[[float, float], None] | None, homing_s: float) -> None:
+                 on_progress: Callable[[Progress], None] | None, homing_s: float) -> None:
         self.session = session
         self.machine = session.machine
         self.config = session.config
@@ -224,10 +225,17 @@ class Run:
     # --- watching -------------------------------------------------------------------------------
 
     def _progress(self, update: StreamProgress) -> None:
+        self._tell(min(s.consumed_estimate for s in self.streams.values()))
+
+    def _tell(self, done: float) -> None:
+        """Report progress: ``done`` setpoints of every axis executed."""
         if self.on_progress is not None:
-            done = min(s.consumed_estimate for s in self.streams.values())
-            self.on_progress(min(done * self.period_s, self.plan.duration_s),
-                             self.plan.duration_s)
+            done_s = min(done * self.period_s, self.plan.duration_s)
+            row = self.setpoints[min(max(0, int(done) - 1), self.setpoints.shape[0] - 1)]
+            where = {name: float(row[index]) / self.counts_per_mm[index]
+                     for index, name in enumerate(self.axes)}
+            self.on_progress(Progress(self.session.state, where, line_at(self.plan, done_s),
+                                      done_s, self.plan.duration_s))
 
     def _on_alarm(self, axis: str, alarm: Alarm) -> None:
         self._record(axis, alarm.fault_name, alarm.tick)
@@ -270,6 +278,7 @@ class Run:
             if self._should_stop():
                 return
             queued = max(client.queue_status()[0] for client in clients)
+            self._tell(min(stream.sent for stream in self.streams.values()) - queued)
             if not queued:
                 return
             self.clock.sleep(min(FAULT_CHECK_S, max(self.period_s, queued * self.period_s)))

@@ -31,7 +31,7 @@ every later front drive the machine through it.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,6 +54,7 @@ from usbmotion.motion.tools import NO_TOOLS, ToolTable, load_tool_table
 from usbmotion.protocol import FaultCode, fault_words
 from usbmotion.session.homing import HomingCycle, home_position_mm, homed_mark
 from usbmotion.session.planning import Prepared, plan_axes, prepare_program, program_axes
+from usbmotion.session.progress import Progress
 from usbmotion.session.report import RunReport, Trace
 from usbmotion.session.rest import STOP_LEAD_S, wait_for_rest
 from usbmotion.session.run import Run
@@ -331,13 +332,20 @@ class MachineSession:
 
     # --- homing -------------------------------------------------------------------------------
 
-    def home(self) -> float:
-        """Home every axis (grbl's cycle, in the configured order); returns the seconds.
+    def home(self, *, axes: Sequence[str] | None = None,
+             on_progress: Callable[[Progress], None] | None = None) -> float:
+        """Home every axis, or only ``axes`` (grbl's cycle, in the configured order);
+        returns the seconds.
 
-        Afterwards every axis is in position mode, enabled, at its home position (the
+        Afterwards every homed axis is in position mode, enabled, at its home position (the
         switch's machine position pulled off), and marked homed on its device.
 
+        Parameters:
+            axes: the axes to home (default: every axis), in any order.
+            on_progress: called with the homing's progress at every poll.
+
         Raises:
+            KeyError: an axis the machine does not have (the message lists those it has).
             MachineStateError: the machine is not Idle.
             SequenceFaultError: a switch was not found, did not open, or closed the wrong
                 way round (names the axis); every axis was brought to rest; Alarm.
@@ -345,16 +353,23 @@ class MachineSession:
                 homed.
             DeviceError: a device faulted or refused (Alarm).
         """
+        names = list(self.machine.axes) if axes is None else [
+            self.machine.axis(name).name for name in axes]
         self._enter(MachineState.HOMING)
         started = self.clock.now()
-        for name, axis in self.machine.axes.items():
+        for name in names:
             self.homed[name] = False
-            axis.client.set_homed_marker(0)
+            self.machine.axis(name).client.set_homed_marker(0)
         cycle = HomingCycle(self.machine, keep_alive_period_s=self.keep_alive_period_s(),
-                            stop_now=self._stop_now_requested)
+                            stop_now=self._stop_now_requested, axes=names)
         cycle.enter_velocity_mode()
+
+        def progress(where: dict[str, float]) -> None:
+            if on_progress is not None:
+                on_progress(Progress(MachineState.HOMING, where))
+
         try:
-            zeroes = cycle.run(should_stop=lambda: self._requests.reason)
+            zeroes = cycle.run(should_stop=lambda: self._requests.reason, on_positions=progress)
         except StopRequestedError:
             self.stop_latency_s = self.clock.now() - self._requests.at_s
             self._state = MachineState.IDLE
@@ -362,8 +377,9 @@ class MachineSession:
         except (SequenceFaultError, UsbMotionError):
             self._state = MachineState.ALARM
             raise
-        self.zeroes = zeroes
-        for name, axis in self.machine.axes.items():
+        self.zeroes.update(zeroes)
+        for name in names:
+            axis = self.machine.axis(name)
             axis.client.set_homed_marker(homed_mark(self.config, axis.config))
             self.homed[name] = True
         self._state = MachineState.IDLE
@@ -375,7 +391,7 @@ class MachineSession:
         self,
         prepared: Prepared,
         *,
-        on_progress: Callable[[float, float], None] | None = None,
+        on_progress: Callable[[Progress], None] | None = None,
         homing_s: float = 0.0,
     ) -> tuple[RunReport, Trace]:
         """Run a prepared program; returns the report and the trace.

@@ -99,7 +99,12 @@ class DeviceServer:
     def _open_tcp(self, endpoint: Endpoint, host: str, port: int) -> None:
         listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        listener.bind((host, port))
+        try:
+            listener.bind((host, port))
+        except OSError as error:
+            listener.close()
+            raise OSError(error.errno, f"cannot listen on {host}:{port}:"
+                          f" {error.strerror or error}") from error
         listener.listen(1)
         listener.setblocking(False)
         endpoint._listener = listener

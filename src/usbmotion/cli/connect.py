@@ -1,0 +1,103 @@
+"""Opening the machine a command acts on, every failure answered in one line.
+
+A machine file that is missing, unreadable or invalid ends the command with status 2
+(bad input: nothing was opened); a port that is missing or busy, a refused connection, a
+device that is not found or does not answer ends it with status 1 (a device or link
+fault). Either way the line names the file or the port, never a traceback.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING, NoReturn
+
+import typer
+
+from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, default_machine, stop_on_signals
+from usbmotion.errors import ConfigError, UsbMotionError
+
+if TYPE_CHECKING:
+    from usbmotion.host.config import MachineConfig
+    from usbmotion.host.machine import Machine
+    from usbmotion.session import MachineSession
+
+SIMULATED_NOTE = (
+    "Without --machine, the command acts on the built-in simulated machine, which lives"
+    " only as long as the command: each command finds it fresh (unhomed, at its start"
+    " positions). Point --machine at a file whose axes are ports, socket:// URLs of"
+    " usbmotion sim --tcp or terminals of usbmotion sim --pty to act on devices that stay."
+)
+"""What the help of a command acting on a machine says about the default one."""
+
+
+def fail(command: str, message: str, code: int) -> NoReturn:
+    """Print ``usbmotion COMMAND: MESSAGE`` on standard error and exit with ``code``."""
+    typer.echo(f"usbmotion {command}: {message}", err=True)
+    raise typer.Exit(code)
+
+
+def load_machine(machine: Path | None, command: str) -> MachineConfig:
+    """The machine file (the built-in simulated machine when ``machine`` is None), or the
+    command ended with status 2 and one line naming the file and what is wrong."""
+    from usbmotion.sim.machine import load_machine_file  # noqa: PLC0415 - keeps --help fast
+
+    try:
+        return load_machine_file(machine or default_machine())
+    except ConfigError as error:
+        fail(command, str(error), EXIT_BAD_INPUT)
+    except OSError as error:
+        fail(command, f"cannot read {str(machine)!r}: {error.strerror or error}",
+             EXIT_BAD_INPUT)
+
+
+@contextmanager
+def opened_machine(config: MachineConfig, command: str) -> Iterator[Machine]:
+    """The machine's links opened and resynchronised, nothing configured or cleared (so
+    what the devices hold is what a command reads); closed on leaving. A link that
+    cannot be opened or a device that does not answer ends the command with status 1."""
+    from usbmotion.sim.machine import connect_machine  # noqa: PLC0415
+
+    try:
+        machine = connect_machine(config)
+    except (UsbMotionError, OSError) as error:
+        fail(command, str(error), EXIT_FAULT)
+    with machine:
+        yield machine
+
+
+@contextmanager
+def taken_over(config: MachineConfig, command: str) -> Iterator[MachineSession]:
+    """A machine session on the machine, taken over as ``usbmotion run`` takes it (faults
+    an earlier host left read and cleared, the machine file's settings sent); its notices
+    printed; closed on leaving. Failing to connect ends the command with status 1."""
+    from usbmotion.session import MachineSession  # noqa: PLC0415
+    from usbmotion.sim.machine import connect_session  # noqa: PLC0415
+
+    try:
+        session = (connect_session(config) if config.is_simulated
+                   else MachineSession.connect(config))
+    except (UsbMotionError, OSError) as error:
+        fail(command, str(error), EXIT_FAULT)
+    with session:
+        for notice in session.notices:
+            typer.echo(f"notice: {notice}", err=True)
+        yield session
+
+
+def act_on_session(config: MachineConfig, command: str,
+                   action: Callable[[MachineSession], int]) -> None:
+    """Take the machine over, run ``action`` on its session (Ctrl-C and SIGTERM bring it to
+    rest along its deceleration), then shut the session down (servos off, the machine left
+    homed for the next command); end the command with the action's exit status, or a
+    fault's if the shutdown failed."""
+    with taken_over(config, command) as session, stop_on_signals(session):
+        code = action(session)
+        try:
+            session.shutdown()
+        except UsbMotionError as error:
+            typer.echo(f"usbmotion {command}: {error}", err=True)
+            code = code or EXIT_FAULT
+    if code:
+        raise typer.Exit(code)

@@ -1,0 +1,197 @@
+"""A device's parameters by name: each one a call of the command table, read and written
+through the client's validated methods, in the units the table gives.
+
+``kp`` is calls 9 (with 10 and 11 alongside: the client sets the gains together),
+``watchdog_ms`` call 28, ``name`` call 18 as text, ``default_mode`` call 19 as a word
+(``position``, ``velocity``, ``curve``). A parameter lives in flash (it persists across
+a power cycle: the device name, the default mode) or in RAM (lost at power-off, and set
+again from the machine file whenever a host takes the machine over).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import Enum
+
+from usbmotion.errors import ArgumentError
+from usbmotion.host.device import DeviceClient, to_sci
+from usbmotion.protocol import BY_NUMBER, DEVICE_NAME_MAX, CallNumber, ControlMode
+
+
+class Storage(Enum):
+    """Where a device keeps a parameter."""
+
+    RAM = "RAM"
+    """Lost at power-off; a host taking the machine over sets it from the machine file."""
+    FLASH = "flash"
+    """Kept across power cycles."""
+
+
+@dataclass(frozen=True, slots=True)
+class Parameter:
+    """One named device parameter.
+
+    Fields:
+        name: its name (snake_case, with its unit: ``watchdog_ms``).
+        call: the executive call that sets and queries it.
+        unit: its unit, as the output shows it ("" for words and text).
+        storage: flash or RAM.
+        meaning: what it is, in a phrase.
+        allowed: the values it takes, as a message shows them.
+        read: its value on a device, as text.
+        write: set it on a device from text (raises ArgumentError or OutOfRangeError
+            naming the parameter, the value and what is allowed).
+    """
+
+    name: str
+    call: CallNumber
+    unit: str
+    storage: Storage
+    meaning: str
+    allowed: str
+    read: Callable[[DeviceClient], str]
+    write: Callable[[DeviceClient, str], None]
+
+
+def _range(call: CallNumber) -> tuple[int, int]:
+    param = BY_NUMBER[call].params[0]
+    return param.minimum, param.maximum
+
+
+def _integer(name: str, text: str, allowed: str) -> int:
+    try:
+        return int(text, 10)
+    except ValueError:
+        raise ArgumentError(f"{name} {text!r} is not a whole number; allowed {allowed}",
+                            reason=name) from None
+
+
+def _number(name: str, text: str, allowed: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise ArgumentError(f"{name} {text!r} is not a finite number; allowed {allowed}",
+                            reason=name)
+    return value
+
+
+def _integer_parameter(name: str, call: CallNumber, unit: str, meaning: str,
+                       read: Callable[[DeviceClient], int],
+                       write: Callable[[DeviceClient, int], None],
+                       *, scale: int = 1) -> Parameter:
+    """A whole-number parameter whose range is the table's (times ``scale``: the servo
+    interval is set in tenths of a millisecond and shown in microseconds)."""
+    low, high = _range(call)
+    allowed = f"{low * scale}..{high * scale} {unit}".rstrip()
+    if scale != 1:
+        allowed += f" in steps of {scale}"
+
+    def set_from(client: DeviceClient, text: str) -> None:
+        value = _integer(name, text, allowed)
+        if value % scale or not low <= value // scale <= high:
+            raise ArgumentError(f"{name} {value!r} is out of range; allowed {allowed}",
+                                reason=name)
+        write(client, value // scale)
+
+    return Parameter(name, call, unit, Storage.RAM, meaning, allowed,
+                     lambda client: str(read(client)), set_from)
+
+
+_GAIN_COEFFICIENT = BY_NUMBER[CallNumber.SET_PROPORTIONAL_GAIN].params[0]
+_GAIN_EXPONENT = BY_NUMBER[CallNumber.SET_PROPORTIONAL_GAIN].params[1]
+_GAIN_ALLOWED = (f"0, or {10.0 ** _GAIN_EXPONENT.minimum:g}..{_GAIN_COEFFICIENT.maximum}e"
+                 f"{_GAIN_EXPONENT.maximum} with at most 3 significant digits")
+
+
+def _gain_parameter(index: int, name: str, call: CallNumber, unit: str,
+                    meaning: str) -> Parameter:
+    def read(client: DeviceClient) -> str:
+        return f"{client.gains()[index]:.3g}"
+
+    def write(client: DeviceClient, text: str) -> None:
+        value = _number(name, text, _GAIN_ALLOWED)
+        coefficient, exponent = to_sci(value, digits=3, parameter=name)
+        if not math.isclose(coefficient * 10.0**exponent, value, rel_tol=1e-9):
+            raise ArgumentError(f"{name} {text!r} has more than 3 significant digits; allowed"
+                                f" {_GAIN_ALLOWED}", reason=name)
+        gains = list(client.gains())
+        gains[index] = value
+        client.set_gains(kp=gains[0], ki=gains[1], kd=gains[2])
+
+    return Parameter(name, call, unit, Storage.RAM, meaning, _GAIN_ALLOWED, read, write)
+
+
+_MODE_WORDS = ", ".join(mode.word for mode in ControlMode)
+
+
+def _mode(name: str, text: str) -> ControlMode:
+    for mode in ControlMode:
+        if mode.word == text.strip().lower():
+            return mode
+    raise ArgumentError(f"{name} {text!r} is not a control mode; allowed {_MODE_WORDS}",
+                        reason=name)
+
+
+def _set_name(client: DeviceClient, text: str) -> None:
+    client.set_name(text)
+
+
+PARAMETERS: tuple[Parameter, ...] = (
+    _gain_parameter(0, "kp", CallNumber.SET_PROPORTIONAL_GAIN, "V/count",
+                    "proportional gain of the PID"),
+    _gain_parameter(1, "ki", CallNumber.SET_INTEGRAL_GAIN, "V/(count s)",
+                    "integral gain of the PID"),
+    _gain_parameter(2, "kd", CallNumber.SET_DERIVATIVE_GAIN, "V s/count",
+                    "derivative gain of the PID"),
+    _integer_parameter("watchdog_ms", CallNumber.SET_WATCHDOG, "ms",
+                       "no command for this long while enabled disables the servo (0 off)",
+                       DeviceClient.watchdog_ms, DeviceClient.set_watchdog_ms),
+    _integer_parameter("following_error_limit_counts", CallNumber.SET_FOLLOWING_ERROR_LIMIT,
+                       "counts", "a larger following error faults the axis (0 off)",
+                       DeviceClient.following_error_limit,
+                       DeviceClient.set_following_error_limit),
+    _integer_parameter("servo_interval_us", CallNumber.SET_SERVO_UPDATE_INTERVAL, "us",
+                       "servo loop period; setting it clears the motion queue",
+                       DeviceClient.servo_interval_us,
+                       DeviceClient.set_servo_interval_dms, scale=100),
+    _integer_parameter("motion_scalar", CallNumber.SET_MOTION_UPDATE_INTERVAL_SCALAR,
+                       "ticks", "servo ticks per motion-queue value; setting it clears"
+                       " the queue", DeviceClient.motion_scalar, DeviceClient.set_motion_scalar),
+    _integer_parameter("diagnostics_interval_ticks", CallNumber.SET_DIAGNOSTICS_INTERVAL,
+                       "ticks", "a diagnostics line every this many servo ticks (0 off)",
+                       DeviceClient.diagnostics_interval,
+                       DeviceClient.set_diagnostics_interval),
+    Parameter("control_mode", CallNumber.SET_CONTROL_MODE, "", Storage.RAM,
+              "what the motion queue's values are; setting it clears the queue",
+              _MODE_WORDS, lambda client: client.control_mode().word,
+              lambda client, text: client.set_control_mode(_mode("control_mode", text))),
+    Parameter("default_mode", CallNumber.SET_DEFAULT_CONTROL_MODE, "", Storage.FLASH,
+              "control mode at power-up", _MODE_WORDS,
+              lambda client: client.default_mode().word,
+              lambda client, text: client.set_default_mode(_mode("default_mode", text))),
+    Parameter("name", CallNumber.SET_DEVICE_NAME, "", Storage.FLASH,
+              "the device's name, which machine files find it by",
+              f"up to {DEVICE_NAME_MAX} printable ASCII characters ('' restores the"
+              " default name)", DeviceClient.device_name, _set_name),
+)
+"""Every named parameter, in the order ``usbmotion get`` lists them."""
+
+BY_PARAMETER_NAME = {parameter.name: parameter for parameter in PARAMETERS}
+
+
+def parameter(name: str) -> Parameter:
+    """The parameter called ``name``.
+
+    Raises:
+        ArgumentError: no such parameter (the message lists them).
+    """
+    try:
+        return BY_PARAMETER_NAME[name]
+    except KeyError:
+        raise ArgumentError(
+            f"no parameter {name!r}; the parameters are {', '.join(BY_PARAMETER_NAME)}",
+            reason="name") from None
