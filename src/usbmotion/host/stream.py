@@ -212,6 +212,23 @@ class SetpointStream:
         above = self._queued - self.low_water
         return self._status_time + max(above, 1) * self.period_s
 
+    def replace_future(self, index: int, values: Sequence[int] | npt.NDArray[np.integer],
+                       *, sent: int) -> None:
+        """Take note that the device's queue was replaced from value ``index`` on (call 38,
+        :meth:`DeviceClient.replace_from`) by the first ``sent`` of ``values``: the stream's
+        values from ``index`` become ``values``, and streaming goes on after those sent.
+
+        Raises:
+            ArgumentError: ``index`` beyond the values, or ``sent`` beyond ``values``.
+        """
+        array = np.asarray(values, dtype=np.int64)
+        if not 0 <= index <= self.total or not 0 <= sent <= array.size:
+            raise ArgumentError(f"replace_future index {index!r} (of {self.total}) or sent"
+                                f" {sent!r} (of {array.size}) out of range", reason="index")
+        self._values = np.concatenate((self._values[:index], array))
+        self.sent = index + sent
+        self._finished = self._now() if self.done_sending else None
+
     def service(self) -> None:
         """Top the queue up if it is low; reports progress every time it is called.
 

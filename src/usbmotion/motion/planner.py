@@ -183,6 +183,9 @@ class Plan:
         v_junction_max_mm_s: (n + 1,) the speed limit at each vertex before the passes
             (junction deviation, centripetal and nominal caps; 0 at stops): why a corner is
             as slow as it is.
+        feed_mm_s: (n,) the path speed each segment asked for: the feed for feed moves,
+            ``inf`` for rapids (the axes' own limits), 0 for dwells (re-planning the rest of
+            a program at another speed starts from it: ``motion.replanning``).
         duration_s: total time of the program.
         move_count: how many input moves were planned.
         axes: the letters of the columns (``"XYZ"``, ``"XY"``, ...).
@@ -204,6 +207,7 @@ class Plan:
     v_junction_max_mm_s: FloatArray
     duration_s: float
     move_count: int
+    feed_mm_s: FloatArray
     axes: str = DEFAULT_AXES
 
     def __len__(self) -> int:
@@ -515,6 +519,7 @@ def _plan_columns(
     arc_rows: list[_ArcRow],
     arc_planes: list[tuple[int, int, int]],
     axes: str,
+    entry_speed_mm_s: float = 0.0,
 ) -> Plan:
     counts = np.array(item_count, dtype=np.int64)
     kinds_item = np.array(item_kind, dtype=np.int8)
@@ -584,6 +589,7 @@ def _plan_columns(
                 inv_a,
                 config.junction_deviation_mm,
             )
+    junction_sq[0] = entry_speed_mm_s * entry_speed_mm_s
     junction_sq[dwells] = 0.0
     junction_sq[dwells + 1] = 0.0
 
@@ -635,6 +641,7 @@ def _plan_columns(
         v_junction_max_mm_s=_readonly(np.sqrt(junction_sq)),  # type: ignore[arg-type]
         duration_s=duration,
         move_count=move_count,
+        feed_mm_s=_readonly(speed),  # type: ignore[arg-type]
         axes=axes,
     )
 

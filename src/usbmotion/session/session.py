@@ -24,6 +24,13 @@ every later front drive the machine through it.
   first request brings every axis to rest along the program's path at its planned
   deceleration (call 38 replaces the queued future from a device tick just ahead, so there
   is no seam whatever the latency); a second one stops at once (servos off: the axes coast).
+- **Feed hold, resume, overrides** (:meth:`MachineSession.request_hold`,
+  :meth:`MachineSession.request_resume`, :meth:`MachineSession.set_feed_override`,
+  :meth:`MachineSession.set_rapid_override`, safe from another thread or a signal
+  handler): a hold decelerates along the path as a stop does and keeps the program's
+  place; a resume plans the rest of the path from rest there and starts every axis on
+  one device tick; an override plans the queued future again at the new speed and
+  replaces it from a device tick just ahead (:mod:`usbmotion.motion.replanning`).
 - **Leaving** (:meth:`MachineSession.shutdown`): every axis at rest, servos disabled
   without latching a fault, the homed mark kept for the next host.
 """
@@ -60,15 +67,23 @@ from usbmotion.session.rest import STOP_LEAD_S, wait_for_rest
 from usbmotion.session.run import Run
 from usbmotion.session.state import MachineState, StopReason, check_transition
 
+FEED_OVERRIDE_RANGE = (10, 200)
+"""The feed override's range, percent (grbl's)."""
+RAPID_OVERRIDES = (25, 50, 100)
+"""The rapid override's values, percent (grbl's)."""
+
 
 @dataclass(slots=True)
 class _Requests:
-    """Stop requests, set from a signal handler: plain fields only."""
+    """Stop, hold and resume requests, set from a signal handler: plain fields only."""
 
     reason: str = ""
     count: int = 0
     at_s: float = 0.0
-    """When the first request came (the session's clock)."""
+    """When the first stop request came (the session's clock)."""
+    hold: bool = False
+    hold_at_s: float = 0.0
+    resume: bool = False
 
 
 class MachineSession:
@@ -101,6 +116,15 @@ class MachineSession:
         """Axis -> (fault code, device tick) of a fault an earlier host left, which the
         take-over cleared."""
         self._requests = _Requests()
+        self.feed_override_percent = 100
+        """Feed moves run at this percentage of their feed (:meth:`set_feed_override`)."""
+        self.rapid_override_percent = 100
+        """Rapids run at this percentage of the axes' speed (:meth:`set_rapid_override`)."""
+        self.override_at_s = 0.0
+        """When an override last changed (the session's clock)."""
+        self.last_run: Run | None = None
+        """The last run: its holds (:attr:`Run.holds`) and override seams (:attr:`Run.seams`)
+        for the figures of a benchmark."""
 
     # --- connecting and taking over ---------------------------------------------------------
 
@@ -330,6 +354,73 @@ class MachineSession:
         """Forget a stop request (a console does, once the stop is done)."""
         self._requests = _Requests()
 
+    # --- feed hold, resume and overrides --------------------------------------------------
+
+    def request_hold(self) -> None:
+        """Ask a running program to hold (grbl's ``!``): every axis decelerates along the
+        path at its acceleration limit to rest and stays there, enabled (state Hold), until
+        :meth:`request_resume` continues the path from there or :meth:`request_stop`
+        abandons the program. Ignored when no program runs or it already holds. Safe to
+        call from a signal handler or another thread (it only sets fields)."""
+        requests = self._requests
+        if self._state is MachineState.RUN and not requests.hold:
+            requests.hold_at_s = self.clock.now()
+            requests.resume = False
+            requests.hold = True
+
+    def request_resume(self) -> None:
+        """Ask a held program to continue (grbl's ``~``, cycle start): the rest of the path
+        is planned from rest where the axes stand and streamed from a common device tick.
+        Ignored unless the program holds or is holding. Safe from a signal handler."""
+        if self._requests.hold:
+            self._requests.resume = True
+
+    @property
+    def hold_requested(self) -> bool:
+        """True from a hold request until the run resumes."""
+        return self._requests.hold
+
+    def set_feed_override(self, percent: int) -> None:
+        """Run feed moves at ``percent`` of their programmed feed (grbl's feed override).
+
+        A running program's queued future is planned again at the new speed from a device
+        tick just ahead and replaced there (call 38), the speed changing within the axes'
+        acceleration limits; the axes' own velocity limits still apply. Held or idle, the
+        next motion uses it. Safe from another thread.
+
+        Raises:
+            ArgumentError: ``percent`` is not a whole number within 10 .. 200.
+        """
+        low, high = FEED_OVERRIDE_RANGE
+        if isinstance(percent, bool) or not isinstance(percent, int) or not (
+                low <= percent <= high):
+            raise ArgumentError(f"feed override {percent!r} %: a whole percentage within"
+                                f" {low} .. {high}", reason="feed_override")
+        self.override_at_s = self.clock.now()
+        self.feed_override_percent = percent
+
+    def set_rapid_override(self, percent: int) -> None:
+        """Run rapids at ``percent`` of the fastest the axes allow (grbl's rapid override:
+        100, 50 or 25), taking effect as :meth:`set_feed_override` does.
+
+        Raises:
+            ArgumentError: ``percent`` is not one of 25, 50, 100.
+        """
+        if isinstance(percent, bool) or percent not in RAPID_OVERRIDES:
+            allowed = ", ".join(map(str, RAPID_OVERRIDES))
+            raise ArgumentError(f"rapid override {percent!r} %: one of {allowed}",
+                                reason="rapid_override")
+        self.override_at_s = self.clock.now()
+        self.rapid_override_percent = percent
+
+    def _take_hold_request(self) -> tuple[bool, bool]:
+        """(hold asked, resume asked); a resume clears both."""
+        requests = self._requests
+        if requests.resume:
+            requests.hold = requests.resume = False
+            return True, True
+        return requests.hold, False
+
     # --- homing -------------------------------------------------------------------------------
 
     def home(self, *, axes: Sequence[str] | None = None,
@@ -421,8 +512,11 @@ class MachineSession:
                 f"the program was prepared from {prepared.start_mm} but the machine stands"
                 f" at {here}: prepare it again", state=state)
         self._enter(MachineState.RUN)
-        run = Run(self, prepared, on_progress, homing_s)
-        report, trace = run.go()
+        run = self.last_run = Run(self, prepared, on_progress, homing_s)
+        try:
+            report, trace = run.go()
+        finally:
+            self._requests.hold = self._requests.resume = False
         self._state = MachineState.ALARM if run.faulted else MachineState.IDLE
         for name in run.faulted_axes:
             self.homed[name] = False

@@ -10,14 +10,17 @@
       ^   reset()                                          RUN --completed--> IDLE
       |                                                    RUN --stop asked--> HOLD
       +------------- at rest (program abandoned) --------- HOLD
+                                                           HOLD --resume--> RUN
                                                            RUN --fault / link lost--> ALARM
 
 - ``IDLE``: connected, nothing moving; homed or not (:attr:`MachineSession.homed`).
 - ``HOMING``: the homing cycle runs; a stop request brings every axis to rest along its
   deceleration and leaves the machine ``IDLE`` and not homed.
 - ``RUN``: a program is streaming.
-- ``HOLD``: the machine decelerates along the program's path to a stop (a stop was
-  asked); it becomes ``IDLE`` once every axis is at rest, the rest of the program dropped.
+- ``HOLD``: the machine decelerates along the program's path to rest. After a stop
+  request it becomes ``IDLE`` once every axis is at rest, the rest of the program dropped;
+  after a feed hold it stays at rest, servos enabled, keeping the program's place, until a
+  resume (back to ``RUN``, the path continued from there) or a stop (``IDLE``).
 - ``ALARM``: a device latched a fault, a link was lost or an axis could not be stopped:
   nothing moves until :meth:`MachineSession.reset`, which clears the faults and, when a
   fault disabled a servo (position may be lost), requires homing again.
@@ -45,7 +48,7 @@ TRANSITIONS: Mapping[MachineState, frozenset[MachineState]] = {
     MachineState.IDLE: frozenset({MachineState.HOMING, MachineState.RUN, MachineState.ALARM}),
     MachineState.HOMING: frozenset({MachineState.IDLE, MachineState.ALARM}),
     MachineState.RUN: frozenset({MachineState.IDLE, MachineState.HOLD, MachineState.ALARM}),
-    MachineState.HOLD: frozenset({MachineState.IDLE, MachineState.ALARM}),
+    MachineState.HOLD: frozenset({MachineState.IDLE, MachineState.RUN, MachineState.ALARM}),
     MachineState.ALARM: frozenset({MachineState.IDLE}),
 }
 """Every state a state may change to (documented in the module docstring)."""
