@@ -34,7 +34,7 @@ class ExecutedRecorder:
             if not isinstance(device, Device):
                 raise TypeError(f"{key}: {device!r} is not a Python device")
             self._devices[key] = device
-            device.run = self._stepper(key, device, on_tick if index == 0 else None)  # type: ignore[method-assign]
+            device.__dict__["run"] = self._stepper(key, device, on_tick if index == 0 else None)
 
     def _stepper(self, key: str, device: Device,
                  on_tick: Callable[[int], None] | None) -> Callable[[int], None]:
