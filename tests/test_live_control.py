@@ -106,11 +106,17 @@ def _distance_to_path(points: Positions, path: Positions) -> float:
     keep = np.concatenate(([True], np.any(np.diff(path_f, axis=0) != 0, axis=1)))
     path_f = path_f[keep]
     start, end = path_f[:-1], path_f[1:]
+    cell = 16.0
+    cells: dict[tuple[int, int, int], list[int]] = {}
+    for index, key in enumerate(map(tuple, np.floor(start / cell).astype(np.int64).tolist())):
+        cells.setdefault(key, []).append(index)  # type: ignore[arg-type]
+    offsets = [(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)]
     worst = 0.0
     for point in np.unique(points, axis=0).astype(np.float64):
-        near = np.flatnonzero(np.abs(start - point).max(axis=1) < 20)
-        if near.size == 0:
-            return np.inf
+        x, y, z = np.floor(point / cell).astype(np.int64).tolist()
+        near = [n for i, j, k in offsets for n in cells.get((x + i, y + j, z + k), ())]
+        if not near:
+            return float("inf")
         a, b = start[near], end[near]
         d = b - a
         t = np.clip(np.einsum("ij,ij->i", point - a, d) / np.einsum("ij,ij->i", d, d), 0, 1)
