@@ -27,7 +27,6 @@ from collections.abc import Callable
 from typing import Any
 
 from _common import argument_parser, emit, parse_arguments
-
 from usbmotion.cli.run import default_machine
 from usbmotion.host.config import MachineConfig, load_config
 from usbmotion.session import MachineSession
