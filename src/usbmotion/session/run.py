@@ -70,7 +70,7 @@ FAULT_CHECK_S = 0.05
 lines that came); it reads them whenever it wakes, at least this often."""
 STATUS_CHECK_S = 1.0
 """How often a run also asks every device its status, in case an alarm line was lost."""
-REQUEST_CHECK_S = 0.005
+REQUEST_CHECK_S = 0.01
 """The longest a run goes without looking at the operator's requests (hold, stop,
 overrides): with :data:`STOP_LEAD_S` it bounds a hold's latency."""
 RESUME_MARGIN_S = 0.05
