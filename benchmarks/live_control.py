@@ -44,6 +44,7 @@ def _one(config: MachineConfig, request_tick: int,
     of the request."""
     asked = [0]
     with connect_session(config) as session:
+        session.live_control = True
         session.home()
         world = session.machine.world
         assert world is not None

@@ -43,11 +43,13 @@ def config() -> MachineConfig:
 
 
 def _run(config: MachineConfig,
-         act: Callable[[MachineSession, int], None] | None = None) -> tuple[
-             MachineSession, Positions, object]:
+         act: Callable[[MachineSession, int], None] | None = None, *,
+         live: bool = True) -> tuple[MachineSession, Positions, object]:
     """Home, run the demo with ``act(session, tick)`` called on every servo tick, and
-    return the session (closed), what the devices executed during the run, and the report."""
+    return the session (closed), what the devices executed during the run, and the report.
+    ``live``: the session's live control (requests looked at every 10 ms, else 50 ms)."""
     with connect_session(config) as session:
+        session.live_control = live
         session.home()
         world = session.machine.world
         assert world is not None
@@ -139,8 +141,9 @@ def _at_rest_spans(positions: Positions, least: int) -> list[tuple[int, int]]:
             if b - a >= least]
 
 
+@pytest.mark.parametrize("live", [True, False], ids=["live", "batch"])
 def test_hold_then_resume_keeps_the_path_within_the_limits(
-        config: MachineConfig, reference: Positions) -> None:
+        config: MachineConfig, reference: Positions, live: bool) -> None:
     states: list[MachineState] = []
 
     def act(session: MachineSession, tick: int) -> None:
@@ -150,7 +153,7 @@ def test_hold_then_resume_keeps_the_path_within_the_limits(
             states.append(session.state)
             session.request_resume()
 
-    session, positions, report = _run(config, act)
+    session, positions, report = _run(config, act, live=live)
     assert states == [MachineState.HOLD]
     assert report.completed and session.final_state is MachineState.IDLE  # type: ignore[attr-defined]
     assert _at_rest_spans(positions, 300), "it came to rest and stayed there"
@@ -227,6 +230,7 @@ def test_an_override_keeps_the_path_and_the_limits(config: MachineConfig, refere
 
 def test_override_values_outside_their_range_are_refused(config: MachineConfig) -> None:
     with connect_session(config) as session:
+        session.live_control = True
         for bad in (9, 201, 0, 50.5, True):
             with pytest.raises(ArgumentError, match=r"feed override .* 10 \.\. 200"):
                 session.set_feed_override(bad)  # type: ignore[arg-type]

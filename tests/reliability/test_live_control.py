@@ -33,6 +33,7 @@ def test_hold_resume_and_stop_on_served_devices(tmp_path: Path) -> None:
     with served(tmp_path / "flash") as paths:
         config = load_config(bench_machine(tmp_path, paths, watchdog_ms=1250))
         with MachineSession.connect(config) as session:
+            session.live_control = True
             session.home()
             prepared = session.prepare("line.ngc", text=LINE)
             result: list[object] = []

@@ -230,8 +230,9 @@ class Run:
         """Stream until the program ends, a fault or a stop ends it (an ending), or a hold
         that resumed or an override asks to go on streaming (None)."""
         session = self.session
+        check_s = REQUEST_CHECK_S if session.live_control else FAULT_CHECK_S
         run_streams(list(self.streams.values()), should_stop=self._should_stop,
-                    max_wait_s=REQUEST_CHECK_S)
+                    max_wait_s=check_s)
         if not self._interrupted():
             self._wait_drained()
         if not self._interrupted():

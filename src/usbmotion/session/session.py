@@ -103,6 +103,12 @@ class MachineSession:
         self._state = MachineState.IDLE
         self.homed: dict[str, bool] = dict.fromkeys(machine.axes, False)
         """Axis -> True when its device's counter holds machine coordinates."""
+        self.live_control = False
+        """True when something may ask for a hold, a resume or an override while a program
+        runs (a console, a front): the run then looks at requests every
+        :data:`~usbmotion.session.run.REQUEST_CHECK_S` (a hold within 20 ms) instead of
+        every :data:`~usbmotion.session.run.FAULT_CHECK_S` (a batch run: fewer wake-ups,
+        faster in virtual time). Requests work either way; only how soon differs."""
         self.notices: list[str] = []
         """What the session found and did that the operator should hear of (a fault an
         earlier host left, motion it stopped, ...), oldest first."""
