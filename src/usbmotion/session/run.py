@@ -149,6 +149,8 @@ class Run:
         """Every override's request time (s) and the device tick its new speed began on."""
         self.drained = False
         self.faults_read_s = 0.0
+        self.check_s = REQUEST_CHECK_S if session.live_control else FAULT_CHECK_S
+        """How long the stream waits at most between looks at requests and faults."""
         self.trace = Trace(tick_s=self.tick_s, start_tick=0,
                            counts_per_mm={n: self.machine.axis(n).config.counts_per_mm
                                           for n in self.machine.axes})
@@ -230,9 +232,8 @@ class Run:
         """Stream until the program ends, a fault or a stop ends it (an ending), or a hold
         that resumed or an override asks to go on streaming (None)."""
         session = self.session
-        check_s = REQUEST_CHECK_S if session.live_control else FAULT_CHECK_S
         run_streams(list(self.streams.values()), should_stop=self._should_stop,
-                    max_wait_s=check_s)
+                    max_wait_s=self.check_s)
         if not self._interrupted():
             self._wait_drained()
         if not self._interrupted():
@@ -332,7 +333,9 @@ class Run:
         :data:`FAULT_CHECK_S`, or at once with ``now_``) and every :data:`STATUS_CHECK_S`
         asks every device its status."""
         now = self.clock.now()
-        if not now_ and now - self.faults_read_s < FAULT_CHECK_S and not self.faults:
+        if (not now_ and not self.faults
+                and now - self.faults_read_s + self.check_s <= FAULT_CHECK_S):
+            # the next wake still comes within FAULT_CHECK_S of the last read
             return bool(self.faults)
         self.faults_read_s = now
         for axis in self.machine.axes.values():
