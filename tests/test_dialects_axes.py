@@ -348,8 +348,10 @@ def test_a_grbl_laser_program_runs_in_the_grbl_dialect(tmp_path: Path) -> None:
     machine = tmp_path / "laser.toml"
     machine.write_text(DEFAULT.read_text().replace('name = "simulated XYZ"',
                                                    'name = "laser"\ndialect = "grbl"'))
-    report, _ = _run(tmp_path, PROGRAMS / "laser.nc", "--machine", str(machine))
+    report, out = _run(tmp_path, PROGRAMS / "laser.nc", "--machine", str(machine))
     assert report["completed"] is True
+    assert "S words (line 5: spindle speed or laser power; 5 times)" in out, (
+        "words of one letter and several values are named by the letter")
     assert report["end_position_mm"] == pytest.approx({"X": 0.0, "Y": 0.0, "Z": 0.0},
                                                       abs=0.02)
     assert report["planned_time_s"] > 10  # type: ignore[operator]

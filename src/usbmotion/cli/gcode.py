@@ -13,6 +13,7 @@ from usbmotion.cli.help import UsbMotionTyper
 from usbmotion.motion.gcode import (
     GCodeProgram,
     distinct_ignored,
+    ignored_kind_label,
     interpret_until_error,
     move_record,
     read_gcode_text,
@@ -85,7 +86,8 @@ def _ignored_notes(program: GCodeProgram) -> list[str]:
     for word, count in distinct_ignored(program.ignored):
         times = f", {count} times" if count > 1 else ""
         notes.append(
-            f"{program.file}:{word.line}: ignored {word.word} ({word.meaning}; does not move "
+            f"{program.file}:{word.line}: ignored {ignored_kind_label(word.word, count)}"
+            f" ({word.meaning}; does not move "
             f"the machine){times}"
         )
     return notes

@@ -324,6 +324,13 @@ class IgnoredWord:
         return (self.word if letter in "GM" else letter, self.meaning)
 
 
+def ignored_kind_label(word: str, count: int) -> str:
+    """How a report names a kind of ignored word: a G or M code as itself (``M104``), a
+    single word as written (``S1000``), several words of one letter by the letter
+    (``S words``: their values differ)."""
+    return f"{word[:1]} words" if count > 1 and word[:1] not in "GM" else word
+
+
 def distinct_ignored(words: Iterable[IgnoredWord]) -> list[tuple[IgnoredWord, int]]:
     """Each kind of ignored word once (:attr:`IgnoredWord.kind`), at its first use, with
     how many times it occurs."""

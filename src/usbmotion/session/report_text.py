@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from usbmotion.motion.gcode import ignored_kind_label
 from usbmotion.session.report import RunReport
 
 
@@ -35,7 +36,8 @@ def describe(report: RunReport) -> str:
         f"axis {f.axis}: {f.fault} at {f.time_s:.3f} s, line {f.line}" for f in report.faults
     ) or "none"))
     lines.append("ignored words  " + (", ".join(
-        f"{w.word} (line {w.line}: {w.meaning}{f'; {w.count} times' if w.count > 1 else ''})"
+        f"{ignored_kind_label(w.word, w.count)} (line {w.line}: {w.meaning}"
+        f"{f'; {w.count} times' if w.count > 1 else ''})"
         for w in report.ignored_words) or "none"))
     if report.link_error:
         lines.append(f"LINK LOST      {report.link_error}")
