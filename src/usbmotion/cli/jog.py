@@ -17,12 +17,10 @@ from usbmotion.cli.run import (
     MachineOption,
     exit_code,
 )
-from usbmotion.cli.status import progress_line
+from usbmotion.cli.status import home_reporting, progress_line
 from usbmotion.errors import (
     ConfigError,
     PlanningError,
-    SequenceFaultError,
-    StopRequestedError,
     UsbMotionError,
 )
 
@@ -128,18 +126,13 @@ def _jog(session: MachineSession, moves: dict[str, float], feed_mm_min: float, *
     from usbmotion.session.planning import program_axes  # noqa: PLC0415
 
     config = session.config
+    if not (no_home or session.is_homed):
+        typer.echo("the machine is not homed: homing first", err=True)
+        _, code = home_reporting("jog", session, None, quiet=quiet)
+        if code:
+            return code
     try:
-        if not (no_home or session.is_homed):
-            typer.echo("the machine is not homed: homing first", err=True)
-            with progress_line(not quiet) as show:
-                session.home(on_progress=show)
         start_mm, homed = session.start_position_mm(unhomed=no_home)
-    except StopRequestedError as error:
-        typer.echo(f"usbmotion jog: stopped while homing: {error.reason}", err=True)
-        return exit_code(error.reason)
-    except SequenceFaultError as error:
-        typer.echo(f"usbmotion jog: homing failed: {error}", err=True)
-        return EXIT_FAULT
     except UsbMotionError as error:
         typer.echo(f"usbmotion jog: {error}", err=True)
         return EXIT_FAULT

@@ -147,19 +147,28 @@ def home(
 home.__doc__ = f"{home.__doc__}\n    {SIMULATED_NOTE}\n"
 
 
-def _home(session: MachineSession, axes: list[str] | None, *, quiet: bool) -> int:
+def home_reporting(command: str, session: MachineSession, axes: list[str] | None, *,
+                   quiet: bool) -> tuple[float, int]:
+    """Home ``axes`` (all when ``None``) with a progress line; the seconds it took and 0, or
+    0.0 and the command's exit status once a stop or a failure has been said."""
     try:
         with progress_line(not quiet) as show:
-            seconds = session.home(axes=axes, on_progress=show)
+            return session.home(axes=axes, on_progress=show), 0
     except StopRequestedError as error:
-        typer.echo(f"usbmotion home: stopped while homing: {error.reason}", err=True)
-        return exit_code(error.reason)
+        typer.echo(f"usbmotion {command}: stopped while homing: {error.reason}", err=True)
+        return 0.0, exit_code(error.reason)
     except SequenceFaultError as error:
-        typer.echo(f"usbmotion home: homing failed: {error}", err=True)
-        return EXIT_FAULT
+        typer.echo(f"usbmotion {command}: homing failed: {error}", err=True)
+        return 0.0, EXIT_FAULT
     except UsbMotionError as error:
-        typer.echo(f"usbmotion home: {error}", err=True)
-        return EXIT_FAULT
+        typer.echo(f"usbmotion {command}: {error}", err=True)
+        return 0.0, EXIT_FAULT
+
+
+def _home(session: MachineSession, axes: list[str] | None, *, quiet: bool) -> int:
+    seconds, code = home_reporting("home", session, axes, quiet=quiet)
+    if code:
+        return code
     homed = axes or list(session.machine.axes)
     where = session.positions_mm()
     at = "  ".join(f"{name} {where[name]:.3f}" for name in homed)
