@@ -20,11 +20,6 @@ LEAK_GRACE_S = 2.0
 """How long a thread or a child process may take to finish exiting after its test."""
 
 
-def _persistent_by_design(thread: threading.Thread) -> bool:
-    """Threads a library starts once per process on first use and keeps on purpose."""
-    return False
-
-
 @dataclass(frozen=True, slots=True)
 class Resources:
     """What a test could leave behind: live threads, pty and socket descriptors of this
@@ -39,7 +34,7 @@ class Resources:
     def now(cls) -> Resources:
         """The resources held at this moment."""
         return cls(
-            threads=frozenset(t for t in threading.enumerate() if not _persistent_by_design(t)),
+            threads=frozenset(threading.enumerate()),
             descriptors=frozenset(_terminal_and_socket_descriptors()),
             children=frozenset(_children()),
             worlds=frozenset(_worlds()),
