@@ -229,6 +229,35 @@ class SetpointStream:
         self.sent = index + sent
         self._finished = self._now() if self.done_sending else None
 
+    def revise(self, index: int, values: Sequence[int] | npt.NDArray[np.integer]) -> None:
+        """The values from ``index`` on, none of them sent yet, become ``values`` (a
+        program still being written, planned again before they went out).
+
+        Raises:
+            ArgumentError: ``index`` before the first value not sent or beyond the values.
+        """
+        if not self.sent <= index <= self.total:
+            raise ArgumentError(f"revise index {index!r}: within {self.sent} .. {self.total}"
+                                " (values not sent yet)", reason="index")
+        self._values = self._values[:index]
+        self.extend(values)
+
+    def extend(self, values: Sequence[int] | npt.NDArray[np.integer]) -> None:
+        """Append setpoints to the stream (a program still being written: they follow the
+        last one given, in order).
+
+        Raises:
+            ArgumentError: a value outside int32.
+        """
+        array = np.asarray(values, dtype=np.int64)
+        if array.size and (array.min() < INT32_MIN or array.max() > INT32_MAX):
+            raise ArgumentError(
+                f"a setpoint is outside int32 ({int(array.min())}..{int(array.max())})",
+                reason="values")
+        self._values = np.concatenate((self._values, array))
+        if array.size:
+            self._finished = None
+
     def service(self) -> None:
         """Top the queue up if it is low; reports progress every time it is called.
 

@@ -63,8 +63,9 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from enum import Enum
 from pathlib import Path
 
 from usbmotion.errors import GCodeError, UnsupportedGCodeError
@@ -89,8 +90,11 @@ __all__ = [
     "Block",
     "Dialect",
     "GCodeProgram",
+    "GCodeStream",
     "IgnoredWord",
     "MachineAxes",
+    "Pause",
+    "Pauses",
     "ToolChange",
     "Word",
     "distinct_ignored",
@@ -357,6 +361,36 @@ class ToolChange:
     manual: bool
 
 
+class Pauses(Enum):
+    """Which program pauses stop a program until the operator resumes it.
+
+    ``NONE``: M0 and M1 are listed as ignored words and M6 only changes the tool (a
+    program read for its geometry, or run with nobody to resume it); ``PROGRAM``: M0
+    pauses, and so does M6 when it puts another tool in the spindle (a manual tool
+    change); ``OPTIONAL``: M1 pauses as well (the operator's optional stop is on).
+    """
+
+    NONE = "none"
+    PROGRAM = "program"
+    OPTIONAL = "optional"
+
+
+@dataclass(frozen=True, slots=True)
+class Pause:
+    """A program pause: the machine comes to rest at the end of ``line`` and waits for the
+    operator's cycle start.
+
+    ``code`` is ``"M0"``, ``"M1"`` or ``"M6"``; ``message`` says what the operator is to do
+    (a tool change names the tool and its pocket); ``move`` is the index in the program's
+    moves of the zero-second :class:`Dwell` that brings the machine to rest there.
+    """
+
+    line: int
+    code: str
+    message: str
+    move: int
+
+
 @dataclass(frozen=True, slots=True)
 class GCodeProgram:
     """An interpreted G-code program.
@@ -369,7 +403,8 @@ class GCodeProgram:
     ``ended_by == ""`` and ``end_line == 0``. ``axes`` are the letters of the moves'
     coordinates, ``dialect`` the dialect it was read in. ``offsets`` are the work offsets
     and stored positions as the program leaves them (what a parameter file keeps for the
-    next run); ``tool_changes`` the tool changes in order.
+    next run); ``tool_changes`` the tool changes in order; ``pauses`` the program pauses
+    (M0, M1, M6) that stop it until the operator resumes, when it was read with pauses.
     """
 
     moves: tuple[Move, ...]
@@ -381,6 +416,7 @@ class GCodeProgram:
     dialect: Dialect = Dialect.LINUXCNC
     offsets: WorkOffsets = NO_OFFSETS
     tool_changes: tuple[ToolChange, ...] = ()
+    pauses: tuple[Pause, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -424,7 +460,8 @@ DEFAULT_MACHINE = MachineAxes()
 def parse_gcode(text: str, *, file: str = "<string>", start: Point | None = None,
                 machine: MachineAxes = DEFAULT_MACHINE,
                 dialect: Dialect = Dialect.LINUXCNC, tools: ToolTable = NO_TOOLS,
-                offsets: WorkOffsets | None = None) -> GCodeProgram:
+                offsets: WorkOffsets | None = None, pauses: Pauses = Pauses.NONE,
+                ) -> GCodeProgram:
     """Interpret a G-code program into moves.
 
     Parameters:
@@ -440,6 +477,8 @@ def parse_gcode(text: str, *, file: str = "<string>", start: Point | None = None
         offsets: the work offsets and stored positions the program starts with (default:
             all zero, G54; a parameter file's offsets:
             :func:`~usbmotion.motion.offsets.read_parameter_file`).
+        pauses: which of M0, M1 and M6 pause the program (:class:`Pauses`; none by
+            default: they are listed as ignored words).
 
     Raises:
         UnsupportedGCodeError: a word that would change the geometry is not supported.
@@ -447,7 +486,8 @@ def parse_gcode(text: str, *, file: str = "<string>", start: Point | None = None
             program end, ...); ``file``, ``line``, ``column`` and ``word`` locate it.
     """
     program, error = interpret_until_error(text, file=file, start=start, machine=machine,
-                                           dialect=dialect, tools=tools, offsets=offsets)
+                                           dialect=dialect, tools=tools, offsets=offsets,
+                                           pauses=pauses)
     if error is not None:
         raise error
     return program
@@ -457,17 +497,20 @@ def interpret_until_error(
     text: str, *, file: str = "<string>", start: Point | None = None,
     machine: MachineAxes = DEFAULT_MACHINE, dialect: Dialect = Dialect.LINUXCNC,
     tools: ToolTable = NO_TOOLS, offsets: WorkOffsets | None = None,
+    pauses: Pauses = Pauses.NONE,
 ) -> tuple[GCodeProgram, GCodeError | None]:
     """Interpret a G-code program, keeping the moves made before an error.
 
     Returns the program (complete, or up to the block before the error) and the error,
     or ``None`` when the program is valid. Never raises for bad G-code. ``start``,
-    ``machine``, ``dialect``, ``tools`` and ``offsets`` are as :func:`parse_gcode`'s.
+    ``machine``, ``dialect``, ``tools``, ``offsets`` and ``pauses`` are as
+    :func:`parse_gcode`'s.
 
     Raises:
         ValueError: ``start`` has not one coordinate per axis of ``machine.axes``.
     """
-    interpreter = _Interpreter(file, machine, RULES[dialect], tools, offsets or NO_OFFSETS)
+    interpreter = _Interpreter(file, machine, RULES[dialect], tools, offsets or NO_OFFSETS,
+                               pauses)
     interpreter.start_at(start)
     rules = interpreter.rules
     error: GCodeError | None = None
@@ -477,6 +520,102 @@ def interpret_until_error(
     except GCodeError as exc:
         error = exc
     return interpreter.result(), error
+
+
+class GCodeStream:
+    """G-code read one line at a time, the machine's modal state kept between lines: what a
+    console, a sender or a file streamed into a running machine gives.
+
+    Parameters are :func:`parse_gcode`'s; ``file`` names the stream in errors. A ``%`` line
+    is skipped (a stream has no first or last line to mark). Once a line ends the program
+    (M2, M30) no other line is taken.
+
+    Raises:
+        ValueError: ``start`` has not one coordinate per axis of ``machine.axes``.
+    """
+
+    def __init__(self, *, file: str = "<stream>", start: Point | None = None,
+                 machine: MachineAxes = DEFAULT_MACHINE, dialect: Dialect = Dialect.LINUXCNC,
+                 tools: ToolTable = NO_TOOLS, offsets: WorkOffsets | None = None,
+                 pauses: Pauses = Pauses.NONE) -> None:
+        self._interpreter = _Interpreter(file, machine, RULES[dialect], tools,
+                                         offsets or NO_OFFSETS, pauses)
+        self._interpreter.start_at(start)
+        self.lines = 0
+        """The lines fed so far (the number of the last one)."""
+
+    @property
+    def ended_by(self) -> str:
+        """``"M2"`` or ``"M30"`` once a line ended the program, else ``""``."""
+        return self._interpreter.ended_by
+
+    @property
+    def moves(self) -> list[Move]:
+        """Every move so far, in order (read-only by convention)."""
+        return self._interpreter.moves
+
+    @property
+    def pauses(self) -> list[Pause]:
+        """Every program pause so far, in order."""
+        return self._interpreter.pauses
+
+    @property
+    def position(self) -> Point:
+        """Where the machine stands after the lines fed so far (machine coordinates, mm)."""
+        return _point(self._interpreter.position)
+
+    def feed(self, text: str, *, line: int | None = None,
+             check: Callable[[list[Move]], None] | None = None) -> list[Move]:
+        """Interpret one line (its number ``line``, else the next one); the moves it adds.
+
+        ``check`` is called with the line's moves and may refuse them by raising (soft
+        limits). A line that fails adds nothing: its moves, pauses and ignored words are
+        dropped.
+
+        Raises:
+            GCodeError: the line is invalid, holds more than one line, or comes after the
+                program's end; its ``line`` is the line's number.
+            Exception: what ``check`` raised.
+        """
+        state = self._interpreter
+        number = self.lines + 1 if line is None else line
+        self.lines = number
+        if state.ended_by:
+            raise GCodeError(f"the program ended at line {state.end_line} ({state.ended_by});"
+                             " no line is taken after it", file=state.file, line=number)
+        if "\n" in text.rstrip("\r\n"):
+            raise GCodeError("one line at a time: this text holds a line break",
+                             file=state.file, line=number)
+        marks = (len(state.moves), len(state.pauses), len(state.ignored),
+                 len(state.tool_changes))
+        rules = state.rules
+        try:
+            for block in tokenize(text.rstrip("\r\n"), file=state.file,
+                                  commands=rules.controller_commands,
+                                  messages=rules.message_codes, flags=rules.flags):
+                if not block.delimiter:
+                    state.execute(block._replace(line=number))
+            added = state.moves[marks[0]:]
+            if check is not None and added:
+                check(added)
+        except Exception as error:
+            if isinstance(error, GCodeError):
+                error.line = number
+            moves, pauses, ignored, changes = marks
+            del state.moves[moves:], state.pauses[pauses:], state.ignored[ignored:]
+            del state.tool_changes[changes:]
+            state.ended_by = ""
+            raise
+        return added
+
+    def result(self) -> GCodeProgram:
+        """The program so far (``ended_by`` ``""`` while it has not ended)."""
+        program = self._interpreter.result()
+        if not program.ended_by:
+            return GCodeProgram(program.moves, program.ignored, program.file, self.lines,
+                                "", program.axes, program.dialect, program.offsets,
+                                program.tool_changes, program.pauses)
+        return program
 
 
 def interpret_setting(
@@ -609,6 +748,8 @@ class _Interpreter:
         "motion",
         "moves",
         "offset",
+        "pause_rule",
+        "pauses",
         "plane",
         "planes",
         "position",
@@ -622,8 +763,10 @@ class _Interpreter:
 
     def __init__(self, file: str, machine: MachineAxes = DEFAULT_MACHINE,
                  rules: DialectRules = RULES[Dialect.LINUXCNC], tools: ToolTable = NO_TOOLS,
-                 offsets: WorkOffsets = NO_OFFSETS) -> None:
+                 offsets: WorkOffsets = NO_OFFSETS, pauses: Pauses = Pauses.NONE) -> None:
         self.file = file
+        self.pause_rule = pauses
+        self.pauses: list[Pause] = []
         self.machine = machine
         self.rules = rules
         axes = machine.axes
@@ -661,6 +804,7 @@ class _Interpreter:
             dialect=self.rules.dialect,
             offsets=self.frame.snapshot(),
             tool_changes=tuple(self.tool_changes),
+            pauses=tuple(self.pauses),
         )
 
     def start_at(self, start: Point | None) -> None:
@@ -861,15 +1005,32 @@ class _Interpreter:
                 self.machine_move(block, motion, params)
             else:
                 self.move(block, motion, params, where, g_where.get(1, -1))
+        stop = m_codes.get(4)
+        if stop in (0, 1) and self.pauses_at(stop):
+            held = m_where[4]
+            ignored = [(i, meaning) for i, meaning in ignored if i != held]
+            self.pause(block.line, f"M{stop}", "program pause" if stop == 0 else
+                       "optional program pause (optional stop is on)")
         if ignored:
             columns = word_columns(block)
             self.ignored.extend(
                 IgnoredWord(letters[i] + numbers[i], block.line, columns[i], meaning)
                 for i, meaning in sorted(ignored)
             )
-        stop = m_codes.get(4)
         if stop in _M_END:
             self.end_program(_M_END[stop], block.line)
+
+    def pauses_at(self, code: int) -> bool:
+        """Whether M``code`` (0, 1 or 6) pauses the program under its pause rule."""
+        rule = self.pause_rule
+        if rule is Pauses.NONE:
+            return False
+        return code != 1 or rule is Pauses.OPTIONAL
+
+    def pause(self, line: int, code: str, message: str) -> None:
+        """The machine to rest where it stands, waiting for the operator's cycle start."""
+        self.pauses.append(Pause(line, code, message, len(self.moves)))
+        self.moves.append(Dwell(line, _point(self.position), 0.0))
 
     def set_modes(self, block: Block, g_codes: dict[int, int], g_where: dict[int, int],
                   params: dict[str, float], where: dict[str, int]) -> None:
@@ -1235,6 +1396,12 @@ class _Interpreter:
             tools.selected = int(params["T"])
         change = m_codes.get(6)
         if change == 6:
+            if tools.selected != tools.spindle and self.pauses_at(6):
+                pocket = tools.pocket(tools.selected)
+                in_pocket = f" (pocket {pocket})" if pocket else ""
+                self.pause(block.line, "M6",
+                           f"tool change: put tool {tools.selected}{in_pocket} in the spindle,"
+                           " then cycle start")
             tools.spindle = tools.selected
             self.tool_changes.append(
                 ToolChange(block.line, tools.spindle, tools.pocket(tools.spindle), True)

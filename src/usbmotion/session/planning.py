@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from usbmotion.errors import ConfigError
 from usbmotion.host.config import AxisConfig, MachineConfig
 from usbmotion.motion.dialects import Dialect, dialect_named
-from usbmotion.motion.gcode import GCodeProgram, MachineAxes, parse_gcode
+from usbmotion.motion.gcode import GCodeProgram, MachineAxes, Pauses, parse_gcode
 from usbmotion.motion.limits import AxisLimits, PlannerConfig, check_travel
 from usbmotion.motion.moves import AXIS_ORDER, Point
 from usbmotion.motion.offsets import NO_OFFSETS, WorkOffsets
@@ -90,7 +90,8 @@ def machine_dialect(config: MachineConfig, dialect: Dialect | None = None) -> Di
 
 def prepare_program(config: MachineConfig, text: str, *, file: str, start_mm: Point,
                     homed: bool, dialect: Dialect | None = None, tools: ToolTable = NO_TOOLS,
-                    offsets: WorkOffsets | None = None) -> Prepared:
+                    offsets: WorkOffsets | None = None, pauses: Pauses = Pauses.NONE,
+                    ) -> Prepared:
     """Interpret and plan a program for a machine from ``start_mm`` with a tool table and
     work offsets (machine coordinates result); a homed start is also checked against every
     axis's travel.
@@ -103,7 +104,7 @@ def prepare_program(config: MachineConfig, text: str, *, file: str, start_mm: Po
     """
     offsets = offsets or NO_OFFSETS
     program, plan = plan_gcode(config, text, file=file, start_mm=start_mm, dialect=dialect,
-                               tools=tools, offsets=offsets)
+                               tools=tools, offsets=offsets, pauses=pauses)
     if homed:
         check_travel(plan.vertices_mm, plan.line, [a.travel_mm for a in plan_axes(config)],
                      axes=tuple(plan.axes))
@@ -113,7 +114,7 @@ def prepare_program(config: MachineConfig, text: str, *, file: str, start_mm: Po
 def plan_gcode(config: MachineConfig, text: str, *, file: str = "<string>",
                start_mm: Point | None = None, dialect: Dialect | None = None,
                tools: ToolTable = NO_TOOLS, offsets: WorkOffsets | None = None,
-               ) -> tuple[GCodeProgram, Plan]:
+               pauses: Pauses = Pauses.NONE) -> tuple[GCodeProgram, Plan]:
     """Interpret and plan a program for a machine from ``start_mm`` (zeros when not
     given), in ``dialect`` or the machine file's (pure: no machine is needed;
     :meth:`MachineSession.prepare` adds where the machine stands and soft limits).
@@ -126,7 +127,7 @@ def plan_gcode(config: MachineConfig, text: str, *, file: str = "<string>",
     axes = machine_axes(config)
     program = parse_gcode(text, file=file, start=start_mm, machine=axes,
                           dialect=machine_dialect(config, dialect), tools=tools,
-                          offsets=offsets)
+                          offsets=offsets, pauses=pauses)
     return program, plan_moves(program.moves, limits, planner, start=start_mm,
                                axes=axes.axes)
 

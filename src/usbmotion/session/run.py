@@ -16,8 +16,9 @@ setpoints streamed are a sequence of legs, each planned from a point of the prog
 
 from __future__ import annotations
 
+import bisect
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from functools import partial
@@ -37,10 +38,14 @@ from usbmotion.errors import (
 from usbmotion.host.device import Alarm, MotionStats, Status
 from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams
 from usbmotion.host.timesync import synchronise_start
+from usbmotion.motion.gcode import Pause
+from usbmotion.motion.moves import Dwell, Move
+from usbmotion.motion.planner import Plan, SegmentKind
 from usbmotion.motion.replanning import Leg, PathPoint, locate, plan_rest, whole_program
 from usbmotion.motion.sampler import sample_plan
 from usbmotion.motion.stopping import stop_setpoints
 from usbmotion.protocol import FaultCode
+from usbmotion.session.feed import FeedSnapshot, ProgramFeed
 from usbmotion.session.planning import Prepared, planner_inputs
 from usbmotion.session.progress import Progress
 from usbmotion.session.report import (
@@ -82,6 +87,34 @@ RESEAM_ROWS = 20
 little of the segment left to slow to the new speed), the seam moves on by this many rows."""
 
 
+READ_AHEAD_S = 2.0
+"""A feed with a source is read this far ahead of the rows given to the streams (its
+plan's look-ahead; more than any stop takes)."""
+FEED_FLOOR_S = 0.3
+"""When a feed runs short of moves, the rows given to the streams still keep this much
+queued ahead of the machine (it runs into the end's deceleration rather than out of
+setpoints)."""
+DRY_MARGIN_S = 0.03
+"""A feed that grows when the rows given last less than this beyond the machine waits for
+them to play out and starts again from rest (the queues may run empty before more come)."""
+RELEASE_S = 0.1
+"""A feed's rows are given to the streams in steps of at least this much."""
+
+
+def _pause_segments(plan: Plan, moves: Sequence[Move], pauses: Sequence[Pause]) -> list[int]:
+    """The plan's segment of each pause: its zero-second dwell (dwells are never merged
+    or dropped, so the k-th dwell move is the k-th dwell segment)."""
+    if not pauses:
+        return []
+    dwell_segments = np.flatnonzero(plan.kind == SegmentKind.DWELL)
+    ordinal: dict[int, int] = {}
+    for index, move in enumerate(moves):
+        if isinstance(move, Dwell):
+            ordinal[index] = len(ordinal)
+    return [int(dwell_segments[ordinal[pause.move]]) for pause in pauses
+            if ordinal.get(pause.move, len(dwell_segments)) < len(dwell_segments)]
+
+
 def trace_period_s(duration_s: float) -> float:
     """The diagnostics period of the trace of a program lasting ``duration_s``."""
     return max(DIAGNOSTICS_PERIOD_S, duration_s / TRACE_POINTS)
@@ -108,8 +141,15 @@ class Run:
     """
 
     def __init__(self, session: MachineSession, prepared: Prepared,
-                 on_progress: Callable[[Progress], None] | None, homing_s: float) -> None:
+                 on_progress: Callable[[Progress], None] | None, homing_s: float,
+                 feed: ProgramFeed | None = None) -> None:
         self.session = session
+        self.feed = feed
+        """The feed of a program still being written (None: the prepared program is whole)."""
+        self.fed_version = -1
+        """The feed's version the plan was made from."""
+        self.fed_complete = feed is None
+        """True once no more moves can come."""
         self.machine = session.machine
         self.config = session.config
         self.clock = session.clock
@@ -138,6 +178,29 @@ class Run:
         """The legs being streamed, each with the row it starts on."""
         self.setpoints: npt.NDArray[np.int32] = self._sample(first)
         """The setpoints being streamed (rows since the last start or resume)."""
+        self.released = self.setpoints.shape[0] if feed is None else 0
+        """How many rows of :attr:`setpoints` the streams were given: all of a whole
+        program; of a feed, those that more moves cannot change (:meth:`_release_limit`)."""
+        axes_config = [self.config.axis(n) for n in self.axes]
+        self.stop_time_s = max(a.max_velocity_mm_s / a.max_accel_mm_s2 for a in axes_config) * (
+            math.sqrt(len(self.axes)) if len(self.axes) > 1 else 1.0)
+        """Longer than any stop from full speed takes: a feed's plan is final up to this
+        long before its end (the look-ahead's end at rest cannot reach further back)."""
+        self.pause_segments: list[int] = _pause_segments(self.plan, prepared.program.moves,
+                                                         prepared.program.pauses)
+        """The program plan's segments where it pauses (M0, M1, M6), in order."""
+        self.pauses_passed = 0
+        """How many of them the machine has passed."""
+        self.pause_records: list[Pause] = list(prepared.program.pauses)
+        self.pausing: Pause | None = None
+        """The pause the machine waits at (None: none)."""
+        self.fed_moves = len(prepared.program.moves)
+        self.fed_lines: list[int] = [move.line for move in prepared.program.moves]
+        self.dry = False
+        """True when every row given has been executed and the queues ran empty: more
+        motion starts on a common tick again (:meth:`_restart`)."""
+        self.rest_point: PathPoint | None = None
+        """Where the machine rests when it has played out everything it was given."""
         self.rows_before = 0
         """Rows executed before the last resume."""
         self.hold_point: PathPoint | None = None
@@ -145,6 +208,8 @@ class Run:
         self.holds: list[tuple[float, int, float, float]] = []
         """Every hold's request time (s), the device tick its deceleration began on, its
         planned v^2/2a and its distance (mm)."""
+        self.paused: list[Pause] = []
+        """The program pauses the run waited at, in order."""
         self.seams: list[tuple[float, int]] = []
         """Every override's request time (s) and the device tick its new speed began on."""
         self.drained = False
@@ -203,10 +268,12 @@ class Run:
             client.set_diagnostics_interval(diag_ticks)
 
     def _open_streams(self) -> None:
+        self.released = 0
+        self.released = self._release_limit(executed=0)
         for index, name in enumerate(self.axes):
             self.streams[name] = SetpointStream(
-                self.machine.axis(name).client, self.setpoints[:, index], period_s=self.period_s,
-                verify=True, on_progress=self._progress)
+                self.machine.axis(name).client, self.setpoints[:self.released, index],
+                period_s=self.period_s, verify=True, on_progress=self._progress)
 
     def _stream(self) -> _Ending:
         """Stream the program until it has played out and settled, or a fault or a stop
@@ -232,15 +299,30 @@ class Run:
         """Stream until the program ends, a fault or a stop ends it (an ending), or a hold
         that resumed or an override asks to go on streaming (None)."""
         session = self.session
-        run_streams(list(self.streams.values()), should_stop=self._should_stop,
-                    max_wait_s=self.check_s)
-        if not self._interrupted():
-            self._wait_drained()
-        if not self._interrupted():
-            self.drained = True
-            self._settle()
+        if self.feed is not None or self.pause_segments:
+            played = self._stream_feed()
+            if not self._interrupted():
+                if self.pausing is not None:
+                    return self._pause()
+                if played:
+                    self.drained = True
+                    return _Ending(StopReason.COMPLETED.value)
+        else:
+            run_streams(list(self.streams.values()), should_stop=self._should_stop,
+                        max_wait_s=self.check_s)
+            if not self._interrupted():
+                self._wait_drained()
+            if not self._interrupted():
+                self.drained = True
+                self._settle()
         if self.drained and not (self.faults or session.stop_requested):
             return _Ending(StopReason.COMPLETED.value)
+        return self._interruption()
+
+    def _interruption(self) -> _Ending | None:
+        """What a fault, a stop, an override or a hold that interrupted the streaming does:
+        the run's ending, or None to go on streaming."""
+        session = self.session
         if self.faults or session.stop_requested:
             reason = (f"fault: {self._fault_words()}" if self.faults
                       else session.stop_requested)
@@ -257,6 +339,10 @@ class Run:
     def _finish(self, ending: _Ending) -> tuple[RunReport, Trace]:
         """The report, from what every device says at the end; its diagnostics off."""
         reason = ending.reason
+        if self.feed is not None:
+            self.prepared = replace(self.prepared, program=self.feed.program(), plan=self.plan)
+            if self.feed.error is not None and reason == StopReason.COMPLETED.value:
+                reason = f"error: {self.feed.error}"
         if self.faults and not reason.startswith("fault"):
             reason = f"fault: {self._fault_words()}"
         statuses: dict[str, Status] = {}
@@ -366,17 +452,19 @@ class Run:
     def _fault_words(self) -> str:
         return "; ".join(f"axis {f.axis} {f.fault}" for f in self.faults)
 
-    def _wait_drained(self) -> None:
-        """Until every queue is empty (the last setpoint being executed), or a stop."""
+    def _wait_drained(self) -> bool:
+        """Until every queue is empty (the last setpoint being executed): True; or a stop,
+        or (a feed) more moves came: False."""
         clients = [self.machine.axis(n).client for n in self.axes]
         while True:
-            if self._should_stop():
-                return
+            if self._should_stop() or self._feed_changed():
+                return False
             queued = max(client.queue_status()[0] for client in clients)
             self._tell(min(stream.sent for stream in self.streams.values()) - queued)
             if not queued:
-                return
-            self.clock.sleep(min(FAULT_CHECK_S, max(self.period_s, queued * self.period_s)))
+                return True
+            wait = min(FAULT_CHECK_S, max(self.period_s, queued * self.period_s))
+            self.clock.sleep(wait if self.feed is None else min(wait, self.check_s))
 
     def _settle(self) -> None:
         """After the last setpoint: until every axis is within SETTLE_COUNTS of it, for at
@@ -401,18 +489,25 @@ class Run:
         index = min(max(0, -(-(tick - self.start_tick) // scalar)), sent)
         return index, max(tick, self.start_tick + index * scalar)
 
-    def _replace(self, tick: int, index: int, rows: npt.NDArray[np.integer]) -> None:
+    def _replace(self, tick: int, index: int, rows: npt.NDArray[np.integer], *,
+                 whole: bool = False) -> None:
         """Every axis's queued future from ``tick`` (row ``index``) replaced by ``rows``:
         the first :data:`REPLACE_BATCH` with call 38, the rest streamed after them."""
-        batch = rows[:REPLACE_BATCH]
+        self.setpoints = np.vstack((self.setpoints[:index], rows)).astype(np.int32)
+        self.released = index
+        limit = (index + rows.shape[0] if whole else
+                 max(index + min(REPLACE_BATCH, rows.shape[0]), self._release_limit()))
+        given = rows[:limit - index]
+        batch = given[:REPLACE_BATCH]
         for column, name in enumerate(self.axes):
             client = self.machine.axis(name).client
             try:
                 client.replace_from(tick, batch[:, column].tolist())
             except UsbMotionError as error:
                 self.notes.append(f"axis {name}: could not replace its queue ({error})")
-            self.streams[name].replace_future(index, rows[:, column], sent=batch.shape[0])
-        self.setpoints = np.vstack((self.setpoints[:index], rows)).astype(np.int32)
+            self.streams[name].replace_future(index, given[:, column], sent=batch.shape[0])
+        self.released = limit
+        self.dry = False
 
     def _decelerate(self, *, hold: bool = False) -> None:
         """Every axis still enabled to rest along the path at its planned deceleration:
@@ -441,7 +536,7 @@ class Run:
                                   speed_mm_s=0.0)
         self.stopped_index = (end if self._program_time_s(end) == end * self.period_s
                               else self.hold_point.program_time_s / self.period_s)
-        self._replace(tick, index, stop_rows)
+        self._replace(tick, index, stop_rows, whole=True)
         try:
             wait_for_rest(machine, list(self.axes), stop_now=session._stop_now_requested)
         except DeviceError as error:
@@ -458,6 +553,207 @@ class Run:
         if session._stop_now_requested():
             self.notes.append("a second stop request stopped every axis at once (servos off:"
                               " the axes coasted)")
+
+
+    # --- a program still being written (a feed) and program pauses ------------------------------
+
+    def _stream_feed(self) -> bool:
+        """Stream a feed's moves as they come (and a program with pauses, up to each): True
+        when the program has played out and settled; False when a request or a fault
+        interrupted it, or the machine came to rest at a pause (:attr:`pausing`)."""
+        while True:
+            self._take_feed()
+            self._release()
+            run_streams(list(self.streams.values()), should_stop=self._feed_wake,
+                        max_wait_s=self.check_s)
+            if self._interrupted():
+                return False
+            if (self._feed_changed() or self._release_limit() > self.released
+                    or not all(stream.done_sending for stream in self.streams.values())):
+                continue
+            if not self._wait_drained():
+                if self._interrupted():
+                    return False
+                continue
+            self._settle()
+            if self._at_pause():
+                return False
+            self.dry = True
+            self.rest_point = self._point_at(self.setpoints.shape[0] - 1)
+            if self.fed_complete:
+                return True
+            feed = self.feed
+            if feed is not None and not feed.has_source and feed.finish_if(self.fed_version):
+                self.fed_complete = True
+                return True
+
+    def _feed_wake(self) -> bool:
+        """Whether the streaming stops to look again: a request, a fault, more moves, a
+        source to read further, or rows to give the streams."""
+        if self._should_stop() or self._feed_changed():
+            return True
+        feed = self.feed
+        if (feed is not None and feed.has_source and not self.fed_complete
+                and feed.blocks_free > 0 and self._lookahead_s() < READ_AHEAD_S):
+            return True
+        return self._release_limit() >= self.released + math.ceil(RELEASE_S / self.period_s)
+
+    def _feed_changed(self) -> bool:
+        return self.feed is not None and self.feed.version != self.fed_version
+
+    def _lookahead_s(self) -> float:
+        """How much of the plan lies ahead of the machine, s."""
+        return float((self.setpoints.shape[0] - self._executed()) * self.period_s)
+
+    def _executed(self) -> int:
+        """Rows of the setpoints the devices have probably executed."""
+        return min((s.consumed_estimate for s in self.streams.values()), default=0)
+
+    def _take_feed(self, *, streaming: bool = True) -> None:
+        """Read a source further when the look-ahead runs short, and plan the moves the feed
+        gained, joining them to what streams (:meth:`_join`)."""
+        feed = self.feed
+        if feed is None:
+            return
+        if streaming and self.streams:
+            executed = self._point_at(max(0, min(self._executed(), self.setpoints.shape[0] - 1)))
+            line = int(self.plan.line[executed.segment]) if 0 <= executed.segment < len(
+                self.plan) else (self.fed_lines[-1] + 1 if self.fed_lines else 0)
+            feed.executed(bisect.bisect_left(self.fed_lines, line))
+        if (feed.has_source and not self.fed_complete
+                and (not streaming or self._lookahead_s() < READ_AHEAD_S)):
+            feed.pull()
+        snapshot = feed.snapshot()
+        if snapshot.version == self.fed_version:
+            return
+        self.fed_version = snapshot.version
+        self.fed_complete = snapshot.complete
+        if len(snapshot.moves) == self.fed_moves:
+            return
+        self.fed_moves = len(snapshot.moves)
+        self.fed_lines = [move.line for move in snapshot.moves]
+        self._join(feed.plan(snapshot), snapshot, streaming=streaming)
+
+    def _swap_plan(self, plan: Plan, snapshot: FeedSnapshot) -> None:
+        self.plan = plan
+        self.pause_segments = _pause_segments(plan, snapshot.moves, snapshot.pauses)
+        self.pause_records = list(snapshot.pauses)
+
+    def _join(self, plan: Plan, snapshot: FeedSnapshot, *, streaming: bool) -> None:
+        """The program's plan grown by more moves (its earlier segments are the same ones),
+        joined to what streams: the rest is planned again from the latest row that cannot
+        have felt the old plan's end at rest (:attr:`stop_time_s` before it), or from the
+        first row the devices can still have replaced when that one has passed; rows not
+        sent yet are revised in the streams, rows sent are replaced from a device tick just
+        ahead (call 38), as an override does. After the machine ran everything and its
+        queues ran empty, it starts again from there on a common tick."""
+        self._swap_plan(plan, snapshot)
+        if not streaming or not self.streams:
+            return
+        if not self.dry and self._queued_s() < DRY_MARGIN_S:
+            self._drain()
+        if self.dry:
+            point = self.rest_point or self._point_at(self.setpoints.shape[0] - 1)
+            leg = self._plan_rest(replace(point, speed_mm_s=0.0))
+            if leg is not None:
+                self._start_leg(leg)
+            return
+        first, leg = self.legs[-1]
+        safe = first + int(max(0.0, leg.plan.duration_s - self.stop_time_s) / self.period_s)
+        seam, _ = self._seam()
+        row = max(min(self.released, safe), seam)
+        sent = min(stream.sent for stream in self.streams.values())
+        if row < sent:
+            self._replan_from_seam(start=row)
+            return
+        rest = self._plan_rest(self._point_at(row))
+        if rest is None:
+            return
+        rows = self._sample(rest)
+        self.legs = [(at, old) for at, old in self.legs if at < row] + [(row, rest)]
+        self.setpoints = np.vstack((self.setpoints[:row], rows)).astype(np.int32)
+        given = max(row, min(self.released, self.setpoints.shape[0]))
+        for column, name in enumerate(self.axes):
+            self.streams[name].revise(row, rows[:given - row, column])
+        self.released = given
+
+    def _queued_s(self) -> float:
+        """How long the rows given to the streams last beyond what the devices executed."""
+        return (self.released - self._executed()) * self.period_s
+
+    def _drain(self) -> None:
+        """Until every queue is empty (whatever the feed does meanwhile), or a stop."""
+        clients = [self.machine.axis(n).client for n in self.axes]
+        while not self._should_stop() and max(c.queue_status()[0] for c in clients):
+            self.clock.sleep(self.check_s)
+        self.rest_point = self._point_at(self.setpoints.shape[0] - 1)
+
+    def _release_limit(self, *, executed: int | None = None) -> int:
+        """How many rows the streams may have: all of a complete program up to its next
+        pause; of a feed still being written, those more moves cannot change (up to
+        :attr:`stop_time_s` before its plan's end), or, when the feed runs short, enough
+        to keep :data:`FEED_FLOOR_S` queued (the machine then runs into the end's
+        deceleration: it can always stop at the end of the last move)."""
+        total = self.setpoints.shape[0]
+        limit = total
+        if not self.fed_complete:
+            first, leg = self.legs[-1]
+            safe = first + int(max(0.0, leg.plan.duration_s - self.stop_time_s) / self.period_s)
+            done = self._executed() if executed is None else executed
+            limit = min(total, max(safe, done + math.ceil(FEED_FLOOR_S / self.period_s)))
+        pause_row = self._next_pause_row()
+        if pause_row is not None:
+            limit = min(limit, pause_row + 1)
+        return int(max(limit, self.released))
+
+    def _release(self) -> None:
+        """Give the streams the rows :meth:`_release_limit` allows."""
+        limit = self._release_limit()
+        if limit <= self.released:
+            return
+        for column, name in enumerate(self.axes):
+            self.streams[name].extend(self.setpoints[self.released:limit, column])
+        self.released = limit
+        self.dry = False
+
+    def _next_pause_row(self) -> int | None:
+        """The row of the next pause on the leg streaming (None: none on it)."""
+        if self.pauses_passed >= len(self.pause_segments):
+            return None
+        segment = self.pause_segments[self.pauses_passed]
+        first, leg = self.legs[-1]
+        hits = np.flatnonzero((leg.source == segment) & (leg.plan.kind == SegmentKind.DWELL))
+        if not hits.size:
+            return None
+        return first + int(float(leg.plan.start_time_s[hits[0]]) / self.period_s)
+
+    def _at_pause(self) -> bool:
+        """Whether the machine came to rest at the next pause (then :attr:`pausing` and the
+        hold point are set)."""
+        row = self._next_pause_row()
+        if row is None or self.released != row + 1:
+            return False
+        segment = self.pause_segments[self.pauses_passed]
+        self.pausing = self.pause_records[self.pauses_passed]
+        self.hold_point = PathPoint(segment, 0.0, 0.0,
+                                    tuple(float(c) for c in self.plan.vertices_mm[segment]),
+                                    0.0, float(self.plan.start_time_s[segment]))
+        return True
+
+    def _pause(self) -> _Ending | None:
+        """At rest at a program pause: Hold until the operator resumes (the rest planned
+        from there) or stops, as in a feed hold."""
+        session, pause = self.session, self.pausing
+        assert pause is not None
+        self.pauses_passed += 1
+        self.paused.append(pause)
+        session._enter(MachineState.HOLD)
+        session._pause_at(pause)
+        try:
+            return self._hold()
+        finally:
+            self.pausing = None
+            session._pause_at(None)
 
     # --- holding, resuming, overrides -----------------------------------------------------------
 
@@ -490,20 +786,36 @@ class Run:
     def _resume(self) -> _Ending | None:
         """The rest of the path planned from rest where the hold left the axes, and every
         axis started on it on one device tick (call 31, the clocks not zeroed)."""
+        self._take_feed(streaming=False)
         point = self.hold_point
         self.overrides = (self.session.feed_override_percent,
                           self.session.rapid_override_percent)
         leg = self._plan_rest(point) if point is not None else None
         if leg is None:
+            if self.feed is not None and not self.fed_complete:
+                return self._wait_for_feed()
             self.drained = True
             return _Ending(StopReason.COMPLETED.value)
+        self._start_leg(leg)
+        return None
+
+    def _start_leg(self, leg: Leg) -> None:
+        """Stream ``leg`` from rest, every axis started on one device tick (call 31, the
+        clocks not zeroed)."""
         self.rows_before += self.setpoints.shape[0]
         self.legs = [(0, leg)]
         self.setpoints = self._sample(leg)
         clients = [self.machine.axis(n).client for n in self.axes]
         self.sync = synchronise_start(clients, margin_s=RESUME_MARGIN_S, zero=False)
         self.start_tick = self.sync.devices[0].start_tick
+        self.dry = False
         self._open_streams()
+
+    def _wait_for_feed(self) -> _Ending | None:
+        """Resumed at the end of what a feed has given: at rest there until more comes."""
+        self.dry = True
+        self.rest_point = self.hold_point
+        self.released = self.setpoints.shape[0]
         return None
 
     def _apply_overrides(self) -> None:
@@ -511,27 +823,49 @@ class Run:
         tick just ahead, at the speed the axes have there, and replaced from that tick."""
         session = self.session
         self.overrides = (session.feed_override_percent, session.rapid_override_percent)
-        asked_s = session.override_at_s
-        index, _ = self._seam()
+        tick = self._replan_from_seam()
+        if tick is None:
+            self.notes.append(f"overrides {self.overrides} came too late to change the"
+                              " program's end")
+        else:
+            self.seams.append((session.override_at_s, tick))
+
+    def _replan_from_seam(self, *, start: int = 0) -> int | None:
+        """The queued future planned again (the program's rest at the overrides) from a row
+        a device tick just ahead (or row ``start``, when later), at the speed the axes have
+        there, and replaced from that tick (call 38): the tick, or None when no row is left
+        to replace."""
+        index = max(self._seam()[0], start)
         scalar = self.config.motion_scalar
         sent = min(stream.sent for stream in self.streams.values())
-        while index < min(sent, self.setpoints.shape[0] - 1):
-            first, leg = self._leg_at(index)
-            point = locate(self.plan, leg, (index - first) * self.period_s)
+        while index < min(sent, self.setpoints.shape[0] - 1) or (
+                index < sent and self.feed is not None):
+            point = self._point_at(index)
             try:
                 rest = self._plan_rest(point)
             except PlanningError:
                 index += RESEAM_ROWS
                 continue
             if rest is None:
-                return
+                return None
             tick = self.start_tick + index * scalar
-            self._replace(tick, index, self._sample(rest))
             self.legs = [(row, old) for row, old in self.legs if row < index] + [(index, rest)]
-            self.seams.append((asked_s, tick))
-            return
-        self.notes.append(f"overrides {self.overrides} came too late to change the program's"
-                          " end")
+            self._replace(tick, index, self._sample(rest))
+            return tick
+        return None
+
+    def _point_at(self, row: int) -> PathPoint:
+        """The point of the program where row ``row`` of the setpoints is (after the end of
+        its leg: that end, at rest, on the segment after the leg's last)."""
+        first, leg = self._leg_at(row)
+        elapsed = (row - first) * self.period_s
+        if len(leg.plan) and elapsed < leg.plan.duration_s:
+            return locate(self.plan, leg, elapsed)
+        end = leg.plan.vertices_mm[-1]
+        segment = int(leg.source[-1]) + 1 if len(leg.plan) else 0
+        when = (float(self.plan.start_time_s[segment]) if segment < len(self.plan)
+                else self.plan.duration_s)
+        return PathPoint(segment, 0.0, 0.0, tuple(float(c) for c in end), 0.0, when)
 
     def _plan_rest(self, point: PathPoint) -> Leg | None:
         feed, rapid = self.overrides

@@ -38,7 +38,7 @@ every later front drive the machine through it.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,17 +54,18 @@ from usbmotion.errors import (
 from usbmotion.host.config import MachineConfig
 from usbmotion.host.machine import Machine
 from usbmotion.motion.dialects import Dialect
-from usbmotion.motion.gcode import read_gcode_text
+from usbmotion.motion.gcode import Pause, Pauses, read_gcode_text
 from usbmotion.motion.moves import AXIS_ORDER, Point
 from usbmotion.motion.offsets import WorkOffsets, read_parameter_file, write_parameter_file
 from usbmotion.motion.tools import NO_TOOLS, ToolTable, load_tool_table
 from usbmotion.protocol import FaultCode, fault_words
+from usbmotion.session.feed import WINDOW_MOVES, ProgramFeed
 from usbmotion.session.homing import HomingCycle, home_position_mm, homed_mark
 from usbmotion.session.planning import Prepared, plan_axes, prepare_program, program_axes
 from usbmotion.session.progress import Progress
 from usbmotion.session.report import RunReport, Trace
 from usbmotion.session.rest import STOP_LEAD_S, wait_for_rest
-from usbmotion.session.run import Run
+from usbmotion.session.run import READ_AHEAD_S, Run
 from usbmotion.session.state import MachineState, StopReason, check_transition
 
 FEED_OVERRIDE_RANGE = (10, 200)
@@ -128,6 +129,10 @@ class MachineSession:
         """Rapids run at this percentage of the axes' speed (:meth:`set_rapid_override`)."""
         self.override_at_s = 0.0
         """When an override last changed (the session's clock)."""
+        self.optional_stop = False
+        """When on, M1 pauses a program as M0 does (the operator's optional stop)."""
+        self.paused: Pause | None = None
+        """The program pause the machine waits at (M0, M1, M6), None when it waits at none."""
         self.last_run: Run | None = None
         """The last run: its holds (:attr:`Run.holds`) and override seams (:attr:`Run.seams`)
         for the figures of a benchmark."""
@@ -253,8 +258,14 @@ class MachineSession:
 
     # --- programs -----------------------------------------------------------------------------
 
+    def pause_rule(self) -> Pauses:
+        """Which program pauses stop a program the session runs: M0 and manual tool
+        changes, and M1 when :attr:`optional_stop` is on."""
+        return Pauses.OPTIONAL if self.optional_stop else Pauses.PROGRAM
+
     def prepare(self, source: str | Path, *, text: str | None = None,
-                unhomed: bool = False, dialect: Dialect | None = None) -> Prepared:
+                unhomed: bool = False, dialect: Dialect | None = None,
+                pauses: Pauses = Pauses.NONE) -> Prepared:
         """Interpret and plan a program from where the machine will start it, and check it
         against every axis's travel; nothing moves.
 
@@ -267,6 +278,8 @@ class MachineSession:
             text: the program's text, when it is not read from ``source``.
             unhomed: plan an unhomed machine from where it stands.
             dialect: read the program in this dialect instead of the machine file's.
+            pauses: which of M0, M1, M6 pause it (:meth:`pause_rule` gives the session's;
+                by default none: a run nobody can resume).
 
         The program runs with the machine's tool table and the work offsets of its
         parameter file (:attr:`MachineConfig.parameter_path`).
@@ -283,8 +296,60 @@ class MachineSession:
         body = read_gcode_text(source) if text is None else text
         self.program = prepare_program(self.config, body, file=str(source), start_mm=start_mm,
                                        homed=homed, dialect=dialect,
-                                       tools=self.tool_table(), offsets=self.work_offsets())
+                                       tools=self.tool_table(), offsets=self.work_offsets(),
+                                       pauses=pauses)
         return self.program
+
+    def open_feed(self, *, file: str = "<stream>", source: Iterator[str] | None = None,
+                  dialect: Dialect | None = None, unhomed: bool = False,
+                  window: int = WINDOW_MOVES) -> ProgramFeed:
+        """A program to be written line by line (:class:`ProgramFeed`) from where the
+        machine stands, with the machine's tool table, work offsets and pause rule; run it
+        with :meth:`run_feed` while lines are added (or read from ``source``).
+
+        Raises:
+            MachineStateError: the machine is not homed (and ``unhomed`` is not given).
+            ConfigError: the tool table or the parameter file is malformed.
+        """
+        if not self.is_homed and not unhomed:
+            raise MachineStateError("the machine is not homed: home it first",
+                                    state=self._state.value)
+        start_mm, homed = self.start_position_mm(unhomed=unhomed)
+        return ProgramFeed(self.config, start_mm=start_mm, homed=homed, file=file,
+                           source=source, dialect=dialect, tools=self.tool_table(),
+                           offsets=self.work_offsets(), pauses=self.pause_rule(),
+                           window=window)
+
+    def run_feed(self, feed: ProgramFeed, *,
+                 on_progress: Callable[[Progress], None] | None = None,
+                 ) -> tuple[RunReport, Trace]:
+        """Run a program while it is being written: its moves are planned with look-ahead
+        as they come and streamed; the run ends once the feed is complete (closed, its
+        source ended, or a line ended the program) and played out, or, for a feed written
+        by a front, once the machine has played out all it was given and no line came
+        meanwhile (the feed is then closed: a later line needs a new feed). Holds,
+        resumes, overrides, stops and faults work as in :meth:`run`.
+
+        Raises:
+            MachineStateError: not Idle, or the machine moved since the feed was opened.
+        """
+        feed.pull()
+        snapshot = feed.snapshot()
+        plan = feed.plan(snapshot)
+        while feed.has_source and not snapshot.complete and plan.duration_s < READ_AHEAD_S:
+            if not feed.pull():
+                break
+            snapshot = feed.snapshot()
+            plan = feed.plan(snapshot)
+        prepared = Prepared(feed.program(), plan, feed.start_mm, feed.homed, feed.offsets)
+        return self.run(prepared, on_progress=on_progress, feed=feed)
+
+    def _pause_at(self, pause: Pause | None) -> None:
+        """The run came to rest at a program pause (or left it): a resume continues."""
+        self.paused = pause
+        if pause is not None:
+            self._requests.resume = False
+            self._requests.hold = True
 
     def tool_table(self) -> ToolTable:
         """The machine's tool table (none: every tool of zero length).
@@ -490,6 +555,7 @@ class MachineSession:
         *,
         on_progress: Callable[[Progress], None] | None = None,
         homing_s: float = 0.0,
+        feed: ProgramFeed | None = None,
     ) -> tuple[RunReport, Trace]:
         """Run a prepared program; returns the report and the trace.
 
@@ -518,7 +584,7 @@ class MachineSession:
                 f"the program was prepared from {prepared.start_mm} but the machine stands"
                 f" at {here}: prepare it again", state=state)
         self._enter(MachineState.RUN)
-        run = self.last_run = Run(self, prepared, on_progress, homing_s)
+        run = self.last_run = Run(self, prepared, on_progress, homing_s, feed)
         try:
             report, trace = run.go()
         finally:
@@ -526,8 +592,9 @@ class MachineSession:
         self._state = MachineState.ALARM if run.faulted else MachineState.IDLE
         for name in run.faulted_axes:
             self.homed[name] = False
-        if report.completed and prepared.program.offsets != prepared.offsets:
-            self.save_work_offsets(prepared.program.offsets)
+        program = run.prepared.program
+        if report.completed and program.offsets != prepared.offsets:
+            self.save_work_offsets(program.offsets)
         return report, trace
 
     # --- after a fault ------------------------------------------------------------------------

@@ -1,0 +1,235 @@
+"""A program the machine runs while it is still being written: G-code lines arrive one at
+a time (from a file read as it runs, a console, a sender), each is interpreted against the
+modal state the feed keeps and checked against every axis's travel as it comes, and the
+run plans the moves it has with look-ahead, always able to stop at the end of the last one
+(the invariant grbl's and Klipper's planners keep).
+
+A feed is written from one thread (a front: :meth:`ProgramFeed.add`) and read by the run
+in another; everything the two share is behind one lock. A feed with a *source* (an
+iterator of lines, such as a file) is read by the run itself, as far ahead of the machine as
+the look-ahead needs (:meth:`ProgramFeed.pull`): no thread, so it runs the same in virtual
+time.
+
+The planner's window is bounded (:attr:`ProgramFeed.window`, moves not yet executed): a
+front that outruns the machine is told the feed is full and tries again (grbl's planner
+buffer), so memory stays bounded on an endless stream.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+from usbmotion.errors import ArgumentError, GCodeError, PlanningError
+from usbmotion.host.config import MachineConfig
+from usbmotion.motion.dialects import Dialect
+from usbmotion.motion.gcode import GCodeProgram, GCodeStream, Pause, Pauses
+from usbmotion.motion.limits import check_travel
+from usbmotion.motion.moves import Dwell, Move, Point
+from usbmotion.motion.offsets import NO_OFFSETS, WorkOffsets
+from usbmotion.motion.planner import Plan, plan_moves
+from usbmotion.motion.tools import NO_TOOLS, ToolTable
+from usbmotion.session.planning import machine_axes, machine_dialect, plan_axes, planner_inputs
+
+WINDOW_MOVES = 256
+"""The most moves a feed holds that the machine has not executed yet (its planner buffer)."""
+PULL_MOVES = 64
+"""The most moves one pull of a source adds (the run plans again after each pull)."""
+
+
+@dataclass(frozen=True, slots=True)
+class FeedSnapshot:
+    """What the run reads of a feed at one moment: every move so far, the pauses, and
+    whether more can come."""
+
+    moves: tuple[Move, ...]
+    pauses: tuple[Pause, ...]
+    version: int
+    complete: bool
+    """No more moves will come (the source ended, a line ended the program, or the feed
+    was closed)."""
+
+
+class ProgramFeed:
+    """G-code lines in, moves out, for a machine (see the module docstring).
+
+    Parameters:
+        config: the machine.
+        start_mm: where the machine stands (one coordinate per program axis).
+        homed: whether that is a homed position (soft limits are checked line by line).
+        file: the name errors give the feed (a file's name, ``<console>``, ...).
+        source: lines the run reads as it needs them (a file); none: lines come by
+            :meth:`add`.
+        dialect, tools, offsets, pauses: as :func:`usbmotion.motion.gcode.parse_gcode`'s.
+        window: the most moves not yet executed (see :attr:`window`).
+    """
+
+    def __init__(self, config: MachineConfig, *, start_mm: Point, homed: bool,
+                 file: str = "<stream>", source: Iterator[str] | None = None,
+                 dialect: Dialect | None = None, tools: ToolTable = NO_TOOLS,
+                 offsets: WorkOffsets | None = None, pauses: Pauses = Pauses.PROGRAM,
+                 window: int = WINDOW_MOVES) -> None:
+        if isinstance(window, bool) or not isinstance(window, int) or window < 1:
+            raise ArgumentError(f"window {window!r}: a whole number of moves, at least 1",
+                                reason="window")
+        self.config = config
+        self.file = file
+        self.homed = homed
+        self.start_mm = start_mm
+        self.offsets = offsets or NO_OFFSETS
+        self.window = window
+        """The most moves the feed holds beyond those the machine executed."""
+        self._stream = GCodeStream(file=file, start=start_mm, machine=machine_axes(config),
+                                   dialect=machine_dialect(config, dialect), tools=tools,
+                                   offsets=self.offsets, pauses=pauses)
+        self._source = source
+        self._lock = threading.Lock()
+        self._version = 0
+        self._closed = False
+        self._executed_moves = 0
+        self._travel = [axis.travel_mm for axis in plan_axes(config)]
+        self._axes = machine_axes(config).axes
+        self._limits, self._planner, _ = planner_inputs(config)
+        self._plan: tuple[int, Plan] | None = None
+        self.error: GCodeError | PlanningError | None = None
+        """The error that ended a source (its line could not be interpreted)."""
+
+    # --- writing ------------------------------------------------------------------------------
+
+    def add(self, text: str, *, line: int | None = None) -> bool:
+        """Interpret one line and take its moves; False when the window is full (nothing
+        was done: try again once the machine has moved) or the feed is closed.
+
+        Raises:
+            GCodeError: the line is invalid or comes after the program's end.
+            PlanningError: one of its moves leaves an axis's travel (SoftLimitError) or
+                cannot be planned. A line that fails adds nothing.
+        """
+        with self._lock:
+            if self._closed:
+                return False
+            if len(self._stream.moves) - self._executed_moves >= self.window:
+                return False
+            self._take(text, line)
+            return True
+
+    def _take(self, text: str, line: int | None) -> None:
+        moves = self._stream.feed(text, line=line,
+                                  check=self._check_travel if self.homed else None)
+        if moves:
+            self._version += 1
+
+    def _check_travel(self, moves: list[Move]) -> None:
+        """Soft limits on a line's moves (every chord of every arc), in machine coordinates."""
+        plan = plan_moves(moves, self._limits, self._planner, start=_start_of(moves[0]),
+                          axes=self._axes)
+        check_travel(plan.vertices_mm, plan.line, self._travel, axes=tuple(plan.axes))
+
+    def close(self) -> None:
+        """No more lines: the run plays out what the feed has and ends."""
+        with self._lock:
+            self._closed = True
+            self._version += 1
+
+    def finish_if(self, version: int) -> bool:
+        """Close the feed unless it changed since ``version`` (a run that played out all
+        it was given ends only if no line came meanwhile): True when it closed."""
+        with self._lock:
+            if self._version != version:
+                return False
+            self._closed = True
+            self._version += 1
+            return True
+
+    @property
+    def closed(self) -> bool:
+        """True once the feed takes no more lines."""
+        with self._lock:
+            return self._closed
+
+    @property
+    def blocks_free(self) -> int:
+        """How many more moves the window takes now."""
+        with self._lock:
+            return max(0, self.window - (len(self._stream.moves) - self._executed_moves))
+
+    # --- reading (the run) ----------------------------------------------------------------------
+
+    def pull(self) -> bool:
+        """Read the source's next lines (at most :data:`PULL_MOVES` moves, within the
+        window); True when moves were added. A line that fails ends the source
+        (:attr:`error`) and closes the feed: the program runs up to it."""
+        source = self._source
+        if source is None:
+            return False
+        with self._lock:
+            added = 0
+            before = len(self._stream.moves)
+            while (not self._closed and added < PULL_MOVES and
+                   len(self._stream.moves) - self._executed_moves < self.window):
+                try:
+                    text = next(source)
+                except StopIteration:
+                    self._closed = True
+                    break
+                try:
+                    self._take(text, None)
+                except (GCodeError, PlanningError) as error:
+                    self.error = error
+                    self._closed = True
+                    break
+                if self._stream.ended_by:
+                    self._closed = True
+                added = len(self._stream.moves) - before
+            if self._closed:
+                self._version += 1
+            return added > 0
+
+    @property
+    def has_source(self) -> bool:
+        """True when the run reads the lines itself (:meth:`pull`)."""
+        return self._source is not None
+
+    def snapshot(self) -> FeedSnapshot:
+        """Every move so far and whether more can come."""
+        with self._lock:
+            stream = self._stream
+            complete = self._closed or bool(stream.ended_by)
+            return FeedSnapshot(tuple(stream.moves), tuple(stream.pauses), self._version,
+                                complete)
+
+    @property
+    def version(self) -> int:
+        """Changes whenever moves are added or the feed closes."""
+        with self._lock:
+            return self._version
+
+    def plan(self, snapshot: FeedSnapshot) -> Plan:
+        """The look-ahead plan of every move of ``snapshot``, from the start, ending at rest
+        (cached by version)."""
+        cached = self._plan
+        if cached is not None and cached[0] == snapshot.version:
+            return cached[1]
+        plan = plan_moves(snapshot.moves, self._limits, self._planner, start=self.start_mm,
+                          axes=self._axes)
+        self._plan = (snapshot.version, plan)
+        return plan
+
+    def executed(self, moves: int) -> None:
+        """The machine has executed the first ``moves`` moves (frees the window)."""
+        with self._lock:
+            self._executed_moves = max(self._executed_moves, moves)
+
+    def program(self) -> GCodeProgram:
+        """The program as fed so far."""
+        with self._lock:
+            return self._stream.result()
+
+
+def _start_of(move: Move) -> Point:
+    """Where ``move`` starts."""
+    return move.position if isinstance(move, Dwell) else move.start
+
+
+__all__ = ["FeedSnapshot", "ProgramFeed"]
