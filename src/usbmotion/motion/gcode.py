@@ -61,6 +61,7 @@ readings (grbl, Marlin) are the dialects of :mod:`usbmotion.motion.dialects`.
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 from collections.abc import Callable, Iterable
@@ -522,6 +523,13 @@ def interpret_until_error(
     return interpreter.result(), error
 
 
+_MODAL_STATE = ("position", "frame", "offset", "tools", "cycle", "retract_to_r", "scale",
+                "incremental", "arc_incremental", "plane", "motion", "feed_mm_min", "ended_by",
+                "end_line")
+"""What a line may change of the interpreter's state besides what it adds (a failed line
+of a stream is undone)."""
+
+
 class GCodeStream:
     """G-code read one line at a time, the machine's modal state kept between lines: what a
     console, a sender or a file streamed into a running machine gives.
@@ -588,6 +596,7 @@ class GCodeStream:
                              file=state.file, line=number)
         marks = (len(state.moves), len(state.pauses), len(state.ignored),
                  len(state.tool_changes))
+        modes = {name: copy.deepcopy(getattr(state, name)) for name in _MODAL_STATE}
         rules = state.rules
         try:
             for block in tokenize(text.rstrip("\r\n"), file=state.file,
@@ -604,7 +613,8 @@ class GCodeStream:
             moves, pauses, ignored, changes = marks
             del state.moves[moves:], state.pauses[pauses:], state.ignored[ignored:]
             del state.tool_changes[changes:]
-            state.ended_by = ""
+            for name, value in modes.items():
+                setattr(state, name, value)
             raise
         return added
 

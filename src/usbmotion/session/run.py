@@ -457,7 +457,8 @@ class Run:
         or (a feed) more moves came: False."""
         clients = [self.machine.axis(n).client for n in self.axes]
         while True:
-            if self._should_stop() or self._feed_changed():
+            if (self._should_stop() or self._feed_changed()
+                    or self._release_limit() > self.released):
                 return False
             queued = max(client.queue_status()[0] for client in clients)
             self._tell(min(stream.sent for stream in self.streams.values()) - queued)

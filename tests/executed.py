@@ -1,0 +1,82 @@
+"""What the devices executed, checked: velocity and acceleration within the limits, no
+jump, the same path as another run (see :mod:`tests.test_live_control` for the tolerances).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from usbmotion.host.config import MachineConfig
+
+AXES = ["X", "Y", "Z"]
+VELOCITY_WINDOW = 10
+ACCEL_WINDOW = 20
+PATH_TOLERANCE_COUNTS = 1.5
+Positions = npt.NDArray[np.int64]
+
+
+def peaks(positions: Positions) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Per-axis peak velocity (counts/tick, over VELOCITY_WINDOW) and acceleration
+    (counts/tick^2, over ACCEL_WINDOW)."""
+    w = VELOCITY_WINDOW
+    velocity = np.abs(positions[w:] - positions[:-w]).max(axis=0) / w
+    a = ACCEL_WINDOW
+    second = positions[2 * a:] - 2 * positions[a:-a] + positions[:-2 * a]
+    return velocity, np.abs(second).max(axis=0) / (a * a)
+
+
+def check_limits(config: MachineConfig, positions: Positions, reference: Positions) -> None:
+    tick_s = config.servo_period_s
+    velocity, accel = peaks(positions)
+    _, reference_accel = peaks(reference)
+    for column, name in enumerate(AXES):
+        axis = config.axis(name)
+        v_limit = axis.max_velocity_mm_s * axis.counts_per_mm * tick_s + 1 / VELOCITY_WINDOW
+        assert velocity[column] <= v_limit, f"{name}: velocity {velocity[column]} > {v_limit}"
+        a_limit = max(axis.max_accel_mm_s2 * axis.counts_per_mm * tick_s**2,
+                      reference_accel[column]) + 2 / ACCEL_WINDOW**2
+        assert accel[column] <= a_limit + 1e-12, (
+            f"{name}: acceleration {accel[column] / tick_s**2 / axis.counts_per_mm} mm/s^2"
+            f" beyond {a_limit / tick_s**2 / axis.counts_per_mm}")
+        step = np.abs(np.diff(positions[:, column])).max()
+        assert step <= axis.max_velocity_mm_s * axis.counts_per_mm * tick_s + 1, f"{name}: a jump"
+
+
+def distance_to_path(points: Positions, path: Positions) -> float:
+    """The largest distance (counts) from any of ``points`` to the polyline ``path``."""
+    path_f = path.astype(np.float64)
+    keep = np.concatenate(([True], np.any(np.diff(path_f, axis=0) != 0, axis=1)))
+    path_f = path_f[keep]
+    start, end = path_f[:-1], path_f[1:]
+    cell = 16.0
+    cells: dict[tuple[int, int, int], list[int]] = {}
+    for index, key in enumerate(map(tuple, np.floor(start / cell).astype(np.int64).tolist())):
+        cells.setdefault(key, []).append(index)  # type: ignore[arg-type]
+    offsets = [(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)]
+    worst = 0.0
+    for point in np.unique(points, axis=0).astype(np.float64):
+        x, y, z = np.floor(point / cell).astype(np.int64).tolist()
+        near = [n for i, j, k in offsets for n in cells.get((x + i, y + j, z + k), ())]
+        if not near:
+            return float("inf")
+        a, b = start[near], end[near]
+        d = b - a
+        t = np.clip(np.einsum("ij,ij->i", point - a, d) / np.einsum("ij,ij->i", d, d), 0, 1)
+        closest = a + d * t[:, None]
+        worst = max(worst, float(np.min(np.linalg.norm(closest - point, axis=1))))
+    return worst
+
+
+def check_same_path(positions: Positions, reference: Positions) -> None:
+    assert distance_to_path(positions, reference) <= PATH_TOLERANCE_COUNTS, "left the path"
+    assert distance_to_path(reference, positions) <= PATH_TOLERANCE_COUNTS, "skipped a part"
+    assert np.array_equal(positions[-1], reference[-1]), "the same end position"
+
+
+def at_rest_spans(positions: Positions, least: int) -> list[tuple[int, int]]:
+    """Stretches of at least ``least`` ticks where no axis moved."""
+    still = np.concatenate(([False], np.all(np.diff(positions, axis=0) == 0, axis=1), [False]))
+    edges = np.flatnonzero(np.diff(still.astype(np.int8)))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)
+            if b - a >= least]

@@ -1,0 +1,273 @@
+"""A program streamed line by line (session.feed), and program pauses (M0, M1, M6), in
+virtual time, checked on what the devices executed (tests.executed's invariants)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+import usbmotion
+import usbmotion.session.feed as feed_module
+from usbmotion.cli.run import default_machine
+from usbmotion.errors import GCodeError, MachineStateError, SoftLimitError
+from usbmotion.host.config import MachineConfig, load_config
+from usbmotion.motion.gcode import Pauses
+from usbmotion.session import MachineSession, MachineState
+from usbmotion.session.feed import ProgramFeed
+from usbmotion.session.planning import plan_gcode
+from usbmotion.session.report import RunReport
+from usbmotion.sim.machine import connect_session
+from usbmotion.sim.recording import ExecutedRecorder
+from tests.executed import (
+    AXES,
+    Positions,
+    at_rest_spans,
+    check_limits,
+    check_same_path,
+    distance_to_path,
+)
+
+DEMO = Path(usbmotion.__file__).parent / "data" / "demos" / "1-rounded-square.ngc"
+TickAction = Callable[[MachineSession, int], None]
+SHORT = """G21 G90 G17
+G0 X10 Y10 Z5
+G1 X60 Y10 F3000
+G1 X60 Y50
+G2 X40 Y70 I-20 J0
+G1 X10 Y70
+G0 Z10
+"""
+
+
+@pytest.fixture(scope="module")
+def config() -> MachineConfig:
+    return load_config(default_machine())
+
+
+def _record(config: MachineConfig, go: Callable[[MachineSession], RunReport],
+            act: TickAction | None = None) -> tuple[MachineSession, Positions, RunReport]:
+    """Home, then ``go(session)`` with ``act(session, tick)`` on every servo tick; the
+    session (closed), what the devices executed, and the report."""
+    with connect_session(config) as session:
+        session.live_control = True
+        session.home()
+        world = session.machine.world
+        assert world is not None
+        count = [0]
+
+        def on_tick(_: int) -> None:
+            count[0] += 1
+            if act is not None:
+                act(session, count[0])
+
+        with ExecutedRecorder(world, AXES, on_tick=on_tick) as recorder:
+            report = go(session)
+        session.final_state = session.state  # type: ignore[attr-defined]
+        session.shutdown()
+        return session, recorder.positions(), report
+
+
+def _whole(path: Path | None = None, text: str | None = None, **kwargs: object,
+           ) -> Callable[[MachineSession], RunReport]:
+    def go(session: MachineSession) -> RunReport:
+        source = path if path is not None else Path("<text>")
+        return session.run(session.prepare(source, text=text, **kwargs))[0]  # type: ignore[arg-type]
+    return go
+
+
+def _fed(lines: Iterator[str], file: str = "<stream>") -> Callable[[MachineSession], RunReport]:
+    def go(session: MachineSession) -> RunReport:
+        return session.run_feed(session.open_feed(file=file, source=lines))[0]
+    return go
+
+
+@pytest.fixture(scope="module")
+def demo_reference(config: MachineConfig) -> tuple[Positions, RunReport]:
+    _, positions, report = _record(config, _whole(DEMO))
+    return positions, report
+
+
+def test_a_file_read_line_by_line_runs_as_its_whole_plan(
+        config: MachineConfig, demo_reference: tuple[Positions, RunReport],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(feed_module, "PULL_MOVES", 3)
+    reference, whole = demo_reference
+    session, positions, report = _record(
+        config, _fed(iter(DEMO.read_text().splitlines()), str(DEMO)))
+    assert report.completed and session.final_state is MachineState.IDLE  # type: ignore[attr-defined]
+    assert session.last_run is not None and len(session.last_run.legs) > 3, "joined as it read"
+    assert abs(report.executed_time_s - whole.executed_time_s) <= 0.005 * whole.executed_time_s
+    check_limits(config, positions, reference)
+    check_same_path(positions, reference)
+    assert [a.max_error_counts for a in report.axes] == [a.max_error_counts
+                                                         for a in whole.axes]
+
+
+def test_a_checker_of_the_path_sees_a_line_left_out(
+        config: MachineConfig, demo_reference: tuple[Positions, RunReport]) -> None:
+    reference, _ = demo_reference
+    lines = DEMO.read_text().splitlines()
+    moving = [i for i, line in enumerate(lines) if line.startswith(("G1", "G2", "G3"))]
+    del lines[moving[3]]
+    _, positions, _ = _record(config, _fed(iter(lines)))
+    assert distance_to_path(reference, positions) > 10, "the path without a line differs"
+
+
+def test_lines_written_while_it_runs_late_ones_included(config: MachineConfig) -> None:
+    """A front writes the lines as the machine moves: one comes while the machine already
+    decelerates to the end of what it has (the queued future is replaced, call 38); once
+    it has played out all it was given the run ends (Idle) and a later line needs a new
+    feed."""
+    lines = SHORT.splitlines()
+    _, reference, _ = _record(config, _whole(text="\n".join(lines[:6]) + "\nM2\n"))
+    written: list[bool] = []
+    feeds: list[ProgramFeed] = []
+
+    def go(session: MachineSession) -> RunReport:
+        feed = session.open_feed(file="<front>")
+        feeds.append(feed)
+        for text in lines[:3]:
+            assert feed.add(text)
+        return session.run_feed(feed)[0]
+
+    ticks_per_s = round(1 / config.servo_period_s)
+    _, part = plan_gcode(config, "\n".join(lines[:5]) + "\nM2\n")
+    late_s = part.duration_s - 0.06
+    schedule = {round(at_s * ticks_per_s): text
+                for at_s, text in ((0.04, lines[3]), (0.25, lines[4]), (late_s, lines[5]))}
+
+    def act(session: MachineSession, tick: int) -> None:
+        text = schedule.get(tick)
+        if text is not None:
+            written.append(feeds[0].add(text))
+
+    session, positions, report = _record(config, go, act)
+    assert written == [True, True, True] and report.completed
+    assert session.last_run is not None and len(session.last_run.legs) >= 3
+    assert session.final_state is MachineState.IDLE  # type: ignore[attr-defined]
+    check_limits(config, positions, reference)
+    check_same_path(positions, reference)
+    assert feeds[0].closed and not feeds[0].add("G0 X0"), "a played-out feed takes no line"
+
+
+def test_a_bad_line_is_refused_and_nothing_else_changes(config: MachineConfig) -> None:
+    with connect_session(config) as session:
+        session.home()
+        feed = session.open_feed(file="<front>")
+        assert feed.add("G0 X10 Y10")
+        with pytest.raises(GCodeError) as bad:
+            feed.add("G1 X20 Y")
+        assert bad.value.line == 2 and "Y" in str(bad.value)
+        with pytest.raises(SoftLimitError) as beyond:
+            feed.add("G0 X900")
+        assert beyond.value.line == 3 and "X" in str(beyond.value)
+        assert feed.add("G1 X20 F600")
+        moves = feed.snapshot().moves
+        assert [move.line for move in moves] == [1, 4]
+        report, _ = session.run_feed(feed)
+        assert report.completed
+        assert session.positions_mm()["X"] == pytest.approx(20.0, abs=0.01)
+        session.shutdown()
+
+
+def test_a_full_window_says_so_and_takes_the_line_later(config: MachineConfig) -> None:
+    with connect_session(config) as session:
+        session.home()
+        feed = session.open_feed(file="<front>", window=2)
+        assert feed.add("G0 X10") and feed.add("G0 X20")
+        assert feed.blocks_free == 0 and not feed.add("G0 X30")
+        assert len(feed.snapshot().moves) == 2, "the refused line added nothing"
+        feed.executed(1)
+        assert feed.blocks_free == 1 and feed.add("G0 X30")
+        session.shutdown()
+
+
+def test_a_source_line_that_fails_ends_the_run_there(config: MachineConfig) -> None:
+    text = "G0 X10 Y10\nG1 X30 F1200\nG1 Y\nG1 X40\n"
+    _, positions, report = _record(config, _fed(iter(text.splitlines()), "bad.ngc"))
+    assert not report.completed and report.stop_reason.startswith("error: bad.ngc:3")
+    counts = config.axis("X").counts_per_mm
+    assert positions[-1][0] == round(30 * counts), "ran up to the line before"
+
+
+def test_a_feed_needs_a_homed_machine(config: MachineConfig) -> None:
+    with connect_session(config) as session:
+        with pytest.raises(MachineStateError, match="home"):
+            session.open_feed()
+
+
+@pytest.mark.parametrize("mode", ["file", "feed"])
+def test_m0_pauses_until_cycle_start_on_the_same_path(config: MachineConfig, mode: str) -> None:
+    paused_text = SHORT.replace("G1 X60 Y50\n", "G1 X60 Y50\nM0\n") + "M2\n"
+    _, reference, _ = _record(config, _whole(text=SHORT + "M2\n"))
+    seen: list[tuple[MachineState, str]] = []
+
+    def act(session: MachineSession, tick: int) -> None:
+        if session.paused is not None and not seen:
+            seen.append((session.state, session.paused.code))
+            at[0] = tick
+        if at[0] and tick == at[0] + 800:
+            session.request_resume()
+
+    at = [0]
+    go = (_whole(text=paused_text, pauses=Pauses.PROGRAM) if mode == "file"
+          else _fed(iter(paused_text.splitlines())))
+    session, positions, report = _record(config, go, act)
+    assert seen == [(MachineState.HOLD, "M0")]
+    assert report.completed and session.paused is None
+    assert session.last_run is not None and [p.line for p in session.last_run.paused] == [5]
+    spans = at_rest_spans(positions, 700)
+    assert spans, "it waited at rest"
+    counts = config.axis("X").counts_per_mm
+    start, _ = spans[0]
+    assert tuple(positions[start][:2]) == (round(60 * counts), round(50 * counts))
+    check_limits(config, positions, reference)
+    check_same_path(positions, reference)
+
+
+def test_m1_pauses_only_with_optional_stop_and_m6_names_the_tool(config: MachineConfig) -> None:
+    text = "G0 X10 Y10\nM1\nG0 X20\nT4 M6\nG0 X30\nM2\n"
+    messages: list[str] = []
+
+    def act(session: MachineSession, tick: int) -> None:
+        pause = session.paused
+        if pause is not None and (not messages or messages[-1] != pause.message):
+            messages.append(pause.message)
+            session.request_resume()
+
+    def run(optional: bool) -> RunReport:
+        def go(session: MachineSession) -> RunReport:
+            session.optional_stop = optional
+            return session.run(session.prepare("p.ngc", text=text,
+                                               pauses=session.pause_rule()))[0]
+        return _record(config, go, act)[2]
+
+    assert run(False).completed
+    assert len(messages) == 1 and "tool 4" in messages[0]
+    messages.clear()
+    assert run(True).completed
+    assert [m.split(" ")[0] for m in messages] == ["optional", "tool"]
+
+
+def test_a_hold_and_resume_in_a_fed_program_keeps_the_path(
+        config: MachineConfig, demo_reference: tuple[Positions, RunReport],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(feed_module, "PULL_MOVES", 3)
+    reference, _ = demo_reference
+
+    def act(session: MachineSession, tick: int) -> None:
+        if tick == 6000:
+            session.request_hold()
+        if tick == 6700:
+            session.request_resume()
+        if tick == 9000:
+            session.set_feed_override(150)
+
+    session, positions, report = _record(
+        config, _fed(iter(DEMO.read_text().splitlines())), act)
+    assert report.completed and session.last_run is not None
+    assert len(session.last_run.holds) == 1 and len(session.last_run.seams) == 1
+    check_limits(config, positions, reference)
+    check_same_path(positions, reference)
