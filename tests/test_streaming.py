@@ -7,6 +7,14 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from tests.executed import (
+    AXES,
+    Positions,
+    at_rest_spans,
+    check_limits,
+    check_same_path,
+    distance_to_path,
+)
 
 import usbmotion
 import usbmotion.session.feed as feed_module
@@ -16,18 +24,11 @@ from usbmotion.host.config import MachineConfig, load_config
 from usbmotion.motion.gcode import Pauses
 from usbmotion.session import MachineSession, MachineState
 from usbmotion.session.feed import ProgramFeed
+from usbmotion.session.operator import Operator
 from usbmotion.session.planning import plan_gcode
 from usbmotion.session.report import RunReport
 from usbmotion.sim.machine import connect_session
 from usbmotion.sim.recording import ExecutedRecorder
-from tests.executed import (
-    AXES,
-    Positions,
-    at_rest_spans,
-    check_limits,
-    check_same_path,
-    distance_to_path,
-)
 
 DEMO = Path(usbmotion.__file__).parent / "data" / "demos" / "1-rounded-square.ngc"
 TickAction = Callable[[MachineSession, int], None]
@@ -193,9 +194,8 @@ def test_a_source_line_that_fails_ends_the_run_there(config: MachineConfig) -> N
 
 
 def test_a_feed_needs_a_homed_machine(config: MachineConfig) -> None:
-    with connect_session(config) as session:
-        with pytest.raises(MachineStateError, match="home"):
-            session.open_feed()
+    with connect_session(config) as session, pytest.raises(MachineStateError, match="home"):
+        session.open_feed()
 
 
 @pytest.mark.parametrize("mode", ["file", "feed"])
@@ -271,3 +271,65 @@ def test_a_hold_and_resume_in_a_fed_program_keeps_the_path(
     assert len(session.last_run.holds) == 1 and len(session.last_run.seams) == 1
     check_limits(config, positions, reference)
     check_same_path(positions, reference)
+
+
+def test_jogs_incremental_and_continuous_and_cancelled(config: MachineConfig) -> None:
+    counts = config.axis("X").counts_per_mm
+    ticks_per_s = round(1 / config.servo_period_s)
+
+    def go(session: MachineSession) -> RunReport:
+        first = session.jog({"X": 10.0, "Y": 5.0}, feed_mm_min=600)
+        assert first.completed and session.positions_mm()["X"] == pytest.approx(10.0)
+        with pytest.raises(SoftLimitError):
+            session.jog({"X": -50.0}, feed_mm_min=600)
+        return session.jog({"X": 1.0}, feed_mm_min=1200, continuous=True)
+
+    cancel_tick = [0]
+
+    def act(session: MachineSession, tick: int) -> None:
+        run = session.last_run
+        continuous = run is not None and run.prepared.plan.end[0] > 100
+        if session.jogging and continuous and tick > 3 * ticks_per_s and not cancel_tick[0]:
+            cancel_tick[0] = tick
+            session.request_jog_cancel()
+
+    session, positions, report = _record(config, go, act)
+    assert cancel_tick[0] and report.stop_reason == "jog cancelled" and not report.completed
+    assert session.final_state is MachineState.IDLE and session.is_homed  # type: ignore[attr-defined]
+    assert not session.stop_requested, "a cancelled jog leaves no stop request behind"
+    assert 10 * counts < positions[-1][0] < 200 * counts, "it stopped short of the limit"
+    check_limits(config, positions, positions)
+    assert report.stop_distance_mm <= report.stop_planned_mm + 0.05
+
+
+def test_a_continuous_jog_stops_at_the_soft_limit(config: MachineConfig) -> None:
+    def go(session: MachineSession) -> RunReport:
+        return session.jog({"Z": 1.0}, feed_mm_min=1200, continuous=True)
+
+    _, positions, report = _record(config, go)
+    _, upper = config.axis("Z").travel_mm
+    assert report.completed
+    assert positions[-1][2] == round(upper * config.axis("Z").counts_per_mm)
+
+
+def test_the_operator_runs_mdi_lines_with_their_modal_state(config: MachineConfig) -> None:
+    with connect_session(config) as session:
+        session.home()
+        messages: list[str] = []
+        with Operator(session, on_message=messages.append) as operator:
+            for line in ("G21 G90", "G0 X10 Y10", "G91", "G1 X5 F600", "G0 Z2"):
+                assert operator.submit(line)
+            assert operator.wait_idle(60)
+            with pytest.raises(GCodeError):
+                operator.submit("G1 X")
+            deadline = 0
+            while not operator.submit("G0 X-5"):
+                deadline += 1
+                assert deadline < 1000
+            assert operator.wait_idle(60)
+            where = operator.status().position_mm
+        assert where["X"] == pytest.approx(10.0, abs=1e-3)
+        assert (where["Y"], where["Z"]) == (pytest.approx(10.0, abs=1e-3),
+                                            pytest.approx(2.0, abs=1e-3))
+        assert not [m for m in messages if m.startswith("error")]
+        session.shutdown()

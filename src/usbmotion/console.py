@@ -1,4 +1,5 @@
-"""The serial console of seed 003 over a machine session: cycle start, reset, demo selection.
+"""The serial console of seed 003 over a machine session: cycle start, reset, demo selection,
+MDI, jogging and live control while the machine moves.
 
 Commands are ``$`` and a letter, then values: ``$c`` runs the loaded program from where the
 machine stands, ``$r`` stops the machine, clears any alarm and homes it, ``$d N`` loads demo
@@ -10,10 +11,23 @@ carried out at the machine's position; both keep the offsets in the machine's pa
 file. Every command answers with at least one line; unknown input answers one ``error:``
 line. A cycle start plans the program from where the machine is, so
 two in a row run it twice from wherever the first ended.
+
+The machine moves on a worker thread (:class:`~usbmotion.session.operator.Operator`), so
+the console keeps reading while it moves: any other line of G-code is MDI, run at once
+(``G0 X10``, ``G1 Y5 F300``, ``G91 G0 Z1``: the modal state lasts from line to line, and
+lines written while the machine moves are streamed after what it is doing); ``!`` holds,
+``~`` (or ``$c``) resumes a hold or a program pause (M0, M1, M6), Ctrl-X (0x18) or ``$x``
+stops (every axis to rest along its deceleration, the rest dropped, the machine homed and
+Idle); ``$j X10 Y-2 F600`` jogs by distances, ``$j X+ F600`` jogs continuously until
+``$jx``, ``!``, Ctrl-X or the soft limit; ``$o F150`` and ``$o R50`` set the feed and rapid
+overrides; ``?`` reports the state, the positions (machine and work), the line and the
+overrides while a program runs.
 """
 
 from __future__ import annotations
 
+import re
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -21,23 +35,38 @@ from usbmotion.demos import DEMOS, demo_path
 from usbmotion.errors import (
     ArgumentError,
     GCodeError,
+    MachineStateError,
     PlanningError,
     StopRequestedError,
     UsbMotionError,
 )
 from usbmotion.motion.gcode import interpret_setting, parse_gcode, read_gcode_text
+from usbmotion.motion.moves import AXIS_ORDER
 from usbmotion.motion.offsets import format_point
 from usbmotion.session import MachineSession, MachineState, describe
+from usbmotion.session.operator import Operator, parse_steps
 from usbmotion.session.planning import machine_axes, machine_dialect, program_axes
 
+_GCODE_LETTERS = frozenset("GMFTNXYZUVW")
+"""The first letters of a line of G-code (MDI)."""
+_SETTING = re.compile(r"\s*G\s*(10|92|28\.1|30\.1)\b", re.IGNORECASE)
+"""A line that sets offsets without moving: carried out at the machine's position."""
+MDI_WAIT_S = 5.0
+"""How long an MDI line waits for room in the planner before it is refused."""
+
 HELP = """\
-$c        cycle start: run the loaded program from where the machine stands
+$c        cycle start: run the loaded program from where the machine stands (or resume)
+G0 X10    MDI: any other G-code line runs at once (modal state kept between lines)
+!  ~      feed hold; resume (cycle start) a hold or a pause (M0, M1, M6)
+^X  $x    stop: every axis to rest along its deceleration, the rest dropped
+$j X10 Y-2 F600   jog by distances (machine coordinates); $j X+ F600 jogs until $jx or ^X
+$o F150   feed override 10..200 %; $o R50 rapid override 100, 50 or 25 %
 $r        reset: stop every axis, clear any alarm, then home
 $d N      load demo program N (1 rounded square, 2 star, 3 spiral)
 $l FILE   load a G-code file
 $z [AXES] zero: the work origin (G54) where the machine stands, for the named axes (default all)
 G10 ...   set offsets at the machine's position: G10 L20 P1 X0 Y0, G10 L2 P1 Z-5, G28.1
-?         status: state, loaded program, homed, positions, faults
+?         status: state, line, positions (machine and work), overrides, faults
 $h        this help
 $q        quit"""
 
@@ -53,17 +82,32 @@ class Console:
     def __init__(self, session: MachineSession, write: Callable[[str], None]) -> None:
         self.session = session
         self.write = write
+        self.operator = Operator(session, on_message=write)
         self.path: Path | None = None
         self.text = ""
         self.last_result = ""
+
+    def close(self) -> None:
+        """Wait for what runs, then end the worker."""
+        self.operator.wait_idle()
+        self.operator.close()
 
     def handle(self, line: str) -> bool:
         """Carry out one line; returns False when the console should end."""
         text = line.strip()
         if not text:
             return True
+        if self._live(text):
+            return True
         command, _, value = text.partition(" ")
         value = value.strip()
+        if self.operator.busy and command not in ("$q", "$h", "$?"):
+            if text[:1].upper() in _GCODE_LETTERS:
+                self._mdi(text)
+            else:
+                self.write(f"error: {text!r} waits until the machine is idle; while it moves:"
+                           " ? ! ~ ^X $x $jx $o and G-code lines")
+            return True
         try:
             if command == "?":
                 self._status()
@@ -82,8 +126,12 @@ class Console:
                 self._load_file(value)
             elif command == "$z":
                 self._zero(value)
-            elif text[:1] in "Gg":
+            elif command == "$j":
+                self._jog(value)
+            elif _SETTING.match(text):
                 self._set_offsets(text)
+            elif text[:1].upper() in _GCODE_LETTERS:
+                self._mdi(text)
             else:
                 self.write(f"error: unknown command {text!r}; $h lists the commands")
         except StopRequestedError as error:
@@ -92,9 +140,123 @@ class Console:
             self.write(f"error: {error}")
         except UsbMotionError as error:
             self.write(f"error: {error}")
-        finally:
-            self.session.clear_stop_request()
         return True
+
+    def _live(self, text: str) -> bool:
+        """The commands that act at once, even while the machine moves: True when ``text``
+        was one."""
+        operator = self.operator
+        if text in ("!", "$jx") or text.startswith("!"):
+            if self.session.jogging:
+                operator.jog_cancel()
+                self.write("jog cancelled")
+            elif text == "$jx":
+                self.write("error: no jog runs")
+            else:
+                operator.hold()
+                self.write("hold: decelerating to rest along the path; ~ resumes")
+            return True
+        if text == "~" or (text == "$c" and self.session.hold_requested):
+            if self.session.hold_requested:
+                operator.resume()
+                self.write("resume")
+            else:
+                self.write("error: nothing to resume (no hold, no pause)")
+            return True
+        if text in ("\x18", "$x"):
+            if operator.busy:
+                operator.stop()
+                self.write("stop: every axis to rest along its deceleration")
+            else:
+                self.write("stop: nothing moves")
+            return True
+        if text == "?" and operator.busy:
+            self._live_status()
+            return True
+        if text.startswith("$o"):
+            self._override(text[2:].strip())
+            return True
+        return False
+
+    def _live_status(self) -> None:
+        status = self.operator.status()
+        offsets = self.session.work_offsets()
+        axes = program_axes(self.session.config)
+        origin = offsets.g5x[offsets.coordinate_system - 1]
+        machine = "  ".join(f"{a} {status.position_mm.get(a, 0.0):.3f}" for a in axes)
+        work = "  ".join(f"{a} {status.position_mm.get(a, 0.0) - origin[AXIS_ORDER.index(a)]:.3f}"
+                         for a in axes)
+        self.write(f"state: {status.state}; line {status.line}; machine {machine} mm; work"
+                   f" {work} mm; feed {status.feed_override} %, rapid {status.rapid_override} %"
+                   + (f"; paused: {status.pause}" if status.pause else ""))
+
+    def _override(self, value: str) -> None:
+        kind, number = value[:1].upper(), value[1:].strip()
+        try:
+            percent = int(number)
+        except ValueError:
+            self.write(f"error: $o takes F10..F200 or R25/R50/R100, got {value!r}")
+            return
+        try:
+            if kind == "F":
+                self.session.set_feed_override(percent)
+            elif kind == "R":
+                self.session.set_rapid_override(percent)
+            else:
+                self.write(f"error: $o takes F10..F200 or R25/R50/R100, got {value!r}")
+                return
+        except ArgumentError as error:
+            self.write(f"error: {error}")
+            return
+        self.write(f"override: feed {self.session.feed_override_percent} %, rapid"
+                   f" {self.session.rapid_override_percent} %")
+
+    def _mdi(self, text: str) -> None:
+        """A G-code line, run at once (streamed after what runs)."""
+        operator = self.operator
+        deadline = time.monotonic() + MDI_WAIT_S
+        while True:
+            try:
+                taken = operator.submit(text)
+            except (GCodeError, PlanningError, MachineStateError) as error:
+                self.write(f"error: {error}")
+                return
+            if taken:
+                self.write("ok")
+                return
+            if time.monotonic() > deadline:
+                self.write("error: the planner is full; try again")
+                return
+            time.sleep(0.01)
+
+    def _jog(self, value: str) -> None:
+        words = value.upper().split()
+        feed = [w for w in words if w.startswith("F")]
+        steps = [w for w in words if not w.startswith("F")]
+        if len(feed) != 1 or not steps:
+            self.write("error: $j takes AXIS DISTANCE pairs (or AXIS+ / AXIS-) and one F"
+                       " feed: $j X10 Y-2 F600, $j X+ F600")
+            return
+        try:
+            feed_mm_min = float(feed[0][1:])
+        except ValueError:
+            self.write(f"error: $j feed {feed[0]!r} is not a number")
+            return
+        continuous = all(len(w) == 2 and w[1] in "+-" for w in steps)
+        try:
+            if continuous:
+                moves = {w[0]: 1.0 if w[1] == "+" else -1.0 for w in steps}
+            else:
+                moves = parse_steps(steps)
+        except ValueError as error:
+            self.write(f"error: $j {error}")
+            return
+        try:
+            self.operator.jog(moves, feed_mm_min=feed_mm_min, continuous=continuous)
+        except (ArgumentError, MachineStateError) as error:
+            self.write(f"error: {error}")
+            return
+        self.write("jogging" + (" until $jx, ! or ^X" if continuous else ""))
 
     def _load(self, path: Path) -> None:
         text = read_gcode_text(path)
@@ -134,21 +296,25 @@ class Console:
         if session.state is MachineState.ALARM:
             self.write("error: the machine is in Alarm; $r resets and homes it")
             return
-        prepared = session.prepare(self.path, text=self.text)
+        prepared = session.prepare(self.path, text=self.text, pauses=session.pause_rule())
         homing_s = 0.0
         if not session.is_homed:
             self.write("homing first: the machine is not homed")
             homing_s = session.home()
-            prepared = session.prepare(self.path, text=self.text)
+            prepared = session.prepare(self.path, text=self.text, pauses=session.pause_rule())
         start = "  ".join(f"{a} {v:.3f}" for a, v in zip(prepared.axes, prepared.start_mm,
                                                           strict=True))
         self.write(f"cycle start: {self.path} from {start} mm, {prepared.plan.duration_s:.2f} s")
-        report, _ = session.run(prepared, homing_s=homing_s)
-        self.last_result = report.stop_reason
-        for line in describe(report).splitlines():
-            self.write(line)
-        self.write("done" if report.completed else f"stopped ({report.stop_reason}):"
-                   " $r resets and homes")
+
+        def go() -> None:
+            report, _ = session.run(prepared, homing_s=homing_s)
+            self.last_result = report.stop_reason
+            for line in describe(report).splitlines():
+                self.write(line)
+            self.write("done" if report.completed else f"stopped ({report.stop_reason}):"
+                       " $r resets and homes")
+
+        self.operator.do(go)
 
     def _zero(self, value: str) -> None:
         session = self.session

@@ -20,15 +20,17 @@ from usbmotion.errors import ConfigError, UsbMotionError
 def console(
     machine: MachineOption = None,
 ) -> None:
-    """Drive the machine from a console: $c cycle start, $r reset and home, $d N demo.
+    """Drive the machine from a console: MDI, jog, hold and resume, $c cycle start.
 
     Reads one command per line from standard input (a prompt is shown on a
-    terminal) until end of input or $q. $h lists the commands. Ctrl-C during a
-    command brings every axis to rest along its deceleration and returns to
-    the prompt; a second one stops at once. While it waits for a command it
-    keeps the devices' watchdogs fed, so an enabled machine stays enabled. On
-    leaving, the servos are disabled (the machine stays homed for the next
-    host).
+    terminal) until end of input or $q; $h lists the commands. The machine moves
+    while the console reads on: a G-code line runs at once (MDI; lines written
+    while it moves are streamed after), ! holds, ~ resumes a hold or a pause
+    (M0, M1, M6), Ctrl-X or $x stops, $j jogs, $o sets the overrides, ? reports
+    the state, the line and the positions. Ctrl-C while the machine moves stops
+    it along its deceleration; at the prompt it leaves. While it waits it keeps
+    the devices' watchdogs fed. At the end of input it waits for what runs; on
+    leaving, the servos are disabled (the machine stays homed for the next host).
     """
     from usbmotion.console import Console  # noqa: PLC0415 - keep --help fast
     from usbmotion.session import MachineSession  # noqa: PLC0415
@@ -52,24 +54,28 @@ def console(
                 write(f"notice: {notice}")
             console_session = Console(session, write)
             write(f"usbmotion console on {config.name}: $h for help")
-            keep_alive_s = session.keep_alive_period_s()
+            keep_alive_s = session.keep_alive_period_s() or 1.0
+            operator = console_session.operator
             while True:
                 if interactive:
                     sys.stdout.write("> ")
                     sys.stdout.flush()
                 try:
-                    while keep_alive_s and not select.select([sys.stdin], [], [],
-                                                              keep_alive_s)[0]:
-                        session.keep_alive()
+                    while not select.select([sys.stdin], [], [], keep_alive_s)[0]:
+                        operator.keep_alive()
                     line = sys.stdin.readline()
                 except KeyboardInterrupt:
+                    if operator.busy:
+                        operator.stop()
+                        write("stop: every axis to rest along its deceleration")
+                        continue
                     break
                 if not line:
                     break
-                with stop_on_signals(session):
-                    going = console_session.handle(line)
-                if not going:
+                if not console_session.handle(line):
                     break
+            with stop_on_signals(session):
+                console_session.close()
             try:
                 session.shutdown()
             except UsbMotionError as error:

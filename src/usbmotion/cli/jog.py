@@ -4,7 +4,6 @@ coordinates (G53)."""
 from __future__ import annotations
 
 import math
-import re
 from typing import TYPE_CHECKING, Annotated
 
 import typer
@@ -23,36 +22,11 @@ from usbmotion.errors import (
     PlanningError,
     UsbMotionError,
 )
+from usbmotion.session.operator import parse_steps
 
 if TYPE_CHECKING:
     from usbmotion.host.config import MachineConfig
     from usbmotion.session import MachineSession
-
-
-_STEP = re.compile(r"\s*([A-Za-z])\s*=?\s*([-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?)")
-
-
-def parse_steps(words: list[str]) -> dict[str, float]:
-    """``["X", "10", "Y-5"]`` -> ``{"X": 10.0, "Y": -5.0}``: each axis once, in mm.
-
-    Raises:
-        ValueError: the words are no AXIS DISTANCE pairs (the message shows where).
-    """
-    text = " ".join(words)
-    steps: dict[str, float] = {}
-    at = 0
-    while text[at:].strip():
-        match = _STEP.match(text, at)
-        if match is None:
-            raise ValueError(f"{text[at:].strip()!r} is no AXIS DISTANCE pair (X 10, Y-2.5)")
-        letter = match.group(1).upper()
-        if letter in steps:
-            raise ValueError(f"axis {letter} is given twice")
-        steps[letter] = float(match.group(2)) + 0.0  # -0 is 0
-        at = match.end()
-    if not steps:
-        raise ValueError("give at least one AXIS DISTANCE pair (X 10, Y-2.5)")
-    return steps
 
 
 def jog(

@@ -618,6 +618,20 @@ class GCodeStream:
             raise
         return added
 
+    def restart(self, start: Point) -> None:
+        """A new program from ``start`` (where the machine stands), the modal state kept:
+        the moves, pauses, ignored words and tool changes so far are dropped, and lines
+        are taken again after an M2 or M30.
+
+        Raises:
+            ValueError: ``start`` has not one coordinate per axis.
+        """
+        state = self._interpreter
+        state.start_at(start)
+        del state.moves[:], state.pauses[:], state.ignored[:], state.tool_changes[:]
+        state.ended_by = ""
+        state.end_line = 0
+
     def result(self) -> GCodeProgram:
         """The program so far (``ended_by`` ``""`` while it has not ended)."""
         program = self._interpreter.result()

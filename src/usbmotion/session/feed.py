@@ -132,6 +132,27 @@ class ProgramFeed:
             self._closed = True
             self._version += 1
 
+    def restart(self, start_mm: Point) -> None:
+        """Begin a new program on the same feed from ``start_mm`` (where the machine
+        stands): the moves so far are dropped, the modal state (distance mode, feed, plane,
+        coordinate system, tool) is kept, as a controller keeps it between the lines an
+        operator or a sender writes; the feed takes lines again."""
+        with self._lock:
+            stream = self._stream
+            stream.restart(start_mm)
+            self.start_mm = start_mm
+            self._closed = False
+            self._executed_moves = 0
+            self._plan = None
+            self.error = None
+            self._version += 1
+
+    @property
+    def has_moves(self) -> bool:
+        """True when the feed holds moves (a run has something to do)."""
+        with self._lock:
+            return bool(self._stream.moves)
+
     def finish_if(self, version: int) -> bool:
         """Close the feed unless it changed since ``version`` (a run that played out all
         it was given ends only if no line came meanwhile): True when it closed."""

@@ -208,6 +208,8 @@ class Run:
         self.holds: list[tuple[float, int, float, float]] = []
         """Every hold's request time (s), the device tick its deceleration began on, its
         planned v^2/2a and its distance (mm)."""
+        self.stop_tick = 0
+        """The device tick a stop's deceleration began on (0: no stop)."""
         self.paused: list[Pause] = []
         """The program pauses the run waited at, in order."""
         self.seams: list[tuple[float, int]] = []
@@ -551,6 +553,8 @@ class Run:
             self.stop_distance_mm = float(np.linalg.norm((rest - began) / self.counts_per_mm))
         if hold:
             self.holds.append((asked_s, tick, self.stop_planned_mm, self.stop_distance_mm))
+        else:
+            self.stop_tick = tick
         if session._stop_now_requested():
             self.notes.append("a second stop request stopped every axis at once (servos off:"
                               " the axes coasted)")
@@ -654,20 +658,34 @@ class Run:
         if not self.dry and self._queued_s() < DRY_MARGIN_S:
             self._drain()
         if self.dry:
-            point = self.rest_point or self._point_at(self.setpoints.shape[0] - 1)
-            leg = self._plan_rest(replace(point, speed_mm_s=0.0))
-            if leg is not None:
-                self._start_leg(leg)
+            self._start_leg_at_rest()
             return
         first, leg = self.legs[-1]
         safe = first + int(max(0.0, leg.plan.duration_s - self.stop_time_s) / self.period_s)
         seam, _ = self._seam()
         row = max(min(self.released, safe), seam)
         sent = min(stream.sent for stream in self.streams.values())
-        if row < sent:
-            self._replan_from_seam(start=row)
+        # A join inside a short segment (an arc's chord) may be unable to keep the speed
+        # there (the piece left is short, so is its corner's limit): try the rows before it
+        # (down to the seam), then those after it (up to the safe row).
+        candidates = [*range(row, seam - 1, -RESEAM_ROWS), *range(row + RESEAM_ROWS, safe,
+                                                                   RESEAM_ROWS)]
+        for row in candidates:
+            if row < sent:
+                if self._replan_from_seam(start=row, only=True) is not None:
+                    return
+                continue
+            try:
+                rest = self._plan_rest(self._point_at(row))
+            except PlanningError:
+                continue
+            break
+        else:
+            self.notes.append("more moves came too late to join the plan: the machine came"
+                              " to rest before them")
+            self._drain()
+            self._start_leg_at_rest()
             return
-        rest = self._plan_rest(self._point_at(row))
         if rest is None:
             return
         rows = self._sample(rest)
@@ -677,6 +695,13 @@ class Run:
         for column, name in enumerate(self.axes):
             self.streams[name].revise(row, rows[:given - row, column])
         self.released = given
+
+    def _start_leg_at_rest(self) -> None:
+        """The rest of the program from where the machine rests, on a common tick."""
+        point = self.rest_point or self._point_at(self.setpoints.shape[0] - 1)
+        leg = self._plan_rest(replace(point, speed_mm_s=0.0))
+        if leg is not None:
+            self._start_leg(leg)
 
     def _queued_s(self) -> float:
         """How long the rows given to the streams last beyond what the devices executed."""
@@ -831,11 +856,11 @@ class Run:
         else:
             self.seams.append((session.override_at_s, tick))
 
-    def _replan_from_seam(self, *, start: int = 0) -> int | None:
+    def _replan_from_seam(self, *, start: int = 0, only: bool = False) -> int | None:
         """The queued future planned again (the program's rest at the overrides) from a row
         a device tick just ahead (or row ``start``, when later), at the speed the axes have
         there, and replaced from that tick (call 38): the tick, or None when no row is left
-        to replace."""
+        to replace (or, with ``only``, when that row cannot be planned from)."""
         index = max(self._seam()[0], start)
         scalar = self.config.motion_scalar
         sent = min(stream.sent for stream in self.streams.values())
@@ -845,6 +870,8 @@ class Run:
             try:
                 rest = self._plan_rest(point)
             except PlanningError:
+                if only:
+                    return None
                 index += RESEAM_ROWS
                 continue
             if rest is None:

@@ -38,7 +38,7 @@ every later front drive the machine through it.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -129,8 +129,12 @@ class MachineSession:
         """Rapids run at this percentage of the axes' speed (:meth:`set_rapid_override`)."""
         self.override_at_s = 0.0
         """When an override last changed (the session's clock)."""
+        self.jogging = False
+        """True while a jog runs (:meth:`jog`)."""
         self.optional_stop = False
         """When on, M1 pauses a program as M0 does (the operator's optional stop)."""
+        self.on_pause: Callable[[Pause], None] | None = None
+        """Called (on the running thread) when a program comes to rest at a pause."""
         self.paused: Pause | None = None
         """The program pause the machine waits at (M0, M1, M6), None when it waits at none."""
         self.last_run: Run | None = None
@@ -344,12 +348,98 @@ class MachineSession:
         prepared = Prepared(feed.program(), plan, feed.start_mm, feed.homed, feed.offsets)
         return self.run(prepared, on_progress=on_progress, feed=feed)
 
+    # --- jogging ------------------------------------------------------------------------------
+
+    def jog(self, moves: Mapping[str, float], *, feed_mm_min: float, work: bool = False,
+            absolute: bool = False, continuous: bool = False,
+            on_progress: Callable[[Progress], None] | None = None) -> RunReport:
+        """Jog: move axes at a feed, planned with each axis's acceleration, within the soft
+        limits; returns the report. :meth:`request_jog_cancel` (or any stop request)
+        brings every axis to rest along its deceleration and drops the rest (Idle,
+        homed); a hold holds it.
+
+        Parameters:
+            moves: axis -> distance, mm (incremental, the default); target (``absolute``);
+                or direction (``continuous``: the sign of each value, its size weighting
+                the axes, the jog running until it is cancelled or reaches the first soft
+                limit on the way).
+            feed_mm_min: the path's feed, mm/min (each axis keeps to its own limits).
+            work: targets in work coordinates (the parameter file's offsets) instead of
+                machine coordinates (G53).
+
+        Raises:
+            ArgumentError: an axis the machine does not have, a value or feed that is not
+                finite (the feed positive), a continuous jog with no direction.
+            MachineStateError: not Idle, or not homed (a jog needs soft limits).
+            SoftLimitError: the jog leaves an axis's travel (nothing moves).
+        """
+        axes = program_axes(self.config)
+        for name, value in moves.items():
+            if name not in axes:
+                raise ArgumentError(f"jog axis {name!r}: allowed {', '.join(axes)}",
+                                    reason="jog")
+            if not math.isfinite(value):
+                raise ArgumentError(f"jog {name}{value!r}: not a finite number", reason="jog")
+        if not moves:
+            raise ArgumentError("a jog names at least one axis", reason="jog")
+        if isinstance(feed_mm_min, bool) or not (math.isfinite(feed_mm_min)
+                                                 and feed_mm_min > 0):
+            raise ArgumentError(f"jog feed {feed_mm_min!r} mm/min: a speed > 0",
+                                reason="feed")
+        if not self.is_homed:
+            raise MachineStateError("a jog needs a homed machine (its soft limits): home it"
+                                    " first", state=self._state.value)
+        words = moves
+        if continuous:
+            words = self._continuous_targets(moves)
+            work, absolute = False, True
+        mode = ("G90" if absolute else "G91") + ("" if work else " G53")
+        if not absolute and not work:
+            here = self.positions_mm()
+            words = {name: here[name] + value for name, value in moves.items()}
+            mode = "G90 G53"
+        text = (f"{mode} G1 " + " ".join(f"{name}{value:.6f}" for name, value in words.items())
+                + f" F{feed_mm_min:.6f}\nM2\n")
+        prepared = self.prepare("<jog>", text=text)
+        self.jogging = True
+        try:
+            report, _ = self.run(prepared, on_progress=on_progress)
+        finally:
+            self.jogging = False
+            if self._requests.reason == StopReason.JOG_CANCELLED.value:
+                self.clear_stop_request()
+        return report
+
+    def _continuous_targets(self, directions: Mapping[str, float]) -> dict[str, float]:
+        """Where a continuous jog along ``directions`` meets the first soft limit."""
+        here = self.positions_mm()
+        length = math.sqrt(sum(v * v for v in directions.values()))
+        if length == 0.0:
+            raise ArgumentError("a continuous jog needs a direction: a value other than 0",
+                                reason="jog")
+        reach = math.inf
+        for name, value in directions.items():
+            if value:
+                lower, upper = self.config.axis(name).travel_mm
+                room = (upper - here[name]) if value > 0 else (here[name] - lower)
+                reach = min(reach, max(0.0, room) / (abs(value) / length))
+        return {name: here[name] + value / length * reach for name, value in directions.items()}
+
+    def request_jog_cancel(self) -> None:
+        """Cancel a jog (grbl's 0x85): every axis to rest along its deceleration, the rest
+        of the jog dropped, the machine Idle; nothing when no jog runs. Safe from a signal
+        handler or another thread."""
+        if self.jogging:
+            self.request_stop(StopReason.JOG_CANCELLED.value)
+
     def _pause_at(self, pause: Pause | None) -> None:
         """The run came to rest at a program pause (or left it): a resume continues."""
         self.paused = pause
         if pause is not None:
             self._requests.resume = False
             self._requests.hold = True
+            if self.on_pause is not None:
+                self.on_pause(pause)
 
     def tool_table(self) -> ToolTable:
         """The machine's tool table (none: every tool of zero length).

@@ -75,4 +75,5 @@ class StopReason(Enum):
     USER = "interrupted by the user"
     TERMINATED = "terminated (SIGTERM)"
     FAULT = "fault"
+    JOG_CANCELLED = "jog cancelled"
     LINK = "link lost"

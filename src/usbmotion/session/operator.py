@@ -1,0 +1,303 @@
+"""A machine session driven while it moves: what a console or a sender front needs.
+
+A :class:`MachineSession` does one thing at a time on the calling thread (home, run, jog).
+An :class:`Operator` gives it a worker thread, so a front keeps reading its operator while
+the machine moves: G-code lines (MDI, or a program streamed line by line) go into one
+:class:`~usbmotion.session.feed.ProgramFeed` whose modal state lasts between lines, as a
+controller's does, and the worker runs it whenever it holds moves; a hold, a resume, a
+stop, a jog cancel and the overrides take effect at once (they only set the session's
+request fields). The worker alone talks to the devices: what a front reads while the
+machine moves comes from the run's progress reports.
+"""
+
+from __future__ import annotations
+
+import queue
+import re
+import threading
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+from usbmotion.errors import MachineStateError, UsbMotionError
+from usbmotion.motion.gcode import Pause
+from usbmotion.session.feed import ProgramFeed
+from usbmotion.session.planning import program_axes
+from usbmotion.session.progress import Progress
+from usbmotion.session.report import RunReport
+from usbmotion.session.session import MachineSession
+from usbmotion.session.state import MachineState
+
+Action = Callable[[], None]
+
+
+_STEP = re.compile(r"\s*([A-Za-z])\s*=?\s*([-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?)")
+
+
+def parse_steps(words: list[str]) -> dict[str, float]:
+    """``["X", "10", "Y-5"]`` -> ``{"X": 10.0, "Y": -5.0}``: each axis once, in mm.
+
+    Raises:
+        ValueError: the words are no AXIS DISTANCE pairs (the message shows where).
+    """
+    text = " ".join(words)
+    steps: dict[str, float] = {}
+    at = 0
+    while text[at:].strip():
+        match = _STEP.match(text, at)
+        if match is None:
+            raise ValueError(f"{text[at:].strip()!r} is no AXIS DISTANCE pair (X 10, Y-2.5)")
+        letter = match.group(1).upper()
+        if letter in steps:
+            raise ValueError(f"axis {letter} is given twice")
+        steps[letter] = float(match.group(2)) + 0.0  # -0 is 0
+        at = match.end()
+    if not steps:
+        raise ValueError("give at least one AXIS DISTANCE pair (X 10, Y-2.5)")
+    return steps
+
+
+@dataclass(frozen=True, slots=True)
+class OperatorStatus:
+    """What a front shows: the state (``Jog`` while a jog runs), where the axes are
+    (machine coordinates, mm; while moving, the setpoints the devices have reached by the
+    run's estimate), the program line, whether a jog runs, the pause the machine waits at
+    and the overrides."""
+
+    state: str
+    position_mm: Mapping[str, float]
+    line: int
+    busy: bool
+    pause: str
+    feed_override: int
+    rapid_override: int
+
+
+class Operator:
+    """A session with a worker thread (see the module docstring); a context manager.
+
+    Parameters:
+        session: the session (its live control is turned on).
+        on_message: called (from the worker) with what the operator should hear: a run's
+            end, a pause and its message, an error of the worker.
+        file: the name errors give the lines written (``<mdi>``).
+    """
+
+    def __init__(self, session: MachineSession, *,
+                 on_message: Callable[[str], None] | None = None,
+                 file: str = "<mdi>") -> None:
+        session.live_control = True
+        session.on_pause = self._on_pause
+        self.session = session
+        self.on_message = on_message or (lambda _: None)
+        self.file = file
+        self.feed: ProgramFeed | None = None
+        self.last_report: RunReport | None = None
+        self.last_error: str = ""
+        self._progress: Progress | None = None
+        self._actions: queue.Queue[Action | None] = queue.Queue()
+        self._busy = threading.Event()
+        self._run_queued = False
+        self._lock = threading.Lock()
+        self._idle_position: dict[str, float] = session.positions_mm()
+        self._thread = threading.Thread(target=self._serve, name="usbmotion-operator",
+                                        daemon=True)
+        self._thread.start()
+
+    # --- what the fronts call ---------------------------------------------------------------
+
+    @property
+    def busy(self) -> bool:
+        """True while the worker homes, runs or jogs, or has something queued."""
+        return self._busy.is_set() or not self._actions.empty()
+
+    def submit(self, line: str) -> bool:
+        """A G-code line for the machine: interpreted at once (an invalid line raises and
+        changes nothing) and run as soon as it holds motion, after what is queued; False
+        when the planner's window is full or the last run is still finishing (try again).
+
+        Raises:
+            GCodeError, PlanningError: the line is invalid or leaves the travel.
+            MachineStateError: the machine is in Alarm, homing, or not homed.
+        """
+        session = self.session
+        with self._lock:
+            if session.state is MachineState.ALARM:
+                raise MachineStateError("the machine is in Alarm: reset it first",
+                                        state=session.state.value)
+            if session.state is MachineState.HOMING:
+                raise MachineStateError("the machine is homing", state=session.state.value)
+            feed = self.feed
+            if feed is None:
+                if self.busy:
+                    return False
+                feed = self.feed = session.open_feed(file=self.file)
+            elif feed.closed:
+                if self.busy:
+                    return False
+                feed.restart(self._where())
+            if not feed.add(line):
+                return False
+            if feed.has_moves and not self._run_queued:
+                self._run_queued = True
+                self._actions.put(self._run_feed)
+            return True
+
+    def hold(self) -> None:
+        """Feed hold (``!``)."""
+        self.session.request_hold()
+
+    def resume(self) -> None:
+        """Cycle start (``~``): resume a hold or a pause."""
+        self.session.request_resume()
+
+    def stop(self) -> None:
+        """Stop (Ctrl-X): every axis to rest along its deceleration, what is queued dropped;
+        the machine stays homed and Idle."""
+        self.session.request_stop("stopped by the operator")
+
+    def jog(self, moves: Mapping[str, float], *, feed_mm_min: float, work: bool = False,
+            absolute: bool = False, continuous: bool = False) -> None:
+        """Queue a jog (:meth:`MachineSession.jog`); its errors reach :attr:`on_message`.
+
+        Raises:
+            MachineStateError: a program runs (a jog runs from Idle).
+        """
+        if self.busy:
+            raise MachineStateError("the machine is busy: a jog runs from Idle",
+                                    state=self.session.state.value)
+
+        def go() -> None:
+            report = self.session.jog(moves, feed_mm_min=feed_mm_min, work=work,
+                                      absolute=absolute, continuous=continuous,
+                                      on_progress=self._on_progress)
+            self._ended(report)
+
+        self._actions.put(go)
+
+    def do(self, action: Action) -> None:
+        """Queue ``action`` (it may use the session and its devices) for the worker.
+
+        Raises:
+            MachineStateError: the machine is busy.
+        """
+        if self.busy:
+            raise MachineStateError("the machine is busy", state=self.session.state.value)
+        self._actions.put(action)
+
+    def jog_cancel(self) -> None:
+        """Cancel a jog (0x85)."""
+        self.session.request_jog_cancel()
+
+    def home(self) -> None:
+        """Queue homing every axis.
+
+        Raises:
+            MachineStateError: the machine is busy.
+        """
+        if self.busy:
+            raise MachineStateError("the machine is busy", state=self.session.state.value)
+
+        def go() -> None:
+            seconds = self.session.home(on_progress=self._on_progress)
+            self.on_message(f"homed in {seconds:.2f} s")
+
+        self._actions.put(go)
+
+    def status(self) -> OperatorStatus:
+        """What the machine is doing and where (never waits on a device)."""
+        session = self.session
+        progress = self._progress
+        busy = self.busy
+        if busy and progress is not None:
+            where: Mapping[str, float] = progress.position_mm
+            line = progress.line
+        else:
+            where, line = self._idle_position, 0
+        state = "Jog" if session.jogging else session.state.value
+        pause = session.paused.message if session.paused is not None else ""
+        return OperatorStatus(state, dict(where), line, busy, pause,
+                              session.feed_override_percent, session.rapid_override_percent)
+
+    def keep_alive(self) -> None:
+        """Feed the watchdogs when idle (the worker's own runs keep them fed)."""
+        if not self.busy:
+            with self._lock:
+                if not self.busy:
+                    self.session.keep_alive()
+
+    def wait_idle(self, timeout_s: float | None = None) -> bool:
+        """Until nothing is queued or running; False on the timeout."""
+        done = threading.Event()
+        self._actions.put(done.set)
+        return done.wait(timeout_s)
+
+    def close(self) -> None:
+        """Stop what runs and end the worker."""
+        self.session.request_stop("the front closed")
+        self._actions.put(None)
+        self._thread.join(timeout=10)
+
+    def __enter__(self) -> Operator:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- the worker -----------------------------------------------------------------------------
+
+    def _serve(self) -> None:
+        while True:
+            action = self._actions.get()
+            if action is None:
+                return
+            self._busy.set()
+            try:
+                action()
+            except UsbMotionError as error:
+                self.last_error = str(error)
+                self.on_message(f"error: {error}")
+            finally:
+                self.session.clear_stop_request()
+                self._progress = None
+                try:
+                    self._idle_position = self.session.positions_mm()
+                except UsbMotionError as error:
+                    self.on_message(f"error: reading the positions: {error}")
+                self._busy.clear()
+
+    def _run_feed(self) -> None:
+        with self._lock:
+            feed = self.feed
+        try:
+            if feed is None or not feed.has_moves or feed.closed:
+                return
+            report, _ = self.session.run_feed(feed, on_progress=self._on_progress)
+        finally:
+            with self._lock:
+                self._run_queued = False
+        self._ended(report)
+        if not report.completed:
+            here = self.session.positions_mm()
+            with self._lock:
+                feed.restart(tuple(here[name] for name in program_axes(self.session.config)))
+                feed.close()
+
+    def _ended(self, report: RunReport) -> None:
+        self.last_report = report
+        if not report.completed:
+            self.on_message(f"stopped: {report.stop_reason}")
+
+    def _on_progress(self, progress: Progress) -> None:
+        self._progress = progress
+
+    def _on_pause(self, pause: Pause) -> None:
+        self.on_message(f"paused at line {pause.line} ({pause.code}): {pause.message};"
+                        " ~ resumes")
+
+    def _where(self) -> tuple[float, ...]:
+        """Where a new program starts: where the machine stands."""
+        where = self._idle_position
+        return tuple(where[name] for name in program_axes(self.session.config))
+
+
+__all__ = ["Operator", "OperatorStatus", "parse_steps"]
