@@ -14,6 +14,7 @@ import pytest
 
 from usbmotion.host.config import load_config
 from usbmotion.session import MachineSession, MachineState, StopReason
+from usbmotion.session.operator import Operator
 
 from .bench import bench_machine, served
 
@@ -68,4 +69,38 @@ def test_hold_resume_and_stop_on_served_devices(tmp_path: Path) -> None:
             assert steps.max() <= 20.0 * 240 * 1.05, "no jump at the hold, resume or stop"
             statuses = session.machine.status()
             assert all(s.fault == 0 for s in statuses.values()), "not faulted"
+            session.shutdown()
+
+
+@pytest.mark.realtime
+def test_jog_and_mdi_through_the_operator_on_served_devices(tmp_path: Path) -> None:
+    """A continuous jog cancelled while it moves, and MDI lines streamed while the machine
+    moves, through the operator's worker thread, in real time."""
+    with served(tmp_path / "flash") as paths:
+        config = load_config(bench_machine(tmp_path, paths, watchdog_ms=1250))
+        with MachineSession.connect(config) as session:
+            session.home()
+            messages: list[str] = []
+            with Operator(session, on_message=messages.append) as operator:
+                operator.jog({"X": 1.0}, feed_mm_min=1200, continuous=True)
+                _until(lambda: session.jogging)
+                time.sleep(1.0)
+                operator.jog_cancel()
+                assert operator.wait_idle(30)
+                report = operator.last_report
+                assert report is not None and report.stop_reason == "jog cancelled"
+                assert report.stop_distance_mm <= report.stop_planned_mm + 0.05
+                x = operator.status().position_mm["X"]
+                assert 10.0 < x < 40.0, f"cancelled after about 1 s at 20 mm/s, at {x} mm"
+                assert operator.submit("G90 G1 X50 F1200")
+                _until(lambda: session.state is MachineState.RUN)
+                assert operator.submit("G1 Y20")
+                assert operator.submit("G1 X60")
+                assert operator.wait_idle(60)
+                where = operator.status().position_mm
+                assert (where["X"], where["Y"]) == (pytest.approx(60, abs=0.01),
+                                                    pytest.approx(20, abs=0.01))
+                assert operator.last_report is not None and operator.last_report.completed
+            assert not [m for m in messages if m.startswith("error")], messages
+            assert session.state is MachineState.IDLE and session.is_homed
             session.shutdown()

@@ -15,6 +15,7 @@ from __future__ import annotations
 import queue
 import re
 import threading
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
@@ -229,7 +230,14 @@ class Operator:
         """Until nothing is queued or running; False on the timeout."""
         done = threading.Event()
         self._actions.put(done.set)
-        return done.wait(timeout_s)
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        if not done.wait(timeout_s):
+            return False
+        while self.busy:
+            if deadline is not None and time.monotonic() > deadline:
+                return False
+            time.sleep(0.001)
+        return True
 
     def close(self) -> None:
         """Stop what runs and end the worker."""
