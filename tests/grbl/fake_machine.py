@@ -117,6 +117,8 @@ class FakeMachine:
         self.fault_on_line: tuple[int, Fault] | None = None
         """Raise this fault when the block of this line number starts."""
         self.homing_fails = False
+        self.limit_pins: frozenset[str] = frozenset()
+        """The axis letters whose limit switch reads triggered."""
         self.calls: list[str] = []
         """The control calls received, in order (feed_hold, cycle_start, soft_reset...)."""
 
@@ -254,7 +256,7 @@ class FakeMachine:
             feed_mm_min=self._speed_mm_s * 60 if moving else 0.0,
             line_number=block.line_number if block is not None else None,
             following_error_mm=following,
-            limit_pins=frozenset(),
+            limit_pins=self.limit_pins,
             fault=self._fault,
         )
 

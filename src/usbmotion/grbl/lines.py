@@ -109,29 +109,44 @@ def line_number(line: str) -> int | None:
     return int(number[0])
 
 
-_SYNC_G = frozenset({40, 100, 281, 301, 431, 490, 540, 550, 560, 570, 580, 590,
-                     920, 921, 922, 923})
-"""G codes (times ten) grbl answers only once the motion before them is done: the dwell,
-offset changes and stored positions."""
-_SYNC_M = frozenset({0, 2, 30})
+_OFFSET_G = frozenset({100, 431, 490, 540, 550, 560, 570, 580, 590, 920, 921, 922, 923})
+"""G codes (times ten) that change the work coordinate offset (or may: G10)."""
+_SYNC_G = _OFFSET_G | {40, 281, 301}
+"""G codes grbl answers only once the motion before them is done: the dwell, offset changes
+and stored positions."""
 
 
-def sync_words(line: str) -> tuple[bool, bool, bool]:
-    """(waits for the motion before it, is M0, is M2 or M30) for a pre-parsed line; a line
-    that is not all words waits for nothing (the machine rejects it)."""
+@dataclass(frozen=True, slots=True)
+class LineEffects:
+    """What the front does around a G-code line besides passing it on."""
+
+    sync: bool = False
+    """Its ``ok`` waits for the motion before it to end."""
+    pause: bool = False
+    """M0: hold once the motion before it ends."""
+    end: bool = False
+    """M2 or M30: ``[MSG:Pgm End]``."""
+    offsets: bool = False
+    """It changes the work coordinate offset: the next report carries ``WCO:``."""
+
+
+def line_effects(line: str) -> LineEffects:
+    """The effects of a pre-parsed line (none for a line that is not all words: the
+    machine rejects it)."""
     try:
         parsed = words(line)
     except WordError:
-        return False, False, False
-    sync = pause = end = False
+        return LineEffects()
+    sync = pause = end = offsets = False
     for letter, value in parsed:
         if letter == "G" and round(value * 10) in _SYNC_G:
             sync = True
-        elif letter == "M" and value == int(value) and int(value) in _SYNC_M:
+            offsets = offsets or round(value * 10) in _OFFSET_G
+        elif letter == "M" and value == int(value) and int(value) in (0, 2, 30):
             sync = True
             pause = pause or int(value) == 0
             end = end or int(value) in (2, 30)
-    return sync, pause, end
+    return LineEffects(sync, pause, end, offsets)
 
 
 _JOG_MODAL_GROUPS = {200: "units", 210: "units", 900: "distance", 910: "distance"}

@@ -26,12 +26,13 @@ from usbmotion.grbl.interface import (
     SubmitResult,
 )
 from usbmotion.grbl.lines import (
+    LineEffects,
     PreParser,
     WordError,
+    line_effects,
     line_number,
     parse_jog,
     read_number,
-    sync_words,
 )
 from usbmotion.grbl.reports import (
     BANNER,
@@ -101,9 +102,7 @@ class _Resubmit:
 
     line: str
     number: int | None
-    sync: bool
-    pause: bool
-    end: bool
+    effects: LineEffects
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,8 +116,7 @@ class _Rejog:
 class _AwaitMotion:
     """A line queued whose ``ok`` waits for the motion before it to end."""
 
-    pause: bool
-    end: bool
+    effects: LineEffects
 
 
 @dataclass(frozen=True, slots=True)
@@ -402,7 +400,8 @@ class GrblProtocol:
                 return
 
     def _watch_faults(self) -> None:
-        if self._fault_reported or self.machine.state() is not MotionState.ALARM:
+        if self._fault_reported or isinstance(self._waiting, _AwaitHoming) or \
+                self.machine.state() is not MotionState.ALARM:
             return
         fault = self.machine.status().fault
         if fault is not None:
@@ -425,15 +424,14 @@ class GrblProtocol:
         waiting = self._waiting
         if isinstance(waiting, _Resubmit):
             self._waiting = None
-            self._submit(waiting.line, waiting.number, waiting.sync, waiting.pause,
-                         waiting.end)
+            self._submit(waiting.line, waiting.number, waiting.effects)
         elif isinstance(waiting, _Rejog):
             self._waiting = None
             self._answer_jog(waiting.move)
         elif isinstance(waiting, _AwaitMotion):
             if self.machine.motion_done():
                 self._waiting = None
-                self._after_motion(waiting.pause, waiting.end)
+                self._after_motion(waiting.effects)
         elif isinstance(waiting, _AwaitHoming) and \
                 self.machine.state() is not MotionState.HOMING:
             self._waiting = None
@@ -458,26 +456,26 @@ class GrblProtocol:
             else:
                 self._rejected(rejection)
         else:
-            sync, pause, end = sync_words(line)
-            self._submit(line, line_number(line), sync, pause, end)
+            self._submit(line, line_number(line), line_effects(line))
 
-    def _submit(self, line: str, number: int | None, sync: bool, pause: bool,
-                end: bool) -> None:
+    def _submit(self, line: str, number: int | None, effects: LineEffects) -> None:
         result = self.machine.submit(line, number)
         if result is Admission.PLANNER_FULL:
-            self._waiting = _Resubmit(line, number, sync, pause, end)
+            self._waiting = _Resubmit(line, number, effects)
         elif isinstance(result, Rejected):
             self._rejected(result)
-        elif sync:
-            self._waiting = _AwaitMotion(pause, end)
+        elif effects.sync:
+            self._waiting = _AwaitMotion(effects)
             self._resume()
         else:
             self._ok()
 
-    def _after_motion(self, pause: bool, end: bool) -> None:
-        if pause:
+    def _after_motion(self, effects: LineEffects) -> None:
+        if effects.offsets:
+            self._wco_counter = 0
+        if effects.pause:
             self.machine.feed_hold()
-        if end:
+        if effects.end:
             self._line("[MSG:Pgm End]")
         self._ok()
 
