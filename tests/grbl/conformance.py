@@ -96,9 +96,11 @@ _STATES = ("Idle", "Run", "Hold:0", "Hold:1", "Jog", "Alarm", "Door:0", "Door:1"
 _FIELD = re.compile(r"([A-Za-z]+):(.*)")
 
 
-def status_report_problems(line: str, *, axes: int) -> list[str]:
+def status_report_problems(line: str, *, axes: int, inches: bool = False) -> list[str]:
     """What is wrong with one status report line against interface.md's format, and
-    against what cncjs reads (the fields it parses: MPos/WPos, WCO, Bf, Ln, FS, Ov, Pn)."""
+    against what cncjs reads (the fields it parses: MPos/WPos, WCO, Bf, Ln, FS, Ov, Pn).
+    ``inches``: ``$13=1``, positions with 4 decimals and feeds with 1."""
+    places = 4 if inches else 3
     problems: list[str] = []
     if not (line.startswith("<") and line.endswith(">")):
         return [f"{line!r} is not enclosed in < >"]
@@ -121,9 +123,14 @@ def status_report_problems(line: str, *, axes: int) -> list[str]:
         if kind in ("MPos", "WPos", "WCO", "FE"):
             if len(parts) != axes:
                 problems.append(f"{kind} has {len(parts)} values for {axes} axes")
-            if not all(re.fullmatch(r"-?\d+\.\d{3}", p) for p in parts):
-                problems.append(f"{kind} values {values!r} are not 3-decimal millimetres")
-        elif kind in ("Bf", "FS", "Ov"):
+            if not all(re.fullmatch(rf"-?\d+\.\d{{{places}}}", p) for p in parts):
+                problems.append(f"{kind} values {values!r} do not have {places} decimals")
+        elif kind == "FS":
+            feed = r"\d+\.\d" if inches else r"\d+"
+            if len(parts) != 2 or not re.fullmatch(feed, parts[0]) or \
+                    not re.fullmatch(r"\d+", parts[1]):
+                problems.append(f"FS:{values} is not a feed and a spindle speed")
+        elif kind in ("Bf", "Ov"):
             expected = 3 if kind == "Ov" else 2
             if len(parts) != expected or not all(re.fullmatch(r"\d+", p) for p in parts):
                 problems.append(f"{kind}:{values} is not {expected} whole numbers")

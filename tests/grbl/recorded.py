@@ -8,6 +8,7 @@ one second; rapids go at 3000 mm/min; a hold takes 50 ms to come to rest; homing
 from __future__ import annotations
 
 from tests.grbl.conformance import Do, Exchange, Expect, Send, Wait
+from tests.grbl.harness import Bench
 
 from usbmotion.grbl.interface import Fault
 
@@ -41,22 +42,25 @@ WCO0 = f"|WCO:{Z3}"
 OV100 = "|Ov:100,100,100"
 
 
-def _fault_on_line_3(bench: object) -> None:
-    machine = bench.machine  # type: ignore[attr-defined]
-    machine.fault_on_line = (3, Fault(1, "following error 2.000 mm over 1.000 mm",
+def _fault_on_line_3(bench: Bench) -> None:
+    bench.machine.fault_on_line = (3, Fault(1, "following error 2.000 mm over 1.000 mm",
                                       axis="Y", line_number=3))
 
 
-def _homing_fails(bench: object) -> None:
-    bench.machine.homing_fails = True  # type: ignore[attr-defined]
+def _homing_fails(bench: Bench) -> None:
+    bench.machine.homing_fails = True
 
 
-def _press_x_and_z_limits(bench: object) -> None:
-    bench.machine.limit_pins = frozenset("XZ")  # type: ignore[attr-defined]
+def _press_x_and_z_limits(bench: Bench) -> None:
+    bench.machine.limit_pins = frozenset("XZ")
 
 
-def _dropped_33(bench: object) -> None:
-    statistics = bench.front.statistics  # type: ignore[attr-defined]
+def _discard(bench: Bench) -> None:
+    bench.take()
+
+
+def _dropped_33(bench: Bench) -> None:
+    statistics = bench.front.statistics
     assert (statistics.max_rx_bytes, statistics.dropped_rx_bytes) == (128, 33), statistics
 
 
@@ -134,7 +138,7 @@ EXCHANGES: tuple[Exchange, ...] = (
         Send(b"?"), Expect(report("Idle", extra=OV100)),
         Send(b"?"), Expect(report("Idle")),)),
     Exchange("WCO comes again at once when the offset changes", steps=(
-        Send(b"?"), Send(b"?"), Send(b"?"), Do("discard", lambda bench: bench.take() and None),
+        Send(b"?"), Send(b"?"), Send(b"?"), Do("discard", _discard),
         Send(b"G92X0\n"), Send(b"?"), Send(b"?"),
         Expect(OK + report("Idle", extra=WCO0) + report("Idle")),
         Send(b"G0X2\n"), Wait(0.1), Send(b"G92X0\n"), Send(b"?"),
@@ -221,14 +225,14 @@ EXCHANGES: tuple[Exchange, ...] = (
                + report("Run", "3.500,0.000,0.000", bf="14,128", fs="600,0",
                         fe="0.005,0.000,0.000")),)),
     Exchange("feed overrides: +10, +1, -1, -10, reset; clamped at 200 and 10", steps=(
-        Send(b"?"), Send(b"?"), Send(b"?"), Do("discard", lambda bench: bench.take() and None),
+        Send(b"?"), Send(b"?"), Send(b"?"), Do("discard", _discard),
         Send(b"\x91"), Send(b"?"), Expect(report("Idle", extra="|Ov:110,100,100")),
         Send(b"\x93\x93\x94"), Send(b"?"), Expect(report("Idle", extra="|Ov:111,100,100")),
         Send(b"\x91" * 20), Send(b"?"), Expect(report("Idle", extra="|Ov:200,100,100")),
         Send(b"\x92" * 30), Send(b"?"), Expect(report("Idle", extra="|Ov:10,100,100")),
         Send(b"\x90"), Send(b"?"), Expect(report("Idle", extra=OV100)),)),
     Exchange("rapid overrides 50 and 25 and 100; spindle overrides counted", steps=(
-        Send(b"?"), Send(b"?"), Send(b"?"), Do("discard", lambda bench: bench.take() and None),
+        Send(b"?"), Send(b"?"), Send(b"?"), Do("discard", _discard),
         Send(b"\x96"), Send(b"?"), Expect(report("Idle", extra="|Ov:100,50,100")),
         Send(b"\x97\x9a\x9c"), Send(b"?"), Expect(report("Idle", extra="|Ov:100,25,111")),
         Send(b"\x95\x99\x9e\xa0\xa1\xff"), Send(b"?"), Expect(report("Idle", extra=OV100)),)),
