@@ -117,6 +117,9 @@ class FakeMachine:
         self.fault_on_line: tuple[int, Fault] | None = None
         """Raise this fault when the block of this line number starts."""
         self.homing_fails = False
+        self.homings = 0
+        """Homing cycles completed (readable from another thread: the machine itself is
+        driven from the server's thread only)."""
         self.limit_pins: frozenset[str] = frozenset()
         """The axis letters whose limit switch reads triggered."""
         self.calls: list[str] = []
@@ -219,6 +222,7 @@ class FakeMachine:
         self.position_mm = (0.0,) * len(self._axes)
         self._planned_end_mm = self._jog_end_mm = self.position_mm
         self.homed = True
+        self.homings += 1
 
     # ---- GrblMachine
 

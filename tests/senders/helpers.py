@@ -1,0 +1,78 @@
+"""What the sender tests share: skipping (or, in CI, failing) when a sender is not
+installed, the fake machine served in real time, and the program they stream."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+from tests.grbl.fake_machine import FakeMachine
+
+from usbmotion.grbl.server import GrblServer
+
+HERE = Path(__file__).resolve().parent
+NODE_MODULES = HERE / "node_modules"
+INSTALL = "bash tests/senders/install.sh"
+
+
+def need(available: bool, what: str) -> None:
+    """Skip the test when ``what`` is missing; in CI (``CI=true``) fail instead."""
+    if available:
+        return
+    text = f"{what} is not installed: run `{INSTALL}`"
+    if os.environ.get("CI") == "true":
+        pytest.fail(text, pytrace=False)
+    pytest.skip(text)
+
+
+def node_package(name: str) -> bool:
+    """True when the npm package ``name`` is installed under tests/senders/node_modules."""
+    return (NODE_MODULES / name / "package.json").is_file() and shutil.which("node") is not None
+
+
+PROGRAM = """\
+G21 G90 G54 (a 20 mm square with its diagonal, some short segments)
+G0 X0 Y0 Z1
+G1 Z0 F600
+G1 X20 F3000
+G1 Y20
+G1 X10 Y20
+G1 X0 Y20
+G1 Y0
+G1 X20 Y20
+G0 Z1
+G0 X0 Y0
+M2
+"""
+
+PROGRAM_PATH = [
+    (0.0, 0.0, 1.0), (0.0, 0.0, 0.0), (20.0, 0.0, 0.0), (20.0, 20.0, 0.0),
+    (10.0, 20.0, 0.0), (0.0, 20.0, 0.0), (0.0, 0.0, 0.0), (20.0, 20.0, 0.0),
+    (20.0, 20.0, 1.0), (0.0, 0.0, 1.0),
+]
+"""Where each move of :data:`PROGRAM` ends, machine coordinates (no work offset)."""
+
+
+@contextmanager
+def served_fake(**server_options: object) -> Iterator[tuple[GrblServer, FakeMachine]]:
+    """The fake machine in real time, served on a pseudo-terminal (or as asked). Only the
+    server's thread may call the machine; a test reads its plain attributes."""
+    machine = FakeMachine(time.monotonic)
+    with GrblServer(machine, **server_options) as server:  # type: ignore[arg-type]
+        server.start()
+        yield server, machine
+        assert server.error is None
+
+
+def wait_for(condition: object, *, timeout_s: float, what: str) -> None:
+    """Poll ``condition()`` until true; fail saying ``what`` did not happen."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():  # type: ignore[operator]
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what} did not happen within {timeout_s} s")
+        time.sleep(0.01)
