@@ -55,6 +55,10 @@ def _press_x_and_z_limits(bench: Bench) -> None:
     bench.machine.limit_pins = frozenset("XZ")
 
 
+def _connect(bench: Bench) -> None:
+    bench.front.connect()
+
+
 def _discard(bench: Bench) -> None:
     bench.take()
 
@@ -209,6 +213,17 @@ EXCHANGES: tuple[Exchange, ...] = (
         Send(b"G1X10F600\n"), Wait(0.2), Send(b"\x18"),
         Expect(OK + b"ALARM:3\r\n" + BANNER + UNLOCK),
         Send(b"?"), Expect(report("Alarm", "2.000,0.000,0.000", extra=WCO0)),)),
+    Exchange("soft reset in Hold:0 (at rest): the banner only", steps=(
+        Send(b"G1X10F600\n"), Wait(0.2), Send(b"!"), Wait(0.1), Send(b"\x18"),
+        Expect(OK + BANNER),)),
+    Exchange("a sender connecting while the machine moves: ALARM:3, then the banner",
+             steps=(
+        Send(b"G1X10F600\n"), Wait(0.2), Do("a new connection", _connect),
+        Expect(OK + b"ALARM:3\r\n" + BANNER + UNLOCK),)),
+    Exchange("a start-up line the machine rejects is not stored", steps=(
+        Send(b"$N0=G5\n"), Send(b"$N\n"),
+        Expect(b"[MSG:G5 is not supported by the test machine]\r\nerror:20\r\n"
+               b"$N0=\r\n$N1=\r\n" + OK),)),
     Exchange("soft reset drops the receive buffer and what waits", steps=(
         Send(b"G1X10F600\nG4P0\nG0X0\n"), Send(b"\x18"), Send(b"$X\n?"),
         Expect(OK + b"ALARM:3\r\n" + BANNER + UNLOCK

@@ -94,6 +94,18 @@ def _recv(sock: socket.socket) -> object:
     return read
 
 
+def test_a_long_line_of_comment_is_drained_as_it_comes_not_dropped() -> None:
+    line = b"G1 X1 F600 (" + b"a long comment, " * 20 + b")\n"  # 333 bytes
+    with GrblServer(FakeMachine(time.monotonic, homing=False), pty=False) as server:
+        server.start()
+        with socket.create_connection(("127.0.0.1", server.port)) as client:
+            client.settimeout(0.05)
+            read_until(_recv(client), BANNER)
+            client.sendall(line)
+            assert read_until(_recv(client), b"ok\r\n") == b"ok\r\n"
+        assert server.protocol.statistics.dropped_rx_bytes == 0
+
+
 def test_tcp_binds_loopback_by_default() -> None:
     with GrblServer(FakeMachine(time.monotonic), pty=False) as server:
         assert server._listener is not None

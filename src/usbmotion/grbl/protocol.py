@@ -189,9 +189,10 @@ class GrblProtocol:
     # ---- connection and reset
 
     def connect(self) -> None:
-        """A sender has just connected: reset as grbl does on power-up (the banner, the
-        unlock hint in alarm, the start-up lines otherwise)."""
-        self._reset(announce_alarm=False)
+        """A sender has just connected: reset as grbl does when its port opens (the
+        banner, the unlock hint in alarm, the start-up lines otherwise). A machine still in
+        motion is stopped with ``ALARM:3``, as a soft reset would."""
+        self._reset(announce_alarm=True)
 
     def _reset(self, *, announce_alarm: bool) -> None:
         state = self.machine.state()
@@ -240,7 +241,10 @@ class GrblProtocol:
     # ---- bytes in
 
     def receive(self, data: bytes) -> None:
-        """Take bytes as they arrive: real-time ones acted on now, the rest buffered."""
+        """Take bytes as they arrive: real-time ones acted on now, the rest buffered, or
+        dropped once the buffer is full. Hand over at most :attr:`rx_bytes_free` at a time,
+        polling between, to drain it as grbl's main loop does while a serial line
+        delivers bytes (a character-counting sender never needs it)."""
         stats = self.statistics
         for byte in data:
             if byte == STATUS_REPORT:

@@ -6,6 +6,7 @@ and the banner, as an Arduino resets when its port opens: on TCP each accepted c
 (a new one replaces the one before), on a pseudo-terminal each time a program opens its
 slave side after none had it open (the server keeps only the master side, so it sees the
 slave side closed and opened again). Output while no sender is connected is dropped.
+The machine is called from the serving thread only.
 """
 
 from __future__ import annotations
@@ -197,8 +198,18 @@ class GrblServer:
             if not data:
                 self._drop_client()
                 return
-        if data:
-            self.protocol.receive(data)
+        self._hand_over(data)
+
+    def _hand_over(self, data: bytes) -> None:
+        """Give ``data`` to the front as a serial line would: no more at once than its
+        buffer has room for, polling between, so the pre-parser drains the buffer as grbl's
+        main loop does while bytes arrive (a long line of spaces and comments fits)."""
+        while data:
+            room = max(1, self.protocol.rx_bytes_free)
+            self.protocol.receive(data[:room])
+            data = data[room:]
+            if data:
+                self.protocol.poll()
 
     def _accept(self) -> None:
         assert self._listener is not None
