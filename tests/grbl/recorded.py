@@ -47,6 +47,11 @@ def _fault_on_line_3(bench: Bench) -> None:
                                       axis="Y", line_number=3))
 
 
+def _probe_fault_on_line_2(bench: Bench) -> None:
+    bench.machine.fault_on_line = (2, Fault(4, "probe: not in the expected state",
+                                            line_number=2))
+
+
 def _homing_fails(bench: Bench) -> None:
     bench.machine.homing_fails = True
 
@@ -197,13 +202,22 @@ EXCHANGES: tuple[Exchange, ...] = (
         Expect(BANNER + UNLOCK + b"[MSG:X axis: homing: the switch was not found within the "
                b"search distance]\r\nALARM:9\r\n" + OK),
         Send(b"G0X1\n"), Expect(b"error:9\r\n"),)),
-    Exchange("a fault mid-program: the axis, fault and line, ALARM:1, the lock", steps=(
+    Exchange("a fault mid-program: the axis, fault and line, ALARM:1, and as a hard limit "
+             "nothing read until a reset", steps=(
         Do("arm a following-error fault on line 3", _fault_on_line_3),
         Send(b"N1G1X1F600\nN2G1X2\nN3G1X3\nN4G1X4\n"), Wait(0.3),
         Expect(OK * 4 + b"[MSG:Y axis: following error 2.000 mm over 1.000 mm (program line "
-               b"3)]\r\nALARM:1\r\n"),
-        Send(b"G0X0\n"), Send(b"?"),
-        Expect(b"error:9\r\n" + report("Alarm", "2.000,0.000,0.000", extra=WCO0)),
+               b"3)]\r\nALARM:1\r\n[MSG:Reset to continue]\r\n"),
+        Send(b"G0X0\n$X\n"), Wait(0.1), Send(b"?"),
+        Expect(report("Alarm", "2.000,0.000,0.000", bf="15,120", extra=WCO0)),
+        Send(b"\x18"), Expect(BANNER + UNLOCK),
+        Send(b"$X\n"), Expect(b"[MSG:Caution: Unlocked]\r\n" + OK),)),
+    Exchange("a fault that is not a limit: ALARM:N and the lock, G-code error:9", steps=(
+        Do("arm a probe-like fault (alarm 4) on line 2", _probe_fault_on_line_2),
+        Send(b"N1G1X1F600\nN2G1X2\n"), Wait(0.2),
+        Expect(OK * 2 + b"[MSG:probe: not in the expected state (program line 2)]\r\n"
+               b"ALARM:4\r\n"),
+        Send(b"G0X0\n"), Expect(b"error:9\r\n"),
         Send(b"$X\n"), Expect(b"[MSG:Caution: Unlocked]\r\n" + OK),)),
 
     # ---- soft reset

@@ -85,6 +85,9 @@ WCO_REFRESH_BUSY, WCO_REFRESH_IDLE = 30, 10
 OVR_REFRESH_BUSY, OVR_REFRESH_IDLE = 20, 10
 """Every how many status reports WCO: and Ov: come again, in motion and at rest."""
 
+CRITICAL_ALARMS = frozenset({int(AlarmCode.HARD_LIMIT), int(AlarmCode.SOFT_LIMIT)})
+"""Alarms after which grbl reads nothing until a soft reset."""
+
 REPORT_MACHINE_POSITION = 1
 REPORT_BUFFER_STATE = 2
 DEFAULT_REPORT_MASK = REPORT_MACHINE_POSITION | REPORT_BUFFER_STATE
@@ -158,6 +161,7 @@ class GrblProtocol:
         self._waiting: _Waiting | None = None
         self._alarm = False
         self._fault_reported = False
+        self._critical = False
         self._check_mode = False
         self._sleeping = False
         self._door = False
@@ -207,7 +211,7 @@ class GrblProtocol:
         self._rx.clear()
         self._parser.clear()
         self._waiting = None
-        self._check_mode = self._door = False
+        self._check_mode = self._door = self._critical = False
         if self._sleeping:
             self._sleeping = False
             self._alarm = True
@@ -389,7 +393,7 @@ class GrblProtocol:
     def poll(self) -> None:
         """Report new faults, finish what waits, and take lines while nothing waits."""
         self._watch_faults()
-        if self._sleeping:
+        if self._sleeping or self._critical:
             return
         if self._waiting is not None and not self._resume():
             return
@@ -412,14 +416,21 @@ class GrblProtocol:
             self._raise_alarm(fault)
 
     def _raise_alarm(self, fault: Fault) -> None:
-        """``[MSG:...]`` naming the fault, ``ALARM:N``, and the lock."""
+        """``[MSG:...]`` naming the fault, ``ALARM:N``, and the lock. A hard or soft limit
+        (alarms 1 and 2) is critical, as in grbl: ``[MSG:Reset to continue]`` and no line
+        is read until a soft reset (status reports are still answered)."""
         where = f"{fault.axis} axis: " if fault.axis else ""
         line = f" (program line {fault.line_number})" if fault.line_number is not None else ""
         self._line(message(f"{where}{fault.message}{line}"))
         self._line(f"ALARM:{fault.alarm}")
         self._alarm = True
         self._fault_reported = True
-        if isinstance(self._waiting, (_Resubmit, _Rejog, _AwaitMotion)):
+        self._critical = fault.alarm in CRITICAL_ALARMS
+        if self._critical:
+            self._line("[MSG:Reset to continue]")
+            if not isinstance(self._waiting, _AwaitHoming):
+                self._waiting = None
+        elif isinstance(self._waiting, (_Resubmit, _Rejog, _AwaitMotion)):
             self._waiting = None
             self._error(GrblErrorCode.SYSTEM_GC_LOCK)
 
