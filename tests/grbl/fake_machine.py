@@ -116,6 +116,8 @@ class FakeMachine:
         self.done: list[Done] = []
         self.fault_on_line: tuple[int, Fault] | None = None
         """Raise this fault when the block of this line number starts."""
+        self.fault_after_moves: tuple[int, Fault] | None = None
+        """Raise this fault when a block starts after this many moves are done."""
         self.homing_fails = False
         self.homings = 0
         """Homing cycles completed (readable from another thread: the machine itself is
@@ -198,10 +200,15 @@ class FakeMachine:
             self._speed_mm_s = 0.0
 
     def _fault_starts(self, block: Block) -> bool:
-        if self.fault_on_line is None or block.line_number != self.fault_on_line[0]:
+        if self.fault_on_line is not None and block.line_number == self.fault_on_line[0]:
+            self._fault = self.fault_on_line[1]
+            self.fault_on_line = None
+        elif self.fault_after_moves is not None and \
+                len(self.done) >= self.fault_after_moves[0]:
+            self._fault = self.fault_after_moves[1]
+            self.fault_after_moves = None
+        else:
             return False
-        self._fault = self.fault_on_line[1]
-        self.fault_on_line = None
         self._drop_queue()
         return True
 
