@@ -3,6 +3,7 @@ installed, the fake machine served in real time, and the program they stream."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import time
@@ -13,9 +14,12 @@ from pathlib import Path
 import pytest
 from tests.grbl.fake_machine import FakeMachine
 
+from usbmotion.grbl.protocol import Statistics
 from usbmotion.grbl.server import GrblServer
 
 HERE = Path(__file__).resolve().parent
+MEASUREMENTS = HERE.parents[1] / "build" / "senders"
+"""Where each sender test records what it measured (build/ is not committed)."""
 NODE_MODULES = HERE / "node_modules"
 INSTALL = "bash tests/senders/install.sh"
 
@@ -76,3 +80,17 @@ def wait_for(condition: object, *, timeout_s: float, what: str) -> None:
         if time.monotonic() > deadline:
             raise AssertionError(f"{what} did not happen within {timeout_s} s")
         time.sleep(0.01)
+
+
+def record(sender: str, statistics: Statistics, *, path_problems: list[str]) -> None:
+    """Record what the front measured while ``sender`` streamed, in
+    ``build/senders/SENDER.json``, and print it (seen with ``pytest -s``)."""
+    measured = {"sender": sender, "max_rx_bytes": statistics.max_rx_bytes,
+                "rx_buffer_bytes": 128, "dropped_rx_bytes": statistics.dropped_rx_bytes,
+                "lines": statistics.lines, "path_equals_program": not path_problems,
+                "path_problems": path_problems}
+    MEASUREMENTS.mkdir(parents=True, exist_ok=True)
+    (MEASUREMENTS / f"{sender}.json").write_text(json.dumps(measured, indent=2) + "\n")
+    print(f"{sender}: receive buffer at most {statistics.max_rx_bytes} of 128 bytes,"
+          f" {statistics.dropped_rx_bytes} dropped, {statistics.lines} lines,"
+          f" path {'equals the program' if not path_problems else 'differs'}")

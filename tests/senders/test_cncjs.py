@@ -24,6 +24,7 @@ from tests.senders.helpers import (
     PROGRAM_PATH,
     need,
     node_package,
+    record,
     served_fake,
 )
 
@@ -118,12 +119,12 @@ def test_cncjs_socket_api_homes_jogs_runs_holds_and_resumes(cncjs: Cncjs) -> Non
     assert seen["final"] == {"x": "0.000", "y": "0.000", "z": "1.000"}
     assert "feed_hold" in machine.calls and "cycle_start" in machine.calls
     statistics = server.protocol.statistics
-    print(f"cncjs: the receive buffer held at most {statistics.max_rx_bytes} bytes of 128,"
-          f" {statistics.dropped_rx_bytes} dropped")
+    problems = path_problems([done.target_mm for done in machine.done],
+                             [(10.0, -5.0, 0.0), *PROGRAM_PATH])  # the jog, then the program
+    record("cncjs", statistics, path_problems=problems)
     assert statistics.dropped_rx_bytes == 0
     assert 0 < statistics.max_rx_bytes <= 128
-    executed = [done.target_mm for done in machine.done]
-    assert path_problems(executed, [(10.0, -5.0, 0.0), *PROGRAM_PATH]) == []
+    assert problems == []
 
 
 def test_cncjs_web_page_runs_a_program_and_its_dro_shows_the_end(cncjs: Cncjs) -> None:
@@ -136,6 +137,8 @@ def test_cncjs_web_page_runs_a_program_and_its_dro_shows_the_end(cncjs: Cncjs) -
     with served_fake(link=str(cncjs.link)) as (server, machine):
         seen = _node("cncjs_page.js", f"{cncjs.url}/", str(cncjs.link), str(program),
                      str(SCREENSHOT), CHROMIUM, env={"DRO_EXPECTED": json.dumps(wanted)})
+    problems = path_problems([done.target_mm for done in machine.done], PAGE_PATH)
+    record("cncjs-page", server.protocol.statistics, path_problems=problems)
     assert seen["machinePosition"] == wanted
     assert server.protocol.statistics.dropped_rx_bytes == 0
-    assert path_problems([done.target_mm for done in machine.done], PAGE_PATH) == []
+    assert problems == []

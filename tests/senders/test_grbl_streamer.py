@@ -14,7 +14,7 @@ from typing import Any
 
 from tests.grbl.conformance import path_problems
 from tests.grbl.fake_machine import FakeMachine
-from tests.senders.helpers import PROGRAM, PROGRAM_PATH, need, served_fake, wait_for
+from tests.senders.helpers import PROGRAM, PROGRAM_PATH, need, record, served_fake, wait_for
 
 from usbmotion.grbl.interface import Fault
 from usbmotion.grbl.server import GrblServer
@@ -89,12 +89,11 @@ def test_grbl_streamer_homes_and_streams_a_program() -> None:
                  what="the report of the machine at rest at the program's end")
     assert sender.data("on_error", "on_alarm") == []
     statistics = sender.server.protocol.statistics
-    print(f"grbl-streamer: the receive buffer held at most {statistics.max_rx_bytes} bytes"
-          f" of 128, {statistics.dropped_rx_bytes} dropped")
+    problems = path_problems([done.target_mm for done in sender.machine.done], PROGRAM_PATH)
+    record("grbl-streamer", statistics, path_problems=problems)
     assert statistics.dropped_rx_bytes == 0
     assert 0 < statistics.max_rx_bytes <= 128
-    executed = [done.target_mm for done in sender.machine.done]
-    assert path_problems(executed, PROGRAM_PATH) == [], sender.machine.done
+    assert problems == [], sender.machine.done
 
 
 def test_grbl_streamer_sees_a_device_fault_as_an_alarm() -> None:
