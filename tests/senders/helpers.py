@@ -4,6 +4,7 @@ installed, the fake machine served in real time, and the program they stream."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import time
@@ -39,25 +40,40 @@ def node_package(name: str) -> bool:
     return (NODE_MODULES / name / "package.json").is_file() and shutil.which("node") is not None
 
 
-PROGRAM = """\
-G21 G90 G54 (a 20 mm square with its diagonal, some short segments)
-G0 X0 Y0 Z1
-G1 Z0 F600
-G1 X20 F3000
-G1 Y20
-G1 X10 Y20
-G1 X0 Y20
-G1 Y0
-G1 X20 Y20
-G0 Z1
-G0 X0 Y0
-M2
-"""
+SEGMENTS = 72
+"""The circle's segments: short moves, so the planner and the receive buffer both fill."""
+
+
+def _circle() -> list[tuple[float, float]]:
+    points = []
+    for index in range(1, SEGMENTS + 1):
+        angle = 2 * math.pi * index / SEGMENTS
+        points.append((round(10 + 10 * math.cos(angle), 3), round(10 + 10 * math.sin(angle), 3)))
+    return points
+
+
+PROGRAM = "\n".join([
+    "G21 G90 G54 (a 20 mm square with its diagonal, then a circle in 72 segments)",
+    "G0 X0 Y0 Z1",
+    "G1 Z0 F600",
+    "G1 X20 F3000",
+    "G1 Y20",
+    "G1 X10 Y20",
+    "G1 X0 Y20",
+    "G1 Y0",
+    "G1 X20 Y20",
+    *(f"G1 X{x:.3f} Y{y:.3f}" for x, y in _circle()),
+    "G0 Z1",
+    "G0 X0 Y0",
+    "M2",
+]) + "\n"
+PROGRAM_LINES = PROGRAM.count("\n")
 
 PROGRAM_PATH = [
     (0.0, 0.0, 1.0), (0.0, 0.0, 0.0), (20.0, 0.0, 0.0), (20.0, 20.0, 0.0),
     (10.0, 20.0, 0.0), (0.0, 20.0, 0.0), (0.0, 0.0, 0.0), (20.0, 20.0, 0.0),
-    (20.0, 20.0, 1.0), (0.0, 0.0, 1.0),
+    *((x, y, 0.0) for x, y in _circle()),
+    (20.0, 10.0, 1.0), (0.0, 0.0, 1.0),
 ]
 """Where each move of :data:`PROGRAM` ends, machine coordinates (no work offset)."""
 

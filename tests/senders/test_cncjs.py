@@ -21,6 +21,7 @@ from tests.senders.helpers import (
     HERE,
     NODE_MODULES,
     PROGRAM,
+    PROGRAM_LINES,
     PROGRAM_PATH,
     need,
     node_package,
@@ -113,7 +114,8 @@ def test_cncjs_socket_api_homes_jogs_runs_holds_and_resumes(cncjs: Cncjs) -> Non
     assert isinstance(states, list)
     for state in ("Alarm", "Home", "Jog", "Run", "Hold", "Idle"):
         assert state in states
-    assert seen["sender"] == {"total": 13, "sent": 13, "received": 13}  # 12 lines + %wait
+    lines = PROGRAM_LINES + 1  # and cncjs's %wait
+    assert seen["sender"] == {"total": lines, "sent": lines, "received": lines}
     assert seen["afterJog"] == {"x": "10.000", "y": "-5.000", "z": "0.000"}
     assert seen["held"] == seen["stillHeld"]  # held means at rest
     assert seen["final"] == {"x": "0.000", "y": "0.000", "z": "1.000"}
