@@ -82,13 +82,16 @@ class FakeMachine:
         axes: the axis letters.
         homing: homing enabled ($22); the machine then starts in alarm, not homed.
         max_rate_mm_min: every axis's rapid rate.
+        max_travel_mm: every axis's travel (jogs beyond it are refused).
+        homing_s: how long the homing cycle takes.
     """
 
     def __init__(self, clock: Callable[[], float], *, axes: tuple[str, ...] = ("X", "Y", "Z"),
                  homing: bool = True, max_rate_mm_min: float = 3000.0,
-                 max_travel_mm: float = 300.0) -> None:
+                 max_travel_mm: float = 300.0, homing_s: float = HOMING_S) -> None:
         self._clock = clock
         self._axes = axes
+        self._homing_s = homing_s
         self._last_s = clock()
         n = len(axes)
         self.position_mm: tuple[float, ...] = (0.0,) * n
@@ -369,7 +372,7 @@ class FakeMachine:
         self._advance()
         self.calls.append("home")
         self._fault = None
-        self._homing_done_s = self._last_s + HOMING_S
+        self._homing_done_s = self._last_s + self._homing_s
 
     def unlock(self) -> None:
         self.calls.append("unlock")

@@ -90,7 +90,7 @@ async function main() {
   await until('homing', () => seen.states.includes('Home'));
   await until('Idle after homing', () => status.activeState === 'Idle');
 
-  command('gcode', '$J=G91 G21 X10 Y-5 F1200');
+  command('gcode', '$J=G91 G21 X20 Y-10 F1200'); // 1.1 s: seen in the reports
   await until('the jog', () => seen.states.includes('Jog'));
   await until('Idle after the jog', () => status.activeState === 'Idle');
   const afterJog = { ...status.mpos };

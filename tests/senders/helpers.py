@@ -82,7 +82,7 @@ PROGRAM_PATH = [
 def served_fake(**server_options: object) -> Iterator[tuple[GrblServer, FakeMachine]]:
     """The fake machine in real time, served on a pseudo-terminal (or as asked). Only the
     server's thread may call the machine; a test reads its plain attributes."""
-    machine = FakeMachine(time.monotonic)
+    machine = FakeMachine(time.monotonic, homing_s=1.0)  # long enough to be seen in reports
     with GrblServer(machine, **server_options) as server:  # type: ignore[arg-type]
         server.start()
         yield server, machine

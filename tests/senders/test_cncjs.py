@@ -116,13 +116,13 @@ def test_cncjs_socket_api_homes_jogs_runs_holds_and_resumes(cncjs: Cncjs) -> Non
         assert state in states
     lines = PROGRAM_LINES + 1  # and cncjs's %wait
     assert seen["sender"] == {"total": lines, "sent": lines, "received": lines}
-    assert seen["afterJog"] == {"x": "10.000", "y": "-5.000", "z": "0.000"}
+    assert seen["afterJog"] == {"x": "20.000", "y": "-10.000", "z": "0.000"}
     assert seen["held"] == seen["stillHeld"]  # held means at rest
     assert seen["final"] == {"x": "0.000", "y": "0.000", "z": "1.000"}
     assert "feed_hold" in machine.calls and "cycle_start" in machine.calls
     statistics = server.protocol.statistics
     problems = path_problems([done.target_mm for done in machine.done],
-                             [(10.0, -5.0, 0.0), *PROGRAM_PATH])  # the jog, then the program
+                             [(20.0, -10.0, 0.0), *PROGRAM_PATH])  # the jog, the program
     record("cncjs", statistics, path_problems=problems)
     assert statistics.dropped_rx_bytes == 0
     assert 0 < statistics.max_rx_bytes <= 128
