@@ -18,6 +18,8 @@ from tests.grbl.fake_machine import FakeMachine
 from usbmotion.errors import ArgumentError
 from usbmotion.grbl.server import GrblServer
 
+pytestmark = pytest.mark.realtime
+
 BANNER = b"\r\nGrbl 1.1h ['$' for help]\r\n"
 UNLOCK = b"[MSG:'$H'|'$X' to unlock]\r\n"
 ROOT = Path(__file__).resolve().parents[2]

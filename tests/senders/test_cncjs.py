@@ -29,6 +29,8 @@ from tests.senders.helpers import (
     served_fake,
 )
 
+pytestmark = pytest.mark.realtime
+
 ROOT = HERE.parents[1]
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 SCREENSHOT = ROOT / "build" / "senders" / "cncjs-page.png"

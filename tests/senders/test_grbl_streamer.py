@@ -12,12 +12,15 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
+import pytest
 from tests.grbl.conformance import path_problems
 from tests.grbl.fake_machine import FakeMachine
 from tests.senders.helpers import PROGRAM, PROGRAM_PATH, need, record, served_fake, wait_for
 
 from usbmotion.grbl.interface import Fault
 from usbmotion.grbl.server import GrblServer
+
+pytestmark = pytest.mark.realtime
 
 
 class _Sender:
