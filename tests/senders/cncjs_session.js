@@ -1,0 +1,130 @@
+// Drives a running cncjs server through its Socket.IO API, as its web page does: open the
+// port as a Grbl controller, unlock, home, jog, load and start a program, hold and resume
+// it, wait for its end. Prints one JSON line with what it saw.
+//
+// usage: node cncjs_session.js CNCJS_URL PORT_PATH PROGRAM_FILE
+'use strict';
+
+const fs = require('fs');
+const http = require('http');
+const io = require('socket.io-client');
+
+const [url, portPath, programFile] = process.argv.slice(2);
+const program = fs.readFileSync(programFile, 'utf8');
+const STEP_TIMEOUT_MS = 15000;
+
+function signin() {
+  return new Promise((resolve, reject) => {
+    const request = http.request(`${url}/api/signin`, {
+      method: 'POST', headers: { 'Content-Type': 'application/json' },
+    }, (response) => {
+      let body = '';
+      response.on('data', (chunk) => { body += chunk; });
+      response.on('end', () => {
+        try { resolve(JSON.parse(body).token); } catch (error) { reject(error); }
+      });
+    });
+    request.on('error', reject);
+    request.end('{}');
+  });
+}
+
+async function main() {
+  const token = await signin();
+  const socket = io.connect(url, { query: `token=${token}` });
+  const seen = { states: [], reads: [], alarms: [], errors: [], sender: null, workflow: [] };
+  let status = {};
+  let senderStatus = {};
+  const waiters = [];
+  const check = () => {
+    for (const waiter of waiters.slice()) {
+      if (waiter.condition()) {
+        waiters.splice(waiters.indexOf(waiter), 1);
+        clearTimeout(waiter.timer);
+        waiter.resolve();
+      }
+    }
+  };
+  const until = (what, condition) => new Promise((resolve, reject) => {
+    if (condition()) { resolve(); return; }
+    const timer = setTimeout(() => {
+      reject(new Error(`cncjs: ${what} did not happen within ${STEP_TIMEOUT_MS} ms`
+        + ` (state ${status.activeState}, last reads ${seen.reads.slice(-5).join(' | ')})`));
+    }, STEP_TIMEOUT_MS);
+    waiters.push({ condition, resolve, timer });
+  });
+  const sleep = (ms) => new Promise((resolve) => setTimeout(resolve, ms));
+  const command = (...args) => socket.emit('command', portPath, ...args);
+
+  socket.on('connect', () => check());
+  socket.on('connect_error', (error) => { seen.errors.push(`connect_error: ${error}`); });
+  socket.on('controller:state', (type, state) => {
+    status = state.status || {};
+    const last = seen.states[seen.states.length - 1];
+    if (status.activeState && status.activeState !== last) {
+      seen.states.push(status.activeState);
+    }
+    check();
+  });
+  socket.on('serialport:read', (line) => {
+    seen.reads.push(line);
+    if (line.startsWith('ALARM:')) seen.alarms.push(line);
+    if (line.startsWith('error:')) seen.errors.push(line);
+    check();
+  });
+  socket.on('sender:status', (data) => { senderStatus = data; check(); });
+  socket.on('workflow:state', (state) => { seen.workflow.push(state); check(); });
+
+  await until('the Socket.IO connection', () => socket.connected);
+  await new Promise((resolve, reject) => {
+    socket.emit('open', portPath, { controllerType: 'Grbl', baudrate: 115200 }, (error) => {
+      if (error) reject(new Error(`cncjs could not open ${portPath}: ${error}`)); else resolve();
+    });
+  });
+  await until('the Grbl banner', () => seen.reads.some((line) => line.startsWith('Grbl 1.1h')));
+  await until('a status report', () => Boolean(status.activeState));
+
+  command('unlock');
+  await until('Idle after $X', () => status.activeState === 'Idle');
+  command('homing');
+  await until('homing', () => seen.states.includes('Home'));
+  await until('Idle after homing', () => status.activeState === 'Idle');
+
+  command('gcode', '$J=G91 G21 X20 Y-10 F1200'); // 1.1 s: seen in the reports
+  await until('the jog', () => seen.states.includes('Jog'));
+  await until('Idle after the jog', () => status.activeState === 'Idle');
+  const afterJog = { ...status.mpos };
+
+  await new Promise((resolve, reject) => {
+    command('gcode:load', 'square.nc', program, {}, (error) => {
+      if (error) reject(error); else resolve();
+    });
+  });
+  command('gcode:start');
+  await until('Run', () => status.activeState === 'Run');
+  await sleep(300);
+  command('gcode:pause');
+  await until('Hold:0', () => status.activeState === 'Hold' && status.subState === 0);
+  const held = { ...status.mpos };
+  await sleep(300);
+  const stillHeld = { ...status.mpos };
+  command('gcode:resume');
+  await until('Run after resume', () => status.activeState === 'Run');
+  await until('the program end', () => senderStatus.total > 0
+    && senderStatus.received === senderStatus.total && status.activeState === 'Idle');
+  await until('the workflow idle', () => seen.workflow[seen.workflow.length - 1] === 'idle');
+  seen.sender = { total: senderStatus.total, sent: senderStatus.sent,
+    received: senderStatus.received };
+
+  socket.emit('close', portPath);
+  await sleep(200);
+  socket.close();
+  process.stdout.write(`${JSON.stringify({
+    ...seen, reads: seen.reads.length, afterJog, held, stillHeld, final: status.mpos,
+  })}\n`);
+}
+
+main().then(() => process.exit(0), (error) => {
+  process.stderr.write(`${error.stack || error}\n`);
+  process.exit(1);
+});

@@ -1,0 +1,112 @@
+"""grbl-streamer (PyPI) against the grbl server on a pseudo-terminal, with the fake machine:
+it connects, unlocks, homes, streams a program with character counting and reports it done;
+the receive buffer never overflows and the machine's path is the program's. A device fault
+mid-program reaches it as an alarm."""
+
+from __future__ import annotations
+
+import importlib.util
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import pytest
+from tests.grbl.conformance import path_problems
+from tests.grbl.fake_machine import FakeMachine
+from tests.senders.helpers import PROGRAM, PROGRAM_PATH, need, record, served_fake, wait_for
+
+from usbmotion.grbl.interface import Fault
+from usbmotion.grbl.server import GrblServer
+
+pytestmark = pytest.mark.realtime
+
+
+class _Sender:
+    """grbl-streamer connected to the server, its events recorded."""
+
+    def __init__(self, server: GrblServer, machine: FakeMachine) -> None:
+        from grbl_streamer import GrblStreamer  # type: ignore[import-untyped]  # noqa: PLC0415
+
+        self.server, self.machine = server, machine
+        self.events: list[tuple[str, tuple[Any, ...]]] = []
+        self._lock = threading.Lock()
+        self._start_job = threading.Event()
+        self.streamer = GrblStreamer(self._callback)
+        self.streamer.setup_logging()
+
+    def _callback(self, event: str, *data: Any) -> None:
+        with self._lock:
+            self.events.append((event, data))
+        # grbl-streamer streams from the caller of job_run and from its reader thread on
+        # each ok, unguarded: started from another thread, a line can go out twice. So the
+        # job starts here, on its reader thread, after an ok.
+        if event == "on_rx_buffer_percent" and self._start_job.is_set():
+            self._start_job.clear()
+            self.streamer.job_run()
+
+    def seen(self, event: str, *data: Any) -> bool:
+        with self._lock:
+            return any(e == event and d[:len(data)] == data for e, d in self.events)
+
+    def data(self, *events: str) -> list[tuple[str, tuple[Any, ...]]]:
+        with self._lock:
+            return [(e, d) for e, d in self.events if e in events]
+
+    def connect_unlock_and_home(self) -> None:
+        self.streamer.cnect(self.server.path, 115200)
+        wait_for(lambda: self.seen("on_boot"), timeout_s=5, what="grbl-streamer's on_boot")
+        self.streamer.poll_start()
+        self.streamer.killalarm()
+        self.streamer.homing()
+        wait_for(lambda: self.machine.homings == 1, timeout_s=5, what="homing")
+        time.sleep(0.3)  # the $H's ok taken before the job counts characters
+
+    def run(self, program: str) -> None:
+        self.streamer.incremental_streaming = False  # character counting
+        self.streamer.write(program)
+        self._start_job.set()
+        self.streamer.send_immediately("G4 P0")  # its ok starts the job
+
+
+@contextmanager
+def _grbl_streamer() -> Iterator[_Sender]:
+    need(importlib.util.find_spec("grbl_streamer") is not None, "grbl-streamer (PyPI)")
+    with served_fake() as (server, machine):
+        sender = _Sender(server, machine)
+        try:
+            yield sender
+        finally:
+            sender.streamer.disconnect()
+
+
+def test_grbl_streamer_homes_and_streams_a_program() -> None:
+    with _grbl_streamer() as sender:
+        sender.connect_unlock_and_home()
+        sender.run(PROGRAM)
+        streamer = sender.streamer
+        wait_for(lambda: sender.seen("on_job_completed") and streamer.job_finished
+                 and streamer.streaming_complete, timeout_s=20, what="the job's end")
+        wait_for(lambda: sender.seen("on_stateupdate", "Idle", (0.0, 0.0, 1.0)), timeout_s=10,
+                 what="the report of the machine at rest at the program's end")
+    assert sender.data("on_error", "on_alarm") == []
+    statistics = sender.server.protocol.statistics
+    problems = path_problems([done.target_mm for done in sender.machine.done], PROGRAM_PATH)
+    record("grbl-streamer", statistics, path_problems=problems)
+    assert statistics.dropped_rx_bytes == 0
+    assert 0 < statistics.max_rx_bytes <= 128
+    assert problems == [], sender.machine.done
+
+
+def test_grbl_streamer_sees_a_device_fault_as_an_alarm() -> None:
+    with _grbl_streamer() as sender:
+        sender.connect_unlock_and_home()
+        sender.machine.fault_after_moves = (2, Fault(1, "following error 2.000 mm over"
+                                                     " 1.000 mm", axis="X"))
+        sender.run("G1 X5 F3000\nG1 Y5\nG1 X0\nG1 Y0\n")
+        wait_for(lambda: sender.seen("on_alarm"), timeout_s=10, what="the alarm")
+        wait_for(lambda: sender.streamer.cmode == "Alarm", timeout_s=5, what="the Alarm state")
+    assert sender.data("on_alarm") == [("on_alarm", ("ALARM:1",))]
+    assert sender.data("on_error") == []
+    assert [d.target_mm for d in sender.machine.done] == [(5.0, 0.0, 0.0), (5.0, 5.0, 0.0)]
