@@ -16,7 +16,7 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "usbmotion"
 
-HOST_SIDE = ("host", "motion", "automation", "session")
+HOST_SIDE = ("host", "motion", "automation", "session", "grbl")
 """Packages that drive devices through ports and must not know how a device is made."""
 
 FORBIDDEN = ("usbmotion.sim", "usbmotion.device")

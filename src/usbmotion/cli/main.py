@@ -11,6 +11,7 @@ from usbmotion import __version__
 from usbmotion.cli.console import console
 from usbmotion.cli.devices import devices
 from usbmotion.cli.gcode import gcode_app
+from usbmotion.cli.grbl import grbl
 from usbmotion.cli.help import UsbMotionTyper
 from usbmotion.cli.jog import jog
 from usbmotion.cli.params import get, set_parameter
@@ -54,6 +55,7 @@ app.command()(run)
 app.command()(console)
 app.command()(tune)
 app.command()(sim)
+app.command()(grbl)
 app.command()(zero)
 app.command()(status)
 app.command()(home)

@@ -94,6 +94,7 @@ __all__ = [
     "GCodeStream",
     "IgnoredWord",
     "MachineAxes",
+    "Modes",
     "Pause",
     "Pauses",
     "ToolChange",
@@ -523,6 +524,23 @@ def interpret_until_error(
     return interpreter.result(), error
 
 
+@dataclass(frozen=True, slots=True)
+class Modes:
+    """A stream's modal state: the motion mode (G code times ten, -1 after G80), the
+    coordinate system (1 = G54 .. 9 = G59.3), the plane (17, 18, 19), inches (G20) or mm,
+    incremental (G91) or absolute, the feed (mm/min), the tool in the spindle, and the
+    offset from machine to program coordinates (G5x + G92 + tool, mm, per axis)."""
+
+    motion_x10: int
+    coordinate_system: int
+    plane: int
+    inches: bool
+    incremental: bool
+    feed_mm_min: float
+    tool: int
+    offset_mm: Point
+
+
 _MODAL_STATE = ("position", "frame", "offset", "tools", "cycle", "retract_to_r", "scale",
                 "incremental", "arc_incremental", "plane", "motion", "feed_mm_min", "ended_by",
                 "end_line")
@@ -617,6 +635,15 @@ class GCodeStream:
                 setattr(state, name, value)
             raise
         return added
+
+    def modes(self) -> Modes:
+        """The modal state now (what a controller's ``$G`` reports)."""
+        state = self._interpreter
+        plane = {Plane.XY: 17, Plane.XZ: 18, Plane.YZ: 19}[state.plane]
+        return Modes(motion_x10=state.motion, coordinate_system=state.frame.system + 1,
+                     plane=plane, inches=state.scale != 1.0, incremental=state.incremental,
+                     feed_mm_min=state.feed_mm_min, tool=state.tools.spindle,
+                     offset_mm=_point(state.offset))
 
     def restart(self, start: Point) -> None:
         """A new program from ``start`` (where the machine stands), the modal state kept:

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from usbmotion.errors import ArgumentError, GCodeError, PlanningError
 from usbmotion.host.config import MachineConfig
 from usbmotion.motion.dialects import Dialect
-from usbmotion.motion.gcode import GCodeProgram, GCodeStream, Pause, Pauses
+from usbmotion.motion.gcode import GCodeProgram, GCodeStream, Modes, Pause, Pauses
 from usbmotion.motion.limits import check_travel
 from usbmotion.motion.moves import Dwell, Move, Point
 from usbmotion.motion.offsets import NO_OFFSETS, WorkOffsets
@@ -146,6 +146,11 @@ class ProgramFeed:
             self._plan = None
             self.error = None
             self._version += 1
+
+    def modes(self) -> Modes:
+        """The modal state the lines so far leave."""
+        with self._lock:
+            return self._stream.modes()
 
     @property
     def has_moves(self) -> bool:

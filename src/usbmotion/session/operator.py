@@ -58,11 +58,21 @@ def parse_steps(words: list[str]) -> dict[str, float]:
 
 
 @dataclass(frozen=True, slots=True)
+class IdleAxis:
+    """One axis as read at rest: its following error (mm), whether a limit switch reads
+    closed, its fault code (0: none)."""
+
+    following_error_mm: float
+    limit: bool
+    fault: int
+
+
+@dataclass(frozen=True, slots=True)
 class OperatorStatus:
     """What a front shows: the state (``Jog`` while a jog runs), where the axes are
-    (machine coordinates, mm; while moving, the setpoints the devices have reached by the
-    run's estimate), the program line, whether a jog runs, the pause the machine waits at
-    and the overrides."""
+    (machine coordinates, mm, from their encoders: while moving, as of the run's last
+    diagnostics lines), the program line, whether the worker is busy, the pause the machine
+    waits at, the overrides and each axis's following error (mm)."""
 
     state: str
     position_mm: Mapping[str, float]
@@ -71,6 +81,7 @@ class OperatorStatus:
     pause: str
     feed_override: int
     rapid_override: int
+    following_error_mm: Mapping[str, float]
 
 
 class Operator:
@@ -99,7 +110,14 @@ class Operator:
         self._busy = threading.Event()
         self._run_queued = False
         self._lock = threading.Lock()
+        self._links = threading.Lock()
+        """Held by whoever talks to the devices: the worker, or an idle keep-alive."""
         self._idle_position: dict[str, float] = session.positions_mm()
+        """Where each axis is commanded to stand at rest (a new program starts there)."""
+        self._idle_actual: dict[str, float] = dict(self._idle_position)
+        """Where each axis's encoder was at rest, mm."""
+        self.idle: dict[str, IdleAxis] = {}
+        """Axis -> its following error, switches and fault as last read at rest."""
         self._thread = threading.Thread(target=self._serve, name="usbmotion-operator",
                                         daemon=True)
         self._thread.start()
@@ -210,21 +228,41 @@ class Operator:
         progress = self._progress
         busy = self.busy
         if busy and progress is not None:
-            where: Mapping[str, float] = progress.position_mm
+            where: Mapping[str, float] = progress.actual_mm or progress.position_mm
             line = progress.line
+            error: Mapping[str, float] = progress.following_error_mm
         else:
-            where, line = self._idle_position, 0
+            where, line = self._idle_actual, 0
+            error = {name: axis.following_error_mm for name, axis in self.idle.items()}
         state = "Jog" if session.jogging else session.state.value
         pause = session.paused.message if session.paused is not None else ""
         return OperatorStatus(state, dict(where), line, busy, pause,
-                              session.feed_override_percent, session.rapid_override_percent)
+                              session.feed_override_percent, session.rapid_override_percent,
+                              dict(error))
 
     def keep_alive(self) -> None:
-        """Feed the watchdogs when idle (the worker's own runs keep them fed)."""
-        if not self.busy:
-            with self._lock:
-                if not self.busy:
-                    self.session.keep_alive()
+        """When idle: feed the watchdogs and read where every axis is, its following
+        error and its switches (:attr:`idle`); the worker's own actions keep the watchdogs
+        fed while it works. Never waits for the worker."""
+        if self.busy or not self._links.acquire(blocking=False):
+            return
+        try:
+            if not self.busy:
+                self._read_idle()
+        finally:
+            self._links.release()
+
+    def _read_idle(self) -> None:
+        statuses = self.session.machine.status()
+        machine = self.session.machine
+        self._idle_position = {name: machine.axis(name).scale.to_mm(status.desired_counts)
+                               for name, status in statuses.items()}
+        self._idle_actual = {name: machine.axis(name).scale.to_mm(status.actual_counts)
+                             for name, status in statuses.items()}
+        self.idle = {name: IdleAxis(
+            machine.axis(name).scale.to_mm(status.actual_counts - status.desired_counts),
+            bool(status.lower_limit or status.upper_limit), int(status.fault))
+            for name, status in statuses.items()}
 
     def wait_idle(self, timeout_s: float | None = None) -> bool:
         """Until nothing is queued or running; False on the timeout."""
@@ -259,36 +297,43 @@ class Operator:
             if action is None:
                 return
             self._busy.set()
-            try:
-                action()
-            except UsbMotionError as error:
-                self.last_error = str(error)
-                self.on_message(f"error: {error}")
-            finally:
-                self.session.clear_stop_request()
-                self._progress = None
+            with self._links:
                 try:
-                    self._idle_position = self.session.positions_mm()
+                    self.last_error = ""
+                    action()
                 except UsbMotionError as error:
-                    self.on_message(f"error: reading the positions: {error}")
-                self._busy.clear()
+                    self.last_error = str(error)
+                    self.on_message(f"error: {error}")
+                finally:
+                    self.session.clear_stop_request()
+                    self._progress = None
+                    try:
+                        self._read_idle()
+                    except UsbMotionError as error:
+                        self.on_message(f"error: reading the positions: {error}")
+                    self._busy.clear()
 
     def _run_feed(self) -> None:
         with self._lock:
             feed = self.feed
+        completed = False
         try:
             if feed is None or not feed.has_moves or feed.closed:
                 return
             report, _ = self.session.run_feed(feed, on_progress=self._on_progress)
+            completed = report.completed
         finally:
             with self._lock:
                 self._run_queued = False
+            if feed is not None and not completed and not feed.closed:
+                feed.close()
         self._ended(report)
         if not report.completed:
             here = self.session.positions_mm()
             with self._lock:
                 feed.restart(tuple(here[name] for name in program_axes(self.session.config)))
                 feed.close()
+            self._idle_position = here
 
     def _ended(self, report: RunReport) -> None:
         self.last_report = report

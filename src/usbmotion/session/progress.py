@@ -21,6 +21,10 @@ class Progress:
         line: the G-code line being executed (0: none, as while homing).
         done_s: program seconds done (0 while homing).
         total_s: program seconds in all (0 while homing).
+        actual_mm: while running, axis -> where its encoder was at its last diagnostics
+            line (up to the trace's period old), mm.
+        following_error_mm: while running, axis -> actual minus commanded position at
+            that line, mm.
     """
 
     state: MachineState
@@ -28,6 +32,8 @@ class Progress:
     line: int = 0
     done_s: float = 0.0
     total_s: float = 0.0
+    actual_mm: Mapping[str, float] = field(default_factory=dict)
+    following_error_mm: Mapping[str, float] = field(default_factory=dict)
 
     def describe(self) -> str:
         """One line: ``Run  line 12  X 10.000  Y 5.000  Z 1.000 mm``."""

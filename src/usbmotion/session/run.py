@@ -398,8 +398,16 @@ class Run:
             row = self.setpoints[min(max(0, int(done) - 1), self.setpoints.shape[0] - 1)]
             where = {name: float(row[index]) / self.counts_per_mm[index]
                      for index, name in enumerate(self.axes)}
+            actual: dict[str, float] = {}
+            error: dict[str, float] = {}
+            for name in self.axes:
+                seen, wanted = self.trace.actual.get(name), self.trace.desired.get(name)
+                if seen and wanted:
+                    scale = self.config.axis(name).counts_per_mm
+                    actual[name] = seen[-1] / scale
+                    error[name] = (seen[-1] - wanted[-1]) / scale
             self.on_progress(Progress(self.session.state, where, line_at(self.plan, done_s),
-                                      done_s, self.plan.duration_s))
+                                      done_s, self.plan.duration_s, actual, error))
 
     def _on_alarm(self, axis: str, alarm: Alarm) -> None:
         self._record(axis, alarm.fault_name, alarm.tick)
@@ -790,6 +798,14 @@ class Run:
         session, clock = self.session, self.clock
         keep_alive_s = session.keep_alive_period_s()
         pinged = clock.now()
+        session.held = True
+        try:
+            return self._hold_at_rest(keep_alive_s, pinged)
+        finally:
+            session.held = False
+
+    def _hold_at_rest(self, keep_alive_s: float, pinged: float) -> _Ending | None:
+        session, clock = self.session, self.clock
         while True:
             if session._stop_now_requested():
                 self.machine.stop()

@@ -129,6 +129,8 @@ class MachineSession:
         """Rapids run at this percentage of the axes' speed (:meth:`set_rapid_override`)."""
         self.override_at_s = 0.0
         """When an override last changed (the session's clock)."""
+        self.held = False
+        """True while a held (or paused) program waits at rest for a resume."""
         self.jogging = False
         """True while a jog runs (:meth:`jog`)."""
         self.optional_stop = False

@@ -1,0 +1,80 @@
+"""``usbmotion grbl``: the machine as a grbl 1.1h controller, for the G-code senders people
+already use (cncjs, Universal G-code Sender, Candle, grbl-streamer)."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import typer
+
+from usbmotion.cli.connect import fail, load_machine
+from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, MachineOption
+from usbmotion.errors import ArgumentError, UsbMotionError
+
+
+def grbl(
+    pty: Annotated[bool, typer.Option(
+        "--pty", help="Serve on a pseudo-terminal (its path is printed); the default.")] = True,
+    link: Annotated[str | None, typer.Option(
+        "--link", help="With --pty, also make a symbolic link to it at this path (such as"
+        " /tmp/ttyGRBL, for a sender's port list).", show_default=False)] = None,
+    tcp: Annotated[int | None, typer.Option(
+        "--tcp", help="Serve on this TCP port instead of a pseudo-terminal (0: any free"
+        " port).", show_default=False)] = None,
+    host: Annotated[str, typer.Option(
+        "--host", help="The TCP address to bind (with --tcp).")] = "127.0.0.1",
+    machine: MachineOption = None,
+) -> None:
+    """Serve the machine as a grbl 1.1h controller on a pseudo-terminal or a TCP port.
+
+    One machine session, driven by a sender as it would drive a grbl board: the start-up
+    banner, ok / error:N, ALARM:N and its lock, the real-time bytes (? ! ~ Ctrl-X, jog
+    cancel, overrides), the status report with encoder positions and an FE: field of each
+    axis's following error, $$ $# $G $I $N $C $H $X $J= $SLP, and character-counting
+    streaming on a 128-byte buffer. G-code lines are planned with look-ahead as they come.
+    The built-in simulated machine runs in real time. SIGTERM or Ctrl-C brings every axis
+    to rest and leaves.
+
+    Exit status: 0 served until a signal; 1 the machine could not be connected; 2 a bad
+    option or machine file.
+    """
+    from usbmotion.grbl.interface import GrblMachine  # noqa: PLC0415 - keep --help fast
+    from usbmotion.grbl.server import serve  # noqa: PLC0415
+    from usbmotion.grbl.session_machine import SessionMachine  # noqa: PLC0415
+    from usbmotion.session import MachineSession  # noqa: PLC0415
+    from usbmotion.session.operator import Operator  # noqa: PLC0415
+    from usbmotion.sim.machine import connect_session  # noqa: PLC0415
+    from usbmotion.sim.world import SimWorld  # noqa: PLC0415
+
+    config = load_machine(machine, "grbl")
+    if tcp is not None and not 0 <= tcp <= 65535:
+        fail("grbl", f"--tcp {tcp}: a port within 0..65535", EXIT_BAD_INPUT)
+    if link is not None and tcp is not None:
+        fail("grbl", "--link names a pseudo-terminal's link: it does not go with --tcp",
+             EXIT_BAD_INPUT)
+    try:
+        session = (connect_session(config, world=SimWorld(realtime=True))
+                   if config.is_simulated else MachineSession.connect(config))
+    except UsbMotionError as error:
+        fail("grbl", str(error), EXIT_FAULT)
+    status = 0
+    with session:
+        for notice in session.notices:
+            typer.echo(f"notice: {notice}", err=True)
+        operator = Operator(session, on_message=lambda text: typer.echo(text, err=True),
+                            file="<grbl>")
+        front = SessionMachine(operator)
+        served: GrblMachine = front
+        front.start()
+        try:
+            status = serve(served, pty=tcp is None and pty, link=link, tcp_port=tcp, host=host)
+        except (ArgumentError, OSError) as error:
+            fail("grbl", str(error), EXIT_BAD_INPUT)
+        finally:
+            front.close()
+            operator.close()
+            try:
+                session.shutdown()
+            except UsbMotionError as error:
+                typer.echo(f"usbmotion grbl: stopping the machine: {error}", err=True)
+    raise typer.Exit(status)

@@ -1,0 +1,312 @@
+"""The grbl front's machine (:class:`~usbmotion.grbl.interface.GrblMachine`) on a real
+machine session, through an :class:`~usbmotion.session.operator.Operator`: G-code lines
+go into the operator's feed (planned with look-ahead as they come), jogs, homing, holds
+and resets are the operator's, and what a status report shows is the operator's status
+(encoder positions and following errors). No call waits for motion or for a device: the
+operator's worker alone talks to the devices, and when the machine is idle the front's
+polls read it through :meth:`SessionMachine.poll`.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+from usbmotion.errors import (
+    GCodeError,
+    MachineStateError,
+    PlanningError,
+    SoftLimitError,
+    UnsupportedGCodeError,
+    UsbMotionError,
+)
+from usbmotion.grbl.interface import (
+    Admission,
+    AxisSettings,
+    Fault,
+    JogMove,
+    MachineSettings,
+    MachineStatus,
+    ModalState,
+    MotionState,
+    Rejected,
+    SubmitResult,
+    WorkOffsets,
+)
+from usbmotion.motion.gcode import GCodeStream
+from usbmotion.motion.moves import AXIS_ORDER
+from usbmotion.session.feed import WINDOW_MOVES
+from usbmotion.session.operator import Operator
+from usbmotion.session.planning import machine_axes, machine_dialect, program_axes
+from usbmotion.session.state import MachineState
+
+READ_PERIOD_S = 0.1
+"""How often an idle machine is read (positions, switches) and its watchdogs fed."""
+ALARM_HOMING_FAILED = 9
+"""grbl's alarm for a homing that could not find its switch."""
+ALARM_ABORT = 3
+"""grbl's alarm for motion stopped by a reset; also used for a device fault."""
+ALARM_HARD_LIMIT = 1
+
+
+class SessionMachine:
+    """A machine session, as the grbl front sees it.
+
+    Parameters:
+        operator: the session's operator (its worker runs the motion).
+    """
+
+    def __init__(self, operator: Operator) -> None:
+        self.operator = operator
+        self.session = operator.session
+        self.config = self.session.config
+        self._axes = tuple(program_axes(self.config))
+        self._fault: Fault | None = None
+        self._homing = False
+        self._checker: GCodeStream | None = None
+        self._stop = threading.Event()
+        self._reading = threading.Thread(target=self._read, name="usbmotion-grbl-read",
+                                         daemon=True)
+
+    # --- what the front polls --------------------------------------------------------------
+
+    def start(self) -> None:
+        """Read the machine while it is idle, every :data:`READ_PERIOD_S` on a thread of
+        its own (its watchdogs fed, its positions and switches current)."""
+        self._reading.start()
+
+    def close(self) -> None:
+        """Stop reading the machine."""
+        self._stop.set()
+        if self._reading.is_alive():
+            self._reading.join(timeout=5)
+
+    def _read(self) -> None:
+        while not self._stop.wait(READ_PERIOD_S):
+            try:
+                self.operator.keep_alive()
+            except UsbMotionError as error:
+                self._fault = Fault(ALARM_ABORT, f"the machine cannot be read: {error}")
+
+    def poll(self) -> None:
+        """Take up how the last action ended (a fault, a failed homing)."""
+        if not self.operator.busy:
+            self._take_ending()
+
+    def _take_ending(self) -> None:
+        if self._homing:
+            self._homing = False
+            if self.operator.last_error:
+                self._fault = Fault(ALARM_HOMING_FAILED, self.operator.last_error)
+        report = self.operator.last_report
+        if report is not None and report.faults and self._fault is None:
+            first = report.faults[0]
+            alarm = ALARM_HARD_LIMIT if "limit" in first.fault else ALARM_ABORT
+            self._fault = Fault(alarm, f"{first.fault}", first.axis, first.line or None)
+            self.operator.last_report = None
+
+    def axes(self) -> tuple[str, ...]:
+        return self._axes
+
+    def state(self) -> MotionState:
+        self.poll()
+        session = self.session
+        if self._fault is not None or session.state is MachineState.ALARM:
+            return MotionState.ALARM
+        if session.state is MachineState.HOMING or self._homing:
+            return MotionState.HOMING
+        if session.jogging:
+            return MotionState.JOG
+        if session.state is MachineState.HOLD or session.hold_requested:
+            return MotionState.HOLD_COMPLETE if session.held else MotionState.HOLD_IN_PROGRESS
+        if self.operator.busy:
+            return MotionState.RUN
+        if not session.is_homed:
+            return MotionState.ALARM
+        return MotionState.IDLE
+
+    def status(self) -> MachineStatus:
+        status = self.operator.status()
+        where = tuple(status.position_mm.get(axis, 0.0) for axis in self._axes)
+        error = tuple(status.following_error_mm.get(axis, 0.0) for axis in self._axes)
+        limits = frozenset(name for name, axis in self.operator.idle.items() if axis.limit)
+        return MachineStatus(where, self._work_offset(), self._feed(), status.line or None,
+                             error, limits, self._fault)
+
+    def _work_offset(self) -> tuple[float, ...]:
+        feed = self.operator.feed
+        if feed is not None:
+            return tuple(feed.modes().offset_mm)
+        offsets = self.session.work_offsets()
+        base = offsets.g5x[offsets.coordinate_system - 1]
+        return tuple(base[AXIS_ORDER.index(a)] for a in self._axes)
+
+    def _feed(self) -> float:
+        feed = self.operator.feed
+        if feed is None or not self.operator.busy:
+            return 0.0
+        return feed.modes().feed_mm_min * self.session.feed_override_percent / 100.0
+
+    # --- lines --------------------------------------------------------------------------------
+
+    def submit(self, line: str, line_number: int | None) -> SubmitResult:
+        if self._fault is not None:
+            return Rejected(9, "the machine is in alarm: $X or $H")
+        try:
+            taken = self.operator.submit(line)
+        except SoftLimitError as error:
+            return Rejected(33, str(error))
+        except UnsupportedGCodeError as error:
+            return Rejected(20, str(error))
+        except GCodeError as error:
+            return Rejected(22 if "feed rate" in error.message else 1, str(error))
+        except MachineStateError as error:
+            return Rejected(9, str(error))
+        except PlanningError as error:
+            return Rejected(33, str(error))
+        return Admission.ACCEPTED if taken else Admission.PLANNER_FULL
+
+    def check(self, line: str) -> Rejected | None:
+        checker = self._checker
+        if checker is None:
+            machine = machine_axes(self.config)
+            checker = self._checker = GCodeStream(
+                file="<check>", machine=machine, dialect=machine_dialect(self.config),
+                start=tuple(self.operator.status().position_mm.get(a, 0.0)
+                            for a in machine.axes))
+        try:
+            checker.feed(line)
+        except UnsupportedGCodeError as error:
+            return Rejected(20, str(error))
+        except GCodeError as error:
+            return Rejected(1, str(error))
+        return None
+
+    def motion_done(self) -> bool:
+        return not self.operator.busy
+
+    def planner_blocks(self) -> int:
+        feed = self.operator.feed
+        return feed.window if feed is not None else WINDOW_MOVES
+
+    def planner_blocks_free(self) -> int:
+        feed = self.operator.feed
+        if feed is None or feed.closed:
+            return self.planner_blocks()
+        return feed.blocks_free
+
+    # --- real-time ----------------------------------------------------------------------------
+
+    def feed_hold(self) -> None:
+        if self.session.jogging:
+            self.operator.jog_cancel()
+        else:
+            self.operator.hold()
+
+    def cycle_start(self) -> None:
+        self.operator.resume()
+
+    def soft_reset(self) -> None:
+        self._checker = None
+        if self.session.jogging:
+            self.operator.jog_cancel()
+        elif self.operator.busy:
+            self.operator.stop()
+
+    def jog(self, move: JogMove) -> SubmitResult:
+        if self.operator.busy:
+            return Admission.PLANNER_FULL
+        where = self.operator.status().position_mm
+        offset = dict(zip(self._axes, self._work_offset(), strict=True))
+        targets: dict[str, float] = {}
+        for axis, value in move.words_mm.items():
+            if axis not in self._axes:
+                return Rejected(20, f"the machine has no axis {axis}")
+            if move.incremental:
+                targets[axis] = where.get(axis, 0.0) + value
+            else:
+                targets[axis] = value + (0.0 if move.machine_coordinates else offset[axis])
+        for axis, target in targets.items():
+            low, high = self.config.axis(axis).travel_mm
+            if not low - 1e-9 <= target <= high + 1e-9:
+                return Rejected(15, f"{axis} to {target:.3f} mm is beyond its travel"
+                                f" {low:g}..{high:g} mm")
+        if not math.isfinite(move.feed_mm_min) or move.feed_mm_min <= 0:
+            return Rejected(22, "a jog needs a feed rate")
+        try:
+            self.operator.jog(targets, feed_mm_min=move.feed_mm_min, absolute=True)
+        except (MachineStateError, UsbMotionError) as error:
+            return Rejected(9, str(error))
+        return Admission.ACCEPTED
+
+    def jog_cancel(self) -> None:
+        self.operator.jog_cancel()
+
+    def set_feed_override(self, percent: int) -> None:
+        self.session.set_feed_override(min(200, max(10, percent)))
+
+    def set_rapid_override(self, percent: int) -> None:
+        self.session.set_rapid_override(percent if percent in (25, 50, 100) else 100)
+
+    def home(self) -> None:
+        self._fault = None
+        try:
+            self.operator.home()
+        except MachineStateError as error:
+            self._fault = Fault(ALARM_HOMING_FAILED, str(error))
+            return
+        self._homing = True
+
+    def unlock(self) -> None:
+        self._fault = None
+        if self.session.state is MachineState.ALARM and not self.operator.busy:
+            self.operator.do(self.session.reset)
+
+    # --- settings and state ---------------------------------------------------------------------
+
+    def settings(self) -> MachineSettings:
+        config = self.config
+        axes = tuple(AxisSettings(a.counts_per_mm, a.max_velocity_mm_s * 60.0, a.max_accel_mm_s2,
+                                  a.travel_mm[1] - a.travel_mm[0])
+                     for a in (config.axis(name) for name in self._axes))
+        first = config.axis(self._axes[0])
+        mask = sum(1 << index for index, name in enumerate(self._axes)
+                   if config.axis(name).homing.direction < 0)
+        return MachineSettings(axes, junction_deviation_mm=config.junction_deviation_mm,
+                               arc_tolerance_mm=config.arc_tolerance_mm, soft_limits=True,
+                               hard_limits=True, homing=True, homing_dir_mask=mask,
+                               homing_feed_mm_min=first.homing.slow_speed_mm_s * 60.0,
+                               homing_seek_mm_min=first.homing.speed_mm_s * 60.0,
+                               homing_pull_off_mm=first.homing.pull_off_mm)
+
+    def set_setting(self, number: int, value: float) -> Rejected | None:
+        return Rejected(3, f"${number} is set in the machine file {self.config.path}:"
+                        " change it there and restart usbmotion grbl")
+
+    def work_offsets(self) -> WorkOffsets:
+        offsets = self.session.work_offsets()
+
+        def pick(point: tuple[float, ...]) -> tuple[float, ...]:
+            return tuple(point[AXIS_ORDER.index(a)] for a in self._axes)
+
+        return WorkOffsets(tuple(pick(p) for p in offsets.g5x[:6]), pick(offsets.g28),
+                           pick(offsets.g30),
+                           pick(offsets.g92) if offsets.g92_enabled else (0.0,) * len(self._axes))
+
+    def modal_state(self) -> ModalState:
+        feed = self.operator.feed
+        if feed is None:
+            return ModalState()
+        modes = feed.modes()
+        motion = modes.motion_x10
+        system = modes.coordinate_system
+        return ModalState(
+            motion="G80" if motion < 0 else f"G{motion // 10}" + (
+                f".{motion % 10}" if motion % 10 else ""),
+            coordinate_system=f"G{53 + system}" if system <= 6 else f"G59.{system - 6}",
+            plane=f"G{modes.plane}", units="G20" if modes.inches else "G21",
+            distance="G91" if modes.incremental else "G90", tool=modes.tool,
+            feed=modes.feed_mm_min / (25.4 if modes.inches else 1.0))
+
+
+__all__ = ["SessionMachine"]
