@@ -270,20 +270,28 @@ def test_zero_and_g10_from_the_console_set_g54_where_the_machine_stands(
     lines: list[str] = []
     with connect_session(config) as session:
         console = Console(session, lines.append)
-        console.handle("$z")
+
+        def do(line: str) -> None:
+            console.handle(line)
+            assert console.operator.wait_idle(60)
+
+        do("$z")
         assert lines[-1].startswith("error: the machine is not homed")
         session.home()
         where = session.positions_mm()
-        console.handle("$z X Y")
+        do("$z X Y")
         offsets = read_parameter_file(config.parameter_path)
         assert offsets.g5x[0][:2] == (where["X"], where["Y"]), lines
-        console.handle("G10 L20 P1 Z-10")
+        do("G10 L20 P1 Z-10")
         offsets = read_parameter_file(config.parameter_path)
         assert offsets.g5x[0][2] == pytest.approx(where["Z"] + 10.0), lines
-        console.handle("G0 X1")
-        assert lines[-1].startswith("error:"), lines
-        console.handle("$z Q")
+        do("G0 X1 Y1 Z1")
+        assert lines[-1] == "ok", "a line that moves is MDI"
+        assert session.positions_mm() == pytest.approx(
+            {"X": where["X"] + 1, "Y": where["Y"] + 1, "Z": where["Z"] + 11}), "in G54"
+        do("$z Q")
         assert "takes axes X, Y, Z" in lines[-1]
+        console.close()
 
 
 def test_usbmotion_zero_sets_g54_at_the_homed_position(tmp_path: Path) -> None:

@@ -29,6 +29,7 @@ from __future__ import annotations
 import re
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 from usbmotion.demos import DEMOS, demo_path
@@ -101,46 +102,47 @@ class Console:
             return True
         command, _, value = text.partition(" ")
         value = value.strip()
-        if self.operator.busy and command not in ("$q", "$h", "$?"):
-            if text[:1].upper() in _GCODE_LETTERS:
-                self._mdi(text)
-            else:
-                self.write(f"error: {text!r} waits until the machine is idle; while it moves:"
-                           " ? ! ~ ^X $x $jx $o and G-code lines")
-            return True
+        machine: Callable[[], None] | None = None
+        if command == "?":
+            machine = self._status
+        elif command in ("$h", "$?"):
+            self.write(HELP)
+        elif command == "$q":
+            self.write("bye")
+            return False
+        elif command == "$c" and not value:
+            machine = self._cycle_start
+        elif command == "$r" and not value:
+            machine = self._reset
+        elif command == "$d":
+            self._guarded(lambda: self._load_demo(value))
+        elif command == "$l":
+            self._guarded(lambda: self._load_file(value))
+        elif command == "$z":
+            machine = partial(self._zero, value)
+        elif command == "$j":
+            machine = self._jog_action(value)
+        elif _SETTING.match(text):
+            machine = partial(self._set_offsets, text)
+        elif text[:1].upper() in _GCODE_LETTERS:
+            self._mdi(text)
+        else:
+            self.write(f"error: unknown command {text!r}; $h lists the commands")
+        if machine is not None:
+            action = machine
+            self.operator.do(lambda: self._guarded(action))
+        return True
+
+    def _guarded(self, action: Callable[[], None]) -> None:
+        """Carry out ``action``, its errors written as one line each."""
         try:
-            if command == "?":
-                self._status()
-            elif command in ("$h", "$?"):
-                self.write(HELP)
-            elif command == "$q":
-                self.write("bye")
-                return False
-            elif command == "$c" and not value:
-                self._cycle_start()
-            elif command == "$r" and not value:
-                self._reset()
-            elif command == "$d":
-                self._load_demo(value)
-            elif command == "$l":
-                self._load_file(value)
-            elif command == "$z":
-                self._zero(value)
-            elif command == "$j":
-                self._jog(value)
-            elif _SETTING.match(text):
-                self._set_offsets(text)
-            elif text[:1].upper() in _GCODE_LETTERS:
-                self._mdi(text)
-            else:
-                self.write(f"error: unknown command {text!r}; $h lists the commands")
+            action()
         except StopRequestedError as error:
             self.write(f"stopped: {error.reason}; every axis at rest")
         except (GCodeError, PlanningError) as error:
             self.write(f"error: {error}")
         except UsbMotionError as error:
             self.write(f"error: {error}")
-        return True
 
     def _live(self, text: str) -> bool:
         """The commands that act at once, even while the machine moves: True when ``text``
@@ -170,7 +172,8 @@ class Console:
             else:
                 self.write("stop: nothing moves")
             return True
-        if text == "?" and operator.busy:
+        if text == "?" and operator.busy and (self.session.state is not MachineState.IDLE
+                                              or self.session.jogging):
             self._live_status()
             return True
         if text.startswith("$o"):
@@ -229,19 +232,20 @@ class Console:
                 return
             time.sleep(0.01)
 
-    def _jog(self, value: str) -> None:
+    def _jog_action(self, value: str) -> Callable[[], None] | None:
+        """The jog ``$j`` asks for, to run on the machine (None: the words are wrong, said)."""
         words = value.upper().split()
         feed = [w for w in words if w.startswith("F")]
         steps = [w for w in words if not w.startswith("F")]
         if len(feed) != 1 or not steps:
             self.write("error: $j takes AXIS DISTANCE pairs (or AXIS+ / AXIS-) and one F"
                        " feed: $j X10 Y-2 F600, $j X+ F600")
-            return
+            return None
         try:
             feed_mm_min = float(feed[0][1:])
         except ValueError:
             self.write(f"error: $j feed {feed[0]!r} is not a number")
-            return
+            return None
         continuous = all(len(w) == 2 and w[1] in "+-" for w in steps)
         try:
             if continuous:
@@ -250,12 +254,15 @@ class Console:
                 moves = parse_steps(steps)
         except ValueError as error:
             self.write(f"error: $j {error}")
-            return
-        try:
-            self.operator.jog(moves, feed_mm_min=feed_mm_min, continuous=continuous)
-        except (ArgumentError, MachineStateError) as error:
-            self.write(f"error: {error}")
-            return
+            return None
+
+        def go() -> None:
+
+            report = self.session.jog(moves, feed_mm_min=feed_mm_min, continuous=continuous)
+            where = "  ".join(f"{k} {v:.3f}" for k, v in self.session.positions_mm().items())
+            self.write(("jogged" if report.completed else report.stop_reason) + f": {where} mm")
+
+        return go
         self.write("jogging" + (" until $jx, ! or ^X" if continuous else ""))
 
     def _load(self, path: Path) -> None:
@@ -306,15 +313,12 @@ class Console:
                                                           strict=True))
         self.write(f"cycle start: {self.path} from {start} mm, {prepared.plan.duration_s:.2f} s")
 
-        def go() -> None:
-            report, _ = session.run(prepared, homing_s=homing_s)
-            self.last_result = report.stop_reason
-            for line in describe(report).splitlines():
-                self.write(line)
-            self.write("done" if report.completed else f"stopped ({report.stop_reason}):"
-                       " $r resets and homes")
-
-        self.operator.do(go)
+        report, _ = session.run(prepared, homing_s=homing_s)
+        self.last_result = report.stop_reason
+        for line in describe(report).splitlines():
+            self.write(line)
+        self.write("done" if report.completed else f"stopped ({report.stop_reason}):"
+                   " $r resets and homes")
 
     def _zero(self, value: str) -> None:
         session = self.session

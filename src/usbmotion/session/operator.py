@@ -194,13 +194,8 @@ class Operator:
         self._actions.put(go)
 
     def do(self, action: Action) -> None:
-        """Queue ``action`` (it may use the session and its devices) for the worker.
-
-        Raises:
-            MachineStateError: the machine is busy.
-        """
-        if self.busy:
-            raise MachineStateError("the machine is busy", state=self.session.state.value)
+        """Queue ``action`` (it may use the session and its devices) for the worker, after
+        what it is doing and what is queued."""
         self._actions.put(action)
 
     def jog_cancel(self) -> None:
