@@ -151,6 +151,15 @@ def test_jog_moves_by_the_distance_at_the_feed_from_home() -> None:
     assert 1.0 <= float(match.group(1)) <= 1.3, "10 mm at 10 mm/s, with its ramps"
 
 
+def test_a_continuous_jog_runs_to_the_first_soft_limit_on_its_way() -> None:
+    code, out, err = invoke("jog", "X", "1", "Y", "1", "--continuous", "--feed", "600", "-q")
+    assert code == 0, err
+    assert out == "jogged to the soft limit: X 200.000  Y 200.000  Z 0.000 mm (machine" \
+        " coordinates)\n", out
+    code, _, err = invoke("jog", "X", "1", "--continuous", "--no-home", "--feed", "600")
+    assert code == 2 and "needs a homed machine" in err
+
+
 def test_a_jog_beyond_the_travel_is_refused_naming_the_axis_and_limit() -> None:
     code, out, err = invoke("jog", "Z", "-5", "--feed", "300")
     assert (code, out) == (2, "")

@@ -316,10 +316,18 @@ def test_the_operator_runs_mdi_lines_with_their_modal_state(config: MachineConfi
     with connect_session(config) as session:
         session.home()
         messages: list[str] = []
-        with Operator(session, on_message=messages.append) as operator:
+        world = session.machine.world
+        assert world is not None
+        with Operator(session, on_message=messages.append) as operator, \
+                ExecutedRecorder(world, AXES) as recorder:
             for line in ("G21 G90", "G0 X10 Y10", "G91", "G1 X5 F600", "G0 Z2"):
                 assert operator.submit(line)
             assert operator.wait_idle(60)
+            positions = recorder.positions()
+            check_limits(config, positions, positions)
+            counts = config.axis("X").counts_per_mm
+            assert positions[-1].tolist() == [round(15 * counts), round(10 * counts),
+                                              round(2 * counts)]
             with pytest.raises(GCodeError):
                 operator.submit("G1 X")
             deadline = 0
@@ -328,8 +336,8 @@ def test_the_operator_runs_mdi_lines_with_their_modal_state(config: MachineConfi
                 assert deadline < 1000
             assert operator.wait_idle(60)
             where = operator.status().position_mm
-        assert where["X"] == pytest.approx(10.0, abs=1e-3)
-        assert (where["Y"], where["Z"]) == (pytest.approx(10.0, abs=1e-3),
-                                            pytest.approx(2.0, abs=1e-3))
+        assert where["X"] == pytest.approx(10.0, abs=0.01), "the encoder, within 2 counts"
+        assert (where["Y"], where["Z"]) == (pytest.approx(10.0, abs=0.01),
+                                            pytest.approx(2.0, abs=0.01))
         assert not [m for m in messages if m.startswith("error")]
         session.shutdown()

@@ -40,11 +40,17 @@ def jog(
         "--no-home", help="Do not home a machine that is not homed: jog in the devices' own"
         " counts, without soft limits.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress line.")] = False,
+    continuous: Annotated[bool, typer.Option(
+        "--continuous", "-c", help="Jog on in the direction the distances give (their signs,"
+        " their sizes weighting the axes) until Ctrl-C or the first soft limit on the way.",
+    )] = False,
 ) -> None:
     """Move axes by these distances at a feed, within the soft limits.
 
     The distances are in machine coordinates (a G53 move: work and tool offsets do not
     apply) from where the axes stand; the move is planned with each axis's acceleration.
+    With --continuous the jog goes on in that direction until Ctrl-C, which brings every
+    axis to rest along its deceleration (exit 0), or until the first soft limit on its way.
 
     A jog that would leave an axis's travel (the soft limits) is refused naming the axis
     and the limit, and nothing moves. A machine that is not homed is homed first, as
@@ -73,8 +79,11 @@ def jog(
              f" {config.path}", EXIT_BAD_INPUT)
     if not (math.isfinite(feed) and feed > 0):
         fail("jog", f"--feed {feed!r} must be a speed > 0 mm/min", EXIT_BAD_INPUT)
-    act_on_session(config, "jog",
-                   lambda session: _jog(session, moves, feed, no_home=no_home, quiet=quiet))
+    if continuous and no_home:
+        fail("jog", "--continuous runs to the soft limits: it needs a homed machine, not"
+             " --no-home", EXIT_BAD_INPUT)
+    act_on_session(config, "jog", lambda session: _jog(
+        session, moves, feed, no_home=no_home, quiet=quiet, continuous=continuous))
 
 
 jog.__doc__ = f"{jog.__doc__}\n    {SIMULATED_NOTE}\n"
@@ -95,7 +104,7 @@ def travel_problem(config: MachineConfig, start_mm: dict[str, float],
 
 
 def _jog(session: MachineSession, moves: dict[str, float], feed_mm_min: float, *,
-         no_home: bool, quiet: bool) -> int:
+         no_home: bool, quiet: bool, continuous: bool = False) -> int:
     from usbmotion.motion.dialects import Dialect  # noqa: PLC0415
     from usbmotion.session.planning import program_axes  # noqa: PLC0415
 
@@ -105,6 +114,8 @@ def _jog(session: MachineSession, moves: dict[str, float], feed_mm_min: float, *
         _, code = home_reporting("jog", session, None, quiet=quiet)
         if code:
             return code
+    if continuous:
+        return _jog_on(session, moves, feed_mm_min, quiet=quiet)
     try:
         start_mm, homed = session.start_position_mm(unhomed=no_home)
     except UsbMotionError as error:
@@ -141,4 +152,33 @@ def _jog(session: MachineSession, moves: dict[str, float], feed_mm_min: float, *
                    f" {report.executed_time_s:.2f} s: {at} mm ({frame})")
         return EXIT_COMPLETED
     typer.echo(f"usbmotion jog: stopped: {report.stop_reason}; at {at} mm ({frame})", err=True)
+    return exit_code(report.stop_reason) or EXIT_FAULT
+
+
+def _jog_on(session: MachineSession, directions: dict[str, float], feed_mm_min: float, *,
+            quiet: bool) -> int:
+    """A continuous jog until Ctrl-C (a jog cancel) or the soft limit."""
+    from usbmotion.session.state import StopReason  # noqa: PLC0415
+
+    try:
+        with progress_line(not quiet) as show:
+            report = session.jog(directions, feed_mm_min=feed_mm_min, continuous=True,
+                                 on_progress=show)
+    except PlanningError as error:
+        typer.echo(f"usbmotion jog: {error}; nothing moved", err=True)
+        return EXIT_BAD_INPUT
+    except UsbMotionError as error:
+        typer.echo(f"usbmotion jog: {error}", err=True)
+        return EXIT_FAULT
+    where = session.positions_mm()
+    at = "  ".join(f"{name} {where[name]:.3f}" for name in where)
+    if report.completed:
+        typer.echo(f"jogged to the soft limit: {at} mm (machine coordinates)")
+        return EXIT_COMPLETED
+    if report.stop_reason in (StopReason.USER.value, StopReason.JOG_CANCELLED.value):
+        session.clear_stop_request()
+        typer.echo(f"jog stopped along its deceleration ({report.stop_distance_mm:.3f} mm):"
+                   f" {at} mm (machine coordinates)")
+        return EXIT_COMPLETED
+    typer.echo(f"usbmotion jog: stopped: {report.stop_reason}; at {at} mm", err=True)
     return exit_code(report.stop_reason) or EXIT_FAULT
