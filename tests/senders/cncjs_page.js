@@ -3,6 +3,9 @@
 // program and run it, then read the Axes widget's machine position. Prints one JSON line.
 //
 // usage: node cncjs_page.js CNCJS_URL PORT_PATH PROGRAM_FILE SCREENSHOT_FILE CHROMIUM
+// environment: DRO_EXPECTED, the machine position to wait for (a JSON list of the shown
+// texts); DRO_TOLERANCE_MM, how far each shown number may be from it (else the texts
+// equal); HOMING=1, home (the Grbl widget's Homing button) after unlocking
 'use strict';
 
 const { chromium } = require('playwright-core');
@@ -28,6 +31,9 @@ async function main() {
     await page.locator('button:has-text("Close")').first().waitFor();
 
     await page.getByTitle('Unlock').click();
+    if (process.env.HOMING === '1') {
+      await page.getByTitle('Homing', { exact: true }).click();
+    }
     const machinePosition = () => page.$$eval('td[class*="machine-position"]',
       (cells) => cells.map((cell) => cell.innerText.split('\n')[0].trim()));
 
@@ -39,9 +45,14 @@ async function main() {
     }, null, { timeout: STEP_TIMEOUT_MS });
     await run.click();
     const wanted = JSON.parse(process.env.DRO_EXPECTED || 'null');
+    const tolerance = process.env.DRO_TOLERANCE_MM;
+    const shows = (texts) => (tolerance === undefined
+      ? JSON.stringify(texts) === JSON.stringify(wanted)
+      : texts.length === wanted.length && texts.every(
+        (text, index) => Math.abs(Number(text) - Number(wanted[index])) <= Number(tolerance)));
     const deadline = Date.now() + STEP_TIMEOUT_MS;
     let shown = await machinePosition();
-    while (wanted && JSON.stringify(shown) !== JSON.stringify(wanted) && Date.now() < deadline) {
+    while (wanted && !shows(shown) && Date.now() < deadline) {
       await page.waitForTimeout(100);
       shown = await machinePosition();
     }

@@ -1,5 +1,7 @@
 """What the sender tests share: skipping (or, in CI, failing) when a sender is not
-installed, the fake machine served in real time, and the program they stream."""
+installed, the fake machine or a real machine session (the simulated machine in real time)
+served on a pseudo-terminal, the programs they stream, and the check of what the simulated
+devices executed against the program."""
 
 from __future__ import annotations
 
@@ -7,16 +9,28 @@ import json
 import math
 import os
 import shutil
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+import numpy.typing as npt
 import pytest
 from tests.grbl.fake_machine import FakeMachine
 
+from usbmotion.cli.run import default_machine
 from usbmotion.grbl.protocol import Statistics
 from usbmotion.grbl.server import GrblServer
+from usbmotion.grbl.session_machine import SessionMachine
+from usbmotion.host.config import load_config
+from usbmotion.session import MachineSession
+from usbmotion.session.operator import Operator
+from usbmotion.sim.machine import connect_session
+from usbmotion.sim.recording import ExecutedRecorder
+from usbmotion.sim.world import SimWorld
 
 HERE = Path(__file__).resolve().parent
 MEASUREMENTS = HERE.parents[1] / "build" / "senders"
@@ -44,38 +58,222 @@ SEGMENTS = 72
 """The circle's segments: short moves, so the planner and the receive buffer both fill."""
 
 
-def _circle() -> list[tuple[float, float]]:
+def _circle(size_mm: float) -> list[tuple[float, float]]:
+    half = size_mm / 2
     points = []
     for index in range(1, SEGMENTS + 1):
         angle = 2 * math.pi * index / SEGMENTS
-        points.append((round(10 + 10 * math.cos(angle), 3), round(10 + 10 * math.sin(angle), 3)))
+        points.append((round(half + half * math.cos(angle), 3),
+                       round(half + half * math.sin(angle), 3)))
     return points
 
 
-PROGRAM = "\n".join([
-    "G21 G90 G54 (a 20 mm square with its diagonal, then a circle in 72 segments)",
-    "G0 X0 Y0 Z1",
-    "G1 Z0 F600",
-    "G1 X20 F3000",
-    "G1 Y20",
-    "G1 X10 Y20",
-    "G1 X0 Y20",
-    "G1 Y0",
-    "G1 X20 Y20",
-    *(f"G1 X{x:.3f} Y{y:.3f}" for x, y in _circle()),
-    "G0 Z1",
-    "G0 X0 Y0",
-    "M2",
-]) + "\n"
-PROGRAM_LINES = PROGRAM.count("\n")
+def square_and_circle(size_mm: float) -> tuple[str, list[tuple[float, float, float]]]:
+    """A program (a square of ``size_mm`` with its diagonal, then the inscribed circle in
+    :data:`SEGMENTS` segments, at a feed above any axis's limit) and where each of its moves
+    ends, machine coordinates (no work offset)."""
+    s, h = size_mm, size_mm / 2
+    circle = _circle(size_mm)
+    text = "\n".join([
+        f"G21 G90 G54 (a {s:g} mm square with its diagonal, then a circle in {SEGMENTS}"
+        " segments)",
+        "G0 X0 Y0 Z1",
+        "G1 Z0 F600",
+        f"G1 X{s:g} F3000",
+        f"G1 Y{s:g}",
+        f"G1 X{h:g} Y{s:g}",
+        f"G1 X0 Y{s:g}",
+        "G1 Y0",
+        f"G1 X{s:g} Y{s:g}",
+        *(f"G1 X{x:.3f} Y{y:.3f}" for x, y in circle),
+        "G0 Z1",
+        "G0 X0 Y0",
+        "M2",
+    ]) + "\n"
+    path = [
+        (0.0, 0.0, 1.0), (0.0, 0.0, 0.0), (s, 0.0, 0.0), (s, s, 0.0), (h, s, 0.0),
+        (0.0, s, 0.0), (0.0, 0.0, 0.0), (s, s, 0.0), *((x, y, 0.0) for x, y in circle),
+        (s, h, 1.0), (0.0, 0.0, 1.0),
+    ]
+    return text, path
 
-PROGRAM_PATH = [
-    (0.0, 0.0, 1.0), (0.0, 0.0, 0.0), (20.0, 0.0, 0.0), (20.0, 20.0, 0.0),
-    (10.0, 20.0, 0.0), (0.0, 20.0, 0.0), (0.0, 0.0, 0.0), (20.0, 20.0, 0.0),
-    *((x, y, 0.0) for x, y in _circle()),
-    (20.0, 10.0, 1.0), (0.0, 0.0, 1.0),
-]
-"""Where each move of :data:`PROGRAM` ends, machine coordinates (no work offset)."""
+
+PROGRAM, PROGRAM_PATH = square_and_circle(20.0)
+"""The program the senders stream to the fake machine, and where each of its moves ends."""
+PROGRAM_LINES = PROGRAM.count("\n")
+SHORT_PROGRAM, SHORT_PROGRAM_PATH = square_and_circle(10.0)
+"""The program for the simulated machine, which moves in real time at up to 20 mm/s."""
+
+
+AXES = ["X", "Y", "Z"]
+PATH_TOLERANCE_MM = 0.05
+"""How far an executed point may be from the programmed polyline, and a programmed end
+point from the nearest executed point (the recorded positions are the devices' setpoints,
+exact to a count's rounding: 1 / 240 mm)."""
+START_MM = 3.0
+"""Where each simulated axis starts, above its switch: homing takes about 2 s, not 22 s."""
+WATCHDOG_MS = 1250
+"""The devices' watchdog: the front's idle reads (every 100 ms) must keep it fed."""
+
+
+def fast_homing_machine(folder: Path) -> Path:
+    """The default machine file, its axes starting :data:`START_MM` above their switches
+    and their watchdogs on, written into ``folder``; its path."""
+    text = Path(default_machine()).read_text()
+    for start in ("start_mm = 100.0", "start_mm = 50.0"):
+        assert start in text, f"the default machine file no longer says {start!r}"
+        text = text.replace(start, f"start_mm = {START_MM}")
+    assert "watchdog_ms = 0 " in text
+    text = text.replace("watchdog_ms = 0 ", f"watchdog_ms = {WATCHDOG_MS} ")
+    path = folder / "machine.toml"
+    path.write_text(text)
+    return path
+
+
+@dataclass
+class RealMachine:
+    """A machine session on the simulated machine in real time, served as a grbl
+    controller; what its devices executed is recorded from the end of the first homing."""
+
+    server: GrblServer
+    front: SessionMachine
+    operator: Operator
+    session: MachineSession
+    messages: list[str] = field(default_factory=list)
+    """What the operator said (runs' ends, pauses, errors)."""
+    recorder: ExecutedRecorder | None = None
+
+    @property
+    def counts_per_mm(self) -> float:
+        return self.session.config.axis("X").counts_per_mm
+
+    def idle(self) -> bool:
+        """True when homed and nothing runs or is queued."""
+        return self.session.is_homed and not self.operator.busy
+
+    def executed_mm(self) -> npt.NDArray[np.float64]:
+        """The devices' setpoints at every servo tick since the homing ended, mm."""
+        assert self.recorder is not None, "the machine was never homed"
+        positions: npt.NDArray[np.float64] = self.recorder.positions() / self.counts_per_mm
+        return positions
+
+
+@contextmanager
+def served_real(folder: Path, **server_options: object) -> Iterator[RealMachine]:
+    """The default simulated machine (homing fast: :func:`fast_homing_machine` in
+    ``folder``) in real time through an operator and the grbl front, served on a
+    pseudo-terminal (or as asked), as ``usbmotion grbl`` serves it. Leaving it stops the
+    machine and closes everything it opened."""
+    config = load_config(fast_homing_machine(folder))
+    world = SimWorld(realtime=True)
+    with connect_session(config, world=world) as session:
+        messages: list[str] = []
+        operator = Operator(session, on_message=messages.append, file="<grbl>")
+        front = SessionMachine(operator)
+        stop = threading.Event()
+        watcher: threading.Thread | None = None
+        machine: RealMachine | None = None
+        try:
+            front.start()
+            with GrblServer(front, **server_options) as server:  # type: ignore[arg-type]
+                machine = RealMachine(server, front, operator, session, messages)
+                real = machine
+
+                def record_once_homed() -> None:
+                    while not stop.wait(0.002):
+                        if real.idle():
+                            real.recorder = ExecutedRecorder(world, AXES)
+                            return
+
+                watcher = threading.Thread(target=record_once_homed,
+                                           name="senders-record-once-homed")
+                watcher.start()
+                server.start()
+                yield machine
+                assert server.error is None
+        finally:
+            stop.set()
+            if watcher is not None:
+                watcher.join()
+            front.close()
+            operator.close()
+            if machine is not None and machine.recorder is not None:
+                machine.recorder.close()
+            session.shutdown()
+
+
+REALTIME_NAMES = {ord("!"): "! (feed hold)", ord("~"): "~ (cycle start)",
+                  0x18: "Ctrl-X (soft reset)", 0x85: "0x85 (jog cancel)"}
+
+
+def tap_received(server: GrblServer) -> list[tuple[float, str]]:
+    """From now on, what the sender writes to ``server``'s front: (wall time, each line or
+    real-time byte in words), ``?`` left out; the list is filled as bytes arrive."""
+    received: list[tuple[float, str]] = []
+    line = bytearray()
+    protocol = server.protocol
+    receive = protocol.receive
+
+    def tapped(data: bytes) -> None:
+        for byte in data:
+            if byte == ord("?"):
+                continue
+            if byte in REALTIME_NAMES or byte >= 0x80:
+                received.append((time.time(), REALTIME_NAMES.get(byte, f"0x{byte:02x}")))
+            elif byte in b"\r\n":
+                if line:
+                    received.append((time.time(), line.decode(errors="replace")))
+                    line.clear()
+            else:
+                line.append(byte)
+        receive(data)
+
+    protocol.receive = tapped  # type: ignore[method-assign]
+    return received
+
+
+def path_deviation(executed_mm: npt.NDArray[np.float64],
+                   path_mm: list[tuple[float, float, float]], *,
+                   tolerance_mm: float = PATH_TOLERANCE_MM) -> tuple[list[str], float]:
+    """Whether the executed positions (one row per servo tick) follow the polyline
+    ``path_mm`` (its first point where they start): every point of the polyline's ends
+    passed in order within ``tolerance_mm``, no executed point farther than that from the
+    polyline, and the last one at its end. The problems in words, and the largest distance
+    of an executed point from the polyline, mm."""
+    problems: list[str] = []
+    if len(executed_mm) == 0:
+        return ["nothing executed"], math.inf
+    corners = np.array(path_mm, dtype=np.float64)
+    start, end = corners[:-1], corners[1:]
+    along = end - start
+    length2 = np.maximum(np.einsum("ij,ij->i", along, along), 1e-18)
+    points = np.unique(executed_mm, axis=0)
+    worst = 0.0
+    worst_point = points[0]
+    for chunk in np.array_split(points, max(1, len(points) // 2000)):
+        offset = chunk[:, None, :] - start[None, :, :]
+        t = np.clip(np.einsum("pij,ij->pi", offset, along) / length2, 0.0, 1.0)
+        closest = start[None, :, :] + t[:, :, None] * along[None, :, :]
+        distance = np.linalg.norm(chunk[:, None, :] - closest, axis=2).min(axis=1)
+        if len(distance) and distance.max() > worst:
+            worst = float(distance.max())
+            worst_point = chunk[int(distance.argmax())]
+    if worst > tolerance_mm:
+        problems.append(f"the executed point {tuple(np.round(worst_point, 4))} is {worst:.4f}"
+                        f" mm from the program's path (at most {tolerance_mm} mm)")
+    at = 0
+    for index, corner in enumerate(corners):
+        distance = np.linalg.norm(executed_mm[at:] - corner, axis=1)
+        near = np.flatnonzero(distance <= tolerance_mm)
+        if len(near) == 0:
+            problems.append(f"point {index} of the path, {tuple(corner)}, was never reached"
+                            f" after tick {at} (nearest {distance.min():.4f} mm)")
+            break
+        at += int(near[0])
+    if np.linalg.norm(executed_mm[-1] - corners[-1]) > tolerance_mm:
+        problems.append(f"it ended at {tuple(np.round(executed_mm[-1], 4))}, the program at"
+                        f" {tuple(corners[-1])}")
+    return problems, worst
 
 
 @contextmanager
@@ -89,24 +287,42 @@ def served_fake(**server_options: object) -> Iterator[tuple[GrblServer, FakeMach
         assert server.error is None
 
 
-def wait_for(condition: object, *, timeout_s: float, what: str) -> None:
-    """Poll ``condition()`` until true; fail saying ``what`` did not happen."""
+def wait_for(condition: object, *, timeout_s: float, what: str,
+             seen: Callable[[], object] | None = None) -> None:
+    """Poll ``condition()`` until true; fail saying ``what`` did not happen (and what
+    ``seen()`` returns then)."""
     deadline = time.monotonic() + timeout_s
     while not condition():  # type: ignore[operator]
         if time.monotonic() > deadline:
-            raise AssertionError(f"{what} did not happen within {timeout_s} s")
+            instead = f"; instead: {seen()!r}" if seen is not None else ""
+            raise AssertionError(f"{what} did not happen within {timeout_s} s{instead}")
         time.sleep(0.01)
 
 
-def record(sender: str, statistics: Statistics, *, path_problems: list[str]) -> None:
-    """Record what the front measured while ``sender`` streamed, in
-    ``build/senders/SENDER.json``, and print it (seen with ``pytest -s``)."""
-    measured = {"sender": sender, "max_rx_bytes": statistics.max_rx_bytes,
-                "rx_buffer_bytes": 128, "dropped_rx_bytes": statistics.dropped_rx_bytes,
-                "lines": statistics.lines, "path_equals_program": not path_problems,
-                "path_problems": path_problems}
+def record(sender: str, statistics: Statistics, *, path_problems: list[str],
+           machine: str = "fake", path_deviation_mm: float | None = None,
+           run_s: float | None = None) -> None:
+    """Record what the front measured while ``sender`` streamed to ``machine`` (``fake`` or
+    ``simulated in real time``), in ``build/senders/SENDER.json``, and print it (seen with
+    ``pytest -s``): the receive buffer's peak, the bytes dropped, the lines, whether the
+    path equals the program's, and for the simulated machine the largest distance of an
+    executed point from the program's path and how long the run took."""
+    measured: dict[str, object] = {
+        "sender": sender, "machine": machine, "max_rx_bytes": statistics.max_rx_bytes,
+        "rx_buffer_bytes": 128, "dropped_rx_bytes": statistics.dropped_rx_bytes,
+        "lines": statistics.lines, "path_equals_program": not path_problems,
+        "path_problems": path_problems}
+    if path_deviation_mm is not None:
+        measured["path_max_deviation_mm"] = round(path_deviation_mm, 5)
+    if run_s is not None:
+        measured["run_s"] = round(run_s, 2)
     MEASUREMENTS.mkdir(parents=True, exist_ok=True)
     (MEASUREMENTS / f"{sender}.json").write_text(json.dumps(measured, indent=2) + "\n")
-    print(f"{sender}: receive buffer at most {statistics.max_rx_bytes} of 128 bytes,"
-          f" {statistics.dropped_rx_bytes} dropped, {statistics.lines} lines,"
-          f" path {'equals the program' if not path_problems else 'differs'}")
+    extra = ""
+    if path_deviation_mm is not None:
+        extra += f" (at most {path_deviation_mm:.4f} mm off)"
+    if run_s is not None:
+        extra += f", run {run_s:.1f} s"
+    print(f"{sender} ({machine} machine): receive buffer at most {statistics.max_rx_bytes}"
+          f" of 128 bytes, {statistics.dropped_rx_bytes} dropped, {statistics.lines} lines,"
+          f" path {'equals the program' if not path_problems else 'differs'}{extra}")

@@ -1,7 +1,10 @@
-"""cncjs (npm) against the grbl server on a pseudo-terminal, with the fake machine: its
-server runs headless on 127.0.0.1 and opens the terminal as a Grbl controller; once through
-its Socket.IO API (unlock, home, jog, upload and run a program, hold and resume it) and once
-through its web page in headless Chromium (the DRO shows where the program ended)."""
+"""cncjs (npm) against the grbl server on a pseudo-terminal, with the fake machine and with
+a real machine session (the simulated machine in real time, as ``usbmotion grbl`` serves
+it): its server runs headless on 127.0.0.1 and opens the terminal as a Grbl controller;
+once through its Socket.IO API (unlock, home, jog, upload and run a program, hold and
+resume it) and once through its web page in headless Chromium (the DRO shows where the
+program ended). On the simulated machine, what its devices executed is the program's path,
+the hold and resume included."""
 
 from __future__ import annotations
 
@@ -19,14 +22,21 @@ import pytest
 from tests.grbl.conformance import path_problems
 from tests.senders.helpers import (
     HERE,
+    MEASUREMENTS,
     NODE_MODULES,
     PROGRAM,
     PROGRAM_LINES,
     PROGRAM_PATH,
+    SHORT_PROGRAM,
+    SHORT_PROGRAM_PATH,
     need,
     node_package,
+    path_deviation,
     record,
     served_fake,
+    served_real,
+    tap_received,
+    wait_for,
 )
 
 pytestmark = pytest.mark.realtime
@@ -36,6 +46,20 @@ CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 SCREENSHOT = ROOT / "build" / "senders" / "cncjs-page.png"
 PAGE_PROGRAM = "G21 G90\nG1 X12.5 Y7.25 F3000\nG0 Z1\n"
 PAGE_PATH = [(12.5, 7.25, 0.0), (12.5, 7.25, 1.0)]
+JOG = "$J=G91 G21 X20 Y10 F1200"
+"""The jog on the simulated machine (within its travel from home at 0): 1.1 s, so seen in
+cncjs's reports every 250 ms."""
+JOG_END = (20.0, 10.0, 0.0)
+UNLOCKED = "message"
+"""After $X, cncjs's session waits for grbl's unlock message, not for Idle: the front on a
+machine session stays in Alarm until the machine is homed (it refuses motion before)."""
+AT_REST_MM = 0.02
+"""How far the simulated machine's encoders may stand from where it was sent, at rest."""
+SESSION_LOG = MEASUREMENTS / "cncjs-session.log"
+UNENDED_PROGRAM = SHORT_PROGRAM.removesuffix("M2\n")
+"""The program cncjs runs on the simulated machine: without its M2, after which the front
+refuses the line cncjs sends at every program's end (its %wait: G4 P0.5); see
+tests/senders/test_simulated_front.py."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -146,3 +170,97 @@ def test_cncjs_web_page_runs_a_program_and_its_dro_shows_the_end(cncjs: Cncjs) -
     assert seen["machinePosition"] == wanted
     assert server.protocol.statistics.dropped_rx_bytes == 0
     assert problems == []
+
+
+def _near(shown: object, where: tuple[float, ...]) -> bool:
+    """Whether cncjs's position ``{"x": "1.000", ...}`` is within :data:`AT_REST_MM` of
+    ``where``."""
+    assert isinstance(shown, dict), shown
+    return all(abs(float(shown[axis]) - value) <= AT_REST_MM
+               for axis, value in zip("xyz", where, strict=True))
+
+
+def _write_session_log(received: list[tuple[float, str]], log: list[list[object]]) -> float:
+    """Write what the front received and what cncjs reported, in time order, to
+    :data:`SESSION_LOG`; the seconds from cncjs's gcode:start to its workflow's idle."""
+    lines = [(at, f"front received  {text}") for at, text in received]
+    lines += [(float(at) / 1000.0, f"cncjs           {text}") for at, text in log]  # type: ignore[arg-type]
+    lines.sort(key=lambda entry: entry[0])
+    origin = lines[0][0]
+    SESSION_LOG.parent.mkdir(parents=True, exist_ok=True)
+    SESSION_LOG.write_text(
+        "# cncjs through its Socket.IO API with usbmotion grbl's front on the simulated\n"
+        "# machine in real time: the lines (and real-time bytes but ?) the front received,\n"
+        "# and what cncjs wrote, read and reported (each status change).\n"
+        + "".join(f"{at - origin:8.3f}  {text}\n" for at, text in lines))
+    start = next(at for at, text in lines if text.endswith("gcode:start"))
+    end = max(at for at, text in lines if text.endswith("workflow idle"))
+    return end - start
+
+
+def test_cncjs_socket_api_homes_jogs_runs_holds_and_resumes_on_the_simulated_machine(
+        cncjs: Cncjs, tmp_path: Path) -> None:
+    assert UNENDED_PROGRAM != SHORT_PROGRAM
+    program = cncjs.folder / "short.nc"
+    program.write_text(UNENDED_PROGRAM)
+    with served_real(tmp_path, link=str(cncjs.link)) as real:
+        received = tap_received(real.server)
+        seen = _node("cncjs_session.js", cncjs.url, str(cncjs.link), str(program),
+                     env={"JOG": JOG, "UNLOCKED": UNLOCKED})
+        wait_for(real.idle, timeout_s=10, what="the machine at rest")
+        executed = real.executed_mm()
+    log = seen["log"]
+    assert isinstance(log, list)
+    run_s = _write_session_log(received, log)
+    assert seen["alarms"] == [] and seen["errors"] == []
+    states = seen["states"]
+    assert isinstance(states, list)
+    for state in ("Alarm", "Home", "Jog", "Run", "Hold", "Idle"):
+        assert state in states
+    lines = UNENDED_PROGRAM.count("\n") + 1  # and cncjs's %wait
+    assert seen["sender"] == {"total": lines, "sent": lines, "received": lines}
+    assert _near(seen["afterJog"], JOG_END), seen["afterJog"]
+    assert isinstance(seen["held"], dict)
+    assert _near(seen["stillHeld"], tuple(float(v) for v in seen["held"].values()))
+    assert _near(seen["final"], (0.0, 0.0, 1.0)), seen["final"]
+    words = [text for _, text in received]
+    assert "! (feed hold)" in words and "~ (cycle start)" in words
+    statistics = real.server.protocol.statistics
+    problems, deviation_mm = path_deviation(executed,
+                                            [(0.0, 0.0, 0.0), JOG_END, *SHORT_PROGRAM_PATH])
+    record("cncjs-simulated", statistics, path_problems=problems, machine="simulated",
+           path_deviation_mm=deviation_mm, run_s=run_s)
+    assert statistics.dropped_rx_bytes == 0
+    assert 0 < statistics.max_rx_bytes <= 128
+    assert problems == [], real.messages
+    assert not [m for m in real.messages if m.startswith("error")], real.messages
+
+
+def test_cncjs_web_page_homes_runs_a_program_and_its_dro_shows_the_end_on_the_simulated_machine(
+        cncjs: Cncjs, tmp_path: Path) -> None:
+    need(node_package("playwright-core") and Path(CHROMIUM).exists(),
+         "playwright-core (npm) with Chromium (Debian package chromium)")
+    program = cncjs.folder / "page.nc"
+    program.write_text(PAGE_PROGRAM)
+    screenshot = SCREENSHOT.with_name("cncjs-page-simulated.png")
+    screenshot.parent.mkdir(parents=True, exist_ok=True)
+    wanted = ["12.500", "7.250", "1.000"]
+    with served_real(tmp_path, link=str(cncjs.link)) as real:
+        started = time.monotonic()
+        seen = _node("cncjs_page.js", f"{cncjs.url}/", str(cncjs.link), str(program),
+                     str(screenshot), CHROMIUM,
+                     env={"DRO_EXPECTED": json.dumps(wanted), "HOMING": "1",
+                          "DRO_TOLERANCE_MM": str(AT_REST_MM)})
+        wait_for(real.idle, timeout_s=10, what="the machine at rest")
+        run_s = time.monotonic() - started
+        executed = real.executed_mm()
+    problems, deviation_mm = path_deviation(executed, [(0.0, 0.0, 0.0), *PAGE_PATH])
+    statistics = real.server.protocol.statistics
+    record("cncjs-page-simulated", statistics, path_problems=problems, machine="simulated",
+           path_deviation_mm=deviation_mm, run_s=run_s)
+    shown = seen["machinePosition"]
+    assert isinstance(shown, list)
+    assert all(abs(float(a) - float(b)) <= AT_REST_MM for a, b in zip(shown, wanted, strict=True)
+               ), shown
+    assert statistics.dropped_rx_bytes == 0
+    assert problems == [], real.messages

@@ -1,6 +1,8 @@
-"""grbl-streamer (PyPI) against the grbl server on a pseudo-terminal, with the fake machine:
-it connects, unlocks, homes, streams a program with character counting and reports it done;
-the receive buffer never overflows and the machine's path is the program's. A device fault
+"""grbl-streamer (PyPI) against the grbl server on a pseudo-terminal, with the fake machine
+and with a real machine session (the simulated machine in real time, as ``usbmotion grbl``
+serves it): it connects, unlocks, homes, streams a program with character counting and
+reports it done; the receive buffer never overflows and the machine's path is the
+program's (on the simulated machine: what its devices executed). A device fault
 mid-program reaches it as an alarm."""
 
 from __future__ import annotations
@@ -8,28 +10,43 @@ from __future__ import annotations
 import importlib.util
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import pytest
 from tests.grbl.conformance import path_problems
 from tests.grbl.fake_machine import FakeMachine
-from tests.senders.helpers import PROGRAM, PROGRAM_PATH, need, record, served_fake, wait_for
+from tests.senders.helpers import (
+    PROGRAM,
+    PROGRAM_PATH,
+    SHORT_PROGRAM,
+    SHORT_PROGRAM_PATH,
+    need,
+    path_deviation,
+    record,
+    served_fake,
+    served_real,
+    wait_for,
+)
 
 from usbmotion.grbl.interface import Fault
 from usbmotion.grbl.server import GrblServer
 
 pytestmark = pytest.mark.realtime
 
+AT_REST_MM = 0.02
+"""How far the simulated machine's encoders may stand from where it was sent, at rest."""
+
 
 class _Sender:
     """grbl-streamer connected to the server, its events recorded."""
 
-    def __init__(self, server: GrblServer, machine: FakeMachine) -> None:
+    def __init__(self, server: GrblServer, homed: Callable[[], bool]) -> None:
         from grbl_streamer import GrblStreamer  # type: ignore[import-untyped]  # noqa: PLC0415
 
-        self.server, self.machine = server, machine
+        self.server, self.homed = server, homed
         self.events: list[tuple[str, tuple[Any, ...]]] = []
         self._lock = threading.Lock()
         self._start_job = threading.Event()
@@ -50,6 +67,10 @@ class _Sender:
         with self._lock:
             return any(e == event and d[:len(data)] == data for e, d in self.events)
 
+    def events_since(self, index: int) -> list[tuple[str, tuple[Any, ...]]]:
+        with self._lock:
+            return self.events[index:]
+
     def data(self, *events: str) -> list[tuple[str, tuple[Any, ...]]]:
         with self._lock:
             return [(e, d) for e, d in self.events if e in events]
@@ -60,7 +81,7 @@ class _Sender:
         self.streamer.poll_start()
         self.streamer.killalarm()
         self.streamer.homing()
-        wait_for(lambda: self.machine.homings == 1, timeout_s=5, what="homing")
+        wait_for(self.homed, timeout_s=15, what="homing")
         time.sleep(0.3)  # the $H's ok taken before the job counts characters
 
     def run(self, program: str) -> None:
@@ -71,18 +92,24 @@ class _Sender:
 
 
 @contextmanager
-def _grbl_streamer() -> Iterator[_Sender]:
+def _connected(server: GrblServer, homed: Callable[[], bool]) -> Iterator[_Sender]:
+    sender = _Sender(server, homed)
+    try:
+        yield sender
+    finally:
+        sender.streamer.disconnect()
+
+
+@contextmanager
+def _grbl_streamer() -> Iterator[tuple[_Sender, FakeMachine]]:
     need(importlib.util.find_spec("grbl_streamer") is not None, "grbl-streamer (PyPI)")
-    with served_fake() as (server, machine):
-        sender = _Sender(server, machine)
-        try:
-            yield sender
-        finally:
-            sender.streamer.disconnect()
+    with served_fake() as (server, machine), _connected(
+            server, lambda: machine.homings == 1) as sender:
+        yield sender, machine
 
 
 def test_grbl_streamer_homes_and_streams_a_program() -> None:
-    with _grbl_streamer() as sender:
+    with _grbl_streamer() as (sender, machine):
         sender.connect_unlock_and_home()
         sender.run(PROGRAM)
         streamer = sender.streamer
@@ -92,21 +119,57 @@ def test_grbl_streamer_homes_and_streams_a_program() -> None:
                  what="the report of the machine at rest at the program's end")
     assert sender.data("on_error", "on_alarm") == []
     statistics = sender.server.protocol.statistics
-    problems = path_problems([done.target_mm for done in sender.machine.done], PROGRAM_PATH)
+    problems = path_problems([done.target_mm for done in machine.done], PROGRAM_PATH)
     record("grbl-streamer", statistics, path_problems=problems)
     assert statistics.dropped_rx_bytes == 0
     assert 0 < statistics.max_rx_bytes <= 128
-    assert problems == [], sender.machine.done
+    assert problems == [], machine.done
+
+
+def _at_rest_at(sender: _Sender, where: tuple[float, ...], *, after: int) -> bool:
+    """Whether a report since event ``after`` shows the machine Idle at ``where`` (its
+    encoders, within a few counts of where it was sent)."""
+    return any(event == "on_stateupdate" and data[0] == "Idle" and len(data[1]) == len(where)
+               and all(abs(a - b) <= AT_REST_MM for a, b in zip(data[1], where, strict=True))
+               for event, data in sender.events_since(after))
+
+
+def test_grbl_streamer_homes_and_streams_a_program_on_the_simulated_machine(
+        tmp_path: Path) -> None:
+    need(importlib.util.find_spec("grbl_streamer") is not None, "grbl-streamer (PyPI)")
+    with served_real(tmp_path) as real, _connected(real.server, real.idle) as sender:
+        sender.connect_unlock_and_home()
+        started = time.monotonic()
+        before = len(sender.events)
+        sender.run(SHORT_PROGRAM)
+        wait_for(lambda: any(e == "on_job_completed" for e, _ in sender.events_since(before))
+                 and sender.streamer.job_finished and sender.streamer.streaming_complete,
+                 timeout_s=40, what="the job's end",
+                 seen=lambda: sender.events_since(before)[-3:])
+        wait_for(lambda: _at_rest_at(sender, (0.0, 0.0, 1.0), after=before) and real.idle(),
+                 timeout_s=10, what="the report of the machine at rest at the program's end",
+                 seen=lambda: sender.data("on_stateupdate")[-3:])
+        run_s = time.monotonic() - started
+    executed = real.executed_mm()
+    assert sender.data("on_error", "on_alarm") == []
+    statistics = sender.server.protocol.statistics
+    problems, deviation_mm = path_deviation(executed, [(0.0, 0.0, 0.0), *SHORT_PROGRAM_PATH])
+    record("grbl-streamer-simulated", statistics, path_problems=problems,
+           machine="simulated", path_deviation_mm=deviation_mm, run_s=run_s)
+    assert statistics.dropped_rx_bytes == 0
+    assert 0 < statistics.max_rx_bytes <= 128
+    assert problems == [], real.messages
+    assert not [m for m in real.messages if m.startswith(("error", "stopped"))]
 
 
 def test_grbl_streamer_sees_a_device_fault_as_an_alarm() -> None:
-    with _grbl_streamer() as sender:
+    with _grbl_streamer() as (sender, machine):
         sender.connect_unlock_and_home()
-        sender.machine.fault_after_moves = (2, Fault(1, "following error 2.000 mm over"
-                                                     " 1.000 mm", axis="X"))
+        machine.fault_after_moves = (2, Fault(1, "following error 2.000 mm over"
+                                              " 1.000 mm", axis="X"))
         sender.run("G1 X5 F3000\nG1 Y5\nG1 X0\nG1 Y0\n")
         wait_for(lambda: sender.seen("on_alarm"), timeout_s=10, what="the alarm")
         wait_for(lambda: sender.streamer.cmode == "Alarm", timeout_s=5, what="the Alarm state")
     assert sender.data("on_alarm") == [("on_alarm", ("ALARM:1",))]
     assert sender.data("on_error") == []
-    assert [d.target_mm for d in sender.machine.done] == [(5.0, 0.0, 0.0), (5.0, 5.0, 0.0)]
+    assert [d.target_mm for d in machine.done] == [(5.0, 0.0, 0.0), (5.0, 5.0, 0.0)]
