@@ -78,10 +78,10 @@ async function main() {
     }
     check();
   });
-  socket.on('serialport:write', (data) => { note(`cncjs wrote ${JSON.stringify(data)}`); });
+  socket.on('serialport:write', (data) => { note(`wrote ${JSON.stringify(data)}`); });
   socket.on('serialport:read', (line) => {
     seen.reads.push(line);
-    note(`cncjs read ${JSON.stringify(line)}`);
+    note(`read ${JSON.stringify(line)}`);
     if (line.startsWith('ALARM:')) seen.alarms.push(line);
     if (line.startsWith('error:')) seen.errors.push(line);
     check();

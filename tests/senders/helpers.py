@@ -111,9 +111,11 @@ PATH_TOLERANCE_MM = 0.05
 point from the nearest executed point (the recorded positions are the devices' setpoints,
 exact to a count's rounding: 1 / 240 mm)."""
 START_MM = 3.0
-"""Where each simulated axis starts, above its switch: homing takes about 2 s, not 22 s."""
+"""Where each simulated axis starts, above its switch: homing (Z, then X and Y) takes
+about 6 s instead of 22 s."""
 WATCHDOG_MS = 1250
-"""The devices' watchdog: the front's idle reads (every 100 ms) must keep it fed."""
+"""The devices' watchdog, on as on a real machine. It counts the world's time, which
+passes only while the host waits on a device: at rest it cannot run out."""
 
 
 def fast_homing_machine(folder: Path) -> Path:
@@ -301,12 +303,13 @@ def wait_for(condition: object, *, timeout_s: float, what: str,
 
 def record(sender: str, statistics: Statistics, *, path_problems: list[str],
            machine: str = "fake", path_deviation_mm: float | None = None,
-           run_s: float | None = None) -> None:
+           run_s: float | None = None, run_from: str = "") -> None:
     """Record what the front measured while ``sender`` streamed to ``machine`` (``fake`` or
     ``simulated in real time``), in ``build/senders/SENDER.json``, and print it (seen with
     ``pytest -s``): the receive buffer's peak, the bytes dropped, the lines, whether the
     path equals the program's, and for the simulated machine the largest distance of an
-    executed point from the program's path and how long the run took."""
+    executed point from the program's path and how long the run took (``run_from``
+    says from what to what)."""
     measured: dict[str, object] = {
         "sender": sender, "machine": machine, "max_rx_bytes": statistics.max_rx_bytes,
         "rx_buffer_bytes": 128, "dropped_rx_bytes": statistics.dropped_rx_bytes,
@@ -316,6 +319,7 @@ def record(sender: str, statistics: Statistics, *, path_problems: list[str],
         measured["path_max_deviation_mm"] = round(path_deviation_mm, 5)
     if run_s is not None:
         measured["run_s"] = round(run_s, 2)
+        measured["run_from"] = run_from
     MEASUREMENTS.mkdir(parents=True, exist_ok=True)
     (MEASUREMENTS / f"{sender}.json").write_text(json.dumps(measured, indent=2) + "\n")
     extra = ""

@@ -183,8 +183,8 @@ def _near(shown: object, where: tuple[float, ...]) -> bool:
 def _write_session_log(received: list[tuple[float, str]], log: list[list[object]]) -> float:
     """Write what the front received and what cncjs reported, in time order, to
     :data:`SESSION_LOG`; the seconds from cncjs's gcode:start to its workflow's idle."""
-    lines = [(at, f"front received  {text}") for at, text in received]
-    lines += [(float(at) / 1000.0, f"cncjs           {text}") for at, text in log]  # type: ignore[arg-type]
+    lines = [(at, f"front  received {text}") for at, text in received]
+    lines += [(float(at) / 1000.0, f"cncjs  {text}") for at, text in log]  # type: ignore[arg-type]
     lines.sort(key=lambda entry: entry[0])
     origin = lines[0][0]
     SESSION_LOG.parent.mkdir(parents=True, exist_ok=True)
@@ -229,7 +229,8 @@ def test_cncjs_socket_api_homes_jogs_runs_holds_and_resumes_on_the_simulated_mac
     problems, deviation_mm = path_deviation(executed,
                                             [(0.0, 0.0, 0.0), JOG_END, *SHORT_PROGRAM_PATH])
     record("cncjs-simulated", statistics, path_problems=problems, machine="simulated",
-           path_deviation_mm=deviation_mm, run_s=run_s)
+           path_deviation_mm=deviation_mm, run_s=run_s,
+           run_from="cncjs's gcode:start to its workflow idle, the hold included")
     assert statistics.dropped_rx_bytes == 0
     assert 0 < statistics.max_rx_bytes <= 128
     assert problems == [], real.messages
@@ -257,7 +258,8 @@ def test_cncjs_web_page_homes_runs_a_program_and_its_dro_shows_the_end_on_the_si
     problems, deviation_mm = path_deviation(executed, [(0.0, 0.0, 0.0), *PAGE_PATH])
     statistics = real.server.protocol.statistics
     record("cncjs-page-simulated", statistics, path_problems=problems, machine="simulated",
-           path_deviation_mm=deviation_mm, run_s=run_s)
+           path_deviation_mm=deviation_mm, run_s=run_s,
+           run_from="the browser's start to the machine at rest, homing included")
     shown = seen["machinePosition"]
     assert isinstance(shown, list)
     assert all(abs(float(a) - float(b)) <= AT_REST_MM for a, b in zip(shown, wanted, strict=True)

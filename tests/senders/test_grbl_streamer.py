@@ -155,7 +155,8 @@ def test_grbl_streamer_homes_and_streams_a_program_on_the_simulated_machine(
     statistics = sender.server.protocol.statistics
     problems, deviation_mm = path_deviation(executed, [(0.0, 0.0, 0.0), *SHORT_PROGRAM_PATH])
     record("grbl-streamer-simulated", statistics, path_problems=problems,
-           machine="simulated", path_deviation_mm=deviation_mm, run_s=run_s)
+           machine="simulated", path_deviation_mm=deviation_mm, run_s=run_s,
+           run_from="the job's start to the report of the machine at rest at its end")
     assert statistics.dropped_rx_bytes == 0
     assert 0 < statistics.max_rx_bytes <= 128
     assert problems == [], real.messages
