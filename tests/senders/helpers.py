@@ -171,6 +171,7 @@ def served_real(folder: Path, **server_options: object) -> Iterator[RealMachine]
     with connect_session(config, world=world) as session:
         messages: list[str] = []
         operator = Operator(session, on_message=messages.append, file="<grbl>")
+        operator.on_idle = world.keep_pace
         front = SessionMachine(operator)
         stop = threading.Event()
         watcher: threading.Thread | None = None

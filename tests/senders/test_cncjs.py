@@ -50,16 +50,9 @@ JOG = "$J=G91 G21 X20 Y10 F1200"
 """The jog on the simulated machine (within its travel from home at 0): 1.1 s, so seen in
 cncjs's reports every 250 ms."""
 JOG_END = (20.0, 10.0, 0.0)
-UNLOCKED = "message"
-"""After $X, cncjs's session waits for grbl's unlock message, not for Idle: the front on a
-machine session stays in Alarm until the machine is homed (it refuses motion before)."""
 AT_REST_MM = 0.02
 """How far the simulated machine's encoders may stand from where it was sent, at rest."""
 SESSION_LOG = MEASUREMENTS / "cncjs-session.log"
-UNENDED_PROGRAM = SHORT_PROGRAM.removesuffix("M2\n")
-"""The program cncjs runs on the simulated machine: without its M2, after which the front
-refuses the line cncjs sends at every program's end (its %wait: G4 P0.5); see
-tests/senders/test_simulated_front.py."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -200,13 +193,13 @@ def _write_session_log(received: list[tuple[float, str]], log: list[list[object]
 
 def test_cncjs_socket_api_homes_jogs_runs_holds_and_resumes_on_the_simulated_machine(
         cncjs: Cncjs, tmp_path: Path) -> None:
-    assert UNENDED_PROGRAM != SHORT_PROGRAM
+    assert SHORT_PROGRAM.endswith("M2\n")
     program = cncjs.folder / "short.nc"
-    program.write_text(UNENDED_PROGRAM)
+    program.write_text(SHORT_PROGRAM)
     with served_real(tmp_path, link=str(cncjs.link)) as real:
         received = tap_received(real.server)
         seen = _node("cncjs_session.js", cncjs.url, str(cncjs.link), str(program),
-                     env={"JOG": JOG, "UNLOCKED": UNLOCKED})
+                     env={"JOG": JOG})
         wait_for(real.idle, timeout_s=10, what="the machine at rest")
         executed = real.executed_mm()
     log = seen["log"]
@@ -217,7 +210,7 @@ def test_cncjs_socket_api_homes_jogs_runs_holds_and_resumes_on_the_simulated_mac
     assert isinstance(states, list)
     for state in ("Alarm", "Home", "Jog", "Run", "Hold", "Idle"):
         assert state in states
-    lines = UNENDED_PROGRAM.count("\n") + 1  # and cncjs's %wait
+    lines = SHORT_PROGRAM.count("\n") + 1  # and cncjs's %wait
     assert seen["sender"] == {"total": lines, "sent": lines, "received": lines}
     assert _near(seen["afterJog"], JOG_END), seen["afterJog"]
     assert isinstance(seen["held"], dict)

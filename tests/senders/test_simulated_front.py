@@ -1,6 +1,7 @@
 """What a sender meets on the simulated machine's grbl front, written to its terminal byte by
-byte where grbl 1.1h answers otherwise: these are the exchanges behind the workarounds in
-the cncjs tests (they wait for the unlock message, not Idle, and stream without M2)."""
+byte, where a front on a machine session could answer otherwise than grbl 1.1h: ``$X``
+unlocks an unhomed machine to Idle, and lines after a program's M2 are taken (cncjs sends
+its %wait, ``G4 P0.5``, after every program)."""
 
 from __future__ import annotations
 
@@ -55,9 +56,6 @@ def _terminal(folder: Path) -> Iterator[_Terminal]:
             terminal.close()
 
 
-@pytest.mark.xfail(strict=True, reason="the front on a machine session says"
-                   " [MSG:Caution: Unlocked] after $X but stays in Alarm (and answers a"
-                   " G-code line error:9) until the machine is homed; grbl 1.1h is Idle")
 def test_unlock_before_homing_leaves_alarm(tmp_path: Path) -> None:
     with _terminal(tmp_path) as terminal:
         assert terminal.exchange(b"?", until=b">\r\n").startswith(b"<Alarm|")
@@ -65,10 +63,6 @@ def test_unlock_before_homing_leaves_alarm(tmp_path: Path) -> None:
         assert terminal.exchange(b"?", until=b">\r\n").startswith(b"<Idle|")
 
 
-@pytest.mark.xfail(strict=True, reason="after a program's M2 the front answers every later"
-                   " line error:1 ('the program ended at line N (M2); no line is taken after"
-                   " it'), at rest and after Ctrl-X too; grbl 1.1h takes them (cncjs sends"
-                   " its %wait, G4 P0.5, after each program)")
 def test_lines_after_m2_are_taken(tmp_path: Path) -> None:
     with _terminal(tmp_path) as terminal:
         assert terminal.exchange(b"$H\n", until=b"ok\r\n") == b"ok\r\n"

@@ -52,9 +52,10 @@ def grbl(
     if link is not None and tcp is not None:
         fail("grbl", "--link names a pseudo-terminal's link: it does not go with --tcp",
              EXIT_BAD_INPUT)
+    world = SimWorld(realtime=True) if config.is_simulated else None
     try:
-        session = (connect_session(config, world=SimWorld(realtime=True))
-                   if config.is_simulated else MachineSession.connect(config))
+        session = (connect_session(config, world=world) if world is not None
+                   else MachineSession.connect(config))
     except UsbMotionError as error:
         fail("grbl", str(error), EXIT_FAULT)
     status = 0
@@ -63,6 +64,8 @@ def grbl(
             typer.echo(f"notice: {notice}", err=True)
         operator = Operator(session, on_message=lambda text: typer.echo(text, err=True),
                             file="<grbl>")
+        if world is not None:
+            operator.on_idle = world.keep_pace
         front = SessionMachine(operator)
         served: GrblMachine = front
         front.start()

@@ -121,7 +121,7 @@ class SessionMachine:
             return MotionState.HOLD_COMPLETE if session.held else MotionState.HOLD_IN_PROGRESS
         if self.operator.busy:
             return MotionState.RUN
-        if not session.is_homed:
+        if not session.is_homed and not self.operator.unlocked:
             return MotionState.ALARM
         return MotionState.IDLE
 
@@ -259,6 +259,7 @@ class SessionMachine:
 
     def unlock(self) -> None:
         self._fault = None
+        self.operator.unlocked = True
         if self.session.state is MachineState.ALARM and not self.operator.busy:
             self.operator.do(self.session.reset)
 

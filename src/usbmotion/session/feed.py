@@ -99,7 +99,8 @@ class ProgramFeed:
 
     def add(self, text: str, *, line: int | None = None) -> bool:
         """Interpret one line and take its moves; False when the window is full (nothing
-        was done: try again once the machine has moved) or the feed is closed.
+        was done: try again once the machine has moved) or the feed is closed (or its
+        program ended: the line belongs to the next one, on a restarted feed).
 
         Raises:
             GCodeError: the line is invalid or comes after the program's end.
@@ -107,7 +108,7 @@ class ProgramFeed:
                 cannot be planned. A line that fails adds nothing.
         """
         with self._lock:
-            if self._closed:
+            if self._closed or self._stream.ended_by:
                 return False
             if len(self._stream.moves) - self._executed_moves >= self.window:
                 return False
@@ -170,9 +171,9 @@ class ProgramFeed:
 
     @property
     def closed(self) -> bool:
-        """True once the feed takes no more lines."""
+        """True once the feed takes no more lines (closed, or a line ended the program)."""
         with self._lock:
-            return self._closed
+            return self._closed or bool(self._stream.ended_by)
 
     @property
     def blocks_free(self) -> int:

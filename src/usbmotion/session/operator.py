@@ -110,6 +110,12 @@ class Operator:
         self._busy = threading.Event()
         self._run_queued = False
         self._lock = threading.Lock()
+        self.on_idle: Callable[[], None] | None = None
+        """Called before each idle read, holding the links (a simulated machine in real
+        time keeps its clock in step with the wall clock there)."""
+        self.unlocked = False
+        """True once the operator unlocked an unhomed machine (grbl's ``$X``): lines then
+        run in the devices' own counts, without soft limits, until it is homed."""
         self._links = threading.Lock()
         """Held by whoever talks to the devices: the worker, or an idle keep-alive."""
         self._idle_position: dict[str, float] = session.positions_mm()
@@ -146,10 +152,13 @@ class Operator:
             if session.state is MachineState.HOMING:
                 raise MachineStateError("the machine is homing", state=session.state.value)
             feed = self.feed
+            if feed is not None and feed.homed != session.is_homed and not self.busy:
+                feed = self.feed = None
             if feed is None:
                 if self.busy:
                     return False
-                feed = self.feed = session.open_feed(file=self.file)
+                feed = self.feed = session.open_feed(
+                    file=self.file, unhomed=self.unlocked and not session.is_homed)
             elif feed.closed:
                 if self.busy:
                     return False
@@ -243,6 +252,8 @@ class Operator:
             return
         try:
             if not self.busy:
+                if self.on_idle is not None:
+                    self.on_idle()
                 self._read_idle()
         finally:
             self._links.release()

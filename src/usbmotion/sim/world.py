@@ -270,6 +270,13 @@ class SimWorld:
             self._catch_up(member, target_us)
         self._time_us = target_us
 
+    def keep_pace(self) -> None:
+        """A real-time world: move its clock up to the wall clock now (a host that is idle
+        calls this now and then, so the devices live in real time between its commands;
+        a virtual-time world does nothing)."""
+        if self.realtime:
+            self.advance_to(int((time.monotonic() - self._wall_origin) * 1e6))
+
     def advance(self, duration_us: int) -> None:
         """Move the world's clock forward by ``duration_us``."""
         self.advance_to(self._time_us + duration_us)
