@@ -85,6 +85,12 @@ def _fed(lines: Iterator[str], file: str = "<stream>") -> Callable[[MachineSessi
 
 
 @pytest.fixture(scope="module")
+def short_reference(config: MachineConfig) -> Positions:
+    """What the devices executed for SHORT, planned whole."""
+    return _record(config, _whole(text=SHORT + "M2\n"))[1]
+
+
+@pytest.fixture(scope="module")
 def demo_reference(config: MachineConfig) -> tuple[Positions, RunReport]:
     _, positions, report = _record(config, _whole(DEMO))
     return positions, report
@@ -199,9 +205,10 @@ def test_a_feed_needs_a_homed_machine(config: MachineConfig) -> None:
 
 
 @pytest.mark.parametrize("mode", ["file", "feed"])
-def test_m0_pauses_until_cycle_start_on_the_same_path(config: MachineConfig, mode: str) -> None:
+def test_m0_pauses_until_cycle_start_on_the_same_path(config: MachineConfig, mode: str,
+                                                     short_reference: Positions) -> None:
     paused_text = SHORT.replace("G1 X60 Y50\n", "G1 X60 Y50\nM0\n") + "M2\n"
-    _, reference, _ = _record(config, _whole(text=SHORT + "M2\n"))
+    reference = short_reference
     seen: list[tuple[MachineState, str]] = []
 
     def act(session: MachineSession, tick: int) -> None:

@@ -123,6 +123,13 @@ def _node(script: str, *args: str, env: dict[str, str] | None = None) -> dict[st
     return outcome
 
 
+ON_THE_FAKE = pytest.mark.skipif(
+    os.environ.get("USBMOTION_FAKE_SENDERS") != "1",
+    reason="cncjs on the fake machine: USBMOTION_FAKE_SENDERS=1 runs it (the tests on the"
+    " simulated machine session below cover the same, in the suite's time budget)")
+
+
+@ON_THE_FAKE
 def test_cncjs_socket_api_homes_jogs_runs_holds_and_resumes(cncjs: Cncjs) -> None:
     program = cncjs.folder / "square.nc"
     program.write_text(PROGRAM)
@@ -148,6 +155,7 @@ def test_cncjs_socket_api_homes_jogs_runs_holds_and_resumes(cncjs: Cncjs) -> Non
     assert problems == []
 
 
+@ON_THE_FAKE
 def test_cncjs_web_page_runs_a_program_and_its_dro_shows_the_end(cncjs: Cncjs) -> None:
     need(node_package("playwright-core") and Path(CHROMIUM).exists(),
          "playwright-core (npm) with Chromium (Debian package chromium)")
