@@ -1,6 +1,7 @@
 """How the ``usbmotion`` command's help reads: flags without a ``<bool>`` placeholder,
 arguments and values named in capitals (``PROGRAM``, ``PATH``), never a type in angle
-brackets.
+brackets, and each paragraph of a docstring flowed to the terminal's width (its source's
+line breaks are not kept; an indented line or a list item keeps its own).
 
 :class:`UsbMotionTyper` is the ``typer.Typer`` of the command and its groups: every
 command registered on it gets these rules, so a new sub-command reads like the others
@@ -9,6 +10,7 @@ without repeating them.
 
 from __future__ import annotations
 
+import inspect
 import re
 from collections.abc import Callable
 from typing import Any
@@ -50,8 +52,28 @@ def _usage(pieces: list[str]) -> list[str]:
     return [re.sub(r"^\{(.*)\}((?:\.\.\.)?)$", r"\1\2", piece) for piece in pieces]
 
 
+def reflow(text: str) -> str:
+    """``text`` with each paragraph on one line: lines joined by spaces, except those that
+    start a list item (``- ``) or are indented, which stay on lines of their own."""
+    paragraphs: list[str] = []
+    for paragraph in inspect.cleandoc(text).split("\n\n"):
+        lines: list[str] = []
+        for line in paragraph.splitlines():
+            if lines and not line.startswith((" ", "- ")):
+                lines[-1] = f"{lines[-1]} {line.strip()}"
+            else:
+                lines.append(line)
+        paragraphs.append("\n".join(lines))
+    return "\n\n".join(paragraphs)
+
+
 class UsbMotionCommand(TyperCommand):
     """A command whose help follows the module's rules."""
+
+    def __init__(self, *args: Any, **settings: Any) -> None:
+        super().__init__(*args, **settings)
+        if self.help:
+            self.help = reflow(self.help)
 
     def get_params(self, ctx: Any) -> list[Any]:
         return _clean(super().get_params(ctx))
