@@ -145,7 +145,7 @@ def test_stop_while_running_decelerates_along_the_path(config: MachineConfig,
         assert all(s.fault == FaultCode.NONE for s in again.machine.status().values())
 
 
-@pytest.mark.parametrize(("feed", "rapid"), [(50, 100), (200, 100), (10, 100), (100, 25)])
+@pytest.mark.parametrize(("feed", "rapid"), [(50, 100), (200, 100), (100, 25)])
 def test_an_override_keeps_the_path_and_the_limits(config: MachineConfig, reference: Positions,
                                                   feed: int, rapid: int) -> None:
     def act(session: MachineSession, tick: int) -> None:

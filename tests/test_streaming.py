@@ -21,7 +21,6 @@ import usbmotion.session.feed as feed_module
 from usbmotion.cli.run import default_machine
 from usbmotion.errors import GCodeError, MachineStateError, SoftLimitError
 from usbmotion.host.config import MachineConfig, load_config
-from usbmotion.motion.gcode import Pauses
 from usbmotion.session import MachineSession, MachineState
 from usbmotion.session.feed import ProgramFeed
 from usbmotion.session.operator import Operator
@@ -204,9 +203,10 @@ def test_a_feed_needs_a_homed_machine(config: MachineConfig) -> None:
         session.open_feed()
 
 
-@pytest.mark.parametrize("mode", ["file", "feed"])
-def test_m0_pauses_until_cycle_start_on_the_same_path(config: MachineConfig, mode: str,
+def test_m0_pauses_until_cycle_start_on_the_same_path(config: MachineConfig,
                                                      short_reference: Positions) -> None:
+    """In a fed program; a file's pauses are the same pauses (the M1 and M6 test reads
+    one)."""
     paused_text = SHORT.replace("G1 X60 Y50\n", "G1 X60 Y50\nM0\n") + "M2\n"
     reference = short_reference
     seen: list[tuple[MachineState, str]] = []
@@ -219,8 +219,7 @@ def test_m0_pauses_until_cycle_start_on_the_same_path(config: MachineConfig, mod
             session.request_resume()
 
     at = [0]
-    go = (_whole(text=paused_text, pauses=Pauses.PROGRAM) if mode == "file"
-          else _fed(iter(paused_text.splitlines())))
+    go = _fed(iter(paused_text.splitlines()))
     session, positions, report = _record(config, go, act)
     assert seen == [(MachineState.HOLD, "M0")]
     assert report.completed and session.paused is None
