@@ -4,16 +4,49 @@ jump, the same path as another run (see :mod:`tests.test_live_control` for the t
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import numpy.typing as npt
 
 from usbmotion.host.config import MachineConfig
+from usbmotion.session import MachineSession
+from usbmotion.session.report import RunReport
+from usbmotion.sim.machine import connect_session
+from usbmotion.sim.recording import ExecutedRecorder
 
 AXES = ["X", "Y", "Z"]
 VELOCITY_WINDOW = 10
 ACCEL_WINDOW = 20
 PATH_TOLERANCE_COUNTS = 1.5
 Positions = npt.NDArray[np.int64]
+TickAction = Callable[[MachineSession, int], None]
+
+
+def record(config: MachineConfig, go: Callable[[MachineSession], RunReport],
+           act: TickAction | None = None, *, live: bool = True,
+           ) -> tuple[MachineSession, Positions, RunReport]:
+    """Home a simulated machine, then ``go(session)`` with ``act(session, tick)`` called on
+    every servo tick: the session (closed; ``final_state`` is its state after ``go``), what
+    the devices executed meanwhile, and the report. ``live``: the session's live control
+    (requests looked at every 10 ms, else 50 ms)."""
+    with connect_session(config) as session:
+        session.live_control = live
+        session.home()
+        world = session.machine.world
+        assert world is not None
+        count = [0]
+
+        def on_tick(_: int) -> None:
+            count[0] += 1
+            if act is not None:
+                act(session, count[0])
+
+        with ExecutedRecorder(world, AXES, on_tick=on_tick) as recorder:
+            report = go(session)
+        session.final_state = session.state  # type: ignore[attr-defined]
+        session.shutdown()
+        return session, recorder.positions(), report
 
 
 def peaks(positions: Positions) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:

@@ -18,13 +18,13 @@ from pathlib import Path
 
 import pytest
 from tests.executed import (
-    AXES,
     PATH_TOLERANCE_COUNTS,
     Positions,
     at_rest_spans,
     check_limits,
     check_same_path,
     distance_to_path,
+    record,
 )
 
 import usbmotion
@@ -34,7 +34,6 @@ from usbmotion.host.config import MachineConfig, load_config
 from usbmotion.protocol import FaultCode
 from usbmotion.session import MachineSession, MachineState, StopReason
 from usbmotion.sim.machine import connect_session
-from usbmotion.sim.recording import ExecutedRecorder
 
 DEMO = Path(usbmotion.__file__).parent / "data" / "demos" / "1-rounded-square.ngc"
 
@@ -50,24 +49,10 @@ def _run(config: MachineConfig,
     """Home, run the demo with ``act(session, tick)`` called on every servo tick, and
     return the session (closed), what the devices executed during the run, and the report.
     ``live``: the session's live control (requests looked at every 10 ms, else 50 ms)."""
-    with connect_session(config) as session:
-        session.live_control = live
-        session.home()
-        world = session.machine.world
-        assert world is not None
-        count = [0]
-
-        def on_tick(_: int) -> None:
-            count[0] += 1
-            if act is not None:
-                act(session, count[0])
-
-        with ExecutedRecorder(world, AXES, on_tick=on_tick) as recorder:
-            report, _ = session.run(session.prepare(DEMO))
-        session.final_state = session.state  # type: ignore[attr-defined]
-        session.report = report  # type: ignore[attr-defined]
-        session.shutdown()
-        return session, recorder.positions(), report
+    session, positions, report = record(
+        config, lambda s: s.run(s.prepare(DEMO))[0], act, live=live)
+    session.report = report  # type: ignore[attr-defined]
+    return session, positions, report
 
 
 @pytest.fixture(scope="module")

@@ -10,10 +10,12 @@ import pytest
 from tests.executed import (
     AXES,
     Positions,
+    TickAction,
     at_rest_spans,
     check_limits,
     check_same_path,
     distance_to_path,
+    record,
 )
 
 import usbmotion
@@ -30,7 +32,6 @@ from usbmotion.sim.machine import connect_session
 from usbmotion.sim.recording import ExecutedRecorder
 
 DEMO = Path(usbmotion.__file__).parent / "data" / "demos" / "1-rounded-square.ngc"
-TickAction = Callable[[MachineSession, int], None]
 SHORT = """G21 G90 G17
 G0 X10 Y10 Z5
 G1 X60 Y10 F3000
@@ -48,25 +49,7 @@ def config() -> MachineConfig:
 
 def _record(config: MachineConfig, go: Callable[[MachineSession], RunReport],
             act: TickAction | None = None) -> tuple[MachineSession, Positions, RunReport]:
-    """Home, then ``go(session)`` with ``act(session, tick)`` on every servo tick; the
-    session (closed), what the devices executed, and the report."""
-    with connect_session(config) as session:
-        session.live_control = True
-        session.home()
-        world = session.machine.world
-        assert world is not None
-        count = [0]
-
-        def on_tick(_: int) -> None:
-            count[0] += 1
-            if act is not None:
-                act(session, count[0])
-
-        with ExecutedRecorder(world, AXES, on_tick=on_tick) as recorder:
-            report = go(session)
-        session.final_state = session.state  # type: ignore[attr-defined]
-        session.shutdown()
-        return session, recorder.positions(), report
+    return record(config, go, act)
 
 
 def _whole(path: Path | None = None, text: str | None = None, **kwargs: object,
