@@ -281,8 +281,22 @@ class SessionMachine:
                                homing_pull_off_mm=first.homing.pull_off_mm)
 
     def set_setting(self, number: int, value: float) -> Rejected | None:
+        current = self._setting_values().get(number)
+        if current is not None and math.isclose(value, current, rel_tol=1e-6, abs_tol=5e-4):
+            return None
         return Rejected(3, f"${number} is set in the machine file {self.config.path}:"
                         " change it there and restart usbmotion grbl")
+
+    def _setting_values(self) -> dict[int, float]:
+        """The mapped settings' values as ``$$`` shows them (a sender restoring a backup
+        writes them back: that is no change)."""
+        settings = self.settings()
+        values: dict[int, float] = {11: settings.junction_deviation_mm,
+                                    12: settings.arc_tolerance_mm}
+        for index, axis in enumerate(settings.axes):
+            values |= {100 + index: axis.counts_per_mm, 110 + index: axis.max_rate_mm_min,
+                       120 + index: axis.accel_mm_s2, 130 + index: axis.max_travel_mm}
+        return values
 
     def work_offsets(self) -> WorkOffsets:
         offsets = self.session.work_offsets()
