@@ -3,7 +3,9 @@ virtual time, checked on what the devices executed (tests.executed's invariants)
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -330,3 +332,100 @@ def test_the_operator_runs_mdi_lines_with_their_modal_state(config: MachineConfi
                                             pytest.approx(2.0, abs=0.01))
         assert not [m for m in messages if m.startswith("error")]
         session.shutdown()
+
+
+@contextmanager
+def _operated(config: MachineConfig) -> Iterator[tuple[MachineSession, Operator,
+                                                       ExecutedRecorder, list[int]]]:
+    """A homed machine, its operator and a recorder of what the devices execute; the list
+    counts the runs the operator starts."""
+    with connect_session(config) as session:
+        session.home()
+        world = session.machine.world
+        assert world is not None
+        runs: list[int] = []
+        run_feed = session.run_feed
+
+        def counted(*args: object, **kwargs: object) -> object:
+            runs.append(1)
+            return run_feed(*args, **kwargs)  # type: ignore[arg-type]
+
+        session.run_feed = counted  # type: ignore[method-assign]
+        with Operator(session) as operator, ExecutedRecorder(world, AXES) as recorder:
+            yield session, operator, recorder, runs
+        session.shutdown()
+
+
+def _counts(config: MachineConfig, *mm: float) -> list[int]:
+    return [round(value * config.axis(axis).counts_per_mm) for axis, value in zip(
+        AXES, mm, strict=True)]
+
+
+def test_a_hold_asked_while_idle_holds_the_next_lines_until_cycle_start(
+        config: MachineConfig) -> None:
+    """grbl's latch: ``!`` at rest shows Hold, lines written then wait (nothing moves, the
+    window fills as it would), and ``~`` runs them as one program."""
+    with _operated(config) as (session, operator, recorder, runs):
+        operator.hold()
+        assert operator.hold_pending and operator.status().state == "Hold"
+        for line in ("G21 G90", "G0 X10 Y10", "G1 X30 F3000", "G1 Y20"):
+            assert operator.submit(line)
+        time.sleep(0.3)
+        assert not operator.busy and runs == [], "nothing runs while held"
+        assert operator.status().state == "Hold"
+        moved = recorder.positions()
+        assert len(moved) == 0 or (moved == moved[0]).all()
+        operator.resume()
+        assert operator.wait_idle(60)
+        assert not operator.hold_pending and operator.status().state == "Idle"
+        assert runs == [1] and operator.last_report is not None
+        assert operator.last_report.completed
+        assert recorder.positions()[-1].tolist() == _counts(config, 30, 20, 0)
+        assert session.state is MachineState.IDLE
+
+
+def test_a_hold_between_two_runs_holds_the_second(config: MachineConfig) -> None:
+    """A program that played out its lines has ended its run; a ``!`` before the next line
+    comes is kept, and that line waits for ``~``."""
+    with _operated(config) as (_, operator, recorder, runs):
+        assert operator.submit("G0 X5")
+        assert operator.wait_idle(60) and runs == [1]
+        operator.hold()
+        assert operator.submit("G0 X15")
+        time.sleep(0.2)
+        assert runs == [1] and recorder.positions()[-1].tolist() == _counts(config, 5, 0, 0)
+        operator.resume()
+        assert operator.wait_idle(60) and runs == [1, 1]
+        assert recorder.positions()[-1].tolist() == _counts(config, 15, 0, 0)
+
+
+def test_a_reset_while_held_drops_the_lines_that_waited(config: MachineConfig) -> None:
+    with _operated(config) as (_, operator, recorder, runs):
+        operator.hold()
+        assert operator.submit("G0 X10")
+        operator.drop_held()
+        assert not operator.hold_pending and operator.status().state == "Idle"
+        operator.resume()
+        assert operator.submit("G0 Y4")
+        assert operator.wait_idle(60) and runs == [1]
+        assert recorder.positions()[-1].tolist() == _counts(config, 0, 4, 0)
+
+
+def test_a_run_waits_for_lines_its_front_says_are_coming(config: MachineConfig) -> None:
+    """While the front says lines are on their way (a sender's receive buffer), a run that
+    played out what it has stays, at rest, and takes them: one run, not one per gap."""
+    with _operated(config) as (_, operator, recorder, runs):
+        coming = [True]
+        operator.lines_waiting = lambda: coming[0]
+        assert operator.submit("G0 X5")
+        deadline = time.monotonic() + 30
+        while recorder.positions()[-1:].tolist() != [_counts(config, 5, 0, 0)]:
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        time.sleep(0.1)
+        assert operator.busy and runs == [1], "the run waits"
+        assert operator.submit("G0 X12")
+        coming[0] = False
+        assert operator.wait_idle(60) and runs == [1]
+        assert operator.last_report is not None and operator.last_report.completed
+        assert recorder.positions()[-1].tolist() == _counts(config, 12, 0, 0)

@@ -129,6 +129,8 @@ class FakeMachine:
         """The axis letters whose limit switch reads triggered."""
         self.calls: list[str] = []
         """The control calls received, in order (feed_hold, cycle_start, soft_reset...)."""
+        self.lines_waiting: Callable[[], bool] = lambda: False
+        """The front's question (attach_front): lines on their way?"""
 
     # ---- time
 
@@ -304,6 +306,9 @@ class FakeMachine:
     def planner_blocks_free(self) -> int:
         self._advance()
         return PLANNER_BLOCKS - len(self._queue)
+
+    def attach_front(self, lines_waiting: Callable[[], bool]) -> None:
+        self.lines_waiting = lines_waiting
 
     def feed_hold(self) -> None:
         self._advance()

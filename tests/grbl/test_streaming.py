@@ -156,3 +156,27 @@ def test_a_broken_front_fails_its_exchange(broken: type[GrblProtocol], name: str
     exchange = next(e for e in EXCHANGES if e.name == name)
     assert replay(exchange) == []
     assert replay(exchange, front=lambda bench: broken(bench.machine, bench.output.extend))
+
+
+def test_the_front_says_when_lines_are_on_their_way_to_the_machine() -> None:
+    """What the machine asks before a streamed run that played out its lines ends: a whole
+    line in the buffer, or one waiting for the planner, is on its way; half a line, or a
+    line that waits for the motion to end (G4), is not."""
+    bench = Bench.make().unlocked()
+    waiting = bench.machine.lines_waiting
+    assert waiting == bench.front.lines_waiting and not waiting()
+    bench.front.receive(b"G1X1F600")
+    assert not waiting(), "half a line"
+    bench.front.receive(b"\n")
+    assert waiting()
+    bench.run()
+    assert not waiting(), "taken by the planner"
+    bench.front.receive(b"G4P1\nG1X2\n")
+    bench.run()
+    assert not waiting(), "G4 waits for the motion: the run must end for it"
+    bench.run_until_idle()
+    bench.front.receive(b"".join(b"X%d\n" % x for x in range(3, 40)))
+    bench.run()
+    assert waiting(), "lines wait for room in the planner"
+    bench.run_until_idle()
+    assert not waiting()

@@ -9,12 +9,12 @@ import json
 import math
 import os
 import shutil
-import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -144,6 +144,8 @@ class RealMachine:
     messages: list[str] = field(default_factory=list)
     """What the operator said (runs' ends, pauses, errors)."""
     recorder: ExecutedRecorder | None = None
+    homed_at: int | None = None
+    """The recorder's tick at which the first homing ended."""
 
     @property
     def counts_per_mm(self) -> float:
@@ -155,8 +157,10 @@ class RealMachine:
 
     def executed_mm(self) -> npt.NDArray[np.float64]:
         """The devices' setpoints at every servo tick since the homing ended, mm."""
-        assert self.recorder is not None, "the machine was never homed"
-        positions: npt.NDArray[np.float64] = self.recorder.positions() / self.counts_per_mm
+        assert self.recorder is not None and self.homed_at is not None, \
+            "the machine was never homed"
+        since = self.recorder.positions()[self.homed_at:]
+        positions: npt.NDArray[np.float64] = since / self.counts_per_mm
         return positions
 
 
@@ -173,35 +177,29 @@ def served_real(folder: Path, **server_options: object) -> Iterator[RealMachine]
         operator = Operator(session, on_message=messages.append, file="<grbl>")
         operator.on_idle = world.keep_pace
         front = SessionMachine(operator)
-        stop = threading.Event()
-        watcher: threading.Thread | None = None
         machine: RealMachine | None = None
+        recorder = ExecutedRecorder(world, AXES)
+        home = session.home
+
+        def home_and_mark(*args: Any, **kwargs: Any) -> float:
+            # On the operator's worker, before the world runs on: the mark is exact.
+            seconds = home(*args, **kwargs)
+            if machine is not None and machine.homed_at is None:
+                machine.homed_at = min(len(values) for values in recorder.desired.values())
+            return seconds
+
+        session.home = home_and_mark  # type: ignore[method-assign]
         try:
             front.start()
             with GrblServer(front, **server_options) as server:  # type: ignore[arg-type]
-                machine = RealMachine(server, front, operator, session, messages)
-                real = machine
-
-                def record_once_homed() -> None:
-                    while not stop.wait(0.002):
-                        if real.idle():
-                            real.recorder = ExecutedRecorder(world, AXES)
-                            return
-
-                watcher = threading.Thread(target=record_once_homed,
-                                           name="senders-record-once-homed")
-                watcher.start()
+                machine = RealMachine(server, front, operator, session, messages, recorder)
                 server.start()
                 yield machine
                 assert server.error is None
         finally:
-            stop.set()
-            if watcher is not None:
-                watcher.join()
             front.close()
             operator.close()
-            if machine is not None and machine.recorder is not None:
-                machine.recorder.close()
+            recorder.close()
             session.shutdown()
 
 

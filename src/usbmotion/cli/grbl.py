@@ -35,6 +35,11 @@ def grbl(
     The built-in simulated machine runs in real time. SIGTERM or Ctrl-C brings every axis
     to rest and leaves.
 
+    $N=value changes the settings that map onto the machine file (counts per mm as steps
+    per mm, max rate, acceleration, travel, homing, junction deviation, arc tolerance),
+    checked as the file is when it loads (the motors' reach); they are written to the
+    file given with --machine, and hold for the session only on the built-in machine.
+
     Exit status: 0 served until a signal; 1 the machine could not be connected; 2 a bad
     option or machine file.
     """
@@ -66,7 +71,7 @@ def grbl(
                             file="<grbl>")
         if world is not None:
             operator.on_idle = world.keep_pace
-        front = SessionMachine(operator)
+        front = SessionMachine(operator, keep_settings=machine is not None)
         served: GrblMachine = front
         front.start()
         try:

@@ -21,6 +21,7 @@ from usbmotion.grbl.interface import (
     MotionState,
     Rejected,
     SubmitResult,
+    Taken,
     WorkOffsets,
 )
 from usbmotion.grbl.protocol import GrblProtocol
@@ -38,5 +39,6 @@ __all__ = [
     "MotionState",
     "Rejected",
     "SubmitResult",
+    "Taken",
     "WorkOffsets",
 ]

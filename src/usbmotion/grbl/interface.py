@@ -15,7 +15,7 @@ wait for motion): the front polls.
 from __future__ import annotations
 
 import enum
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
@@ -61,6 +61,14 @@ class Rejected:
 
 
 SubmitResult = Admission | Rejected
+
+
+@dataclass(frozen=True, slots=True)
+class Taken:
+    """A setting the machine took, with what the sender's operator should know of it (a
+    ``[MSG:...]`` line before the ``ok``)."""
+
+    message: str
 
 
 @dataclass(frozen=True, slots=True)
@@ -230,6 +238,12 @@ class GrblMachine(Protocol):
         """Decelerate to a hold along the path (also when idle: the next motion waits)."""
         ...
 
+    def attach_front(self, lines_waiting: Callable[[], bool]) -> None:
+        """The front, once, at its start: ``lines_waiting()`` says (at once, from any
+        thread) whether lines it is about to submit are in its receive buffer, so a streamed
+        program that has played out what it was given need not end while more is coming."""
+        ...
+
     def cycle_start(self) -> None:
         """Resume from a hold."""
         ...
@@ -267,8 +281,9 @@ class GrblMachine(Protocol):
         """The settings that map onto the machine."""
         ...
 
-    def set_setting(self, number: int, value: float) -> Rejected | None:
-        """Change one mapped setting (``$N=value``): its error, or None."""
+    def set_setting(self, number: int, value: float) -> Rejected | Taken | None:
+        """Change one mapped setting (``$N=value``): its error, or None (or a note) when
+        it was taken."""
         ...
 
     def work_offsets(self) -> WorkOffsets:

@@ -173,6 +173,7 @@ class GrblProtocol:
         self._wco_counter = self._ovr_counter = 0
         self._last_wco: tuple[float, ...] | None = None
         self.statistics = Statistics()
+        machine.attach_front(self.lines_waiting)
 
     # ---- output
 
@@ -266,6 +267,18 @@ class GrblProtocol:
                 stats.max_rx_bytes = max(stats.max_rx_bytes, len(self._rx))
             else:
                 stats.dropped_rx_bytes += 1
+
+    def lines_waiting(self) -> bool:
+        """True when the receive buffer holds a whole line the next poll hands to the
+        machine without waiting for its motion to end, or a line waits for room in the
+        planner. Safe from another thread (it only reads)."""
+        if self._sleeping or self._critical or self._check_mode:
+            return False
+        waiting = self._waiting
+        if waiting is not None:
+            return isinstance(waiting, _Resubmit)
+        rx = self._rx
+        return b"\n" in rx or b"\r" in rx
 
     @property
     def rx_bytes_free(self) -> int:
@@ -697,10 +710,12 @@ class GrblProtocol:
             if number == 20 and value and not self.machine.settings().homing:
                 self._error(GrblErrorCode.SOFT_LIMIT_ERROR)
                 return
-            rejection = self.machine.set_setting(number, value)
-            if rejection is None:
-                self._ok()
+            result = self.machine.set_setting(number, value)
+            if isinstance(result, Rejected):
+                self._rejected(result)
             else:
-                self._rejected(rejection)
+                if result is not None:
+                    self._line(message(result.message))
+                self._ok()
         else:
             self._error(GrblErrorCode.INVALID_STATEMENT)

@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable
 
 from usbmotion.errors import (
+    ConfigError,
     GCodeError,
     MachineStateError,
     PlanningError,
@@ -31,8 +33,11 @@ from usbmotion.grbl.interface import (
     MotionState,
     Rejected,
     SubmitResult,
+    Taken,
     WorkOffsets,
 )
+from usbmotion.grbl.reports import machine_setting_values
+from usbmotion.host.config_file import Key, Value, changed_config, write_config_text
 from usbmotion.motion.gcode import GCodeStream
 from usbmotion.motion.moves import AXIS_ORDER
 from usbmotion.session.feed import WINDOW_MOVES
@@ -47,6 +52,13 @@ ALARM_HOMING_FAILED = 9
 ALARM_ABORT = 3
 """grbl's alarm for motion stopped by a reset; also used for a device fault."""
 ALARM_HARD_LIMIT = 1
+_FIXED_ON = {20: "soft limits are the travel ($130..), kept on a homed machine",
+             21: "every device stops its axis at a limit switch",
+             22: "homing gives the machine coordinates soft limits need"}
+_HOMING_KEYS = {24: ("slow_speed_mm_s", 1 / 60.0), 25: ("speed_mm_s", 1 / 60.0),
+                27: ("pull_off_mm", 1.0)}
+"""grbl's homing settings (one for every axis): the machine file's key, and the factor
+from grbl's unit (mm/min) to its own."""
 
 
 class SessionMachine:
@@ -56,8 +68,11 @@ class SessionMachine:
         operator: the session's operator (its worker runs the motion).
     """
 
-    def __init__(self, operator: Operator) -> None:
+    def __init__(self, operator: Operator, *, keep_settings: bool = False) -> None:
         self.operator = operator
+        self.keep_settings = keep_settings
+        """Settings changed with ``$N=value`` are written to the machine file (else they
+        hold for the session only)."""
         self.session = operator.session
         self.config = self.session.config
         self._axes = tuple(program_axes(self.config))
@@ -119,6 +134,9 @@ class SessionMachine:
             return MotionState.JOG
         if session.state is MachineState.HOLD or session.hold_requested:
             return MotionState.HOLD_COMPLETE if session.held else MotionState.HOLD_IN_PROGRESS
+        if self.operator.hold_pending:  # asked while idle: the next motion waits
+            return MotionState.HOLD_IN_PROGRESS if session.state is MachineState.RUN \
+                else MotionState.HOLD_COMPLETE
         if self.operator.busy:
             return MotionState.RUN
         if not session.is_homed and not self.operator.unlocked:
@@ -212,6 +230,11 @@ class SessionMachine:
             self.operator.jog_cancel()
         elif self.operator.busy:
             self.operator.stop()
+        else:
+            self.operator.drop_held()
+
+    def attach_front(self, lines_waiting: Callable[[], bool]) -> None:
+        self.operator.lines_waiting = lines_waiting
 
     def jog(self, move: JogMove) -> SubmitResult:
         if self.operator.busy:
@@ -280,23 +303,79 @@ class SessionMachine:
                                homing_seek_mm_min=first.homing.speed_mm_s * 60.0,
                                homing_pull_off_mm=first.homing.pull_off_mm)
 
-    def set_setting(self, number: int, value: float) -> Rejected | None:
+    def set_setting(self, number: int, value: float) -> Rejected | Taken | None:
         current = self._setting_values().get(number)
         if current is not None and math.isclose(value, current, rel_tol=1e-6, abs_tol=5e-4):
+            return None  # a backup written back
+        changes = self._changes(number, value)
+        if isinstance(changes, Rejected):
+            return changes
+        if not changes:
             return None
-        return Rejected(3, f"${number} is set in the machine file {self.config.path}:"
-                        " change it there and restart usbmotion grbl")
+        if self.operator.busy:
+            return Rejected(8, f"${number} changes only while the machine is idle")
+        try:
+            config, text = changed_config(self.config, changes)
+            unhomed = self.operator.reconfigure(config)
+        except ConfigError as error:
+            return Rejected(3, f"${number}={value:g} refused: {error}")
+        except MachineStateError as error:
+            return Rejected(8, f"${number}: {error}")
+        self.config = self.session.config
+        self._checker = None
+        notes = []
+        if self.keep_settings:
+            try:
+                write_config_text(config.path, text)
+            except OSError as error:
+                notes.append(f"taken for this session; the machine file {config.path} could"
+                             f" not be written: {error}")
+        else:
+            notes.append("taken for this session (the built-in machine: give usbmotion grbl"
+                         " -m FILE to keep settings)")
+        if unhomed:
+            notes.append(f"home again ($H): the change moved {', '.join(unhomed)}'s homed"
+                         " position")
+        return Taken("; ".join(notes)) if notes else None
+
+    def _changes(self, number: int, value: float) -> dict[Key, Value] | Rejected:
+        """The machine file's keys a grbl setting maps onto, given its new value."""
+        axes = self._axes
+        if number in (11, 12):
+            key = "junction_deviation_mm" if number == 11 else "arc_tolerance_mm"
+            return {(key,): float(value)}
+        if number in _FIXED_ON:
+            if value == 1:
+                return {}
+            return Rejected(3, f"${number} stays 1 here: {_FIXED_ON[number]}")
+        if number == 23:
+            if value != int(value) or not 0 <= value < 1 << len(axes):
+                return Rejected(3, f"$23={value:g}: a mask of the axes' bits,"
+                                f" 0..{(1 << len(axes)) - 1}")
+            return {("axes", name, "homing", "direction"): -1 if int(value) >> i & 1 else 1
+                    for i, name in enumerate(axes)}
+        if number in _HOMING_KEYS:
+            key, scale = _HOMING_KEYS[number]
+            return {("axes", name, "homing", key): round(value * scale, 6) for name in axes}
+        group, index = divmod(number, 10)
+        if group not in (10, 11, 12, 13) or index >= len(axes):
+            return Rejected(3, f"${number} is no setting of this machine")
+        name = axes[index]
+        if group == 10:
+            return {("axes", name, "counts_per_mm"): float(value)}
+        if group == 11:
+            return {("axes", name, "max_velocity_mm_s"): round(value / 60.0, 6)}
+        if group == 12:
+            return {("axes", name, "max_accel_mm_s2"): float(value)}
+        axis = self.config.axis(name)
+        low, high = axis.travel_mm
+        travel = [low, low + float(value)] if axis.homing.direction < 0 else [high - float(value), high]
+        return {("axes", name, "travel_mm"): travel}
 
     def _setting_values(self) -> dict[int, float]:
         """The mapped settings' values as ``$$`` shows them (a sender restoring a backup
         writes them back: that is no change)."""
-        settings = self.settings()
-        values: dict[int, float] = {11: settings.junction_deviation_mm,
-                                    12: settings.arc_tolerance_mm}
-        for index, axis in enumerate(settings.axes):
-            values |= {100 + index: axis.counts_per_mm, 110 + index: axis.max_rate_mm_min,
-                       120 + index: axis.accel_mm_s2, 130 + index: axis.max_travel_mm}
-        return values
+        return machine_setting_values(self.settings())
 
     def work_offsets(self) -> WorkOffsets:
         offsets = self.session.work_offsets()

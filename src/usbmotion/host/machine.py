@@ -11,6 +11,7 @@ zeroes the device clocks and arms a common start (call 31).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -182,6 +183,49 @@ class Machine:
                     client.set_sim_value(call, getattr(sim, key), label=key)
                 client.set_sim_counts_per_revolution(sim.counts_per_revolution)
                 client.set_sim_travel(*travel)
+
+    def reconfigure(self, config: MachineConfig) -> None:
+        """Take a changed configuration of the same machine: its host-side values (scale,
+        limits, travel, homing, planning) take effect at once; of what :meth:`configure`
+        sends, only the following-error limit may change (it is in counts: it follows the
+        scale) and it is sent again. Each axis keeps the link it was connected on.
+
+        Raises:
+            ConfigError: the axes, their devices or a value only a restart applies differ
+                (the message names it).
+            OutOfRangeError, ErrReplyError, DeviceTimeoutError, LinkLostError: sending the
+                following-error limit failed.
+        """
+        old = self.config
+        if config.axis_names != old.axis_names:
+            raise ConfigError(f"{config.path}: the axes {', '.join(config.axis_names)} are not"
+                              f" those connected ({', '.join(old.axis_names)}): restart",
+                              path=str(config.path))
+        fixed = ("servo_interval_dms", "motion_scalar", "watchdog_ms")
+        for key in fixed:
+            if getattr(config, key) != getattr(old, key):
+                raise ConfigError(f"{config.path}: {key} takes effect only when the machine"
+                                  " connects: restart", path=str(config.path), key=key)
+        config = dataclasses.replace(config, axes=tuple(
+            dataclasses.replace(axis, url=self.axes[axis.name].config.url)
+            for axis in config.axes))
+        for axis in self.axes.values():
+            new = config.axis(axis.name)
+            for key in ("device", "gains", "velocity_gains", "sim"):
+                if getattr(new, key) != getattr(axis.config, key):
+                    raise ConfigError(
+                        f"{config.path}: axes.{axis.name}.{key} takes effect only when the"
+                        " machine connects: restart", path=str(config.path),
+                        key=f"axes.{axis.name}.{key}")
+        axes = {}
+        for axis in self.axes.values():
+            new = config.axis(axis.name)
+            if new.following_error_limit_counts != axis.config.following_error_limit_counts:
+                axis.client.set_following_error_limit(new.following_error_limit_counts)
+            axis.client.scale = new.scale
+            axes[axis.name] = Axis(axis.name, new, axis.client, axis.url)
+        self.axes = axes
+        self.config = config
 
     # --- the axes together -----------------------------------------------------------------
 

@@ -18,7 +18,7 @@ buffer), so memory stays bounded on an endless stream.
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 from usbmotion.errors import ArgumentError, GCodeError, PlanningError
@@ -94,6 +94,10 @@ class ProgramFeed:
         self._plan: tuple[int, Plan] | None = None
         self.error: GCodeError | PlanningError | None = None
         """The error that ended a source (its line could not be interpreted)."""
+        self.more_coming: Callable[[], bool] | None = None
+        """True while the writer is about to add lines (a sender's lines in a front's
+        receive buffer): :meth:`finish_if` then keeps the feed open. It must answer at once
+        and take no lock the writer holds while adding."""
 
     # --- writing ------------------------------------------------------------------------------
 
@@ -148,6 +152,15 @@ class ProgramFeed:
             self.error = None
             self._version += 1
 
+    def reconfigure(self, config: MachineConfig) -> None:
+        """The machine's changed configuration (same axes) for the lines to come: soft
+        limits and planning from it. Only between runs; the modal state stays."""
+        with self._lock:
+            self.config = config
+            self._travel = [axis.travel_mm for axis in plan_axes(config)]
+            self._limits, self._planner, _ = planner_inputs(config)
+            self._plan = None
+
     def modes(self) -> Modes:
         """The modal state the lines so far leave."""
         with self._lock:
@@ -160,8 +173,12 @@ class ProgramFeed:
             return bool(self._stream.moves)
 
     def finish_if(self, version: int) -> bool:
-        """Close the feed unless it changed since ``version`` (a run that played out all
-        it was given ends only if no line came meanwhile): True when it closed."""
+        """Close the feed unless it changed since ``version`` or more lines are coming
+        (:attr:`more_coming`): a run that played out all it was given ends only if no line
+        came meanwhile and none is on its way. True when it closed."""
+        coming = self.more_coming
+        if coming is not None and coming():
+            return False
         with self._lock:
             if self._version != version:
                 return False

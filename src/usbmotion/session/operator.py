@@ -8,6 +8,9 @@ controller's does, and the worker runs it whenever it holds moves; a hold, a res
 stop, a jog cancel and the overrides take effect at once (they only set the session's
 request fields). The worker alone talks to the devices: what a front reads while the
 machine moves comes from the run's progress reports.
+
+A feed hold is latched until a cycle start, as grbl latches it: asked while the machine is
+idle (or while a run is finishing), it holds the next motion, which waits for the resume.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 from usbmotion.errors import MachineStateError, UsbMotionError
+from usbmotion.host.config import MachineConfig
 from usbmotion.motion.gcode import Pause
 from usbmotion.session.feed import ProgramFeed
 from usbmotion.session.planning import program_axes
@@ -109,7 +113,14 @@ class Operator:
         self._actions: queue.Queue[Action | None] = queue.Queue()
         self._busy = threading.Event()
         self._run_queued = False
+        self._hold_pending = False
+        self._unrun = False
+        """The feed holds moves no run has taken yet."""
         self._lock = threading.Lock()
+        self.lines_waiting: Callable[[], bool] | None = None
+        """Asked before a streamed run that played out everything it was given ends: True
+        while the front holds lines it is about to write (a sender's lines in a receive
+        buffer), so the run waits for them rather than ending and starting again."""
         self.on_idle: Callable[[], None] | None = None
         """Called before each idle read, holding the links (a simulated machine in real
         time keeps its clock in step with the wall clock there)."""
@@ -159,28 +170,64 @@ class Operator:
                     return False
                 feed = self.feed = session.open_feed(
                     file=self.file, unhomed=self.unlocked and not session.is_homed)
+                feed.more_coming = self._more_coming
+                self._unrun = False
             elif feed.closed:
                 if self.busy:
                     return False
                 feed.restart(self._where())
+                self._unrun = False
             if not feed.add(line):
                 return False
-            if feed.has_moves and not self._run_queued:
-                self._run_queued = True
-                self._actions.put(self._run_feed)
+            self._unrun = self._unrun or feed.has_moves
+            self._queue_run()
             return True
 
+    def _queue_run(self) -> None:
+        """The feed's run queued for the worker, unless it is, or a hold keeps it waiting
+        (under :attr:`_lock`)."""
+        if self._unrun and not self._run_queued and not self._hold_pending:
+            self._run_queued = True
+            self._actions.put(self._run_feed)
+
     def hold(self) -> None:
-        """Feed hold (``!``)."""
-        self.session.request_hold()
+        """Feed hold (``!``): a running program decelerates along its path to rest; asked
+        while idle, the next motion waits. Either way until :meth:`resume` (or
+        :meth:`stop`, :meth:`drop_held`). Ignored in Alarm, while homing or jogging."""
+        session = self.session
+        if session.state in (MachineState.ALARM, MachineState.HOMING) or session.jogging:
+            return
+        with self._lock:
+            self._hold_pending = True
+        session.request_hold()
+
+    @property
+    def hold_pending(self) -> bool:
+        """True from a feed hold until the resume that releases it."""
+        return self._hold_pending
 
     def resume(self) -> None:
-        """Cycle start (``~``): resume a hold or a pause."""
+        """Cycle start (``~``): resume a hold or a pause; lines that came while the
+        machine was held start running."""
+        with self._lock:
+            self._hold_pending = False
+            self._queue_run()
         self.session.request_resume()
+
+    def drop_held(self) -> None:
+        """Forget a feed hold asked while idle and the lines that came since, which no run
+        has taken (a reset while idle); the modal state stays."""
+        with self._lock:
+            self._hold_pending = False
+            if self._unrun and not self._run_queued and self.feed is not None:
+                self.feed.restart(self._where())
+                self._unrun = False
 
     def stop(self) -> None:
         """Stop (Ctrl-X): every axis to rest along its deceleration, what is queued dropped;
-        the machine stays homed and Idle."""
+        the machine stays homed and Idle. A pending hold is forgotten."""
+        with self._lock:
+            self._hold_pending = False
         self.session.request_stop("stopped by the operator")
 
     def jog(self, moves: Mapping[str, float], *, feed_mm_min: float, work: bool = False,
@@ -226,6 +273,24 @@ class Operator:
 
         self._actions.put(go)
 
+    def reconfigure(self, config: MachineConfig) -> tuple[str, ...]:
+        """A changed machine file taken while idle (:meth:`MachineSession.reconfigure`):
+        the axes that need homing again. The lines' modal state stays.
+
+        Raises:
+            MachineStateError: the machine is busy, or not idle.
+            ConfigError: the change needs a restart.
+        """
+        if self.busy:
+            raise MachineStateError("the machine is busy", state=self.session.state.value)
+        with self._links, self._lock:
+            unhomed = self.session.reconfigure(config)
+            if self.feed is not None:
+                self.feed.reconfigure(config)
+                if unhomed:
+                    self.feed = None  # its positions were homed ones
+            return unhomed
+
     def status(self) -> OperatorStatus:
         """What the machine is doing and where (never waits on a device)."""
         session = self.session
@@ -239,6 +304,8 @@ class Operator:
             where, line = self._idle_actual, 0
             error = {name: axis.following_error_mm for name, axis in self.idle.items()}
         state = "Jog" if session.jogging else session.state.value
+        if self._hold_pending and session.state is MachineState.IDLE:
+            state = MachineState.HOLD.value
         pause = session.paused.message if session.paused is not None else ""
         return OperatorStatus(state, dict(where), line, busy, pause,
                               session.feed_override_percent, session.rapid_override_percent,
@@ -322,15 +389,20 @@ class Operator:
     def _run_feed(self) -> None:
         with self._lock:
             feed = self.feed
+            if self._hold_pending or not self._unrun:  # held: the resume queues it again
+                self._run_queued = False
+                return
+            self._unrun = False
         completed = False
         try:
-            if feed is None or not feed.has_moves or feed.closed:
+            if feed is None or not feed.has_moves:
                 return
             report, _ = self.session.run_feed(feed, on_progress=self._on_progress)
             completed = report.completed
         finally:
             with self._lock:
                 self._run_queued = False
+                self._unrun = False  # what came while it ran, it ran (or dropped)
             if feed is not None and not completed and not feed.closed:
                 feed.close()
         self._ended(report)
@@ -348,6 +420,14 @@ class Operator:
 
     def _on_progress(self, progress: Progress) -> None:
         self._progress = progress
+        session = self.session
+        if (self._hold_pending and session.state is MachineState.RUN
+                and not session.hold_requested):
+            session.request_hold()  # asked while the run was starting
+
+    def _more_coming(self) -> bool:
+        waiting = self.lines_waiting
+        return waiting is not None and waiting()
 
     def _on_pause(self, pause: Pause) -> None:
         self.on_message(f"paused at line {pause.line} ({pause.code}): {pause.message};"

@@ -596,9 +596,12 @@ class Run:
             if self.fed_complete:
                 return True
             feed = self.feed
-            if feed is not None and not feed.has_source and feed.finish_if(self.fed_version):
-                self.fed_complete = True
-                return True
+            if feed is not None and not feed.has_source:
+                if feed.finish_if(self.fed_version):
+                    self.fed_complete = True
+                    return True
+                if not self._feed_changed():  # lines on their way: at rest until they come
+                    self.clock.sleep(REQUEST_CHECK_S)
 
     def _feed_wake(self) -> bool:
         """Whether the streaming stops to look again: a request, a fault, more moves, a

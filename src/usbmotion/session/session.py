@@ -494,6 +494,34 @@ class MachineSession:
         self.save_work_offsets(offsets)
         return offsets
 
+    # --- a changed machine file ---------------------------------------------------------------
+
+    def reconfigure(self, config: MachineConfig) -> tuple[str, ...]:
+        """Take a changed configuration of this machine while it is idle
+        (:meth:`Machine.reconfigure`: velocities, accelerations, travel, homing, scale and
+        planning take effect for the next motion). An axis whose homed position the change
+        moves (its scale, its switch's position) is no longer homed: the axes that need
+        homing again, in order.
+
+        Raises:
+            MachineStateError: the machine is not idle.
+            ConfigError: the change needs a restart (see :meth:`Machine.reconfigure`).
+        """
+        if self._state is not MachineState.IDLE:
+            raise MachineStateError("the machine file can change only while the machine is"
+                                    " idle", state=self._state.value)
+        old = self.config
+        self.machine.reconfigure(config)
+        config = self.config = self.machine.config
+        unhomed = []
+        for name, axis in self.machine.axes.items():
+            if self.homed[name] and homed_mark(old, old.axis(name)) != homed_mark(
+                    config, axis.config):
+                self.homed[name] = False
+                axis.client.set_homed_marker(0)
+                unhomed.append(name)
+        return tuple(unhomed)
+
     # --- stop requests ------------------------------------------------------------------------
 
     def request_stop(self, reason: str = StopReason.USER.value) -> None:
