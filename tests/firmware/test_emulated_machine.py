@@ -40,6 +40,10 @@ from .jobs import (
 )
 from .sessions import first_difference, python_replay
 
+LATE_S = 0.002
+"""A run in real time whose last setpoint was taken later than in virtual time by more
+than this (two servo ticks) had a queue run dry: it is not compared."""
+
 
 @pytest.fixture(scope="module")
 def firmware() -> Path:
@@ -78,11 +82,14 @@ def test_demo_1_in_real_time_on_pseudo_terminals(realtime: tuple[RealtimeRun, Pa
     emulated = realtime[0]
     assert emulated.code == 0, emulated.output
     assert emulated.report["completed"] and emulated.report["faults"] == [], emulated.output
-    if "fell behind" in emulated.server_messages:
-        # an emulator that fell behind the wall clock let a queue run dry: the motion, and
-        # so the following errors, changed (the replay below is exact all the same)
-        warnings.warn(f"the emulator could not keep up here, the figures were not compared:"
-                      f" {emulated.server_messages}", stacklevel=1)
+    late_s = emulated.report["executed_time_s"] - python_report["executed_time_s"]
+    if "fell behind" in emulated.server_messages or late_s > LATE_S:
+        # an emulator that fell behind the wall clock, or a host that did (a loaded
+        # machine), let a queue run dry: the motion, and so the following errors, changed
+        # (the replay below is exact all the same)
+        warnings.warn(f"real time was not kept here (the program ended {late_s:.3f} s late;"
+                      f" {emulated.server_messages or 'the emulators kept up'}): the"
+                      " figures were not compared", stacklevel=1)
         return
     for mine, theirs in zip(emulated.report["axes"], python_report["axes"], strict=True):
         # one count either way: the real-time homing leaves the motor a micro-count or a
