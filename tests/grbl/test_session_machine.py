@@ -133,6 +133,9 @@ def test_on_the_built_in_machine_a_change_holds_for_the_session(
     taken = machine.set_setting(120, 400.0)
     assert isinstance(taken, Taken) and "this session" in taken.message
     assert machine.session.config.axis("X").max_accel_mm_s2 == 400.0
+    assert isinstance(machine.set_setting(110, 1000.0), Taken)
+    assert machine.session.config.axis("X").max_accel_mm_s2 == 400.0, "the first one kept"
+    assert machine.settings().axes[0].max_rate_mm_min == pytest.approx(1000.0, abs=1e-3)
     assert Path(default_machine()).read_text() == before
 
 

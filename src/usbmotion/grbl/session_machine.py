@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Callable
+from pathlib import Path
 
 from usbmotion.errors import (
     ConfigError,
@@ -22,6 +23,7 @@ from usbmotion.errors import (
     UnsupportedGCodeError,
     UsbMotionError,
 )
+from usbmotion.files import write_text_atomically
 from usbmotion.grbl.interface import (
     Admission,
     AxisSettings,
@@ -37,7 +39,7 @@ from usbmotion.grbl.interface import (
     WorkOffsets,
 )
 from usbmotion.grbl.reports import machine_setting_values
-from usbmotion.host.config_file import Key, Value, changed_config, write_config_text
+from usbmotion.host.config_file import Key, Value, changed_config
 from usbmotion.motion.gcode import GCodeStream
 from usbmotion.motion.moves import AXIS_ORDER
 from usbmotion.session.feed import WINDOW_MOVES
@@ -73,6 +75,8 @@ class SessionMachine:
         self.keep_settings = keep_settings
         """Settings changed with ``$N=value`` are written to the machine file (else they
         hold for the session only)."""
+        self._file_text: str | None = None
+        """The machine file's text with the changes taken so far (read at the first)."""
         self.session = operator.session
         self.config = self.session.config
         self._axes = tuple(program_axes(self.config))
@@ -315,18 +319,24 @@ class SessionMachine:
         if self.operator.busy:
             return Rejected(8, f"${number} changes only while the machine is idle")
         try:
-            config, text = changed_config(self.config, changes)
+            if self._file_text is None:
+                self._file_text = Path(self.config.path).read_text(encoding="utf-8")
+            config, text = changed_config(self.config, self._file_text, changes)
             unhomed = self.operator.reconfigure(config)
+        except (OSError, UnicodeDecodeError) as error:
+            return Rejected(3, f"${number}: the machine file {self.config.path} cannot be"
+                            f" read: {error}")
         except ConfigError as error:
             return Rejected(3, f"${number}={value:g} refused: {error}")
         except MachineStateError as error:
             return Rejected(8, f"${number}: {error}")
         self.config = self.session.config
+        self._file_text = text
         self._checker = None
         notes = []
         if self.keep_settings:
             try:
-                write_config_text(config.path, text)
+                write_text_atomically(config.path, text)
             except OSError as error:
                 notes.append(f"taken for this session; the machine file {config.path} could"
                              f" not be written: {error}")
@@ -369,7 +379,8 @@ class SessionMachine:
             return {("axes", name, "max_accel_mm_s2"): float(value)}
         axis = self.config.axis(name)
         low, high = axis.travel_mm
-        travel = [low, low + float(value)] if axis.homing.direction < 0 else [high - float(value), high]
+        length = float(value)
+        travel = [low, low + length] if axis.homing.direction < 0 else [high - length, high]
         return {("axes", name, "travel_mm"): travel}
 
     def _setting_values(self) -> dict[int, float]:

@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from usbmotion.errors import ConfigError
+from usbmotion.files import write_text_atomically
 from usbmotion.motion.moves import AXIS_ORDER
 
 __all__ = [
@@ -257,18 +257,7 @@ def write_parameter_file(path: str | os.PathLike[str], offsets: WorkOffsets) -> 
     Raises:
         OSError: the file cannot be written.
     """
-    file = Path(path)
-    file.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=f".{file.name}.", dir=file.parent)
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8") as out:
-            out.write(format_parameter_file(offsets))
-            out.flush()
-            os.fsync(out.fileno())
-        os.replace(temporary, file)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
+    write_text_atomically(path, format_parameter_file(offsets))
 
 
 class Frame:
