@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from usbmotion.device import Device
-from usbmotion.errors import ArgumentError, OutOfRangeError
+from usbmotion.errors import ArgumentError, OutOfRangeError, QueueFullError
 from usbmotion.host.device import DeviceClient
 from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams, wait_until_drained
 from usbmotion.host.transport import LineTransport
-from usbmotion.protocol import values_crc32
+from usbmotion.protocol import Replaced, values_crc32
 from usbmotion.sim import SimWorld, drop_world, set_world
 
 SETPOINTS = 20_000
@@ -227,3 +227,61 @@ def test_stream_arguments_are_validated(sim_rig: Rig) -> None:
         SetpointStream(client, [2**40], period_s=0.001)
     with pytest.raises(ArgumentError, match="must be integers"):
         SetpointStream(client, np.array([1.5]), period_s=0.001)
+
+
+def _queue_half_a_stream(client: DeviceClient) -> tuple[SetpointStream, int, int]:
+    """A stream of 2000 ramp values filling a running device's queue to ~1000: the stream,
+    the index of the value due ~800 values ahead of the device, and that value's tick."""
+    client.set_servo_enable(True)
+    stream = SetpointStream(client, np.arange(2000, dtype=np.int64) // 8,
+                            period_s=client.motion_period_s(), low_water=850, high_water=1000)
+    clock = client.transport.clock
+    while stream.sent < 1000:
+        stream.service()
+        clock.sleep(max(0.0, stream.wake_time() - clock.now()))
+    status = client.status()
+    consumed = stream.sent - status.queued
+    return stream, consumed + 800, status.clock + 800
+
+
+@pytest.mark.parametrize("estimate_short", [False, True])
+def test_a_replacement_takes_what_the_queue_has_room_for(sim_rig: Rig,
+                                                          estimate_short: bool) -> None:
+    """Call 38 from a tick far ahead, where the device keeps most of its queue: the stream
+    sends only what fits beside the values kept (a refusal, which changes nothing, when its
+    estimate of the room was short, is tried again with fewer), then streams the rest: the
+    device plays the kept values and every new one, in order, and the stream's account of
+    its queue is the device's."""
+    client = sim_rig.clients[0]
+    stream, index, tick = _queue_half_a_stream(client)
+    steps = np.arange(700, dtype=np.int64)
+    new = (index + steps) // 8 + steps // 8  # the ramp, from the seam on twice as steep
+    real = client.replace_from
+    carried: list[tuple[int, str]] = []
+
+    def replace_from(at: int, values: list[int]) -> Replaced:
+        if estimate_short and not carried:
+            carried.append((len(values), "E38"))
+            raise QueueFullError("E38 (as if the room was less than estimated)")
+        answer = real(at, values)
+        carried.append((len(values), "ok"))
+        return answer
+
+    client.replace_from = replace_from  # type: ignore[method-assign]
+    desired: list[int] = []
+    client.on_diagnostics = lambda line: desired.append(line.desired)
+    client.set_diagnostics_interval(1)
+    count = stream.replace_from(tick, index, new, most=600)
+    assert 0 < count <= 200 and carried[-1] == (count, "ok"), carried
+    if estimate_short:
+        assert carried[0][0] == 2 * count, "tried again with half as many"
+    queued, _ = client.queue_status()
+    assert abs(queued - (stream.sent - stream.consumed_estimate)) <= 1
+    run_streams([stream])
+    wait_until_drained([client], period_s=stream.period_s)
+    client.read_pending()
+    assert stream.sent == index + new.size
+    played = np.array(desired)
+    assert played[-1] == new[-1]
+    steps = np.abs(np.diff(played))
+    assert steps.max() <= 1, "kept values, then every new one in order: no jump"

@@ -19,6 +19,7 @@ from tests.executed import (
     distance_to_path,
     record,
 )
+from tests.programs.engraving import engraving
 
 import usbmotion
 import usbmotion.session.feed as feed_module
@@ -429,3 +430,28 @@ def test_a_run_waits_for_lines_its_front_says_are_coming(config: MachineConfig) 
         assert operator.wait_idle(60) and runs == [1]
         assert operator.last_report is not None and operator.last_report.completed
         assert recorder.positions()[-1].tolist() == _counts(config, 12, 0, 0)
+
+
+def test_a_sender_streaming_short_moves_runs_the_whole_path(config: MachineConfig) -> None:
+    """A sender streaming an engraving of short moves, every line the moment the feed has
+    room: the devices execute the program's own path, with no jump and no fault, in the
+    time of the whole program's plan."""
+    lines = engraving(700, seed=3)
+    _, reference, whole = _record(config, _whole(text="\n".join(lines) + "\n"))
+    feeds: list[ProgramFeed] = []
+    waiting = list(reversed(lines))
+
+    def go(session: MachineSession) -> RunReport:
+        feed = session.open_feed(file="<sender>")
+        feeds.append(feed)
+        return session.run_feed(feed)[0] if act(session, 0) is None else whole
+
+    def act(session: MachineSession, tick: int) -> None:
+        while waiting and feeds[0].add(waiting[-1]):
+            waiting.pop()
+
+    _, positions, report = _record(config, go, act)
+    assert not waiting and report.completed, report.stop_reason
+    check_limits(config, positions, reference)
+    check_same_path(positions, reference)
+    assert abs(report.executed_time_s - whole.executed_time_s) <= 0.01 * whole.executed_time_s

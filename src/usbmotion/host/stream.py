@@ -71,6 +71,9 @@ class StreamResult:
 
 ProgressCallback = Callable[[StreamProgress], None]
 
+REPLACE_ROOM_MARGIN = 20
+"""Values of the device's queue a replacement leaves free beyond those it predicts the
+device keeps (the prediction may be a few values short)."""
 RESYNC_ATTEMPTS = 5
 """Status queries tried before a stream gives up on a link that answers nothing readable."""
 
@@ -212,11 +215,48 @@ class SetpointStream:
         above = self._queued - self.low_water
         return self._status_time + max(above, 1) * self.period_s
 
+    def replace_from(self, tick: int, index: int,
+                     values: Sequence[int] | npt.NDArray[np.integer], *,
+                     most: int = QUEUE_CAPACITY) -> int:
+        """Replace the device's queued future from device tick ``tick``, which is when value
+        ``index`` of the stream is due, by ``values`` (call 38, atomic): the device keeps
+        what is due before ``tick`` and takes as many of ``values`` (at most ``most``) as
+        its queue has room for beside them; the stream sends the rest after, as usual.
+        The room is estimated from the values the device is predicted to keep; a refusal
+        (``E38``: nothing changed) is tried again with fewer, down to none, which always
+        fits (it cuts the queue at ``tick``). Returns how many values the call carried.
+
+        Raises:
+            ArgumentError: ``index`` beyond the values.
+            QueueFullError: refused even with no value (the device is not this stream's).
+            LinkCorruptedError, DeviceTimeoutError, LinkLostError: as
+                :meth:`DeviceClient.replace_from`; the stream's account is then unchanged.
+        """
+        array = np.asarray(values, dtype=np.int64)
+        if not 0 <= index <= self.total:
+            raise ArgumentError(f"replace_from index {index!r}: within 0 .. {self.total}",
+                                reason="index")
+        kept = max(0, index - self.consumed_estimate)
+        count = max(0, min(array.size, most, QUEUE_CAPACITY - kept - REPLACE_ROOM_MARGIN))
+        while True:
+            try:
+                replaced = self.client.replace_from(tick, array[:count].tolist())
+            except QueueFullError:
+                if count == 0:
+                    raise
+                count //= 2
+                continue
+            self.replace_future(index, array, sent=count,
+                                queued=replaced.kept + replaced.added)
+            return count
+
     def replace_future(self, index: int, values: Sequence[int] | npt.NDArray[np.integer],
-                       *, sent: int) -> None:
+                       *, sent: int, queued: int | None = None) -> None:
         """Take note that the device's queue was replaced from value ``index`` on (call 38,
         :meth:`DeviceClient.replace_from`) by the first ``sent`` of ``values``: the stream's
         values from ``index`` become ``values``, and streaming goes on after those sent.
+        ``queued``: the queue's level the device's acknowledgement gives (kept plus added),
+        so the stream's prediction of what the device executed stays exact.
 
         Raises:
             ArgumentError: ``index`` beyond the values, or ``sent`` beyond ``values``.
@@ -227,6 +267,8 @@ class SetpointStream:
                                 f" {sent!r} (of {array.size}) out of range", reason="index")
         self._values = np.concatenate((self._values[:index], array))
         self.sent = index + sent
+        if queued is not None:
+            self._observe(queued)
         self._finished = self._now() if self.done_sending else None
 
     def revise(self, index: int, values: Sequence[int] | npt.NDArray[np.integer]) -> None:

@@ -509,14 +509,9 @@ class Run:
         limit = (index + rows.shape[0] if whole else
                  max(index + min(REPLACE_BATCH, rows.shape[0]), self._release_limit()))
         given = rows[:limit - index]
-        batch = given[:REPLACE_BATCH]
         for column, name in enumerate(self.axes):
-            client = self.machine.axis(name).client
-            try:
-                client.replace_from(tick, batch[:, column].tolist())
-            except UsbMotionError as error:
-                self.notes.append(f"axis {name}: could not replace its queue ({error})")
-            self.streams[name].replace_future(index, given[:, column], sent=batch.shape[0])
+            self.streams[name].replace_from(tick, index, given[:, column],
+                                            most=REPLACE_BATCH)
         self.released = limit
         self.dry = False
 
