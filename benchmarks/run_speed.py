@@ -141,7 +141,7 @@ def anatomy(
     from usbmotion.device import core0, core1, kernel  # noqa: PLC0415
     from usbmotion.host.config import load_config  # noqa: PLC0415
     from usbmotion.host.device import DeviceClient  # noqa: PLC0415
-    from usbmotion.session import run as job  # noqa: PLC0415 - the job in-process
+    from usbmotion.session import watch as job  # noqa: PLC0415 - the job in-process
     from usbmotion.sim.machine import connect_session  # noqa: PLC0415
     from usbmotion.sim.world import SimWorld  # noqa: PLC0415
 

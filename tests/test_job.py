@@ -272,3 +272,40 @@ def test_end_points_are_measured_against_the_whole_path() -> None:
         brute = max(brute, float(np.sqrt(np.einsum("ij,ij->i", gaps, gaps).min())))
     assert checked == 40
     assert worst == pytest.approx(brute, abs=1e-9)
+
+
+TOOL_CHANGES = "G21 G90\nT1 M6\nG0 X10 Y10 Z5\nT2 M6\nG0 X20\nM2\n"
+
+
+def test_the_report_names_every_tool_change(tmp_path: Path) -> None:
+    program = tmp_path / "tools.ngc"
+    program.write_text(TOOL_CHANGES)
+    report_path = tmp_path / "r.json"
+    done = _usbmotion("run", str(program), "--no-plot", "-q", "--report", str(report_path))
+    assert done.returncode == 0, done.stderr
+    changes = json.loads(report_path.read_text())["tool_changes"]
+    assert [(c["line"], c["tool"], c["manual"]) for c in changes] == [(2, 1, True),
+                                                                     (4, 2, True)]
+    said = [line for line in done.stdout.splitlines() if line.startswith("tool change")]
+    assert said == ["tool change    line 2: tool 1 put in the spindle (M6)",
+                    "tool change    line 4: tool 2 put in the spindle (M6)"]
+
+
+@pytest.mark.parametrize("enters", [2, 1])
+def test_pause_on_m6_waits_for_enter_at_each_tool_change(tmp_path: Path, enters: int) -> None:
+    """With someone at the machine each tool change pauses the run until Enter; standard
+    input ending at a pause stops the run there (along its deceleration: it is at rest)."""
+    program = tmp_path / "tools.ngc"
+    program.write_text(TOOL_CHANGES)
+    done = subprocess.run([sys.executable, "-m", "usbmotion", "run", str(program), "--no-plot",
+                           "-q", "--pause-on-m6"], input="\n" * enters, capture_output=True,
+                          text=True, timeout=240, check=False)
+    paused = [line for line in done.stderr.splitlines() if line.startswith("paused")]
+    assert paused[0].startswith("paused         line 2 (M6): tool change: put tool 1 in the"
+                                " spindle"), done.stderr
+    if enters == 2:
+        assert done.returncode == 0 and len(paused) == 2 and "tool 2" in paused[1]
+        assert "result         completed" in done.stdout
+    else:
+        assert done.returncode == 130 and len(paused) == 2, done.stderr
+        assert "standard input ended at a pause" in done.stdout

@@ -24,7 +24,8 @@ from usbmotion.cli.jog import parse_steps
 from usbmotion.cli.main import app
 from usbmotion.cli.run import default_machine
 from usbmotion.session import MachineState
-from usbmotion.session.progress import Progress
+from usbmotion.session.live import AxisNow
+from usbmotion.session.live import LiveSnapshot as Progress
 from usbmotion.sim.machine import connect_session, load_machine_file
 
 COMMANDS = (
@@ -196,17 +197,20 @@ def test_the_session_reports_state_line_and_position_while_homing_and_running() 
         prepared = session.prepare("p.ngc", text="G1 X10 F600\nG1 Y5\nM2\n")
         session.run(prepared, on_progress=seen.append)
     assert homing and all(p.state is MachineState.HOMING and p.line == 0 for p in homing)
-    assert set(homing[-1].position_mm) == {"X", "Y", "Z"}
-    assert all(p.state is MachineState.RUN for p in seen)
-    assert {p.line for p in seen} == {1, 2}
+    assert set(homing[-1].machine_mm()) == {"X", "Y", "Z"}
+    assert all(p.state is MachineState.RUN and not p.at_rest for p in seen[:-1])
+    assert {p.line for p in seen} == {1, 2} and len(seen) > 10, "the line executing"
     last = seen[-1]
-    assert last.position_mm["X"] == pytest.approx(10.0, abs=0.01)
-    assert last.describe().startswith("Run  line 2  X 10.000  Y ")
+    assert last.state is MachineState.IDLE and last.at_rest, "the run's end, published"
+    assert last.machine_mm()["X"] == pytest.approx(10.0, abs=0.01)
+    assert last.describe().startswith("Idle  line 2 of 3  X 10.000  Y ")
 
 
 def test_progress_describes_itself_in_one_line() -> None:
-    assert Progress(MachineState.HOMING, {"X": 1.5, "Z": -2}).describe() == (
-        "Homing  X 1.500  Z -2.000 mm")
+    axes = {"X": AxisNow(measured_mm=1.5), "Z": AxisNow(measured_mm=-2.0)}
+    assert Progress(MachineState.HOMING, axes=axes).describe() == "Homing  X 1.500  Z -2.000 mm"
+    assert Progress(MachineState.RUN, axes=axes, line=7, lines_total=40).describe() == (
+        "Run  line 7 of 40  X 1.500  Z -2.000 mm")
 
 
 # --- a bad file or port: one line, never a traceback ----------------------------------------

@@ -29,7 +29,8 @@ from usbmotion.session import (
     check_transition,
     home_position_mm,
 )
-from usbmotion.session.progress import Progress
+from usbmotion.session.live import LiveSnapshot as Progress
+from usbmotion.session.state import UNITS, Event, StateMachine
 from usbmotion.sim.machine import connect_session
 from usbmotion.sim.world import SimWorld
 
@@ -61,8 +62,39 @@ def test_every_state_change_is_one_of_the_documented_transitions() -> None:
             else:
                 with pytest.raises(MachineStateError, match=f"in {state.value}: it cannot go"):
                     check_transition(state, wanted)
-    assert MachineState.IDLE in TRANSITIONS[MachineState.ALARM], "reset leaves Alarm"
-    assert TRANSITIONS[MachineState.ALARM] == {MachineState.IDLE}, "only reset leaves Alarm"
+    assert TRANSITIONS[MachineState.ALARM] == {MachineState.IDLE, MachineState.HOMING}, (
+        "only a reset, or a homing (grbl's $H), leaves Alarm")
+
+
+def test_each_state_decides_its_next_state_within_its_transitions() -> None:
+    """Every state's unit answers every event with a state its transitions allow (or none),
+    and the one door refuses the rest naming the state and the event."""
+    for state, unit in UNITS.items():
+        for event in Event:
+            for at_rest in (False, True):
+                wanted = unit.next_state(event, at_rest=at_rest)
+                assert wanted is None or wanted in TRANSITIONS[state], (state, event, wanted)
+    machine = StateMachine()
+    seen: list[tuple[MachineState, MachineState]] = []
+    machine.on_change = lambda old, new: seen.append((old, new))
+    with pytest.raises(MachineStateError, match="in Idle: resume does not apply"):
+        machine.fire(Event.RESUME)
+    for event, at_rest, state in [
+            (Event.START, True, MachineState.RUN), (Event.HOLD, False, MachineState.HOLD),
+            (Event.RESUME, False, None), (Event.RESUME, True, MachineState.RUN),
+            (Event.PAUSE, True, MachineState.PAUSED), (Event.RESUME, True, MachineState.RUN),
+            (Event.STOP, False, MachineState.STOPPING), (Event.AT_REST, True, MachineState.IDLE),
+            (Event.JOG, True, MachineState.JOG), (Event.HOLD, False, MachineState.STOPPING),
+            (Event.DONE, True, MachineState.IDLE), (Event.START, True, MachineState.RUN),
+            (Event.FAULT, False, MachineState.ALARM), (Event.HOME, True, MachineState.HOMING),
+            (Event.FAULT, False, MachineState.ALARM), (Event.RESET, True, MachineState.IDLE)]:
+        if state is None:
+            with pytest.raises(MachineStateError):
+                machine.fire(event, at_rest=at_rest)
+        else:
+            assert machine.fire(event, at_rest=at_rest) is state
+    assert seen[0] == (MachineState.IDLE, MachineState.RUN) and len(seen) == 15
+    assert machine.state is MachineState.IDLE
 
 
 def test_a_program_starts_where_the_machine_stands_and_can_run_twice(

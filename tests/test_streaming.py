@@ -89,7 +89,7 @@ def test_a_file_read_line_by_line_runs_as_its_whole_plan(
     session, positions, report = _record(
         config, _fed(iter(DEMO.read_text().splitlines()), str(DEMO)))
     assert report.completed and session.final_state is MachineState.IDLE  # type: ignore[attr-defined]
-    assert session.last_run is not None and len(session.last_run.legs) > 3, "joined as it read"
+    assert session.last_run is not None and len(session.last_run.legs.legs) > 3, "joined as it read"
     assert abs(report.executed_time_s - whole.executed_time_s) <= 0.005 * whole.executed_time_s
     check_limits(config, positions, reference)
     check_same_path(positions, reference)
@@ -137,7 +137,7 @@ def test_lines_written_while_it_runs_late_ones_included(config: MachineConfig) -
 
     session, positions, report = _record(config, go, act)
     assert written == [True, True, True] and report.completed
-    assert session.last_run is not None and len(session.last_run.legs) >= 3
+    assert session.last_run is not None and len(session.last_run.legs.legs) >= 3
     assert session.final_state is MachineState.IDLE  # type: ignore[attr-defined]
     check_limits(config, positions, reference)
     check_same_path(positions, reference)
@@ -207,7 +207,7 @@ def test_m0_pauses_until_cycle_start_on_the_same_path(config: MachineConfig,
     at = [0]
     go = _fed(iter(paused_text.splitlines()))
     session, positions, report = _record(config, go, act)
-    assert seen == [(MachineState.HOLD, "M0")]
+    assert seen == [(MachineState.PAUSED, "M0")]
     assert report.completed and session.paused is None
     assert session.last_run is not None and [p.line for p in session.last_run.paused] == [5]
     spans = at_rest_spans(positions, 700)
@@ -327,7 +327,7 @@ def test_the_operator_runs_mdi_lines_with_their_modal_state(config: MachineConfi
                 deadline += 1
                 assert deadline < 1000
             assert operator.wait_idle(60)
-            where = operator.status().position_mm
+            where = operator.status().machine_mm()
         assert where["X"] == pytest.approx(10.0, abs=0.01), "the encoder, within 2 counts"
         assert (where["Y"], where["Z"]) == (pytest.approx(10.0, abs=0.01),
                                             pytest.approx(2.0, abs=0.01))
@@ -368,17 +368,17 @@ def test_a_hold_asked_while_idle_holds_the_next_lines_until_cycle_start(
     window fills as it would), and ``~`` runs them as one program."""
     with _operated(config) as (session, operator, recorder, runs):
         operator.hold()
-        assert operator.hold_pending and operator.status().state == "Hold"
+        assert operator.hold_pending and operator.status().hold_pending
         for line in ("G21 G90", "G0 X10 Y10", "G1 X30 F3000", "G1 Y20"):
             assert operator.submit(line)
         time.sleep(0.3)
         assert not operator.busy and runs == [], "nothing runs while held"
-        assert operator.status().state == "Hold"
+        assert operator.status().hold_pending and session.state is MachineState.IDLE
         moved = recorder.positions()
         assert len(moved) == 0 or (moved == moved[0]).all()
         operator.resume()
         assert operator.wait_idle(60)
-        assert not operator.hold_pending and operator.status().state == "Idle"
+        assert not operator.hold_pending and operator.status().state is MachineState.IDLE
         assert runs == [1] and operator.last_report is not None
         assert operator.last_report.completed
         assert recorder.positions()[-1].tolist() == _counts(config, 30, 20, 0)
@@ -405,7 +405,7 @@ def test_a_reset_while_held_drops_the_lines_that_waited(config: MachineConfig) -
         operator.hold()
         assert operator.submit("G0 X10")
         operator.drop_held()
-        assert not operator.hold_pending and operator.status().state == "Idle"
+        assert not operator.hold_pending and operator.status().state is MachineState.IDLE
         operator.resume()
         assert operator.submit("G0 Y4")
         assert operator.wait_idle(60) and runs == [1]

@@ -42,7 +42,6 @@ from usbmotion.errors import (
     UsbMotionError,
 )
 from usbmotion.motion.gcode import interpret_setting, parse_gcode, read_gcode_text
-from usbmotion.motion.moves import AXIS_ORDER
 from usbmotion.motion.offsets import format_point
 from usbmotion.session import MachineSession, MachineState, describe
 from usbmotion.session.operator import Operator, parse_steps
@@ -172,8 +171,7 @@ class Console:
             else:
                 self.write("stop: nothing moves")
             return True
-        if text == "?" and operator.busy and (self.session.state is not MachineState.IDLE
-                                              or self.session.jogging):
+        if text == "?" and operator.busy:
             self._live_status()
             return True
         if text.startswith("$o"):
@@ -182,16 +180,27 @@ class Console:
         return False
 
     def _live_status(self) -> None:
-        status = self.operator.status()
-        offsets = self.session.work_offsets()
+        """The machine now, from the session's live model: the state, the line the devices
+        execute, the encoders' machine and work positions, the feed they move at, the
+        overrides and each axis's following error."""
+        now = self.session.live.read()
         axes = program_axes(self.session.config)
-        origin = offsets.g5x[offsets.coordinate_system - 1]
-        machine = "  ".join(f"{a} {status.position_mm.get(a, 0.0):.3f}" for a in axes)
-        work = "  ".join(f"{a} {status.position_mm.get(a, 0.0) - origin[AXIS_ORDER.index(a)]:.3f}"
-                         for a in axes)
-        self.write(f"state: {status.state}; line {status.line}; machine {machine} mm; work"
-                   f" {work} mm; feed {status.feed_override} %, rapid {status.rapid_override} %"
-                   + (f"; paused: {status.pause}" if status.pause else ""))
+        machine = now.machine_mm()
+        work = now.work_mm()
+        state = now.state.value
+        if now.state is MachineState.HOLD:
+            state += "" if now.at_rest else " (decelerating)"
+        line = f"line {now.line}" + (f" of {now.lines_total}" if now.lines_total else "")
+        error = "  ".join(f"{a} {now.axes[a].following_error_mm:+.3f}" for a in axes)
+        self.write(
+            f"state: {state}; {line}; machine "
+            + "  ".join(f"{a} {machine[a]:.3f}" for a in axes) + " mm; work "
+            + "  ".join(f"{a} {work[a]:.3f}" for a in axes)
+            + f" mm; feed {now.feed_mm_min:.0f} mm/min; overrides feed {now.feed_override} %,"
+            f" rapid {now.rapid_override} %; following error {error} mm"
+            + (f"; {now.done_s:.1f} of {now.total_s:.1f} s, {now.eta_s:.1f} s left"
+               if now.total_s and not now.at_rest else "")
+            + (f"; paused: {now.pause}" if now.pause else ""))
 
     def _override(self, value: str) -> None:
         kind, number = value[:1].upper(), value[1:].strip()

@@ -232,6 +232,10 @@ class UnsupportedGCodeError(GCodeError):
         self.reason = reason or message
 
 
+class FeedRateError(GCodeError):
+    """A feed move (G1, G2, G3) with no feed rate set."""
+
+
 class PlanningError(UsbMotionError, ValueError):
     """Moves could not be planned within the machine's limits."""
 

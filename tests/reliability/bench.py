@@ -31,7 +31,7 @@ def logged(self, data):
 transport.LineTransport.write = logged
 period = os.environ.get("USBMOTION_TEST_DIAGNOSTICS_S")
 if period:
-    from usbmotion.session import run
+    from usbmotion.session import watch as run
     run.DIAGNOSTICS_PERIOD_S = float(period)
 from usbmotion.cli.main import main
 sys.argv = ["usbmotion", *sys.argv[2:]]

@@ -32,7 +32,7 @@ from usbmotion.host.config import MachineConfig, load_config
 from usbmotion.motion.sampler import sample_plan
 from usbmotion.protocol import FaultCode
 from usbmotion.session import RunReport, plan_gcode
-from usbmotion.session.run import FAULT_CHECK_S
+from usbmotion.session.watch import FAULT_CHECK_S
 from usbmotion.sim.machine import connect_session
 
 STALL_PROGRAM = "G21 G90\nG1 X50 F600\nG1 Y50\nM2\n"

@@ -90,14 +90,14 @@ def test_jog_and_mdi_through_the_operator_on_served_devices(tmp_path: Path) -> N
                 report = operator.last_report
                 assert report is not None and report.stop_reason == "jog cancelled"
                 assert report.stop_distance_mm <= report.stop_planned_mm + 0.05
-                x = operator.status().position_mm["X"]
+                x = operator.status().machine_mm()["X"]
                 assert 10.0 < x < 40.0, f"cancelled after about 1 s at 20 mm/s, at {x} mm"
                 assert operator.submit("G90 G1 X50 F1200")
                 _until(lambda: session.state is MachineState.RUN)
                 assert operator.submit("G1 Y20")
                 assert operator.submit("G1 X60")
                 assert operator.wait_idle(60)
-                where = operator.status().position_mm
+                where = operator.status().machine_mm()
                 assert (where["X"], where["Y"]) == (pytest.approx(60, abs=0.01),
                                                     pytest.approx(20, abs=0.01))
                 assert operator.last_report is not None and operator.last_report.completed

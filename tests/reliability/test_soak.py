@@ -42,7 +42,7 @@ from usbmotion.cli.run import default_machine
 from usbmotion.device import Device
 from usbmotion.host.config import MachineConfig, load_config
 from usbmotion.session import RunReport, plan_gcode
-from usbmotion.session import run as job
+from usbmotion.session import watch as job
 from usbmotion.sim.machine import connect_session
 
 SOAK_ENV = "USBMOTION_SOAK_S"

@@ -31,8 +31,9 @@ from usbmotion.errors import (
 if TYPE_CHECKING:
     from usbmotion.host.config import MachineConfig
     from usbmotion.motion.dialects import Dialect
+    from usbmotion.motion.gcode import Pause
     from usbmotion.session import MachineSession, Prepared, RunReport, Trace
-    from usbmotion.session.progress import Progress as SessionProgress
+    from usbmotion.session.live import LiveSnapshot
 
 EXIT_COMPLETED = 0
 EXIT_FAULT = 1
@@ -168,6 +169,10 @@ def run(
     origin: Annotated[list[str] | None, typer.Option(
         "--origin", help="Set the work origin (G54) first, in machine mm: --origin 'X100 Y100"
         " Z60' (or X100Y100Z60, or repeated); kept in the machine's parameter file.")] = None,
+    pause_on_m6: Annotated[bool, typer.Option(
+        "--pause-on-m6", help="Someone is at the machine: pause at each tool change (M6 of"
+        " another tool) and at M0, saying which tool and pocket, until Enter is pressed"
+        " (standard input ending stops the run there).")] = False,
 ) -> None:
     """Run a G-code program: home if needed, plan from where the machine stands, stream, report.
 
@@ -189,7 +194,9 @@ def run(
 
     The program runs in the work offsets of the machine's parameter file (set by
     --origin, usbmotion zero, or a program's G10), with the tool table the machine
-    file names.
+    file names. Every tool change (M6, M61) is in the report with its tool and its
+    pocket; without --pause-on-m6 the run does not stop for them (change the tool
+    by hand before the run, or let the program's own length offsets apply).
     """
     from usbmotion.motion.dialects import dialect_named  # noqa: PLC0415
     from usbmotion.motion.gcode import parse_gcode, read_gcode_text  # noqa: PLC0415
@@ -241,8 +248,10 @@ def run(
             shown = format_point(offsets.g5x[0], machine_axes(config).axes)
             typer.echo(f"work origin    G54 {shown} mm (machine), saved in"
                        f" {config.parameter_path}", err=True)
-        code, report, trace, prepared = _job(session, program, text, no_home=no_home,
-                                              quiet=quiet, dialect=chosen)
+        with resumed_from_stdin(session, enabled=pause_on_m6):
+            code, report, trace, prepared = _job(session, program, text, no_home=no_home,
+                                                  quiet=quiet, dialect=chosen,
+                                                  pauses=pause_on_m6)
         try:
             session.shutdown()
         except UsbMotionError as error:
@@ -256,17 +265,66 @@ def run(
         raise typer.Exit(code)
 
 
+@contextmanager
+def resumed_from_stdin(session: MachineSession, *, enabled: bool) -> Iterator[None]:
+    """While inside (when ``enabled``): a program pause is announced on standard error and
+    a line on standard input resumes it; standard input ending at a pause stops the run."""
+    if not enabled:
+        yield
+        return
+    import threading  # noqa: PLC0415
+
+    from usbmotion.session import StopReason  # noqa: PLC0415
+
+    def announce(pause: Pause) -> None:
+        typer.echo(f"paused         line {pause.line} ({pause.code}): {pause.message};"
+                   " press Enter to go on", err=True)
+
+    ended = threading.Event()
+
+    def at_pause() -> bool:
+        """Wait until the run pauses (True) or ends (False)."""
+        while session.paused is None:
+            if ended.wait(0.02):
+                return False
+        return True
+
+    def read() -> None:
+        for _ in sys.stdin:  # each line resumes one pause, however early it was typed
+            if not at_pause():
+                return
+            pause = session.paused
+            session.request_resume()
+            while session.paused is pause and not ended.wait(0.02):
+                pass
+        if at_pause():
+            session.request_stop(f"{StopReason.USER.value}: standard input ended at a pause")
+
+    session.on_pause = announce
+    threading.Thread(target=read, name="usbmotion-run-resume", daemon=True).start()
+    try:
+        yield
+    finally:
+        ended.set()
+        session.on_pause = None
+
+
 def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
-         quiet: bool, dialect: Dialect | None = None,
+         quiet: bool, dialect: Dialect | None = None, pauses: bool = False,
          ) -> tuple[int, RunReport | None, Trace | None, Prepared | None]:
-    """Prepare, home if needed, run: (exit status, report, trace, the prepared program)."""
+    """Prepare, home if needed, run: (exit status, report, trace, the prepared program).
+    ``pauses``: M0 and tool changes pause the run (someone is there to resume it)."""
+    from usbmotion.motion.gcode import Pauses  # noqa: PLC0415
+
+    rule = Pauses.PROGRAM if pauses else Pauses.NONE
     from usbmotion.motion.sampler import sample_count  # noqa: PLC0415
     from usbmotion.session import StopReason  # noqa: PLC0415
     from usbmotion.session.report import unstarted_report  # noqa: PLC0415
 
     homing_s = 0.0
     try:
-        prepared = session.prepare(program, text=text, unhomed=no_home, dialect=dialect)
+        prepared = session.prepare(program, text=text, unhomed=no_home, dialect=dialect,
+                                   pauses=rule)
     except SoftLimitError as error:
         _refused(program, error)
         return EXIT_BAD_INPUT, None, None, None
@@ -292,7 +350,7 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
     try:
         if not (no_home or session.is_homed):
             homing_s = _home_with_progress(session, quiet=quiet)
-            prepared = session.prepare(program, text=text, dialect=dialect)
+            prepared = session.prepare(program, text=text, dialect=dialect, pauses=rule)
     except StopRequestedError as error:
         reason = f"{error.reason} (while homing)"
         return unstarted(reason, exit_code(error.reason))
@@ -359,7 +417,7 @@ def _with_progress(session: MachineSession, prepared: Prepared,
     with Progress(*columns, transient=True, disable=not sys.stderr.isatty()) as progress:
         task = progress.add_task("Run", total=prepared.plan.duration_s)
 
-        def update(report: SessionProgress) -> None:
+        def update(report: LiveSnapshot) -> None:
             progress.update(task, completed=report.done_s, description=report.describe())
 
         return session.run(prepared, on_progress=update, homing_s=homing_s)

@@ -27,7 +27,7 @@ from usbmotion.errors import SequenceFaultError, StopRequestedError, UsbMotionEr
 if TYPE_CHECKING:
     from usbmotion.host.machine import Machine
     from usbmotion.session import MachineSession
-    from usbmotion.session.progress import Progress
+    from usbmotion.session.live import LiveSnapshot
 
 
 def status(machine: MachineOption = None) -> None:
@@ -97,7 +97,7 @@ def describe_status(machine: Machine) -> list[str]:
 
 
 @contextmanager
-def progress_line(enabled: bool) -> Iterator[Callable[[Progress], None]]:
+def progress_line(enabled: bool) -> Iterator[Callable[[LiveSnapshot], None]]:
     """A transient progress line on a terminal's standard error (state, program line,
     positions), updated by the callback it yields; nothing when ``enabled`` is False or
     standard error is no terminal."""
@@ -108,7 +108,7 @@ def progress_line(enabled: bool) -> Iterator[Callable[[Progress], None]]:
              disable=not (enabled and sys.stderr.isatty())) as bar:
         task = bar.add_task("", total=None)
 
-        def show(update: Progress) -> None:
+        def show(update: LiveSnapshot) -> None:
             bar.update(task, description=update.describe())
 
         yield show

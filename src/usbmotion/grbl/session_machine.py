@@ -16,14 +16,15 @@ from pathlib import Path
 
 from usbmotion.errors import (
     ConfigError,
+    FeedRateError,
     GCodeError,
     MachineStateError,
     PlanningError,
-    SoftLimitError,
     UnsupportedGCodeError,
     UsbMotionError,
 )
 from usbmotion.files import write_text_atomically
+from usbmotion.grbl.codes import AlarmCode, GrblErrorCode
 from usbmotion.grbl.interface import (
     Admission,
     AxisSettings,
@@ -42,18 +43,30 @@ from usbmotion.grbl.reports import machine_setting_values
 from usbmotion.host.config_file import Key, Value, changed_config
 from usbmotion.motion.gcode import GCodeStream
 from usbmotion.motion.moves import AXIS_ORDER
-from usbmotion.session.feed import WINDOW_MOVES
+from usbmotion.protocol import FaultCode
+from usbmotion.session.live import LiveSnapshot
 from usbmotion.session.operator import Operator
 from usbmotion.session.planning import machine_axes, machine_dialect, program_axes
 from usbmotion.session.state import MachineState
 
+
+def rejection(error: GCodeError | PlanningError | MachineStateError) -> Rejected:
+    """grbl's error for a line the session refused, by the kind of refusal."""
+    if isinstance(error, MachineStateError):
+        code = GrblErrorCode.SYSTEM_GC_LOCK
+    elif isinstance(error, PlanningError):
+        code = GrblErrorCode.INVALID_TARGET  # a soft limit, or a move it cannot make
+    elif isinstance(error, UnsupportedGCodeError):
+        code = GrblErrorCode.UNSUPPORTED_COMMAND
+    elif isinstance(error, FeedRateError):
+        code = GrblErrorCode.UNDEFINED_FEED_RATE
+    else:
+        code = GrblErrorCode.EXPECTED_COMMAND_LETTER
+    return Rejected(code, str(error))
+
+
 READ_PERIOD_S = 0.1
 """How often an idle machine is read (positions, switches) and its watchdogs fed."""
-ALARM_HOMING_FAILED = 9
-"""grbl's alarm for a homing that could not find its switch."""
-ALARM_ABORT = 3
-"""grbl's alarm for motion stopped by a reset; also used for a device fault."""
-ALARM_HARD_LIMIT = 1
 _FIXED_ON = {20: "soft limits are the travel ($130..), kept on a homed machine",
              21: "every device stops its axis at a limit switch",
              22: "homing gives the machine coordinates soft limits need"}
@@ -105,7 +118,7 @@ class SessionMachine:
             try:
                 self.operator.keep_alive()
             except UsbMotionError as error:
-                self._fault = Fault(ALARM_ABORT, f"the machine cannot be read: {error}")
+                self._fault = Fault(AlarmCode.ABORT_CYCLE, f"the machine cannot be read: {error}")
 
     def poll(self) -> None:
         """Take up how the last action ended (a fault, a failed homing)."""
@@ -116,12 +129,13 @@ class SessionMachine:
         if self._homing:
             self._homing = False
             if self.operator.last_error:
-                self._fault = Fault(ALARM_HOMING_FAILED, self.operator.last_error)
+                self._fault = Fault(AlarmCode.HOMING_FAIL_APPROACH, self.operator.last_error)
         report = self.operator.last_report
         if report is not None and report.faults and self._fault is None:
             first = report.faults[0]
-            alarm = ALARM_HARD_LIMIT if "limit" in first.fault else ALARM_ABORT
-            self._fault = Fault(alarm, f"{first.fault}", first.axis, first.line or None)
+            alarm = (AlarmCode.HARD_LIMIT if first.code == FaultCode.LIMIT_SWITCH
+                     else AlarmCode.ABORT_CYCLE)
+            self._fault = Fault(alarm, first.fault, first.axis, first.line or None)
             self.operator.last_report = None
 
     def axes(self) -> tuple[str, ...]:
@@ -130,16 +144,21 @@ class SessionMachine:
     def state(self) -> MotionState:
         self.poll()
         session = self.session
-        if self._fault is not None or session.state is MachineState.ALARM:
+        state = session.state
+        if self._fault is not None or state is MachineState.ALARM:
             return MotionState.ALARM
-        if session.state is MachineState.HOMING or self._homing:
+        if state is MachineState.HOMING or self._homing:
             return MotionState.HOMING
-        if session.jogging:
+        if session.jogging or state is MachineState.JOG:
             return MotionState.JOG
-        if session.state is MachineState.HOLD or session.hold_requested:
+        if state is MachineState.HOLD:
             return MotionState.HOLD_COMPLETE if session.held else MotionState.HOLD_IN_PROGRESS
-        if self.operator.hold_pending:  # asked while idle: the next motion waits
-            return MotionState.HOLD_IN_PROGRESS if session.state is MachineState.RUN \
+        if state is MachineState.PAUSED:
+            return MotionState.HOLD_COMPLETE
+        if state is MachineState.STOPPING:
+            return MotionState.HOLD_IN_PROGRESS
+        if session.hold_requested:  # asked while idle: the next motion starts held
+            return MotionState.HOLD_IN_PROGRESS if state is MachineState.RUN \
                 else MotionState.HOLD_COMPLETE
         if self.operator.busy:
             return MotionState.RUN
@@ -148,68 +167,48 @@ class SessionMachine:
         return MotionState.IDLE
 
     def status(self) -> MachineStatus:
-        status = self.operator.status()
-        where = tuple(status.position_mm.get(axis, 0.0) for axis in self._axes)
-        error = tuple(status.following_error_mm.get(axis, 0.0) for axis in self._axes)
-        limits = frozenset(name for name, axis in self.operator.idle.items() if axis.limit)
-        return MachineStatus(where, self._work_offset(), self._feed(), status.line or None,
-                             error, limits, self._fault)
+        now = self.session.live.read()
+        where = tuple(now.axes[axis].measured_mm for axis in self._axes)
+        error = tuple(now.axes[axis].following_error_mm for axis in self._axes)
+        limits = frozenset(name for name, axis in now.axes.items() if axis.limit)
+        moving = self.operator.busy and not now.at_rest
+        return MachineStatus(where, self._work_offset(now), now.feed_mm_min if moving else 0.0,
+                             now.line or None if self.operator.busy else None, error, limits,
+                             self._fault)
 
-    def _work_offset(self) -> tuple[float, ...]:
-        feed = self.operator.feed
-        if feed is not None:
-            return tuple(feed.modes().offset_mm)
-        offsets = self.session.work_offsets()
-        base = offsets.g5x[offsets.coordinate_system - 1]
-        return tuple(base[AXIS_ORDER.index(a)] for a in self._axes)
-
-    def _feed(self) -> float:
-        feed = self.operator.feed
-        if feed is None or not self.operator.busy:
-            return 0.0
-        return feed.modes().feed_mm_min * self.session.feed_override_percent / 100.0
+    def _work_offset(self, now: LiveSnapshot) -> tuple[float, ...]:
+        return tuple(now.work_offset_mm.get(axis, 0.0) for axis in self._axes)
 
     # --- lines --------------------------------------------------------------------------------
 
     def submit(self, line: str, line_number: int | None) -> SubmitResult:
         if self._fault is not None:
-            return Rejected(9, "the machine is in alarm: $X or $H")
+            return Rejected(GrblErrorCode.SYSTEM_GC_LOCK, "the machine is in alarm: $X or $H")
         try:
             taken = self.operator.submit(line)
-        except SoftLimitError as error:
-            return Rejected(33, str(error))
-        except UnsupportedGCodeError as error:
-            return Rejected(20, str(error))
-        except GCodeError as error:
-            return Rejected(22 if "feed rate" in error.message else 1, str(error))
-        except MachineStateError as error:
-            return Rejected(9, str(error))
-        except PlanningError as error:
-            return Rejected(33, str(error))
+        except (GCodeError, PlanningError, MachineStateError) as error:
+            return rejection(error)
         return Admission.ACCEPTED if taken else Admission.PLANNER_FULL
 
     def check(self, line: str) -> Rejected | None:
         checker = self._checker
         if checker is None:
             machine = machine_axes(self.config)
+            where = self.session.live.read().machine_mm(measured=False)
             checker = self._checker = GCodeStream(
                 file="<check>", machine=machine, dialect=machine_dialect(self.config),
-                start=tuple(self.operator.status().position_mm.get(a, 0.0)
-                            for a in machine.axes))
+                start=tuple(where.get(a, 0.0) for a in machine.axes))
         try:
             checker.feed(line)
-        except UnsupportedGCodeError as error:
-            return Rejected(20, str(error))
         except GCodeError as error:
-            return Rejected(1, str(error))
+            return rejection(error)
         return None
 
     def motion_done(self) -> bool:
         return not self.operator.busy
 
     def planner_blocks(self) -> int:
-        feed = self.operator.feed
-        return feed.window if feed is not None else WINDOW_MOVES
+        return self.operator.window
 
     def planner_blocks_free(self) -> int:
         feed = self.operator.feed
@@ -243,12 +242,17 @@ class SessionMachine:
     def jog(self, move: JogMove) -> SubmitResult:
         if self.operator.busy:
             return Admission.PLANNER_FULL
-        where = self.operator.status().position_mm
-        offset = dict(zip(self._axes, self._work_offset(), strict=True))
+        if not self.session.is_homed:
+            return Rejected(GrblErrorCode.TRAVEL_EXCEEDED,
+                            "a jog needs a homed machine (its soft limits): $H")
+        now = self.session.live.read()
+        where = now.machine_mm(measured=False)
+        offset = dict(zip(self._axes, self._work_offset(now), strict=True))
         targets: dict[str, float] = {}
         for axis, value in move.words_mm.items():
             if axis not in self._axes:
-                return Rejected(20, f"the machine has no axis {axis}")
+                return Rejected(GrblErrorCode.UNSUPPORTED_COMMAND,
+                                f"the machine has no axis {axis}")
             if move.incremental:
                 targets[axis] = where.get(axis, 0.0) + value
             else:
@@ -256,14 +260,15 @@ class SessionMachine:
         for axis, target in targets.items():
             low, high = self.config.axis(axis).travel_mm
             if not low - 1e-9 <= target <= high + 1e-9:
-                return Rejected(15, f"{axis} to {target:.3f} mm is beyond its travel"
+                return Rejected(GrblErrorCode.TRAVEL_EXCEEDED,
+                                f"{axis} to {target:.3f} mm is beyond its travel"
                                 f" {low:g}..{high:g} mm")
         if not math.isfinite(move.feed_mm_min) or move.feed_mm_min <= 0:
-            return Rejected(22, "a jog needs a feed rate")
+            return Rejected(GrblErrorCode.UNDEFINED_FEED_RATE, "a jog needs a feed rate")
         try:
             self.operator.jog(targets, feed_mm_min=move.feed_mm_min, absolute=True)
         except (MachineStateError, UsbMotionError) as error:
-            return Rejected(9, str(error))
+            return Rejected(GrblErrorCode.SYSTEM_GC_LOCK, str(error))
         return Admission.ACCEPTED
 
     def jog_cancel(self) -> None:
@@ -280,7 +285,7 @@ class SessionMachine:
         try:
             self.operator.home()
         except MachineStateError as error:
-            self._fault = Fault(ALARM_HOMING_FAILED, str(error))
+            self._fault = Fault(AlarmCode.HOMING_FAIL_APPROACH, str(error))
             return
         self._homing = True
 
@@ -317,19 +322,22 @@ class SessionMachine:
         if not changes:
             return None
         if self.operator.busy:
-            return Rejected(8, f"${number} changes only while the machine is idle")
+            return Rejected(GrblErrorCode.IDLE_ERROR,
+                            f"${number} changes only while the machine is idle")
         try:
             if self._file_text is None:
                 self._file_text = Path(self.config.path).read_text(encoding="utf-8")
             config, text = changed_config(self.config, self._file_text, changes)
             unhomed = self.operator.reconfigure(config)
         except (OSError, UnicodeDecodeError) as error:
-            return Rejected(3, f"${number}: the machine file {self.config.path} cannot be"
+            return Rejected(GrblErrorCode.INVALID_STATEMENT,
+                            f"${number}: the machine file {self.config.path} cannot be"
                             f" read: {error}")
         except ConfigError as error:
-            return Rejected(3, f"${number}={value:g} refused: {error}")
+            return Rejected(GrblErrorCode.INVALID_STATEMENT,
+                            f"${number}={value:g} refused: {error}")
         except MachineStateError as error:
-            return Rejected(8, f"${number}: {error}")
+            return Rejected(GrblErrorCode.IDLE_ERROR, f"${number}: {error}")
         self.config = self.session.config
         self._file_text = text
         self._checker = None
@@ -357,10 +365,12 @@ class SessionMachine:
         if number in _FIXED_ON:
             if value == 1:
                 return {}
-            return Rejected(3, f"${number} stays 1 here: {_FIXED_ON[number]}")
+            return Rejected(GrblErrorCode.INVALID_STATEMENT,
+                            f"${number} stays 1 here: {_FIXED_ON[number]}")
         if number == 23:
             if value != int(value) or not 0 <= value < 1 << len(axes):
-                return Rejected(3, f"$23={value:g}: a mask of the axes' bits,"
+                return Rejected(GrblErrorCode.INVALID_STATEMENT,
+                                f"$23={value:g}: a mask of the axes' bits,"
                                 f" 0..{(1 << len(axes)) - 1}")
             return {("axes", name, "homing", "direction"): -1 if int(value) >> i & 1 else 1
                     for i, name in enumerate(axes)}
@@ -369,7 +379,8 @@ class SessionMachine:
             return {("axes", name, "homing", key): round(value * scale, 6) for name in axes}
         group, index = divmod(number, 10)
         if group not in (10, 11, 12, 13) or index >= len(axes):
-            return Rejected(3, f"${number} is no setting of this machine")
+            return Rejected(GrblErrorCode.INVALID_STATEMENT,
+                            f"${number} is no setting of this machine")
         name = axes[index]
         if group == 10:
             return {("axes", name, "counts_per_mm"): float(value)}
@@ -389,7 +400,8 @@ class SessionMachine:
         return machine_setting_values(self.settings())
 
     def work_offsets(self) -> WorkOffsets:
-        offsets = self.session.work_offsets()
+        feed = self.operator.feed
+        offsets = feed.program().offsets if feed is not None else self.session.work_offsets()
 
         def pick(point: tuple[float, ...]) -> tuple[float, ...]:
             return tuple(point[AXIS_ORDER.index(a)] for a in self._axes)

@@ -69,7 +69,7 @@ from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
 
-from usbmotion.errors import GCodeError, UnsupportedGCodeError
+from usbmotion.errors import FeedRateError, GCodeError, UnsupportedGCodeError
 from usbmotion.motion.cycles import CYCLE_NAMES, DWELL, RAPID, Cycle, expand_cycle
 from usbmotion.motion.dialects import GRBL_COMMANDS, RULES, Dialect, DialectRules
 from usbmotion.motion.gcode_lexer import Block, Word, parse_blocks, tokenize, word_columns
@@ -1605,12 +1605,14 @@ class _Interpreter:
     def require_feed(self, block: Block, blame: int, name: str) -> None:
         """Refuse the feed move ``name`` (G1, G2, G3) while the feed rate is 0."""
         if self.feed_mm_min == 0.0:
-            raise self.error(
+            error = self.error(
                 block,
                 blame,
                 f"{name} with feed rate 0: set a feed rate with F (units per minute) before "
                 "or on this line",
             )
+            raise FeedRateError(error.message, file=error.file, line=error.line,
+                                column=error.column, word=error.word)
 
     def move(
         self,

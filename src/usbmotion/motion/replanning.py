@@ -226,7 +226,7 @@ def plan_rest(
         new_speed = min(new_speed, axis_speed)
         ramp = (entry * entry - new_speed * new_speed) / (2.0 * float(program.accel_mm_s2[first]))
         ramp *= 1.0 + 1e-6
-        if entry > new_speed and ramp + minimum < remaining:
+        if entry > new_speed and minimum < ramp and ramp + minimum < remaining:
             add(first, start + unit * ramp, entry, point.distance_mm)
             add(first, program.vertices_mm[first + 1].copy(), new_speed,
                 point.distance_mm + ramp)

@@ -4,18 +4,20 @@
 """
 
 from usbmotion.session.homing import home_position_mm, homed_mark
+from usbmotion.session.live import LiveSnapshot
 from usbmotion.session.planning import Prepared, plan_gcode, planner_inputs
 from usbmotion.session.report import AxisResult, FaultRecord, IgnoredWordRecord, RunReport, Trace
 from usbmotion.session.report_text import describe
-from usbmotion.session.run import trace_period_s
 from usbmotion.session.session import MachineSession
 from usbmotion.session.state import TRANSITIONS, MachineState, StopReason, check_transition
+from usbmotion.session.watch import trace_period_s
 
 __all__ = [
     "TRANSITIONS",
     "AxisResult",
     "FaultRecord",
     "IgnoredWordRecord",
+    "LiveSnapshot",
     "MachineSession",
     "MachineState",
     "Prepared",

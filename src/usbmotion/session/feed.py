@@ -10,13 +10,15 @@ iterator of lines, such as a file) is read by the run itself, as far ahead of th
 the look-ahead needs (:meth:`ProgramFeed.pull`): no thread, so it runs the same in virtual
 time.
 
-The planner's window is bounded (:attr:`ProgramFeed.window`, moves not yet executed): a
-front that outruns the machine is told the feed is full and tries again (grbl's planner
-buffer), so memory stays bounded on an endless stream.
+The planner's window is bounded (:attr:`ProgramFeed.window`, moves not yet executed, and
+:attr:`ProgramFeed.horizon_s`, their planned seconds): a front that outruns the machine is
+told the feed is full and tries again (grbl's planner buffer), so memory stays bounded on
+an endless stream and what a front acknowledges stays close to what the machine executes.
 """
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -34,6 +36,11 @@ from usbmotion.session.planning import machine_axes, machine_dialect, plan_axes,
 
 WINDOW_MOVES = 256
 """The most moves a feed holds that the machine has not executed yet (its planner buffer)."""
+FRONT_WINDOW_MOVES = 16
+"""A front's feed (a sender's, a console's): the most moves ahead of the one executing, as
+grbl's planner buffer holds 16 blocks, so a sender's ``ok`` follows the machine."""
+FRONT_HORIZON_S = 2.0
+"""A front's feed: the most planned seconds of moves ahead of the machine."""
 PULL_MOVES = 64
 """The most moves one pull of a source adds (the run plans again after each pull)."""
 
@@ -63,16 +70,21 @@ class ProgramFeed:
             :meth:`add`.
         dialect, tools, offsets, pauses: as :func:`usbmotion.motion.gcode.parse_gcode`'s.
         window: the most moves not yet executed (see :attr:`window`).
+        horizon_s: the most planned seconds of moves not yet executed (see
+            :attr:`horizon_s`; None: no bound but the window).
     """
 
     def __init__(self, config: MachineConfig, *, start_mm: Point, homed: bool,
                  file: str = "<stream>", source: Iterator[str] | None = None,
                  dialect: Dialect | None = None, tools: ToolTable = NO_TOOLS,
                  offsets: WorkOffsets | None = None, pauses: Pauses = Pauses.PROGRAM,
-                 window: int = WINDOW_MOVES) -> None:
+                 window: int = WINDOW_MOVES, horizon_s: float | None = None) -> None:
         if isinstance(window, bool) or not isinstance(window, int) or window < 1:
             raise ArgumentError(f"window {window!r}: a whole number of moves, at least 1",
                                 reason="window")
+        if horizon_s is not None and not (math.isfinite(horizon_s) and horizon_s > 0):
+            raise ArgumentError(f"horizon_s {horizon_s!r}: seconds > 0 (or None)",
+                                reason="horizon_s")
         self.config = config
         self.file = file
         self.homed = homed
@@ -80,6 +92,10 @@ class ProgramFeed:
         self.offsets = offsets or NO_OFFSETS
         self.window = window
         """The most moves the feed holds beyond those the machine executed."""
+        self.horizon_s = horizon_s
+        """The most planned seconds of moves beyond the machine's place (by the last plan
+        the run made: moves added since count toward :attr:`window` only)."""
+        self._executed_s = 0.0
         self._stream = GCodeStream(file=file, start=start_mm, machine=machine_axes(config),
                                    dialect=machine_dialect(config, dialect), tools=tools,
                                    offsets=self.offsets, pauses=pauses)
@@ -114,10 +130,18 @@ class ProgramFeed:
         with self._lock:
             if self._closed or self._stream.ended_by:
                 return False
-            if len(self._stream.moves) - self._executed_moves >= self.window:
+            if self._full():
                 return False
             self._take(text, line)
             return True
+
+    def _full(self) -> bool:
+        """Whether the window or the horizon is full (under the lock)."""
+        if len(self._stream.moves) - self._executed_moves >= self.window:
+            return True
+        plan = self._plan
+        return (self.horizon_s is not None and plan is not None
+                and plan[1].duration_s - self._executed_s >= self.horizon_s)
 
     def _take(self, text: str, line: int | None) -> None:
         moves = self._stream.feed(text, line=line,
@@ -148,6 +172,7 @@ class ProgramFeed:
             self.start_mm = start_mm
             self._closed = False
             self._executed_moves = 0
+            self._executed_s = 0.0
             self._plan = None
             self.error = None
             self._version += 1
@@ -194,8 +219,10 @@ class ProgramFeed:
 
     @property
     def blocks_free(self) -> int:
-        """How many more moves the window takes now."""
+        """How many more moves the window takes now (0 while the horizon is full)."""
         with self._lock:
+            if self._full():
+                return 0
             return max(0, self.window - (len(self._stream.moves) - self._executed_moves))
 
     # --- reading (the run) ----------------------------------------------------------------------
@@ -210,8 +237,7 @@ class ProgramFeed:
         with self._lock:
             added = 0
             before = len(self._stream.moves)
-            while (not self._closed and added < PULL_MOVES and
-                   len(self._stream.moves) - self._executed_moves < self.window):
+            while not self._closed and added < PULL_MOVES and not self._full():
                 try:
                     text = next(source)
                 except StopIteration:
@@ -260,10 +286,13 @@ class ProgramFeed:
         self._plan = (snapshot.version, plan)
         return plan
 
-    def executed(self, moves: int) -> None:
-        """The machine has executed the first ``moves`` moves (frees the window)."""
+    def executed(self, moves: int, *, at_s: float | None = None) -> None:
+        """The machine has executed the first ``moves`` moves, and is ``at_s`` seconds
+        into the feed's last plan (frees the window and the horizon)."""
         with self._lock:
             self._executed_moves = max(self._executed_moves, moves)
+            if at_s is not None:
+                self._executed_s = max(self._executed_s, at_s)
 
     def program(self) -> GCodeProgram:
         """The program as fed so far."""

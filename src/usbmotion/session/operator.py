@@ -5,12 +5,13 @@ An :class:`Operator` gives it a worker thread, so a front keeps reading its oper
 the machine moves: G-code lines (MDI, or a program streamed line by line) go into one
 :class:`~usbmotion.session.feed.ProgramFeed` whose modal state lasts between lines, as a
 controller's does, and the worker runs it whenever it holds moves; a hold, a resume, a
-stop, a jog cancel and the overrides take effect at once (they only set the session's
-request fields). The worker alone talks to the devices: what a front reads while the
-machine moves comes from the run's progress reports.
+stop, a jog cancel and the overrides are requests the session takes at once. The worker
+alone talks to the devices; what a front shows comes from the session's live model
+(:attr:`MachineSession.live`), which the runs feed while the machine moves and
+:meth:`Operator.keep_alive` refreshes at rest.
 
 A feed hold is latched until a cycle start, as grbl latches it: asked while the machine is
-idle (or while a run is finishing), it holds the next motion, which waits for the resume.
+idle (or while a run is finishing), the next motion starts held and waits for the resume.
 """
 
 from __future__ import annotations
@@ -20,17 +21,17 @@ import re
 import threading
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import replace
 
 from usbmotion.errors import MachineStateError, UsbMotionError
 from usbmotion.host.config import MachineConfig
 from usbmotion.motion.gcode import Pause
-from usbmotion.session.feed import ProgramFeed
+from usbmotion.session.feed import FRONT_HORIZON_S, FRONT_WINDOW_MOVES, ProgramFeed
+from usbmotion.session.live import LiveSnapshot
 from usbmotion.session.planning import program_axes
-from usbmotion.session.progress import Progress
 from usbmotion.session.report import RunReport
 from usbmotion.session.session import MachineSession
-from usbmotion.session.state import MachineState
+from usbmotion.session.state import MachineState, StopReason
 
 Action = Callable[[], None]
 
@@ -61,33 +62,6 @@ def parse_steps(words: list[str]) -> dict[str, float]:
     return steps
 
 
-@dataclass(frozen=True, slots=True)
-class IdleAxis:
-    """One axis as read at rest: its following error (mm), whether a limit switch reads
-    closed, its fault code (0: none)."""
-
-    following_error_mm: float
-    limit: bool
-    fault: int
-
-
-@dataclass(frozen=True, slots=True)
-class OperatorStatus:
-    """What a front shows: the state (``Jog`` while a jog runs), where the axes are
-    (machine coordinates, mm, from their encoders: while moving, as of the run's last
-    diagnostics lines), the program line, whether the worker is busy, the pause the machine
-    waits at, the overrides and each axis's following error (mm)."""
-
-    state: str
-    position_mm: Mapping[str, float]
-    line: int
-    busy: bool
-    pause: str
-    feed_override: int
-    rapid_override: int
-    following_error_mm: Mapping[str, float]
-
-
 class Operator:
     """A session with a worker thread (see the module docstring); a context manager.
 
@@ -96,24 +70,28 @@ class Operator:
         on_message: called (from the worker) with what the operator should hear: a run's
             end, a pause and its message, an error of the worker.
         file: the name errors give the lines written (``<mdi>``).
+        window: the most moves the feed holds that the machine has not executed, and
+            ``horizon_s`` the most planned seconds of them: a line beyond either waits
+            (a sender's ``ok`` follows the machine, as grbl's 15-block planner makes it).
     """
 
     def __init__(self, session: MachineSession, *,
                  on_message: Callable[[str], None] | None = None,
-                 file: str = "<mdi>") -> None:
+                 file: str = "<mdi>", window: int = FRONT_WINDOW_MOVES,
+                 horizon_s: float = FRONT_HORIZON_S) -> None:
         session.live_control = True
         session.on_pause = self._on_pause
         self.session = session
         self.on_message = on_message or (lambda _: None)
         self.file = file
+        self.window = window
+        self.horizon_s = horizon_s
         self.feed: ProgramFeed | None = None
         self.last_report: RunReport | None = None
         self.last_error: str = ""
-        self._progress: Progress | None = None
         self._actions: queue.Queue[Action | None] = queue.Queue()
         self._busy = threading.Event()
         self._run_queued = False
-        self._hold_pending = False
         self._unrun = False
         """The feed holds moves no run has taken yet."""
         self._lock = threading.Lock()
@@ -129,12 +107,7 @@ class Operator:
         run in the devices' own counts, without soft limits, until it is homed."""
         self._links = threading.Lock()
         """Held by whoever talks to the devices: the worker, or an idle keep-alive."""
-        self._idle_position: dict[str, float] = session.positions_mm()
-        """Where each axis is commanded to stand at rest (a new program starts there)."""
-        self._idle_actual: dict[str, float] = dict(self._idle_position)
-        """Where each axis's encoder was at rest, mm."""
-        self.idle: dict[str, IdleAxis] = {}
-        """Axis -> its following error, switches and fault as last read at rest."""
+        session.read_live()
         self._thread = threading.Thread(target=self._serve, name="usbmotion-operator",
                                         daemon=True)
         self._thread.start()
@@ -146,10 +119,19 @@ class Operator:
         """True while the worker homes, runs or jogs, or has something queued."""
         return self._busy.is_set() or not self._actions.empty()
 
+    def status(self) -> LiveSnapshot:
+        """The machine now: the session's live model, with a hold asked since it was last
+        published (never waits on a device)."""
+        snapshot = self.session.live.read()
+        pending = self.session.hold_requested
+        return snapshot if snapshot.hold_pending == pending else replace(
+            snapshot, hold_pending=pending)
+
     def submit(self, line: str) -> bool:
         """A G-code line for the machine: interpreted at once (an invalid line raises and
         changes nothing) and run as soon as it holds motion, after what is queued; False
-        when the planner's window is full or the last run is still finishing (try again).
+        when the planner's window or horizon is full, or the last run is still finishing
+        (try again).
 
         Raises:
             GCodeError, PlanningError: the line is invalid or leaves the travel.
@@ -169,7 +151,8 @@ class Operator:
                 if self.busy:
                     return False
                 feed = self.feed = session.open_feed(
-                    file=self.file, unhomed=self.unlocked and not session.is_homed)
+                    file=self.file, unhomed=self.unlocked and not session.is_homed,
+                    window=self.window, horizon_s=self.horizon_s)
                 feed.more_coming = self._more_coming
                 self._unrun = False
             elif feed.closed:
@@ -184,41 +167,36 @@ class Operator:
             return True
 
     def _queue_run(self) -> None:
-        """The feed's run queued for the worker, unless it is, or a hold keeps it waiting
-        (under :attr:`_lock`)."""
-        if self._unrun and not self._run_queued and not self._hold_pending:
+        """The feed's run queued for the worker, unless it is, or a hold latched while idle
+        keeps it waiting for the resume (under :attr:`_lock`)."""
+        if self._unrun and not self._run_queued and not self.session.hold_requested:
             self._run_queued = True
             self._actions.put(self._run_feed)
 
     def hold(self) -> None:
         """Feed hold (``!``): a running program decelerates along its path to rest; asked
-        while idle, the next motion waits. Either way until :meth:`resume` (or
-        :meth:`stop`, :meth:`drop_held`). Ignored in Alarm, while homing or jogging."""
-        session = self.session
-        if session.state in (MachineState.ALARM, MachineState.HOMING) or session.jogging:
-            return
-        with self._lock:
-            self._hold_pending = True
-        session.request_hold()
+        while idle, the next motion starts held. Either way until :meth:`resume` (or
+        :meth:`stop`, :meth:`drop_held`). During a jog it cancels the jog; ignored in
+        Alarm and while homing."""
+        self.session.request_hold()
 
     @property
     def hold_pending(self) -> bool:
         """True from a feed hold until the resume that releases it."""
-        return self._hold_pending
+        return self.session.hold_requested
 
     def resume(self) -> None:
-        """Cycle start (``~``): resume a hold or a pause; lines that came while the
-        machine was held start running."""
-        with self._lock:
-            self._hold_pending = False
-            self._queue_run()
+        """Cycle start (``~``): resume a hold or a pause, or release a hold latched while
+        idle (the lines that came meanwhile start running)."""
         self.session.request_resume()
+        with self._lock:
+            self._queue_run()
 
     def drop_held(self) -> None:
         """Forget a feed hold asked while idle and the lines that came since, which no run
         has taken (a reset while idle); the modal state stays."""
+        self.session.drop_hold()
         with self._lock:
-            self._hold_pending = False
             if self._unrun and not self._run_queued and self.feed is not None:
                 self.feed.restart(self._where())
                 self._unrun = False
@@ -226,9 +204,7 @@ class Operator:
     def stop(self) -> None:
         """Stop (Ctrl-X): every axis to rest along its deceleration, what is queued dropped;
         the machine stays homed and Idle. A pending hold is forgotten."""
-        with self._lock:
-            self._hold_pending = False
-        self.session.request_stop("stopped by the operator")
+        self.session.request_stop(StopReason.OPERATOR.value)
 
     def jog(self, moves: Mapping[str, float], *, feed_mm_min: float, work: bool = False,
             absolute: bool = False, continuous: bool = False) -> None:
@@ -243,8 +219,7 @@ class Operator:
 
         def go() -> None:
             report = self.session.jog(moves, feed_mm_min=feed_mm_min, work=work,
-                                      absolute=absolute, continuous=continuous,
-                                      on_progress=self._on_progress)
+                                      absolute=absolute, continuous=continuous)
             self._ended(report)
 
         self._actions.put(go)
@@ -259,7 +234,7 @@ class Operator:
         self.session.request_jog_cancel()
 
     def home(self) -> None:
-        """Queue homing every axis.
+        """Queue homing every axis (from Alarm too: homing resets first, as grbl's ``$H``).
 
         Raises:
             MachineStateError: the machine is busy.
@@ -268,7 +243,7 @@ class Operator:
             raise MachineStateError("the machine is busy", state=self.session.state.value)
 
         def go() -> None:
-            seconds = self.session.home(on_progress=self._on_progress)
+            seconds = self.session.home()
             self.on_message(f"homed in {seconds:.2f} s")
 
         self._actions.put(go)
@@ -291,51 +266,20 @@ class Operator:
                     self.feed = None  # its positions were homed ones
             return unhomed
 
-    def status(self) -> OperatorStatus:
-        """What the machine is doing and where (never waits on a device)."""
-        session = self.session
-        progress = self._progress
-        busy = self.busy
-        if busy and progress is not None:
-            where: Mapping[str, float] = progress.actual_mm or progress.position_mm
-            line = progress.line
-            error: Mapping[str, float] = progress.following_error_mm
-        else:
-            where, line = self._idle_actual, 0
-            error = {name: axis.following_error_mm for name, axis in self.idle.items()}
-        state = "Jog" if session.jogging else session.state.value
-        if self._hold_pending and session.state is MachineState.IDLE:
-            state = MachineState.HOLD.value
-        pause = session.paused.message if session.paused is not None else ""
-        return OperatorStatus(state, dict(where), line, busy, pause,
-                              session.feed_override_percent, session.rapid_override_percent,
-                              dict(error))
-
     def keep_alive(self) -> None:
-        """When idle: feed the watchdogs and read where every axis is, its following
-        error and its switches (:attr:`idle`); the worker's own actions keep the watchdogs
-        fed while it works. Never waits for the worker."""
+        """When idle: feed the watchdogs, take the operator's requests and refresh the live
+        model from the devices; the worker's own actions keep the watchdogs fed while it
+        works. Never waits for the worker."""
         if self.busy or not self._links.acquire(blocking=False):
             return
         try:
             if not self.busy:
                 if self.on_idle is not None:
                     self.on_idle()
-                self._read_idle()
+                self.session.requests.take()
+                self.session.read_live()
         finally:
             self._links.release()
-
-    def _read_idle(self) -> None:
-        statuses = self.session.machine.status()
-        machine = self.session.machine
-        self._idle_position = {name: machine.axis(name).scale.to_mm(status.desired_counts)
-                               for name, status in statuses.items()}
-        self._idle_actual = {name: machine.axis(name).scale.to_mm(status.actual_counts)
-                             for name, status in statuses.items()}
-        self.idle = {name: IdleAxis(
-            machine.axis(name).scale.to_mm(status.actual_counts - status.desired_counts),
-            bool(status.lower_limit or status.upper_limit), int(status.fault))
-            for name, status in statuses.items()}
 
     def wait_idle(self, timeout_s: float | None = None) -> bool:
         """Until nothing is queued or running; False on the timeout."""
@@ -379,9 +323,8 @@ class Operator:
                     self.on_message(f"error: {error}")
                 finally:
                     self.session.clear_stop_request()
-                    self._progress = None
                     try:
-                        self._read_idle()
+                        self.session.read_live()
                     except UsbMotionError as error:
                         self.on_message(f"error: reading the positions: {error}")
                     self._busy.clear()
@@ -389,7 +332,7 @@ class Operator:
     def _run_feed(self) -> None:
         with self._lock:
             feed = self.feed
-            if self._hold_pending or not self._unrun:  # held: the resume queues it again
+            if self.session.hold_requested or not self._unrun:  # the resume queues it again
                 self._run_queued = False
                 return
             self._unrun = False
@@ -397,7 +340,7 @@ class Operator:
         try:
             if feed is None or not feed.has_moves:
                 return
-            report, _ = self.session.run_feed(feed, on_progress=self._on_progress)
+            report, _ = self.session.run_feed(feed)
             completed = report.completed
         finally:
             with self._lock:
@@ -411,19 +354,11 @@ class Operator:
             with self._lock:
                 feed.restart(tuple(here[name] for name in program_axes(self.session.config)))
                 feed.close()
-            self._idle_position = here
 
     def _ended(self, report: RunReport) -> None:
         self.last_report = report
         if not report.completed:
             self.on_message(f"stopped: {report.stop_reason}")
-
-    def _on_progress(self, progress: Progress) -> None:
-        self._progress = progress
-        session = self.session
-        if (self._hold_pending and session.state is MachineState.RUN
-                and not session.hold_requested):
-            session.request_hold()  # asked while the run was starting
 
     def _more_coming(self) -> bool:
         waiting = self.lines_waiting
@@ -434,9 +369,9 @@ class Operator:
                         " ~ resumes")
 
     def _where(self) -> tuple[float, ...]:
-        """Where a new program starts: where the machine stands."""
-        where = self._idle_position
+        """Where a new program starts: where the machine is commanded to stand."""
+        where = self.session.live.read().machine_mm(measured=False)
         return tuple(where[name] for name in program_axes(self.session.config))
 
 
-__all__ = ["Operator", "OperatorStatus", "parse_steps"]
+__all__ = ["Operator", "parse_steps"]

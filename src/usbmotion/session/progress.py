@@ -1,46 +1,70 @@
-"""What a front shows while the machine homes or runs: its state, the program line and
-where each axis is."""
+"""What a run tells the live model as it goes: from the device clock of the devices' last
+diagnostics lines, the row of the setpoints they execute, so the program line, how far the
+program is (by line and by planned time) and what is left."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable
 
+from usbmotion.motion.gcode import GCodeProgram
+from usbmotion.session.feeding import Feeding
+from usbmotion.session.legs import Legs
+from usbmotion.session.live import LiveModel
 from usbmotion.session.state import MachineState
+from usbmotion.session.streaming import RunStreams
+
+PROGRESS_S = 0.05
+"""With someone following the live model, a run publishes it at least this often in device
+time, however fast (virtual) time runs."""
 
 
-@dataclass(frozen=True, slots=True)
-class Progress:
-    """One progress report of a homing or a run.
+class RunProgress:
+    """A run's reports to the live model.
 
-    Fields:
-        state: the machine's state (Homing, Run).
-        position_mm: axis -> position, mm: while running, the setpoint the devices have
-            reached by the session's estimate; while homing, each axis's actual position
-            as last read (device counts until its zero is set).
-        line: the G-code line being executed (0: none, as while homing).
-        done_s: program seconds done (0 while homing).
-        total_s: program seconds in all (0 while homing).
-        actual_mm: while running, axis -> where its encoder was at its last diagnostics
-            line (up to the trace's period old), mm.
-        following_error_mm: while running, axis -> actual minus commanded position at
-            that line, mm.
+    Parameters:
+        live: the model; ``legs``, ``streams``, ``feeding`` the run's parts.
+        program: the program run (a fed program's total lines grow as they come).
+        fields: what the live model shows of the session besides (offsets, tool).
     """
 
-    state: MachineState
-    position_mm: Mapping[str, float] = field(default_factory=dict)
-    line: int = 0
-    done_s: float = 0.0
-    total_s: float = 0.0
-    actual_mm: Mapping[str, float] = field(default_factory=dict)
-    following_error_mm: Mapping[str, float] = field(default_factory=dict)
+    def __init__(self, live: LiveModel, legs: Legs, streams: RunStreams, feeding: Feeding,
+                 program: GCodeProgram, *, fields: Callable[[], dict[str, object]]) -> None:
+        self.live, self.legs, self.streams, self.feeding = live, legs, streams, feeding
+        self.program = program
+        self.fields = fields
+        self.axes = streams.axes
+        self.published_tick = 0
+        self.progress_ticks = max(1, round(PROGRESS_S / live.tick_s))
 
-    def describe(self) -> str:
-        """One line: ``Run  line 12  X 10.000  Y 5.000  Z 1.000 mm``."""
-        parts = [self.state.value]
-        if self.line:
-            parts.append(f"line {self.line}")
-        if self.position_mm:
-            parts.append("  ".join(f"{axis} {mm:.3f}" for axis, mm in self.position_mm.items())
-                         + " mm")
-        return "  ".join(parts)
+    def row_at_tick(self, tick: int) -> float:
+        """The row of the setpoints due at device tick ``tick``."""
+        return (tick - self.streams.start_tick) / self.streams.scalar
+
+    def line_at_tick(self, tick: int) -> int:
+        """The program line the devices execute at device tick ``tick``."""
+        return self.legs.place(self.row_at_tick(tick)).line if self.legs.count else 0
+
+    def publish(self, state: MachineState, *, force: bool, at_rest: bool, hold_pending: bool,
+                pause: str) -> None:
+        """Publish the live model (at most every :data:`~usbmotion.session.live.PUBLISH_S`
+        of wall time, and with a listener every :data:`PROGRESS_S` of device time, unless
+        ``force``)."""
+        live = self.live
+        ticks = live.ticks(self.axes)
+        tick = min(ticks) if ticks else 0
+        if not (force or live.due() or (
+                live.on_publish and tick - self.published_tick >= self.progress_ticks)):
+            return
+        self.published_tick = tick
+        legs = self.legs
+        row = self.row_at_tick(tick) if ticks and self.streams.sync else 0.0
+        place = legs.place(row)
+        total_s = legs.plan.duration_s
+        live.publish(
+            state=state, at_rest=at_rest, hold_pending=hold_pending, program=self.program.file,
+            line=place.line, lines_done=place.line,
+            lines_total=max(self.program.end_line, self.feeding.lines_total()),
+            done_s=min(place.program_time_s, total_s), total_s=total_s,
+            eta_s=0.0 if at_rest else legs.left_s(row),
+            feed_override=legs.overrides[0], rapid_override=legs.overrides[1], pause=pause,
+            **self.fields())

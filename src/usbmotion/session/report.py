@@ -44,12 +44,14 @@ class AxisResult:
 
 @dataclass(frozen=True, slots=True)
 class FaultRecord:
-    """A fault seen during the run: which axis, what, when, and at which program line."""
+    """A fault seen during the run: which axis, what (in words, and the device's fault
+    code), when, and at which program line."""
 
     axis: str
     fault: str
     time_s: float
     line: int
+    code: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,6 +74,23 @@ class IgnoredWordRecord:
     def all_of(cls, program: GCodeProgram) -> tuple[IgnoredWordRecord, ...]:
         """One record per kind of word the program ignored, in the order of first use."""
         return tuple(cls.of(word, count) for word, count in distinct_ignored(program.ignored))
+
+
+@dataclass(frozen=True, slots=True)
+class ToolChangeRecord:
+    """A tool change the program made: its line, the tool put in the spindle and its pocket
+    in the tool table (0: none), and whether it was a manual change (M6) or only said which
+    tool is in the spindle (M61)."""
+
+    line: int
+    tool: int
+    pocket: int
+    manual: bool = True
+
+    @classmethod
+    def all_of(cls, program: GCodeProgram) -> tuple[ToolChangeRecord, ...]:
+        """The program's tool changes, in order."""
+        return tuple(cls(c.line, c.tool, c.pocket, c.manual) for c in program.tool_changes)
 
 
 @dataclass(frozen=True, slots=True)
@@ -113,6 +132,7 @@ class RunReport:
     max_endpoint_miss_mm: float = 0.0
     link_error: str = ""
     notes: tuple[str, ...] = ()
+    tool_changes: tuple[ToolChangeRecord, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         """The report as plain JSON-ready data."""
@@ -175,31 +195,69 @@ def line_at(plan: Plan, time_s: float) -> int:
     return int(plan.line[min(max(index, 0), len(plan) - 1)])
 
 
+@dataclass(frozen=True, slots=True)
+class RunEnding:
+    """How a run ended, for its report.
+
+    Fields:
+        reason: why, in the report's words (``completed``, ``fault: ...``, ...).
+        completed: it ran to its end.
+        rows_executed: setpoints of every axis the devices are known to have executed
+            (every leg since the start); ``rows_total`` those streamed.
+        stopped_at_s: where on the program it stopped (program time, s); ``stopped_at_line``
+            the line there.
+        stop_distance_mm, stop_planned_mm, stop_latency_s: a stop's figures.
+        skew_s: the start's estimated skew between axes.
+        link_error: the lost link's error ("" none).
+        notes: what else the report says.
+    """
+
+    reason: str
+    completed: bool
+    rows_executed: int
+    rows_total: int
+    stopped_at_s: float = 0.0
+    stopped_at_line: int = 0
+    stop_distance_mm: float = 0.0
+    stop_planned_mm: float = 0.0
+    stop_latency_s: float = 0.0
+    skew_s: float = 0.0
+    link_error: str = ""
+    notes: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class LastHeard:
+    """What the run last heard of an axis whose device no longer answers: its encoder's
+    position (mm) and the largest following error its diagnostics lines carried (counts)
+    and when (s since the start)."""
+
+    position_mm: float
+    peak_error_counts: int
+    peak_s: float
+
+
 def build_report(
     program: GCodeProgram,
     machine: Machine,
     plan: Plan,
-    setpoint_count: int,
     trace: Trace,
     homing_s: float,
     statuses: Mapping[str, Status],
     stats: Mapping[str, MotionStats],
     faults: list[FaultRecord],
+    ending: RunEnding,
     *,
-    completed: bool,
-    consumed: int,
-    skew_s: float,
-    stop_reason: str,
-    stop_distance_mm: float = 0.0,
-    stop_planned_mm: float = 0.0,
-    stop_latency_s: float = 0.0,
-    link_error: str = "",
-    notes: tuple[str, ...] = (),
+    line_at_tick: Callable[[int], int],
+    last_heard: Mapping[str, LastHeard] | None = None,
 ) -> RunReport:
-    """The report of a run from what the devices said at its end."""
+    """The report of a run from what the devices said at its end (an axis that said
+    nothing more: from what was last heard of it, and a note says so)."""
     config = machine.config
     period_s = config.motion_period_s
+    heard = last_heard or {}
     results: list[AxisResult] = []
+    notes = list(ending.notes)
     executed_s = 0.0
     settle_s = 0.0
     axes = plan.axes
@@ -212,51 +270,67 @@ def build_report(
             late = np.nonzero(np.abs(error) > SETTLE_COUNTS)[0]
             settle_s = max(settle_s, float(t_run[late[-1]]) if late.size else 0.0)
         scale = machine.axis(name).config.counts_per_mm
-        axis_stats = stats.get(name, MotionStats(0, 0, 0, 0, -1))
+        status = statuses.get(name)
+        final = status.desired_counts - status.actual_counts if status is not None else 0
+        axis_stats = stats.get(name)
+        if axis_stats is None:
+            last = heard.get(name)
+            peak = abs(last.peak_error_counts) if last is not None else 0
+            rms = float(np.sqrt(np.mean(error.astype(np.float64) ** 2))) if error.size else 0.0
+            peak_s = last.peak_s if last is not None else 0.0
+            notes.append(f"axis {name}: its device's statistics could not be read: its"
+                         f" following error is from its diagnostics lines ({error.size}"
+                         " kept), as last heard")
+            results.append(AxisResult(
+                name, peak, rms, peak / scale, rms / scale, final, int(error.size),
+                ticks=0, max_error_time_s=peak_s,
+                max_error_line=line_at_tick(trace.start_tick + round(peak_s / trace.tick_s))))
+            continue
         if axis_stats.last_take_tick >= 0:
             executed_s = max(executed_s,
                              (axis_stats.last_take_tick - trace.start_tick) * trace.tick_s)
         peak_s = max(0.0, (axis_stats.max_error_tick - trace.start_tick) * trace.tick_s)
-        status = statuses.get(name)
         results.append(AxisResult(
             name, axis_stats.max_error_counts, axis_stats.rms_error_counts,
             axis_stats.max_error_counts / scale, axis_stats.rms_error_counts / scale,
-            status.desired_counts - status.actual_counts if status is not None else 0,
-            int(error.size), ticks=axis_stats.ticks, max_error_time_s=peak_s,
-            max_error_line=line_at(plan, peak_s) if axis_stats.ticks else 0,
+            final, int(error.size), ticks=axis_stats.ticks, max_error_time_s=peak_s,
+            max_error_line=line_at_tick(axis_stats.max_error_tick) if axis_stats.ticks else 0,
         ))
-    end_positions = {
-        name: machine.axis(name).scale.to_mm(status.actual_counts)
-        for name, status in statuses.items()
-    }
-    stopped_time = consumed * period_s
+    end_positions = {name: machine.axis(name).scale.to_mm(status.actual_counts)
+                     for name, status in statuses.items()}
+    for name, last in heard.items():
+        if name not in end_positions:
+            end_positions[name] = last.position_mm
+    completed = ending.completed
+    executed_rows_s = ending.rows_executed * period_s
     checked, miss = _endpoint_misses(program, trace, axes) if completed else (0, 0.0)
     return RunReport(
         program=program.file,
         machine=config.name,
         moves=len(program.moves),
-        setpoints_per_axis=setpoint_count,
+        setpoints_per_axis=ending.rows_total,
         planned_time_s=plan.duration_s,
-        executed_time_s=executed_s if completed else stopped_time,
-        settle_time_s=max(settle_s, executed_s) if completed else stopped_time,
+        executed_time_s=executed_s if completed else executed_rows_s,
+        settle_time_s=max(settle_s, executed_s) if completed else executed_rows_s,
         homing_time_s=homing_s,
         axes=tuple(results),
         faults=tuple(faults),
         ignored_words=IgnoredWordRecord.all_of(program),
         end_position_mm=end_positions,
         completed=completed and not faults,
-        stop_reason=stop_reason,
-        stopped_at_s=plan.duration_s if completed else stopped_time,
-        stop_distance_mm=stop_distance_mm,
-        stop_planned_mm=stop_planned_mm,
-        stop_latency_s=stop_latency_s,
-        stopped_at_line=0 if completed else line_at(plan, stopped_time),
-        stopped_at_setpoint=0 if completed else consumed,
-        skew_estimate_s=skew_s,
+        stop_reason=ending.reason,
+        stopped_at_s=plan.duration_s if completed else ending.stopped_at_s,
+        stop_distance_mm=ending.stop_distance_mm,
+        stop_planned_mm=ending.stop_planned_mm,
+        stop_latency_s=ending.stop_latency_s,
+        stopped_at_line=0 if completed else ending.stopped_at_line,
+        stopped_at_setpoint=0 if completed else ending.rows_executed,
+        skew_estimate_s=ending.skew_s,
         endpoints_checked=checked,
         max_endpoint_miss_mm=miss,
-        link_error=link_error,
-        notes=notes,
+        link_error=ending.link_error,
+        notes=tuple(notes),
+        tool_changes=ToolChangeRecord.all_of(program),
     )
 
 
@@ -328,4 +402,5 @@ def unstarted_report(program: GCodeProgram, machine_name: str, plan: Plan, *,
         ignored_words=IgnoredWordRecord.all_of(program),
         end_position_mm=dict(end_position_mm), completed=False, stop_reason=stop_reason,
         stopped_at_s=0.0, stopped_at_line=0, stopped_at_setpoint=0,
-        stop_latency_s=stop_latency_s, notes=notes)
+        stop_latency_s=stop_latency_s, notes=notes,
+        tool_changes=ToolChangeRecord.all_of(program))

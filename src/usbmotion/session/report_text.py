@@ -39,6 +39,10 @@ def describe(report: RunReport) -> str:
         f"{ignored_kind_label(w.word, w.count)} (line {w.line}: {w.meaning}"
         f"{f'; {w.count} times' if w.count > 1 else ''})"
         for w in report.ignored_words) or "none"))
+    for change in report.tool_changes:
+        pocket = f" (pocket {change.pocket})" if change.pocket else ""
+        what = "put in the spindle (M6)" if change.manual else "said to be in the spindle (M61)"
+        lines.append(f"tool change    line {change.line}: tool {change.tool}{pocket} {what}")
     if report.link_error:
         lines.append(f"LINK LOST      {report.link_error}")
     for note in report.notes:

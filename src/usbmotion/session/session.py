@@ -1,9 +1,12 @@
 """The machine session: one object that owns a connected machine and operates it.
 
-It keeps what a real controller keeps for its operator: the machine's state (see
-:mod:`usbmotion.session.state`), the position it believes in (machine coordinates, and
-whether each axis is homed), and the program being run. ``usbmotion run``, the console and
-every later front drive the machine through it.
+It keeps what a real controller keeps for its operator: the machine's state, an explicit
+state machine (:mod:`usbmotion.session.state`), the operator's requests in one queue the
+machine takes at defined points (:mod:`usbmotion.session.requests`), one live model of the
+machine every front reads (:mod:`usbmotion.session.live`), the position it believes in
+(machine coordinates, and whether each axis is homed), and the program being run.
+``usbmotion run``, the console, the grbl front and the dashboard drive the machine through
+it.
 
 - **Taking over** (:meth:`MachineSession.connect`): each link is resynchronised, motion an
   earlier host left running is brought to rest along its deceleration, a fault it left is
@@ -13,24 +16,17 @@ every later front drive the machine through it.
   no fault disabled its servo since (its position may then be lost).
 - **Homing** (:meth:`MachineSession.home`): grbl's cycle on every axis in the configured
   order, machine zero set once from the switch edge the device latched
-  (:mod:`usbmotion.session.homing`).
+  (:mod:`usbmotion.session.homing`); from Alarm it resets first, as grbl's ``$H`` does.
 - **Running** (:meth:`MachineSession.prepare`, :meth:`MachineSession.run`): a program is
   interpreted and planned from where the machine stands (never from 0), checked against
   every axis's travel (soft limits) before anything moves (:mod:`usbmotion.session.planning`),
-  then streamed with every axis started on the same device tick (:mod:`usbmotion.session.run`;
-  the report's figures are :mod:`usbmotion.session.report`'s, its text
-  :mod:`usbmotion.session.report_text`'s).
-- **Stopping** (:meth:`MachineSession.request_stop`, safe from a signal handler): the
-  first request brings every axis to rest along the program's path at its planned
-  deceleration (call 38 replaces the queued future from a device tick just ahead, so there
-  is no seam whatever the latency); a second one stops at once (servos off: the axes coast).
-- **Feed hold, resume, overrides** (:meth:`MachineSession.request_hold`,
-  :meth:`MachineSession.request_resume`, :meth:`MachineSession.set_feed_override`,
-  :meth:`MachineSession.set_rapid_override`, safe from another thread or a signal
-  handler): a hold decelerates along the path as a stop does and keeps the program's
-  place; a resume plans the rest of the path from rest there and starts every axis on
-  one device tick; an override plans the queued future again at the new speed and
-  replaces it from a device tick just ahead (:mod:`usbmotion.motion.replanning`).
+  then streamed with every axis started on the same device tick (:mod:`usbmotion.session.run`).
+- **Requests** (:meth:`MachineSession.request_stop`, :meth:`request_hold`,
+  :meth:`request_resume`, :meth:`request_jog_cancel`, :meth:`set_feed_override`,
+  :meth:`set_rapid_override`; safe from another thread or a signal handler): a stop brings
+  every axis to rest along the program's path (a second one at once); a hold decelerates
+  the same way and keeps the program's place until a resume; an override plans the queued
+  future again at the new speed.
 - **Leaving** (:meth:`MachineSession.shutdown`): every axis at rest, servos disabled
   without latching a fault, the homed mark kept for the next host.
 """
@@ -39,7 +35,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from contextlib import contextmanager
 from pathlib import Path
 
 from usbmotion.automation.device_io import MachineZero
@@ -54,37 +50,32 @@ from usbmotion.errors import (
 from usbmotion.host.config import MachineConfig
 from usbmotion.host.machine import Machine
 from usbmotion.motion.dialects import Dialect
-from usbmotion.motion.gcode import Pause, Pauses, read_gcode_text
+from usbmotion.motion.gcode import GCodeProgram, Pause, Pauses, read_gcode_text
 from usbmotion.motion.moves import AXIS_ORDER, Point
 from usbmotion.motion.offsets import WorkOffsets, read_parameter_file, write_parameter_file
 from usbmotion.motion.tools import NO_TOOLS, ToolTable, load_tool_table
 from usbmotion.protocol import FaultCode, fault_words
+from usbmotion.session.context import RunContext
 from usbmotion.session.feed import WINDOW_MOVES, ProgramFeed
+from usbmotion.session.feeding import READ_AHEAD_S
 from usbmotion.session.homing import HomingCycle, home_position_mm, homed_mark
+from usbmotion.session.jog import check_jog, jog_text
+from usbmotion.session.live import AxisScale, LiveModel, LiveSnapshot
 from usbmotion.session.planning import Prepared, plan_axes, prepare_program, program_axes
-from usbmotion.session.progress import Progress
 from usbmotion.session.report import RunReport, Trace
+from usbmotion.session.requests import (
+    Request,
+    RequestKind,
+    RequestQueue,
+    check_feed_override,
+    check_rapid_override,
+)
 from usbmotion.session.rest import STOP_LEAD_S, wait_for_rest
-from usbmotion.session.run import READ_AHEAD_S, Run
-from usbmotion.session.state import MachineState, StopReason, check_transition
+from usbmotion.session.run import Run
+from usbmotion.session.state import Event, MachineState, StateMachine, StopReason
 
-FEED_OVERRIDE_RANGE = (10, 200)
-"""The feed override's range, percent (grbl's)."""
-RAPID_OVERRIDES = (25, 50, 100)
-"""The rapid override's values, percent (grbl's)."""
-
-
-@dataclass(slots=True)
-class _Requests:
-    """Stop, hold and resume requests, set from a signal handler: plain fields only."""
-
-    reason: str = ""
-    count: int = 0
-    at_s: float = 0.0
-    """When the first stop request came (the session's clock)."""
-    hold: bool = False
-    hold_at_s: float = 0.0
-    resume: bool = False
+LIVE_IDLE_S = 0.1
+"""How often the live model of an idle machine may be refreshed from the devices."""
 
 
 class MachineSession:
@@ -101,15 +92,21 @@ class MachineSession:
         self.machine = machine
         self.config = machine.config
         self.clock = machine.clock
-        self._state = MachineState.IDLE
+        self.states = StateMachine()
+        """The machine's state: changed only through :meth:`StateMachine.fire`."""
+        self.requests = RequestQueue()
+        """The operator's requests, taken at defined points."""
+        self.live = LiveModel({name: AxisScale(axis.config.counts_per_mm)
+                               for name, axis in machine.axes.items()},
+                              tick_s=self.config.servo_period_s)
+        """The live model of the machine every front reads."""
         self.homed: dict[str, bool] = dict.fromkeys(machine.axes, False)
         """Axis -> True when its device's counter holds machine coordinates."""
         self.live_control = False
         """True when something may ask for a hold, a resume or an override while a program
-        runs (a console, a front): the run then looks at requests every
-        :data:`~usbmotion.session.run.REQUEST_CHECK_S` (a hold within 20 ms) instead of
-        every :data:`~usbmotion.session.run.FAULT_CHECK_S` (a batch run: fewer wake-ups,
-        faster in virtual time). Requests work either way; only how soon differs."""
+        runs (a console, a front): a run then looks at requests every 10 ms (a hold within
+        20 ms) instead of every 50 ms, and feeds the live model 50 times a second or more.
+        Requests work either way; only how soon differs."""
         self.notices: list[str] = []
         """What the session found and did that the operator should hear of (a fault an
         earlier host left, motion it stopped, ...), oldest first."""
@@ -122,17 +119,6 @@ class MachineSession:
         self.faults_found: dict[str, tuple[int, int]] = {}
         """Axis -> (fault code, device tick) of a fault an earlier host left, which the
         take-over cleared."""
-        self._requests = _Requests()
-        self.feed_override_percent = 100
-        """Feed moves run at this percentage of their feed (:meth:`set_feed_override`)."""
-        self.rapid_override_percent = 100
-        """Rapids run at this percentage of the axes' speed (:meth:`set_rapid_override`)."""
-        self.override_at_s = 0.0
-        """When an override last changed (the session's clock)."""
-        self.held = False
-        """True while a held (or paused) program waits at rest for a resume."""
-        self.jogging = False
-        """True while a jog runs (:meth:`jog`)."""
         self.optional_stop = False
         """When on, M1 pauses a program as M0 does (the operator's optional stop)."""
         self.on_pause: Callable[[Pause], None] | None = None
@@ -142,6 +128,10 @@ class MachineSession:
         self.last_run: Run | None = None
         """The last run: its holds (:attr:`Run.holds`) and override seams (:attr:`Run.seams`)
         for the figures of a benchmark."""
+        self._jogging = False
+        self._hold_asked = False
+        self._feed: ProgramFeed | None = None
+        self._live_read_s = -math.inf
 
     # --- connecting and taking over ---------------------------------------------------------
 
@@ -228,23 +218,53 @@ class MachineSession:
             values = [round(start + velocity[name] * period * (k - k * k / (2 * steps)))
                       for k in range(1, steps + 1)]
             machine.axis(name).client.replace_from(status.clock + lead, values)
-        wait_for_rest(self.machine, names, stop_now=self._stop_now_requested)
+        wait_for_rest(self.machine, names, stop_now=self._stop_now)
 
     # --- what the machine is and where --------------------------------------------------------
 
     @property
     def state(self) -> MachineState:
         """What the machine is doing."""
-        return self._state
-
-    def _enter(self, state: MachineState) -> None:
-        check_transition(self._state, state)
-        self._state = state
+        return self.states.state
 
     @property
     def is_homed(self) -> bool:
         """True when every axis is homed."""
         return all(self.homed.values())
+
+    @property
+    def jogging(self) -> bool:
+        """True while a jog runs (or comes to rest after its cancel)."""
+        return self._jogging
+
+    @property
+    def held(self) -> bool:
+        """True while a held (or paused) program waits at rest for a resume."""
+        state = self.state
+        return state is MachineState.PAUSED or (state is MachineState.HOLD
+                                                and self.live.read().at_rest)
+
+    @property
+    def hold_requested(self) -> bool:
+        """True from a hold request until the resume (or stop) that releases it: a hold
+        asked while nothing runs holds the next motion, as grbl latches it."""
+        return self._hold_asked or self.requests.taken.hold
+
+    @property
+    def stop_requested(self) -> str:
+        """Why a stop was asked ("" when none was)."""
+        self.requests.take()
+        return self.requests.taken.stop_reason
+
+    @property
+    def feed_override_percent(self) -> int:
+        """Feed moves run at this percentage of their feed (:meth:`set_feed_override`)."""
+        return self.requests.taken.feed_override
+
+    @property
+    def rapid_override_percent(self) -> int:
+        """Rapids run at this percentage of the axes' speed (:meth:`set_rapid_override`)."""
+        return self.requests.taken.rapid_override
 
     def positions_mm(self) -> dict[str, float]:
         """Each axis's commanded position, mm (machine coordinates once homed)."""
@@ -261,6 +281,62 @@ class MachineSession:
             where = self.positions_mm()
             return tuple(where[axis.name] for axis in axes), self.is_homed
         return tuple(home_position_mm(axis) for axis in axes), True
+
+    def read_live(self, *, moving: bool = False) -> LiveSnapshot:
+        """Refresh the live model from every device's status (at rest, or between the
+        polls of what moves) and publish it; the snapshot."""
+        live = self.live
+        for name, status in self.machine.status().items():
+            live.take_status(name, clock=status.clock, desired=status.desired_counts,
+                             actual=status.actual_counts,
+                             limit=bool(status.lower_limit or status.upper_limit),
+                             fault=int(status.fault), moving=moving)
+        self._live_read_s = self.clock.now()
+        return self.publish_live()
+
+    def publish_live(self, **fields: object) -> LiveSnapshot:
+        """Publish the live model with what the session knows (state, homed, overrides,
+        offsets, tool) and ``fields``."""
+        taken = self.requests.taken
+        state = self.state
+        known: dict[str, object] = {
+            "state": state, "homed": self.is_homed,
+            "at_rest": not self.states.moving or (state is MachineState.HOLD and self.held),
+            "feed_override": taken.feed_override, "rapid_override": taken.rapid_override,
+            "hold_pending": self.hold_requested, **self.live_fields()}
+        return self.live.publish(**{**known, **fields})
+
+    @contextmanager
+    def _watching(self, on_progress: Callable[[LiveSnapshot], None] | None) -> Iterator[None]:
+        """``on_progress`` called with every snapshot of the live model while inside."""
+        if on_progress is None:
+            yield
+            return
+        self.live.on_publish.append(on_progress)
+        try:
+            yield
+        finally:
+            self.live.on_publish.remove(on_progress)
+
+    def live_fields(self) -> dict[str, object]:
+        """What the live model shows of the session: the work offset in effect, the
+        coordinate system and the tool (a fed program's modal state, else the parameter
+        file's)."""
+        axes = program_axes(self.config)
+        feed = self._feed
+        if feed is not None:
+            modes = feed.modes()
+            return {"work_offset_mm": dict(zip(axes, modes.offset_mm, strict=True)),
+                    "coordinate_system": modes.coordinate_system, "tool": modes.tool}
+        try:
+            offsets = self.work_offsets()
+        except (UsbMotionError, OSError):
+            return {}
+        base = offsets.g5x[offsets.coordinate_system - 1]
+        g92 = offsets.g92 if offsets.g92_enabled else (0.0,) * len(AXIS_ORDER)
+        return {"work_offset_mm": {a: base[AXIS_ORDER.index(a)] + g92[AXIS_ORDER.index(a)]
+                                   for a in axes},
+                "coordinate_system": offsets.coordinate_system}
 
     # --- programs -----------------------------------------------------------------------------
 
@@ -308,7 +384,7 @@ class MachineSession:
 
     def open_feed(self, *, file: str = "<stream>", source: Iterator[str] | None = None,
                   dialect: Dialect | None = None, unhomed: bool = False,
-                  window: int = WINDOW_MOVES) -> ProgramFeed:
+                  window: int = WINDOW_MOVES, horizon_s: float | None = None) -> ProgramFeed:
         """A program to be written line by line (:class:`ProgramFeed`) from where the
         machine stands, with the machine's tool table, work offsets and pause rule; run it
         with :meth:`run_feed` while lines are added (or read from ``source``).
@@ -319,15 +395,15 @@ class MachineSession:
         """
         if not self.is_homed and not unhomed:
             raise MachineStateError("the machine is not homed: home it first",
-                                    state=self._state.value)
+                                    state=self.state.value)
         start_mm, homed = self.start_position_mm(unhomed=unhomed)
         return ProgramFeed(self.config, start_mm=start_mm, homed=homed, file=file,
                            source=source, dialect=dialect, tools=self.tool_table(),
                            offsets=self.work_offsets(), pauses=self.pause_rule(),
-                           window=window)
+                           window=window, horizon_s=horizon_s)
 
     def run_feed(self, feed: ProgramFeed, *,
-                 on_progress: Callable[[Progress], None] | None = None,
+                 on_progress: Callable[[LiveSnapshot], None] | None = None,
                  ) -> tuple[RunReport, Trace]:
         """Run a program while it is being written: its moves are planned with look-ahead
         as they come and streamed; the run ends once the feed is complete (closed, its
@@ -348,17 +424,17 @@ class MachineSession:
             snapshot = feed.snapshot()
             plan = feed.plan(snapshot)
         prepared = Prepared(feed.program(), plan, feed.start_mm, feed.homed, feed.offsets)
-        return self.run(prepared, on_progress=on_progress, feed=feed)
+        return self.run(prepared, feed=feed, on_progress=on_progress)
 
     # --- jogging ------------------------------------------------------------------------------
 
     def jog(self, moves: Mapping[str, float], *, feed_mm_min: float, work: bool = False,
             absolute: bool = False, continuous: bool = False,
-            on_progress: Callable[[Progress], None] | None = None) -> RunReport:
+            on_progress: Callable[[LiveSnapshot], None] | None = None) -> RunReport:
         """Jog: move axes at a feed, planned with each axis's acceleration, within the soft
-        limits; returns the report. :meth:`request_jog_cancel` (or any stop request)
-        brings every axis to rest along its deceleration and drops the rest (Idle,
-        homed); a hold holds it.
+        limits, at 100 % whatever the feed override (as grbl jogs); returns the report.
+        :meth:`request_jog_cancel` (a hold, or any stop request) brings every axis to rest
+        along its deceleration and drops the rest (Idle, homed).
 
         Parameters:
             moves: axis -> distance, mm (incremental, the default); target (``absolute``);
@@ -375,73 +451,35 @@ class MachineSession:
             MachineStateError: not Idle, or not homed (a jog needs soft limits).
             SoftLimitError: the jog leaves an axis's travel (nothing moves).
         """
-        axes = program_axes(self.config)
-        for name, value in moves.items():
-            if name not in axes:
-                raise ArgumentError(f"jog axis {name!r}: allowed {', '.join(axes)}",
-                                    reason="jog")
-            if not math.isfinite(value):
-                raise ArgumentError(f"jog {name}{value!r}: not a finite number", reason="jog")
-        if not moves:
-            raise ArgumentError("a jog names at least one axis", reason="jog")
-        if isinstance(feed_mm_min, bool) or not (math.isfinite(feed_mm_min)
-                                                 and feed_mm_min > 0):
-            raise ArgumentError(f"jog feed {feed_mm_min!r} mm/min: a speed > 0",
-                                reason="feed")
+        check_jog(moves, feed_mm_min, program_axes(self.config))
         if not self.is_homed:
             raise MachineStateError("a jog needs a homed machine (its soft limits): home it"
-                                    " first", state=self._state.value)
-        words = moves
-        if continuous:
-            words = self._continuous_targets(moves)
-            work, absolute = False, True
-        mode = ("G90" if absolute else "G91") + ("" if work else " G53")
-        if not absolute and not work:
-            here = self.positions_mm()
-            words = {name: here[name] + value for name, value in moves.items()}
-            mode = "G90 G53"
-        text = (f"{mode} G1 " + " ".join(f"{name}{value:.6f}" for name, value in words.items())
-                + f" F{feed_mm_min:.6f}\nM2\n")
+                                    " first", state=self.state.value)
+        text = jog_text(self.config, self.positions_mm(), moves, feed_mm_min=feed_mm_min,
+                        work=work, absolute=absolute, continuous=continuous)
         prepared = self.prepare("<jog>", text=text)
-        self.jogging = True
+        self._jogging = True
         try:
-            report, _ = self.run(prepared, on_progress=on_progress)
+            report, _ = self.run(prepared, jog=True, on_progress=on_progress)
         finally:
-            self.jogging = False
-            if self._requests.reason == StopReason.JOG_CANCELLED.value:
+            self._jogging = False
+            if self.requests.taken.stop_reason == StopReason.JOG_CANCELLED.value:
                 self.clear_stop_request()
         return report
-
-    def _continuous_targets(self, directions: Mapping[str, float]) -> dict[str, float]:
-        """Where a continuous jog along ``directions`` meets the first soft limit."""
-        here = self.positions_mm()
-        length = math.sqrt(sum(v * v for v in directions.values()))
-        if length == 0.0:
-            raise ArgumentError("a continuous jog needs a direction: a value other than 0",
-                                reason="jog")
-        reach = math.inf
-        for name, value in directions.items():
-            if value:
-                lower, upper = self.config.axis(name).travel_mm
-                room = (upper - here[name]) if value > 0 else (here[name] - lower)
-                reach = min(reach, max(0.0, room) / (abs(value) / length))
-        return {name: here[name] + value / length * reach for name, value in directions.items()}
 
     def request_jog_cancel(self) -> None:
         """Cancel a jog (grbl's 0x85): every axis to rest along its deceleration, the rest
         of the jog dropped, the machine Idle; nothing when no jog runs. Safe from a signal
         handler or another thread."""
-        if self.jogging:
-            self.request_stop(StopReason.JOG_CANCELLED.value)
+        if self._jogging:
+            self.requests.put(Request(RequestKind.JOG_CANCEL, self.clock.now(),
+                                      reason=StopReason.JOG_CANCELLED.value))
 
     def _pause_at(self, pause: Pause | None) -> None:
-        """The run came to rest at a program pause (or left it): a resume continues."""
+        """The run came to rest at a program pause (or left it)."""
         self.paused = pause
-        if pause is not None:
-            self._requests.resume = False
-            self._requests.hold = True
-            if self.on_pause is not None:
-                self.on_pause(pause)
+        if pause is not None and self.on_pause is not None:
+            self.on_pause(pause)
 
     def tool_table(self) -> ToolTable:
         """The machine's tool table (none: every tool of zero length).
@@ -507,9 +545,9 @@ class MachineSession:
             MachineStateError: the machine is not idle.
             ConfigError: the change needs a restart (see :meth:`Machine.reconfigure`).
         """
-        if self._state is not MachineState.IDLE:
+        if self.state is not MachineState.IDLE:
             raise MachineStateError("the machine file can change only while the machine is"
-                                    " idle", state=self._state.value)
+                                    " idle", state=self.state.value)
         old = self.config
         self.machine.reconfigure(config)
         config = self.config = self.machine.config
@@ -522,54 +560,52 @@ class MachineSession:
                 unhomed.append(name)
         return tuple(unhomed)
 
-    # --- stop requests ------------------------------------------------------------------------
+    # --- the operator's requests ---------------------------------------------------------------
 
     def request_stop(self, reason: str = StopReason.USER.value) -> None:
         """Ask whatever runs to stop: the first request stops along the deceleration, a
-        second one at once. Safe to call from a signal handler (it only sets fields)."""
-        requests = self._requests
-        requests.count += 1
-        if not requests.reason:
-            requests.at_s = self.clock.now()
-            requests.reason = reason
+        second one at once. Safe from a signal handler (it only queues the request)."""
+        self._hold_asked = False
+        self.requests.put(Request(RequestKind.STOP, self.clock.now(), reason=reason))
 
-    @property
-    def stop_requested(self) -> str:
-        """Why a stop was asked ("" when none was)."""
-        return self._requests.reason
-
-    def _stop_now_requested(self) -> bool:
-        return self._requests.count >= 2
+    def _stop_now(self) -> bool:
+        self.requests.take()
+        return self.requests.taken.stop_now
 
     def clear_stop_request(self) -> None:
-        """Forget a stop request (a console does, once the stop is done)."""
-        self._requests = _Requests()
-
-    # --- feed hold, resume and overrides --------------------------------------------------
+        """Forget a stop request (once the stop is done)."""
+        self.requests.clear_stop()
 
     def request_hold(self) -> None:
-        """Ask a running program to hold (grbl's ``!``): every axis decelerates along the
-        path at its acceleration limit to rest and stays there, enabled (state Hold), until
-        :meth:`request_resume` continues the path from there or :meth:`request_stop`
-        abandons the program. Ignored when no program runs or it already holds. Safe to
-        call from a signal handler or another thread (it only sets fields)."""
-        requests = self._requests
-        if self._state is MachineState.RUN and not requests.hold:
-            requests.hold_at_s = self.clock.now()
-            requests.resume = False
-            requests.hold = True
+        """Feed hold (grbl's ``!``): a running program decelerates along the path to rest
+        and stays there, enabled (state Hold), until :meth:`request_resume` continues the
+        path from there or :meth:`request_stop` abandons the program. Asked while idle, the
+        next motion starts held (grbl latches a hold); during a jog it cancels the jog;
+        ignored while homing or in Alarm. Safe from a signal handler or another thread."""
+        state = self.state
+        if state in (MachineState.HOMING, MachineState.ALARM):
+            return
+        if self._jogging or state is MachineState.JOG:
+            self.request_jog_cancel()
+            return
+        self._hold_asked = True
+        self.requests.put(Request(RequestKind.HOLD, self.clock.now()))
 
     def request_resume(self) -> None:
-        """Ask a held program to continue (grbl's ``~``, cycle start): the rest of the path
-        is planned from rest where the axes stand and streamed from a common device tick.
-        Ignored unless the program holds or is holding. Safe from a signal handler."""
-        if self._requests.hold:
-            self._requests.resume = True
+        """Cycle start (grbl's ``~``): a held or paused program continues (the rest of the
+        path planned from rest where the axes stand, streamed from a common device tick),
+        and a hold latched while idle is released. Ignored when nothing holds. Safe from a
+        signal handler."""
+        if not (self.hold_requested or self.state in (MachineState.HOLD, MachineState.PAUSED)):
+            return
+        self._hold_asked = False
+        self.requests.put(Request(RequestKind.RESUME, self.clock.now()))
 
-    @property
-    def hold_requested(self) -> bool:
-        """True from a hold request until the run resumes."""
-        return self._requests.hold
+    def drop_hold(self) -> None:
+        """Forget a hold latched while idle (a reset while idle)."""
+        self._hold_asked = False
+        self.requests.take()
+        self.requests.clear_hold()
 
     def set_feed_override(self, percent: int) -> None:
         """Run feed moves at ``percent`` of their programmed feed (grbl's feed override).
@@ -577,18 +613,14 @@ class MachineSession:
         A running program's queued future is planned again at the new speed from a device
         tick just ahead and replaced there (call 38), the speed changing within the axes'
         acceleration limits; the axes' own velocity limits still apply. Held or idle, the
-        next motion uses it. Safe from another thread.
+        next motion uses it; jogs run at 100 % (as grbl's). Safe from another thread.
 
         Raises:
             ArgumentError: ``percent`` is not a whole number within 10 .. 200.
         """
-        low, high = FEED_OVERRIDE_RANGE
-        if isinstance(percent, bool) or not isinstance(percent, int) or not (
-                low <= percent <= high):
-            raise ArgumentError(f"feed override {percent!r} %: a whole percentage within"
-                                f" {low} .. {high}", reason="feed_override")
-        self.override_at_s = self.clock.now()
-        self.feed_override_percent = percent
+        self.requests.put(Request(RequestKind.FEED_OVERRIDE, self.clock.now(),
+                                  value=check_feed_override(percent)))
+        self._take_when_idle()
 
     def set_rapid_override(self, percent: int) -> None:
         """Run rapids at ``percent`` of the fastest the axes allow (grbl's rapid override:
@@ -597,38 +629,38 @@ class MachineSession:
         Raises:
             ArgumentError: ``percent`` is not one of 25, 50, 100.
         """
-        if isinstance(percent, bool) or percent not in RAPID_OVERRIDES:
-            allowed = ", ".join(map(str, RAPID_OVERRIDES))
-            raise ArgumentError(f"rapid override {percent!r} %: one of {allowed}",
-                                reason="rapid_override")
-        self.override_at_s = self.clock.now()
-        self.rapid_override_percent = percent
+        self.requests.put(Request(RequestKind.RAPID_OVERRIDE, self.clock.now(),
+                                  value=check_rapid_override(percent)))
+        self._take_when_idle()
 
-    def _take_hold_request(self) -> tuple[bool, bool]:
-        """(hold asked, resume asked); a resume clears both."""
-        requests = self._requests
-        if requests.resume:
-            requests.hold = requests.resume = False
-            return True, True
-        return requests.hold, False
+    def _take_when_idle(self) -> None:
+        if self.state is MachineState.IDLE and self.last_run_done():
+            self.requests.take()
+
+    def last_run_done(self) -> bool:
+        """Whether no run is under way."""
+        return not self.states.moving and self.state is not MachineState.PAUSED
+
+    @property
+    def override_at_s(self) -> float:
+        """When an override last changed (the session's clock)."""
+        return self.requests.taken.override_at_s
 
     # --- homing -------------------------------------------------------------------------------
 
     def home(self, *, axes: Sequence[str] | None = None,
-             on_progress: Callable[[Progress], None] | None = None) -> float:
+             on_progress: Callable[[LiveSnapshot], None] | None = None) -> float:
         """Home every axis, or only ``axes`` (grbl's cycle, in the configured order);
-        returns the seconds.
+        returns the seconds. From Alarm the devices' faults are cleared first (grbl's
+        ``$H`` clears an alarm). The live model shows each axis as homing reads it.
 
         Afterwards every homed axis is in position mode, enabled, at its home position (the
         switch's machine position pulled off), and marked homed on its device.
-
-        Parameters:
-            axes: the axes to home (default: every axis), in any order.
-            on_progress: called with the homing's progress at every poll.
+        ``on_progress`` is called with every snapshot of the live model meanwhile.
 
         Raises:
             KeyError: an axis the machine does not have (the message lists those it has).
-            MachineStateError: the machine is not Idle.
+            MachineStateError: the machine is not Idle or in Alarm.
             SequenceFaultError: a switch was not found, did not open, or closed the wrong
                 way round (names the axis); every axis was brought to rest; Alarm.
             StopRequestedError: a stop was asked; every axis was brought to rest; Idle, not
@@ -637,47 +669,61 @@ class MachineSession:
         """
         names = list(self.machine.axes) if axes is None else [
             self.machine.axis(name).name for name in axes]
-        self._enter(MachineState.HOMING)
+        self.requests.take()
+        if self.state is MachineState.ALARM:
+            self._clear_faults()
+        self.states.fire(Event.HOME)
+        self.publish_live()
         started = self.clock.now()
         for name in names:
             self.homed[name] = False
             self.machine.axis(name).client.set_homed_marker(0)
         cycle = HomingCycle(self.machine, keep_alive_period_s=self.keep_alive_period_s(),
-                            stop_now=self._stop_now_requested, axes=names)
+                            stop_now=self._stop_now, axes=names)
         cycle.enter_velocity_mode()
 
         def progress(where: dict[str, float]) -> None:
-            if on_progress is not None:
-                on_progress(Progress(MachineState.HOMING, where))
+            live = self.live
+            for name, mm in where.items():
+                counts = round(mm * self.config.axis(name).counts_per_mm)
+                live.take_status(name, clock=0, desired=counts, actual=counts)
+            if live.due():
+                self.publish_live(at_rest=False)
+
+        def should_stop() -> str:
+            self.requests.take()
+            return self.requests.taken.stop_reason
 
         try:
-            zeroes = cycle.run(should_stop=lambda: self._requests.reason, on_positions=progress)
+            with self._watching(on_progress):
+                zeroes = cycle.run(should_stop=should_stop, on_positions=progress)
         except StopRequestedError:
-            self.stop_latency_s = self.clock.now() - self._requests.at_s
-            self._state = MachineState.IDLE
+            self.stop_latency_s = self.clock.now() - self.requests.taken.stop_at_s
+            self.states.fire(Event.AT_REST)
+            self.read_live()
             raise
-        except (SequenceFaultError, UsbMotionError):
-            self._state = MachineState.ALARM
+        except (SequenceFaultError, UsbMotionError) as error:
+            self.states.fire(Event.FAULT)
+            self.publish_live(alarm=f"homing failed: {error}")
             raise
         self.zeroes.update(zeroes)
         for name in names:
             axis = self.machine.axis(name)
             axis.client.set_homed_marker(homed_mark(self.config, axis.config))
             self.homed[name] = True
-        self._state = MachineState.IDLE
+        self.states.fire(Event.HOMED)
+        self.read_live()
         return self.clock.now() - started
 
     # --- running ------------------------------------------------------------------------------
 
-    def run(
-        self,
-        prepared: Prepared,
-        *,
-        on_progress: Callable[[Progress], None] | None = None,
-        homing_s: float = 0.0,
-        feed: ProgramFeed | None = None,
-    ) -> tuple[RunReport, Trace]:
-        """Run a prepared program; returns the report and the trace.
+    def run(self, prepared: Prepared, *, homing_s: float = 0.0,
+            feed: ProgramFeed | None = None, jog: bool = False,
+            on_progress: Callable[[LiveSnapshot], None] | None = None,
+            ) -> tuple[RunReport, Trace]:
+        """Run a prepared program; returns the report and the trace. The live model follows
+        it (its state, the line the devices execute, progress, where each axis is);
+        ``on_progress`` is called with every snapshot of it meanwhile.
 
         The machine must be where the program was prepared from (prepare it again after
         anything moved). A device fault stops every other axis along its deceleration; a
@@ -688,8 +734,9 @@ class MachineSession:
         Raises:
             MachineStateError: not Idle, or the machine moved since the program was prepared.
         """
-        state = self._state.value
-        if self._state is not MachineState.IDLE:
+        self.requests.take()
+        state = self.state.value
+        if self.state is not MachineState.IDLE:
             raise MachineStateError(f"the machine is in {state}; a program runs from Idle",
                                     state=state)
         if prepared.homed and not self.is_homed:
@@ -703,18 +750,36 @@ class MachineSession:
             raise MachineStateError(
                 f"the program was prepared from {prepared.start_mm} but the machine stands"
                 f" at {here}: prepare it again", state=state)
-        self._enter(MachineState.RUN)
-        run = self.last_run = Run(self, prepared, on_progress, homing_s, feed)
+        taken = self.requests.taken
+        if taken.resume:  # a hold latched while idle, released before the run began
+            self.requests.clear_hold()
+        if jog:
+            taken.jog_cancel = False
+        self.states.fire(Event.JOG if jog else Event.START)
+        self._feed = feed
+        context = RunContext(
+            self.machine, self.config, self.states, self.requests, self.live,
+            live_control=self.live_control, keep_alive_s=self.keep_alive_period_s(),
+            keep_alive=self.keep_alive, on_pause=self._pause_at, live_fields=self.live_fields)
+        run = self.last_run = Run(context, prepared, homing_s=homing_s, feed=feed,
+                                  overrides=not jog)
         try:
-            report, trace = run.go()
+            with self._watching(on_progress):
+                report, trace = run.go()
         finally:
-            self._requests.hold = self._requests.resume = False
-        self._state = MachineState.ALARM if run.faulted else MachineState.IDLE
+            self._feed = None
+            if taken.stop_reason:
+                self.requests.clear_hold()
+                self._hold_asked = False
         for name in run.faulted_axes:
             self.homed[name] = False
+        if run.faulted and self.states.state is not MachineState.ALARM:
+            self.states.fire(Event.FAULT)
         program = run.prepared.program
         if report.completed and program.offsets != prepared.offsets:
             self.save_work_offsets(program.offsets)
+        self.publish_live(alarm=_alarm_words(report) if run.faulted else "",
+                          tool_changes=tuple(_tool_change_words(program)))
         return report, trace
 
     # --- after a fault ------------------------------------------------------------------------
@@ -722,6 +787,12 @@ class MachineSession:
     def reset(self) -> None:
         """Alarm -> Idle: every queue cleared, every servo disabled, every fault cleared; an
         axis whose servo a fault disabled needs homing again."""
+        self._clear_faults()
+        if self.state is MachineState.ALARM:
+            self.states.fire(Event.RESET)
+        self.read_live()
+
+    def _clear_faults(self) -> None:
         machine = self.machine
         for name, status in machine.status().items():
             if status.fault != FaultCode.NONE:
@@ -729,7 +800,6 @@ class MachineSession:
                 machine.axis(name).client.set_homed_marker(0)
         machine.stop()
         machine.clear_faults()
-        self._state = MachineState.IDLE
 
     # --- waiting ------------------------------------------------------------------------------
 
@@ -774,6 +844,21 @@ class MachineSession:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _alarm_words(report: RunReport) -> str:
+    """A faulted run's alarm, in words: the axis, the fault, the line."""
+    if report.faults:
+        first = report.faults[0]
+        return f"axis {first.axis}: {first.fault} at line {first.line}"
+    return report.stop_reason
+
+
+def _tool_change_words(program: GCodeProgram) -> Iterator[str]:
+    """Each tool change of a program, in words."""
+    for change in program.tool_changes:
+        pocket = f" (pocket {change.pocket})" if change.pocket else ""
+        yield f"line {change.line}: tool {change.tool}{pocket}"
 
 
 __all__ = ["MachineSession"]

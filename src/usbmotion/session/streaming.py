@@ -1,0 +1,163 @@
+"""The device side of a run: every program axis's setpoints streamed into its device from a
+common start tick, and the queued future replaced from a seam (call 38) when a stop, a hold,
+an override or more moves change it.
+
+A run gives the streams the rows it has made final (:meth:`RunStreams.release`); rows not
+sent yet can still be revised; rows sent are replaced from a device tick just ahead of the
+devices (:meth:`RunStreams.seam`), each device taking only what its queue has room for
+(:meth:`usbmotion.host.stream.SetpointStream.replace_from`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from usbmotion.host.device import DeviceClient
+from usbmotion.host.machine import Machine
+from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams
+from usbmotion.host.timesync import SyncReport, synchronise_start
+from usbmotion.session.report import SETTLE_COUNTS
+from usbmotion.session.rest import REST_POLL_S, SETTLE_TIMEOUT_S, STOP_LEAD_S
+
+START_MARGIN_S = 0.2
+"""A run's common start tick, beyond the round trips that arm it."""
+RESUME_MARGIN_S = 0.05
+"""A resume's common start tick, beyond the round trips that arm it."""
+REPLACE_BATCH = 600
+"""The most new values a replacement (call 38) carries; the streams send the rest."""
+
+
+class RunStreams:
+    """The streams of a run's program axes (see the module docstring).
+
+    Parameters:
+        machine: the machine; ``axes`` the program axes streamed, in the rows' order.
+        period_s: the motion period; ``scalar`` servo ticks per motion period.
+        on_progress: called after every service of a stream.
+    """
+
+    def __init__(self, machine: Machine, axes: Sequence[str], *, period_s: float,
+                 scalar: int, on_progress: Callable[[StreamProgress], None] | None = None
+                 ) -> None:
+        self.machine = machine
+        self.axes = list(axes)
+        self.clients: list[DeviceClient] = [machine.axis(n).client for n in self.axes]
+        self.period_s = period_s
+        self.scalar = scalar
+        self.tick_s = machine.config.servo_period_s
+        self.on_progress = on_progress
+        self.streams: dict[str, SetpointStream] = {}
+        self.start_tick = 0
+        """The device tick row 0 of the rows streamed is due on."""
+        self.sync: SyncReport | None = None
+        self.released = 0
+        """How many rows the streams were given."""
+
+    # --- starting ---------------------------------------------------------------------------
+
+    def start_together(self, *, first: bool) -> SyncReport:
+        """Arm every axis to start on one device tick (the first start zeroes the clocks)."""
+        if first:
+            self.sync = self.machine.synchronise(margin_s=START_MARGIN_S, axes=tuple(self.axes))
+        else:
+            self.sync = synchronise_start(self.clients, margin_s=RESUME_MARGIN_S, zero=False)
+        self.start_tick = self.sync.devices[0].start_tick
+        return self.sync
+
+    def open(self, rows: npt.NDArray[np.int32], released: int) -> None:
+        """New streams of the first ``released`` of ``rows``."""
+        self.released = released
+        for index, name in enumerate(self.axes):
+            self.streams[name] = SetpointStream(
+                self.machine.axis(name).client, rows[:released, index],
+                period_s=self.period_s, verify=True, on_progress=self.on_progress)
+
+    # --- where the devices are ----------------------------------------------------------------
+
+    @property
+    def sent(self) -> int:
+        """Rows every device has confirmed queued."""
+        return min((stream.sent for stream in self.streams.values()), default=0)
+
+    @property
+    def all_sent(self) -> bool:
+        """Every row given is confirmed queued on every device."""
+        return all(stream.done_sending for stream in self.streams.values())
+
+    def executed(self) -> int:
+        """Rows the devices have probably executed."""
+        return min((s.consumed_estimate for s in self.streams.values()), default=0)
+
+    def device_tick(self) -> float:
+        """The devices' clock now, by the synchronisation's estimate."""
+        assert self.sync is not None, "not started"
+        return self.sync.devices[0].estimate.ticks_at(self.machine.clock.now())
+
+    def seam(self) -> tuple[int, int]:
+        """The first row that can still be replaced, a device tick just ahead, and its
+        tick (call 38 replaces the queued future from there)."""
+        tick = math.ceil(self.device_tick() + STOP_LEAD_S / self.tick_s)
+        index = min(max(0, -(-(tick - self.start_tick) // self.scalar)), self.sent)
+        return index, max(tick, self.start_tick + index * self.scalar)
+
+    def tick_of(self, row: int) -> int:
+        """The device tick row ``row`` is due on."""
+        return self.start_tick + row * self.scalar
+
+    def queues(self) -> int:
+        """The fullest device queue, asked now."""
+        return max(client.queue_status()[0] for client in self.clients)
+
+    # --- giving rows ---------------------------------------------------------------------------
+
+    def release(self, rows: npt.NDArray[np.int32], limit: int) -> bool:
+        """Give the streams rows up to ``limit``; True when there were new ones."""
+        if limit <= self.released:
+            return False
+        for column, name in enumerate(self.axes):
+            self.streams[name].extend(rows[self.released:limit, column])
+        self.released = limit
+        return True
+
+    def revise(self, row: int, rows: npt.NDArray[np.int32], given: int) -> None:
+        """Rows from ``row`` (none sent yet) become ``rows``; the streams have them up to
+        ``given``."""
+        for column, name in enumerate(self.axes):
+            self.streams[name].revise(row, rows[:given - row, column])
+        self.released = given
+
+    def replace(self, tick: int, index: int, rows: npt.NDArray[np.integer], limit: int) -> None:
+        """Every device's queued future from ``tick`` (row ``index``) replaced by ``rows``:
+        up to :data:`REPLACE_BATCH` with call 38, as many as each queue has room for, the
+        rest streamed after them; the streams are given rows up to ``limit``."""
+        given = rows[:limit - index]
+        for column, name in enumerate(self.axes):
+            self.streams[name].replace_from(tick, index, given[:, column], most=REPLACE_BATCH)
+        self.released = limit
+
+    def stream(self, should_stop: Callable[[], bool], *, max_wait_s: float) -> None:
+        """Service the streams until every row given is sent, or ``should_stop``."""
+        run_streams(list(self.streams.values()), should_stop=should_stop, max_wait_s=max_wait_s)
+
+    # --- waiting for the devices ----------------------------------------------------------------
+
+    def settle(self) -> None:
+        """After the last setpoint: until every axis is within SETTLE_COUNTS of it, for at
+        most SETTLE_TIMEOUT_S."""
+        clock = self.machine.clock
+        deadline = clock.now() + SETTLE_TIMEOUT_S
+        while clock.now() < deadline:
+            statuses = self.machine.status()
+            if all(abs(s.desired_counts - s.actual_counts) <= SETTLE_COUNTS
+                   for s in statuses.values()):
+                return
+            clock.sleep(REST_POLL_S)
+
+    def drain(self, should_stop: Callable[[], bool], *, poll_s: float) -> None:
+        """Until every queue is empty, or ``should_stop``."""
+        while not should_stop() and self.queues():
+            self.machine.clock.sleep(poll_s)
