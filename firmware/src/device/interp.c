@@ -851,6 +851,7 @@ static void call_21(const call_t *call) {
     derive();
     platform_servo_lock();
     servo_state.diag_left = vars.diag_n;
+    servo_state.diag_peak = 0;
     copy_in_locked();
     platform_servo_unlock();
     debug_line(21, (field_t[]){NUMBER(vars.diag_n)});
@@ -994,6 +995,7 @@ static void call_35(const call_t *call) {
         s->stats_max_tick = 0;
         s->stats_sum_sq = 0;
         s->last_take = -1;
+        s->diag_peak = 0;
     }
     platform_servo_unlock();
     if (call->is_query) {
@@ -1100,7 +1102,8 @@ static void print_record(const record_t *record) {
     print_template(&template_diagnostics,
                    (field_t[]){NUMBER(record->clock), NUMBER(record->desired),
                                NUMBER(record->actual), NUMBER(record->velocity),
-                               NUMBER(output_mv(record->out)), NUMBER(record->queued)});
+                               NUMBER(output_mv(record->out)), NUMBER(record->queued),
+                               NUMBER(record->peak)});
 }
 
 /* --- device.h ---------------------------------------------------------------------------- */
