@@ -338,7 +338,6 @@ def servo_block(
     last_take = int(state[S_LAST_TAKE])
     diag_count = int(state[S_DIAG_COUNT])
     diag_peak = int(state[S_DIAG_PEAK])
-    peak_size = diag_peak if diag_peak >= 0 else -diag_peak
 
     curve_len = len(curve)
     events = 0
@@ -501,8 +500,7 @@ def servo_block(
             if size > stats_max:
                 stats_max = size
                 stats_max_tick = clock
-            if size > peak_size:
-                peak_size = size
+            if size > abs(diag_peak):
                 diag_peak = following
             square = size * size
             if square > STATS_SUM_CAP - stats_sum_sq:
@@ -532,7 +530,6 @@ def servo_block(
                     state[base + 7] = diag_peak
                     diag_count += 1
                 diag_peak = 0
-                peak_size = 0
                 if diag_count >= diag_room:
                     events |= EVENT_DIAGNOSTICS
         if events != 0:
