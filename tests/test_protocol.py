@@ -23,12 +23,14 @@ from usbmotion.protocol import (
     MAX_LINE_BYTES,
     Call,
     CallSpec,
+    Diagnostics,
     LineSplitter,
     Overlong,
     ReplyKind,
     encode_call,
     format_err,
     parse_call,
+    parse_diagnostics,
     parse_reply,
 )
 from usbmotion.protocol.reference import render_reference, splice
@@ -206,7 +208,8 @@ def test_encode_validates_before_anything_is_sent(
         ("PROPORTIONAL_GAIN 12 -3", ReplyKind.QUERY, 9, "PROPORTIONAL_GAIN", (12, -3), ""),
         ("STATUS 1 2 3 4 5 1 1 0 0", ReplyKind.QUERY, 20, "STATUS",
          (1, 2, 3, 4, 5, 1, 1, 0, 0), ""),
-        ("D 10 5 4 100 -2500 7", ReplyKind.DIAGNOSTICS, None, "D", (10, 5, 4, 100, -2500, 7), ""),
+        ("D 10 5 4 100 -2500 7 -3", ReplyKind.DIAGNOSTICS, None, "D",
+         (10, 5, 4, 100, -2500, 7, -3), ""),
         ("ERR 5 interval_dms 0 is out of range", ReplyKind.ERROR, 5, "ERR", (),
          "interval_dms 0 is out of range"),
         ("ERR ? empty line", ReplyKind.ERROR, None, "ERR", (), "empty line"),
@@ -232,7 +235,18 @@ def test_every_template_parses_back_to_its_call() -> None:
             assert (reply.kind, reply.call) == (kind, spec.number), template.text
 
 
-@pytest.mark.parametrize("line", ["", "HELLO", "SERVO_ENABLE x", "E9", "MOTION_QUEUE 1"])
+def test_a_diagnostics_line_reads_by_field_name() -> None:
+    line = b"D 10 5 4 100 -2500 7 -2147483648\n"
+    values = parse_diagnostics(line)
+    assert values == parse_reply(line).values
+    assert values is not None
+    assert Diagnostics.from_values(values) == Diagnostics(
+        clock=10, desired=5, actual_counts=4, velocity_counts_s=100, output_mv=-2500, queued=7,
+        peak_error_counts=-(2**31))
+
+
+@pytest.mark.parametrize("line", ["", "HELLO", "SERVO_ENABLE x", "E9", "MOTION_QUEUE 1",
+                                  "D 10 5 4 100 -2500 7", "D 10 5 4 100 -2500 7 1 2"])
 def test_unexpected_replies_raise(line: str) -> None:
     with pytest.raises(UnexpectedReplyError):
         parse_reply(line)

@@ -184,6 +184,12 @@ def header() -> str:
     lines += [f"#define CALL_{spec.name} {spec.number}" for spec in CALLS]
     lines += [
         "",
+        "/* Every call as X(NAME, name), in number order: the firmware builds its handler table",
+        " * from this list (a handler call_<name> for each CALL_<NAME>), so none is left out. */",
+        "#define TABLE_CALL_LIST(X) \\",
+        *(f"    X({spec.name}, {spec.name.lower()})"
+          + (" \\" if spec is not CALLS[-1] else "") for spec in CALLS),
+        "",
         "/* One supporting input: its name and inclusive range (Param). */",
         "typedef struct {",
         "    const char *name;",

@@ -228,9 +228,10 @@ def test_diagnostics_lines_at_the_right_ticks() -> None:
     for line, tick in zip(lines, (10, 20, 30), strict=True):
         reply = parse_reply(line)
         assert reply.kind is ReplyKind.DIAGNOSTICS
-        clock, desired, actual, velocity, output_mv, queued = reply.values
+        clock, desired, actual, velocity, output_mv, queued, peak = reply.values
         assert (clock, desired, queued) == (tick, 100, 0)
         assert 0 < actual <= 102
+        assert abs(peak) >= abs(desired - actual), "the line's own tick is in its peak"
         assert velocity >= 0
         assert -12_000 <= output_mv <= 12_000
     send(device, "21 0")
@@ -317,7 +318,7 @@ def test_ticks_until_event_names_the_next_event() -> None:
     device.run(9)
     assert device.ticks_until_event() == 1
     device.run(1)
-    assert take(device) == ["D 10 0 0 0 0 0"]
+    assert take(device) == ["D 10 0 0 0 0 0 0"]
     send(device, "21 0", "28 20", "3 1")
     assert device.ticks_until_event() == 20
     send(device, "28 0", "6 4", "1 3 1 2 3")

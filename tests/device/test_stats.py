@@ -1,11 +1,14 @@
-"""Call 35 (motion statistics), ALARM lines and diagnostics stamped with their own tick."""
+"""Call 35 (motion statistics), the peak following error of diagnostics lines, ALARM lines
+and diagnostics stamped with their own tick."""
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import pytest
 from tests.device.helpers import send, take
 
-from usbmotion.device import Device, core1
+from usbmotion.device import Device, core0, core1
 from usbmotion.device.core1 import STATS_SUM_CAP, wrap_int32
 from usbmotion.device.kernel import numba_available
 from usbmotion.host.device import DeviceClient, MotionStats
@@ -72,6 +75,150 @@ def test_statistics_are_the_same_whatever_the_blocks(fast: bool) -> None:
     assert expected.ticks == total and expected.sum_sq_error > 0
     assert stats(blocked) == expected
     assert stats(jumping) == expected
+
+
+NO_DRIVE = ("33 0 0", "9 0 0", "10 0 0", "11 0 0")
+"""No load and no gain: the output is 0 V and the shaft stays where it is, so the following
+error of each tick is exactly the desired position minus the counter."""
+
+
+@pytest.mark.parametrize("fast", PATHS)
+def test_the_peak_is_signed_and_the_earlier_tick_wins_a_tie(fast: bool) -> None:
+    device = Device(fast=fast)
+    send(device, *NO_DRIVE, "1 6 5 -5 3 -7 7 -2", "3 1", "21 3")
+    device.run(6)
+    assert take(device) == ["D 3 3 0 0 0 3 5", "D 6 -2 0 0 0 0 -7"]
+
+
+@pytest.mark.parametrize("fast", PATHS)
+def test_the_peak_is_the_wrapped_error(fast: bool) -> None:
+    """-2^31 - (2^31 - 1) wraps to 1, -1 - (2^31 - 1) to -2^31 (the largest magnitude)."""
+    device = Device(fast=fast)
+    send(device, *NO_DRIVE, "23 2147483647", "1 2 -2147483648 -1", "3 1", "21 1")
+    device.run(2)
+    assert take(device) == ["D 1 -2147483648 2147483647 0 0 1 1",
+                            "D 2 -1 2147483647 0 0 0 -2147483648"]
+
+
+@pytest.mark.parametrize(("between", "peak"), [
+    (("35 0",), 1),
+    (("21 3",), 1),
+    (("21 0", "21 3"), 1),
+    (("35 -1",), 9),
+    (("21 -1",), 9),
+    (("22 0",), 9),
+    (("23 0", "1 2 1 1"), 9),
+    (("37 5", "1 2 1 1"), 9),
+    (("3 0", "3 1", "1 2 1 1"), 9),
+    (("30 0", "8 35 1"), 9),
+], ids=lambda value: " ".join(value) if isinstance(value, tuple) else str(value))
+def test_the_peak_restarts_with_the_interval_and_the_statistics_reset_only(
+        between: tuple[str, ...], peak: int) -> None:
+    """A tick of error 9, the lines ``between``, then ticks of a smaller error (1, or -4
+    after 37 5): the peak of the next diagnostics line."""
+    device = Device()
+    send(device, *NO_DRIVE, "1 3 9 1 1", "3 1", "21 3")
+    device.run(1)
+    send(device, *between)
+    device.run(3)
+    lines = [line for line in take(device) if line.startswith("D ")]
+    assert int(lines[0].split()[-1]) == peak, lines
+
+
+def pick_peak(errors: list[int]) -> int:
+    """The error of the largest magnitude, the first on a tie; 0 for none."""
+    peak = 0
+    for error in errors:
+        if abs(error) > abs(peak):
+            peak = error
+    return peak
+
+
+PEAK_STEPS: list[tuple[tuple[str, ...], int]] = [
+    (("31 40", "3 1", ramp(60, 40), "1 60 " + " ".join(str(2400 - 40 * i) for i in range(60)),
+      "21 7"), 300),
+    (("35 0",), 31),
+    (("21 5",), 40),
+    (("22 0", "23 100", "1 20 " + " ".join(["-300"] * 20)), 33),
+    ((*NO_DRIVE, "0 700"), 1500),
+    (("21 300",), 10),
+    (("0 -100",), 1000),
+    (("3 0",), 700),
+    (("3 1", "21 5", "29 50", "0 -2000"), 30),
+]
+"""Moves both ways after an armed start, the statistics reset and the interval set between
+two lines, the clock zeroed and the counter set; then no drive: the shaft stops and the error
+stands (ticks core0 skips at rest), lines far apart, a smaller error standing after a larger
+one in the same interval, the servo disabled (ticks not counted); and a following-error
+fault: counted on its tick, nothing counted after it."""
+
+
+def peak_oracle(device: Device) -> list[tuple[str, int]]:
+    """Run PEAK_STEPS a tick at a time: each diagnostics line printed, with the peak that
+    call 21's notes define, from the desired and actual positions of each tick counted."""
+    found: list[tuple[str, int]] = []
+    pending: list[int] = []
+    for lines, ticks in PEAK_STEPS:
+        send(device, *lines)
+        if any(line.split()[:1] == ["21"] or line == "35 0" for line in lines):
+            pending = []
+        for _ in range(ticks):
+            before = device.state
+            device.run(1)
+            after = device.state
+            if (before.enable == 1 and before.mode != 2
+                    and (before.start_tick < 0 or before.clock >= before.start_tick)):
+                pending.append(wrap_int32(after.desired - after.actual))
+            for line in take(device):
+                if line.startswith("D "):
+                    found.append((line, pick_peak(pending)))
+                    pending = []
+    return found
+
+
+def run_steps(device: Device, run: Callable[[Device, int], None]) -> list[str]:
+    printed: list[str] = []
+    for lines, ticks in PEAK_STEPS:
+        printed += send(device, *lines)
+        run(device, ticks)
+        printed += take(device)
+    return printed
+
+
+def run_in_blocks(device: Device, ticks: int) -> None:
+    device.run(ticks)
+
+
+def run_from_event_to_event(device: Device, ticks: int) -> None:
+    done = 0
+    while done < ticks:
+        step = min(device.ticks_until_event(diagnostics=False) or ticks, ticks - done)
+        device.run(step)
+        done += step
+
+
+@pytest.mark.parametrize("fast", PATHS)
+def test_each_line_carries_the_peak_of_every_tick_since_the_line_before(
+        fast: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    expected = peak_oracle(Device(fast=fast))
+    for line, peak in expected:
+        assert int(line.split()[-1]) == peak, line
+    peaks = [peak for _, peak in expected]
+    assert min(peaks) < -500 and max(peaks) > 500, "both signs"
+    assert peaks[:5] == [0, 0, 0, 0, 0], "none counted before the armed start"
+    assert peaks[-1] == 0, "none counted after the fault"
+    skipped: list[int] = []
+
+    def idle_advance(state: core1.IntArray, params: core1.IntArray, ticks: int) -> None:
+        skipped.append(int(state[core1.S_DIAG_PEAK]))
+        core1.idle_advance(state, params, ticks)
+
+    monkeypatch.setattr(core0, "idle_advance", idle_advance)
+    lines = [line for line, _ in expected]
+    for run in (run_in_blocks, run_from_event_to_event):
+        printed = run_steps(Device(fast=fast), run)
+        assert [line for line in printed if line.startswith("D ")] == lines, run.__name__
+    assert any(peak != 0 for peak in skipped), "idle ticks skipped with an error standing"
 
 
 def test_velocity_mode_and_a_disabled_servo_are_not_counted() -> None:

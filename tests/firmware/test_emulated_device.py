@@ -40,6 +40,7 @@ from .test_native_device import (  # the scripted sessions, run here on the emul
     test_status_after_a_move,
     test_the_crc_acknowledgement_of_a_full_queue,
     test_the_crc_of_a_batch_that_wraps_the_queue_ring,
+    test_the_peak_of_diagnostics_lines,
     test_tokens_shown_as_python_repr_shows_them,
 )
 
@@ -68,6 +69,7 @@ SCRIPTED = (
     test_status_after_a_move,
     test_the_crc_acknowledgement_of_a_full_queue,
     test_the_crc_of_a_batch_that_wraps_the_queue_ring,
+    test_the_peak_of_diagnostics_lines,
     test_tokens_shown_as_python_repr_shows_them,
 )
 

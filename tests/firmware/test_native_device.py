@@ -320,6 +320,16 @@ def test_diagnostics_lines_at_their_ticks(driver: Driver) -> None:
                          lines("20 -1"), Power(), lines("21 1"), Run(5)])
 
 
+def test_the_peak_of_diagnostics_lines(driver: Driver) -> None:
+    """Restarted by each line, call 21 and call 35's reset; kept over calls 22, 23 and the
+    queries; not counted while an armed start holds or in velocity mode."""
+    assert_same(driver, [lines("21 10", "3 1", "0 400"), Run(3), lines("35 0"), Run(10),
+                         lines("21 10"), Run(14), lines("0 -400"), Run(4),
+                         lines("22 0", "23 7", "0 -300"), Run(3), lines("35 -1", "21 -1"),
+                         Run(20), lines("31 1000", "0 200"), Run(15),
+                         lines("7 2", "3 1", "1 1 3000"), Run(20)])
+
+
 def test_alarms_of_every_fault(driver: Driver) -> None:
     assert_same(driver, [
         lines("21 50", "28 5", "3 1"), Run(20), lines("30 -1", "30 0"),

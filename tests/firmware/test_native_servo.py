@@ -103,7 +103,8 @@ class ServoState(ctypes.Structure):
         ("velocity_mode_us", c_i64), ("diag_left", c_i64), ("limits", c_i32),
         ("history", c_i64 * 10), ("counts", c_i32 * 10), ("stats_ticks", c_i64),
         ("stats_max", c_i64), ("stats_max_tick", c_i64), ("stats_sum_sq", c_i64),
-        ("last_take", c_i64), ("edges", SwitchEdgeC * 2), ("curve", CurvePlayerC),
+        ("last_take", c_i64), ("diag_peak", c_i32), ("edges", SwitchEdgeC * 2),
+        ("curve", CurvePlayerC),
         ("pins_started", ctypes.c_bool), ("pins_enabled", ctypes.c_bool),
         ("pins_edges", c_u32 * 2),
     ]
@@ -137,7 +138,8 @@ class DeviceVars(ctypes.Structure):
 class RecordC(ctypes.Structure):
     _fields_ = [
         ("kind", c_u8), ("clock", c_i64), ("desired", c_i64), ("actual", c_i64),
-        ("velocity", c_i64), ("out", Sci), ("queued", c_i32), ("fault", c_i32),
+        ("velocity", c_i64), ("out", Sci), ("queued", c_i32), ("peak", c_i32),
+        ("fault", c_i32),
     ]
 
 
@@ -1064,6 +1066,7 @@ SCALAR_STATE = [
     (core1.S_LIMITS, "limits"), (core1.S_STATS_TICKS, "stats_ticks"),
     (core1.S_STATS_MAX, "stats_max"), (core1.S_STATS_MAX_TICK, "stats_max_tick"),
     (core1.S_STATS_SUM_SQ, "stats_sum_sq"), (core1.S_LAST_TAKE, "last_take"),
+    (core1.S_DIAG_PEAK, "diag_peak"),
 ]
 EDGE_FIELDS = [(core1.EDGE_COUNT, "edges"), (core1.EDGE_CLOSED, "closed"),
                (core1.EDGE_POSITION, "position"), (core1.EDGE_TICK, "tick")]
@@ -1099,11 +1102,11 @@ class PythonDevice:
         records: list[tuple[int, ...]] = []
         for i in range(int(state[core1.S_DIAG_COUNT])):
             base = core1.S_DIAG + i * core1.DIAG_RECORD
-            clock, desired, actual, velocity, out_c, out_e, queued = (
+            clock, desired, actual, velocity, out_c, out_e, queued, peak = (
                 int(v) for v in state[base: base + core1.DIAG_RECORD])
             if state[core1.S_MODE] == core1.MODE_CURVE:
                 queued = self.player.queued
-            records.append((1, clock, desired, actual, velocity, out_c, out_e, queued))
+            records.append((1, clock, desired, actual, velocity, out_c, out_e, queued, peak))
         state[core1.S_DIAG_COUNT] = 0
         if int(state[core1.S_EVENTS]) & core1.EVENT_FAULT:
             records.append((2, int(state[core1.S_FAULT_TICK]), int(state[core1.S_FAULT])))
@@ -1144,7 +1147,7 @@ class CDevice:
             ring.tail += 1
             if r.kind == 1:
                 records.append((1, r.clock, r.desired, r.actual, r.velocity, r.out.c, r.out.e,
-                                r.queued))
+                                r.queued, r.peak))
             else:
                 records.append((r.kind, r.clock, r.fault))
         return records
@@ -1243,6 +1246,9 @@ def random_device(rnd: random.Random, setting: Setting) -> PythonDevice:
                                           core1.STATS_SUM_CAP - rnd.randint(0, 2**33),
                                           core1.STATS_SUM_CAP]),
         core1.S_LAST_TAKE: rnd.choice([-1, rnd.randint(0, 2**30)]),
+        core1.S_DIAG_PEAK: rnd.choice([0, 0, rnd.randint(-100, 100), rnd.randint(-5000, 5000),
+                                       INT32_MIN, INT32_MAX,
+                                       rnd.randint(INT32_MIN, INT32_MAX)]),
     }
     for index, value in fields.items():
         state[index] = value
@@ -1299,6 +1305,9 @@ def tick_events(before: np.ndarray, after: np.ndarray, params: np.ndarray,
     """What one tick did, seen from the Python's state (to show the cases reach them)."""
     events = {f"fault {r[2]}" for r in records if r[0] == 2}
     events |= {"diagnostics"} if any(r[0] == 1 for r in records) else set()
+    events |= {"a line's peak below 0" for r in records if r[0] == 1 and r[-1] < 0}
+    if any(r[0] == 1 and r[-1] != 0 for r in records) and after[core1.S_DIAG_PEAK] == 0:
+        events.add("the peak restarts after a line")
     if after[core1.S_VELOCITY_MODE_US] < before[core1.S_VELOCITY_MODE_US]:
         events.add("velocity reset")
     if any(after[core1.S_EDGES + i * core1.EDGE_FIELDS + core1.EDGE_COUNT]
@@ -1384,7 +1393,8 @@ def test_servo_tick_scenarios_reach_every_case(lib: ctypes.CDLL) -> None:
     for _ in range(250):
         assert run_scenario(lib, rnd, 12, events) == []
     assert events >= {
-        "fault 1", "fault 2", "fault 3", "diagnostics", "velocity reset", "switch edge",
+        "fault 1", "fault 2", "fault 3", "diagnostics", "a line's peak below 0",
+        "the peak restarts after a line", "velocity reset", "switch edge",
         "queue value taken", "keyframe reached", "start reached", "statistics saturate",
         "timer at its cap", "integral clamped", "output saturated",
         "shaft near its speed bound", "hard stop", "counter wraps", "several motor steps",
@@ -1580,6 +1590,10 @@ MUTANTS = [
            "grid_value(middle, e) < magnitude", _check_from_double),
     Mutant("edge tick one count late", "servo.c", "edge->tick = s->clock + 1;",
            "edge->tick = s->clock + 2;", _check_ticks),
+    Mutant("peak not restarted after a line", "servo.c", "            s->diag_peak = 0;\n",
+           "", _check_ticks),
+    Mutant("peak unsigned", "servo.c", "s->diag_peak = (int32_t)following;",
+           "s->diag_peak = (int32_t)size;", _check_ticks),
 ]
 
 

@@ -582,17 +582,20 @@ static int64_t output_mv(sci_t out) {
 
 /* --- the calls --------------------------------------------------------------------------- */
 
+/* One handler per call, call_<name> for CALL_<NAME> of table.h (the table's names in lower
+ * case); the handler table is built from TABLE_CALL_LIST, so a call without one does not
+ * compile. */
 typedef void (*handler_t)(const call_t *call);
 
-static void call_0(const call_t *call) {
-    if (refused_in_curve_mode(0)) {
+static void call_add_single(const call_t *call) {
+    if (refused_in_curve_mode(CALL_ADD_SINGLE)) {
         return;
     }
     if (!mq_try_add((int32_t)call->args[0])) {
-        print_plain(call_table[0].refusal);
+        print_plain(call_table[CALL_ADD_SINGLE].refusal);
         return;
     }
-    debug_line(0, (field_t[]){NUMBER(call->args[0])});
+    debug_line(CALL_ADD_SINGLE, (field_t[]){NUMBER(call->args[0])});
 }
 
 /* values_crc32: the CRC-32 of values as 32-bit little-endian two's complement integers. */
@@ -607,40 +610,41 @@ static uint32_t values_crc32(const int32_t *values, uint32_t count) {
     return crc;
 }
 
-static void call_1(const call_t *call) {
-    if (refused_in_curve_mode(1)) {
+static void call_add_multiple(const call_t *call) {
+    if (refused_in_curve_mode(CALL_ADD_MULTIPLE)) {
         return;
     }
     uint32_t count = call->item_count;
     /* core1 only takes values away: once the queue has room for all, every add succeeds */
     if (mq_level() + count > TABLE_QUEUE_CAPACITY) {
-        print_plain(call_table[1].refusal);
+        print_plain(call_table[CALL_ADD_MULTIPLE].refusal);
         return;
     }
     for (uint32_t i = 0; i < count; i++) {
         (void)mq_try_add(interp_items[i]);
     }
-    uint8_t flag = debug_flags[1];
+    uint8_t flag = debug_flags[CALL_ADD_MULTIPLE];
     if (flag == 1) {
-        debug_line(1, (field_t[]){NUMBER(count), VALUES(interp_items, count)});
+        debug_line(CALL_ADD_MULTIPLE, (field_t[]){NUMBER(count), VALUES(interp_items, count)});
     } else if (flag == 2) {
-        debug_line(1, (field_t[]){NUMBER(count), NUMBER(values_crc32(interp_items, count))});
+        debug_line(CALL_ADD_MULTIPLE,
+                   (field_t[]){NUMBER(count), NUMBER(values_crc32(interp_items, count))});
     }
 }
 
-static void call_2(const call_t *call) {
+static void call_motion_queue(const call_t *call) {
     (void)call;
     uint32_t queued = mq_level();
-    reply(2, (field_t[]){NUMBER(queued), NUMBER(TABLE_QUEUE_CAPACITY - queued)});
+    reply(CALL_MOTION_QUEUE, (field_t[]){NUMBER(queued), NUMBER(TABLE_QUEUE_CAPACITY - queued)});
 }
 
-static void call_3(const call_t *call) {
+static void call_set_servo_enable(const call_t *call) {
     platform_servo_lock();
     int32_t enable = servo_state.enable;
     int32_t fault = servo_state.fault;
     if (call->is_query) {
         platform_servo_unlock();
-        reply(3, (field_t[]){NUMBER(enable)});
+        reply(CALL_SET_SERVO_ENABLE, (field_t[]){NUMBER(enable)});
         return;
     }
     if (call->args[0] == 1 && enable == 0) {
@@ -652,7 +656,7 @@ static void call_3(const call_t *call) {
             message_text(&m, " (");
             message_text(&m, fault_names[fault]);
             message_text(&m, ") is latched; clear it with call 30 before enabling");
-            print_err_call(3, m.text);
+            print_err_call(CALL_SET_SERVO_ENABLE, m.text);
             return;
         }
         reset_controller_locked();
@@ -662,20 +666,20 @@ static void call_3(const call_t *call) {
         servo_state.out = (sci_t){0, 0};
     }
     platform_servo_unlock();
-    debug_line(3, (field_t[]){NUMBER(call->args[0])});
+    debug_line(CALL_SET_SERVO_ENABLE, (field_t[]){NUMBER(call->args[0])});
 }
 
-static void call_4(const call_t *call) {
+static void call_clear_motion_queue(const call_t *call) {
     (void)call;
     platform_servo_lock();
     clear_queue_locked();
     platform_servo_unlock();
-    debug_line(4, NULL);
+    debug_line(CALL_CLEAR_MOTION_QUEUE, NULL);
 }
 
-static void call_5(const call_t *call) {
+static void call_set_servo_update_interval(const call_t *call) {
     if (call->is_query) {
-        reply(5, (field_t[]){NUMBER(device_tick_us())});
+        reply(CALL_SET_SERVO_UPDATE_INTERVAL, (field_t[]){NUMBER(device_tick_us())});
         return;
     }
     vars.interval_dms = (int32_t)call->args[0];
@@ -691,12 +695,12 @@ static void call_5(const call_t *call) {
     copy_in_locked();
     platform_servo_unlock();
     platform_servo_period_changed(device_tick_us());
-    debug_line(5, (field_t[]){NUMBER(device_tick_us())});
+    debug_line(CALL_SET_SERVO_UPDATE_INTERVAL, (field_t[]){NUMBER(device_tick_us())});
 }
 
-static void call_6(const call_t *call) {
+static void call_set_motion_update_interval_scalar(const call_t *call) {
     if (call->is_query) {
-        reply(6, (field_t[]){NUMBER(vars.scalar)});
+        reply(CALL_SET_MOTION_UPDATE_INTERVAL_SCALAR, (field_t[]){NUMBER(vars.scalar)});
         return;
     }
     vars.scalar = (int32_t)call->args[0];
@@ -706,15 +710,15 @@ static void call_6(const call_t *call) {
     servo_state.motion_left = 0;
     copy_in_locked();
     platform_servo_unlock();
-    debug_line(6, (field_t[]){NUMBER(vars.scalar)});
+    debug_line(CALL_SET_MOTION_UPDATE_INTERVAL_SCALAR, (field_t[]){NUMBER(vars.scalar)});
 }
 
-static void call_7(const call_t *call) {
+static void call_set_control_mode(const call_t *call) {
     platform_servo_lock();
     if (call->is_query) {
         int32_t mode = servo_state.mode;
         platform_servo_unlock();
-        reply(7, (field_t[]){NUMBER(mode)});
+        reply(CALL_SET_CONTROL_MODE, (field_t[]){NUMBER(mode)});
         return;
     }
     clear_queue_locked();
@@ -723,13 +727,13 @@ static void call_7(const call_t *call) {
     reset_controller_locked();
     clear_curve_locked();
     platform_servo_unlock();
-    debug_line(7, (field_t[]){NUMBER(call->args[0])});
+    debug_line(CALL_SET_CONTROL_MODE, (field_t[]){NUMBER(call->args[0])});
 }
 
-static void call_8(const call_t *call) {
+static void call_set_debug_flag(const call_t *call) {
     uint32_t number = (uint32_t)call->args[0];
     if (call->is_query) {
-        reply(8, (field_t[]){NUMBER(number), NUMBER(debug_flags[number])});
+        reply(CALL_SET_DEBUG_FLAG, (field_t[]){NUMBER(number), NUMBER(debug_flags[number])});
         return;
     }
     debug_flags[number] = (uint8_t)call->args[1];
@@ -758,17 +762,37 @@ static void int_call(const call_t *call, int32_t *variable) {
     debug_line(number, (field_t[]){NUMBER(call->args[0])});
 }
 
-static void call_9(const call_t *call) { sci_call(call, &vars.kp); }
-static void call_10(const call_t *call) { sci_call(call, &vars.ki); }
-static void call_11(const call_t *call) { sci_call(call, &vars.kd); }
-static void call_12(const call_t *call) { int_call(call, &vars.sim_update_interval_dms); }
-static void call_13(const call_t *call) { sci_call(call, &vars.source_voltage_v); }
-static void call_14(const call_t *call) { sci_call(call, &vars.torque_constant_mnm_per_a); }
-static void call_15(const call_t *call) { sci_call(call, &vars.winding_resistance_ohm); }
-static void call_16(const call_t *call) { int_call(call, &vars.counts_per_revolution); }
-static void call_17(const call_t *call) { sci_call(call, &vars.inertia_kg_m2); }
-static void call_32(const call_t *call) { sci_call(call, &vars.viscous_friction_unm_per_rad_s); }
-static void call_33(const call_t *call) { sci_call(call, &vars.load_torque_mnm); }
+static void call_set_proportional_gain(const call_t *call) { sci_call(call, &vars.kp); }
+static void call_set_integral_gain(const call_t *call) { sci_call(call, &vars.ki); }
+static void call_set_derivative_gain(const call_t *call) { sci_call(call, &vars.kd); }
+
+static void call_set_sim_update_interval(const call_t *call) {
+    int_call(call, &vars.sim_update_interval_dms);
+}
+
+static void call_set_sim_source_voltage(const call_t *call) {
+    sci_call(call, &vars.source_voltage_v);
+}
+
+static void call_set_sim_torque_constant(const call_t *call) {
+    sci_call(call, &vars.torque_constant_mnm_per_a);
+}
+
+static void call_set_sim_winding_resistance(const call_t *call) {
+    sci_call(call, &vars.winding_resistance_ohm);
+}
+
+static void call_set_sim_counts_per_revolution(const call_t *call) {
+    int_call(call, &vars.counts_per_revolution);
+}
+
+static void call_set_sim_inertia(const call_t *call) { sci_call(call, &vars.inertia_kg_m2); }
+
+static void call_set_sim_viscous_friction(const call_t *call) {
+    sci_call(call, &vars.viscous_friction_unm_per_rad_s);
+}
+
+static void call_set_sim_load_torque(const call_t *call) { sci_call(call, &vars.load_torque_mnm); }
 
 /* _write_flash: the ERR line when the write fails (the value unchanged). */
 static bool write_flash(uint32_t number, const char *name, uint8_t name_length, uint8_t mode,
@@ -784,46 +808,47 @@ static bool write_flash(uint32_t number, const char *name, uint8_t name_length, 
     return false;
 }
 
-static void call_18(const call_t *call) {
+static void call_set_device_name(const call_t *call) {
     if (call->is_query) {
-        reply(18, (field_t[]){TEXT(flashvars_device_name(&flash))});
+        reply(CALL_SET_DEVICE_NAME, (field_t[]){TEXT(flashvars_device_name(&flash))});
         return;
     }
     char name[TABLE_DEVICE_NAME_MAX];
     for (uint32_t i = 0; i < call->item_count; i++) {
         name[i] = (char)interp_items[i];
     }
-    if (!write_flash(18, name, (uint8_t)call->item_count, flash.default_control_mode,
-                     flash.motor)) {
+    if (!write_flash(CALL_SET_DEVICE_NAME, name, (uint8_t)call->item_count,
+                     flash.default_control_mode, flash.motor)) {
         return;
     }
-    debug_line(18, (field_t[]){TEXT(flashvars_device_name(&flash))});
+    debug_line(CALL_SET_DEVICE_NAME, (field_t[]){TEXT(flashvars_device_name(&flash))});
 }
 
-static void call_19(const call_t *call) {
+static void call_set_default_control_mode(const call_t *call) {
     if (call->is_query) {
-        reply(19, (field_t[]){NUMBER(flash.default_control_mode)});
+        reply(CALL_SET_DEFAULT_CONTROL_MODE, (field_t[]){NUMBER(flash.default_control_mode)});
         return;
     }
-    if (!write_flash(19, flash.name, flash.name_length, (uint8_t)call->args[0], flash.motor)) {
+    if (!write_flash(CALL_SET_DEFAULT_CONTROL_MODE, flash.name, flash.name_length,
+                     (uint8_t)call->args[0], flash.motor)) {
         return;
     }
-    debug_line(19, (field_t[]){NUMBER(call->args[0])});
+    debug_line(CALL_SET_DEFAULT_CONTROL_MODE, (field_t[]){NUMBER(call->args[0])});
 }
 
-static void call_39(const call_t *call) {
+static void call_set_motor(const call_t *call) {
     if (call->is_query) {
-        reply(39, (field_t[]){NUMBER(flash.motor), NUMBER(vars.motor_pins)});
+        reply(CALL_SET_MOTOR, (field_t[]){NUMBER(flash.motor), NUMBER(vars.motor_pins)});
         return;
     }
-    if (!write_flash(39, flash.name, flash.name_length, flash.default_control_mode,
+    if (!write_flash(CALL_SET_MOTOR, flash.name, flash.name_length, flash.default_control_mode,
                      (uint8_t)call->args[0])) {
         return;
     }
-    debug_line(39, (field_t[]){NUMBER(call->args[0])});
+    debug_line(CALL_SET_MOTOR, (field_t[]){NUMBER(call->args[0])});
 }
 
-static void call_20(const call_t *call) {
+static void call_status(const call_t *call) {
     (void)call;
     platform_servo_lock();
     const servo_state_t *s = &servo_state;
@@ -839,24 +864,25 @@ static void call_20(const call_t *call) {
         NUMBER(s->fault),
     };
     platform_servo_unlock();
-    reply(20, fields);
+    reply(CALL_STATUS, fields);
 }
 
-static void call_21(const call_t *call) {
+static void call_set_diagnostics_interval(const call_t *call) {
     if (call->is_query) {
-        reply(21, (field_t[]){NUMBER(vars.diag_n)});
+        reply(CALL_SET_DIAGNOSTICS_INTERVAL, (field_t[]){NUMBER(vars.diag_n)});
         return;
     }
     vars.diag_n = (int32_t)call->args[0];
     derive();
     platform_servo_lock();
     servo_state.diag_left = vars.diag_n;
+    servo_state.diag_peak = 0;
     copy_in_locked();
     platform_servo_unlock();
-    debug_line(21, (field_t[]){NUMBER(vars.diag_n)});
+    debug_line(CALL_SET_DIAGNOSTICS_INTERVAL, (field_t[]){NUMBER(vars.diag_n)});
 }
 
-static void call_22(const call_t *call) {
+static void call_clock(const call_t *call) {
     platform_servo_lock();
     int64_t clock = servo_state.clock;
     if (!call->is_query) {
@@ -864,28 +890,28 @@ static void call_22(const call_t *call) {
     }
     platform_servo_unlock();
     if (call->is_query) {
-        reply(22, (field_t[]){NUMBER(clock)});
+        reply(CALL_CLOCK, (field_t[]){NUMBER(clock)});
         return;
     }
-    debug_line(22, NULL);
+    debug_line(CALL_CLOCK, NULL);
 }
 
-static void call_23(const call_t *call) {
+static void call_set_position(const call_t *call) {
     platform_servo_lock();
     shift_position_locked(call->args[0] - servo_state.actual);
     platform_servo_unlock();
-    debug_line(23, (field_t[]){NUMBER(call->args[0])});
+    debug_line(CALL_SET_POSITION, (field_t[]){NUMBER(call->args[0])});
 }
 
-static void call_24(const call_t *call) {
+static void call_limits(const call_t *call) {
     (void)call;
     platform_servo_lock();
     int32_t limits = servo_state.limits;
     platform_servo_unlock();
-    reply(24, (field_t[]){NUMBER(limits & 1), NUMBER((limits >> 1) & 1)});
+    reply(CALL_LIMITS, (field_t[]){NUMBER(limits & 1), NUMBER((limits >> 1) & 1)});
 }
 
-static void call_25(const call_t *call) {
+static void call_append_keyframe(const call_t *call) {
     keyframe_t keyframe = {
         .duration_ms = (uint16_t)call->args[0],
         .position_counts = (int32_t)call->args[1],
@@ -895,39 +921,40 @@ static void call_25(const call_t *call) {
     platform_servo_lock();
     if (servo_state.mode != MODE_CURVE) {
         platform_servo_unlock();
-        print_err_call(25, "keyframes play in curve mode only; select it with call 7 3");
+        print_err_call(CALL_APPEND_KEYFRAME,
+                       "keyframes play in curve mode only; select it with call 7 3");
         return;
     }
     bool appended = curve_append(&servo_state.curve, keyframe);
     platform_servo_unlock();
     if (!appended) {
-        print_plain(call_table[25].refusal);
+        print_plain(call_table[CALL_APPEND_KEYFRAME].refusal);
         return;
     }
-    debug_line(25, (field_t[]){NUMBER(call->args[0]), NUMBER(call->args[1]),
-                               NUMBER(call->args[2]), NUMBER(call->args[3])});
+    debug_line(CALL_APPEND_KEYFRAME, (field_t[]){NUMBER(call->args[0]), NUMBER(call->args[1]),
+                                                 NUMBER(call->args[2]), NUMBER(call->args[3])});
 }
 
-static void call_26(const call_t *call) {
+static void call_clear_keyframes(const call_t *call) {
     (void)call;
     platform_servo_lock();
     clear_curve_locked();
     platform_servo_unlock();
-    debug_line(26, NULL);
+    debug_line(CALL_CLEAR_KEYFRAMES, NULL);
 }
 
-static void call_27(const call_t *call) {
+static void call_curve_buffer(const call_t *call) {
     (void)call;
     platform_servo_lock();
     uint32_t queued = curve_queued(&servo_state.curve);
     platform_servo_unlock();
-    reply(27, (field_t[]){NUMBER(TABLE_CURVE_BUFFER_CAPACITY - queued)});
+    reply(CALL_CURVE_BUFFER, (field_t[]){NUMBER(TABLE_CURVE_BUFFER_CAPACITY - queued)});
 }
 
-static void call_28(const call_t *call) { int_call(call, &vars.watchdog_ms); }
-static void call_29(const call_t *call) { int_call(call, &vars.fe_limit); }
+static void call_set_watchdog(const call_t *call) { int_call(call, &vars.watchdog_ms); }
+static void call_set_following_error_limit(const call_t *call) { int_call(call, &vars.fe_limit); }
 
-static void call_30(const call_t *call) {
+static void call_clear_fault(const call_t *call) {
     platform_servo_lock();
     int32_t fault = servo_state.fault;
     int64_t fault_tick = servo_state.fault_tick;
@@ -937,13 +964,13 @@ static void call_30(const call_t *call) {
     }
     platform_servo_unlock();
     if (call->is_query) {
-        reply(30, (field_t[]){NUMBER(fault), NUMBER(fault_tick)});
+        reply(CALL_CLEAR_FAULT, (field_t[]){NUMBER(fault), NUMBER(fault_tick)});
         return;
     }
-    debug_line(30, NULL);
+    debug_line(CALL_CLEAR_FAULT, NULL);
 }
 
-static void call_31(const call_t *call) {
+static void call_start_at(const call_t *call) {
     platform_servo_lock();
     int64_t start = servo_state.start;
     if (!call->is_query) {
@@ -951,15 +978,16 @@ static void call_31(const call_t *call) {
     }
     platform_servo_unlock();
     if (call->is_query) {
-        reply(31, (field_t[]){NUMBER(start)});
+        reply(CALL_START_AT, (field_t[]){NUMBER(start)});
         return;
     }
-    debug_line(31, (field_t[]){NUMBER(call->args[0])});
+    debug_line(CALL_START_AT, (field_t[]){NUMBER(call->args[0])});
 }
 
-static void call_34(const call_t *call) {
+static void call_set_sim_travel(const call_t *call) {
     if (call->is_query) {
-        reply(34, (field_t[]){NUMBER(vars.travel_lower_counts), NUMBER(vars.travel_upper_counts)});
+        reply(CALL_SET_SIM_TRAVEL, (field_t[]){NUMBER(vars.travel_lower_counts),
+                                               NUMBER(vars.travel_upper_counts)});
         return;
     }
     int64_t lower = call->args[0];
@@ -970,7 +998,7 @@ static void call_34(const call_t *call) {
         message_int(&m, lower);
         message_text(&m, " must be below upper end ");
         message_int(&m, upper);
-        print_err_call(34, m.text);
+        print_err_call(CALL_SET_SIM_TRAVEL, m.text);
         return;
     }
     vars.travel_lower_counts = (int32_t)lower;
@@ -980,10 +1008,10 @@ static void call_34(const call_t *call) {
     copy_in_locked();
     servo_state.limits = servo_switches(&servo_state, &servo_params);
     platform_servo_unlock();
-    debug_line(34, (field_t[]){NUMBER(lower), NUMBER(upper)});
+    debug_line(CALL_SET_SIM_TRAVEL, (field_t[]){NUMBER(lower), NUMBER(upper)});
 }
 
-static void call_35(const call_t *call) {
+static void call_motion_stats(const call_t *call) {
     platform_servo_lock();
     servo_state_t *s = &servo_state;
     field_t fields[5] = {NUMBER(s->stats_ticks), NUMBER(s->stats_max), NUMBER(s->stats_max_tick),
@@ -994,29 +1022,30 @@ static void call_35(const call_t *call) {
         s->stats_max_tick = 0;
         s->stats_sum_sq = 0;
         s->last_take = -1;
+        s->diag_peak = 0;
     }
     platform_servo_unlock();
     if (call->is_query) {
-        reply(35, fields);
+        reply(CALL_MOTION_STATS, fields);
         return;
     }
-    debug_line(35, NULL);
+    debug_line(CALL_MOTION_STATS, NULL);
 }
 
-static void call_36(const call_t *call) {
+static void call_switch_edge(const call_t *call) {
     uint32_t which = (uint32_t)call->args[0];
     platform_servo_lock();
     switch_edge_t edge = servo_state.edges[which - 1];
     platform_servo_unlock();
-    reply(36, (field_t[]){NUMBER(which), NUMBER(edge.edges), NUMBER(edge.closed),
-                          NUMBER(edge.position), NUMBER(edge.tick)});
+    reply(CALL_SWITCH_EDGE, (field_t[]){NUMBER(which), NUMBER(edge.edges), NUMBER(edge.closed),
+                                        NUMBER(edge.position), NUMBER(edge.tick)});
 }
 
-static void call_37(const call_t *call) {
+static void call_shift_position(const call_t *call) {
     platform_servo_lock();
     shift_position_locked(call->args[0]);
     platform_servo_unlock();
-    debug_line(37, (field_t[]){NUMBER(call->args[0])});
+    debug_line(CALL_SHIFT_POSITION, (field_t[]){NUMBER(call->args[0])});
 }
 
 static int64_t ceil_div(int64_t numerator, int64_t denominator) {
@@ -1028,8 +1057,8 @@ static int64_t ceil_div(int64_t numerator, int64_t denominator) {
  * the next tick; the rest go in after it is released, far faster than core1 takes them. */
 #define REPLACE_LOCKED_VALUES 16u
 
-static void call_38(const call_t *call) {
-    if (refused_in_curve_mode(38)) {
+static void call_replace_from(const call_t *call) {
+    if (refused_in_curve_mode(CALL_REPLACE_FROM)) {
         return;
     }
     int64_t tick = call->args[0];
@@ -1051,7 +1080,7 @@ static void call_38(const call_t *call) {
     uint32_t added = (uint32_t)(count - skipped);
     if (kept + added > TABLE_QUEUE_CAPACITY) {
         platform_servo_unlock();
-        print_plain(call_table[38].refusal);
+        print_plain(call_table[CALL_REPLACE_FROM].refusal);
         return;
     }
     const int32_t *values = &interp_items[skipped];
@@ -1064,19 +1093,15 @@ static void call_38(const call_t *call) {
     for (uint32_t i = locked; i < added; i++) {
         (void)mq_try_add(values[i]);
     }
-    if (debug_flags[38] == 1) {
-        debug_line(38, (field_t[]){NUMBER(kept), NUMBER(skipped), NUMBER(added),
-                                   NUMBER(values_crc32(values, added))});
+    if (debug_flags[CALL_REPLACE_FROM] == 1) {
+        debug_line(CALL_REPLACE_FROM, (field_t[]){NUMBER(kept), NUMBER(skipped), NUMBER(added),
+                                                  NUMBER(values_crc32(values, added))});
     }
 }
 
-static const handler_t handlers[TABLE_CALLS] = {
-    call_0,  call_1,  call_2,  call_3,  call_4,  call_5,  call_6,  call_7,
-    call_8,  call_9,  call_10, call_11, call_12, call_13, call_14, call_15,
-    call_16, call_17, call_18, call_19, call_20, call_21, call_22, call_23,
-    call_24, call_25, call_26, call_27, call_28, call_29, call_30, call_31,
-    call_32, call_33, call_34, call_35, call_36, call_37, call_38, call_39,
-};
+#define HANDLER(NAME, name) [CALL_##NAME] = call_##name,
+static const handler_t handlers[TABLE_CALLS] = {TABLE_CALL_LIST(HANDLER)};
+#undef HANDLER
 
 /* --- lines ------------------------------------------------------------------------------- */
 
@@ -1100,7 +1125,8 @@ static void print_record(const record_t *record) {
     print_template(&template_diagnostics,
                    (field_t[]){NUMBER(record->clock), NUMBER(record->desired),
                                NUMBER(record->actual), NUMBER(record->velocity),
-                               NUMBER(output_mv(record->out)), NUMBER(record->queued)});
+                               NUMBER(output_mv(record->out)), NUMBER(record->queued),
+                               NUMBER(record->peak)});
 }
 
 /* --- device.h ---------------------------------------------------------------------------- */

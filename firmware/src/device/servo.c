@@ -260,7 +260,8 @@ static inline bool tick_start(servo_state_t *s, const servo_params_t *p) {
     return enabled;
 }
 
-/* 5-6: faults, clock, statistics, fault latch, diagnostics, after the encoder step */
+/* 5-6: faults, clock, statistics (and the diagnostics line's peak), fault latch,
+ * diagnostics, after the encoder step */
 static inline void tick_finish(servo_state_t *s, const servo_params_t *p, record_ring_t *ring,
                                bool enabled, int32_t closing) {
     /* 5. faults */
@@ -294,6 +295,11 @@ static inline void tick_finish(servo_state_t *s, const servo_params_t *p, record
             s->stats_max = size;
             s->stats_max_tick = s->clock;
         }
+        int32_t peak = s->diag_peak;
+        uint32_t peak_size = peak < 0 ? 0u - (uint32_t)peak : (uint32_t)peak;
+        if ((uint32_t)size > peak_size) {   /* the earlier tick wins a tie */
+            s->diag_peak = (int32_t)following;
+        }
         uint32_t square_high;
         uint32_t square_low = sci_mul_32x32((uint32_t)size, (uint32_t)size, &square_high);
         int64_t square = (int64_t)(((uint64_t)square_high << 32) | square_low);   /* <= 2^62 */
@@ -325,9 +331,11 @@ static inline void tick_finish(servo_state_t *s, const servo_params_t *p, record
                 record->out.e = s->out.e;
                 record->queued =
                     (int32_t)(s->mode == MODE_CURVE ? curve_queued(&s->curve) : mq_level());
+                record->peak = s->diag_peak;
                 record->fault = FAULT_NONE;
                 ring_commit(ring);
             }
+            s->diag_peak = 0;
         }
     }
     if (new_fault != FAULT_NONE) {
@@ -341,6 +349,7 @@ static inline void tick_finish(servo_state_t *s, const servo_params_t *p, record
             alarm->out.c = 0;
             alarm->out.e = 0;
             alarm->queued = 0;
+            alarm->peak = 0;
             alarm->fault = s->fault;
             ring_commit(ring);
         }

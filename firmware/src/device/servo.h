@@ -125,6 +125,8 @@ typedef struct {
     int64_t stats_max_tick;
     int64_t stats_sum_sq;
     int64_t last_take;
+    int32_t diag_peak;         /* the next diagnostics line's peak: the counted following
+                                * error of the largest magnitude since the last line, signed */
     switch_edge_t edges[2];    /* lower, upper */
     curve_player_t curve;
     /* Not in core1.py: the motor on the pins (servo_tick_pins). A tick there reads the
@@ -206,6 +208,7 @@ typedef struct {
     int64_t velocity;
     sci_t out;
     int32_t queued;            /* keyframes in mode 3, queue values otherwise */
+    int32_t peak;              /* the peak following error since the line before */
     int32_t fault;             /* alarm: the fault code */
 } record_t;
 #define RECORD_RING_SLOTS 512u

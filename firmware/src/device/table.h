@@ -81,6 +81,50 @@
 #define CALL_REPLACE_FROM 38
 #define CALL_SET_MOTOR 39
 
+/* Every call as X(NAME, name), in number order: the firmware builds its handler table
+ * from this list (a handler call_<name> for each CALL_<NAME>), so none is left out. */
+#define TABLE_CALL_LIST(X) \
+    X(ADD_SINGLE, add_single) \
+    X(ADD_MULTIPLE, add_multiple) \
+    X(MOTION_QUEUE, motion_queue) \
+    X(SET_SERVO_ENABLE, set_servo_enable) \
+    X(CLEAR_MOTION_QUEUE, clear_motion_queue) \
+    X(SET_SERVO_UPDATE_INTERVAL, set_servo_update_interval) \
+    X(SET_MOTION_UPDATE_INTERVAL_SCALAR, set_motion_update_interval_scalar) \
+    X(SET_CONTROL_MODE, set_control_mode) \
+    X(SET_DEBUG_FLAG, set_debug_flag) \
+    X(SET_PROPORTIONAL_GAIN, set_proportional_gain) \
+    X(SET_INTEGRAL_GAIN, set_integral_gain) \
+    X(SET_DERIVATIVE_GAIN, set_derivative_gain) \
+    X(SET_SIM_UPDATE_INTERVAL, set_sim_update_interval) \
+    X(SET_SIM_SOURCE_VOLTAGE, set_sim_source_voltage) \
+    X(SET_SIM_TORQUE_CONSTANT, set_sim_torque_constant) \
+    X(SET_SIM_WINDING_RESISTANCE, set_sim_winding_resistance) \
+    X(SET_SIM_COUNTS_PER_REVOLUTION, set_sim_counts_per_revolution) \
+    X(SET_SIM_INERTIA, set_sim_inertia) \
+    X(SET_DEVICE_NAME, set_device_name) \
+    X(SET_DEFAULT_CONTROL_MODE, set_default_control_mode) \
+    X(STATUS, status) \
+    X(SET_DIAGNOSTICS_INTERVAL, set_diagnostics_interval) \
+    X(CLOCK, clock) \
+    X(SET_POSITION, set_position) \
+    X(LIMITS, limits) \
+    X(APPEND_KEYFRAME, append_keyframe) \
+    X(CLEAR_KEYFRAMES, clear_keyframes) \
+    X(CURVE_BUFFER, curve_buffer) \
+    X(SET_WATCHDOG, set_watchdog) \
+    X(SET_FOLLOWING_ERROR_LIMIT, set_following_error_limit) \
+    X(CLEAR_FAULT, clear_fault) \
+    X(START_AT, start_at) \
+    X(SET_SIM_VISCOUS_FRICTION, set_sim_viscous_friction) \
+    X(SET_SIM_LOAD_TORQUE, set_sim_load_torque) \
+    X(SET_SIM_TRAVEL, set_sim_travel) \
+    X(MOTION_STATS, motion_stats) \
+    X(SWITCH_EDGE, switch_edge) \
+    X(SHIFT_POSITION, shift_position) \
+    X(REPLACE_FROM, replace_from) \
+    X(SET_MOTOR, set_motor)
+
 /* One supporting input: its name and inclusive range (Param). */
 typedef struct {
     const char *name;

@@ -383,6 +383,6 @@ const call_spec_t call_table[TABLE_CALLS] = {
 
 const char *const fault_names[TABLE_FAULTS] = {"none", "watchdog", "following error", "limit switch", "internal error"};
 
-const template_t template_diagnostics = {"D {clock} {desired} {actual} {velocity} {output_mv} {queued}", 6, 0x0};
+const template_t template_diagnostics = {"D {clock} {desired} {actual} {velocity} {output_mv} {queued} {peak}", 7, 0x0};
 const template_t template_alarm = {"ALARM {fault} {tick}", 2, 0x0};
 const template_t template_err = {"ERR {call} {text}", 2, 0x2};

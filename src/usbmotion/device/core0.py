@@ -535,12 +535,12 @@ class Device:
         start = core1.S_DIAG
         records = state[start : start + count * core1.DIAG_RECORD].tolist()
         for base in range(0, len(records), core1.DIAG_RECORD):
-            tick, desired, actual, velocity, out_c, out_e, queued = records[
+            tick, desired, actual, velocity, out_c, out_e, queued, peak = records[
                 base : base + core1.DIAG_RECORD
             ]
             line = DIAGNOSTICS.format(tick, desired, actual, velocity,
                                       sci_to_int(out_c, out_e + 3),
-                                      self._curve.queued if curve else queued)
+                                      self._curve.queued if curve else queued, peak)
             self._print(line, ticks_ago=clock - tick)
 
     # --- core0: lines --------------------------------------------------------------------
@@ -939,6 +939,7 @@ class Device:
             return
         self._diag_n = call.args[0]
         self._state[core1.S_DIAG_LEFT] = self._diag_n
+        self._state[core1.S_DIAG_PEAK] = 0
         self._copy_in()
         self._debug_line(21, self._diag_n)
 
@@ -963,7 +964,7 @@ class Device:
             )
             return
         for index in (core1.S_STATS_TICKS, core1.S_STATS_MAX, core1.S_STATS_MAX_TICK,
-                      core1.S_STATS_SUM_SQ):
+                      core1.S_STATS_SUM_SQ, core1.S_DIAG_PEAK):
             state[index] = 0
         state[core1.S_LAST_TAKE] = -1
         self._debug_line(35)

@@ -27,9 +27,10 @@ One servo tick, in order:
 5. faults (servo enabled): limit switch closing in mode 1 or 3, following error in mode 1
    or 3, then watchdog; a fault disables the servo and cuts its output to 0 V (as call
    ``3 0`` does), so no line reports a drive the servo no longer applies.
-6. clock + 1, diagnostics countdown; a diagnostics tick writes a record of the line into
-   ``state`` for core0 to print (the block goes on until core0's room for records is used
-   up); the motion statistics (call 35) count the tick.
+6. clock + 1; the motion statistics (call 35) count the tick, and so does the peak of the
+   next diagnostics line; diagnostics countdown: a diagnostics tick writes a record of the
+   line into ``state`` for core0 to print (the block goes on until core0's room for records
+   is used up) and restarts the peak.
 """
 
 from __future__ import annotations
@@ -121,7 +122,12 @@ S_LAST_TAKE = S_STATS_TICKS + 4
 """Clock of the tick that last took a value from the motion queue (-1: none yet)."""
 S_DIAG_COUNT = S_STATS_TICKS + 5
 """Diagnostics records written since core0 last printed them."""
-S_EDGES = S_DIAG_COUNT + 1
+S_DIAG_PEAK = S_DIAG_COUNT + 1
+"""The next diagnostics line's ``peak``: of the following errors (``wrap_int32(desired -
+actual)``) of the ticks the statistics counted since the last line, the one of the largest
+magnitude, signed (the earlier on a tie); 0 while none was counted. A line, call 21 setting
+the interval and call 35's reset restart it."""
+S_EDGES = S_DIAG_PEAK + 1
 """The switch-edge latch (call 36): for each switch (lower, then upper) ``EDGE_FIELDS``
 entries: edges counted since power-up (modulo 2**32), whether the last one closed the switch
 (1) or opened it (0), the encoder counter at the tick of that edge (kept in the counter's
@@ -135,9 +141,9 @@ EDGE_TICK = 3
 EDGE_COUNT_MODULUS = 1 << 32
 DIAG_SLOTS = 64
 """Diagnostics records ``state`` holds."""
-DIAG_RECORD = 7
+DIAG_RECORD = 8
 """Entries of one record: clock, desired (velocity in mode 2), actual, velocity, output
-(coefficient, exponent), queued values."""
+(coefficient, exponent), queued values, peak following error."""
 S_DIAG = S_EDGES + 2 * EDGE_FIELDS
 """First entry of the ``DIAG_SLOTS`` records."""
 STATE_SIZE = S_DIAG + DIAG_SLOTS * DIAG_RECORD
@@ -331,6 +337,7 @@ def servo_block(
     stats_sum_sq = int(state[S_STATS_SUM_SQ])
     last_take = int(state[S_LAST_TAKE])
     diag_count = int(state[S_DIAG_COUNT])
+    diag_peak = int(state[S_DIAG_PEAK])
 
     curve_len = len(curve)
     events = 0
@@ -493,6 +500,8 @@ def servo_block(
             if size > stats_max:
                 stats_max = size
                 stats_max_tick = clock
+            if size > abs(diag_peak):
+                diag_peak = following
             square = size * size
             if square > STATS_SUM_CAP - stats_sum_sq:
                 stats_sum_sq = STATS_SUM_CAP
@@ -518,7 +527,9 @@ def servo_block(
                     state[base + 4] = out_c
                     state[base + 5] = out_e
                     state[base + 6] = queue_count
+                    state[base + 7] = diag_peak
                     diag_count += 1
+                diag_peak = 0
                 if diag_count >= diag_room:
                     events |= EVENT_DIAGNOSTICS
         if events != 0:
@@ -557,6 +568,7 @@ def servo_block(
     state[S_STATS_SUM_SQ] = stats_sum_sq
     state[S_LAST_TAKE] = last_take
     state[S_DIAG_COUNT] = diag_count
+    state[S_DIAG_PEAK] = diag_peak
     return executed
 
 
@@ -630,12 +642,18 @@ def idle_advance(state: IntArray, params: IntArray, n_ticks: int) -> None:
     :func:`ticks_to_scheduled_event` (with ``diagnostics=False``) and
     :func:`ticks_to_full_records`: then each of these ticks changes only the clocks and
     countdowns, and writes the diagnostics records a tick would, and this gives the same
-    state as running them.
+    state as running them. Every one of these ticks has the same following error, so the
+    peak of each line after the first is that error.
     """
     tick_us = int(params[P_TICK_US])
     consuming = running(state) and state[S_MODE] != MODE_CURVE
-    if running(state) and state[S_MODE] != MODE_VELOCITY:
-        size = abs(wrap_int32(int(state[S_DESIRED]) - int(state[S_ACTUAL])))
+    counted = running(state) and state[S_MODE] != MODE_VELOCITY
+    following = wrap_int32(int(state[S_DESIRED]) - int(state[S_ACTUAL])) if counted else 0
+    peak = int(state[S_DIAG_PEAK])
+    if n_ticks > 0 and abs(following) > abs(peak):
+        peak = following
+    if counted:
+        size = abs(following)
         if size > state[S_STATS_MAX]:
             state[S_STATS_MAX] = size
             state[S_STATS_MAX_TICK] = state[S_CLOCK] + 1
@@ -665,11 +683,14 @@ def idle_advance(state: IntArray, params: IntArray, n_ticks: int) -> None:
             if count < DIAG_SLOTS:
                 base = S_DIAG + count * DIAG_RECORD
                 state[base] = clock + due
-                state[base + 1 : base + DIAG_RECORD] = record
+                state[base + 1 : base + DIAG_RECORD - 1] = record
+                state[base + DIAG_RECORD - 1] = peak
                 count += 1
+            peak = following if due < n_ticks else 0
             due += diag_n
         state[S_DIAG_COUNT] = count
         state[S_DIAG_LEFT] = due - n_ticks
+    state[S_DIAG_PEAK] = peak
     window = int(params[P_WINDOW])
     state[S_COUNTS_POS] = (int(state[S_COUNTS_POS]) + n_ticks) % window
     if state[S_ENABLE] == 1:

@@ -338,7 +338,7 @@ _DIAGNOSTICS_BYTES = b"D -0123456789"
 
 
 def parse_diagnostics(line: bytes) -> tuple[int, ...] | None:
-    """The six values of a diagnostics line (``D <clock> ...``), or None if it is not one.
+    """The values of a diagnostics line (``D <clock> ...``), or None if it is not one.
 
     The fast path for the most frequent line: exactly what :func:`parse_reply` would read.
     """

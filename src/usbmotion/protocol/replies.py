@@ -37,7 +37,7 @@ def _checked(template: Template, *wanted: str) -> Template:
 _STATUS = _checked(_reply_template(CallNumber.STATUS), "clock", "actual", "desired",
                    "velocity", "queued", "enable", "mode", "limits", "fault")
 _DIAGNOSTICS = _checked(DIAGNOSTICS, "clock", "desired", "actual", "velocity", "output_mv",
-                        "queued")
+                        "queued", "peak")
 _ALARM = _checked(ALARM, "fault", "tick")
 _SWITCH_EDGE = _checked(_reply_template(CallNumber.SWITCH_EDGE), "switch", "edges", "closed",
                         "position", "tick")
@@ -105,10 +105,16 @@ class Diagnostics:
 
     clock: int
     desired: int
+    """Counts (mode 1 and 3), or counts/s (mode 2: the desired velocity)."""
     actual_counts: int
     velocity_counts_s: int
     output_mv: int
     queued: int
+    """Values in the motion queue, or keyframes buffered in mode 3."""
+    peak_error_counts: int
+    """The following error (desired - actual) of the largest magnitude, signed, over every
+    tick the statistics (call 35) counted since the previous line, this line's tick
+    included; 0 when none was counted."""
 
     @classmethod
     def from_values(cls, values: Sequence[int]) -> Diagnostics:
@@ -116,7 +122,7 @@ class Diagnostics:
         v = _read(_DIAGNOSTICS, values)
         return cls(clock=v["clock"], desired=v["desired"], actual_counts=v["actual"],
                    velocity_counts_s=v["velocity"], output_mv=v["output_mv"],
-                   queued=v["queued"])
+                   queued=v["queued"], peak_error_counts=v["peak"])
 
 
 @dataclass(frozen=True, slots=True)

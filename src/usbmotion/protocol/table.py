@@ -367,7 +367,17 @@ CALLS: tuple[CallSpec, ...] = (
         query=(-1,),
         query_reply=_t("DIAGNOSTICS_INTERVAL {value}"),
         debug={1: _t("DIAGNOSTICS INTERVAL MODIFIED TO {value}")},
-        notes="Diagnostics line: `D <clock> <desired> <actual> <velocity> <output_mv> <queued>`.",
+        notes="Diagnostics line: `D <clock> <desired> <actual> <velocity> <output_mv> <queued>"
+        " <peak>`, printed on the tick N ticks after the previous one (or after this call)."
+        " `peak` is the following error (desired - actual, counts, wrapped to int32 as call"
+        " 35 takes it) of the largest magnitude, with its sign, over every tick since the"
+        " previous line, this line's tick included; of two ticks with the same magnitude the"
+        " earlier one. It counts exactly the ticks call 35 counts (servo enabled in mode 1 or"
+        " 3, an armed start reached) and is 0 when none was counted. It restarts after each"
+        " line, when this call sets N (any N, 0 included: the next line covers the ticks"
+        " after the call), when call 35 resets the statistics, and at power-up; nothing else"
+        " restarts it (calls 22, 23 and 37 leave the following error as it was). A host so"
+        " sees the peak of every tick, not of the sampled ones.",
     ),
     CallSpec(
         C.CLOCK,
@@ -485,7 +495,8 @@ CALLS: tuple[CallSpec, ...] = (
         " reset: `ticks` counted, the largest absolute following error (desired - actual,"
         " counts) and the clock tick it first occurred at, and the sum of the squared"
         " following errors (it stops at 2^62 instead of overflowing): the exact peak and RMS"
-        " following error of a run, which sampled diagnostics lines can miss."
+        " following error of a run (each diagnostics line carries the peak since the line"
+        " before it: call 21). A reset also restarts the diagnostics line's peak."
         " `last_take_tick` is the clock tick that last took a value from the motion queue"
         " (-1: none since the reset); a reset keeps the clock.",
     ),
@@ -577,8 +588,10 @@ REFUSALS: Mapping[str, int] = {
 """Refusal line -> the call that gives it."""
 
 
-DIAGNOSTICS = Template("D {clock} {desired} {actual} {velocity} {output_mv} {queued}")
-"""The line call 21 prints every N servo ticks."""
+DIAGNOSTICS = Template(
+    "D {clock} {desired} {actual} {velocity} {output_mv} {queued} {peak}")
+"""The line call 21 prints every N servo ticks; ``peak`` is the signed peak following error
+since the previous line (call 21's notes)."""
 
 ALARM = Template("ALARM {fault} {tick}")
 """The line the device prints, unasked, at the tick a fault latches (the fault code and
