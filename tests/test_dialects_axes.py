@@ -1,6 +1,7 @@
 """G-code as other controllers write it, on machines of any set of linear axes: LinuxCNC's
-line length, the grbl and Marlin dialects, plotters (X and Y only) and six-axis machines,
-and the programs of tests/programs run to their end on simulated machines."""
+line length (grbl's and Marlin's: ``tests/test_gcode_rules.py``), the grbl and Marlin
+dialects, plotters (X and Y only) and six-axis machines, and the programs of
+tests/programs run to their end on simulated machines."""
 
 from __future__ import annotations
 
@@ -16,7 +17,13 @@ import pytest
 from usbmotion.errors import ConfigError, GCodeError, UnsupportedGCodeError
 from usbmotion.host.config import DIALECTS, load_config, parse_config
 from usbmotion.motion.dialects import Dialect, dialect_named
-from usbmotion.motion.gcode import MachineAxes, distinct_ignored, move_record, parse_gcode
+from usbmotion.motion.gcode import (
+    MachineAxes,
+    distinct_ignored,
+    interpret_until_error,
+    move_record,
+    parse_gcode,
+)
 from usbmotion.motion.limits import AxisLimits, PlannerConfig
 from usbmotion.motion.moves import Arc, Dwell, Linear, Plane, Rapid
 from usbmotion.motion.planner import plan_moves
@@ -54,10 +61,11 @@ def test_lines_as_long_as_linuxcnc_reads_them(length: int, ending: str, last: bo
     assert len(line) == length
     text = f"G21{ending or chr(10)}{line}{ending}" + ("" if last else f"M2{ending}")
     if last:
-        text = f"G21\n{line}"
-        program, error = _interpret_grbl(text)  # grbl needs no end: the line can be last
+        end = "M2   " + line[len("G0 X1"):]  # the last line ends the program, with no break
+        assert len(end) == length
+        program, error = interpret_until_error(f"G21\n{end}")
         if accepted:
-            assert error is None and len(program.moves) == 1
+            assert error is None and program.ended_by == "M2" and program.end_line == 2
         else:
             assert isinstance(error, GCodeError) and error.line == 2
             assert f"{length} bytes" in error.message and "at most 253" in error.message
@@ -78,12 +86,6 @@ def test_a_long_line_counts_its_bytes_not_its_characters() -> None:
     line = "G0 X1 (" + "\u00e9" * 126 + ")"  # 134 characters, 260 bytes in UTF-8
     with pytest.raises(GCodeError, match="line too long: 260 bytes"):
         parse_gcode(f"{line}\nM2\n")
-
-
-def _interpret_grbl(text: str) -> tuple[object, GCodeError | None]:
-    from usbmotion.motion.gcode import interpret_until_error  # noqa: PLC0415
-
-    return interpret_until_error(text, dialect=Dialect.GRBL)
 
 
 # --- any set of linear axes ---------------------------------------------------------------

@@ -15,6 +15,7 @@ from usbmotion.cli.run import default_machine, parse_origin
 from usbmotion.console import Console
 from usbmotion.errors import ConfigError, GCodeError
 from usbmotion.host.config import load_config
+from usbmotion.motion.dialects import Dialect
 from usbmotion.motion.gcode import interpret_setting, parse_gcode
 from usbmotion.motion.moves import Linear, Rapid
 from usbmotion.motion.offsets import (
@@ -261,6 +262,32 @@ def test_a_completed_program_keeps_its_offsets_for_the_next_run(tmp_path: Path) 
         again = tmp_path / "again.ngc"
         again.write_text("G0 X1 Y1 Z1\nM2\n")
         assert session.prepare(again).program.moves[0].end == (6.0, 7.0, 8.0)
+
+
+def test_a_jobs_g92_does_not_shift_the_next_job(tmp_path: Path) -> None:
+    """A completed run leaves its G92 suspended in the parameter file (LinuxCNC's numbers:
+    5210 0, the values kept for a G92.3), so the next job runs where it is written; a grbl
+    job's G92 never reaches the file."""
+    config = load_config(_machine_file(tmp_path))
+    shifted = tmp_path / "shift.ngc"
+    shifted.write_text("G0 X3 Y3\nG92 X0 Y0\nG0 X1 Y1\nM2\n")
+    plain = tmp_path / "plain.ngc"
+    plain.write_text("G0 X1 Y1\nM2\n")
+    with connect_session(config) as session:
+        session.home()
+        report, _ = session.run(session.prepare(shifted))
+        assert report.completed and session.positions_mm()["X"] == pytest.approx(4.0, abs=0.01)
+        stored = read_parameter_file(config.parameter_path)
+        assert stored.g92 == _xyz(3.0, 3.0, 0.0) and stored.g92_enabled is False
+        assert "5210\t0.000000" in config.parameter_path.read_text()
+        assert session.prepare(plain).program.moves[0].end == (1.0, 1.0, 0.0)
+        grbl = tmp_path / "grbl.nc"
+        grbl.write_text("G92 X0\nG0 X2\n")
+        prepared = session.prepare(grbl, dialect=Dialect.GRBL)
+        assert prepared.program.moves[0].end == (6.0, 4.0, 0.0)  # from X4: G92 X-4
+        report, _ = session.run(prepared)
+        assert report.completed
+        assert read_parameter_file(config.parameter_path) == stored
 
 
 def test_zero_and_g10_from_the_console_set_g54_where_the_machine_stands(

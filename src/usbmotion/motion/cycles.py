@@ -20,14 +20,19 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from usbmotion.motion.gcode_codes import GCode
+
 __all__ = ["CHIP_BREAK_MM", "CYCLE_NAMES", "Cycle", "CycleStep", "expand_cycle"]
 
 CHIP_BREAK_MM = 0.254
 """G73's retract between pecks, and G83's stop above the depth reached: 0.010 inch, in G21
 too."""
 
-CYCLE_NAMES = {730: "G73", 810: "G81", 820: "G82", 830: "G83", 850: "G85", 890: "G89"}
-"""The supported cycles, by G code x10."""
+CYCLE_NAMES: dict[int, str] = {
+    code: code.text
+    for code in (GCode.G_73, GCode.G_81, GCode.G_82, GCode.G_83, GCode.G_85, GCode.G_89)
+}
+"""The supported cycles, by G code."""
 
 RAPID, FEED, DWELL = 0, 1, 2
 
@@ -49,7 +54,7 @@ class Cycle:
     """A cycle block, resolved.
 
     Fields:
-        code: the cycle, G code x10 (810 for G81).
+        code: the cycle (``GCode.G_81``).
         axes: indices into a point of the machine's axes of the plane's first, second and
             normal (drill) axis.
         start: where the tool stands (program mm, one value per axis of the machine).
@@ -64,7 +69,7 @@ class Cycle:
         dwell_s: P, the dwell at the bottom (G82, G89).
     """
 
-    code: int
+    code: GCode
     axes: tuple[int, int, int]
     start: tuple[float, ...]
     hole: tuple[float, float]
@@ -111,16 +116,16 @@ def expand_cycle(cycle: Cycle) -> list[CycleStep]:
 def _body(cycle: Cycle, steps: list[CycleStep], go: _Go, a: float, b: float) -> None:
     """The moves of one hole, from R down and back to the clearance level."""
     code, r, bottom, clear = cycle.code, cycle.r_mm, cycle.bottom_mm, cycle.clear_mm
-    if code in (810, 820):
+    if code in (GCode.G_81, GCode.G_82):
         go(FEED, a, b, bottom)
-        if code == 820:
+        if code == GCode.G_82:
             steps.append(CycleStep(DWELL, steps[-1].point, cycle.dwell_s))
         go(RAPID, a, b, clear)
-    elif code in (730, 830):
+    elif code in (GCode.G_73, GCode.G_83):
         depth = r - cycle.peck_mm
         while depth > bottom:
             go(FEED, a, b, depth)
-            if code == 730:
+            if code == GCode.G_73:
                 go(RAPID, a, b, depth + CHIP_BREAK_MM)
             else:
                 go(RAPID, a, b, r)
@@ -128,11 +133,11 @@ def _body(cycle: Cycle, steps: list[CycleStep], go: _Go, a: float, b: float) -> 
             depth -= cycle.peck_mm
         go(FEED, a, b, bottom)
         go(RAPID, a, b, clear)
-    elif code == 850:
+    elif code == GCode.G_85:
         go(FEED, a, b, bottom)
         go(FEED, a, b, r)
         go(RAPID, a, b, clear)
-    else:  # 890
+    else:  # G89
         go(FEED, a, b, bottom)
         steps.append(CycleStep(DWELL, steps[-1].point, cycle.dwell_s))
         go(FEED, a, b, clear)

@@ -12,16 +12,21 @@ are about characters rather than machine state:
   before the ``*``; it is then dropped;
 - an ``N`` word (line number, also decimal such as ``N4567.789``) may only start a line;
 - number forms ``1``, ``-1.5``, ``+2``, ``I0.``, ``J.103``; anything else is malformed;
-- a line is at most as long as LinuxCNC reads one: its ``fgets`` into a ``LINELEN`` (255)
-  byte buffer takes 254 bytes, line break included, and a line that fills them is refused
+- a line is at most as long as the controller whose reading is asked for reads one
+  (:class:`LineLimit`); LinuxCNC's ``fgets`` into a ``LINELEN`` (255) byte buffer takes 254
+  bytes, line break included, and a line that fills them is refused
   (``NCE_COMMAND_TOO_LONG``). So a line holds at most 252 bytes before a ``\n``, 251
   before a ``\r\n``, 253 when it is the last and has no line break (UTF-8 bytes: a
-  character outside ASCII in a comment counts for two to four).
+  character outside ASCII in a comment counts for two to four). grbl and Marlin count only
+  what they keep of a line, comments left out;
+- a line that starts with a Klipper extended command (``SET_VELOCITY_LIMIT VELOCITY=100``,
+  ``BED_MESH_CALIBRATE``) is refused naming it, in every reading.
 
-Two dialect options (:mod:`usbmotion.motion.dialects`) change what a line may hold:
+Dialect options (:mod:`usbmotion.motion.dialects`) change what a line may hold:
 ``commands`` reads a line that starts with ``$`` as one controller command (grbl's
-``$H``), and ``messages`` names M codes whose text runs to the end of the line (Marlin's
-``M117 Printing...``).
+``$H``), ``messages`` names M codes whose text runs to the end of the line (Marlin's
+``M117 Printing...``), ``flags`` reads a letter alone as a word, and ``line_limit`` is
+whose line length applies.
 
 Expressions (``[``), parameters (``#``), O-words and polar coordinates (``@``, ``^``) are
 rejected with :class:`~usbmotion.errors.UnsupportedGCodeError`; every other problem is a
@@ -38,13 +43,14 @@ import math
 import re
 from collections.abc import Iterator
 from contextlib import contextmanager
+from enum import Enum
 from functools import reduce
 from operator import xor
 from typing import NamedTuple
 
 from usbmotion.errors import GCodeError, UnsupportedGCodeError
 
-__all__ = ["Block", "Word", "parse_blocks", "tokenize", "word_columns"]
+__all__ = ["Block", "LineLimit", "Word", "parse_blocks", "tokenize", "word_columns"]
 
 
 class Word(NamedTuple):
@@ -112,7 +118,46 @@ _BLANKS = " \t\r"
 LINE_BUFFER_BYTES = 254
 """LinuxCNC's fgets reads at most LINELEN - 1 = 254 bytes of a line, its break included; a
 line that fills them is too long."""
-_LONGEST_FAST_LINE = 251  # longer lines take the careful path, which checks their length
+GRBL_LINE_CHARS = 79
+"""grbl 1.1 keeps at most LINE_BUFFER_SIZE - 1 = 79 characters of a line (``protocol.c``);
+one more is its ``error:11``."""
+MARLIN_COMMAND_CHARS = 95
+"""Marlin keeps at most MAX_CMD_SIZE - 1 = 95 characters of a command (``queue.cpp``) and
+drops the rest of the line."""
+_LONGEST_FAST_LINE = 251  # longer lines take the careful path
+_GRBL_DROPPED = re.compile(r"\([^)]*\)?|;.*|[\x00-\x20/]")
+"""What grbl's pre-parser drops: a ( ) comment (to the end of the line when unclosed), a ;
+comment, blanks and control characters, and '/'."""
+_MARLIN_DROPPED = re.compile(r"\([^)]*\)?|;.*")
+"""What Marlin does not keep of a line: a ; comment, and a ( ) comment (PAREN_COMMENTS)."""
+_KLIPPER_COMMAND = re.compile(r"[ \t]*(?:[Nn][ \t]*[0-9]+[ \t]*)?([A-Za-z_][A-Za-z0-9_]*)"
+                              r"(?=[ \t;#*]|$)")
+"""The first name of a line (after a line number): a Klipper extended command when it is one
+(:func:`_klipper_command`)."""
+_KLIPPER_REASON = ("a Klipper extended command (a name, then NAME=value parameters): Klipper's"
+                   " own commands and macros are not G-code, and no dialect reads them")
+
+
+class LineLimit(Enum):
+    """Whose line length applies: what of a line counts, and how much of it a controller reads.
+
+    ``LINUXCNC``: the whole line in bytes, its break included, within LinuxCNC's 254-byte
+    read (``LINELEN``). ``GRBL``: the characters grbl's pre-parser keeps (comments, blanks,
+    control characters and ``/`` dropped), at most 79. ``MARLIN``: the characters before a
+    ``;`` comment, ``( )`` comments left out (as Marlin reads them with ``PAREN_COMMENTS``),
+    at most 95 (Marlin silently drops the rest of a longer command; it is refused here).
+    """
+
+    LINUXCNC = "linuxcnc"
+    GRBL = "grbl"
+    MARLIN = "marlin"
+
+    @property
+    def chars(self) -> int:
+        """The longest line that needs no counting (an ASCII line of this many characters
+        is within the limit whatever it holds)."""
+        return {LineLimit.LINUXCNC: _LONGEST_FAST_LINE, LineLimit.GRBL: GRBL_LINE_CHARS,
+                LineLimit.MARLIN: MARLIN_COMMAND_CHARS}[self]
 _MESSAGE = re.compile(
     r"[ \t\r]*(?:[Nn][0-9.]*[ \t\r]*)?[Mm][ \t\r]*0*([0-9]+)(?![0-9.])[ \t\r]*(.*)"
 )
@@ -121,7 +166,8 @@ _new = tuple.__new__
 
 
 def tokenize(text: str, *, file: str = "<string>", commands: bool = False,
-             messages: frozenset[int] = frozenset(), flags: bool = False) -> Iterator[Block]:
+             messages: frozenset[int] = frozenset(), flags: bool = False,
+             line_limit: LineLimit = LineLimit.LINUXCNC) -> Iterator[Block]:
     """Read G-code text lazily into blocks, one per line that holds anything.
 
     Blank lines and block-deleted lines (first character ``/``) yield nothing.
@@ -136,12 +182,14 @@ def tokenize(text: str, *, file: str = "<string>", commands: bool = False,
             of its N word (if any) and the M word, the text its one comment.
         flags: a letter with no number is a word of value 0 and number ``""`` (Marlin's
             ``G28 X Y``) instead of an error.
+        line_limit: whose line length applies (:class:`LineLimit`; LinuxCNC's by default).
 
     Raises:
         GCodeError: a malformed number, an unclosed or nested comment, a checksum
             mismatch, an ``N`` word that is not first, an unexpected character, a line
-            longer than LinuxCNC reads (names its length and the limit).
-        UnsupportedGCodeError: expressions, parameters, O-words, polar coordinates.
+            longer than the controller reads (names its length and the limit).
+        UnsupportedGCodeError: expressions, parameters, O-words, polar coordinates, a
+            Klipper extended command.
     """
     ending_bytes = 1
     if "\r" in text:
@@ -158,13 +206,15 @@ def tokenize(text: str, *, file: str = "<string>", commands: bool = False,
     nothing = _NOTHING
     lines = text.split("\n")
     last = len(lines)
+    longest = line_limit.chars
     for number, raw in enumerate(lines, 1):
         if not raw:
             continue
+        if len(raw) > longest or (len(raw) > longest // 4 and not raw.isascii()):
+            _check_length(raw, number, 0 if number == last else ending_bytes, file, line_limit)
         if messages:
             message = _message_block(raw, number, messages)
             if message is not None:
-                _check_length(raw, number, 0 if number == last else ending_bytes, file)
                 yield message
                 continue
         first = special(raw)
@@ -187,9 +237,6 @@ def tokenize(text: str, *, file: str = "<string>", commands: bool = False,
                         (number, "".join(letters).upper(), values, numbers, nothing, raw, False),
                     )
                     continue
-        if len(raw) > _LONGEST_FAST_LINE or (len(raw) > _LONGEST_FAST_LINE // 4
-                                              and not raw.isascii()):
-            _check_length(raw, number, 0 if number == last else ending_bytes, file)
         block = _read_line_carefully(raw, number, file, commands=commands, flags=flags)
         if block is not None:
             yield block
@@ -227,7 +274,47 @@ def word_columns(block: Block) -> tuple[int, ...]:
     return tuple(match.start(1) + 1 for match in _TOKEN.finditer(code) if match.group(1))
 
 
-def _check_length(raw: str, number: int, ending_bytes: int, file: str) -> None:
+def _check_length(raw: str, number: int, ending_bytes: int, file: str,
+                  limit: LineLimit) -> None:
+    """Refuse a line that the controller of ``limit`` would find too long."""
+    if limit is LineLimit.LINUXCNC:
+        _check_linuxcnc_length(raw, number, ending_bytes, file)
+        return
+    grbl = limit is LineLimit.GRBL
+    dropped = _GRBL_DROPPED if grbl else _MARLIN_DROPPED
+    longest = GRBL_LINE_CHARS if grbl else MARLIN_COMMAND_CHARS
+    kept = 0
+    position = 0
+    for match in (*dropped.finditer(raw), None):
+        end = len(raw) if match is None else match.start()
+        for index in range(position, end):
+            kept += len(raw[index].encode("utf-8"))
+            if kept > longest:
+                _refuse_long_line(raw, number, file, index, grbl)
+        if match is None:
+            return
+        position = match.end()
+
+
+def _refuse_long_line(raw: str, number: int, file: str, index: int, grbl: bool) -> None:
+    """Refuse a grbl or Marlin line whose kept characters go past the limit at ``index``."""
+    if grbl:
+        kept = len(_GRBL_DROPPED.sub("", raw).encode("utf-8"))
+        counted = "characters as grbl keeps them (comments, blanks and '/' dropped)"
+        reader = (f"grbl reads a line into an {GRBL_LINE_CHARS + 1}-character buffer"
+                  " (LINE_BUFFER_SIZE) and answers a longer one with error:11, so a line"
+                  f" keeps at most {GRBL_LINE_CHARS}")
+    else:
+        kept = len(_MARLIN_DROPPED.sub("", raw).encode("utf-8"))
+        counted = "characters besides its comments"
+        reader = (f"Marlin reads a command into a {MARLIN_COMMAND_CHARS + 1}-character"
+                  " buffer (MAX_CMD_SIZE) and drops the rest of a longer line, so a line"
+                  f" keeps at most {MARLIN_COMMAND_CHARS}")
+    raise GCodeError(f"line too long: {kept} {counted}; {reader}: split it",
+                     file=file, line=number, column=index + 1, word="")
+
+
+def _check_linuxcnc_length(raw: str, number: int, ending_bytes: int, file: str) -> None:
     """Refuse a line that LinuxCNC's reader would find too long."""
     size = len(raw.encode("utf-8")) + ending_bytes
     if size < LINE_BUFFER_BYTES:
@@ -273,6 +360,7 @@ def _read_line_carefully(raw: str, number: int, file: str, *, commands: bool = F
     if commands and stripped[0] == "$":
         command = "".join(stripped[1:].split())
         return Block(number, "$", (0.0,), (command,), (), raw, False)
+    _refuse_klipper_command(raw, number, file)
     code = _checked_code(raw, number, file)
     letters: list[str] = []
     values: list[float] = []
@@ -326,6 +414,23 @@ def _read_line_carefully(raw: str, number: int, file: str, *, commands: bool = F
     return Block(
         number, "".join(letters), tuple(values), tuple(numbers), tuple(comments), raw, False
     )
+
+
+def _refuse_klipper_command(raw: str, number: int, file: str) -> None:
+    """Refuse a line that starts with a Klipper extended command (``GET_POSITION``,
+    ``SET_VELOCITY_LIMIT VELOCITY=100``): a name of letters, digits and underscores whose
+    first two characters are not digits (``klippy/gcode.py``), here one with an underscore or
+    three letters first, which no run of G-code words can be."""
+    match = _KLIPPER_COMMAND.match(raw)
+    if match is None:
+        return
+    name = match.group(1)
+    if "_" not in name and not (len(name) >= 3 and name[:3].isalpha()):
+        return
+    if len(name) > 1 and name[1].isdigit():
+        return
+    raise UnsupportedGCodeError(f"{name}: {_KLIPPER_REASON}", file=file, line=number,
+                                column=match.start(1) + 1, word=name, reason=_KLIPPER_REASON)
 
 
 def _word_value(
@@ -451,6 +556,9 @@ def _bad_character(char: str, code: str, index: int, line: int, file: str) -> GC
         return unsupported("polar coordinates are not supported")
     if char == "%":
         return error("'%': a program delimiter must stand alone on its line")
+    if char == "$" and not code[:index].strip(_BLANKS):
+        return error("unexpected character '$': a line starting with '$' is a grbl controller"
+                     " command, which only the grbl dialect reads ($H)")
     if char == "/":
         return error("'/': block delete is only allowed as the first character of a line")
     if char == "*":

@@ -82,8 +82,8 @@ class WorkOffsets:
         rotation_deg: each system's XY rotation about its origin (``G10 L2 R``), degrees.
         coordinate_system: the active system, 1 (G54) to 9 (G59.3).
         g92: the G92 offset, applied only while ``g92_enabled``.
-        g92_enabled: whether the G92 offset applies (G92 and G92.3 set it; G92.1 and
-            G92.2 clear it).
+        g92_enabled: whether the G92 offset applies (G92 and G92.3 set it; G92.1, G92.2
+            and a program's end clear it).
         g28: the position G28 goes to; g30: the position G30 goes to.
         other: every other numbered parameter of the file, kept as read (the A-C values
             of the blocks above, and numbers usbmotion does not use).
@@ -270,6 +270,10 @@ class Frame:
     transform while the active system has no rotation (``rotated`` false), which is what
     the interpreter's fast path adds. A rotation turns X and Y; it is never in effect on a
     machine without both.
+
+    With ``g92_volatile`` (grbl, Marlin) the G92 offset belongs to the controller alone: it
+    starts cleared whatever ``offsets`` hold, and :meth:`snapshot` gives back their G92 as
+    it was, so it is never written to a parameter file.
     """
 
     __slots__ = (
@@ -280,6 +284,7 @@ class Frame:
         "g30",
         "g92",
         "g92_enabled",
+        "g92_volatile",
         "rotated",
         "rotation_deg",
         "system",
@@ -289,9 +294,11 @@ class Frame:
         "y",
     )
 
-    def __init__(self, offsets: WorkOffsets, axes: str = "XYZ") -> None:
+    def __init__(self, offsets: WorkOffsets, axes: str = "XYZ", *,
+                 g92_volatile: bool = False) -> None:
         self.base = offsets
         self.axes = axes
+        self.g92_volatile = g92_volatile
         slots = [AXIS_ORDER.index(letter) for letter in axes]
 
         def mine(point: Point) -> list[float]:
@@ -301,8 +308,8 @@ class Frame:
         self.g5x = [mine(point) for point in offsets.g5x]
         self.rotation_deg = list(offsets.rotation_deg)
         self.system = offsets.coordinate_system - 1
-        self.g92 = mine(offsets.g92)
-        self.g92_enabled = offsets.g92_enabled
+        self.g92 = [0.0] * len(axes) if g92_volatile else mine(offsets.g92)
+        self.g92_enabled = offsets.g92_enabled and not g92_volatile
         self.g28 = mine(offsets.g28)
         self.g30 = mine(offsets.g30)
         self.tool = [0.0] * len(axes)
@@ -367,6 +374,12 @@ class Frame:
         self.g92_enabled = True
         self.update()
 
+    def clear_g92(self) -> None:
+        """G92.1: the G92 offset and its stored value to zero, not applied."""
+        self.g92 = [0.0] * len(self.axes)
+        self.g92_enabled = False
+        self.update()
+
     def set_l20(self, system: int, machine: list[float], values: dict[int, float]) -> None:
         """G10 L20: system ``system`` (0-8) offset so that ``machine`` reads ``values`` there
         (named axes only; the others keep reading what they read)."""
@@ -383,7 +396,8 @@ class Frame:
         self.update()
 
     def snapshot(self) -> WorkOffsets:
-        """The persistent part as it stands now (axes the machine lacks as read)."""
+        """The persistent part as it stands now (axes the machine lacks as read; a volatile
+        G92 offset as it was read)."""
         axes = self.axes
 
         def full(point: Point, values: list[float]) -> Point:
@@ -398,8 +412,8 @@ class Frame:
             g5x=tuple(full(old, new) for old, new in zip(base.g5x, self.g5x, strict=True)),
             rotation_deg=tuple(self.rotation_deg),
             coordinate_system=self.system + 1,
-            g92=full(base.g92, self.g92),
-            g92_enabled=self.g92_enabled,
+            g92=base.g92 if self.g92_volatile else full(base.g92, self.g92),
+            g92_enabled=base.g92_enabled if self.g92_volatile else self.g92_enabled,
             g28=full(base.g28, self.g28),
             g30=full(base.g30, self.g30),
         )
