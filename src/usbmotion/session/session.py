@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from usbmotion.automation.device_io import MachineZero
@@ -683,7 +683,9 @@ class MachineSession:
         anything moved). A device fault stops every other axis along its deceleration; a
         stop request does so for every axis; the report says why the run ended. A program
         that ran to its end and changed the work offsets or the stored positions (G10, G92,
-        G28.1, G30.1) leaves them in the parameter file for the next run.
+        G28.1, G30.1) leaves them in the parameter file for the next run. The report's
+        notes begin with the program's warnings (``prepared.warnings``: rapids into the
+        stock).
 
         Raises:
             MachineStateError: not Idle, or the machine moved since the program was prepared.
@@ -709,6 +711,8 @@ class MachineSession:
             report, trace = run.go()
         finally:
             self._requests.hold = self._requests.resume = False
+        if prepared.warnings:  # what prepare_program found risky (motion.plunges)
+            report = replace(report, notes=(*prepared.warnings, *report.notes))
         self._state = MachineState.ALARM if run.faulted else MachineState.IDLE
         for name in run.faulted_axes:
             self.homed[name] = False
