@@ -54,7 +54,7 @@ def measure(homings: int, load: int | None, seed: int = 7) -> dict[str, Any]:
                     polled.setdefault(name, []).append(zero.seen_counts - zero.edge_counts)
                 x, y, z = (rng.uniform(2.0, 20.0) for _ in range(3))
                 prepared = session.prepare("away.ngc",
-                                           text=f"G21 G90\nG0 X{x:.3f} Y{y:.3f} Z{z:.3f}\nM2\n")
+                                           text=f"G21 G90\nG0 X{x:.3f} Y{y:.3f} Z{-z:.3f}\nM2\n")
                 report, _ = session.run(prepared)
                 if not report.completed:
                     raise RuntimeError(f"the move away failed: {report.stop_reason}")

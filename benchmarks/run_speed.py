@@ -4,7 +4,9 @@
 
 A seeded benchmark program (``benchmark_program``: G1 lines, G2/G3 arcs in the I/J and R
 forms, full circles and helices, plunges and rapids, all within X 0..200, Y 0..200,
-Z 0..100 mm and at least 1 mm off 0) is run by the command a user runs::
+Z -100..0 mm and at least 1 mm off 0; Z homes up, so the figures go down from the top of its
+travel, the mirror image of the program of the machine whose Z homed down, with the same
+machine time) is run by the command a user runs::
 
     usbmotion run PROGRAM --machine benchmarks/machine-10khz.toml --report R.json --no-plot -q
 
@@ -58,7 +60,8 @@ MACHINE = Path(__file__).with_name("machine-10khz.toml")
 TARGET_MULTIPLE = 100.0
 TRAVEL_MM = (200.0, 200.0, 100.0)
 MARGIN_MM = 5.0
-SAFE_Z_MM = 30.0
+SAFE_Z_MM = -30.0
+"""The height the program moves between figures at: 30 mm below the top of Z's travel."""
 WHAT_IF_PERIODS = ((0.01, "10 ms"), (0.002, "2 ms"))
 """Diagnostics periods the anatomy also tries, beside the job's own (10 ms, or sparser for a
 program longer than 200 s: ``usbmotion.session.trace_period_s``)."""
@@ -77,14 +80,14 @@ def _figure(rng: random.Random, x: float, y: float) -> tuple[list[str], float, f
     feed = rng.choice((600, 900, 1200, 1500))
     out = [
         f"G0 X{cx - r:.3f} Y{cy:.3f}",
-        f"G1 Z{z:.3f} F300",
+        f"G1 Z{-z:.3f} F300",
         f"G2 X{cx - r:.3f} Y{cy:.3f} I{r:.3f} J0 F{feed}",
-        f"G3 X{cx + r:.3f} Y{cy:.3f} Z{z + 1.5:.3f} I{r:.3f} J0",
+        f"G3 X{cx + r:.3f} Y{cy:.3f} Z{-z - 1.5:.3f} I{r:.3f} J0",
         f"G1 X{cx + r:.3f} Y{cy + w:.3f}",
         f"G3 X{cx + r - w:.3f} Y{cy + 2 * w:.3f} R{w:.3f}",
         f"G1 X{cx - r:.3f}",
         f"G2 X{cx - r - w / 2:.3f} Y{cy + 1.5 * w:.3f} I0 J{-w / 2:.3f}",
-        f"G1 X{cx - r:.3f} Y{cy:.3f} Z{z:.3f}",
+        f"G1 X{cx - r:.3f} Y{cy:.3f} Z{-z:.3f}",
         f"G0 Z{SAFE_Z_MM:.3f}",
     ]
     return out, cx, cy
@@ -100,7 +103,7 @@ def benchmark_program(*, minutes: float, seed: int = 2026) -> str:
     for _ in range(figures):
         lines, x, y = _figure(rng, x, y)
         out += lines
-    out += ["G0 X5 Y5", "G0 Z5", "M2", "%"]
+    out += ["G0 X5 Y5", "G0 Z-5", "M2", "%"]
     return "\n".join(out) + "\n"
 
 

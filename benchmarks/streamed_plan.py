@@ -46,7 +46,8 @@ DEMOS = sorted((Path(usbmotion.__file__).parent / "data" / "demos").glob("*.ngc"
 CONFORMANCE = Path(__file__).resolve().parents[2] / "shared" / "gcode-conformance"
 TRAVEL_MM = 40_000.0
 MARGIN_MM = 5.0
-"""The program's extent starts this far from where homing leaves the machine."""
+"""The program's extent starts this far from where homing leaves the machine (above it on
+an axis that homes down, below it on one that homes up: Z)."""
 MAX_PROGRAM_S = 600.0
 """Programs with more motion than this (LinuxCNC's big-arc cases: hours) are left out."""
 JOG_FIRST_TICK = 1500
@@ -54,8 +55,11 @@ JOG_STEP_TICKS = 137
 
 
 def _wide(config: MachineConfig, directory: Path) -> MachineConfig:
-    """The machine with 40 m of travel on every axis and its own parameter file."""
-    axes = tuple(dataclasses.replace(axis, travel_mm=(0.0, TRAVEL_MM)) for axis in config.axes)
+    """The machine with 40 m of travel on every axis, from the end it homes to (Z: down from
+    its top), and its own parameter file."""
+    axes = tuple(dataclasses.replace(
+        axis, travel_mm=(0.0, TRAVEL_MM) if axis.homing.direction < 0 else (-TRAVEL_MM, 0.0))
+        for axis in config.axes)
     return dataclasses.replace(config, axes=axes, parameter_file=directory / "bench.var")
 
 
@@ -79,8 +83,9 @@ def _executed(config: MachineConfig, text: str, name: str, *, streamed: bool,
         session.home()
         here = session.positions_mm()
         _, plan = plan_gcode(config, text, start_mm=tuple(here[a] for a in "XYZ"))
-        low = plan.vertices_mm.min(axis=0)
-        origin = {a: here[a] + MARGIN_MM - low[i] for i, a in enumerate("XYZ")}
+        low, high = plan.vertices_mm.min(axis=0), plan.vertices_mm.max(axis=0)
+        origin = {a: here[a] + MARGIN_MM - low[i] if config.axis(a).homing.direction < 0
+                  else here[a] - MARGIN_MM - high[i] for i, a in enumerate("XYZ")}
         session.set_work_origin(origin)
         if streamed:
             feed = session.open_feed(file=name, source=iter(text.splitlines()))

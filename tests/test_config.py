@@ -13,6 +13,7 @@ from usbmotion.host.config import (
     load_config,
     parse_config,
 )
+from usbmotion.session import home_position_mm
 from usbmotion.sim.urls import URL_CHECKS
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -97,17 +98,42 @@ def test_example_machine_loads_as_the_simulated_xyz_machine() -> None:
     assert config.servo_period_s == pytest.approx(0.001)
     for axis in config.axes:
         assert axis.counts_per_mm == 240.0
-        assert axis.homing.direction == -1
-        assert axis.homing.position_mm == axis.travel_mm[0] - 1.0, "1 mm below the travel"
+        if axis.name == "Z":  # CNC: Z homes up, machine Z runs negative below its switch
+            assert axis.homing.direction == 1
+            assert axis.homing.position_mm == axis.travel_mm[1] + 1.0, "1 mm above the travel"
+        else:
+            assert axis.homing.direction == -1
+            assert axis.homing.position_mm == axis.travel_mm[0] - 1.0, "1 mm below the travel"
+        assert home_position_mm(axis) == 0.0, "homing leaves every axis at machine 0"
         assert axis.homing.pull_off_mm == 1.0
         assert axis.homing.search_mm == 1.5 * (axis.travel_mm[1] - axis.travel_mm[0])
         assert axis.switch_margin_mm == 1.0
         assert axis.sim is not None
         lower, upper = axis.sim_travel_counts or (0, 0)
-        assert lower < 0 < upper
+        assert lower < 0 < upper, "the carriage powers up between its switches"
         assert upper - lower == round((axis.travel_mm[1] - axis.travel_mm[0] + 2.0) * 240)
     assert config.axis("X").travel_mm == (0.0, 200.0)
-    assert config.axis("Z").travel_mm == (0.0, 100.0)
+    assert config.axis("Z").travel_mm == (-100.0, 0.0)
+
+
+@pytest.mark.parametrize("path", [*sorted(EXAMPLES.glob("*.toml")),
+                                  EXAMPLES.parent / "benchmarks" / "machine-10khz.toml"],
+                         ids=lambda path: path.name)
+def test_every_example_machine_homes_z_up_and_x_y_to_their_lower_ends(path: Path) -> None:
+    """The CNC convention: Z's switch is at the top and machine Z runs negative below it
+    (G53 G0 Z0 is the safe retract); X and Y run positive from their switches."""
+    config = load_config(path, url_checks=URL_CHECKS)
+    assert config.homing_order[0] == ("Z",) or "Z" not in config.axis_names
+    for axis in config.axes:
+        low, high = axis.travel_mm
+        up = axis.name == "Z"
+        assert axis.homing.direction == (1 if up else -1), axis.name
+        assert home_position_mm(axis) == (high if up else low) == 0.0, axis.name
+        assert axis.homing.position_mm == (high + 1.0 if up else low - 1.0), axis.name
+        if axis.sim is not None:
+            assert low <= axis.sim.start_mm <= high
+            lower, upper = axis.sim_travel_counts or (0, 0)
+            assert lower < 0 < upper, "the carriage powers up between its switches"
 
 
 def test_real_machine_example_loads_without_simulated_motors() -> None:

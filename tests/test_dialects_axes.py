@@ -334,8 +334,23 @@ def test_a_plotter_runs_a_plotter_program(tmp_path: Path) -> None:
     assert "Z" not in out.split("following error")[1].split("end position")[0]
 
 
+def _printer(tmp_path: Path) -> Path:
+    """The default machine as a printer: Z homes down onto its bed (Marlin's way) and runs
+    0..100 mm up from it, where the CNC convention has it home up."""
+    text = DEFAULT.read_text().replace('name = "simulated XYZ"', 'name = "printer"')
+    for cnc, printer in (("travel_mm = [-100.0, 0.0]", "travel_mm = [0.0, 100.0]"),
+                         ("homing = { direction = 1,", "homing = { direction = -1,"),
+                         ("sim = { start_mm = -50.0,", "sim = { start_mm = 50.0,")):
+        assert text.count(cnc) == 1, cnc
+        text = text.replace(cnc, printer)
+    path = tmp_path / "printer.toml"
+    path.write_text(text)
+    return path
+
+
 def test_a_slicer_program_runs_in_the_marlin_dialect(tmp_path: Path) -> None:
-    report, out = _run(tmp_path, PROGRAMS / "slicer.gcode", "--dialect", "marlin")
+    report, out = _run(tmp_path, PROGRAMS / "slicer.gcode", "--dialect", "marlin",
+                       "--machine", str(_printer(tmp_path)))
     assert report["completed"] is True
     # It ends homed in X and Y (G28 X Y), the nozzle lifted to Z 10.
     assert report["end_position_mm"] == pytest.approx({"X": 0.0, "Y": 0.0, "Z": 10.0},

@@ -45,7 +45,7 @@ def test_full_home_zeroes_every_axis_on_its_latched_switch_edge() -> None:
         for name, status in session.machine.status().items():
             axis = config.axis(name)
             client = session.machine.axis(name).client
-            edge = client.switch_edge(1)
+            edge = client.switch_edge(1 if axis.homing.direction < 0 else 2)  # Z's is above
             assert (edge.edges, edge.closed) == (4, False), "seek, back off, locate, pull off"
             zero = session.zeroes[name]
             assert zero.edge_counts + zero.shift_counts == axis.scale.to_counts(

@@ -162,10 +162,10 @@ def test_a_continuous_jog_runs_to_the_first_soft_limit_on_its_way() -> None:
 
 
 def test_a_jog_beyond_the_travel_is_refused_naming_the_axis_and_limit() -> None:
-    code, out, err = invoke("jog", "Z", "-5", "--feed", "300")
+    code, out, err = invoke("jog", "Z", "5", "--feed", "300")  # up from the top of Z
     assert (code, out) == (2, "")
-    assert err.endswith("usbmotion jog: axis Z to -5.000 mm (-5.000 from 0.000) is beyond its"
-                        " lower limit 0.000 mm (travel 0..100 mm); nothing moved\n"), err
+    assert err.endswith("usbmotion jog: axis Z to 5.000 mm (+5.000 from 0.000) is beyond its"
+                        " upper limit 0.000 mm (travel -100..0 mm); nothing moved\n"), err
 
 
 @pytest.mark.parametrize(("args", "words"), [

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,7 @@ from usbmotion.errors import (
     StopRequestedError,
 )
 from usbmotion.host.config import MachineConfig, load_config, parse_config
+from usbmotion.motion.limits import SETTLED_BAND_COUNTS
 from usbmotion.protocol import FaultCode
 from usbmotion.session import (
     TRANSITIONS,
@@ -27,6 +29,7 @@ from usbmotion.session import (
     MachineState,
     StopReason,
     check_transition,
+    describe,
     home_position_mm,
 )
 from usbmotion.session.live import LiveSnapshot as Progress
@@ -118,22 +121,24 @@ def test_a_program_starts_where_the_machine_stands_and_can_run_twice(
 
 
 def test_moves_to_zero_after_homing_touch_no_switch(config: MachineConfig) -> None:
-    """The switch is outside the travel: G0 X0 and a CAM retract (G28 G91 Z0) are moves,
-    not faults."""
-    program = "G21 G90\nG0 X50 Y40 Z20\nG0 X0 Y0\nG28 G91 Z0\nG90 G0 X0 Y0 Z0\nM2\n"
+    """The switch is outside the travel: G0 X0 and the CAM retracts to the top of Z
+    (G28 G91 Z0, G53 G0 Z0) are moves, not faults."""
+    program = ("G21 G90\nG0 X50 Y40 Z-20\nG0 X0 Y0\nG28 G91 Z0\nG90 G0 Z-30\n"
+               "G53 G0 Z0\nG90 G0 X0 Y0 Z0\nM2\n")
     with connect_session(config) as session:
         session.home()
         report, _ = session.run(session.prepare("zero.ngc", text=program))
         assert report.completed and report.faults == ()
         for name, status in session.machine.status().items():
             assert status.desired_counts == 0, name
-            assert not status.lower_limit and status.fault == 0
+            assert not (status.lower_limit or status.upper_limit) and status.fault == 0
 
 
 @pytest.mark.parametrize(("program", "line", "axis", "coordinate", "limit"), [
     ("G21 G90\nG0 X20\nG0 X300\nM2\n", 3, "X", 300.0, 200.0),
     ("G21 G90\nG0 X60 Y5\nG3 X100 Y5 I20 J0 F600\nM2\n", 3, "Y", None, 0.0),
-    ("G21 G91\nG1 Z-0.5 F100\nM2\n", 2, "Z", -0.5, 0.0),
+    ("G21 G91\nG1 Z0.5 F100\nM2\n", 2, "Z", 0.5, 0.0),  # above the top of Z
+    ("G21 G90\nG0 Z-50\nG1 Z-100.5 F100\nM2\n", 3, "Z", -100.5, -100.0),
 ])
 def test_a_program_that_leaves_the_travel_is_refused_before_anything_moves(
         config: MachineConfig, program: str, line: int, axis: str, coordinate: float | None,
@@ -154,6 +159,81 @@ def test_a_program_that_leaves_the_travel_is_refused_before_anything_moves(
         after = {name: (d.state.desired, d.state.queued, d.settings) for name, d in
                  devices.items()}
         assert after == before, "no setpoint was sent"
+
+
+def test_two_runs_in_a_row_ending_at_the_top_of_z_both_complete(config: MachineConfig) -> None:
+    """``usbmotion run`` twice on the same devices, each a take-over, a program ending with
+    the CAM retract G53 G0 Z0 and the servos disabled at its end: the servo settled a count
+    or two above the top of Z's travel, and the next run, a jog back inside and MDI start
+    from there; a move farther out is still refused."""
+    program = "G21 G90\nG0 X10 Y10 Z-20\nG53 G0 Z0\nM2\n"
+    world = SimWorld()
+    with connect_session(config, world=world) as first:
+        first.home()
+        report, _ = first.run(first.prepare("retract.ngc", text=program))
+        assert report.completed, report.stop_reason
+        first.shutdown()
+    with connect_session(config, world=world) as second:
+        assert second.is_homed
+        start_z = second.positions_mm()["Z"]
+        assert 0.0 < start_z <= SETTLED_BAND_COUNTS / 240, (
+            "outside the travel's top, within the settled band: what refused every program")
+        report, _ = second.run(second.prepare("retract.ngc", text=program))
+        assert report.completed, report.stop_reason
+        second.shutdown()
+    with connect_session(config, world=world) as third:
+        start_z = third.positions_mm()["Z"]
+        assert start_z > 0.0
+        with pytest.raises(SoftLimitError) as caught:
+            third.jog({"Z": 1.0}, feed_mm_min=600)
+        assert (caught.value.axis, caught.value.limit_mm) == ("Z", 0.0)
+        assert "farther out than" in str(caught.value)
+        report = third.jog({"Z": -5.0}, feed_mm_min=600)
+        assert report.completed
+        assert third.positions_mm()["Z"] == pytest.approx(start_z - 5.0, abs=1 / 240)
+        third.shutdown()
+    with connect_session(config, world=world) as mdi:
+        feed = mdi.open_feed(file="<console>")
+        feed.add("G91 G0 X1")
+        feed.close()
+        report, _ = mdi.run_feed(feed)
+        assert report.completed
+
+
+def test_a_run_from_beyond_the_band_must_come_back_first(config: MachineConfig) -> None:
+    """After a travel made shorter (as after a limit fault or a push by hand) the machine
+    stands well outside: a program that moves X first is refused naming Z and its limit,
+    a jog of Z back inside is taken."""
+    with connect_session(config) as session:
+        session.home()
+        shorter = replace(config, axes=tuple(
+            replace(axis, travel_mm=(-100.0, -0.5),
+                    homing=replace(axis.homing, pull_off_mm=1.5)) if axis.name == "Z"
+            else axis for axis in config.axes))
+        session.reconfigure(shorter)
+        assert session.is_homed and session.positions_mm()["Z"] == 0.0
+        with pytest.raises(SoftLimitError, match="must bring an axis that stands outside back"
+                           ) as caught:
+            session.prepare("x.ngc", text="G21 G90\nG0 X10\nG0 Z-5\nM2\n")
+        assert (caught.value.line, caught.value.axis, caught.value.limit_mm) == (2, "Z", -0.5)
+        report = session.jog({"Z": -2.0}, feed_mm_min=600)
+        assert report.completed and session.positions_mm()["Z"] == pytest.approx(-2.0)
+
+
+def test_a_rapid_into_the_stock_is_reported_before_and_after_the_run(
+        config: MachineConfig) -> None:
+    """A report, not a refusal: the warning is in the prepared program and heads the
+    report's notes; the run goes."""
+    program = "G21 G90\nG0 X2 Y2\nG1 Z-3 F300\nG1 X20 F900\nG1 Y20\nG0 X10 Y10\nG0 Z0\nM2\n"
+    with connect_session(config) as session:
+        session.home()
+        prepared = session.prepare("plunge.ngc", text=program)
+        assert len(prepared.warnings) == 1
+        assert prepared.warnings[0].startswith("line 6: a rapid reaches work Z -3.000 mm")
+        report, _ = session.run(prepared)
+        assert report.completed
+        assert report.notes[0] == prepared.warnings[0]
+        assert f"note           {prepared.warnings[0]}" in describe(report)
 
 
 def test_an_unhomed_machine_plans_where_homing_will_leave_it(config: MachineConfig) -> None:
@@ -268,13 +348,13 @@ def test_a_second_host_finds_the_machine_homed_where_the_first_left_it(
     world = SimWorld()
     with connect_session(config, world=world) as first:
         first.home()
-        report, _ = first.run(first.prepare("a.ngc", text="G21 G90\nG1 X40 Y30 Z10 F900\nM2\n"))
+        report, _ = first.run(first.prepare("a.ngc", text="G21 G90\nG1 X40 Y30 Z-10 F900\nM2\n"))
         assert report.completed
         first.shutdown()
     with connect_session(config, world=world) as second:
         assert second.notices == [] and second.is_homed, "no fault: the position is known"
         where = second.positions_mm()
-        assert where == pytest.approx({"X": 40.0, "Y": 30.0, "Z": 10.0}, abs=3 / 240), (
+        assert where == pytest.approx({"X": 40.0, "Y": 30.0, "Z": -10.0}, abs=3 / 240), (
             "where the axes rest, to a few counts of where the first host left them")
         prepared = second.prepare("b.ngc", text="G21 G90\nG1 X0 Y0 Z0 F900\nM2\n")
         assert prepared.start_mm == (where["X"], where["Y"], where["Z"])
@@ -332,7 +412,8 @@ def test_the_console_starts_a_cycle_twice_from_where_the_machine_stands() -> Non
     starts = [line for line in done.stdout.splitlines() if line.startswith("cycle start:")]
     assert len(starts) == 2
     assert "from X 0.000  Y 0.000  Z 0.000 mm" in starts[0]
-    assert "from X 5.000  Y 5.000  Z 5.000 mm" in starts[1], "the second from where the first ended"
+    assert "from X 5.000  Y 5.000  Z -5.000 mm" in starts[1], (
+        "the second from where the first ended")
     assert done.stdout.count("\ndone\n") == 2
     assert "faults         none" in done.stdout
 

@@ -36,12 +36,12 @@ from usbmotion.sim.recording import ExecutedRecorder
 
 DEMO = Path(usbmotion.__file__).parent / "data" / "demos" / "1-rounded-square.ngc"
 SHORT = """G21 G90 G17
-G0 X10 Y10 Z5
+G0 X10 Y10 Z-5
 G1 X60 Y10 F3000
 G1 X60 Y50
 G2 X40 Y70 I-20 J0
 G1 X10 Y70
-G0 Z10
+G0 Z0
 """
 
 
@@ -296,12 +296,12 @@ def test_jogs_incremental_and_continuous_and_cancelled(config: MachineConfig) ->
 
 def test_a_continuous_jog_stops_at_the_soft_limit(config: MachineConfig) -> None:
     def go(session: MachineSession) -> RunReport:
-        return session.jog({"Z": 1.0}, feed_mm_min=1200, continuous=True)
+        return session.jog({"Z": -1.0}, feed_mm_min=1200, continuous=True)
 
     _, positions, report = _record(config, go)
-    _, upper = config.axis("Z").travel_mm
+    lower, _ = config.axis("Z").travel_mm  # down from the top, where homing leaves Z
     assert report.completed
-    assert positions[-1][2] == round(upper * config.axis("Z").counts_per_mm)
+    assert positions[-1][2] == round(lower * config.axis("Z").counts_per_mm)
 
 
 def test_the_operator_runs_mdi_lines_with_their_modal_state(config: MachineConfig) -> None:
@@ -312,14 +312,14 @@ def test_the_operator_runs_mdi_lines_with_their_modal_state(config: MachineConfi
         assert world is not None
         with Operator(session, on_message=messages.append) as operator, \
                 ExecutedRecorder(world, AXES) as recorder:
-            for line in ("G21 G90", "G0 X10 Y10", "G91", "G1 X5 F600", "G0 Z2"):
+            for line in ("G21 G90", "G0 X10 Y10", "G91", "G1 X5 F600", "G0 Z-2"):
                 assert operator.submit(line)
             assert operator.wait_idle(60)
             positions = recorder.positions()
             check_limits(config, positions, positions)
             counts = config.axis("X").counts_per_mm
             assert positions[-1].tolist() == [round(15 * counts), round(10 * counts),
-                                              round(2 * counts)]
+                                              round(-2 * counts)]
             with pytest.raises(GCodeError):
                 operator.submit("G1 X")
             deadline = 0
@@ -330,7 +330,7 @@ def test_the_operator_runs_mdi_lines_with_their_modal_state(config: MachineConfi
             where = operator.status().machine_mm()
         assert where["X"] == pytest.approx(10.0, abs=0.01), "the encoder, within 2 counts"
         assert (where["Y"], where["Z"]) == (pytest.approx(10.0, abs=0.01),
-                                            pytest.approx(2.0, abs=0.01))
+                                            pytest.approx(-2.0, abs=0.01))
         assert not [m for m in messages if m.startswith("error")]
         session.shutdown()
 

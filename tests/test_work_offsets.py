@@ -204,7 +204,8 @@ def test_parse_origin_refuses_what_is_not_an_origin(value: str) -> None:
 
 
 def test_a_cam_program_runs_after_origin_and_is_refused_without(tmp_path: Path) -> None:
-    """A grbl job with its origin at the stock's top corner (Z +5 to -3 mm, no M2)."""
+    """A grbl job with its origin at the stock's top corner (Z +5 to -3 mm, no M2): with
+    G54 at machine zero its clearance (Z5) is above the top of Z's travel."""
     machine = _machine_file(tmp_path)
     program = PROGRAMS / "cam_corner.ngc"
     text = program.read_text()
@@ -215,16 +216,37 @@ def test_a_cam_program_runs_after_origin_and_is_refused_without(tmp_path: Path) 
     assert unended.exit_code == 2 and "ends without M2, M30" in unended.output, unended.output
     refused = runner.invoke(app, [*base, "--dialect", "grbl"])
     assert refused.exit_code == 2, refused.output
-    assert f"{program}:10:" in refused.output, refused.output  # the plunge, G1 Z-3
-    assert "axis Z" in refused.output and "nothing was moved" in refused.output, refused.output
+    assert f"{program}:8: Z would reach 5.000 mm, beyond the upper end 0 mm of axis Z's" in (
+        refused.output), refused.output  # the clearance, G0 Z5, above the top of Z
+    assert "nothing was moved" in refused.output, refused.output
     assert not (tmp_path / "mill.var").exists()
     report = tmp_path / "cam.json"
-    done = runner.invoke(app, [*base, "--dialect", "grbl", "--origin", "X100 Y100 Z60",
+    done = runner.invoke(app, [*base, "--dialect", "grbl", "--origin", "X100 Y100 Z-40",
                                "--report", str(report)])
     assert done.exit_code == 0, done.output
-    assert read_parameter_file(tmp_path / "mill.var").g5x[0] == _xyz(100.0, 100.0, 60.0)
+    assert read_parameter_file(tmp_path / "mill.var").g5x[0] == _xyz(100.0, 100.0, -40.0)
     figures = json.loads(report.read_text())
     assert figures["completed"] is True, figures
+    assert figures["end_position_mm"]["Z"] == pytest.approx(-35.0, abs=0.02), "G0 Z5 at the end"
+    assert figures["notes"] == [], "no rapid into the stock"
+
+
+def test_a_rapid_into_the_stock_is_reported_and_the_program_still_runs(tmp_path: Path) -> None:
+    """cam_corner.ngc with its plunge as a G0: a report, not a refusal."""
+    machine = _machine_file(tmp_path)
+    report = tmp_path / "plunge.json"
+    done = CliRunner().invoke(app, [
+        "run", str(PROGRAMS / "cam_rapid_plunge.ngc"), "--machine", str(machine), "--no-plot",
+        "--quiet", "--dialect", "grbl", "--origin", "X100 Y100 Z-40", "--report", str(report)])
+    assert done.exit_code == 0, done.output
+    figures = json.loads(report.read_text())
+    assert figures["completed"] is True
+    warning = ("line 10: a rapid reaches work Z -3.000 mm, below work Z0, at machine X 102.000"
+               " Y 102.000 mm, inside the stock's XY extent X 102.000..120.000 Y 102.000..120.000"
+               " mm (where the program cuts at or below work Z0): it would plunge into the stock"
+               " at rapid speed")
+    assert figures["notes"] == [warning]
+    assert f"note           {warning}" in done.output
 
 
 def test_a_fusion_style_program_with_tools_offsets_and_cycles_runs_to_the_end(
@@ -232,7 +254,8 @@ def test_a_fusion_style_program_with_tools_offsets_and_cycles_runs_to_the_end(
 ) -> None:
     (tmp_path / "mill.tbl").write_text((PROGRAMS / "fusion_mill.tbl").read_text())
     machine = _machine_file(tmp_path, 'tool_table = "mill.tbl"\n')
-    offsets = NO_OFFSETS.with_g5x(1, _xyz(50.0, 50.0, 40.0)).with_g5x(2, _xyz(120.0, 50.0, 40.0))
+    offsets = NO_OFFSETS.with_g5x(1, _xyz(50.0, 50.0, -60.0)).with_g5x(
+        2, _xyz(120.0, 50.0, -60.0))
     write_parameter_file(tmp_path / "mill.var", offsets)
     config = load_config(machine)
     assert config.tool_table == tmp_path / "mill.tbl"
@@ -241,11 +264,12 @@ def test_a_fusion_style_program_with_tools_offsets_and_cycles_runs_to_the_end(
         prepared = session.prepare(PROGRAMS / "fusion_mill.ngc")
         moves = prepared.program.moves
         assert [c.tool for c in prepared.program.tool_changes] == [1, 2]
-        # T1 in G54: the cut at Z-1 is 40 + 20 - 1 mm in machine Z; the drill in G55.
-        assert any(isinstance(m, Linear) and m.end == (90.0, 60.0, 59.0) for m in moves)
-        assert any(isinstance(m, Linear) and m.end == (125.0, 55.0, 66.0) for m in moves)
-        assert any(isinstance(m, Linear) and m.end == (145.0, 55.0, 64.0) for m in moves)
-        assert any(isinstance(m, Rapid) and m.end[2] == 95.0 for m in moves)
+        # T1 in G54: the cut at Z-1 is -60 + 20 - 1 mm in machine Z; the drill in G55.
+        assert any(isinstance(m, Linear) and m.end == (90.0, 60.0, -41.0) for m in moves)
+        assert any(isinstance(m, Linear) and m.end == (125.0, 55.0, -34.0) for m in moves)
+        assert any(isinstance(m, Linear) and m.end == (145.0, 55.0, -36.0) for m in moves)
+        assert any(isinstance(m, Rapid) and m.end[2] == 0.0 for m in moves), "G53 G0 Z0"
+        assert prepared.warnings == (), "its pecks go back into their holes: no plunge"
         report, _ = session.run(prepared)
     assert report.completed, report.stop_reason
 
@@ -253,15 +277,15 @@ def test_a_fusion_style_program_with_tools_offsets_and_cycles_runs_to_the_end(
 def test_a_completed_program_keeps_its_offsets_for_the_next_run(tmp_path: Path) -> None:
     config = load_config(_machine_file(tmp_path))
     program = tmp_path / "set.ngc"
-    program.write_text("G10 L2 P1 X5 Y6 Z7\nG0 X0 Y0 Z0\nM2\n")
+    program.write_text("G10 L2 P1 X5 Y6 Z-7\nG0 X0 Y0 Z0\nM2\n")
     with connect_session(config) as session:
         session.home()
         report, _ = session.run(session.prepare(program))
         assert report.completed
-        assert read_parameter_file(config.parameter_path).g5x[0] == _xyz(5.0, 6.0, 7.0)
+        assert read_parameter_file(config.parameter_path).g5x[0] == _xyz(5.0, 6.0, -7.0)
         again = tmp_path / "again.ngc"
         again.write_text("G0 X1 Y1 Z1\nM2\n")
-        assert session.prepare(again).program.moves[0].end == (6.0, 7.0, 8.0)
+        assert session.prepare(again).program.moves[0].end == (6.0, 7.0, -6.0)
 
 
 def test_a_jobs_g92_does_not_shift_the_next_job(tmp_path: Path) -> None:
@@ -309,13 +333,13 @@ def test_zero_and_g10_from_the_console_set_g54_where_the_machine_stands(
         do("$z X Y")
         offsets = read_parameter_file(config.parameter_path)
         assert offsets.g5x[0][:2] == (where["X"], where["Y"]), lines
-        do("G10 L20 P1 Z-10")
+        do("G10 L20 P1 Z10")
         offsets = read_parameter_file(config.parameter_path)
-        assert offsets.g5x[0][2] == pytest.approx(where["Z"] + 10.0), lines
+        assert offsets.g5x[0][2] == pytest.approx(where["Z"] - 10.0), lines
         do("G0 X1 Y1 Z1")
         assert lines[-1] == "ok", "a line that moves is MDI"
         assert session.positions_mm() == pytest.approx(
-            {"X": where["X"] + 1, "Y": where["Y"] + 1, "Z": where["Z"] + 11}), "in G54"
+            {"X": where["X"] + 1, "Y": where["Y"] + 1, "Z": where["Z"] - 9}), "in G54"
         do("$z Q")
         assert "takes axes X, Y, Z" in lines[-1]
         console.close()

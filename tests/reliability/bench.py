@@ -74,14 +74,18 @@ def served(flash_dir: Path) -> Iterator[dict[str, str]]:
 
 
 def bench_machine(folder: Path, paths: dict[str, str], *, watchdog_ms: int) -> Path:
-    """The default machine with each axis on its terminal, carriages 5 mm above their lower
-    switches, a quicker slow locate (2 mm/s after backing off 0.5 mm: still under a count a
-    tick, so the latched edge is the switch's very count), so homing takes seconds in real
-    time, and this watchdog."""
+    """The default machine with each axis on its terminal, carriages 5 mm inside the travel
+    end they home to (X, Y above their lower switches, Z below its upper one), a quicker
+    slow locate (2 mm/s after backing off 0.5 mm: still under a count a tick, so the latched
+    edge is the switch's very count), so homing takes seconds in real time, and this
+    watchdog."""
     text = default_machine().read_text()
     for letter in "XYZ":
         text = text.replace(f'url = "sim://{letter}"', f'url = "{paths[letter + " AXIS"]}"')
-    text = re.sub(r"start_mm = [0-9.]+", "start_mm = 5.0", text)
+    text, count = re.subn(r"start_mm = 100\.0", "start_mm = 5.0", text)
+    assert count == 2, "X and Y power up 5 mm above their lower switches"
+    text, count = re.subn(r"start_mm = -50\.0", "start_mm = -5.0", text)
+    assert count == 1, "Z powers up 5 mm below its upper switch"
     text, count = re.subn(r"slow_speed_mm_s = 1\.0, backoff_mm = 1\.0",
                           "slow_speed_mm_s = 2.0, backoff_mm = 0.5", text)
     assert count == 3, "every axis locates at 2 mm/s (under a count a tick) after 0.5 mm"

@@ -36,7 +36,7 @@ WATCHDOG_TOLERANCE_MS = 25.0
 """How far the measured disable may be from the watchdog: the serving loop polls every
 millisecond and a loaded machine delays it; measured 1250.0..1251.0 ms when idle."""
 
-PROGRAM = "G21 G90\nG1 X20 Y10 Z5 F300\nG1 X0 Y0 Z0\nM2\n"
+PROGRAM = "G21 G90\nG1 X20 Y10 Z-5 F300\nG1 X0 Y0 Z0\nM2\n"
 """About 9 s of motion; the host is killed about 1.5 s into it."""
 
 
@@ -119,8 +119,9 @@ def test_a_killed_host_leaves_every_servo_disabled_by_its_watchdog(tmp_path: Pat
                 fault_at = (before + after) / 2 - (clock - fault_tick) * tick_s
                 label = next(label for label in last if name in label)
                 delays_ms[axis.name] = (fault_at - last[label]) * 1000
-                target_mm = {"X": 20.0, "Y": 10.0, "Z": 5.0}[axis.name]
-                assert 0 < axis.scale.to_mm(status.actual_counts) < target_mm, "mid-program"
+                target_mm = {"X": 20.0, "Y": 10.0, "Z": -5.0}[axis.name]
+                moved_mm = axis.scale.to_mm(status.actual_counts)
+                assert 0 < moved_mm / target_mm < 1, "mid-program"
             for letter, delay_ms in delays_ms.items():
                 assert abs(delay_ms - WATCHDOG_MS) <= WATCHDOG_TOLERANCE_MS, (letter, delays_ms)
             session.home()
@@ -131,11 +132,13 @@ def test_a_killed_host_leaves_every_servo_disabled_by_its_watchdog(tmp_path: Pat
                 assert travel is not None
                 assert status.enabled and status.fault == FaultCode.NONE
                 zero = session.zeroes[letter]
-                assert zero.edge_counts == travel[0], (
+                switch = travel[0] if axis.homing.direction < 0 else travel[1]  # Z: above
+                assert zero.edge_counts == switch, (
                     f"{letter}: the device latched the switch's closing edge at its very count"
                     f" (counts from power-up, the dead host never homed): {zero}")
                 assert status.desired_counts == axis.scale.to_counts(home_position_mm(axis))
-                assert not status.lower_limit, f"{letter} pulled off its switch"
+                assert not (status.lower_limit or status.upper_limit), (
+                    f"{letter} pulled off its switch")
             session.shutdown()
         assert homing_s < 15
     figures = ", ".join(f"{k} {v:.1f} ms" for k, v in delays_ms.items())

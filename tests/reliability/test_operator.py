@@ -67,7 +67,7 @@ def _run(log: Path, *args: str) -> tuple[int, str, str]:
 @pytest.mark.realtime
 def test_two_runs_in_a_row_on_the_same_served_devices_both_succeed(tmp_path: Path) -> None:
     program = tmp_path / "step.ngc"
-    program.write_text("G21 G91\nG1 X4 Y3 Z2 F900\nM2\n")
+    program.write_text("G21 G91\nG1 X4 Y3 Z-2 F900\nG90 G53 G0 Z0\nM2\n")  # up to the top
     with served(tmp_path / "flash") as paths:
         machine_file = bench_machine(tmp_path, paths, watchdog_ms=WATCHDOG_MS)
         reports = []
@@ -86,6 +86,8 @@ def test_two_runs_in_a_row_on_the_same_served_devices_both_succeed(tmp_path: Pat
         assert second["homing_time_s"] == 0, "the second finds it homed"
         assert second["end_position_mm"]["X"] == pytest.approx(8.0, abs=0.02), (
             "the second starts where the first ended")
+        assert second["end_position_mm"]["Z"] == pytest.approx(0.0, abs=0.02), (
+            "from the top of Z's travel, where the servo settled, to it again")
 
 
 def _interrupted(tmp_path: Path, signum: int, began: str, after_s: float) -> tuple[

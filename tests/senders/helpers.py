@@ -70,15 +70,16 @@ def _circle(size_mm: float) -> list[tuple[float, float]]:
 
 def square_and_circle(size_mm: float) -> tuple[str, list[tuple[float, float, float]]]:
     """A program (a square of ``size_mm`` with its diagonal, then the inscribed circle in
-    :data:`SEGMENTS` segments, at a feed above any axis's limit) and where each of its moves
-    ends, machine coordinates (no work offset)."""
+    :data:`SEGMENTS` segments, at a feed above any axis's limit, cut at Z-2 from Z-1, below
+    the top of Z's travel where homing leaves it, so that it ends away from where it began)
+    and where each of its moves ends, machine coordinates (no work offset)."""
     s, h = size_mm, size_mm / 2
     circle = _circle(size_mm)
     text = "\n".join([
         f"G21 G90 G54 (a {s:g} mm square with its diagonal, then a circle in {SEGMENTS}"
         " segments)",
-        "G0 X0 Y0 Z1",
-        "G1 Z0 F600",
+        "G0 X0 Y0 Z-1",
+        "G1 Z-2 F600",
         f"G1 X{s:g} F3000",
         f"G1 Y{s:g}",
         f"G1 X{h:g} Y{s:g}",
@@ -86,14 +87,14 @@ def square_and_circle(size_mm: float) -> tuple[str, list[tuple[float, float, flo
         "G1 Y0",
         f"G1 X{s:g} Y{s:g}",
         *(f"G1 X{x:.3f} Y{y:.3f}" for x, y in circle),
-        "G0 Z1",
+        "G0 Z-1",
         "G0 X0 Y0",
         "M2",
     ]) + "\n"
     path = [
-        (0.0, 0.0, 1.0), (0.0, 0.0, 0.0), (s, 0.0, 0.0), (s, s, 0.0), (h, s, 0.0),
-        (0.0, s, 0.0), (0.0, 0.0, 0.0), (s, s, 0.0), *((x, y, 0.0) for x, y in circle),
-        (s, h, 1.0), (0.0, 0.0, 1.0),
+        (0.0, 0.0, -1.0), (0.0, 0.0, -2.0), (s, 0.0, -2.0), (s, s, -2.0), (h, s, -2.0),
+        (0.0, s, -2.0), (0.0, 0.0, -2.0), (s, s, -2.0), *((x, y, -2.0) for x, y in circle),
+        (s, h, -1.0), (0.0, 0.0, -1.0),
     ]
     return text, path
 
@@ -111,20 +112,21 @@ PATH_TOLERANCE_MM = 0.05
 point from the nearest executed point (the recorded positions are the devices' setpoints,
 exact to a count's rounding: 1 / 240 mm)."""
 START_MM = 3.0
-"""Where each simulated axis starts, above its switch: homing (Z, then X and Y) takes
-about 6 s instead of 22 s."""
+"""How far inside the travel end it homes to each simulated axis starts (X and Y above
+their lower switches, Z below its upper one): homing (Z, then X and Y) takes about 6 s
+instead of 22 s."""
 WATCHDOG_MS = 1250
 """The devices' watchdog, on as on a real machine. It counts the world's time, which
 passes only while the host waits on a device: at rest it cannot run out."""
 
 
 def fast_homing_machine(folder: Path) -> Path:
-    """The default machine file, its axes starting :data:`START_MM` above their switches
-    and their watchdogs on, written into ``folder``; its path."""
+    """The default machine file, its axes starting :data:`START_MM` inside the travel end
+    they home to and their watchdogs on, written into ``folder``; its path."""
     text = Path(default_machine()).read_text()
-    for start in ("start_mm = 100.0", "start_mm = 50.0"):
+    for start, near in (("start_mm = 100.0", START_MM), ("start_mm = -50.0", -START_MM)):
         assert start in text, f"the default machine file no longer says {start!r}"
-        text = text.replace(start, f"start_mm = {START_MM}")
+        text = text.replace(start, f"start_mm = {near}")
     assert "watchdog_ms = 0 " in text
     text = text.replace("watchdog_ms = 0 ", f"watchdog_ms = {WATCHDOG_MS} ")
     path = folder / "machine.toml"

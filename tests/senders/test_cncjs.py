@@ -44,8 +44,9 @@ pytestmark = pytest.mark.realtime
 ROOT = HERE.parents[1]
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 SCREENSHOT = ROOT / "build" / "senders" / "cncjs-page.png"
-PAGE_PROGRAM = "G21 G90\nG1 X12.5 Y7.25 F3000\nG0 Z1\n"
-PAGE_PATH = [(12.5, 7.25, 0.0), (12.5, 7.25, 1.0)]
+PAGE_PROGRAM = "G21 G90\nG1 X12.5 Y7.25 F3000\nG0 Z-1\n"
+PAGE_PATH = [(12.5, 7.25, 0.0), (12.5, 7.25, -1.0)]
+"""A move, then a rapid 1 mm down from the top of Z's travel, where homing leaves it."""
 JOG = "$J=G91 G21 X20 Y10 F1200"
 """The jog on the simulated machine (within its travel from home at 0): 1.1 s, so seen in
 cncjs's reports every 250 ms."""
@@ -144,7 +145,7 @@ def test_cncjs_socket_api_homes_jogs_runs_holds_and_resumes(cncjs: Cncjs) -> Non
     assert seen["sender"] == {"total": lines, "sent": lines, "received": lines}
     assert seen["afterJog"] == {"x": "20.000", "y": "-10.000", "z": "0.000"}
     assert seen["held"] == seen["stillHeld"]  # held means at rest
-    assert seen["final"] == {"x": "0.000", "y": "0.000", "z": "1.000"}
+    assert seen["final"] == {"x": "0.000", "y": "0.000", "z": "-1.000"}
     assert "feed_hold" in machine.calls and "cycle_start" in machine.calls
     statistics = server.protocol.statistics
     problems = path_problems([done.target_mm for done in machine.done],
@@ -162,7 +163,7 @@ def test_cncjs_web_page_runs_a_program_and_its_dro_shows_the_end(cncjs: Cncjs) -
     program = cncjs.folder / "page.nc"
     program.write_text(PAGE_PROGRAM)
     SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
-    wanted = ["12.500", "7.250", "1.000"]
+    wanted = ["12.500", "7.250", "-1.000"]
     with served_fake(link=str(cncjs.link)) as (server, machine):
         seen = _node("cncjs_page.js", f"{cncjs.url}/", str(cncjs.link), str(program),
                      str(SCREENSHOT), CHROMIUM, env={"DRO_EXPECTED": json.dumps(wanted)})
@@ -223,7 +224,7 @@ def test_cncjs_socket_api_homes_jogs_runs_holds_and_resumes_on_the_simulated_mac
     assert _near(seen["afterJog"], JOG_END), seen["afterJog"]
     assert isinstance(seen["held"], dict)
     assert _near(seen["stillHeld"], tuple(float(v) for v in seen["held"].values()))
-    assert _near(seen["final"], (0.0, 0.0, 1.0)), seen["final"]
+    assert _near(seen["final"], (0.0, 0.0, -1.0)), seen["final"]
     words = [text for _, text in received]
     assert "! (feed hold)" in words and "~ (cycle start)" in words
     statistics = real.server.protocol.statistics
@@ -246,7 +247,7 @@ def test_cncjs_web_page_homes_runs_a_program_and_its_dro_shows_the_end_on_the_si
     program.write_text(PAGE_PROGRAM)
     screenshot = SCREENSHOT.with_name("cncjs-page-simulated.png")
     screenshot.parent.mkdir(parents=True, exist_ok=True)
-    wanted = ["12.500", "7.250", "1.000"]
+    wanted = ["12.500", "7.250", "-1.000"]
     with served_real(tmp_path, link=str(cncjs.link)) as real:
         started = time.monotonic()
         seen = _node("cncjs_page.js", f"{cncjs.url}/", str(cncjs.link), str(program),

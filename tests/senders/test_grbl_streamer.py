@@ -115,7 +115,7 @@ def test_grbl_streamer_homes_and_streams_a_program() -> None:
         streamer = sender.streamer
         wait_for(lambda: sender.seen("on_job_completed") and streamer.job_finished
                  and streamer.streaming_complete, timeout_s=20, what="the job's end")
-        wait_for(lambda: sender.seen("on_stateupdate", "Idle", (0.0, 0.0, 1.0)), timeout_s=10,
+        wait_for(lambda: sender.seen("on_stateupdate", "Idle", (0.0, 0.0, -1.0)), timeout_s=10,
                  what="the report of the machine at rest at the program's end")
     assert sender.data("on_error", "on_alarm") == []
     statistics = sender.server.protocol.statistics
@@ -146,7 +146,7 @@ def test_grbl_streamer_homes_and_streams_a_program_on_the_simulated_machine(
                  and sender.streamer.job_finished and sender.streamer.streaming_complete,
                  timeout_s=40, what="the job's end",
                  seen=lambda: sender.events_since(before)[-3:])
-        wait_for(lambda: _at_rest_at(sender, (0.0, 0.0, 1.0), after=before) and real.idle(),
+        wait_for(lambda: _at_rest_at(sender, (0.0, 0.0, -1.0), after=before) and real.idle(),
                  timeout_s=10, what="the report of the machine at rest at the program's end",
                  seen=lambda: sender.data("on_stateupdate")[-3:])
         run_s = time.monotonic() - started

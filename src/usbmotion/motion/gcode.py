@@ -446,6 +446,10 @@ class GCodeProgram:
     and stored positions as the program leaves them (what a parameter file keeps for the
     next run); ``tool_changes`` the tool changes in order; ``pauses`` the program pauses
     (M0, M1, M6) that stop it until the operator resumes, when it was read with pauses.
+    ``frames`` say which offset from machine to program coordinates (G5x + G92 + tool, mm
+    per axis; an XY rotation aside) each move was made in: ``(index, offset)`` pairs in
+    order, the first ``(0, the offset at the start)``, each in effect from move ``index``
+    on (for a check in the program's own coordinates: a rapid below work Z0).
     """
 
     moves: tuple[Move, ...]
@@ -458,6 +462,7 @@ class GCodeProgram:
     offsets: WorkOffsets = NO_OFFSETS
     tool_changes: tuple[ToolChange, ...] = ()
     pauses: tuple[Pause, ...] = ()
+    frames: tuple[tuple[int, Point], ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -653,7 +658,7 @@ class GCodeStream:
             raise GCodeError("one line at a time: this text holds a line break",
                              file=state.file, line=number)
         marks = (len(state.moves), len(state.pauses), len(state.ignored),
-                 len(state.tool_changes))
+                 len(state.tool_changes), len(state.frames))
         modes = {name: copy.deepcopy(getattr(state, name)) for name in _MODAL_STATE}
         rules = state.rules
         try:
@@ -666,9 +671,9 @@ class GCodeStream:
         except Exception as error:
             if isinstance(error, GCodeError):
                 error.line = number
-            moves, pauses, ignored, changes = marks
+            moves, pauses, ignored, changes, frames = marks
             del state.moves[moves:], state.pauses[pauses:], state.ignored[ignored:]
-            del state.tool_changes[changes:]
+            del state.tool_changes[changes:], state.frames[frames:]
             for name, value in modes.items():
                 setattr(state, name, value)
             raise
@@ -694,6 +699,7 @@ class GCodeStream:
         state = self._interpreter
         state.start_at(start)
         del state.moves[:], state.pauses[:], state.ignored[:], state.tool_changes[:]
+        state.frames[:] = [(0, _point(state.offset))]
         state.ended_by = ""
         state.end_line = 0
 
@@ -724,7 +730,7 @@ class GCodeStream:
         if not program.ended_by:
             return GCodeProgram(program.moves, program.ignored, program.file, self.lines,
                                 "", program.axes, program.dialect, program.offsets,
-                                program.tool_changes, program.pauses)
+                                program.tool_changes, program.pauses, program.frames)
         return program
 
 
@@ -851,6 +857,7 @@ class _Interpreter:
         "feed_mm_min",
         "file",
         "frame",
+        "frames",
         "g_codes",
         "ignored",
         "ignored_letters",
@@ -887,6 +894,7 @@ class _Interpreter:
         self.position = [0.0] * len(axes)  # machine, mm
         self.frame = Frame(offsets, axes, g92_volatile=rules.g92_volatile)
         self.offset = self.frame.translation  # G5x + G92 + tool, mm (with no rotation)
+        self.frames: list[tuple[int, Point]] = [(0, _point(self.offset))]
         self.tools = _ToolState(tools)
         self.tool_changes: list[ToolChange] = []
         self.cycle = _CycleSeries()
@@ -917,6 +925,7 @@ class _Interpreter:
             offsets=self.frame.snapshot(),
             tool_changes=tuple(self.tool_changes),
             pauses=tuple(self.pauses),
+            frames=tuple(self.frames),
         )
 
     def start_at(self, start: Point | None) -> None:
@@ -936,6 +945,7 @@ class _Interpreter:
         """Take up a change of offsets: the machine stays where it is."""
         self.frame.update()
         self.offset = self.frame.translation
+        self.frames.append((len(self.moves), _point(self.offset)))
 
     def end_program(self, ended_by: str, line: int) -> None:
         """M2, M30 or a closing '%': what LinuxCNC's M2 and M30 reset that this interpreter

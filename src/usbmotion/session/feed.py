@@ -27,7 +27,7 @@ from usbmotion.errors import ArgumentError, GCodeError, PlanningError
 from usbmotion.host.config import MachineConfig
 from usbmotion.motion.dialects import Dialect
 from usbmotion.motion.gcode import GCodeProgram, GCodeStream, Modes, Pause, Pauses
-from usbmotion.motion.limits import check_travel
+from usbmotion.motion.limits import check_travel, settled_band_mm
 from usbmotion.motion.moves import Dwell, Move, Point
 from usbmotion.motion.offsets import NO_OFFSETS, WorkOffsets
 from usbmotion.motion.planner import Plan, plan_moves
@@ -106,7 +106,8 @@ class ProgramFeed:
         self._executed_moves = 0
         self._travel = [axis.travel_mm for axis in plan_axes(config)]
         self._axes = machine_axes(config).axes
-        self._limits, self._planner, _ = planner_inputs(config)
+        self._limits, self._planner, counts_per_mm = planner_inputs(config)
+        self._band = settled_band_mm(counts_per_mm)
         self._plan: tuple[int, Plan] | None = None
         self.error: GCodeError | PlanningError | None = None
         """The error that ended a source (its line could not be interpreted)."""
@@ -153,7 +154,8 @@ class ProgramFeed:
         """Soft limits on a line's moves (every chord of every arc), in machine coordinates."""
         plan = plan_moves(moves, self._limits, self._planner, start=_start_of(moves[0]),
                           axes=self._axes)
-        check_travel(plan.vertices_mm, plan.line, self._travel, axes=tuple(plan.axes))
+        check_travel(plan.vertices_mm, plan.line, self._travel, axes=tuple(plan.axes),
+                     band_mm=self._band)
 
     def close(self) -> None:
         """No more lines: the run plays out what the feed has and ends."""
@@ -183,7 +185,8 @@ class ProgramFeed:
         with self._lock:
             self.config = config
             self._travel = [axis.travel_mm for axis in plan_axes(config)]
-            self._limits, self._planner, _ = planner_inputs(config)
+            self._limits, self._planner, counts_per_mm = planner_inputs(config)
+            self._band = settled_band_mm(counts_per_mm)
             self._plan = None
 
     def modes(self) -> Modes:

@@ -17,10 +17,11 @@ from usbmotion.errors import ConfigError
 from usbmotion.host.config import AxisConfig, MachineConfig
 from usbmotion.motion.dialects import Dialect, dialect_named
 from usbmotion.motion.gcode import GCodeProgram, MachineAxes, Pauses, parse_gcode
-from usbmotion.motion.limits import AxisLimits, PlannerConfig, check_travel
+from usbmotion.motion.limits import AxisLimits, PlannerConfig, check_travel, settled_band_mm
 from usbmotion.motion.moves import AXIS_ORDER, Point
 from usbmotion.motion.offsets import NO_OFFSETS, WorkOffsets
 from usbmotion.motion.planner import Plan, plan_moves
+from usbmotion.motion.plunges import plunge_warnings, rapid_plunges
 from usbmotion.motion.tools import NO_TOOLS, ToolTable
 from usbmotion.session.homing import home_position_mm
 
@@ -32,7 +33,10 @@ class Prepared:
     ``start_mm`` is where the plan starts (one coordinate per axis of ``axes``, the
     program axes); ``homed`` whether that is a homed position (soft limits checked) or the
     devices' own counts (not homed, not checked). ``offsets`` are the work offsets the
-    program started with (``program.offsets`` those it leaves).
+    program started with (``program.offsets`` those it leaves). ``warnings`` are what
+    :func:`prepare_program` found risky that does not stop the program (a rapid into the
+    stock: :func:`usbmotion.motion.plunges.rapid_plunges`), in words, for the run to show
+    before it starts and keep in its report's notes.
     """
 
     program: GCodeProgram
@@ -40,6 +44,7 @@ class Prepared:
     start_mm: Point
     homed: bool
     offsets: WorkOffsets = NO_OFFSETS
+    warnings: tuple[str, ...] = ()
 
     @property
     def axes(self) -> str:
@@ -94,7 +99,7 @@ def prepare_program(config: MachineConfig, text: str, *, file: str, start_mm: Po
                     ) -> Prepared:
     """Interpret and plan a program for a machine from ``start_mm`` with a tool table and
     work offsets (machine coordinates result); a homed start is also checked against every
-    axis's travel.
+    axis's travel, and every program for rapids into the stock (``Prepared.warnings``).
 
     Raises:
         GCodeError, PlanningError: as :func:`plan_gcode`.
@@ -106,9 +111,12 @@ def prepare_program(config: MachineConfig, text: str, *, file: str, start_mm: Po
     program, plan = plan_gcode(config, text, file=file, start_mm=start_mm, dialect=dialect,
                                tools=tools, offsets=offsets, pauses=pauses)
     if homed:
-        check_travel(plan.vertices_mm, plan.line, [a.travel_mm for a in plan_axes(config)],
-                     axes=tuple(plan.axes))
-    return Prepared(program, plan, start_mm, homed, offsets)
+        axes = plan_axes(config)
+        check_travel(plan.vertices_mm, plan.line, [a.travel_mm for a in axes],
+                     axes=tuple(plan.axes),
+                     band_mm=settled_band_mm([a.counts_per_mm for a in axes]))
+    warnings = plunge_warnings(rapid_plunges(program, plan))
+    return Prepared(program, plan, start_mm, homed, offsets, warnings)
 
 
 def plan_gcode(config: MachineConfig, text: str, *, file: str = "<string>",

@@ -36,6 +36,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 
 from usbmotion.automation.device_io import MachineZero
@@ -729,7 +730,9 @@ class MachineSession:
         anything moved). A device fault stops every other axis along its deceleration; a
         stop request does so for every axis; the report says why the run ended. A program
         that ran to its end and changed the work offsets or the stored positions (G10, G92,
-        G28.1, G30.1) leaves them in the parameter file for the next run.
+        G28.1, G30.1) leaves them in the parameter file for the next run. The report's
+        notes begin with the program's warnings (``prepared.warnings``: rapids into the
+        stock).
 
         Raises:
             MachineStateError: not Idle, or the machine moved since the program was prepared.
@@ -771,6 +774,8 @@ class MachineSession:
             if taken.stop_reason:
                 self.requests.clear_hold()
                 self._hold_asked = False
+        if prepared.warnings:  # what prepare_program found risky (motion.plunges)
+            report = replace(report, notes=(*prepared.warnings, *report.notes))
         for name in run.faulted_axes:
             self.homed[name] = False
         if run.faulted and self.states.state is not MachineState.ALARM:
