@@ -9,6 +9,7 @@ from typing import Annotated
 
 import typer
 
+from usbmotion.cli.exits import fail, os_problem
 from usbmotion.cli.help import UsbMotionTyper
 from usbmotion.motion.gcode import (
     GCodeProgram,
@@ -52,9 +53,7 @@ def moves(
     try:
         text = read_gcode_text(file)
     except OSError as exc:
-        reason = exc.strerror or str(exc)
-        typer.echo(f"usbmotion gcode moves: cannot read {str(file)!r}: {reason}", err=True)
-        raise typer.Exit(_EXIT_UNREADABLE_FILE) from None
+        fail("gcode moves", f"cannot read {file}: {os_problem(exc)}", _EXIT_UNREADABLE_FILE)
     program, error = interpret_until_error(text, file=str(file))
     _write_moves(program)
     if not quiet:

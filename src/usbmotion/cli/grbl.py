@@ -7,8 +7,9 @@ from typing import Annotated
 
 import typer
 
-from usbmotion.cli.connect import fail, load_machine
-from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, MachineOption
+from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail
+from usbmotion.cli.machines import load_machine
+from usbmotion.cli.run import MachineOption
 from usbmotion.errors import ArgumentError, UsbMotionError
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import os
 import re
 import signal
 import sys
@@ -15,6 +14,7 @@ from typing import Annotated
 
 import typer
 
+from usbmotion.cli.machines import hold, state_dir
 from usbmotion.protocol import device_name_problem, encode_device_name
 from usbmotion.sim.pty_dir import announced
 from usbmotion.sim.server import DeviceServer
@@ -22,9 +22,9 @@ from usbmotion.sim.world import SimWorld
 
 
 def default_flash_dir() -> Path:
-    """Where simulated devices keep their flash: ``$XDG_STATE_HOME/usbmotion/flash``."""
-    state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
-    return Path(state) / "usbmotion" / "flash"
+    """Where simulated devices keep their flash: ``flash`` in the state folder
+    (:func:`usbmotion.cli.machines.state_dir`)."""
+    return state_dir() / "flash"
 
 
 def _slug(name: str) -> str:
@@ -67,7 +67,8 @@ def sim(
     flash_dir: Annotated[
         Path | None, typer.Option(
             "--flash-dir", metavar="DIR", help="Folder of the devices' flash files (default:"
-            " $XDG_STATE_HOME/usbmotion/flash).", show_default=False)
+            " flash in the state folder, ~/.local/state/usbmotion/flash; one server uses a"
+            " folder at a time).", show_default=False)
     ] = None,
     firmware: Annotated[
         Path | None,
@@ -99,7 +100,11 @@ def sim(
     With --firmware, each device is the device firmware running on an emulated RP2040
     (make firmware builds build/firmware/usbmotion.uf2; the emulator needs Node.js 20 and
     npm ci in firmware/emulator), its flash kept in --flash-dir (default:
-    $XDG_STATE_HOME/usbmotion/flash/rp2040).
+    ~/.local/state/usbmotion/flash/rp2040).
+
+    The flash folder is this server's while it serves: a second server on the same
+    folder (two usbmotion sim at once) is refused in one line naming the first one's
+    process, as a port another program holds; give it another --flash-dir.
     """
     names = list(name or [])
     for each in names:
@@ -115,16 +120,18 @@ def sim(
     devices = pty if pty > 0 else (count or max(1, len(names)))
     if not 1 <= devices <= 64:
         raise typer.BadParameter(f"--count {devices!r} must be 1..64")
+    if record is not None and firmware is None:
+        raise typer.BadParameter("--record needs --firmware", param_hint="--record")
+    folder = flash_dir or (default_flash_dir() / "rp2040" if firmware is not None
+                           else default_flash_dir())
     with _signals_end_start_up():
+        hold(folder / ".lock", what=f"the flash folder {folder}",
+             advice="give this server another --flash-dir")
         if firmware is not None:
             _serve_firmware(firmware, devices, names, pty=pty > 0, tcp_port=tcp or 0,
-                            flash_dir=flash_dir or default_flash_dir() / "rp2040",
-                            record=record)
+                            flash_dir=folder, record=record)
         else:
-            if record is not None:
-                raise typer.BadParameter("--record needs --firmware", param_hint="--record")
-            _serve(build_world(names, devices, flash_dir or default_flash_dir()),
-                   pty=pty > 0, tcp_port=tcp or 0)
+            _serve(build_world(names, devices, folder), pty=pty > 0, tcp_port=tcp or 0)
     sys.stdout.write("stopped\n")
     sys.stdout.flush()
 
