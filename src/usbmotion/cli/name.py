@@ -61,6 +61,9 @@ def name(
     searched = [*_file_ports(config), *announced_ptys(), *serial_ports()]
     answers = scan([*([port] if port is not None else []), *searched], timeout_s=timeout_s)
     holder = next((a for a in answers if a.name == wanted and a.url != port), None)
+    if holder is not None and port is None:
+        typer.echo(f"{holder.url}: {wanted!r} already (axis {letter} of {config.path})")
+        return
     if holder is not None:
         fail("name", f"{wanted!r} is the name of the device on {holder.url} already; a"
              " machine's devices each need their own", EXIT_FAULT)

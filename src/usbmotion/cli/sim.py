@@ -14,6 +14,7 @@ from typing import Annotated
 
 import typer
 
+from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail, os_problem
 from usbmotion.cli.machines import hold, state_dir
 from usbmotion.protocol import device_name_problem, encode_device_name
 from usbmotion.sim.pty_dir import announced
@@ -78,6 +79,15 @@ def sim(
             "it) instead of the Python devices.", show_default=False,
         ),
     ] = None,
+    bootrom: Annotated[
+        Path | None,
+        typer.Option(
+            "--bootrom", metavar="PATH",
+            help="With --firmware: the RP2040 boot ROM the emulator runs (B1, 16384 bytes;"
+            " default: $USBMOTION_BOOTROM, else ../shared/rp2040/bootrom/b1.bin beside the"
+            " project).", show_default=False,
+        ),
+    ] = None,
     record: Annotated[
         Path | None,
         typer.Option(
@@ -121,7 +131,9 @@ def sim(
     if not 1 <= devices <= 64:
         raise typer.BadParameter(f"--count {devices!r} must be 1..64")
     if record is not None and firmware is None:
-        raise typer.BadParameter("--record needs --firmware", param_hint="--record")
+        raise typer.BadParameter("--record needs --firmware")
+    if bootrom is not None and firmware is None:
+        raise typer.BadParameter("--bootrom needs --firmware")
     folder = flash_dir or (default_flash_dir() / "rp2040" if firmware is not None
                            else default_flash_dir())
     with _signals_end_start_up():
@@ -129,7 +141,7 @@ def sim(
              advice="give this server another --flash-dir")
         if firmware is not None:
             _serve_firmware(firmware, devices, names, pty=pty > 0, tcp_port=tcp or 0,
-                            flash_dir=folder, record=record)
+                            flash_dir=folder, record=record, bootrom=bootrom)
         else:
             _serve(build_world(names, devices, folder), pty=pty > 0, tcp_port=tcp or 0)
     sys.stdout.write("stopped\n")
@@ -137,6 +149,25 @@ def sim(
 
 
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _say(notice: str) -> None:
+    """A server's notice, one line on standard error."""
+    sys.stderr.write(f"usbmotion sim: {notice}\n")
+    sys.stderr.flush()
+
+
+def _first_line(text: str) -> str:
+    """An emulator's failure in one line: what failed, and the error it printed (a Node.js
+    process that dies prints its stack too)."""
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    if not lines:
+        return text
+    error = next((line.removeprefix("Error: ") for line in lines
+                  if line.startswith("Error: ")), None)
+    if error is None:
+        return lines[0]
+    return f"{lines[0].split(': ', 1)[0]}: {error}"
 
 
 @contextlib.contextmanager
@@ -180,10 +211,9 @@ def _serve(world: SimWorld, *, pty: bool, tcp_port: int) -> None:
     """Serve ``world``'s devices until a signal; print each one's address once it answers
     (and announce its terminal to ``usbmotion devices``)."""
     try:
-        server = DeviceServer(world, pty=pty, tcp_port=tcp_port)
+        server = DeviceServer(world, pty=pty, tcp_port=tcp_port, on_notice=_say)
     except OSError as error:
-        sys.stderr.write(f"usbmotion sim: {error.strerror or error}\n")
-        raise typer.Exit(1) from None
+        fail("sim", os_problem(error), EXIT_FAULT)
     with server:
         server.warm_up()
         paths = [endpoint.path for endpoint in server.endpoints] if pty else []
@@ -209,19 +239,23 @@ def _serve_firmware(
     tcp_port: int,
     flash_dir: Path,
     record: Path | None,
+    bootrom: Path | None,
 ) -> None:
     """``sim --firmware``: ``devices`` emulated RP2040s, served until a signal."""
     from usbmotion.errors import DeviceError  # noqa: PLC0415 - keeps start-up light
     from usbmotion.sim.firmware import FirmwareServer  # noqa: PLC0415
 
-    server = FirmwareServer(image, devices, pty=pty, tcp_port=tcp_port, flash_dir=flash_dir,
-                            names=names, record_dir=record)
+    try:
+        server = FirmwareServer(image, devices, pty=pty, tcp_port=tcp_port,
+                                flash_dir=flash_dir, names=names, record_dir=record,
+                                bootrom=bootrom, on_notice=_say)
+    except FileNotFoundError as error:
+        fail("sim", str(error), EXIT_BAD_INPUT)
     try:
         server.start()
     except (FileNotFoundError, DeviceError) as error:
         server.close()
-        sys.stderr.write(f"usbmotion sim: {error}\n")
-        raise typer.Exit(2) from None
+        fail("sim", _first_line(str(error)), EXIT_BAD_INPUT)
     paths = [endpoint.url for endpoint in server.endpoints] if pty else []
     try:
         with _signals_stop_serving() as stop, announced(paths):
