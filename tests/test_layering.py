@@ -193,19 +193,21 @@ def test_the_call_number_check_catches_a_literal(tmp_path: Path, source: str) ->
 SERVING = SRC / "serving.py"
 """The one module that serves bytes on pseudo-terminals and TCP ports."""
 
-SERVING_CALLS = frozenset({"openpty", "setraw", "listen", "accept", "TIOCEXCL"})
+SERVING_CALLS = frozenset({"openpty", "setraw", "listen", "accept"})
 """What opening a terminal or a listening port takes; only the serving module does it."""
+TERMINAL_MODES = frozenset({"TIOCEXCL", "TIOCNXCL"})
+"""A terminal's exclusive mode, the serving module's to handle."""
 
 
 def serving_calls(paths: list[Path]) -> list[str]:
-    """``file:line name`` for every call of :data:`SERVING_CALLS` (or use of TIOCEXCL)."""
+    """``file:line name`` for every call of :data:`SERVING_CALLS` (or use of
+    :data:`TERMINAL_MODES`)."""
     found: list[str] = []
     for path in paths:
         for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
             name = (_callee(node) if isinstance(node, ast.Call) else
-                    node.attr if isinstance(node, ast.Attribute) and node.attr == "TIOCEXCL"
-                    else "")
-            if name in SERVING_CALLS:
+                    node.attr if isinstance(node, ast.Attribute) else "")
+            if name in SERVING_CALLS or name in TERMINAL_MODES:
                 found.append(f"{_where(path)}:{node.lineno} {name}")
     return sorted(set(found))
 

@@ -1,11 +1,12 @@
 """The one serving module (``usbmotion.serving``): a pseudo-terminal or a TCP port served to
 one client at a time, in real time.
 
-What Linux does with a second client on a served terminal is tested as it happens: a
-process without CAP_SYS_ADMIN is refused (EBUSY) by the terminal's exclusive mode (run as
-user ``nobody`` through ``setpriv`` when the tests run as root, as CI does); a process with
-it (root) gets in, and the server reports it; a client that locks its port, as pyserial's
-``exclusive=True`` does, is refused by the first one's lock whoever runs it.
+What Linux does with a second client on a served terminal is tested as it happens, for
+root (as CI runs) and, through ``setpriv``, for user ``nobody``: a client that locks its
+port, as pyserial's ``exclusive=True`` does, is refused by the first one's lock whoever
+runs it; a program that opens it regardless gets in and is reported; an exclusive mode a
+client set (``TIOCEXCL``) keeps others out while it holds the terminal, except root, and
+ends when it leaves; a client that closes and opens again at once is never refused.
 """
 
 from __future__ import annotations
@@ -113,28 +114,41 @@ def test_a_terminal_reports_its_client_coming_its_bytes_and_its_leaving(
         assert again.readline() == b"hello\n", "nothing the first client left unread"
 
 
-def _open_as_nobody(path: str, *, hold_s: float = 0.0) -> subprocess.Popen[str]:
-    """A process without CAP_SYS_ADMIN opening ``path``: prints ``opened`` or the errno."""
-    code = ("import os, sys, time\n"
-            "try:\n"
-            f"    fd = os.open({path!r}, os.O_RDWR | os.O_NOCTTY)\n"
-            "except OSError as error:\n"
-            "    print(error.errno, flush=True); sys.exit(0)\n"
-            f"print('opened', flush=True); time.sleep({hold_s})\n")
+def _as_nobody(code: str) -> subprocess.Popen[str]:
+    """``python -c CODE`` as a process without CAP_SYS_ADMIN (user ``nobody`` when the tests
+    run as root)."""
     prefix = ([] if os.geteuid() != 0 else
               ["setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups"])
     return subprocess.Popen([*prefix, sys.executable, "-c", code], stdout=subprocess.PIPE,
                             text=True)
 
 
-@pytest.mark.skipif(os.geteuid() == 0 and shutil.which("setpriv") is None,
-                    reason="running as root, and no setpriv to open as another user")
-def test_a_second_program_without_cap_sys_admin_is_refused_while_one_holds_it(
+def _open_as_nobody(path: str, *, exclusive: bool = False,
+                    hold_s: float = 0.0) -> subprocess.Popen[str]:
+    """Open ``path`` without CAP_SYS_ADMIN (and make it exclusive): prints ``opened`` or
+    the errno."""
+    return _as_nobody(
+        "import fcntl, os, sys, termios, time\n"
+        "try:\n"
+        f"    fd = os.open({path!r}, os.O_RDWR | os.O_NOCTTY)\n"
+        "except OSError as error:\n"
+        "    print(error.errno, flush=True); sys.exit(0)\n"
+        f"if {exclusive}: fcntl.ioctl(fd, termios.TIOCEXCL)\n"
+        f"print('opened', flush=True); time.sleep({hold_s})\n")
+
+
+NOT_AS_ANOTHER_USER = pytest.mark.skipif(
+    os.geteuid() == 0 and shutil.which("setpriv") is None,
+    reason="running as root, and no setpriv to open as another user")
+
+
+@NOT_AS_ANOTHER_USER
+def test_an_exclusive_mode_a_client_set_ends_when_it_leaves(
         pty: tuple[Serving, PtyEndpoint]) -> None:
     serving, endpoint = pty
     if os.geteuid() == 0:
-        os.chmod(endpoint.path, 0o666)  # the other user may open it when it is free
-    first = _open_as_nobody(endpoint.path, hold_s=1.5)
+        os.chmod(endpoint.path, 0o666)  # the other user may open it
+    first = _open_as_nobody(endpoint.path, exclusive=True, hold_s=1.5)
     try:
         assert first.stdout is not None
         assert first.stdout.readline().strip() == "opened"
@@ -145,16 +159,37 @@ def test_a_second_program_without_cap_sys_admin_is_refused_while_one_holds_it(
         first.communicate(timeout=30)
     events_until(serving, lambda seen: EventKind.DISCONNECTED in kinds(seen))
     third = _open_as_nobody(endpoint.path)
-    assert third.communicate(timeout=30)[0].strip() == "opened", "free again once it left"
+    assert third.communicate(timeout=30)[0].strip() == "opened", "as a port at its last close"
 
 
-@pytest.mark.skipif(os.geteuid() != 0, reason="what root does (CI runs as root)")
-def test_as_root_a_second_program_gets_in_and_is_reported(
+@NOT_AS_ANOTHER_USER
+def test_a_client_that_closes_and_opens_again_at_once_is_never_refused(
+        pty: tuple[Serving, PtyEndpoint]) -> None:
+    """As discovery's probe, then the connection: 100 times, 3 ms apart."""
+    serving, endpoint = pty
+    if os.geteuid() == 0:
+        os.chmod(endpoint.path, 0o666)
+    client = _as_nobody(
+        "import os, time\n"
+        "refused = 0\n"
+        "for _ in range(100):\n"
+        "    try:\n"
+        f"        fd = os.open({endpoint.path!r}, os.O_RDWR | os.O_NOCTTY)\n"
+        "    except OSError:\n"
+        "        refused += 1; continue\n"
+        "    time.sleep(0.003); os.close(fd)\n"
+        "print(refused, flush=True)\n")
+    while client.poll() is None:
+        serving.wait(0.001)
+    assert client.communicate(timeout=30)[0].strip() == "0"
+
+
+def test_a_second_program_that_opens_the_terminal_is_reported(
         pty: tuple[Serving, PtyEndpoint]) -> None:
     serving, endpoint = pty
     with serial.Serial(endpoint.path, timeout=0.2):
         events_until(serving, lambda seen: EventKind.CONNECTED in kinds(seen))
-        descriptor = os.open(endpoint.path, os.O_RDWR | os.O_NOCTTY)  # CAP_SYS_ADMIN passes
+        descriptor = os.open(endpoint.path, os.O_RDWR | os.O_NOCTTY)  # no lock asked
         try:
             events = events_until(
                 serving, lambda seen: EventKind.SECOND_CLIENT in kinds(seen))

@@ -217,3 +217,43 @@ def test_a_device_on_tcp_serves_one_host_and_refuses_a_second() -> None:
         with socket.create_connection(("127.0.0.1", port), timeout=5) as next_host:
             next_host.sendall(b"18 -1\n")
             assert next_host.makefile("rb").readline().startswith(b"DEVICE_NAME ")
+
+
+def test_sim_firmware_without_a_boot_rom_says_where_it_looked_in_one_line(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    image = tmp_path / "usbmotion.uf2"
+    image.write_bytes(b"UF2")
+    image.with_suffix(".elf").write_bytes(b"ELF")
+    missing = tmp_path / "b1.bin"
+    args = ["sim", "--firmware", str(image), "--pty", "1", "--flash-dir", str(tmp_path)]
+    result = CliRunner().invoke(app, [*args, "--bootrom", str(missing)])
+    assert (result.exit_code, result.stdout) == (2, "")
+    assert result.stderr == (
+        f"usbmotion sim: no RP2040 boot ROM at {missing} (given: no such file); the emulator"
+        " runs the chip's boot ROM B1 (16384 bytes): give --bootrom PATH (or set"
+        " USBMOTION_BOOTROM); it is built from github.com/raspberrypi/pico-bootrom (version"
+        " B1), and wokwi/rp2040js embeds a copy in demo/bootrom.ts\n")
+    missing.write_bytes(b"\0" * 100)
+    monkeypatch.setenv("USBMOTION_BOOTROM", str(missing))
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2
+    assert result.stderr.startswith(f"usbmotion sim: no RP2040 boot ROM at {missing} (from"
+                                    " $USBMOTION_BOOTROM: 100 bytes, not 16384); ")
+    result = CliRunner().invoke(app, ["sim", "--pty", "1", "--bootrom", str(missing)])
+    assert (result.exit_code, result.stderr) == (
+        2, "usbmotion sim: --bootrom needs --firmware (usbmotion sim --help)\n")
+
+
+def test_make_firmware_ends_saying_where_the_uf2_is_and_how_to_flash_it() -> None:
+    shown = subprocess.run(["make", "-n", "-s", "firmware"], cwd=ROOT, capture_output=True,
+                           text=True, timeout=60, check=False).stdout
+    said = " ".join(line.removeprefix("echo ").strip('"') for line in shown.splitlines()
+                    if line.startswith("echo "))
+    for words in ("build/firmware/usbmotion.uf2 is built. To flash a Pico with it:",
+                  "hold its BOOTSEL button while plugging it in: it shows a USB drive,"
+                  " RPI-RP2;", "copy the file there",
+                  "picotool load -x build/firmware/usbmotion.uf2",
+                  "usbmotion sim --firmware build/firmware/usbmotion.uf2 --pty 3"):
+        assert words in said, said
+    last = [line for line in shown.splitlines() if line.strip()][-1]
+    assert "usbmotion sim --firmware" in last, "said at the end of the target"

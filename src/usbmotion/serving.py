@@ -15,14 +15,21 @@ in ``dropped_bytes``.
 One client at a time, as a serial port has:
 
 - On a pseudo-terminal the server watches every open and close of the terminal (inotify,
-  Linux). While a client holds it the terminal is exclusive (``TIOCEXCL``): another
-  program's open fails with ``EBUSY`` (errno 16, "Device or resource busy"), as on a port
-  opened exclusively. Linux lets a process with ``CAP_SYS_ADMIN`` (root, as CI runs) open
-  it all the same; a client that locks its port (pyserial's ``exclusive=True``, which
-  usbmotion's own host uses; node-serialport's default ``lock``, which cncjs uses) is
-  still refused by the first one's lock, and a second client that gets in regardless is
-  reported (:attr:`EventKind.SECOND_CLIENT`): its bytes and the first one's mix. When the
-  last client leaves, the exclusive mode ends and what it left unread is dropped.
+  Linux). Linux, as with a real serial port, does not stop a second program from opening
+  it; what keeps a port to one client is the client's lock: pyserial's ``exclusive=True``
+  (which usbmotion's own host uses) and node-serialport's default ``lock`` (which cncjs
+  uses) take an exclusive ``flock``, so a second client that locks is refused while the
+  first holds it, root or not. A second program that opens it all the same is reported
+  (:attr:`EventKind.SECOND_CLIENT`: its bytes and the first one's mix). A client may make
+  the terminal exclusive itself (``TIOCEXCL``, as some serial libraries do when they open a
+  port; then another program's open fails with ``EBUSY`` unless it has ``CAP_SYS_ADMIN``,
+  as root has): on a pseudo-terminal that mode would outlive the client, so the server ends
+  it when the last client leaves, as a real port forgets it at its last close, and drops
+  what the client left unread. The server does not set that mode itself: it would have to
+  set it after a client's open and clear it after its close, and a client that closes and
+  opens again at once (discovery's probe, then the connection) would find it still set: 121
+  of 300 such reopens 3 ms apart failed with ``EBUSY`` (both cores busy), for anyone but
+  root.
 - On TCP a second client is refused (accepted and closed at once,
   :attr:`EventKind.REFUSED`) or replaces the first (closed), as the endpoint's
   :class:`SecondClient` says: the device servers refuse (a port held by a host), the grbl
@@ -70,7 +77,7 @@ class EventKind(Enum):
     REFUSED = "refused"
     """A second TCP client was refused: :attr:`Event.detail` is its address."""
     SECOND_CLIENT = "second client"
-    """A second program opened the terminal past its exclusive mode (root)."""
+    """A second program opened the terminal while a client has it."""
     READABLE = "readable"
     """A reader added with :meth:`Serving.add_reader` can be read: :attr:`Event.source`."""
 
@@ -237,7 +244,7 @@ class _OpenWatch:
 
 def _watch(path: str) -> _OpenWatch | None:
     """A watch of ``path``'s opens and closes, or None where the system has none (then the
-    terminal counts as connected throughout, and is not made exclusive)."""
+    terminal counts as connected throughout)."""
     try:
         return _OpenWatch(path)
     except (OSError, AttributeError):
@@ -290,21 +297,16 @@ class PtyEndpoint(Endpoint):
         for change in self._watch.changes():
             self.clients = max(0, self.clients + change)
             if change > 0 and self.clients == 1 and not self.connected:
-                self._exclusive(True)
                 events.append(self._connect())
             elif change > 0 and self.clients > 1:
                 events.append(Event(EventKind.SECOND_CLIENT, self, detail=self.path))
             elif change < 0 and self.clients == 0 and self.connected:
-                self._exclusive(False)
-                with contextlib.suppress(OSError):
+                with contextlib.suppress(OSError):  # as a port at its last close
+                    fcntl.ioctl(self._slave, termios.TIOCNXCL)
                     termios.tcflush(self._slave, termios.TCIFLUSH)
                     tty.setraw(self._slave)
                 events.append(self._disconnect())
         return events
-
-    def _exclusive(self, on: bool) -> None:
-        with contextlib.suppress(OSError):
-            fcntl.ioctl(self._slave, termios.TIOCEXCL if on else termios.TIOCNXCL)
 
     def _read(self) -> bytes:
         try:

@@ -38,10 +38,11 @@ def grbl(
     The built-in simulated machine runs in real time. SIGTERM or Ctrl-C brings every axis
     to rest and leaves.
 
-    One sender at a time: while a program has the pseudo-terminal open, another one's open
-    fails (device or resource busy; Linux lets root through, and that is said on standard
-    error); on TCP a new connection replaces the one before (closed), so a sender that
-    reconnects after its link died gets through.
+    One sender at a time: on the pseudo-terminal a second sender that locks its port (as
+    cncjs and pyserial's exclusive open do) is refused by the first one's lock, and a
+    program that opens it regardless is said on standard error; on TCP a new connection
+    replaces the one before (closed), so a sender that reconnects after its link died gets
+    through.
 
     $N=value changes the settings that map onto the machine file (counts per mm as steps
     per mm, max rate, acceleration, travel, homing, junction deviation, arc tolerance),

@@ -5,7 +5,7 @@ come, poll the front, and send what it wrote. A sender that connects gets the fr
 and the banner, as an Arduino resets when its port opens: on TCP each accepted connection
 (a new one replaces the one before, which is closed: a sender that reconnects after its
 link died gets through, as with grbl's network ports), on a pseudo-terminal each time a
-program opens it after none had it open (while one has it, it is exclusive: see
+program opens it after none had it open (one sender at a time: see
 :mod:`usbmotion.serving`). Output while no sender is connected is dropped. The machine is
 called from the serving thread only.
 """
@@ -203,9 +203,8 @@ class GrblServer:
 
 def _said(kind: EventKind, detail: str) -> str:
     if kind is EventKind.SECOND_CLIENT:
-        return (f"a second program opened {detail} while a sender has it (a process with"
-                " CAP_SYS_ADMIN, as root, passes the terminal's exclusive mode): its bytes"
-                " and the sender's mix")
+        return (f"a second program opened {detail} while a sender has it, without locking"
+                " it: its bytes and the sender's mix")
     return f"refused a second client from {detail}"
 
 

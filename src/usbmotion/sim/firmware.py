@@ -1025,9 +1025,8 @@ class FirmwareServer:
                     self._from_device(by_link[id(event.source)])
                 elif event.kind is EventKind.SECOND_CLIENT:
                     self._notice(f"emulated device {by_pty[id(event.endpoint)].index}: a second"
-                                 f" program opened {event.detail} while a host has it (a"
-                                 " process with CAP_SYS_ADMIN, as root, passes the terminal's"
-                                 " exclusive mode): its bytes and the host's mix")
+                                 f" program opened {event.detail} while a host has it, without"
+                                 " locking it: its bytes and the host's mix")
             for endpoint in self.endpoints:
                 if endpoint._link is not None:
                     with contextlib.suppress(OSError):  # the emulator exited: recv says so

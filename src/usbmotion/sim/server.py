@@ -5,11 +5,12 @@ One thread runs a loop: wait up to a millisecond for bytes from any client, hand
 the device, advance the world towards the wall clock (at most 20 ms of device time a round,
 so a loop that fell behind still sends output and sees :meth:`DeviceServer.stop` between
 rounds), and send the devices' output back. Each device is served to one client at a
-time, as a port is held by one host: a pseudo-terminal is exclusive while a program has
-it open; a second TCP client is refused (closed at once) while one is connected, and the
-port takes the next once it leaves. A client that connects starts with the device's input
-empty (a line the last one left half-written is dropped); output while no client is
-connected is dropped.
+time, as a port is held by one host: on a pseudo-terminal a second host that locks the
+port (as usbmotion's does) is refused by the first one's lock, and a program that opens it
+regardless is reported; a second TCP client is refused (closed at once) while one is
+connected, and the port takes the next once it leaves. A client that connects starts with
+the device's input empty (a line the last one left half-written is dropped); output while
+no client is connected is dropped.
 """
 
 from __future__ import annotations
@@ -179,9 +180,8 @@ class DeviceServer:
                                  f" second client from {event.detail}: one host at a time")
                 elif event.kind is EventKind.SECOND_CLIENT:
                     self._notice(f"device {endpoint.name!r}: a second program opened"
-                                 f" {event.detail} while a host has it (a process with"
-                                 " CAP_SYS_ADMIN, as root, passes the terminal's exclusive"
-                                 " mode): its bytes and the host's mix")
+                                 f" {event.detail} while a host has it, without locking it:"
+                                 " its bytes and the host's mix")
             wall_us = int((time.monotonic() - origin) * 1e6)
             self.world.advance_to(min(wall_us, self.world.time_us + _MAX_STEP_US))
             for endpoint in self.endpoints:
