@@ -55,6 +55,9 @@ USAGE_ERRORS = [
      " moves --help)"),
     (["gcode", "bogus"], "usbmotion gcode: no such command bogus; the commands are moves"
      " (usbmotion gcode --help)"),
+    (["rn"], "usbmotion: no such command rn; did you mean run? the commands are version,"
+     " run, console, tune, sim, grbl, zero, status, home, jog, get, set, devices, name,"
+     " gcode (usbmotion --help)"),
     (["run", "--no-home=3", "x.ngc"], "usbmotion run: option --no-home does not take a"
      " value (usbmotion run --help)"),
     (["run", "--origin", "Q1", "x.ngc"], "usbmotion run: --origin: Q1 is not an origin;"
@@ -188,7 +191,7 @@ def console_on_the_built_in_machine() -> Iterator[subprocess.Popen[str]]:
 
 
 def test_a_second_command_on_the_built_in_machine_is_refused_naming_the_first(
-        console_on_the_built_in_machine: subprocess.Popen[str]) -> None:
+        console_on_the_built_in_machine: subprocess.Popen[str], tmp_path: Path) -> None:
     console = console_on_the_built_in_machine
     for command in (["zero", "X"], ["status"], ["get", "X", "kp"]):
         code, out, err = invoke(*command)
@@ -196,19 +199,15 @@ def test_a_second_command_on_the_built_in_machine_is_refused_naming_the_first(
         assert err == (f"usbmotion {command[0]}: the built-in machine is in use by usbmotion"
                        f" console (process {console.pid}); wait for it to end, or give"
                        " --machine FILE for another machine\n")
+    machine = tmp_path / "machine.toml"
+    machine.write_text(default_machine().read_text())
+    assert invoke("status", "-m", str(machine))[0] == 0, "a machine file is not held"
     assert console.stdin is not None
     console.stdin.close()
     assert console.wait(timeout=60) == 0
     code, _, err = invoke("zero", "X")
     assert code == 0, err
     assert (state_dir() / "machine.var").exists()
-
-
-def test_a_machine_file_is_not_held(console_on_the_built_in_machine: subprocess.Popen[str],
-                                    tmp_path: Path) -> None:
-    machine = tmp_path / "machine.toml"
-    machine.write_text(default_machine().read_text())
-    assert invoke("status", "-m", str(machine))[0] == 0
 
 
 def test_one_command_holds_the_built_in_machine_once_and_lets_go_at_its_end() -> None:

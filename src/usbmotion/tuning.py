@@ -218,7 +218,7 @@ REACH_GAINS = PidGains(kp=0.01, ki=0.0, kd=0.0)
 """Velocity-mode gains of the reach test: proportional only, so the output sits at the supply
 from the first tick (any error above ``V / kp``, 1200 counts/s at 12 V, saturates it) and
 nothing winds up."""
-_FEED_S = 0.05
+_FEED_S = 0.25
 """Seconds of saturating setpoints kept queued (topped up when half are used)."""
 _POLL_S = 0.005
 """How often the host looks at the run while it accelerates."""

@@ -136,10 +136,11 @@ def usage_error_line(error: UsageError, *, args: Sequence[str] = (),
         group = context.command if context is not None else None
         if (what.startswith("no such command") and context is not None
                 and isinstance(group, TyperGroup)):
-            what = what.replace("'", "")
+            unknown, _, close = what.replace("'", "").partition(". Did you mean ")
             commands = [name for name in group.list_commands(context)
                         if not getattr(group.get_command(context, name), "hidden", False)]
-            what += f"; the commands are {', '.join(commands)}"
+            hint = f"; did you mean {close}" if close else ";"
+            what = f"{unknown}{hint} the commands are {', '.join(commands)}"
     return f"{where}: {what} ({where} --help)"
 
 
