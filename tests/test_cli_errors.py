@@ -218,7 +218,7 @@ def test_one_command_holds_the_built_in_machine_once_and_lets_go_at_its_end() ->
     assert lock.read_text().split() == [str(os.getpid()), "status"]
 
 
-def test_a_second_sim_on_the_same_flash_folder_is_refused(tmp_path: Path) -> None:
+def test_a_second_sim_on_the_same_flash_folder_is_refused() -> None:
     first = subprocess.Popen([sys.executable, "-m", "usbmotion", "sim", "--pty", "1"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -233,15 +233,6 @@ def test_a_second_sim_on_the_same_flash_folder_is_refused(tmp_path: Path) -> Non
         assert second.stderr == (f"usbmotion sim: the flash folder {folder} is in use by"
                                  f" usbmotion sim (process {first.pid}); give this server"
                                  " another --flash-dir\n")
-        other = subprocess.Popen([sys.executable, "-m", "usbmotion", "sim", "--pty", "1",
-                                  "--flash-dir", str(tmp_path / "other")],
-                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        try:
-            assert other.stdout is not None
-            assert other.stdout.readline().startswith("GENERIC USB MOTION DEVICE /dev/pts/")
-        finally:
-            other.terminate()
-            other.communicate(timeout=30)
     finally:
         first.terminate()
         first.communicate(timeout=30)
