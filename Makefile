@@ -109,6 +109,12 @@ firmware: firmware-toolchain $(PICOTOOL_CONFIG) $(EMULATOR)/node_modules/.packag
 	cmake -S firmware -B $(FIRMWARE_BUILD) -DCMAKE_BUILD_TYPE=Release \
 		-DPICO_SDK_PATH=$(PICO_SDK_PATH) -Dpicotool_DIR=$(dir $(PICOTOOL_CONFIG))
 	cmake --build $(FIRMWARE_BUILD) -j2
+	@echo "firmware: $(FIRMWARE_BUILD)/usbmotion.uf2 is built. To flash a Pico with it:"
+	@echo "  hold its BOOTSEL button while plugging it in: it shows a USB drive, RPI-RP2;"
+	@echo "  copy the file there (cp $(FIRMWARE_BUILD)/usbmotion.uf2 /media/$$(id -un)/RPI-RP2/"
+	@echo "  on most Linux desktops): the Pico reboots into the firmware. Or, with a picotool"
+	@echo "  built with USB support (build/picotool has none): picotool load -x $(FIRMWARE_BUILD)/usbmotion.uf2"
+	@echo "  Without a Pico: usbmotion sim --firmware $(FIRMWARE_BUILD)/usbmotion.uf2 --pty 3"
 
 # The firmware's tests beyond the Python suite's native ones (tests/firmware/test_native_*):
 # the emulator harness's own (node, on the test fixture firmware), then the product firmware

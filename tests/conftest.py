@@ -19,6 +19,11 @@ pytest_plugins = ("pytester",)
 LEAK_GRACE_S = 2.0
 """How long a thread or a child process may take to finish exiting after its test."""
 
+ROOT = Path(__file__).resolve().parents[1]
+NOT_FOR_WRITING = (ROOT / "src" / "usbmotion" / "data", ROOT / "examples")
+"""The package's own machine file and the examples: no test may leave a file there (a
+parameter file beside a machine file, say)."""
+
 
 @dataclass(frozen=True, slots=True)
 class Resources:
@@ -106,6 +111,29 @@ def _nothing_left_behind(request: pytest.FixtureRequest) -> Iterator[None]:
         time.sleep(0.02)
     if left:
         pytest.fail(f"{request.node.nodeid} left behind:\n  " + "\n  ".join(left),
+                    pytrace=False)
+
+
+@pytest.fixture(autouse=True)
+def own_state(tmp_path_factory: pytest.TempPathFactory,
+               monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
+    """Give the test, and every process it starts, state folders of its own: the
+    built-in machine's parameter file and lock (``USBMOTION_STATE_DIR``), ``usbmotion
+    sim``'s flash (``XDG_STATE_HOME``), the announced pseudo-terminals
+    (``USBMOTION_PTY_DIR``); so a test never reads or writes the user's, and never sees
+    another test's. (``HOME`` stays: usbmotion falls back to it only when these are
+    unset, and other tools keep their caches there.) Fail the test if it left a file
+    among the package's data or the examples."""
+    folder = tmp_path_factory.mktemp("state")
+    monkeypatch.setenv("USBMOTION_STATE_DIR", str(folder / "usbmotion"))
+    monkeypatch.setenv("XDG_STATE_HOME", str(folder / "xdg-state"))
+    monkeypatch.setenv("USBMOTION_PTY_DIR", str(folder / "ptys"))
+    before = {path: sorted(path.rglob("*")) for path in NOT_FOR_WRITING}
+    yield folder
+    left = [str(each) for path, files in before.items()
+            for each in sorted(set(path.rglob("*")) - set(files))]
+    if left:
+        pytest.fail(f"left files in the project's own folders: {', '.join(left)}",
                     pytrace=False)
 
 

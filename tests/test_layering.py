@@ -188,3 +188,50 @@ def test_the_call_number_check_catches_a_literal(tmp_path: Path, source: str) ->
     module.write_text(source)
     found = literal_call_numbers([module])
     assert len(found) == 1, found
+
+
+SERVING = SRC / "serving.py"
+"""The one module that serves bytes on pseudo-terminals and TCP ports."""
+
+SERVING_CALLS = frozenset({"openpty", "setraw", "listen", "accept"})
+"""What opening a terminal or a listening port takes; only the serving module does it."""
+TERMINAL_MODES = frozenset({"TIOCEXCL", "TIOCNXCL"})
+"""A terminal's exclusive mode, the serving module's to handle."""
+
+
+def serving_calls(paths: list[Path]) -> list[str]:
+    """``file:line name`` for every call of :data:`SERVING_CALLS` (or use of
+    :data:`TERMINAL_MODES`)."""
+    found: list[str] = []
+    for path in paths:
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            name = (_callee(node) if isinstance(node, ast.Call) else
+                    node.attr if isinstance(node, ast.Attribute) else "")
+            if name in SERVING_CALLS or name in TERMINAL_MODES:
+                found.append(f"{_where(path)}:{node.lineno} {name}")
+    return sorted(set(found))
+
+
+def test_the_serving_module_sits_below_grbl_and_sim() -> None:
+    tree = ast.parse(SERVING.read_text(), filename=str(SERVING))
+    ours = sorted({module for _, module in _imports(tree) if module.startswith("usbmotion")})
+    assert ours == ["usbmotion.errors", "usbmotion.errors.ArgumentError"]
+
+
+def test_only_the_serving_module_opens_terminals_and_listens() -> None:
+    others = [path for path in sorted(SRC.rglob("*.py")) if path != SERVING]
+    assert serving_calls(others) == []
+    assert serving_calls([SERVING]), "the check looks for what the module does"
+
+
+@pytest.mark.parametrize("source", [
+    "master, slave = os.openpty()\n",
+    "tty.setraw(slave)\n",
+    "listener.listen(1)\n",
+    "client, _ = listener.accept()\n",
+    "fcntl.ioctl(fd, termios.TIOCEXCL)\n",
+])
+def test_the_serving_check_catches_a_server_of_its_own(tmp_path: Path, source: str) -> None:
+    module = tmp_path / "planted.py"
+    module.write_text(source)
+    assert len(serving_calls([module])) == 1

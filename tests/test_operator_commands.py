@@ -126,6 +126,51 @@ def test_an_unknown_axis_or_parameter_is_named_with_those_there_are() -> None:
     assert code == 2 and "no axis 'Q'" in err and "has X, Y, Z" in err
     code, _, err = invoke("set", "X", "gain", "1")
     assert code == 2 and "no parameter 'gain'; the parameters are kp, ki, kd" in err
+    code, _, err = invoke("set", "X", "watchdog", "2000")
+    assert code == 2
+    assert err.startswith("usbmotion set: no parameter 'watchdog'; did you mean"
+                          " 'watchdog_ms'? the parameters are kp, ki, kd"), err
+    code, _, err = invoke("get", "X", "Following_Error")
+    assert code == 2 and "did you mean 'following_error_limit_counts'?" in err
+
+
+def _with_watchdog(folder: Path, watchdog_ms: int) -> Path:
+    text, count = re.subn(r"(?m)^watchdog_ms = \d+", f"watchdog_ms = {watchdog_ms}",
+                          default_machine().read_text())
+    assert count == 1
+    path = folder / "machine.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize(("args", "words"), [
+    (["X", "watchdog_ms", "100"], "watchdog_ms: 100 ms is shorter than a full motion queue"
+     " lasts (1000 values x 1 ms = 1000 ms) plus 250 ms"),
+    (["X", "motion_scalar", "2"], "watchdog_ms: 2000 ms is shorter than a full motion queue"
+     " lasts (1000 values x 2 ms = 2000 ms) plus 250 ms"),
+    (["Y", "servo_interval_us", "2000"], "watchdog_ms: 2000 ms is shorter than a full motion"
+     " queue lasts (1000 values x 2 ms = 2000 ms)"),
+])
+def test_set_refuses_what_the_machine_file_would_refuse(
+        args: list[str], words: str, tmp_path: Path) -> None:
+    machine = _with_watchdog(tmp_path, 2000)
+    code, out, err = invoke("set", *args, "-m", str(machine))
+    assert (code, out) == (2, "")
+    assert err.count("\n") == 1, err
+    assert err.startswith(f"usbmotion set: axis {args[0]} {args[1]} {args[2]!r} refused as"
+                          f" the machine file would refuse it: {machine}:"), err
+    assert words in err
+    code, out, err = invoke("get", args[0], args[1], "-m", str(machine))
+    assert code == 0 and args[2] not in out.split(), "nothing was sent"
+
+
+def test_set_takes_what_the_machine_file_allows(tmp_path: Path) -> None:
+    machine = _with_watchdog(tmp_path, 2000)
+    for args in (["X", "watchdog_ms", "1250"], ["X", "watchdog_ms", "0"],
+                 ["Y", "following_error_limit_counts", "480"], ["Z", "kd", "0.003"]):
+        code, out, err = invoke("set", *args, "-m", str(machine))
+        assert code == 0, err
+        assert out.startswith(f"{args[0]} {args[1]} {args[2]}"), out
 
 
 # --- home and jog on the built-in machine (virtual time) ------------------------------------

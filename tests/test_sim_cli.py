@@ -1,11 +1,14 @@
 """``usbmotion sim`` as a process: it prints a device's address only once the device answers
 (a plain client's first exchanges are right, even on a cold numba cache), and SIGTERM or
-SIGINT ends it within a second or two, every terminal closed."""
+SIGINT ends it within a second or two, every terminal closed. The machine file that goes
+with it (``examples/served-machine.toml``) finds its devices once they are named, and a
+device on TCP serves one host at a time."""
 
 from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -15,7 +18,14 @@ from pathlib import Path
 
 import pytest
 import serial
+from typer.testing import CliRunner
 
+from usbmotion.cli.main import app
+from usbmotion.device import Device, MemoryFlash
+from usbmotion.sim.server import DeviceServer
+from usbmotion.sim.world import SimWorld
+
+ROOT = Path(__file__).resolve().parents[1]
 EXIT_WITHIN_S = 5.0
 """How soon a signal must end the server: it stops serving within a round of its loop
 (milliseconds) and exits once Python has shut down, 0.3 to 0.4 s on an idle machine, about
@@ -141,3 +151,109 @@ def test_a_plain_client_asking_at_once_on_a_cold_numba_cache_gets_every_answer(
              if not (reply.startswith(start) and reply.endswith(b"\n"))]
     assert not wrong, f"{20 - len(wrong)} of 20 exchanges right; wrong: {wrong}"
     assert any(cache.rglob("*.nbi")), "the kernel was compiled into the fresh cache"
+
+
+PROGRAM = "G21 G90\nG1 X10 Y5 F1200\nG1 X5 Y10\nM2\n"
+"""A short program for the served machine (real time: its homing takes seconds already)."""
+
+
+@pytest.mark.realtime
+def test_the_served_machine_file_finds_sim_s_devices_once_they_are_named(
+        tmp_path: Path) -> None:
+    """``usbmotion sim --pty 3`` serves fresh devices; examples/served-machine.toml, which
+    names its devices, says how to name them, ``usbmotion name`` names each from the file,
+    and two runs in a row complete (the second on the machine the first left homed)."""
+    machine = tmp_path / "served-machine.toml"
+    machine.write_text((ROOT / "examples" / "served-machine.toml").read_text())
+    program = tmp_path / "square.ngc"
+    program.write_text(PROGRAM)
+
+    def usbmotion(*args: str) -> tuple[int, str, str]:
+        result = CliRunner().invoke(app, list(args))
+        return result.exit_code, result.stdout, result.stderr
+
+    def run() -> tuple[int, str, str]:
+        return usbmotion("run", str(program), "-m", str(machine), "-q", "--no-plot")
+
+    with sim_process(tmp_path / "flash", "--pty", "3") as process:
+        paths = _paths(process, 3)
+        code, _, err = run()
+        assert code == 1, err
+        assert err.startswith("usbmotion run: device 'X AXIS' not found; searched")
+        assert err.endswith(
+            "3 of them answer the default name of a device never named: give each the name"
+            " its axis has in the machine file, once (usbmotion name AXIS PORT --machine"
+            " FILE)\n")
+        for letter, path in zip("XYZ", paths, strict=True):
+            code, out, err = usbmotion("name", letter, path, "-m", str(machine))
+            assert code == 0, err
+            assert out == (f"{path}: 'GENERIC USB MOTION DEVICE' -> '{letter} AXIS' (axis"
+                           f" {letter} of {machine}), kept in the device's flash\n")
+        (first_code, first, err), (second_code, second, _) = run(), run()
+        assert first_code == second_code == 0, err
+        assert "result         completed" in first and "result         completed" in second
+        assert "homing         0.000 s" in second, "the first left it homed"
+
+
+@pytest.mark.realtime
+def test_a_device_on_tcp_serves_one_host_and_refuses_a_second() -> None:
+    world = SimWorld()
+    world.add(Device(flash=MemoryFlash()), key="0")
+    notices: list[str] = []
+    with DeviceServer(world, pty=False, on_notice=notices.append) as server:
+        server.warm_up()
+        server.start()
+        port = server.endpoints[0].port
+        with socket.create_connection(("127.0.0.1", port), timeout=5) as host:
+            host.sendall(b"18 -1\n")
+            assert host.makefile("rb").readline() == b"DEVICE_NAME GENERIC USB MOTION DEVICE\n"
+            with socket.create_connection(("127.0.0.1", port), timeout=5) as second:
+                assert second.recv(100) == b"", "closed at once"
+            host.sendall(b"18 -1\n")
+            assert host.makefile("rb").readline() == b"DEVICE_NAME GENERIC USB MOTION DEVICE\n"
+        assert len(notices) == 1 and notices[0].startswith(
+            f"device 'GENERIC USB MOTION DEVICE' (port {port}): refused a second client from"
+            " 127.0.0.1:")
+        with socket.create_connection(("127.0.0.1", port), timeout=5) as next_host:
+            next_host.sendall(b"18 -1\n")
+            assert next_host.makefile("rb").readline().startswith(b"DEVICE_NAME ")
+
+
+def test_sim_firmware_without_a_boot_rom_says_where_it_looked_in_one_line(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    image = tmp_path / "usbmotion.uf2"
+    image.write_bytes(b"UF2")
+    image.with_suffix(".elf").write_bytes(b"ELF")
+    missing = tmp_path / "b1.bin"
+    args = ["sim", "--firmware", str(image), "--pty", "1", "--flash-dir", str(tmp_path)]
+    result = CliRunner().invoke(app, [*args, "--bootrom", str(missing)])
+    assert (result.exit_code, result.stdout) == (2, "")
+    assert result.stderr == (
+        f"usbmotion sim: no RP2040 boot ROM at {missing} (given: no such file); the emulator"
+        " runs the chip's boot ROM B1 (16384 bytes): give --bootrom PATH (or set"
+        " USBMOTION_BOOTROM); it is built from github.com/raspberrypi/pico-bootrom (version"
+        " B1), and wokwi/rp2040js embeds a copy in demo/bootrom.ts\n")
+    missing.write_bytes(b"\0" * 100)
+    monkeypatch.setenv("USBMOTION_BOOTROM", str(missing))
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2
+    assert result.stderr.startswith(f"usbmotion sim: no RP2040 boot ROM at {missing} (from"
+                                    " $USBMOTION_BOOTROM: 100 bytes, not 16384); ")
+    result = CliRunner().invoke(app, ["sim", "--pty", "1", "--bootrom", str(missing)])
+    assert (result.exit_code, result.stderr) == (
+        2, "usbmotion sim: --bootrom needs --firmware (usbmotion sim --help)\n")
+
+
+def test_make_firmware_ends_saying_where_the_uf2_is_and_how_to_flash_it() -> None:
+    shown = subprocess.run(["make", "-n", "-s", "firmware"], cwd=ROOT, capture_output=True,
+                           text=True, timeout=60, check=False).stdout
+    said = " ".join(line.removeprefix("echo ").strip('"') for line in shown.splitlines()
+                    if line.startswith("echo "))
+    for words in ("build/firmware/usbmotion.uf2 is built. To flash a Pico with it:",
+                  "hold its BOOTSEL button while plugging it in: it shows a USB drive,"
+                  " RPI-RP2;", "copy the file there",
+                  "picotool load -x build/firmware/usbmotion.uf2",
+                  "usbmotion sim --firmware build/firmware/usbmotion.uf2 --pty 3"):
+        assert words in said, said
+    last = [line for line in shown.splitlines() if line.strip()][-1]
+    assert "usbmotion sim --firmware" in last, "said at the end of the target"

@@ -18,10 +18,17 @@ from usbmotion.device import Device, MemoryFlash
 from usbmotion.errors import ArgumentError, ConfigError, DeviceError
 from usbmotion.host.config import MachineConfig, load_config, parse_config
 from usbmotion.host.machine import Machine
+from usbmotion.session.homing import homed_mark
 from usbmotion.sim.machine import SimulatedMachine
 from usbmotion.sim.server import DeviceServer
 from usbmotion.sim.world import SimWorld
-from usbmotion.tuning import ReachMeasurement, fit_saturated_run, measure_reach
+from usbmotion.tuning import (
+    ReachMeasurement,
+    fit_saturated_run,
+    measure_reach,
+    stands_at_mm,
+    step_response,
+)
 
 COUNTS_PER_MM = 240.0
 
@@ -220,6 +227,53 @@ def test_tune_reach_refuses_what_does_not_apply(args: tuple[str, ...], message: 
     assert done.returncode == 2
     assert message in done.stderr
     assert "Traceback" not in done.stderr
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (("--axis", "X", "--step-mm", "150"), "usbmotion tune: axis X: a step of +150 mm from"
+     " 100.000 mm would leave its travel_mm [0, 200]: the room from there is -100.000 to"
+     " +100.000 mm; nothing moved\n"),
+    (("--axis", "z", "--step-mm", "-50.5"), "usbmotion tune: axis Z: a step of -50.5 mm from"
+     " 50.000 mm would leave its travel_mm [0, 100]: the room from there is -50.000 to"
+     " +50.000 mm; nothing moved\n"),
+    (("--axis", "Z", "--reach", "--distance-mm", "60"), "usbmotion tune: axis Z: a reach"
+     " test of +60 mm from 50.000 mm would leave its travel_mm [0, 100]: the room from"
+     " there is -50.000 to +50.000 mm; nothing moved\n"),
+])
+def test_tune_refuses_a_test_beyond_the_travel_before_anything_moves(
+        args: tuple[str, ...], message: str) -> None:
+    done = _usbmotion("tune", *args)
+    assert (done.returncode, done.stdout, done.stderr) == (2, "", message)
+
+
+def test_a_step_is_checked_from_where_the_axis_stands() -> None:
+    """Homed, the axis stands at its home (0 mm here): a step down is refused, one up taken;
+    not homed and without a simulated motor, only a step longer than the travel is."""
+    config = load_config(default_machine())
+    with SimulatedMachine.connect(config) as machine:
+        machine.configure()
+        client = machine.axis("X").client
+        assert stands_at_mm(machine, "X") == pytest.approx(100.0)
+        with pytest.raises(ArgumentError, match=r"a step of -100\.5 mm from 100\.000 mm"
+                           r" would leave") as caught:
+            step_response(machine, "X", step_mm=-100.5)
+        assert caught.value.reason == "step_mm"
+        assert client.status().enabled is False, "nothing moved"
+        client.set_position(0)
+        client.set_homed_marker(homed_mark(config, config.axis("X")))
+        assert stands_at_mm(machine, "X") == 0.0
+        with pytest.raises(ArgumentError, match=r"from 0\.000 mm would leave its travel_mm"):
+            step_response(machine, "X", step_mm=-1.0)
+        assert step_response(machine, "X", step_mm=1.0).metrics.step_counts == 240
+        machine.stop()
+    with SimulatedMachine.connect(config) as simulated:
+        simulated.configure()
+        unknown = Machine(config, [dataclasses.replace(axis, config=dataclasses.replace(
+            axis.config, sim=None)) for axis in simulated.axes.values()])
+        assert stands_at_mm(unknown, "X") is None, "as a real axis not homed"
+        with pytest.raises(ArgumentError, match=r"axis X: a step of \+201 mm is longer than"
+                           r" its whole travel_mm \[0, 200\] \(it is not homed"):
+            step_response(unknown, "X", step_mm=201.0)
 
 
 # --- served devices, in real time -------------------------------------------------------------

@@ -3,7 +3,8 @@
 :func:`step_metrics` and :func:`fit_saturated_run` are pure (arrays in, figures out);
 :func:`step_response` commands a position step on a connected axis, :func:`measure_reach`
 drives it at full voltage there and back; both record the device's own diagnostics every
-tick.
+tick, and both refuse, before anything moves, a test that would take the axis out of its
+travel from where it stands (:func:`stands_at_mm`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from usbmotion.errors import ArgumentError, DeviceError, DeviceFaultError
 from usbmotion.host.config import AxisReach, PidGains
 from usbmotion.host.device import ControlMode, Diagnostics
 from usbmotion.host.machine import Machine
+from usbmotion.session.homing import homed_mark
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -80,6 +82,53 @@ def step_metrics(times_s: FloatArray, position: FloatArray, *, start: float,
     return StepMetrics(step_counts, rise, overshoot, settling, band, steady)
 
 
+def stands_at_mm(machine: Machine, axis: str) -> float | None:
+    """Where ``axis`` stands, in machine mm: its device's count on an axis homed for this
+    machine file (the device carries the file's homed mark), else, on an axis with a
+    simulated motor, its power-up place (``sim.start_mm``) plus the counts it moved since;
+    None when neither tells (a real axis not homed).
+
+    Raises:
+        DeviceError: the device did not answer.
+    """
+    target = machine.axis(axis)
+    client = target.client
+    counts = client.status().actual_counts
+    if client.homed_marker() == homed_mark(machine.config, target.config):
+        return target.scale.to_mm(counts)
+    sim = target.config.sim
+    if sim is not None:
+        return sim.start_mm + target.scale.to_mm(counts)
+    return None
+
+
+def check_within_travel(machine: Machine, axis: str, distance_mm: float, *,
+                        what: str, reason: str) -> None:
+    """Refuse to move ``axis`` by ``distance_mm`` from where it stands when that leaves its
+    ``travel_mm``; where it stands unknown (:func:`stands_at_mm`), when the distance is
+    longer than the whole travel.
+
+    Raises:
+        ArgumentError: the move leaves the travel (names the axis, ``what``, where the axis
+            stands and the room on either side; ``reason`` is its ``reason``).
+    """
+    low, high = machine.axis(axis).config.travel_mm
+    here = stands_at_mm(machine, axis)
+    travel = f"travel_mm [{low:g}, {high:g}]"
+    if here is None:
+        if abs(distance_mm) > high - low:
+            raise ArgumentError(
+                f"axis {axis}: {what} of {distance_mm:+g} mm is longer than its whole {travel}"
+                " (it is not homed, so where it stands is unknown); nothing moved",
+                reason=reason)
+        return
+    if not low - 1e-9 <= here + distance_mm <= high + 1e-9:
+        raise ArgumentError(
+            f"axis {axis}: {what} of {distance_mm:+g} mm from {here:.3f} mm would leave its"
+            f" {travel}: the room from there is {low - here:+.3f} to {high - here:+.3f} mm;"
+            " nothing moved", reason=reason)
+
+
 @dataclass(frozen=True, slots=True)
 class StepResponse:
     """A recorded step: time since the step (s), desired and actual counts, and figures."""
@@ -109,7 +158,8 @@ def step_response(
     Raises:
         DeviceFaultError: the device faulted during the test.
 
-        ArgumentError: a step of zero or not finite, or a non-positive duration.
+        ArgumentError: a step of zero or not finite, a non-positive duration, or a step
+            that would leave the axis's travel (:func:`check_within_travel`).
     """
     if not (math.isfinite(step_mm) and step_mm != 0):
         raise ArgumentError(f"step_mm {step_mm!r} must be a finite non-zero distance",
@@ -123,6 +173,7 @@ def step_response(
     step = target.scale.to_counts(step_mm)
     if step == 0:
         raise ArgumentError(f"step_mm {step_mm!r} is under one count", reason="step_mm")
+    check_within_travel(machine, axis, step_mm, what="a step", reason="step_mm")
     records: list[Diagnostics] = []
     limit = target.config.following_error_limit_counts
     with client.listening(diagnostics=records.append):
@@ -167,7 +218,7 @@ REACH_GAINS = PidGains(kp=0.01, ki=0.0, kd=0.0)
 """Velocity-mode gains of the reach test: proportional only, so the output sits at the supply
 from the first tick (any error above ``V / kp``, 1200 counts/s at 12 V, saturates it) and
 nothing winds up."""
-_FEED_S = 0.05
+_FEED_S = 0.25
 """Seconds of saturating setpoints kept queued (topped up when half are used)."""
 _POLL_S = 0.005
 """How often the host looks at the run while it accelerates."""
@@ -306,7 +357,8 @@ def measure_reach(
     is left enabled in position mode, holding.
 
     Raises:
-        ArgumentError: a distance of zero or under 100 counts, or a run that was still
+        ArgumentError: a distance of zero or under 100 counts, one that would leave the
+            axis's travel (:func:`check_within_travel`), or a run that was still
             accelerating when it had used its room (give more distance).
         DeviceError: the axis did not move, the output did not saturate, or it did not come
             to rest in time.
@@ -323,6 +375,8 @@ def measure_reach(
             f"distance_mm {distance_mm!r} is {room} counts; a reach test needs at least 100",
             reason="distance_mm",
         )
+    check_within_travel(machine, axis, distance_mm, what="a reach test",
+                        reason="distance_mm")
     records: list[Diagnostics] = []
     limit = target.config.following_error_limit_counts
     try:

@@ -17,6 +17,7 @@ from tests.grbl.fake_machine import FakeMachine
 
 from usbmotion.errors import ArgumentError
 from usbmotion.grbl.server import GrblServer
+from usbmotion.serving import TcpEndpoint
 
 pytestmark = pytest.mark.realtime
 
@@ -69,6 +70,45 @@ def test_pty_link_made_and_removed(tmp_path: Path) -> None:
     assert not link.exists() and not link.is_symlink()
 
 
+def test_a_live_link_is_refused_in_one_line_and_a_stale_one_replaced(tmp_path: Path) -> None:
+    link = tmp_path / "ttyGRBL"
+    with GrblServer(FakeMachine(time.monotonic), pty=True, link=str(link)) as live:
+        done = subprocess.run([sys.executable, "-m", "usbmotion", "grbl", "--link", str(link)],
+                              capture_output=True, text=True, timeout=120, check=False)
+        name = Path("/proc/self/comm").read_text().strip()
+        assert (done.returncode, done.stdout) == (2, "")
+        assert done.stderr == (
+            f"usbmotion grbl: link {link} points at {live.path}, a terminal another server"
+            f" still serves (process {os.getpid()} ({name})); stop that server or give"
+            " another link\n")
+        assert os.readlink(link) == live.path
+    link.symlink_to("/dev/pts/999999")  # what a server killed with SIGKILL leaves
+    with GrblServer(FakeMachine(time.monotonic), pty=True, link=str(link)) as server:
+        assert os.readlink(link) == server.path
+
+
+def test_one_sender_at_a_time_on_the_terminal() -> None:
+    notices: list[str] = []
+    with GrblServer(FakeMachine(time.monotonic), pty=True, on_notice=notices.append) as server:
+        server.start()
+        with serial.Serial(server.path, 115200, timeout=0.05, exclusive=True) as port:
+            assert read_until(port.read, UNLOCK) == BANNER + UNLOCK
+            with pytest.raises(serial.SerialException):
+                serial.Serial(server.path, exclusive=True)  # refused by the sender's lock
+            descriptor = os.open(server.path, os.O_RDWR | os.O_NOCTTY)  # no lock asked
+            os.close(descriptor)
+            deadline = time.monotonic() + 3
+            while len(notices) < 2 and time.monotonic() < deadline:
+                time.sleep(0.01)
+            # the locking client opened before its lock was refused; the plain one got in
+            assert len(notices) == 2 and all(notice.startswith(
+                f"a second program opened {server.path} while a sender has it")
+                for notice in notices)
+            port.write(b"$I\n")
+            assert read_until(port.read, b"ok\r\n").startswith(b"[VER:1.1h.")
+        assert server.connections == 1
+
+
 def test_tcp_banner_per_connection_the_newest_wins() -> None:
     with GrblServer(FakeMachine(time.monotonic, homing=False), pty=False) as server:
         server.start()
@@ -110,8 +150,8 @@ def test_a_long_line_of_comment_is_drained_as_it_comes_not_dropped() -> None:
 
 def test_tcp_binds_loopback_by_default() -> None:
     with GrblServer(FakeMachine(time.monotonic), pty=False) as server:
-        assert server._listener is not None
-        assert server._listener.getsockname()[0] == "127.0.0.1"
+        assert isinstance(server.endpoint, TcpEndpoint)
+        assert server.endpoint.listener.getsockname()[0] == "127.0.0.1"
 
 
 @pytest.mark.parametrize(("options", "message"), [

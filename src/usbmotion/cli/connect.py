@@ -10,13 +10,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING
 
 import typer
 
-from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, default_machine, stop_on_signals
-from usbmotion.errors import ConfigError, UsbMotionError
+from usbmotion.cli.exits import EXIT_FAULT, fail
+from usbmotion.cli.run import stop_on_signals
+from usbmotion.errors import UsbMotionError
 
 if TYPE_CHECKING:
     from usbmotion.host.config import MachineConfig
@@ -30,26 +30,6 @@ SIMULATED_NOTE = (
     " usbmotion sim --tcp or terminals of usbmotion sim --pty to act on devices that stay."
 )
 """What the help of a command acting on a machine says about the default one."""
-
-
-def fail(command: str, message: str, code: int) -> NoReturn:
-    """Print ``usbmotion COMMAND: MESSAGE`` on standard error and exit with ``code``."""
-    typer.echo(f"usbmotion {command}: {message}", err=True)
-    raise typer.Exit(code)
-
-
-def load_machine(machine: Path | None, command: str) -> MachineConfig:
-    """The machine file (the built-in simulated machine when ``machine`` is None), or the
-    command ended with status 2 and one line naming the file and what is wrong."""
-    from usbmotion.sim.machine import load_machine_file  # noqa: PLC0415 - keeps --help fast
-
-    try:
-        return load_machine_file(machine or default_machine())
-    except ConfigError as error:
-        fail(command, str(error), EXIT_BAD_INPUT)
-    except OSError as error:
-        fail(command, f"cannot read {str(machine)!r}: {error.strerror or error}",
-             EXIT_BAD_INPUT)
 
 
 @contextmanager

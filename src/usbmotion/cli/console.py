@@ -7,14 +7,10 @@ import sys
 
 import typer
 
-from usbmotion.cli.run import (
-    EXIT_BAD_INPUT,
-    EXIT_FAULT,
-    MachineOption,
-    load_machine,
-    stop_on_signals,
-)
-from usbmotion.errors import ConfigError, UsbMotionError
+from usbmotion.cli.exits import EXIT_FAULT
+from usbmotion.cli.machines import load_machine
+from usbmotion.cli.run import MachineOption, stop_on_signals
+from usbmotion.errors import UsbMotionError
 
 
 def console(
@@ -36,11 +32,7 @@ def console(
     from usbmotion.session import MachineSession  # noqa: PLC0415
     from usbmotion.sim.machine import connect_session  # noqa: PLC0415
 
-    try:
-        config = load_machine(machine)
-    except ConfigError as error:
-        typer.echo(f"usbmotion console: {error}", err=True)
-        raise typer.Exit(EXIT_BAD_INPUT) from None
+    config = load_machine(machine, "console")
     interactive = sys.stdin.isatty()
 
     def write(line: str) -> None:

@@ -8,8 +8,8 @@ from typing import Annotated
 
 import typer
 
-from usbmotion.cli.connect import fail, load_machine
-from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT
+from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail
+from usbmotion.cli.machines import load_machine
 
 
 def devices(
@@ -35,8 +35,12 @@ def devices(
     Exit status: 0 at least one device answered; 1 none did; 2 a bad option or machine
     file.
     """
-    from usbmotion.host.discovery import PortAnswer, scan, serial_ports  # noqa: PLC0415
-    from usbmotion.sim.pty_dir import announced_ptys  # noqa: PLC0415
+    from usbmotion.host.discovery import (  # noqa: PLC0415
+        PortAnswer,
+        announced_ptys,
+        scan,
+        serial_ports,
+    )
 
     if not timeout_s > 0:
         fail("devices", f"--timeout-s {timeout_s!r} must be > 0", EXIT_BAD_INPUT)

@@ -10,8 +10,8 @@ from typing import TYPE_CHECKING, Annotated, NoReturn
 
 import typer
 
+from usbmotion.cli.exits import EXIT_BAD_INPUT, fail, os_problem
 from usbmotion.cli.help import UsbMotionTyper
-from usbmotion.cli.run import EXIT_BAD_INPUT
 from usbmotion.errors import ConfigError
 from usbmotion.motion.dialects import Dialect, dialect_named
 from usbmotion.motion.gcode import (
@@ -95,8 +95,7 @@ def moves(
     try:
         text = read_gcode_text(file)
     except OSError as exc:
-        reason = exc.strerror or str(exc)
-        _fail(f"cannot read {str(file)!r}: {reason}")
+        _fail(f"cannot read {file}: {os_problem(exc)}")
     program, error = interpret_until_error(
         text, file=str(file), start=reading.start, machine=reading.machine,
         dialect=reading.dialect, tools=reading.tools, offsets=reading.offsets)
@@ -112,8 +111,7 @@ def moves(
 
 def _fail(message: str) -> NoReturn:
     """End the command with one line on stderr and status 2 (bad input)."""
-    typer.echo(f"usbmotion {_COMMAND}: {message}", err=True)
-    raise typer.Exit(EXIT_BAD_INPUT)
+    fail(_COMMAND, message, EXIT_BAD_INPUT)
 
 
 def _dialect(name: str | None) -> Dialect | None:
@@ -131,7 +129,7 @@ def _reading(machine: Path | None, dialect: Dialect | None) -> _Reading:
     if machine is None:
         return _Reading(DEFAULT_MACHINE, dialect or Dialect.LINUXCNC, NO_TOOLS, NO_OFFSETS,
                         None)
-    from usbmotion.cli.connect import load_machine  # noqa: PLC0415 - keeps --help fast
+    from usbmotion.cli.machines import load_machine  # noqa: PLC0415 - keeps --help fast
     from usbmotion.motion.offsets import read_parameter_file  # noqa: PLC0415
     from usbmotion.motion.tools import load_tool_table  # noqa: PLC0415
     from usbmotion.session.planning import machine_axes, machine_dialect  # noqa: PLC0415

@@ -3,12 +3,14 @@ already use (cncjs, Universal G-code Sender, Candle, grbl-streamer)."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from usbmotion.cli.connect import fail, load_machine
-from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, MachineOption
+from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail, os_problem
+from usbmotion.cli.machines import load_machine
+from usbmotion.cli.run import MachineOption
 from usbmotion.errors import ArgumentError, UsbMotionError
 
 
@@ -17,7 +19,8 @@ def grbl(
         "--pty", help="Serve on a pseudo-terminal (its path is printed); the default.")] = True,
     link: Annotated[str | None, typer.Option(
         "--link", help="With --pty, also make a symbolic link to it at this path (such as"
-        " /tmp/ttyGRBL, for a sender's port list).", show_default=False)] = None,
+        " /tmp/ttyGRBL, for a sender's port list); a link to a terminal another server"
+        " still serves is refused, a stale one replaced.", show_default=False)] = None,
     tcp: Annotated[int | None, typer.Option(
         "--tcp", help="Serve on this TCP port instead of a pseudo-terminal (0: any free"
         " port).", show_default=False)] = None,
@@ -35,13 +38,20 @@ def grbl(
     The built-in simulated machine runs in real time. SIGTERM or Ctrl-C brings every axis
     to rest and leaves.
 
+    One sender at a time: on the pseudo-terminal a second sender that locks its port (as
+    cncjs and pyserial's exclusive open do) is refused by the first one's lock, and a
+    program that opens it regardless is said on standard error; on TCP a new connection
+    replaces the one before (closed), so a sender that reconnects after its link died gets
+    through.
+
     $N=value changes the settings that map onto the machine file (counts per mm as steps
     per mm, max rate, acceleration, travel, homing, junction deviation, arc tolerance),
     checked as the file is when it loads (the motors' reach); they are written to the
     file given with --machine, and hold for the session only on the built-in machine.
 
     Exit status: 0 served until a signal; 1 the machine could not be connected; 2 a bad
-    option or machine file.
+    option or machine file, a TCP port in use, or a --link that another server's terminal
+    holds.
     """
     from usbmotion.grbl.interface import GrblMachine  # noqa: PLC0415 - keep --help fast
     from usbmotion.grbl.server import serve  # noqa: PLC0415
@@ -57,6 +67,12 @@ def grbl(
     if link is not None and tcp is not None:
         fail("grbl", "--link names a pseudo-terminal's link: it does not go with --tcp",
              EXIT_BAD_INPUT)
+    if link is not None:
+        from usbmotion.serving import link_problem  # noqa: PLC0415
+
+        problem = link_problem(Path(link))
+        if problem is not None:
+            fail("grbl", problem, EXIT_BAD_INPUT)
     world = SimWorld(realtime=True) if config.is_simulated else None
     try:
         session = (connect_session(config, world=world) if world is not None
@@ -75,9 +91,14 @@ def grbl(
         served: GrblMachine = front
         front.start()
         try:
-            status = serve(served, pty=tcp is None and pty, link=link, tcp_port=tcp, host=host)
-        except (ArgumentError, OSError) as error:
+            status = serve(served, pty=tcp is None and pty, link=link, tcp_port=tcp, host=host,
+                           on_notice=lambda text: typer.echo(f"usbmotion grbl: {text}",
+                                                             err=True))
+        except ArgumentError as error:
             fail("grbl", str(error), EXIT_BAD_INPUT)
+        except OSError as error:
+            where = f"{error.filename}: " if error.filename else ""
+            fail("grbl", f"{where}{os_problem(error)}", EXIT_BAD_INPUT)
         finally:
             front.close()
             operator.close()

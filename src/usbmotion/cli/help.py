@@ -1,7 +1,15 @@
-"""How the ``usbmotion`` command's help reads: flags without a ``<bool>`` placeholder,
-arguments and values named in capitals (``PROGRAM``, ``PATH``), never a type in angle
-brackets, and each paragraph of a docstring flowed to the terminal's width (its source's
-line breaks are not kept; an indented line or a list item keeps its own).
+"""How the ``usbmotion`` command reads: its help and its usage errors.
+
+Help: flags without a ``<bool>`` placeholder, arguments and values named in capitals
+(``PROGRAM``, ``PATH``), never a type in angle brackets, and each paragraph of a docstring
+flowed to the terminal's width (its source's line breaks are not kept; an indented line or
+a list item keeps its own).
+
+Errors: a usage error (a missing argument, an unknown option or command, a value an
+option cannot take) is one line on standard error, ``usbmotion run: missing argument
+PROGRAM (usbmotion run --help)``, exit status 2; no boxed panel, no usage block. A file
+argument (``PROGRAM``, ``FILE``) that cannot be read is refused the same way before the
+command runs: ``usbmotion run: cannot read nofile.ngc: no such file or directory``.
 
 :class:`UsbMotionTyper` is the ``typer.Typer`` of the command and its groups: every
 command registered on it gets these rules, so a new sub-command reads like the others
@@ -12,12 +20,23 @@ from __future__ import annotations
 
 import inspect
 import re
-from collections.abc import Callable
-from typing import Any
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, NoReturn
 
 import typer
+from typer._click.exceptions import (
+    MissingParameter,
+    NoArgsIsHelpError,
+    NoSuchOption,
+    UsageError,
+)
 from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 from typer.models import CommandFunctionType
+
+from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail
+from usbmotion.cli.machines import command_running, unreadable
 
 _NAMED_TYPES = {"path": "PATH", "int": "N", "float": "NUMBER", "str": "TEXT"}
 """The placeholder of an option's value by its type, when the option names none."""
@@ -67,8 +86,127 @@ def reflow(text: str) -> str:
     return "\n\n".join(paragraphs)
 
 
+def _command_path(context: Any) -> str:
+    """``usbmotion gcode moves``: the command's names under the root, whatever the program
+    was called (``python -m usbmotion``, a test runner)."""
+    names: list[str] = []
+    while context is not None and context.parent is not None:
+        names.insert(0, context.info_name or "")
+        context = context.parent
+    return " ".join(["usbmotion", *names])
+
+
+_QUOTED_NAME = re.compile(r"'(-{1,2}[A-Za-z][\w-]*|[A-Z][A-Z0-9_]*(?:\.\.\.)?)'")
+"""An option or an argument's name in quotes (``'--pty'``, ``'PROGRAM'``)."""
+
+
+def _plain(message: str) -> str:
+    """A message of the command-line library as a clause: names without quotes, no
+    capital to start, no full stop at the end, on one line."""
+    text = " ".join(_QUOTED_NAME.sub(r"\1", message).split()).rstrip(".")
+    return text[:1].lower() + text[1:] if text[1:2].islower() or text[1:2] == " " else text
+
+
+def _names(param: Any) -> str:
+    """An option by its long name (``--feed``), an argument by its metavar (``PROGRAM``)."""
+    if isinstance(param, TyperOption):
+        return max(param.opts, key=len)
+    return str(param.metavar or param.human_readable_name).upper()
+
+
+def usage_error_line(error: UsageError, *, args: Sequence[str] = (),
+                     root: Any = None) -> str:
+    """The one line a usage error is said in, ``usbmotion run: what (usbmotion run
+    --help)``. ``args`` and the ``root`` group name the command when the error does not
+    (an option's missing value is found before its command's context exists)."""
+    where = (_command_path(error.ctx) if error.ctx is not None
+             else _path_in_args(root, list(args)))
+    if isinstance(error, MissingParameter) and error.param is not None:
+        kind = "option" if isinstance(error.param, TyperOption) else "argument"
+        what = f"missing {kind} {_names(error.param)}"
+    elif isinstance(error, NoSuchOption):
+        what = f"no such option {error.option_name}"
+        if error.possibilities:
+            what += f"; did you mean {' or '.join(sorted(error.possibilities))}?"
+    elif isinstance(error, typer.BadParameter):
+        what = _bad_value(error, list(args))
+    else:
+        what = _plain(error.format_message())
+        context = error.ctx
+        group = context.command if context is not None else None
+        if (what.startswith("no such command") and context is not None
+                and isinstance(group, TyperGroup)):
+            unknown, _, close = what.replace("'", "").partition(". Did you mean ")
+            commands = [name for name in group.list_commands(context)
+                        if not getattr(group.get_command(context, name), "hidden", False)]
+            hint = f"; did you mean {close}" if close else ";"
+            what = f"{unknown}{hint} the commands are {', '.join(commands)}"
+    return f"{where}: {what} ({where} --help)"
+
+
+_NUMBER_WORDS = {"int": "a whole number", "float": "a number"}
+
+
+def _bad_value(error: typer.BadParameter, args: list[str]) -> str:
+    """``--pty 'abc' is not a whole number``, or the parameter and the message."""
+    param = error.param
+    hint = error.param_hint
+    if hint is None and param is not None:
+        hint = _names(param)
+    named = " / ".join(hint) if isinstance(hint, Sequence) and not isinstance(
+        hint, str) else hint
+    if isinstance(param, TyperOption) and not param.type_descriptor.is_path:
+        wanted = _NUMBER_WORDS.get(param.bare_type())
+        given = _given(param.opts, args)
+        if wanted is not None and given is not None:
+            return f"{_names(param)} {given!r} is not {wanted}"
+    return f"{_plain(named)}: {_plain(error.message)}" if named else _plain(error.message)
+
+
+def _given(opts: Sequence[str], args: list[str]) -> str | None:
+    """The value an option was given in ``args`` (its last), if it was."""
+    found = None
+    for index, arg in enumerate(args):
+        name, equals, value = arg.partition("=")
+        if name in opts:
+            if equals:
+                found = value
+            elif index + 1 < len(args):
+                found = args[index + 1]
+    return found
+
+
+def _path_in_args(root: Any, args: list[str]) -> str:
+    """``usbmotion sim``: the commands ``args`` name under ``root``."""
+    names: list[str] = []
+    group = root
+    for arg in args:
+        commands = getattr(group, "commands", None)
+        if not isinstance(commands, dict) or arg not in commands:
+            continue
+        names.append(arg)
+        group = commands[arg]
+    return " ".join(["usbmotion", *names])
+
+
+def _unreadable_argument(context: Any, command: Any) -> tuple[str, str] | None:
+    """The first file argument given that cannot be read: (path, why)."""
+    for param in command.get_params(context):
+        if not isinstance(param, TyperArgument) or not param.type_descriptor.is_path:
+            continue
+        value = context.params.get(param.name or "")
+        for each in value if isinstance(value, list | tuple) else [value]:
+            if isinstance(each, Path):
+                problem = unreadable(each)
+                if problem is not None:
+                    return str(each), problem
+    return None
+
+
 class UsbMotionCommand(TyperCommand):
-    """A command whose help follows the module's rules."""
+    """A command whose help and errors follow the module's rules; while it runs it is the
+    running command (:func:`usbmotion.cli.machines.command_running`: what it holds is
+    released when it ends)."""
 
     def __init__(self, *args: Any, **settings: Any) -> None:
         super().__init__(*args, **settings)
@@ -81,12 +219,49 @@ class UsbMotionCommand(TyperCommand):
     def collect_usage_pieces(self, ctx: Any) -> list[str]:
         return _usage(super().collect_usage_pieces(ctx))
 
+    def invoke(self, ctx: Any) -> Any:
+        name = _command_path(ctx).removeprefix("usbmotion ")
+        unread = _unreadable_argument(ctx, self)
+        if unread is not None:
+            fail(name, f"cannot read {unread[0]}: {unread[1]}", EXIT_BAD_INPUT)
+        with command_running(name):
+            return super().invoke(ctx)
+
 
 class UsbMotionGroup(TyperGroup):
-    """A group whose own help follows the module's rules."""
+    """A group whose own help follows the module's rules, and which, run as the program
+    (standalone), says every usage error in one line (:func:`usage_error_line`)."""
 
     def get_params(self, ctx: Any) -> list[Any]:
         return _clean(super().get_params(ctx))
+
+    def main(self, args: Sequence[str] | None = None, prog_name: str | None = None,
+             complete_var: str | None = None, standalone_mode: bool = True,
+             windows_expand_args: bool = True, **settings: Any) -> Any:
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode,
+                                windows_expand_args, **settings)
+        try:
+            result = super().main(args, prog_name, complete_var, False, windows_expand_args,
+                                  **settings)
+        except NoArgsIsHelpError as error:
+            typer.echo(error.format_message())
+            _exit(EXIT_BAD_INPUT)
+        except UsageError as error:
+            given = sys.argv[1:] if args is None else args
+            typer.echo(usage_error_line(error, args=given, root=self), err=True)
+            _exit(error.exit_code)
+        except typer.TyperException as error:
+            typer.echo(f"usbmotion: {error.format_message()}", err=True)
+            _exit(EXIT_FAULT)
+        except typer.Abort:
+            typer.echo("usbmotion: aborted", err=True)
+            _exit(EXIT_FAULT)
+        _exit(result if isinstance(result, int) else 0)
+
+
+def _exit(code: int) -> NoReturn:
+    sys.exit(code)
 
 
 class UsbMotionTyper(typer.Typer):

@@ -10,10 +10,12 @@ import typer
 from usbmotion import __version__
 from usbmotion.cli.console import console
 from usbmotion.cli.devices import devices
+from usbmotion.cli.exits import EXIT_FAULT, os_problem
 from usbmotion.cli.gcode import gcode_app
 from usbmotion.cli.grbl import grbl
 from usbmotion.cli.help import UsbMotionTyper
 from usbmotion.cli.jog import jog
+from usbmotion.cli.name import name
 from usbmotion.cli.params import get, set_parameter
 from usbmotion.cli.run import run
 from usbmotion.cli.sim import sim
@@ -63,14 +65,20 @@ app.command(context_settings={"ignore_unknown_options": True})(jog)
 app.command()(get)
 app.command(name="set", context_settings={"ignore_unknown_options": True})(set_parameter)
 app.command()(devices)
+app.command()(name)
 app.add_typer(gcode_app, name="gcode")
 
 
 def main() -> None:
     """Run the command line: an error of the package or the system that a command let
-    through is one line, exit status 1, not a traceback."""
+    through is one line, exit status 1, not a traceback (usage errors are one line and
+    status 2: :class:`usbmotion.cli.help.UsbMotionGroup`)."""
     try:
         app()
-    except (UsbMotionError, OSError) as error:
+    except UsbMotionError as error:
         sys.stderr.write(f"usbmotion: {error}\n")
-        sys.exit(1)
+        sys.exit(EXIT_FAULT)
+    except OSError as error:
+        where = f"{error.filename}: " if error.filename else ""
+        sys.stderr.write(f"usbmotion: {where}{os_problem(error)}\n")
+        sys.exit(EXIT_FAULT)

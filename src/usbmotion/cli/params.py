@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, NoReturn
 
 import typer
 
-from usbmotion.cli.connect import SIMULATED_NOTE, fail, load_machine, opened_machine
-from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, MachineOption
-from usbmotion.errors import ArgumentError, OutOfRangeError, UsbMotionError
+from usbmotion.cli.connect import SIMULATED_NOTE, opened_machine
+from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail, os_problem
+from usbmotion.cli.machines import load_machine
+from usbmotion.cli.run import MachineOption
+from usbmotion.errors import ArgumentError, ConfigError, OutOfRangeError, UsbMotionError
 
 if TYPE_CHECKING:
     from usbmotion.host.config import MachineConfig
@@ -106,7 +108,9 @@ def set_parameter(
     Prints the value the device then answers with, and whether it is kept in flash or RAM.
 
     A value outside the parameter's range is refused before anything is sent, naming
-    the parameter, the value and what is allowed.
+    the parameter, the value and what is allowed; so is a value the machine file would
+    refuse (a watchdog_ms shorter than a full motion queue lasts, say), with the file's
+    reason.
 
     Exit status: 0 set; 1 a port could not be opened or a device refused or did not
     answer; 2 an unknown axis or parameter, a value that is refused, or a bad machine
@@ -117,15 +121,29 @@ def set_parameter(
     config = load_machine(machine, "set")
     (letter,) = _axes(config, axis, "set")
     each = _parameter(name, "set")
+
+    def refused(message: str) -> NoReturn:
+        if "allowed" not in message:
+            message += f"; allowed {each.allowed}"
+        fail("set", f"axis {letter} {name} {value!r} refused: {message}", EXIT_BAD_INPUT)
+
+    try:
+        each.check(value)
+    except (ArgumentError, OutOfRangeError) as error:
+        refused(str(error))
     with opened_machine(config, "set") as opened:
         target = opened.axis(letter)
         try:
+            problem = _machine_file_problem(config, target, each, value)
+        except UsbMotionError as error:
+            fail("set", str(error), EXIT_FAULT)
+        if problem is not None:
+            fail("set", f"axis {letter} {name} {value!r} refused as the machine file would"
+                 f" refuse it: {problem}", EXIT_BAD_INPUT)
+        try:
             each.write(target.client, value)
         except (ArgumentError, OutOfRangeError) as error:
-            message = str(error)
-            if "allowed" not in message:
-                message += f"; allowed {each.allowed}"
-            fail("set", f"axis {letter} {name} {value!r} refused: {message}", EXIT_BAD_INPUT)
+            refused(str(error))
         except UsbMotionError as error:
             fail("set", str(error), EXIT_FAULT)
         try:
@@ -136,6 +154,34 @@ def set_parameter(
             "RAM: lost at power-off, and set again from the machine file when usbmotion run,"
             " home, jog or console takes the machine over")
     typer.echo(f"{row} ({kept})")
+
+
+def _machine_file_problem(config: MachineConfig, axis: Axis, each: Parameter,
+                          value: str) -> str | None:
+    """Why the machine file would refuse ``value`` for ``each`` on ``axis`` (its own
+    checks: a watchdog shorter than a full queue lasts, ...), or None.
+
+    Raises:
+        UsbMotionError: reading the device's control mode (for a gain) failed.
+    """
+    from usbmotion.host.config_file import changed_config  # noqa: PLC0415
+    from usbmotion.host.parameters import machine_file_change  # noqa: PLC0415
+    from usbmotion.protocol import ControlMode  # noqa: PLC0415
+    from usbmotion.sim.urls import URL_CHECKS  # noqa: PLC0415
+
+    mode = (axis.client.control_mode() if each.name in ("kp", "ki", "kd")
+            else ControlMode.POSITION)
+    changes = machine_file_change(each, axis.config, value, mode=mode)
+    if not changes:
+        return None
+    try:
+        changed_config(config, config.path.read_text(encoding="utf-8"), changes,
+                       url_checks=URL_CHECKS)
+    except ConfigError as error:
+        return str(error)
+    except OSError as error:
+        return f"cannot read the machine file {config.path}: {os_problem(error)}"
+    return None
 
 
 set_parameter.__doc__ = f"{set_parameter.__doc__}\n    {SIMULATED_NOTE}\n"

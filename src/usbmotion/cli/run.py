@@ -4,20 +4,25 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
 import signal
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import replace
-from importlib import resources
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+from usbmotion.cli.exits import (
+    EXIT_BAD_INPUT,
+    EXIT_COMPLETED,
+    EXIT_FAULT,
+    EXIT_INTERRUPTED,
+    EXIT_TERMINATED,
+)
+from usbmotion.cli.machines import default_machine, load_machine
 from usbmotion.errors import (
     ConfigError,
     GCodeError,
@@ -29,21 +34,10 @@ from usbmotion.errors import (
 )
 
 if TYPE_CHECKING:
-    from usbmotion.host.config import MachineConfig
     from usbmotion.motion.dialects import Dialect
     from usbmotion.motion.gcode import Pause
     from usbmotion.session import MachineSession, Prepared, RunReport, Trace
     from usbmotion.session.live import LiveSnapshot
-
-EXIT_COMPLETED = 0
-EXIT_FAULT = 1
-"""A device fault, a lost link, or a homing that failed: the report says which."""
-EXIT_BAD_INPUT = 2
-"""The program or the machine file is invalid, or leaves the travel: nothing moved."""
-EXIT_INTERRUPTED = 130
-"""Ctrl-C (SIGINT): every axis was brought to rest along its deceleration first."""
-EXIT_TERMINATED = 143
-"""SIGTERM: likewise."""
 
 MachineOption = Annotated[
     Path | None,
@@ -53,35 +47,9 @@ MachineOption = Annotated[
 """The ``--machine`` option of the commands that drive a machine (``default_machine()``
 when it is not given)."""
 
-
-def default_machine() -> Path:
-    """The built-in simulated 3-axis machine (the same file as ``examples/machine.toml``)."""
-    return Path(str(resources.files("usbmotion") / "data" / "machine.toml"))
-
-
-def state_dir() -> Path:
-    """Where the built-in machine keeps its parameter file: ``$USBMOTION_STATE_DIR``, else
-    ``$XDG_STATE_HOME/usbmotion``, else ``~/.local/state/usbmotion`` (the package's own
-    folder is not for writing)."""
-    if os.environ.get("USBMOTION_STATE_DIR"):
-        return Path(os.environ["USBMOTION_STATE_DIR"])
-    base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
-    return Path(base) / "usbmotion"
-
-
-def load_machine(machine: Path | None) -> MachineConfig:
-    """The machine file's configuration (the built-in machine when ``None``, its parameter
-    file in :func:`state_dir`).
-
-    Raises:
-        ConfigError: the file is invalid.
-    """
-    from usbmotion.sim.machine import load_machine_file  # noqa: PLC0415
-
-    config = load_machine_file(machine or default_machine())
-    if machine is None and config.parameter_file is None:
-        config = replace(config, parameter_file=state_dir() / "machine.var")
-    return config
+__all__ = ["EXIT_BAD_INPUT", "EXIT_COMPLETED", "EXIT_FAULT", "EXIT_INTERRUPTED",
+           "EXIT_TERMINATED", "MachineOption", "default_machine", "exit_code", "load_machine",
+           "parse_origin", "run", "stop_on_signals"]
 
 
 _ORIGIN_WORD = re.compile(r"\s*([XYZUVWxyzuvw])\s*([-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+))\s*")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import os
 import re
 import signal
 import sys
@@ -15,6 +14,8 @@ from typing import Annotated
 
 import typer
 
+from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail, os_problem
+from usbmotion.cli.machines import hold, state_dir
 from usbmotion.protocol import device_name_problem, encode_device_name
 from usbmotion.sim.pty_dir import announced
 from usbmotion.sim.server import DeviceServer
@@ -22,9 +23,9 @@ from usbmotion.sim.world import SimWorld
 
 
 def default_flash_dir() -> Path:
-    """Where simulated devices keep their flash: ``$XDG_STATE_HOME/usbmotion/flash``."""
-    state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
-    return Path(state) / "usbmotion" / "flash"
+    """Where simulated devices keep their flash: ``flash`` in the state folder
+    (:func:`usbmotion.cli.machines.state_dir`)."""
+    return state_dir() / "flash"
 
 
 def _slug(name: str) -> str:
@@ -67,7 +68,8 @@ def sim(
     flash_dir: Annotated[
         Path | None, typer.Option(
             "--flash-dir", metavar="DIR", help="Folder of the devices' flash files (default:"
-            " $XDG_STATE_HOME/usbmotion/flash).", show_default=False)
+            " flash in the state folder, ~/.local/state/usbmotion/flash; one server uses a"
+            " folder at a time).", show_default=False)
     ] = None,
     firmware: Annotated[
         Path | None,
@@ -75,6 +77,15 @@ def sim(
             "--firmware", metavar="IMAGE",
             help="Serve emulated RP2040s running this firmware image (.uf2, its .elf beside "
             "it) instead of the Python devices.", show_default=False,
+        ),
+    ] = None,
+    bootrom: Annotated[
+        Path | None,
+        typer.Option(
+            "--bootrom", metavar="PATH",
+            help="With --firmware: the RP2040 boot ROM the emulator runs (B1, 16384 bytes;"
+            " default: $USBMOTION_BOOTROM, else ../shared/rp2040/bootrom/b1.bin beside the"
+            " project).", show_default=False,
         ),
     ] = None,
     record: Annotated[
@@ -99,7 +110,11 @@ def sim(
     With --firmware, each device is the device firmware running on an emulated RP2040
     (make firmware builds build/firmware/usbmotion.uf2; the emulator needs Node.js 20 and
     npm ci in firmware/emulator), its flash kept in --flash-dir (default:
-    $XDG_STATE_HOME/usbmotion/flash/rp2040).
+    ~/.local/state/usbmotion/flash/rp2040).
+
+    The flash folder is this server's while it serves: a second server on the same
+    folder (two usbmotion sim at once) is refused in one line naming the first one's
+    process, as a port another program holds; give it another --flash-dir.
     """
     names = list(name or [])
     for each in names:
@@ -115,21 +130,44 @@ def sim(
     devices = pty if pty > 0 else (count or max(1, len(names)))
     if not 1 <= devices <= 64:
         raise typer.BadParameter(f"--count {devices!r} must be 1..64")
+    if record is not None and firmware is None:
+        raise typer.BadParameter("--record needs --firmware")
+    if bootrom is not None and firmware is None:
+        raise typer.BadParameter("--bootrom needs --firmware")
+    folder = flash_dir or (default_flash_dir() / "rp2040" if firmware is not None
+                           else default_flash_dir())
     with _signals_end_start_up():
+        hold(folder / ".lock", what=f"the flash folder {folder}",
+             advice="give this server another --flash-dir")
         if firmware is not None:
             _serve_firmware(firmware, devices, names, pty=pty > 0, tcp_port=tcp or 0,
-                            flash_dir=flash_dir or default_flash_dir() / "rp2040",
-                            record=record)
+                            flash_dir=folder, record=record, bootrom=bootrom)
         else:
-            if record is not None:
-                raise typer.BadParameter("--record needs --firmware", param_hint="--record")
-            _serve(build_world(names, devices, flash_dir or default_flash_dir()),
-                   pty=pty > 0, tcp_port=tcp or 0)
+            _serve(build_world(names, devices, folder), pty=pty > 0, tcp_port=tcp or 0)
     sys.stdout.write("stopped\n")
     sys.stdout.flush()
 
 
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _say(notice: str) -> None:
+    """A server's notice, one line on standard error."""
+    sys.stderr.write(f"usbmotion sim: {notice}\n")
+    sys.stderr.flush()
+
+
+def _first_line(text: str) -> str:
+    """An emulator's failure in one line: what failed, and the error it printed (a Node.js
+    process that dies prints its stack too)."""
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    if not lines:
+        return text
+    error = next((line.removeprefix("Error: ") for line in lines
+                  if line.startswith("Error: ")), None)
+    if error is None:
+        return lines[0]
+    return f"{lines[0].split(': ', 1)[0]}: {error}"
 
 
 @contextlib.contextmanager
@@ -173,10 +211,9 @@ def _serve(world: SimWorld, *, pty: bool, tcp_port: int) -> None:
     """Serve ``world``'s devices until a signal; print each one's address once it answers
     (and announce its terminal to ``usbmotion devices``)."""
     try:
-        server = DeviceServer(world, pty=pty, tcp_port=tcp_port)
+        server = DeviceServer(world, pty=pty, tcp_port=tcp_port, on_notice=_say)
     except OSError as error:
-        sys.stderr.write(f"usbmotion sim: {error.strerror or error}\n")
-        raise typer.Exit(1) from None
+        fail("sim", os_problem(error), EXIT_FAULT)
     with server:
         server.warm_up()
         paths = [endpoint.path for endpoint in server.endpoints] if pty else []
@@ -202,19 +239,23 @@ def _serve_firmware(
     tcp_port: int,
     flash_dir: Path,
     record: Path | None,
+    bootrom: Path | None,
 ) -> None:
     """``sim --firmware``: ``devices`` emulated RP2040s, served until a signal."""
     from usbmotion.errors import DeviceError  # noqa: PLC0415 - keeps start-up light
     from usbmotion.sim.firmware import FirmwareServer  # noqa: PLC0415
 
-    server = FirmwareServer(image, devices, pty=pty, tcp_port=tcp_port, flash_dir=flash_dir,
-                            names=names, record_dir=record)
+    try:
+        server = FirmwareServer(image, devices, pty=pty, tcp_port=tcp_port,
+                                flash_dir=flash_dir, names=names, record_dir=record,
+                                bootrom=bootrom, on_notice=_say)
+    except FileNotFoundError as error:
+        fail("sim", str(error), EXIT_BAD_INPUT)
     try:
         server.start()
     except (FileNotFoundError, DeviceError) as error:
         server.close()
-        sys.stderr.write(f"usbmotion sim: {error}\n")
-        raise typer.Exit(2) from None
+        fail("sim", _first_line(str(error)), EXIT_BAD_INPUT)
     paths = [endpoint.url for endpoint in server.endpoints] if pty else []
     try:
         with _signals_stop_serving() as stop, announced(paths):

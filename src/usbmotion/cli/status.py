@@ -9,19 +9,10 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from usbmotion.cli.connect import (
-    SIMULATED_NOTE,
-    act_on_session,
-    fail,
-    load_machine,
-    opened_machine,
-)
-from usbmotion.cli.run import (
-    EXIT_BAD_INPUT,
-    EXIT_FAULT,
-    MachineOption,
-    exit_code,
-)
+from usbmotion.cli.connect import SIMULATED_NOTE, act_on_session, opened_machine
+from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail
+from usbmotion.cli.machines import load_machine
+from usbmotion.cli.run import MachineOption, exit_code
 from usbmotion.errors import SequenceFaultError, StopRequestedError, UsbMotionError
 
 if TYPE_CHECKING:

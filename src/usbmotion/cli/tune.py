@@ -10,8 +10,10 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, MachineOption, default_machine
-from usbmotion.errors import ArgumentError, ConfigError, UsbMotionError
+from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail
+from usbmotion.cli.machines import load_machine
+from usbmotion.cli.run import MachineOption
+from usbmotion.errors import ArgumentError, UsbMotionError
 
 if TYPE_CHECKING:
     from usbmotion.host.config import AxisConfig, MachineConfig
@@ -54,19 +56,19 @@ def tune(
 ) -> None:
     """Step one axis and print rise time, overshoot, settling time and steady-state error.
 
-    The step starts from where the axis stands (keep it inside its travel). --kp/--ki/--kd
-    try gains without editing the configuration. --reach measures instead what the motor
-    can do (keep --distance-mm free ahead of the axis) and prints the reach line that lets
-    the machine file refuse limits the motor cannot reach.
+    The step starts from where the axis stands; a step that would leave the axis's
+    travel_mm from there is refused before anything moves (on an axis that is not homed
+    and has no simulated motor, where it stands is unknown: only a step longer than the
+    whole travel is refused). --kp/--ki/--kd try gains without editing the
+    configuration. --reach measures instead what the motor can do (keep --distance-mm
+    free ahead of the axis) and prints the reach line that lets the machine file refuse
+    limits the motor cannot reach.
     """
-    from usbmotion.sim.machine import load_machine_file  # noqa: PLC0415
-
-    try:
-        config = load_machine_file(machine or default_machine())
-        axis_config = config.axis(axis.upper())
-    except (ConfigError, KeyError) as error:
-        typer.echo(f"usbmotion tune: {error}", err=True)
-        raise typer.Exit(EXIT_BAD_INPUT) from None
+    config = load_machine(machine, "tune")
+    if axis.upper() not in config.axis_names:
+        fail("tune", f"no axis {axis!r}; {config.path} has {', '.join(config.axis_names)}",
+             EXIT_BAD_INPUT)
+    axis_config = config.axis(axis.upper())
     if reach:
         given = [name for name, value in (("--step-mm", step_mm), ("--duration-s", duration_s),
                                           ("--kp", kp), ("--ki", ki), ("--kd", kd),
@@ -91,7 +93,7 @@ def _step(config: MachineConfig, axis_config: AxisConfig, *, step_mm: float,
           plot: Path | None) -> None:
     from usbmotion.host.config import PidGains  # noqa: PLC0415
     from usbmotion.sim.machine import connect_machine  # noqa: PLC0415
-    from usbmotion.tuning import step_response  # noqa: PLC0415
+    from usbmotion.tuning import stands_at_mm, step_response  # noqa: PLC0415
 
     gains = axis_config.gains
     tried = PidGains(kp if kp is not None else gains.kp, ki if ki is not None else gains.ki,
@@ -102,12 +104,17 @@ def _step(config: MachineConfig, axis_config: AxisConfig, *, step_mm: float,
     try:
         with connect_machine(config) as connected:
             connected.configure()
+            if stands_at_mm(connected, axis_config.name) is None:
+                typer.echo(f"usbmotion tune: axis {axis_config.name} is not homed, so where it"
+                           " stands in its travel is unknown: keep the step clear of its"
+                           " ends", err=True)
             response = step_response(connected, axis_config.name, step_mm=step_mm,
                                      duration_s=duration_s)
             connected.stop()
+    except ArgumentError as error:
+        fail("tune", str(error), EXIT_BAD_INPUT)
     except UsbMotionError as error:
-        typer.echo(f"usbmotion tune: {error}", err=True)
-        raise typer.Exit(EXIT_FAULT) from None
+        fail("tune", str(error), EXIT_FAULT)
     m = response.metrics
     scale = axis_config.counts_per_mm
 

@@ -7,7 +7,9 @@ from typing import Annotated
 
 import typer
 
-from usbmotion.cli.run import EXIT_BAD_INPUT, EXIT_FAULT, MachineOption, load_machine
+from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail
+from usbmotion.cli.machines import load_machine
+from usbmotion.cli.run import MachineOption
 from usbmotion.errors import ConfigError, UsbMotionError
 from usbmotion.motion.offsets import format_point
 
@@ -34,17 +36,16 @@ def zero(
     from usbmotion.session.planning import program_axes  # noqa: PLC0415
     from usbmotion.sim.machine import connect_session  # noqa: PLC0415
 
+    config = load_machine(machine, "zero")
     try:
-        config = load_machine(machine)
         machine_letters = program_axes(config)
     except ConfigError as error:
-        typer.echo(f"usbmotion zero: {error}", err=True)
-        raise typer.Exit(EXIT_BAD_INPUT) from None
+        fail("zero", str(error), EXIT_BAD_INPUT)
     names = [name.upper() for name in axes or machine_letters]
     for name in names:
         if name not in machine_letters:
-            raise typer.BadParameter(f"{name!r} is not an axis of the machine; allowed:"
-                                     f" {', '.join(machine_letters)}", param_hint="AXES")
+            fail("zero", f"no axis {name!r}; {config.path} has {', '.join(machine_letters)}",
+                 EXIT_BAD_INPUT)
     try:
         with (connect_session(config) if config.is_simulated
               else MachineSession.connect(config)) as session:

@@ -2,18 +2,30 @@
 
 A USB Motion Device keeps its name in flash (call 18), so a machine's configuration names
 its axes' devices rather than their ports, which change from boot to boot. Discovery
-searches the computer's serial ports (``serial.tools.list_ports``) and any explicit URLs
-(``socket://host:port`` of ``usbmotion sim --tcp``, ``sim://`` devices), takes each link
-over as a new host does (diagnostics off, then
+searches any explicit URLs (``socket://host:port`` of ``usbmotion sim --tcp``, ``sim://``
+devices), the pseudo-terminals running ``usbmotion sim --pty`` servers announce
+(:func:`announced_ptys`) and the computer's serial ports (``serial.tools.list_ports``),
+takes each link over as a new host does (diagnostics off, then
 :meth:`~usbmotion.host.device.DeviceClient.resynchronise`, so lines a dead host left in
 flight are skipped), sends ``18 -1`` and reads the ``DEVICE_NAME`` answer, each within a
 short timeout.
+
+Serial port listings do not include pseudo-terminals, and probing every ``/dev/pts/N``
+would write into other programs' terminals; so each server keeps, while it serves, a
+symbolic link per device in the folder :func:`pty_dir` (``$USBMOTION_PTY_DIR``, else
+``$XDG_RUNTIME_DIR/usbmotion/ptys``, else ``/tmp/usbmotion-UID/ptys``), named
+``PID-INDEX`` and pointing at the terminal (``usbmotion.sim.pty_dir.announced`` makes
+them). Links of a server that died without removing them are ignored and removed.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
+import tempfile
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 from serial.tools import list_ports
 
@@ -26,7 +38,7 @@ from usbmotion.errors import (
 )
 from usbmotion.host.device import DeviceClient
 from usbmotion.host.transport import LineTransport, open_problem
-from usbmotion.protocol import parse_reply
+from usbmotion.protocol import DEFAULT_DEVICE_NAME, parse_reply
 
 PROBE_TIMEOUT_S = 0.5
 """How long a port has to answer each query of the probe, seconds."""
@@ -61,6 +73,57 @@ class PortAnswer:
 def serial_ports() -> list[str]:
     """The computer's serial ports (device paths), sorted."""
     return sorted(port.device for port in list_ports.comports())
+
+
+def pty_dir() -> Path:
+    """The folder of the announced pseudo-terminals."""
+    explicit = os.environ.get("USBMOTION_PTY_DIR")
+    if explicit:
+        return Path(explicit)
+    runtime = os.environ.get("XDG_RUNTIME_DIR")
+    if runtime:
+        return Path(runtime) / "usbmotion" / "ptys"
+    return Path(tempfile.gettempdir()) / f"usbmotion-{os.getuid()}" / "ptys"
+
+
+def announced_ptys() -> list[str]:
+    """The terminals live servers announced, in the order they were announced; stale
+    links (their server gone, or their terminal) are removed."""
+    folder = pty_dir()
+    try:
+        links = sorted(folder.iterdir(), key=_order)
+    except OSError:
+        return []
+    found: list[str] = []
+    for link in links:
+        try:
+            target = os.readlink(link)
+        except OSError:
+            continue
+        if _alive(link.name) and Path(target).exists():
+            found.append(target)
+        else:
+            with contextlib.suppress(OSError):
+                link.unlink()
+    return found
+
+
+def _order(link: Path) -> tuple[int, int, str]:
+    pid, _, index = link.name.partition("-")
+    return (int(pid), int(index), "") if pid.isdigit() and index.isdigit() else (0, 0, link.name)
+
+
+def _alive(name: str) -> bool:
+    pid = name.partition("-")[0]
+    if not pid.isdigit():
+        return False
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def probe(url: str, *, timeout_s: float = PROBE_TIMEOUT_S) -> PortAnswer:
@@ -125,12 +188,14 @@ def discover(
     search_ports: bool = True,
     timeout_s: float = PROBE_TIMEOUT_S,
 ) -> dict[str, str]:
-    """Find each device name among the serial ports and ``urls``; returns name -> URL.
+    """Find each device name among ``urls``, the announced pseudo-terminals and the serial
+    ports; returns name -> URL.
 
     Parameters:
         names: the device names to find (as written to flash with call 18).
         urls: ports or URLs to search first (``socket://...``, ``sim://...``, paths).
-        search_ports: also search the computer's serial ports.
+        search_ports: also search the terminals ``usbmotion sim --pty`` servers announce
+            (:func:`announced_ptys`) and the computer's serial ports.
         timeout_s: how long each port has to answer.
 
     Raises:
@@ -140,7 +205,7 @@ def discover(
     wanted = list(dict.fromkeys(names))
     if not wanted:
         return {}
-    candidates = list(urls) + (serial_ports() if search_ports else [])
+    candidates = list(urls) + (announced_ptys() + serial_ports() if search_ports else [])
     answers = scan(candidates, timeout_s=timeout_s)
     return match_names(wanted, answers)
 
@@ -149,10 +214,16 @@ def match_names(names: Sequence[str], answers: Sequence[PortAnswer]) -> dict[str
     """Pair each wanted name with the one port that answered it.
 
     Raises:
-        DeviceNotFoundError: as :func:`discover`.
+        DeviceNotFoundError: as :func:`discover`; when devices that were never named
+            answered (the default name), the message says how to name one.
     """
     searched = tuple(answer.url for answer in answers)
     report = "; ".join(answer.describe() for answer in answers) or "no ports to search"
+    fresh = [answer.url for answer in answers if answer.name == DEFAULT_DEVICE_NAME]
+    if fresh:
+        report += (f"; {len(fresh)} of them answer the default name of a device never named:"
+                   " give each the name its axis has in the machine file, once (usbmotion"
+                   " name AXIS PORT --machine FILE)")
     found: dict[str, list[str]] = {}
     for answer in answers:
         if answer.name is not None:

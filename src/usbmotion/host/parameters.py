@@ -6,18 +6,33 @@ through the client's validated methods, in the units the table gives.
 (``position``, ``velocity``, ``curve``). A parameter lives in flash (it persists across
 a power cycle: the device name, the default mode) or in RAM (lost at power-off, and set
 again from the machine file whenever a host takes the machine over).
+
+The RAM parameters the machine file also sets (the gains, the watchdog, the
+following-error limit, the servo interval and the motion scalar) map onto its keys
+(:func:`machine_file_change`), so a value can be checked by the file's own rules before it
+is sent: a watchdog shorter than a full motion queue lasts is refused as the file would
+refuse it.
 """
 
 from __future__ import annotations
 
+import difflib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
 
 from usbmotion.errors import ArgumentError
+from usbmotion.host.config import AxisConfig
+from usbmotion.host.config_file import Key, Value
 from usbmotion.host.device import DeviceClient, to_sci
-from usbmotion.protocol import BY_NUMBER, DEVICE_NAME_MAX, CallNumber, ControlMode
+from usbmotion.protocol import (
+    BY_NUMBER,
+    DEVICE_NAME_MAX,
+    CallNumber,
+    ControlMode,
+    device_name_problem,
+)
 
 
 class Storage(Enum):
@@ -53,6 +68,8 @@ class Parameter:
     allowed: str
     read: Callable[[DeviceClient], str]
     write: Callable[[DeviceClient, str], None]
+    check: Callable[[str], float | int | str | ControlMode]
+    """The value ``write`` would send, from text, without sending it (raises as ``write``)."""
 
 
 def _range(call: CallNumber) -> tuple[int, int]:
@@ -90,15 +107,18 @@ def _integer_parameter(name: str, call: CallNumber, unit: str, meaning: str,
     if scale != 1:
         allowed += f" in steps of {scale}"
 
-    def set_from(client: DeviceClient, text: str) -> None:
+    def check(text: str) -> int:
         value = _integer(name, text, allowed)
         if value % scale or not low <= value // scale <= high:
             raise ArgumentError(f"{name} {value!r} is out of range; allowed {allowed}",
                                 reason=name)
-        write(client, value // scale)
+        return value
+
+    def set_from(client: DeviceClient, text: str) -> None:
+        write(client, check(text) // scale)
 
     return Parameter(name, call, unit, Storage.RAM, meaning, allowed,
-                     lambda client: str(read(client)), set_from)
+                     lambda client: str(read(client)), set_from, check)
 
 
 _GAIN_COEFFICIENT = BY_NUMBER[CallNumber.SET_PROPORTIONAL_GAIN].params[0]
@@ -112,17 +132,25 @@ def _gain_parameter(index: int, name: str, call: CallNumber, unit: str,
     def read(client: DeviceClient) -> str:
         return f"{client.gains()[index]:.3g}"
 
-    def write(client: DeviceClient, text: str) -> None:
+    def check(text: str) -> float:
         value = _number(name, text, _GAIN_ALLOWED)
+        if value < 0:
+            raise ArgumentError(f"{name} {text!r} is negative; allowed {_GAIN_ALLOWED}",
+                                reason=name)
         coefficient, exponent = to_sci(value, digits=3, parameter=name)
         if not math.isclose(coefficient * 10.0**exponent, value, rel_tol=1e-9):
             raise ArgumentError(f"{name} {text!r} has more than 3 significant digits; allowed"
                                 f" {_GAIN_ALLOWED}", reason=name)
+        return value
+
+    def write(client: DeviceClient, text: str) -> None:
+        value = check(text)
         gains = list(client.gains())
         gains[index] = value
         client.set_gains(kp=gains[0], ki=gains[1], kd=gains[2])
 
-    return Parameter(name, call, unit, Storage.RAM, meaning, _GAIN_ALLOWED, read, write)
+    return Parameter(name, call, unit, Storage.RAM, meaning, _GAIN_ALLOWED, read, write,
+                     check)
 
 
 _MODE_WORDS = ", ".join(mode.word for mode in ControlMode)
@@ -138,6 +166,13 @@ def _mode(name: str, text: str) -> ControlMode:
 
 def _set_name(client: DeviceClient, text: str) -> None:
     client.set_name(text)
+
+
+def _check_name(text: str) -> str:
+    problem = device_name_problem(text, allow_empty=True)
+    if problem is not None:
+        raise ArgumentError(f"name {text!r}: {problem}", reason="name")
+    return text
 
 
 PARAMETERS: tuple[Parameter, ...] = (
@@ -168,15 +203,17 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter("control_mode", CallNumber.SET_CONTROL_MODE, "", Storage.RAM,
               "what the motion queue's values are; setting it clears the queue",
               _MODE_WORDS, lambda client: client.control_mode().word,
-              lambda client, text: client.set_control_mode(_mode("control_mode", text))),
+              lambda client, text: client.set_control_mode(_mode("control_mode", text)),
+              lambda text: _mode("control_mode", text)),
     Parameter("default_mode", CallNumber.SET_DEFAULT_CONTROL_MODE, "", Storage.FLASH,
               "control mode at power-up", _MODE_WORDS,
               lambda client: client.default_mode().word,
-              lambda client, text: client.set_default_mode(_mode("default_mode", text))),
+              lambda client, text: client.set_default_mode(_mode("default_mode", text)),
+              lambda text: _mode("default_mode", text)),
     Parameter("name", CallNumber.SET_DEVICE_NAME, "", Storage.FLASH,
               "the device's name, which machine files find it by",
               f"up to {DEVICE_NAME_MAX} printable ASCII characters ('' restores the"
-              " default name)", DeviceClient.device_name, _set_name),
+              " default name)", DeviceClient.device_name, _set_name, _check_name),
 )
 """Every named parameter, in the order ``usbmotion get`` lists them."""
 
@@ -192,6 +229,40 @@ def parameter(name: str) -> Parameter:
     try:
         return BY_PARAMETER_NAME[name]
     except KeyError:
+        close = difflib.get_close_matches(name.lower(), list(BY_PARAMETER_NAME), n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ";"
         raise ArgumentError(
-            f"no parameter {name!r}; the parameters are {', '.join(BY_PARAMETER_NAME)}",
+            f"no parameter {name!r}{hint} the parameters are {', '.join(BY_PARAMETER_NAME)}",
             reason="name") from None
+
+
+_GAIN_INDEX = {"kp": 0, "ki": 1, "kd": 2}
+
+
+def machine_file_change(each: Parameter, axis: AxisConfig, text: str, *,
+                        mode: ControlMode) -> dict[Key, Value]:
+    """The machine-file keys that hold ``each`` set to ``text`` on ``axis`` (empty for a
+    parameter the file does not set: the diagnostics interval, the modes, the name), in
+    the file's units: ``watchdog_ms``, ``servo_interval_dms`` (from microseconds),
+    ``axes.X.following_error_limit_mm`` (from counts), ``axes.X.gains.kp`` (or
+    ``velocity_gains`` while the device is in velocity ``mode``, whose gains they are).
+
+    Raises:
+        ArgumentError: ``text`` is no value of the parameter (as :attr:`Parameter.write`).
+    """
+    value = each.check(text)
+    if not isinstance(value, int | float):
+        return {}
+    letter = axis.name
+    if each.name in _GAIN_INDEX:
+        table = "velocity_gains" if mode is ControlMode.VELOCITY else "gains"
+        return {("axes", letter, table, each.name): float(value)}
+    if each.name == "watchdog_ms":
+        return {("watchdog_ms",): int(value)}
+    if each.name == "servo_interval_us":
+        return {("servo_interval_dms",): int(value) // 100}
+    if each.name == "motion_scalar":
+        return {("motion_scalar",): int(value)}
+    if each.name == "following_error_limit_counts":
+        return {("axes", letter, "following_error_limit_mm"): value / axis.counts_per_mm}
+    return {}

@@ -26,8 +26,7 @@ import subprocess
 import tempfile
 import threading
 import time
-import tty
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
@@ -35,6 +34,7 @@ from typing import IO, TYPE_CHECKING, Any
 from usbmotion.errors import ArgumentError, DeviceError, DeviceTimeoutError
 from usbmotion.protocol import CallNumber, device_name_problem, encode_call, encode_device_name
 from usbmotion.protocol.table import INT32_MAX, INT32_MIN
+from usbmotion.serving import EventKind, Outbox, PtyEndpoint, Serving
 
 if TYPE_CHECKING:
     from usbmotion.device.motor import MotorParams
@@ -42,6 +42,9 @@ if TYPE_CHECKING:
 _PROJECT_ROOT = Path(__file__).resolve().parents[3]
 _QUEUE_QUERY = encode_call(CallNumber.MOTION_QUEUE, -1)
 _EMULATOR_ENV = "USBMOTION_EMULATOR_DIR"
+_BOOTROM_ENV = "USBMOTION_BOOTROM"
+BOOTROM_BYTES = 16384
+"""The size of the RP2040's boot ROM (B1)."""
 _READ_CHUNK = 65536
 _EXIT_WAIT_S = 5.0
 
@@ -55,6 +58,41 @@ def emulator_dir() -> Path:
 def default_uf2() -> Path:
     """Where ``make firmware`` writes the firmware: ``build/firmware/usbmotion.uf2``."""
     return _PROJECT_ROOT / "build" / "firmware" / "usbmotion.uf2"
+
+
+def default_bootrom() -> Path:
+    """Where the emulator looks for the RP2040 boot ROM when given none: ``$USBMOTION_BOOTROM``,
+    else ``shared/rp2040/bootrom/b1.bin`` beside the project (as ``lib/bootrom.js`` does)."""
+    override = os.environ.get(_BOOTROM_ENV)
+    if override:
+        return Path(override)
+    return emulator_dir().resolve().parents[2] / "shared" / "rp2040" / "bootrom" / "b1.bin"
+
+
+def check_bootrom(bootrom: Path | str | None) -> Path:
+    """The boot ROM the emulator is to run: ``bootrom``, else :func:`default_bootrom`.
+
+    Raises:
+        FileNotFoundError: there is none, or not 16384 bytes (the message says where it was
+            looked for, why, and how to get one).
+    """
+    given = bootrom is not None
+    path = Path(bootrom) if bootrom is not None else default_bootrom()
+    where = ("given" if given else f"from ${_BOOTROM_ENV}" if os.environ.get(_BOOTROM_ENV)
+             else "beside the project, where the emulator looks by default")
+    try:
+        size = path.stat().st_size if path.is_file() else -1
+    except OSError:
+        size = -1
+    if size == BOOTROM_BYTES:
+        return path
+    why = ("no such file" if not path.exists() else "not a file" if size < 0
+           else f"{size} bytes, not {BOOTROM_BYTES}")
+    raise FileNotFoundError(
+        f"no RP2040 boot ROM at {path} ({where}: {why}); the emulator runs the chip's boot"
+        f" ROM B1 ({BOOTROM_BYTES} bytes): give --bootrom PATH (or set {_BOOTROM_ENV}); it"
+        " is built from github.com/raspberrypi/pico-bootrom (version B1), and wokwi/rp2040js"
+        " embeds a copy in demo/bootrom.ts")
 
 
 def _check_image(uf2: Path, elf: Path | None) -> tuple[Path, Path]:
@@ -726,11 +764,15 @@ class FirmwareEndpoint:
     recording: Path | None = None
     """The file of the bytes it received with their ticks, when recording."""
     _process: subprocess.Popen[bytes] | None = None
-    _master: int = -1
-    _slave: int = -1
+    _pty: PtyEndpoint | None = None
     _link: socket.socket | None = None
-    _to_device: bytearray = field(default_factory=bytearray)
-    dropped_bytes: int = 0
+    _to_device: Outbox = field(default_factory=Outbox)
+
+    @property
+    def dropped_bytes(self) -> int:
+        """Device output its terminal's client did not take (none connected, or one that
+        did not read)."""
+        return self._pty.dropped_bytes if self._pty is not None else 0
 
     @property
     def url(self) -> str:
@@ -741,10 +783,10 @@ class FirmwareEndpoint:
 class FirmwareServer:
     """Serve ``count`` emulated devices in real time, each on a TCP port (``serve.js``).
 
-    With ``pty=True`` each device also gets a pseudo-terminal: a thread relays between it and
-    the device's TCP port, and the slave side stays open here, so clients may come and go
-    (output nobody reads is dropped when the terminal's buffer is full). Use as a context
-    manager, or call :meth:`start` and :meth:`close`.
+    With ``pty=True`` each device also gets a pseudo-terminal (:mod:`usbmotion.serving`:
+    one client at a time, clients may come and go; output while none is connected, or
+    beyond what one leaves unread, is dropped): a thread relays between it and the
+    device's TCP port. Use as a context manager, or call :meth:`start` and :meth:`close`.
 
     Parameters:
         uf2: the firmware image (the ELF beside it, or ``elf``).
@@ -760,11 +802,15 @@ class FirmwareServer:
         record_dir: write every byte each device receives, with the servo tick it arrived
             at, to ``<flash file's stem>.rec`` there (lines ``TICK HEX``; see
             :func:`read_recording`), for a deterministic replay of the session.
+        bootrom: the RP2040 boot ROM image (default: :func:`default_bootrom`).
+        on_notice: where a notice goes (a second program on a device's terminal); dropped
+            by default. Called from the relay's thread.
         node: the Node.js executable.
         start_timeout_s: longest wait for a device to listen.
 
     Raises:
-        FileNotFoundError: the image, its ELF or the emulator's packages are missing.
+        FileNotFoundError: the image, its ELF, the boot ROM or the emulator's packages are
+            missing.
         DeviceError: an emulator failed to start.
     """
 
@@ -780,6 +826,8 @@ class FirmwareServer:
         flash_dir: Path | str | None = None,
         names: Sequence[str] = (),
         record_dir: Path | str | None = None,
+        bootrom: Path | str | None = None,
+        on_notice: Callable[[str], None] | None = None,
         node: str = "node",
         start_timeout_s: float = 30.0,
     ) -> None:
@@ -794,6 +842,8 @@ class FirmwareServer:
         self.names = tuple(names)
         self.record_dir = Path(record_dir) if record_dir is not None else None
         self.uf2, self.elf = _check_image(Path(uf2), Path(elf) if elf is not None else None)
+        self.bootrom = check_bootrom(bootrom)
+        self._notice = on_notice or (lambda text: None)
         self.count = count
         self.tcp_port = tcp_port
         self.host = host
@@ -807,7 +857,7 @@ class FirmwareServer:
         self.flash_dir = Path(flash_dir)
         self.endpoints: list[FirmwareEndpoint] = []
         self._stderr = tempfile.TemporaryFile()  # noqa: SIM115 - closed by close()
-        self._selector: selectors.DefaultSelector | None = None
+        self._serving: Serving | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._closed = False
@@ -851,6 +901,8 @@ class FirmwareServer:
                 str(port),
                 "--host",
                 self.host,
+                "--bootrom",
+                str(self.bootrom),
                 "--exit-with-stdin",
                 "1",
                 *(["--record", str(self.record_dir / f"{stem}.rec")]
@@ -946,70 +998,54 @@ class FirmwareServer:
     # pseudo-terminals
 
     def _start_relay(self) -> None:
-        selector = selectors.DefaultSelector()
-        self._selector = selector
+        serving = Serving()
+        self._serving = serving
         for endpoint in self.endpoints:
-            master, slave = os.openpty()
-            tty.setraw(slave)
-            os.set_blocking(master, False)
-            endpoint._master, endpoint._slave = master, slave
-            endpoint.path = os.ttyname(slave)
+            endpoint._pty = PtyEndpoint(label=str(endpoint.index))
+            serving.add(endpoint._pty)
+            endpoint.path = endpoint._pty.path
             link = socket.create_connection((self.host, endpoint.port), timeout=5.0)
             link.setblocking(False)
             link.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             endpoint._link = link
-            selector.register(master, selectors.EVENT_READ, (endpoint, "pty"))
-            selector.register(link, selectors.EVENT_READ, (endpoint, "tcp"))
+            serving.add_reader(link)
         self._thread = threading.Thread(target=self._relay, name="firmware-pty-relay", daemon=True)
         self._thread.start()
 
     def _relay(self) -> None:
-        selector = self._selector
-        assert selector is not None
+        serving = self._serving
+        assert serving is not None
+        by_link = {id(endpoint._link): endpoint for endpoint in self.endpoints}
+        by_pty = {id(endpoint._pty): endpoint for endpoint in self.endpoints}
         while not self._stop.is_set():
-            for key, _ in selector.select(0.05):
-                endpoint, side = key.data
-                if side == "pty":
-                    self._pty_readable(endpoint)
-                else:
-                    self._tcp_readable(endpoint)
+            for event in serving.wait(0.05):
+                if event.kind is EventKind.DATA:
+                    by_pty[id(event.endpoint)]._to_device.add(event.data)
+                elif event.kind is EventKind.READABLE:
+                    self._from_device(by_link[id(event.source)])
+                elif event.kind is EventKind.SECOND_CLIENT:
+                    self._notice(f"emulated device {by_pty[id(event.endpoint)].index}: a second"
+                                 f" program opened {event.detail} while a host has it, without"
+                                 " locking it: its bytes and the host's mix")
             for endpoint in self.endpoints:
-                self._flush_to_device(endpoint)
+                if endpoint._link is not None:
+                    with contextlib.suppress(OSError):  # the emulator exited: recv says so
+                        endpoint._to_device.write_to(endpoint._link.send)
+            serving.flush()
 
-    def _pty_readable(self, endpoint: FirmwareEndpoint) -> None:
-        try:
-            data = os.read(endpoint._master, _READ_CHUNK)
-        except (BlockingIOError, InterruptedError):
-            return
-        except OSError:  # EIO: no client holds the slave side
-            return
-        endpoint._to_device += data
-
-    def _flush_to_device(self, endpoint: FirmwareEndpoint) -> None:
-        if endpoint._to_device and endpoint._link is not None:
-            try:
-                sent = endpoint._link.send(endpoint._to_device)
-            except (BlockingIOError, InterruptedError):
-                return
-            del endpoint._to_device[:sent]
-
-    def _tcp_readable(self, endpoint: FirmwareEndpoint) -> None:
-        assert endpoint._link is not None
+    def _from_device(self, endpoint: FirmwareEndpoint) -> None:
+        assert endpoint._link is not None and endpoint._pty is not None
         try:
             data = endpoint._link.recv(_READ_CHUNK)
         except (BlockingIOError, InterruptedError):
             return
         if not data:  # the emulator exited
-            if self._selector is not None:
-                self._selector.unregister(endpoint._link)
+            if self._serving is not None:
+                self._serving.remove_reader(endpoint._link)
             endpoint._link.close()
             endpoint._link = None
             return
-        try:
-            written = os.write(endpoint._master, data)
-        except BlockingIOError:
-            written = 0
-        endpoint.dropped_bytes += len(data) - written
+        endpoint._pty.send(data)
 
     def close(self) -> None:
         """Stop the relay and the emulators, close the terminals. Safe to call twice."""
@@ -1019,15 +1055,11 @@ class FirmwareServer:
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
-        if self._selector is not None:
-            self._selector.close()
+        if self._serving is not None:
+            self._serving.close()
         for endpoint in self.endpoints:
             if endpoint._link is not None:
                 endpoint._link.close()
-            for fd in (endpoint._master, endpoint._slave):
-                if fd >= 0:
-                    with contextlib.suppress(OSError):
-                        os.close(fd)
             if endpoint._process is not None:
                 _stop_process(endpoint._process)
                 endpoint._process = None

@@ -1,29 +1,36 @@
-"""Serve simulated devices in real time on pseudo-terminals or TCP ports.
+"""Serve simulated devices in real time on pseudo-terminals or TCP ports
+(:mod:`usbmotion.serving`).
 
 One thread runs a loop: wait up to a millisecond for bytes from any client, hand them to
 the device, advance the world towards the wall clock (at most 20 ms of device time a round,
 so a loop that fell behind still sends output and sees :meth:`DeviceServer.stop` between
-rounds), and send the devices' output back. A
-pseudo-terminal's slave side stays open in the server, so clients may come and go; a TCP
-port accepts one client at a time and accepts the next when it leaves.
+rounds), and send the devices' output back. Each device is served to one client at a
+time, as a port is held by one host: on a pseudo-terminal a second host that locks the
+port (as usbmotion's does) is refused by the first one's lock, and a program that opens it
+regardless is reported; a second TCP client is refused (closed at once) while one is
+connected, and the port takes the next once it leaves. A client that connects starts with
+the device's input empty (a line the last one left half-written is dropped); output while
+no client is connected is dropped.
 """
 
 from __future__ import annotations
 
-import contextlib
-import os
-import selectors
-import socket
 import threading
 import time
-import tty
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 
 from usbmotion.protocol import CallNumber, encode_call
+from usbmotion.serving import (
+    EventKind,
+    PtyEndpoint,
+    SecondClient,
+    Serving,
+    TcpEndpoint,
+)
 from usbmotion.sim.world import SimLink, SimWorld
 
 _POLL_S = 0.001
-_READ_CHUNK = 65536
 _MAX_STEP_US = 20_000
 """The most device time one round of the serving loop advances the world by."""
 _NAME_QUERY = encode_call(CallNumber.SET_DEVICE_NAME, -1)
@@ -36,19 +43,27 @@ class Endpoint:
 
     key: str
     link: SimLink
-    path: str = ""
-    port: int = 0
-    _master: int = -1
-    _slave: int = -1
-    _listener: socket.socket | None = None
-    _client: socket.socket | None = None
-    dropped_bytes: int = 0
-    _pending: bytearray = field(default_factory=bytearray)
+    served: PtyEndpoint | TcpEndpoint
 
     @property
     def name(self) -> str:
         """The device's current name."""
         return self.link.device.name
+
+    @property
+    def path(self) -> str:
+        """The pseudo-terminal's path (empty on TCP)."""
+        return self.served.path if isinstance(self.served, PtyEndpoint) else ""
+
+    @property
+    def port(self) -> int:
+        """The TCP port (0 on a pseudo-terminal)."""
+        return self.served.port if isinstance(self.served, TcpEndpoint) else 0
+
+    @property
+    def dropped_bytes(self) -> int:
+        """Device output no client took (none connected, or one that did not read)."""
+        return self.served.dropped_bytes
 
 
 class DeviceServer:
@@ -61,55 +76,38 @@ class DeviceServer:
         pty: serve on pseudo-terminals (else TCP).
         tcp_port: first TCP port; device ``i`` gets ``tcp_port + i`` (0 picks free ports).
         host: TCP address to bind (loopback by default).
+        on_notice: where a notice goes (a second client refused, a second program on a
+            terminal); dropped by default. Called from the serving thread.
     """
 
     def __init__(
-        self, world: SimWorld, *, pty: bool = True, tcp_port: int = 0, host: str = "127.0.0.1"
+        self, world: SimWorld, *, pty: bool = True, tcp_port: int = 0, host: str = "127.0.0.1",
+        on_notice: Callable[[str], None] | None = None,
     ) -> None:
         if not pty and not 0 <= tcp_port <= 65535:
             raise ValueError(f"tcp_port {tcp_port!r} is not a TCP port number 0..65535")
         self.world = world
-        self._selector = selectors.DefaultSelector()
         self.endpoints: list[Endpoint] = []
+        self._notice = on_notice or (lambda text: None)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
         self._closed = False
+        self._serving = Serving()
+        self._by_served: dict[int, Endpoint] = {}
         try:
             for index, key in enumerate(world.keys):
-                link = world.connect(key)
-                endpoint = Endpoint(key, link)
-                if pty:
-                    self._open_pty(endpoint)
-                else:
-                    self._open_tcp(endpoint, host, tcp_port + index if tcp_port else 0)
+                served: PtyEndpoint | TcpEndpoint = (
+                    PtyEndpoint(label=key) if pty else
+                    TcpEndpoint(host, tcp_port + index if tcp_port else 0, label=key,
+                                second_client=SecondClient.REFUSE))
+                self._serving.add(served)
+                endpoint = Endpoint(key, world.connect(key), served)
                 self.endpoints.append(endpoint)
+                self._by_served[id(served)] = endpoint
         except BaseException:
             self.close()
             raise
-
-    def _open_pty(self, endpoint: Endpoint) -> None:
-        master, slave = os.openpty()
-        tty.setraw(slave)
-        os.set_blocking(master, False)
-        endpoint._master, endpoint._slave = master, slave
-        endpoint.path = os.ttyname(slave)
-        self._selector.register(master, selectors.EVENT_READ, endpoint)
-
-    def _open_tcp(self, endpoint: Endpoint, host: str, port: int) -> None:
-        listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            listener.bind((host, port))
-        except OSError as error:
-            listener.close()
-            raise OSError(error.errno, f"cannot listen on {host}:{port}:"
-                          f" {error.strerror or error}") from error
-        listener.listen(1)
-        listener.setblocking(False)
-        endpoint._listener = listener
-        endpoint.port = listener.getsockname()[1]
-        self._selector.register(listener, selectors.EVENT_READ, endpoint)
 
     def warm_up(self, *, timeout_s: float = 1.0) -> None:
         """Ask every device for its name and run it a tick past the answer, in the world's
@@ -171,77 +169,26 @@ class DeviceServer:
         """Serve until :meth:`stop` (blocking)."""
         origin = time.monotonic() - self.world.time_us / 1e6
         while not self._stop.is_set():
-            for key, _ in self._selector.select(timeout=_POLL_S):
-                self._readable(key.data, key.fileobj)
+            for event in self._serving.wait(_POLL_S):
+                endpoint = self._by_served[id(event.endpoint)]
+                if event.kind is EventKind.DATA:
+                    endpoint.link.write(event.data)
+                elif event.kind is EventKind.CONNECTED:
+                    endpoint.link.discard_input()
+                elif event.kind is EventKind.REFUSED:
+                    self._notice(f"device {endpoint.name!r} (port {endpoint.port}): refused a"
+                                 f" second client from {event.detail}: one host at a time")
+                elif event.kind is EventKind.SECOND_CLIENT:
+                    self._notice(f"device {endpoint.name!r}: a second program opened"
+                                 f" {event.detail} while a host has it, without locking it:"
+                                 " its bytes and the host's mix")
             wall_us = int((time.monotonic() - origin) * 1e6)
             self.world.advance_to(min(wall_us, self.world.time_us + _MAX_STEP_US))
             for endpoint in self.endpoints:
-                self._flush(endpoint)
-
-    def _readable(self, endpoint: Endpoint, source: object) -> None:
-        if source is endpoint._listener:
-            self._accept(endpoint)
-            return
-        data = b""
-        if source == endpoint._master:
-            with contextlib.suppress(BlockingIOError, OSError):
-                data = os.read(endpoint._master, _READ_CHUNK)
-        elif source is endpoint._client and endpoint._client is not None:
-            try:
-                data = endpoint._client.recv(_READ_CHUNK)
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError:
-                data = b""
-            if not data:
-                self._drop_client(endpoint)
-                return
-        if data:
-            endpoint.link.write(data)
-
-    def _accept(self, endpoint: Endpoint) -> None:
-        assert endpoint._listener is not None
-        try:
-            client, _ = endpoint._listener.accept()
-        except (BlockingIOError, InterruptedError):
-            return
-        self._drop_client(endpoint)
-        client.setblocking(False)
-        client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        endpoint._client = client
-        endpoint.link.discard_input()
-        endpoint._pending.clear()
-        self._selector.register(client, selectors.EVENT_READ, endpoint)
-
-    def _drop_client(self, endpoint: Endpoint) -> None:
-        client = endpoint._client
-        if client is not None:
-            with contextlib.suppress(KeyError, ValueError):
-                self._selector.unregister(client)
-            client.close()
-            endpoint._client = None
-
-    def _flush(self, endpoint: Endpoint) -> None:
-        endpoint._pending += endpoint.link.receive(1 << 30)
-        if not endpoint._pending:
-            return
-        try:
-            if endpoint._master >= 0:
-                sent = os.write(endpoint._master, endpoint._pending)
-            elif endpoint._client is not None:
-                sent = endpoint._client.send(endpoint._pending)
-            else:
-                endpoint.dropped_bytes += len(endpoint._pending)
-                sent = len(endpoint._pending)
-        except (BlockingIOError, InterruptedError):
-            sent = 0
-        except OSError:
-            self._drop_client(endpoint)
-            sent = len(endpoint._pending)
-        del endpoint._pending[:sent]
-        if len(endpoint._pending) > 1 << 20:
-            endpoint.dropped_bytes += len(endpoint._pending)
-            endpoint._pending.clear()
+                output = endpoint.link.receive(1 << 30)
+                if output:
+                    endpoint.served.send(output)
+            self._serving.flush()
 
     def close(self) -> None:
         """Stop serving and release every pseudo-terminal and socket (safe twice)."""
@@ -251,16 +198,9 @@ class DeviceServer:
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join()  # within a round: its descriptors are closed below
+        self._serving.close()
         for endpoint in self.endpoints:
-            self._drop_client(endpoint)
-            for fd in (endpoint._master, endpoint._slave):
-                if fd >= 0:
-                    with contextlib.suppress(OSError):
-                        os.close(fd)
-            if endpoint._listener is not None:
-                endpoint._listener.close()
             endpoint.link.close()
-        self._selector.close()
 
     def __enter__(self) -> DeviceServer:
         return self
