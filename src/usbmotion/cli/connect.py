@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import typer
 
 from usbmotion.cli.exits import EXIT_FAULT, fail
-from usbmotion.cli.run import stop_on_signals
+from usbmotion.cli.signals import stop_on_signals
 from usbmotion.errors import UsbMotionError
 
 if TYPE_CHECKING:

@@ -8,8 +8,8 @@ import sys
 import typer
 
 from usbmotion.cli.exits import EXIT_FAULT
-from usbmotion.cli.machines import load_machine
-from usbmotion.cli.run import MachineOption, stop_on_signals
+from usbmotion.cli.machines import MachineOption, load_machine
+from usbmotion.cli.signals import stop_on_signals
 from usbmotion.errors import UsbMotionError
 
 

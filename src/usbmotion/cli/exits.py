@@ -30,3 +30,16 @@ def os_problem(error: OSError) -> str:
     quoted file name it carries: ``no such file``, ``permission denied``."""
     reason = error.strerror or str(error)
     return reason[:1].lower() + reason[1:] if reason[1:2].islower() else reason
+
+
+def exit_code(reason: str) -> int:
+    """The documented exit status of a run that ended for ``reason``."""
+    from usbmotion.session.state import StopReason  # noqa: PLC0415 - keeps --help fast
+
+    if reason == StopReason.COMPLETED.value:
+        return EXIT_COMPLETED
+    if reason.startswith(StopReason.USER.value):
+        return EXIT_INTERRUPTED
+    if reason.startswith(StopReason.TERMINATED.value):
+        return EXIT_TERMINATED
+    return EXIT_FAULT

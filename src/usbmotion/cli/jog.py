@@ -9,10 +9,10 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from usbmotion.cli.connect import SIMULATED_NOTE, act_on_session
-from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_COMPLETED, EXIT_FAULT, fail
-from usbmotion.cli.machines import load_machine
-from usbmotion.cli.run import MachineOption, exit_code
-from usbmotion.cli.status import home_reporting, progress_line
+from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_COMPLETED, EXIT_FAULT, exit_code, fail
+from usbmotion.cli.machines import MachineOption, load_machine
+from usbmotion.cli.progress import progress_line
+from usbmotion.cli.status import home_reporting
 from usbmotion.errors import (
     ConfigError,
     PlanningError,

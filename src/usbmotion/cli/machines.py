@@ -20,13 +20,23 @@ from contextvars import ContextVar
 from dataclasses import replace
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated
+
+import typer
 
 from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail, os_problem
 from usbmotion.errors import ConfigError
 
 if TYPE_CHECKING:
     from usbmotion.host.config import MachineConfig
+
+MachineOption = Annotated[
+    Path | None,
+    typer.Option("--machine", "-m", help="Machine configuration (default: the built-in"
+                 " simulated XYZ machine)."),
+]
+"""The ``--machine`` option of the commands that drive a machine (``default_machine()``
+when it is not given)."""
 
 BUILT_IN_LOCK = "machine.lock"
 """The file in :func:`state_dir` a command on the built-in machine holds locked."""

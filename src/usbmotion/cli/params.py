@@ -8,8 +8,7 @@ import typer
 
 from usbmotion.cli.connect import SIMULATED_NOTE, opened_machine
 from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail, os_problem
-from usbmotion.cli.machines import load_machine
-from usbmotion.cli.run import MachineOption
+from usbmotion.cli.machines import MachineOption, load_machine
 from usbmotion.errors import ArgumentError, ConfigError, OutOfRangeError, UsbMotionError
 
 if TYPE_CHECKING:

@@ -5,12 +5,10 @@ from __future__ import annotations
 import json
 import math
 import re
-import signal
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from types import FrameType
 from typing import TYPE_CHECKING, Annotated
 
 import typer
@@ -21,8 +19,10 @@ from usbmotion.cli.exits import (
     EXIT_FAULT,
     EXIT_INTERRUPTED,
     EXIT_TERMINATED,
+    exit_code,
 )
-from usbmotion.cli.machines import default_machine, load_machine
+from usbmotion.cli.machines import MachineOption, default_machine, load_machine
+from usbmotion.cli.signals import stop_on_signals
 from usbmotion.errors import (
     ConfigError,
     GCodeError,
@@ -38,14 +38,6 @@ if TYPE_CHECKING:
     from usbmotion.motion.gcode import Pause
     from usbmotion.session import MachineSession, Prepared, RunReport, Trace
     from usbmotion.session.live import LiveSnapshot
-
-MachineOption = Annotated[
-    Path | None,
-    typer.Option("--machine", "-m", help="Machine configuration (default: the built-in"
-                 " simulated XYZ machine)."),
-]
-"""The ``--machine`` option of the commands that drive a machine (``default_machine()``
-when it is not given)."""
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_COMPLETED", "EXIT_FAULT", "EXIT_INTERRUPTED",
            "EXIT_TERMINATED", "MachineOption", "default_machine", "exit_code", "load_machine",
@@ -81,37 +73,6 @@ def parse_origin(values: list[str]) -> dict[str, float]:
     if any(not math.isfinite(v) for v in origin.values()):
         raise typer.BadParameter("origin values must be finite", param_hint="--origin")
     return origin
-
-
-@contextmanager
-def stop_on_signals(session: MachineSession) -> Iterator[None]:
-    """While inside: SIGINT and SIGTERM ask ``session`` to stop (a second one: at once)."""
-    from usbmotion.session import StopReason  # noqa: PLC0415
-
-    reasons = {signal.SIGINT: StopReason.USER.value, signal.SIGTERM: StopReason.TERMINATED.value}
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        session.request_stop(reasons.get(signal.Signals(signum), StopReason.USER.value))
-
-    previous = {sig: signal.signal(sig, on_signal) for sig in reasons}
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-
-
-def exit_code(reason: str) -> int:
-    """The documented exit status of a run that ended for ``reason``."""
-    from usbmotion.session import StopReason  # noqa: PLC0415
-
-    if reason == StopReason.COMPLETED.value:
-        return EXIT_COMPLETED
-    if reason.startswith(StopReason.USER.value):
-        return EXIT_INTERRUPTED
-    if reason.startswith(StopReason.TERMINATED.value):
-        return EXIT_TERMINATED
-    return EXIT_FAULT
 
 
 def run(
@@ -394,7 +355,7 @@ def _with_progress(session: MachineSession, prepared: Prepared,
 def _home_with_progress(session: MachineSession, *, quiet: bool) -> float:
     """Home the machine, a progress line showing the state and the positions unless
     ``quiet``; returns the seconds."""
-    from usbmotion.cli.status import progress_line  # noqa: PLC0415
+    from usbmotion.cli.progress import progress_line  # noqa: PLC0415
 
     with progress_line(not quiet) as show:
         return session.home(on_progress=show)

@@ -2,23 +2,19 @@
 
 from __future__ import annotations
 
-import sys
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from usbmotion.cli.connect import SIMULATED_NOTE, act_on_session, opened_machine
-from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail
-from usbmotion.cli.machines import load_machine
-from usbmotion.cli.run import MachineOption, exit_code
+from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, exit_code, fail
+from usbmotion.cli.machines import MachineOption, load_machine
+from usbmotion.cli.progress import progress_line
 from usbmotion.errors import SequenceFaultError, StopRequestedError, UsbMotionError
 
 if TYPE_CHECKING:
     from usbmotion.host.machine import Machine
     from usbmotion.session import MachineSession
-    from usbmotion.session.live import LiveSnapshot
 
 
 def status(machine: MachineOption = None) -> None:
@@ -85,24 +81,6 @@ def describe_status(machine: Machine) -> list[str]:
              .rstrip() for row in (header, *rows)]
     return [f"{machine.config.name}: {worst.value}, {'homed' if homed_all else 'not homed'}",
             *table]
-
-
-@contextmanager
-def progress_line(enabled: bool) -> Iterator[Callable[[LiveSnapshot], None]]:
-    """A transient progress line on a terminal's standard error (state, program line,
-    positions), updated by the callback it yields; nothing when ``enabled`` is False or
-    standard error is no terminal."""
-    from rich.progress import Progress as Bar  # noqa: PLC0415
-    from rich.progress import SpinnerColumn, TextColumn  # noqa: PLC0415
-
-    with Bar(SpinnerColumn(), TextColumn("{task.description}"), transient=True,
-             disable=not (enabled and sys.stderr.isatty())) as bar:
-        task = bar.add_task("", total=None)
-
-        def show(update: LiveSnapshot) -> None:
-            bar.update(task, description=update.describe())
-
-        yield show
 
 
 def home(

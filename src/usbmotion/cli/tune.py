@@ -11,8 +11,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail
-from usbmotion.cli.machines import load_machine
-from usbmotion.cli.run import MachineOption
+from usbmotion.cli.machines import MachineOption, load_machine
 from usbmotion.errors import ArgumentError, UsbMotionError
 
 if TYPE_CHECKING:

@@ -8,8 +8,7 @@ from typing import Annotated
 import typer
 
 from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail
-from usbmotion.cli.machines import load_machine
-from usbmotion.cli.run import MachineOption
+from usbmotion.cli.machines import MachineOption, load_machine
 from usbmotion.errors import ConfigError, UsbMotionError
 from usbmotion.motion.offsets import format_point
 
