@@ -14,7 +14,14 @@ from pathlib import Path
 import pytest
 
 from usbmotion.cli.run import default_machine
-from usbmotion.grbl.interface import Admission, GrblMachine, MotionState, Rejected, Taken
+from usbmotion.grbl.interface import (
+    Admission,
+    GrblMachine,
+    JogMove,
+    MotionState,
+    Rejected,
+    Taken,
+)
 from usbmotion.grbl.session_machine import SessionMachine
 from usbmotion.host.config import load_config
 from usbmotion.session.operator import Operator
@@ -144,3 +151,39 @@ def test_alarm_until_homed_or_unlocked(machine: SessionMachine) -> None:
     assert machine.state() is MotionState.ALARM
     machine.unlock()
     assert machine.state() is MotionState.IDLE
+
+
+def test_offsets_set_by_lines_show_in_hash_and_a_soft_reset_clears_g92_as_grbl(
+        machine: SessionMachine) -> None:
+    """A G54 set by G10 L20 through the front shows in ``$#`` at once (the lines' own
+    offsets, not only the parameter file's), and so does a G92; grbl's soft reset puts
+    the lines' modal state back to power-on and clears G92, the G54 kept."""
+    _homed(machine)
+    here = machine.status().machine_position_mm
+    for line in ("G10L20P1X0Y0", "G92Z1"):
+        assert machine.submit(line, None) is Admission.ACCEPTED
+    offsets = machine.work_offsets()
+    assert offsets.coordinate_systems[0][:2] == pytest.approx(here[:2], abs=0.01)
+    assert offsets.g92[2] == pytest.approx(here[2] - 1.0 - offsets.coordinate_systems[0][2],
+                                           abs=0.01)
+    machine.soft_reset()
+    assert machine.operator.wait_idle(30)
+    offsets = machine.work_offsets()
+    assert offsets.g92 == (0.0, 0.0, 0.0), "G92 is volatile in grbl"
+    assert offsets.coordinate_systems[0][:2] == pytest.approx(here[:2], abs=0.01), "G54 kept"
+    assert machine.modal_state().distance == "G90"
+
+
+def test_a_refused_jog_answers_an_error_at_once(machine: SessionMachine) -> None:
+    """A jog the session would refuse in its worker (an unhomed machine has no soft limits)
+    is refused by the front itself, so the sender gets error:N and not ok."""
+    refused = machine.jog(JogMove({"X": 5.0}, 600.0, incremental=True,
+                                  machine_coordinates=True))
+    assert isinstance(refused, Rejected) and refused.code == 15
+    _homed(machine)
+    beyond = machine.jog(JogMove({"X": 500.0}, 600.0, incremental=True,
+                                 machine_coordinates=True))
+    assert isinstance(beyond, Rejected) and beyond.code == 15
+    taken = machine.jog(JogMove({"X": 5.0}, 600.0, incremental=True, machine_coordinates=True))
+    assert taken is Admission.ACCEPTED
+    assert machine.operator.wait_idle(30)

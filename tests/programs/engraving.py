@@ -8,7 +8,7 @@ import random
 
 
 def engraving(moves: int, *, seed: int = 1, x0_mm: float = 60.0, y0_mm: float = 60.0,
-              z_cut_mm: float = 10.0, z_safe_mm: float = 12.5, feed_mm_min: float = 600.0,
+              z_cut_mm: float = -5.0, z_safe_mm: float = -2.5, feed_mm_min: float = 600.0,
               stroke: int = 300) -> list[str]:
     """The program's lines (``M2`` last): ``moves`` feed moves in strokes of ``stroke``,
     inside X and Y 20..180 mm, cutting at ``z_cut_mm``."""

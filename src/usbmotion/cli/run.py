@@ -48,7 +48,7 @@ _ORIGIN_WORD = re.compile(r"\s*([XYZUVWxyzuvw])\s*([-+]?(?:[0-9]+\.?[0-9]*|\.[0-
 
 
 def parse_origin(values: list[str]) -> dict[str, float]:
-    """``["X100 Y100", "Z60"]`` -> ``{"X": 100.0, "Y": 100.0, "Z": 60.0}`` (mm).
+    """``["X100 Y100", "Z-40"]`` -> ``{"X": 100.0, "Y": 100.0, "Z": -40.0}`` (mm).
 
     Raises:
         typer.BadParameter: a word that is not an axis letter (X Y Z U V W) and a number,
@@ -69,7 +69,7 @@ def parse_origin(values: list[str]) -> dict[str, float]:
         if position != len(value) or not value.strip():
             raise typer.BadParameter(
                 f"{value!r} is not an origin; allowed: axis words in machine mm, such as"
-                " 'X100 Y100 Z60'", param_hint="--origin")
+                " 'X100 Y100 Z-40'", param_hint="--origin")
     if any(not math.isfinite(v) for v in origin.values()):
         raise typer.BadParameter("origin values must be finite", param_hint="--origin")
     return origin
@@ -97,7 +97,7 @@ def run(
         " the machine file's dialect, linuxcnc when it names none).")] = None,
     origin: Annotated[list[str] | None, typer.Option(
         "--origin", help="Set the work origin (G54) first, in machine mm: --origin 'X100 Y100"
-        " Z60' (or X100Y100Z60, or repeated); kept in the machine's parameter file.")] = None,
+        " Z-40' (or X100Y100Z-40, or repeated); kept in the machine's parameter file.")] = None,
     pause_on_m6: Annotated[bool, typer.Option(
         "--pause-on-m6", help="Someone is at the machine: pause at each tool change (M6 of"
         " another tool) and at M0, saying which tool and pocket, until Enter is pressed"
@@ -292,6 +292,8 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
     except UsbMotionError as error:
         typer.echo(f"usbmotion run: {error}", err=True)
         return unstarted(f"fault: {error}", EXIT_FAULT)
+    for warning in prepared.warnings:
+        typer.echo(f"warning        {warning}", err=True)
     if session.stop_requested:
         return unstarted(f"{session.stop_requested} (before the program started)",
                          exit_code(session.stop_requested))

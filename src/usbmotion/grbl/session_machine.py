@@ -1,10 +1,13 @@
 """The grbl front's machine (:class:`~usbmotion.grbl.interface.GrblMachine`) on a real
 machine session, through an :class:`~usbmotion.session.operator.Operator`: G-code lines
-go into the operator's feed (planned with look-ahead as they come), jogs, homing, holds
-and resets are the operator's, and what a status report shows is the operator's status
-(encoder positions and following errors). No call waits for motion or for a device: the
-operator's worker alone talks to the devices, and when the machine is idle the front's
-polls read it through :meth:`SessionMachine.poll`.
+go into the operator's feed, read as grbl reads them (the grbl dialect: a soft reset puts
+the modal state back to power-on and clears G92) and planned with look-ahead as they come,
+at most 16 moves ahead of the one executing (so a sender's ``ok`` follows the machine);
+jogs, homing, holds and resets are the operator's, and a status report is the session's
+live model (the encoders' positions, the line the devices execute, the feed they move at,
+each axis's following error). No call waits for motion or for a device: the operator's
+worker alone talks to the devices, and when the machine is idle the front's polls read it
+through :meth:`SessionMachine.poll`.
 """
 
 from __future__ import annotations
@@ -41,12 +44,13 @@ from usbmotion.grbl.interface import (
 )
 from usbmotion.grbl.reports import machine_setting_values
 from usbmotion.host.config_file import Key, Value, changed_config
+from usbmotion.motion.dialects import Dialect
 from usbmotion.motion.gcode import GCodeStream
 from usbmotion.motion.moves import AXIS_ORDER
 from usbmotion.protocol import FaultCode
 from usbmotion.session.live import LiveSnapshot
 from usbmotion.session.operator import Operator
-from usbmotion.session.planning import machine_axes, machine_dialect, program_axes
+from usbmotion.session.planning import machine_axes, program_axes
 from usbmotion.session.state import MachineState
 
 
@@ -85,6 +89,7 @@ class SessionMachine:
 
     def __init__(self, operator: Operator, *, keep_settings: bool = False) -> None:
         self.operator = operator
+        operator.dialect = Dialect.GRBL  # lines are read, and reset, as grbl reads them
         self.keep_settings = keep_settings
         """Settings changed with ``$N=value`` are written to the machine file (else they
         hold for the session only)."""
@@ -196,7 +201,7 @@ class SessionMachine:
             machine = machine_axes(self.config)
             where = self.session.live.read().machine_mm(measured=False)
             checker = self._checker = GCodeStream(
-                file="<check>", machine=machine, dialect=machine_dialect(self.config),
+                file="<check>", machine=machine, dialect=Dialect.GRBL,
                 start=tuple(where.get(a, 0.0) for a in machine.axes))
         try:
             checker.feed(line)
@@ -231,10 +236,8 @@ class SessionMachine:
         self._checker = None
         if self.session.jogging:
             self.operator.jog_cancel()
-        elif self.operator.busy:
-            self.operator.stop()
         else:
-            self.operator.drop_held()
+            self.operator.reset()
 
     def attach_front(self, lines_waiting: Callable[[], bool]) -> None:
         self.operator.lines_waiting = lines_waiting
@@ -406,9 +409,12 @@ class SessionMachine:
         def pick(point: tuple[float, ...]) -> tuple[float, ...]:
             return tuple(point[AXIS_ORDER.index(a)] for a in self._axes)
 
+        if feed is not None:  # the lines' G92 as it applies now (grbl keeps it volatile)
+            g92 = tuple(feed.modes().g92_mm)
+        else:
+            g92 = pick(offsets.g92) if offsets.g92_enabled else (0.0,) * len(self._axes)
         return WorkOffsets(tuple(pick(p) for p in offsets.g5x[:6]), pick(offsets.g28),
-                           pick(offsets.g30),
-                           pick(offsets.g92) if offsets.g92_enabled else (0.0,) * len(self._axes))
+                           pick(offsets.g30), g92)
 
     def modal_state(self) -> ModalState:
         feed = self.operator.feed

@@ -583,6 +583,8 @@ class Modes:
     feed_mm_min: float
     tool: int
     offset_mm: Point
+    g92_mm: Point = ()
+    """The G92 offset as it applies now (zeros while suspended), per axis."""
 
 
 _MODAL_STATE = ("position", "frame", "offset", "tools", "cycle", "retract_to_r", "scale",
@@ -686,7 +688,7 @@ class GCodeStream:
         return Modes(motion_x10=state.motion, coordinate_system=state.frame.system + 1,
                      plane=plane, inches=state.scale != 1.0, incremental=state.incremental,
                      feed_mm_min=state.feed_mm_min, tool=state.tools.spindle,
-                     offset_mm=_point(state.offset))
+                     offset_mm=_point(state.offset), g92_mm=_point(state.frame.active_g92()))
 
     def restart(self, start: Point) -> None:
         """A new program from ``start`` (where the machine stands), the modal state kept:

@@ -179,6 +179,20 @@ class ProgramFeed:
             self.error = None
             self._version += 1
 
+    def reset(self, start_mm: Point) -> None:
+        """A controller reset (grbl's soft reset) with the machine at ``start_mm``: as
+        :meth:`restart`, and what the dialect's reset clears is cleared (grbl and Marlin:
+        the modal state back to power-on and the G92 offset cleared; LinuxCNC keeps them)."""
+        with self._lock:
+            self._stream.reset(start_mm)
+            self.start_mm = start_mm
+            self._closed = False
+            self._executed_moves = 0
+            self._executed_s = 0.0
+            self._plan = None
+            self.error = None
+            self._version += 1
+
     def reconfigure(self, config: MachineConfig) -> None:
         """The machine's changed configuration (same axes) for the lines to come: soft
         limits and planning from it. Only between runs; the modal state stays."""

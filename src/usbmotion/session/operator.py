@@ -25,6 +25,7 @@ from dataclasses import replace
 
 from usbmotion.errors import MachineStateError, UsbMotionError
 from usbmotion.host.config import MachineConfig
+from usbmotion.motion.dialects import Dialect
 from usbmotion.motion.gcode import Pause
 from usbmotion.session.feed import FRONT_HORIZON_S, FRONT_WINDOW_MOVES, ProgramFeed
 from usbmotion.session.live import LiveSnapshot
@@ -73,12 +74,13 @@ class Operator:
         window: the most moves the feed holds that the machine has not executed, and
             ``horizon_s`` the most planned seconds of them: a line beyond either waits
             (a sender's ``ok`` follows the machine, as grbl's 15-block planner makes it).
+        dialect: the lines are read in it (default: the machine file's).
     """
 
     def __init__(self, session: MachineSession, *,
                  on_message: Callable[[str], None] | None = None,
                  file: str = "<mdi>", window: int = FRONT_WINDOW_MOVES,
-                 horizon_s: float = FRONT_HORIZON_S) -> None:
+                 horizon_s: float = FRONT_HORIZON_S, dialect: Dialect | None = None) -> None:
         session.live_control = True
         session.on_pause = self._on_pause
         self.session = session
@@ -86,6 +88,8 @@ class Operator:
         self.file = file
         self.window = window
         self.horizon_s = horizon_s
+        self.dialect = dialect
+        """The dialect the lines are read in (None: the machine file's)."""
         self.feed: ProgramFeed | None = None
         self.last_report: RunReport | None = None
         self.last_error: str = ""
@@ -152,7 +156,7 @@ class Operator:
                     return False
                 feed = self.feed = session.open_feed(
                     file=self.file, unhomed=self.unlocked and not session.is_homed,
-                    window=self.window, horizon_s=self.horizon_s)
+                    window=self.window, horizon_s=self.horizon_s, dialect=self.dialect)
                 feed.more_coming = self._more_coming
                 self._unrun = False
             elif feed.closed:
@@ -191,6 +195,31 @@ class Operator:
         self.session.request_resume()
         with self._lock:
             self._queue_run()
+
+    def reset(self) -> None:
+        """A controller reset (grbl's Ctrl-X): stop what runs (along its deceleration), drop
+        a latched hold and the lines that waited, and reset the lines' modal state as the
+        dialect's controller does (grbl: back to power-on, the G92 offset cleared), once
+        the machine is at rest."""
+        busy = self.busy
+        if busy:
+            self.stop()
+        self.drop_held()
+        with self._lock:
+            self._unrun = False  # what the feed held, no run takes
+
+        def reset_feed() -> None:
+            with self._lock:
+                if self.feed is not None:
+                    self.feed.reset(self._where())
+                    self._unrun = False
+
+        if self.feed is None:
+            return
+        if busy:
+            self._actions.put(reset_feed)  # once the machine is at rest
+        else:
+            reset_feed()
 
     def drop_held(self) -> None:
         """Forget a feed hold asked while idle and the lines that came since, which no run

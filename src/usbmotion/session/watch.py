@@ -92,7 +92,7 @@ class Watch:
         count = [0]
 
         def on_line(line: Diagnostics) -> None:
-            take(axis, line.clock, line.desired, line.actual_counts)
+            take(axis, line.clock, line.desired, line.actual_counts, line.peak_error_counts)
             count[0] += 1
             if count[0] % self.keep == 0:
                 keep_line(line)
