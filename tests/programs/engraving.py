@@ -9,9 +9,10 @@ import random
 
 def engraving(moves: int, *, seed: int = 1, x0_mm: float = 60.0, y0_mm: float = 60.0,
               z_cut_mm: float = -5.0, z_safe_mm: float = -2.5, feed_mm_min: float = 600.0,
-              stroke: int = 300) -> list[str]:
+              stroke: int = 300, turn_rad: float = 0.6) -> list[str]:
     """The program's lines (``M2`` last): ``moves`` feed moves in strokes of ``stroke``,
-    inside X and Y 20..180 mm, cutting at ``z_cut_mm``."""
+    each turning by up to ``turn_rad`` from the one before, inside X and Y 20..180 mm,
+    cutting at ``z_cut_mm``."""
     rng = random.Random(seed)
     lines = ["G21 G90 G17", f"G0 Z{z_safe_mm:.3f}", f"G0 X{x0_mm:.3f} Y{y0_mm:.3f}",
              f"G1 Z{z_cut_mm:.3f} F200"]
@@ -22,7 +23,7 @@ def engraving(moves: int, *, seed: int = 1, x0_mm: float = 60.0, y0_mm: float = 
             y = min(max(y + rng.uniform(-5.0, 5.0), 20.0), 180.0)
             lines += [f"G0 Z{z_safe_mm:.3f}", f"G0 X{x:.3f} Y{y:.3f}",
                       f"G1 Z{z_cut_mm:.3f} F200"]
-        heading += rng.uniform(-0.6, 0.6)
+        heading += rng.uniform(-turn_rad, turn_rad)
         step = rng.uniform(0.1, 0.5)
         x = min(max(x + step * math.cos(heading), 20.0), 180.0)
         y = min(max(y + step * math.sin(heading), 20.0), 180.0)

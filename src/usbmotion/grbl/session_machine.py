@@ -2,12 +2,12 @@
 machine session, through an :class:`~usbmotion.session.operator.Operator`: G-code lines
 go into the operator's feed, read as grbl reads them (the grbl dialect: a soft reset puts
 the modal state back to power-on and clears G92) and planned with look-ahead as they come,
-at most 16 moves ahead of the one executing (so a sender's ``ok`` follows the machine);
-jogs, homing, holds and resets are the operator's, and a status report is the session's
-live model (the encoders' positions, the line the devices execute, the feed they move at,
-each axis's following error). No call waits for motion or for a device: the operator's
-worker alone talks to the devices, and when the machine is idle the front's polls read it
-through :meth:`SessionMachine.poll`.
+at most 15 moves not yet executed, as grbl's planner holds (so a sender's ``ok`` follows
+the machine); jogs, homing, holds and resets are the operator's, and a status report is
+the session's live model (the encoders' positions, the line the devices execute, the feed
+they move at, each axis's following error). No call waits for motion or for a device:
+the operator's worker alone talks to the devices, and when the machine is idle the
+front's polls read it through :meth:`SessionMachine.poll`.
 """
 
 from __future__ import annotations

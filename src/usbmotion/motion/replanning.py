@@ -177,7 +177,7 @@ def plan_rest(
         raise PlanningError(f"feed_scale {feed_scale!r} must be within (0, 2]")
     if not (math.isfinite(rapid_scale) and 0.0 < rapid_scale <= 1.0):
         raise PlanningError(f"rapid_scale {rapid_scale!r} must be within (0, 1]")
-    if point.at_end:
+    if point.at_end or point.segment >= len(program):  # nothing left (yet)
         return None
     first = point.segment
     count = len(program)

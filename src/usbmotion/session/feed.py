@@ -36,9 +36,10 @@ from usbmotion.session.planning import machine_axes, machine_dialect, plan_axes,
 
 WINDOW_MOVES = 256
 """The most moves a feed holds that the machine has not executed yet (its planner buffer)."""
-FRONT_WINDOW_MOVES = 16
-"""A front's feed (a sender's, a console's): the most moves ahead of the one executing, as
-grbl's planner buffer holds 16 blocks, so a sender's ``ok`` follows the machine."""
+FRONT_WINDOW_MOVES = 15
+"""A front's feed (a sender's, a console's): the most moves not yet executed, the one
+executing among them, as grbl's planner buffer holds 15 blocks, so a sender's ``ok``
+follows the machine."""
 FRONT_HORIZON_S = 2.0
 """A front's feed: the most planned seconds of moves ahead of the machine."""
 PULL_MOVES = 64
@@ -207,6 +208,13 @@ class ProgramFeed:
         """The modal state the lines so far leave."""
         with self._lock:
             return self._stream.modes()
+
+    @property
+    def lines(self) -> int:
+        """The number of the last line taken (lines are numbered on from feed to feed: a
+        restart goes on counting)."""
+        with self._lock:
+            return self._stream.lines
 
     @property
     def has_moves(self) -> bool:

@@ -183,6 +183,9 @@ class Feeding:
         feed = self.feed
         if feed is None:
             return
+        if self.dry:  # at rest after everything given: every move so far is done
+            feed.executed(self.moves, at_s=self.legs.plan.duration_s)
+            return
         legs, streams = self.legs, self.streams
         row = min(streams.executed(),
                   math.floor((streams.device_tick() - streams.start_tick) / streams.scalar))
@@ -199,12 +202,13 @@ class Feeding:
         self.pause_records = list(snapshot.pauses)
         if not streaming or not self.streams.streams:
             return
-        if not self.dry and self.queued_s() < DRY_MARGIN_S:
-            drain()
-            self.dry = True
-            self.rest_point = legs.point_at(legs.count - 1)
+        if not self.dry:
+            self.release()  # the rows the old plan allows, before judging what is queued
+            if self.queued_s() < DRY_MARGIN_S:
+                drain()
+                self.played_out()
         if self.dry:
-            point = self.rest_point or legs.point_at(legs.count - 1)
+            point = self.rest_point or legs.point_at(self.streams.released - 1)
             restart(replace(point, speed_mm_s=0.0))
             return
         if not join_rows(legs, self.streams, stop_time_s=self.stop_time_s,
@@ -212,9 +216,9 @@ class Feeding:
             self.notes.append("more moves came too late to join the plan: the machine came"
                               " to rest before them")
             drain()
-            self.dry = True
-            point = legs.point_at(legs.count - 1)
-            restart(replace(point, speed_mm_s=0.0))
+            self.played_out()
+            assert self.rest_point is not None
+            restart(replace(self.rest_point, speed_mm_s=0.0))
 
     def queued_s(self) -> float:
         """How long the rows given to the streams last beyond what the devices executed."""
@@ -228,9 +232,10 @@ class Feeding:
         self.streams.released = self.legs.count
 
     def played_out(self) -> None:
-        """The machine executed every row given and came to rest: more starts from there."""
+        """The machine executed every row given and came to rest there (the last row
+        given): more starts from there."""
         self.dry = True
-        self.rest_point = self.legs.point_at(self.legs.count - 1)
+        self.rest_point = self.legs.point_at(max(0, self.streams.released - 1))
 
     # --- streaming in steps ---------------------------------------------------------------------
 

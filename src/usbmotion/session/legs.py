@@ -120,6 +120,8 @@ class Legs:
         segment = int(leg.source[-1]) + 1 if len(leg.plan) else 0
         when = (float(self.plan.start_time_s[segment]) if segment < len(self.plan)
                 else self.plan.duration_s)
+        # past the program's last segment so far: the segment the next move will make
+        # (the rest from here is none until the program grows)
         return PathPoint(segment, 0.0, 0.0, tuple(float(c) for c in end), 0.0, when)
 
     def whole(self) -> bool:

@@ -158,6 +158,8 @@ class RunStreams:
             clock.sleep(REST_POLL_S)
 
     def drain(self, should_stop: Callable[[], bool], *, poll_s: float) -> None:
-        """Until every queue is empty, or ``should_stop``."""
+        """Until every row given is sent and every queue is empty (the machine executed
+        them all), or ``should_stop``."""
+        self.stream(should_stop, max_wait_s=poll_s)
         while not should_stop() and self.queues():
             self.machine.clock.sleep(poll_s)
