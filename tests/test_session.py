@@ -449,3 +449,37 @@ def test_homing_feeds_every_watchdog_however_slowly_its_polls_come(
         assert all(d.state.enable == 1 and d.state.fault == FaultCode.NONE
                    for d in devices.values()), "no watchdog fault on any axis"
         machine.stop()
+
+
+def test_homing_leaves_alarm_as_grbl_s_dollar_h_does(config: MachineConfig,
+                                                     tmp_path: Path) -> None:
+    """A device fault puts the machine in Alarm; homing from there clears the faults first
+    and leaves it Idle and homed (grbl's $H clears an alarm), the live model with it."""
+    tight = default_machine().read_text().replace(
+        "following_error_limit_mm = 1.0", "following_error_limit_mm = 0.04", 1)
+    path = tmp_path / "tight.toml"
+    path.write_text(tight)
+    with connect_session(load_config(path)) as session:
+        session.home()
+        report, _ = session.run(session.prepare("m.ngc", text="G1 X50 F1200\nM2\n"))
+        assert not report.completed and report.faults[0].axis == "X"
+        assert session.state is MachineState.ALARM and not session.homed["X"]
+        assert session.live.read().state is MachineState.ALARM
+        assert "axis X: following error" in session.live.read().alarm
+        session.home()
+        assert session.state is MachineState.IDLE and session.is_homed
+        assert session.live.read().state is MachineState.IDLE
+
+
+def test_a_jog_runs_at_its_own_feed_whatever_the_feed_override(config: MachineConfig) -> None:
+    """grbl 1.1: the feed override does not apply to jogs (the next program gets it)."""
+    with connect_session(config) as session:
+        session.home()
+        plain = session.jog({"X": 30.0}, feed_mm_min=600.0)
+        session.set_feed_override(50)
+        overridden = session.jog({"X": -30.0}, feed_mm_min=600.0)
+        assert plain.completed and overridden.completed
+        assert overridden.executed_time_s == pytest.approx(plain.executed_time_s, abs=0.002)
+        assert session.feed_override_percent == 50, "kept for the next program"
+        slower = session.run(session.prepare("p.ngc", text="G91 G1 X30 F600\nM2\n"))[0]
+        assert slower.executed_time_s > 1.8 * plain.executed_time_s

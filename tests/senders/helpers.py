@@ -304,13 +304,14 @@ def wait_for(condition: object, *, timeout_s: float, what: str,
 
 def record(sender: str, statistics: Statistics, *, path_problems: list[str],
            machine: str = "fake", path_deviation_mm: float | None = None,
-           run_s: float | None = None, run_from: str = "") -> None:
+           run_s: float | None = None, run_from: str = "",
+           most_lines_acknowledged_ahead: int | None = None) -> None:
     """Record what the front measured while ``sender`` streamed to ``machine`` (``fake`` or
     ``simulated in real time``), in ``build/senders/SENDER.json``, and print it (seen with
     ``pytest -s``): the receive buffer's peak, the bytes dropped, the lines, whether the
     path equals the program's, and for the simulated machine the largest distance of an
     executed point from the program's path and how long the run took (``run_from``
-    says from what to what)."""
+    says from what to what), and the most lines acknowledged ahead of the one executing."""
     measured: dict[str, object] = {
         "sender": sender, "machine": machine, "max_rx_bytes": statistics.max_rx_bytes,
         "rx_buffer_bytes": 128, "dropped_rx_bytes": statistics.dropped_rx_bytes,
@@ -321,6 +322,8 @@ def record(sender: str, statistics: Statistics, *, path_problems: list[str],
     if run_s is not None:
         measured["run_s"] = round(run_s, 2)
         measured["run_from"] = run_from
+    if most_lines_acknowledged_ahead is not None:
+        measured["most_lines_acknowledged_ahead"] = most_lines_acknowledged_ahead
     MEASUREMENTS.mkdir(parents=True, exist_ok=True)
     (MEASUREMENTS / f"{sender}.json").write_text(json.dumps(measured, indent=2) + "\n")
     extra = ""

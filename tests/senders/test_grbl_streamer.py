@@ -48,6 +48,8 @@ class _Sender:
 
         self.server, self.homed = server, homed
         self.events: list[tuple[str, tuple[Any, ...]]] = []
+        self.times: list[float] = []
+        """When each event came (monotonic s)."""
         self._lock = threading.Lock()
         self._start_job = threading.Event()
         self.streamer = GrblStreamer(self._callback)
@@ -56,6 +58,7 @@ class _Sender:
     def _callback(self, event: str, *data: Any) -> None:
         with self._lock:
             self.events.append((event, data))
+            self.times.append(time.monotonic())
         # grbl-streamer streams from the caller of job_run and from its reader thread on
         # each ok, unguarded: started from another thread, a line can go out twice. So the
         # job starts here, on its reader thread, after an ok.
@@ -141,11 +144,36 @@ def test_grbl_streamer_homes_and_streams_a_program_on_the_simulated_machine(
         sender.connect_unlock_and_home()
         started = time.monotonic()
         before = len(sender.events)
-        sender.run(SHORT_PROGRAM)
-        wait_for(lambda: any(e == "on_job_completed" for e, _ in sender.events_since(before))
-                 and sender.streamer.job_finished and sender.streamer.streaming_complete,
-                 timeout_s=40, what="the job's end",
-                 seen=lambda: sender.events_since(before)[-3:])
+        feed = real.operator.feed
+        first_line = (feed.lines if feed is not None else 0) + 2  # after the G4 P0 it sends
+        executing: list[tuple[float, int]] = []
+        done = threading.Event()
+
+        def watch() -> None:
+            while not done.wait(0.002):
+                executing.append((time.monotonic(), real.session.live.read().line))
+
+        watcher = threading.Thread(target=watch, daemon=True)
+        watcher.start()
+        try:
+            sender.run(SHORT_PROGRAM)
+            wait_for(lambda: any(e == "on_job_completed" for e, _ in sender.events_since(before))
+                     and sender.streamer.job_finished and sender.streamer.streaming_complete,
+                     timeout_s=40, what="the job's end",
+                     seen=lambda: sender.events_since(before)[-3:])
+        finally:
+            done.set()
+            watcher.join(timeout=5)
+        acked: dict[int, float] = {}  # the job's line index -> when its ok was processed
+        for (event, data), when in zip(sender.events[before:], sender.times[before:],
+                                       strict=True):
+            if event == "on_processed_command" and data[0] >= 0:
+                acked.setdefault(int(data[0]), when)
+        ahead = 0  # while a line of the job executes (before its motion began, none did)
+        for index, when in acked.items():
+            now = max((line for at, line in executing if at <= when), default=0)
+            if now >= first_line:
+                ahead = max(ahead, first_line + index - now)
         wait_for(lambda: _at_rest_at(sender, (0.0, 0.0, -1.0), after=before) and real.idle(),
                  timeout_s=10, what="the report of the machine at rest at the program's end",
                  seen=lambda: sender.data("on_stateupdate")[-3:])
@@ -156,7 +184,12 @@ def test_grbl_streamer_homes_and_streams_a_program_on_the_simulated_machine(
     problems, deviation_mm = path_deviation(executed, [(0.0, 0.0, 0.0), *SHORT_PROGRAM_PATH])
     record("grbl-streamer-simulated", statistics, path_problems=problems,
            machine="simulated", path_deviation_mm=deviation_mm, run_s=run_s,
-           run_from="the job's start to the report of the machine at rest at its end")
+           run_from="the job's start to the report of the machine at rest at its end",
+           most_lines_acknowledged_ahead=ahead)
+    # grbl-streamer writes the first line's three G codes as three lines: its commands
+    assert sorted(acked) == list(range(len(acked))) and len(acked) >= SHORT_PROGRAM.count("\n")
+    assert ahead <= 16, f"grbl-streamer had {ahead} lines acknowledged ahead of the line" \
+        " the devices executed (grbl's planner holds 16)"
     assert statistics.dropped_rx_bytes == 0
     assert 0 < statistics.max_rx_bytes <= 128
     assert problems == [], real.messages

@@ -160,8 +160,6 @@ class Feeding:
         feed = self.feed
         if feed is None:
             return
-        if streaming and self.streams.streams:
-            self.executed_moves()
         if (feed.has_source and not self.complete
                 and (not streaming or self.lookahead_s() < READ_AHEAD_S)):
             feed.pull()
@@ -177,22 +175,17 @@ class Feeding:
         self._join(feed.plan(snapshot), snapshot, streaming=streaming, restart=restart,
                    drain=drain)
 
-    def executed_moves(self) -> None:
-        """Tell the feed how many of its moves the machine executed and how far into its
-        plan it is (frees its window and horizon), by the devices' clock."""
+    def executed_moves(self, line: int, at_s: float) -> None:
+        """Tell the feed the machine executes program line ``line``, ``at_s`` into the
+        feed's plan (what the live model shows: a front acknowledges what follows it), so
+        every move before that line is done (frees the window and the horizon)."""
         feed = self.feed
         if feed is None:
             return
         if self.dry:  # at rest after everything given: every move so far is done
             feed.executed(self.moves, at_s=self.legs.plan.duration_s)
             return
-        legs, streams = self.legs, self.streams
-        row = min(streams.executed(),
-                  math.floor((streams.device_tick() - streams.start_tick) / streams.scalar))
-        place = legs.place(max(0, min(row, legs.count - 1)))
-        line = (place.line if 0 <= place.segment < len(legs.plan)
-                else (self.lines[-1] + 1 if self.lines else 0))
-        feed.executed(bisect.bisect_left(self.lines, line), at_s=place.program_time_s)
+        feed.executed(bisect.bisect_left(self.lines, line), at_s=at_s)
 
     def _join(self, plan: Plan, snapshot: FeedSnapshot, *, streaming: bool,
               restart: Callable[[PathPoint], None], drain: Callable[[], None]) -> None:

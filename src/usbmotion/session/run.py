@@ -105,19 +105,13 @@ class Run:
     def go(self) -> tuple[RunReport, Trace]:
         """The run: its report and its trace."""
         with ExitStack() as listening:
-            self._enable_axes()
+            self.streams.enable()
             self.watch.listen_diagnostics(listening)
             self._start(first=True)
             self.watch.listen_alarms(listening)
             return self._finish(self._drive())
 
     # --- starting --------------------------------------------------------------------------------
-
-    def _enable_axes(self) -> None:
-        for name in self.axes:
-            client = self.machine.axis(name).client
-            client.clear_queue()
-            client.set_servo_enable(True)
 
     def _start(self, *, first: bool) -> None:
         """Every axis started on one device tick (the first time: statistics reset and the
@@ -196,9 +190,11 @@ class Run:
         while held). Publishes the live model when due."""
         self.requests.take()
         faulted = self.watch.check(self.clock.now(), at_once=at_once)
-        self.publish()
-        if self.feeding.feed is not None and self.streams.streams:
-            self.feeding.executed_moves()  # a front's window follows the machine
+        fed = self.feeding.feed is not None
+        self.publish(force=fed)
+        if fed:  # a fed program's window follows what the live model shows
+            shown = self.live.read()
+            self.feeding.executed_moves(shown.line, shown.done_s)
         taken = self.requests.taken
         state = self.states.state
         return bool(faulted or taken.stop_reason
@@ -222,8 +218,8 @@ class Run:
     def _overrides(self) -> tuple[int, int]:
         """The feed and rapid overrides the run plans at (100 % for a jog)."""
         taken = self.requests.taken
-        return (taken.feed_override, taken.rapid_override) if self.follows_overrides \
-            else (100, 100)
+        return (taken.feed_override, taken.rapid_override) if self.follows_overrides else (
+            100, 100)
 
     # --- Run and Jog -----------------------------------------------------------------------------
 

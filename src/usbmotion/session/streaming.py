@@ -59,6 +59,12 @@ class RunStreams:
 
     # --- starting ---------------------------------------------------------------------------
 
+    def enable(self) -> None:
+        """Every program axis with an empty queue, its servo enabled."""
+        for client in self.clients:
+            client.clear_queue()
+            client.set_servo_enable(True)
+
     def start_together(self, *, first: bool) -> SyncReport:
         """Arm every axis to start on one device tick (the first start zeroes the clocks)."""
         if first:
