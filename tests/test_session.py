@@ -362,6 +362,26 @@ def test_a_second_host_finds_the_machine_homed_where_the_first_left_it(
         assert report.completed and report.homing_time_s == 0
 
 
+def test_a_run_that_cannot_start_ends_in_alarm_never_left_running(
+        config: MachineConfig) -> None:
+    """A device refusing to enable (a fault latched since the last command: here its
+    watchdog, run out while nobody fed it): the run ends at once in Alarm, the report
+    says why; the next program is refused until the machine is reset, not taken as
+    started."""
+    world = SimWorld()
+    with connect_session(config, world=world) as session:
+        session.home()
+        prepared = session.prepare("line.ngc", text=LINE)
+        client = session.machine.axis("Y").client
+        client.set_watchdog_ms(50)
+        world.advance(200_000)
+        report, _ = session.run(prepared)
+        assert not report.completed and "watchdog" in report.stop_reason, report.stop_reason
+        assert session.state is MachineState.ALARM
+        with pytest.raises(MachineStateError, match="Alarm"):
+            session.run(session.prepare("line.ngc", text=LINE))
+
+
 def test_a_fault_an_earlier_host_left_is_reported_cleared_and_needs_homing(
         config: MachineConfig) -> None:
     world = SimWorld()

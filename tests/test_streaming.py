@@ -3,6 +3,8 @@ virtual time, checked on what the devices executed (tests.executed's invariants)
 
 from __future__ import annotations
 
+import queue
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -174,6 +176,40 @@ def test_a_full_window_says_so_and_takes_the_line_later(config: MachineConfig) -
         feed.executed(1)
         assert feed.blocks_free == 1 and feed.add("G0 X30")
         session.shutdown()
+
+
+def test_the_operator_is_busy_from_queueing_an_action_to_its_end(config: MachineConfig) -> None:
+    """Between the worker taking an action and starting it, the operator is busy: a front
+    that acknowledged a line never reports Idle before the line's motion starts."""
+    taken = threading.Event()
+    release = threading.Event()
+
+    class SlowQueue(queue.Queue[object]):
+        def get(self, block: bool = True, timeout: float | None = None) -> object:
+            item = super().get(block, timeout)
+            taken.set()
+            release.wait(5)  # the worker preempted right after taking the action
+            return item
+
+    with connect_session(config) as session:
+        operator = Operator(session)
+        try:
+            waiting = operator._actions
+            operator._actions = SlowQueue()  # type: ignore[assignment]
+            operator._pending += 1
+            waiting.put(lambda: None)  # wakes the worker: it waits on the slow queue next
+            release.set()
+            assert operator.wait_idle(5)
+            taken.clear()
+            release.clear()
+            operator.do(lambda: None)
+            assert taken.wait(5)
+            assert operator.busy, "idle between taking the action and running it"
+            release.set()
+            assert operator.wait_idle(5) and not operator.busy
+        finally:
+            release.set()
+            operator.close()
 
 
 def test_a_source_line_that_fails_ends_the_run_there(config: MachineConfig) -> None:

@@ -117,7 +117,9 @@ their lower switches, Z below its upper one): homing (Z, then X and Y) takes abo
 instead of 22 s."""
 WATCHDOG_MS = 1250
 """The devices' watchdog, on as on a real machine. It counts the world's time, which
-passes only while the host waits on a device: at rest it cannot run out."""
+follows the wall clock while the host waits on a device or idles, and stands still while
+the host computes (:data:`usbmotion.sim.world.REALTIME_SLACK_S`): a host slowed by a
+loaded machine is not taken for a silent one."""
 
 
 def fast_homing_machine(folder: Path) -> Path:

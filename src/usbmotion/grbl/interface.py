@@ -100,7 +100,7 @@ class MachineStatus:
     line_number: int | None = None
     """The ``N`` number of the program line executing, if it had one."""
     following_error_mm: tuple[float, ...] = ()
-    """Measured minus commanded position per axis (empty: not measured)."""
+    """Commanded minus measured position per axis, the devices' sign (empty: not measured)."""
     limit_pins: frozenset[str] = frozenset()
     """Axis letters whose limit switch reads triggered."""
     fault: Fault | None = None

@@ -135,17 +135,38 @@ def locate(program: Plan, leg: Leg, time_s: float) -> PathPoint:
 
 
 def _time_along(plan: Plan, index: int, distance_mm: float, dwelt_s: float) -> float:
-    """When the program's own plan is ``distance_mm`` along segment ``index``."""
+    """When the program's own plan is ``distance_mm`` along segment ``index``: the
+    trapezoid's distance inverted phase by phase (accelerate, cruise, decelerate)."""
     if plan.kind[index] == SegmentKind.DWELL:
         return dwelt_s
-    low, high = 0.0, float(plan.segment_duration_s[index])
-    for _ in range(50):
-        middle = 0.5 * (low + high)
-        if _segment_state(plan, index, middle)[0] < distance_mm:
-            low = middle
-        else:
-            high = middle
-    return high
+    segment_s = float(plan.segment_duration_s[index])
+    length = float(plan.length_mm[index])
+    s = min(max(distance_mm, 0.0), length)
+    a = float(plan.accel_mm_s2[index])
+    v_entry = float(plan.v_entry_mm_s[index])
+    v_cruise = float(plan.v_cruise_mm_s[index])
+    v_exit = float(plan.v_exit_mm_s[index])
+    t_accel = float(plan.t_accel_s[index])
+    t_cruise = float(plan.t_cruise_s[index])
+    s_accel = v_entry * t_accel + 0.5 * a * t_accel * t_accel
+    if s <= s_accel and t_accel > 0.0:
+        return min(t_accel, _time_to_cover(s, v_entry, a))
+    s_cruised = s_accel + v_cruise * t_cruise
+    if s <= s_cruised and t_cruise > 0.0:
+        return t_accel + (s - s_accel) / v_cruise if v_cruise > 0.0 else t_accel
+    left = _time_to_cover(length - s, v_exit, a)
+    return min(segment_s, max(t_accel + t_cruise, segment_s - left))
+
+
+def _time_to_cover(distance_mm: float, v_mm_s: float, a_mm_s2: float) -> float:
+    """The time to cover ``distance_mm`` from speed ``v_mm_s`` gaining ``a_mm_s2``."""
+    if distance_mm <= 0.0:
+        return 0.0
+    if a_mm_s2 <= 0.0:
+        return distance_mm / v_mm_s if v_mm_s > 0.0 else 0.0
+    root = math.sqrt(v_mm_s * v_mm_s + 2.0 * a_mm_s2 * distance_mm)
+    # (root - v) / a without the cancellation of two near-equal numbers
+    return 2.0 * distance_mm / (root + v_mm_s)
 
 
 def plan_rest(

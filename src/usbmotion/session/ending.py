@@ -96,7 +96,8 @@ def report_of(prepared: Prepared, machine: Machine, legs: Legs, streams: RunStre
         stopped_at_s, stopped_at_line = stops.stopped_at_s, stops.stopped_at_line
     else:
         executed = min((streams.streams[n].sent - statuses[n].queued
-                        for n in prepared.axes if n in statuses), default=streams.sent)
+                        for n in prepared.axes if n in statuses and n in streams.streams),
+                       default=streams.sent)
         place = legs.place(max(0, executed - 1))
         stopped_at_s, stopped_at_line = place.program_time_s, place.line
     heard: dict[str, LastHeard] = {}

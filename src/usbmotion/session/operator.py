@@ -94,7 +94,10 @@ class Operator:
         self.last_report: RunReport | None = None
         self.last_error: str = ""
         self._actions: queue.Queue[Action | None] = queue.Queue()
-        self._busy = threading.Event()
+        self._pending = 0
+        """Actions queued or running: counted up before one is queued and down once it has
+        ended, so the operator is never seen idle between taking an action and starting it."""
+        self._pending_lock = threading.Lock()
         self._run_queued = False
         self._unrun = False
         """The feed holds moves no run has taken yet."""
@@ -121,7 +124,7 @@ class Operator:
     @property
     def busy(self) -> bool:
         """True while the worker homes, runs or jogs, or has something queued."""
-        return self._busy.is_set() or not self._actions.empty()
+        return self._pending > 0
 
     def status(self) -> LiveSnapshot:
         """The machine now: the session's live model, with a hold asked since it was last
@@ -175,7 +178,7 @@ class Operator:
         keeps it waiting for the resume (under :attr:`_lock`)."""
         if self._unrun and not self._run_queued and not self.session.hold_requested:
             self._run_queued = True
-            self._actions.put(self._run_feed)
+            self._put(self._run_feed)
 
     def hold(self) -> None:
         """Feed hold (``!``): a running program decelerates along its path to rest; asked
@@ -217,7 +220,7 @@ class Operator:
         if self.feed is None:
             return
         if busy:
-            self._actions.put(reset_feed)  # once the machine is at rest
+            self._put(reset_feed)  # once the machine is at rest
         else:
             reset_feed()
 
@@ -251,12 +254,12 @@ class Operator:
                                       absolute=absolute, continuous=continuous)
             self._ended(report)
 
-        self._actions.put(go)
+        self._put(go)
 
     def do(self, action: Action) -> None:
         """Queue ``action`` (it may use the session and its devices) for the worker, after
         what it is doing and what is queued."""
-        self._actions.put(action)
+        self._put(action)
 
     def jog_cancel(self) -> None:
         """Cancel a jog (0x85)."""
@@ -275,7 +278,7 @@ class Operator:
             seconds = self.session.home()
             self.on_message(f"homed in {seconds:.2f} s")
 
-        self._actions.put(go)
+        self._put(go)
 
     def reconfigure(self, config: MachineConfig) -> tuple[str, ...]:
         """A changed machine file taken while idle (:meth:`MachineSession.reconfigure`):
@@ -313,7 +316,7 @@ class Operator:
     def wait_idle(self, timeout_s: float | None = None) -> bool:
         """Until nothing is queued or running; False on the timeout."""
         done = threading.Event()
-        self._actions.put(done.set)
+        self._put(done.set)
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         if not done.wait(timeout_s):
             return False
@@ -337,12 +340,17 @@ class Operator:
 
     # --- the worker -----------------------------------------------------------------------------
 
+    def _put(self, action: Action) -> None:
+        """Queue ``action`` for the worker, busy from now until it has ended."""
+        with self._pending_lock:
+            self._pending += 1
+        self._actions.put(action)
+
     def _serve(self) -> None:
         while True:
             action = self._actions.get()
             if action is None:
                 return
-            self._busy.set()
             with self._links:
                 try:
                     self.last_error = ""
@@ -356,7 +364,8 @@ class Operator:
                         self.session.read_live()
                     except UsbMotionError as error:
                         self.on_message(f"error: reading the positions: {error}")
-                    self._busy.clear()
+                    with self._pending_lock:
+                        self._pending -= 1
 
     def _run_feed(self) -> None:
         with self._lock:

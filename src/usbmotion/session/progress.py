@@ -50,10 +50,11 @@ class RunProgress:
         of wall time, and with a listener every :data:`PROGRESS_S` of device time, unless
         ``force``)."""
         live = self.live
+        if not (force or live.on_publish or live.due()):
+            return
         ticks = live.ticks(self.axes)
         tick = min(ticks) if ticks else 0
-        if not (force or live.due() or (
-                live.on_publish and tick - self.published_tick >= self.progress_ticks)):
+        if not (force or live.due() or tick - self.published_tick >= self.progress_ticks):
             return
         self.published_tick = tick
         legs = self.legs

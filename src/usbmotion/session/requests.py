@@ -119,6 +119,8 @@ class RequestQueue:
 
     def take(self) -> list[Request]:
         """Take every request waiting, in order, into :attr:`taken`; returns them."""
+        if self._queue.empty():
+            return []
         taken = self.taken
         requests: list[Request] = []
         while True:

@@ -15,6 +15,7 @@ speed from a device tick just ahead, without a change of state.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import replace
 
@@ -105,11 +106,28 @@ class Run:
     def go(self) -> tuple[RunReport, Trace]:
         """The run: its report and its trace."""
         with ExitStack() as listening:
-            self.streams.enable()
-            self.watch.listen_diagnostics(listening)
-            self._start(first=True)
-            self.watch.listen_alarms(listening)
-            return self._finish(self._drive())
+            ending = self._guarded(lambda: self._begin(listening))
+            if ending is None:
+                ending = self._guarded(self._drive)
+            assert ending is not None
+            return self._finish(ending)
+
+    def _begin(self, listening: ExitStack) -> None:
+        """Servos on, the devices heard, every axis started on one device tick."""
+        self.streams.enable()
+        self.watch.listen_diagnostics(listening)
+        self._start(first=True)
+        self.watch.listen_alarms(listening)
+
+    def _guarded(self, step: Callable[[], Ending | None]) -> Ending | None:
+        """``step``'s ending; a lost link or an error on the way (starting too) ends the
+        run in Alarm, every axis brought to rest, never with the state left running."""
+        try:
+            return step()
+        except (LinkLostError, LinkCorruptedError, DeviceTimeoutError) as error:
+            return self._link_lost(error)
+        except (UsbMotionError, ArithmeticError, LookupError, TypeError, ValueError) as error:
+            return self._internal_error(error)
 
     # --- starting --------------------------------------------------------------------------------
 
@@ -139,25 +157,20 @@ class Run:
     # --- the state machine's loop ----------------------------------------------------------------
 
     def _drive(self) -> Ending:
-        try:
-            while True:
-                state = self.states.state
-                if state in (MachineState.RUN, MachineState.JOG):
-                    ending = self._stream()
-                elif state is MachineState.HOLD:
-                    ending = self._hold()
-                elif state is MachineState.PAUSED:
-                    ending = self._wait_at_rest()
-                elif state in (MachineState.STOPPING, MachineState.ALARM):
-                    return self._stop()
-                else:
-                    return Ending(StopReason.COMPLETED.value)
-                if ending is not None:
-                    return ending
-        except (LinkLostError, LinkCorruptedError, DeviceTimeoutError) as error:
-            return self._link_lost(error)
-        except (UsbMotionError, ArithmeticError, LookupError, TypeError, ValueError) as error:
-            return self._internal_error(error)
+        while True:
+            state = self.states.state
+            if state in (MachineState.RUN, MachineState.JOG):
+                ending = self._stream()
+            elif state is MachineState.HOLD:
+                ending = self._hold()
+            elif state is MachineState.PAUSED:
+                ending = self._wait_at_rest()
+            elif state in (MachineState.STOPPING, MachineState.ALARM):
+                return self._stop()
+            else:
+                return Ending(StopReason.COMPLETED.value)
+            if ending is not None:
+                return ending
 
     def _internal_error(self, error: Exception) -> Ending:
         """A fault of the run itself, or a device's it did not expect: every axis to rest
@@ -165,7 +178,10 @@ class Run:
         if self.states.state is not MachineState.ALARM:
             self.states.fire(Event.FAULT)
         try:
-            self._decelerate(asked_s=self.clock.now())
+            if self.streams.sync is None:  # nothing started: nothing to decelerate
+                self.machine.stop()
+            else:
+                self._decelerate(asked_s=self.clock.now())
         except (UsbMotionError, ArithmeticError, LookupError, TypeError, ValueError):
             self.machine.stop()
         return Ending(f"fault: {error}" if isinstance(error, UsbMotionError)

@@ -133,6 +133,7 @@ class MachineSession:
         self._hold_asked = False
         self._feed: ProgramFeed | None = None
         self._live_read_s = -math.inf
+        self._offsets_read: tuple[tuple[int, int, int] | None, WorkOffsets] | None = None
 
     # --- connecting and taking over ---------------------------------------------------------
 
@@ -497,7 +498,16 @@ class MachineSession:
         Raises:
             ConfigError: the file is malformed (names the file and the line).
         """
-        return read_parameter_file(self.config.parameter_path)
+        path = self.config.parameter_path
+        try:
+            stat = path.stat()
+            key: tuple[int, int, int] | None = (stat.st_ino, stat.st_mtime_ns, stat.st_size)
+        except OSError:
+            key = None
+        if self._offsets_read is None or key is None or self._offsets_read[0] != key:
+            # read again only when the file changed (the live model asks 100 times a second)
+            self._offsets_read = (key, read_parameter_file(path))
+        return self._offsets_read[1]
 
     def save_work_offsets(self, offsets: WorkOffsets) -> None:
         """Write the parameter file (atomically).
@@ -764,11 +774,16 @@ class MachineSession:
             self.machine, self.config, self.states, self.requests, self.live,
             live_control=self.live_control, keep_alive_s=self.keep_alive_period_s(),
             keep_alive=self.keep_alive, on_pause=self._pause_at, live_fields=self.live_fields)
-        run = self.last_run = Run(context, prepared, homing_s=homing_s, feed=feed,
-                                  overrides=not jog)
         try:
+            run = self.last_run = Run(context, prepared, homing_s=homing_s, feed=feed,
+                                      overrides=not jog)
             with self._watching(on_progress):
                 report, trace = run.go()
+        except BaseException:
+            # what the run could not end itself: never left running, the machine in Alarm
+            if self.states.state is not MachineState.ALARM:
+                self.states.fire(Event.FAULT)
+            raise
         finally:
             self._feed = None
             if taken.stop_reason:

@@ -7,6 +7,10 @@ blocks up to its next event, so a quiet device costs little per simulated second
 
 With ``realtime=True`` the world never runs ahead of the wall clock: advancing sleeps
 until the wall clock catches up, so a simulated machine moves at the speed of a real one.
+It may fall behind while its host computes (time passes only when the host waits on a
+device); it catches up at most :data:`REALTIME_SLACK_S` of that, and the rest is time the
+world stood still, never a silence of the host its devices would see (a watchdog running
+out, queues running dry, because the machine running the simulation was busy).
 """
 
 from __future__ import annotations
@@ -17,6 +21,13 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from usbmotion.errors import ArgumentError, NoSuchDeviceError
+
+REALTIME_SLACK_S = 0.05
+"""How far a real-time world may lag the wall clock and still catch up (running its
+devices without sleeping); a longer lag is time it stood still."""
+IDLE_STEP_S = 0.25
+"""The most :meth:`SimWorld.keep_pace` moves a real-time world at once: an idle host calls
+it every 0.1 s or so, a longer gap since the world last moved is the host computing."""
 
 
 class SimulatedDevice(Protocol):
@@ -266,6 +277,8 @@ class SimWorld:
             lag = target_us / 1e6 - (time.monotonic() - self._wall_origin)
             if lag > 0:
                 time.sleep(lag)
+            elif lag < -REALTIME_SLACK_S:  # the host was busy: the world stood still
+                self._wall_origin -= lag + REALTIME_SLACK_S
         for member in self._members.values():
             self._catch_up(member, target_us)
         self._time_us = target_us
@@ -275,6 +288,9 @@ class SimWorld:
         calls this now and then, so the devices live in real time between its commands;
         a virtual-time world does nothing)."""
         if self.realtime:
+            behind_s = time.monotonic() - self._wall_origin - self._time_us / 1e6
+            if behind_s > IDLE_STEP_S:
+                self._wall_origin += behind_s - IDLE_STEP_S
             self.advance_to(int((time.monotonic() - self._wall_origin) * 1e6))
 
     def advance(self, duration_us: int) -> None:
