@@ -61,7 +61,7 @@ USAGE_ERRORS = [
     (["run", "--no-home=3", "x.ngc"], "usbmotion run: option --no-home does not take a"
      " value (usbmotion run --help)"),
     (["run", "--origin", "Q1", "x.ngc"], "usbmotion run: --origin: Q1 is not an origin;"
-     " allowed: axis words in machine mm, such as 'X100 Y100 Z60' (usbmotion run --help)"),
+     " allowed: axis words in machine mm, such as 'X100 Y100 Z-40' (usbmotion run --help)"),
 ]
 
 

@@ -4,7 +4,7 @@ that no longer answers, from what the run last heard of it)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from usbmotion.errors import UsbMotionError
@@ -28,6 +28,24 @@ class Ending:
     reason: str
     link_error: str = ""
     lost_axis: str = ""
+
+
+def link_lost(machine: Machine, axes: Sequence[str], error: UsbMotionError,
+              notes: list[str]) -> Ending:
+    """A lost link: every axis stopped at once; the ending names the error and the axis."""
+    lost = next((n for n in axes if machine.axis(n).client.name
+                 == getattr(error, "device", None)), "")
+    try:
+        machine.stop()
+    except UsbMotionError as also:
+        notes.append(f"stopping: {also}")
+    return Ending(f"{StopReason.LINK.value}: {error}", link_error=str(error), lost_axis=lost)
+
+
+def internal_error(error: Exception) -> Ending:
+    """The ending of a run stopped by a fault of its own or an error it did not expect."""
+    return Ending(f"fault: {error}" if isinstance(error, UsbMotionError)
+                  else f"fault: internal error of the run: {error!r}")
 
 
 @dataclass(slots=True)

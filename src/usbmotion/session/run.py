@@ -24,7 +24,7 @@ from usbmotion.motion.gcode import Pause
 from usbmotion.motion.replanning import PathPoint
 from usbmotion.protocol import FaultCode
 from usbmotion.session.context import RunContext
-from usbmotion.session.ending import Ending, Stops, read_ends, report_of
+from usbmotion.session.ending import Ending, Stops, internal_error, link_lost, read_ends, report_of
 from usbmotion.session.feed import ProgramFeed
 from usbmotion.session.feeding import Feeding
 from usbmotion.session.legs import Legs
@@ -120,14 +120,26 @@ class Run:
         self.watch.listen_alarms(listening)
 
     def _guarded(self, step: Callable[[], Ending | None]) -> Ending | None:
-        """``step``'s ending; a lost link or an error on the way (starting too) ends the
-        run in Alarm, every axis brought to rest, never with the state left running."""
+        """``step``'s ending; a lost link (every axis stopped at once) or an error on the
+        way (every axis to rest along the path if it can be), starting too, ends the run
+        in Alarm, never with the state left running."""
         try:
             return step()
         except (LinkLostError, LinkCorruptedError, DeviceTimeoutError) as error:
-            return self._link_lost(error)
+            ending = link_lost(self.machine, self.axes, error, self.notes)
         except (UsbMotionError, ArithmeticError, LookupError, TypeError, ValueError) as error:
-            return self._internal_error(error)
+            ending = internal_error(error)
+            if self.states.state is not MachineState.ALARM:
+                self.states.fire(Event.FAULT)
+            try:
+                if self.streams.sync is None:  # nothing started: nothing to decelerate
+                    raise ValueError("not started")
+                self._decelerate(asked_s=self.clock.now())
+            except (UsbMotionError, ArithmeticError, LookupError, TypeError, ValueError):
+                self.machine.stop()
+        if self.states.state is not MachineState.ALARM:
+            self.states.fire(Event.FAULT)
+        return ending
 
     # --- starting --------------------------------------------------------------------------------
 
@@ -171,34 +183,6 @@ class Run:
                 return Ending(StopReason.COMPLETED.value)
             if ending is not None:
                 return ending
-
-    def _internal_error(self, error: Exception) -> Ending:
-        """A fault of the run itself, or a device's it did not expect: every axis to rest
-        along the path if it can be, else stopped at once; Alarm, the error in the report."""
-        if self.states.state is not MachineState.ALARM:
-            self.states.fire(Event.FAULT)
-        try:
-            if self.streams.sync is None:  # nothing started: nothing to decelerate
-                self.machine.stop()
-            else:
-                self._decelerate(asked_s=self.clock.now())
-        except (UsbMotionError, ArithmeticError, LookupError, TypeError, ValueError):
-            self.machine.stop()
-        return Ending(f"fault: {error}" if isinstance(error, UsbMotionError)
-                      else f"fault: internal error of the run: {error!r}")
-
-    def _link_lost(self, error: UsbMotionError) -> Ending:
-        """A lost link: every axis stopped at once; Alarm."""
-        lost = next((n for n in self.axes if self.machine.axis(n).client.name
-                     == getattr(error, "device", None)), "")
-        try:
-            self.machine.stop()
-        except UsbMotionError as also:
-            self.notes.append(f"stopping: {also}")
-        if self.states.state is not MachineState.ALARM:
-            self.states.fire(Event.FAULT)
-        return Ending(f"{StopReason.LINK.value}: {error}", link_error=str(error),
-                       lost_axis=lost)
 
     def _look(self, *, at_once: bool = False) -> bool:
         """Take the requests and read the faults; True when something asks the run to
