@@ -235,3 +235,59 @@ def test_the_serving_check_catches_a_server_of_its_own(tmp_path: Path, source: s
     module = tmp_path / "planted.py"
     module.write_text(source)
     assert len(serving_calls([module])) == 1
+
+
+# --- no import circle -----------------------------------------------------------------------------
+
+def _module_of(path: Path, root: Path) -> str:
+    parts = path.relative_to(root.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def import_circles(root: Path, packages: tuple[str, ...]) -> list[list[str]]:
+    """Every circle of imports (at module level or inside functions) among the modules of
+    ``packages`` under ``root`` (the ``usbmotion`` folder), each as its modules in order."""
+    graph: dict[str, set[str]] = {}
+    for package in packages:
+        for path in sorted((root / package).rglob("*.py")):
+            module = _module_of(path, root)
+            imported = {name for _, name in _imports(ast.parse(path.read_text()))}
+            graph[module] = imported
+    for module, imported in graph.items():
+        graph[module] = {other for other in graph if other != module and (
+            other in imported or any(name.startswith(other + ".") for name in imported))
+            and not module.startswith(other + ".")}
+    circles: list[list[str]] = []
+    state: dict[str, int] = {}
+    trail: list[str] = []
+
+    def visit(module: str) -> None:
+        state[module] = 1
+        trail.append(module)
+        for other in sorted(graph[module]):
+            if state.get(other) == 1:
+                circles.append([*trail[trail.index(other):], other])
+            elif other not in state:
+                visit(other)
+        trail.pop()
+        state[module] = 2
+
+    for module in sorted(graph):
+        if module not in state:
+            visit(module)
+    return circles
+
+
+def test_no_import_circle_in_session_or_cli() -> None:
+    assert import_circles(SRC, ("session", "cli")) == []
+
+
+def test_the_circle_check_catches_a_circle(tmp_path: Path) -> None:
+    root = tmp_path / "usbmotion"
+    (root / "session").mkdir(parents=True)
+    (root / "session" / "__init__.py").write_text("")
+    (root / "session" / "run.py").write_text("from usbmotion.session.live import Live\n")
+    (root / "session" / "live.py").write_text(
+        "def f() -> None:\n    from usbmotion.session import run\n")
+    assert import_circles(root, ("session",)) == [
+        ["usbmotion.session.live", "usbmotion.session.run", "usbmotion.session.live"]]
