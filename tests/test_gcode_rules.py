@@ -399,12 +399,10 @@ def _moves(*args: str) -> tuple[int, list[dict[str, object]], str]:
     return result.exit_code, records, result.stderr
 
 
-def _machine(tmp_path: Path, *, top: str = "", z_home_up: bool = False) -> Path:
-    """The default machine in ``tmp_path``, with top-level keys added; Z homing up."""
+def _machine(tmp_path: Path, *, top: str = "") -> Path:
+    """The default machine (Z homing up to machine Z0) in ``tmp_path``, with top-level keys
+    added."""
     text = DEFAULT.read_text()
-    if z_home_up:
-        text = text.replace("homing = { direction = -1, speed_mm_s = 8.0",
-                            "homing = { direction = 1, speed_mm_s = 8.0")
     head, sep, rest = text.partition("\n[axes.X]")
     path = tmp_path / "mill.toml"
     path.write_text(head + "\n" + top + sep + rest)
@@ -414,20 +412,19 @@ def _machine(tmp_path: Path, *, top: str = "", z_home_up: bool = False) -> Path:
 def test_gcode_moves_reads_a_program_as_the_machine_runs_it(tmp_path: Path) -> None:
     (tmp_path / "tools.tbl").write_text("T1 P1 Z10.0 D6.0 ;end mill\n")
     (tmp_path / "mill.var").write_text("5221 100\n5222 50\n5210 1\n5211 7\n")
-    machine = _machine(tmp_path, top='tool_table = "tools.tbl"\ndialect = "grbl"\n',
-                       z_home_up=True)
+    machine = _machine(tmp_path, top='tool_table = "tools.tbl"\ndialect = "grbl"\n')
     program = tmp_path / "job.nc"
-    program.write_text("G0 X1 Y2\nT1 M6\nG43.1 Z10\nG0 Z0\n")
+    program.write_text("G0 X1 Y2\nT1 M6\nG43.1 Z10\nG0 Z-50\n")
     code, records, err = _moves(str(program), "-m", str(machine))
     assert code == 0, err
     first, down = records
-    # Starts where homing leaves the machine (Z up at 100), in G54 (100, 50), without the
-    # parameter file's G92 (grbl keeps none); G43.1 in grbl.
-    assert first["start"] == [0.0, 0.0, 100.0] and first["end"] == [101.0, 52.0, 100.0]
-    assert down["end"] == [101.0, 52.0, 10.0]
+    # Starts where homing leaves the machine (Z up at machine Z0), in G54 (100, 50),
+    # without the parameter file's G92 (grbl keeps none); G43.1 in grbl.
+    assert first["start"] == [0.0, 0.0, 0.0] and first["end"] == [101.0, 52.0, 0.0]
+    assert down["end"] == [101.0, 52.0, -40.0]
     # The same program read as LinuxCNC reads it: the G92 applies, and no end is refused.
     code, records, err = _moves(str(program), "-m", str(machine), "--dialect", "linuxcnc")
-    assert code == 1 and records[0]["end"] == [108.0, 52.0, 100.0]
+    assert code == 1 and records[0]["end"] == [108.0, 52.0, 0.0]
     assert "--dialect grbl" in err
 
 

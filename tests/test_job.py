@@ -274,7 +274,7 @@ def test_end_points_are_measured_against_the_whole_path() -> None:
     assert worst == pytest.approx(brute, abs=1e-9)
 
 
-TOOL_CHANGES = "G21 G90\nT1 M6\nG0 X10 Y10 Z5\nT2 M6\nG0 X20\nM2\n"
+TOOL_CHANGES = "G21 G90\nT1 M6\nG0 X10 Y10 Z-5\nT2 M6\nG0 X20\nM2\n"
 
 
 def test_the_report_names_every_tool_change(tmp_path: Path) -> None:

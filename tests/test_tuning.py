@@ -234,10 +234,10 @@ def test_tune_reach_refuses_what_does_not_apply(args: tuple[str, ...], message: 
      " 100.000 mm would leave its travel_mm [0, 200]: the room from there is -100.000 to"
      " +100.000 mm; nothing moved\n"),
     (("--axis", "z", "--step-mm", "-50.5"), "usbmotion tune: axis Z: a step of -50.5 mm from"
-     " 50.000 mm would leave its travel_mm [0, 100]: the room from there is -50.000 to"
+     " -50.000 mm would leave its travel_mm [-100, 0]: the room from there is -50.000 to"
      " +50.000 mm; nothing moved\n"),
     (("--axis", "Z", "--reach", "--distance-mm", "60"), "usbmotion tune: axis Z: a reach"
-     " test of +60 mm from 50.000 mm would leave its travel_mm [0, 100]: the room from"
+     " test of +60 mm from -50.000 mm would leave its travel_mm [-100, 0]: the room from"
      " there is -50.000 to +50.000 mm; nothing moved\n"),
 ])
 def test_tune_refuses_a_test_beyond_the_travel_before_anything_moves(

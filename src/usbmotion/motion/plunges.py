@@ -33,6 +33,8 @@ WARNINGS_SHOWN = 5
 PLUNGE_TOLERANCE_MM = 1e-6
 """How far below work Z0 a rapid must go, or how far inside the extent, to count (float
 noise): a rapid to exactly Z0 is not below it."""
+LINES_NAMED = 20
+"""How many more such rapids the last warning names by line."""
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -130,8 +132,8 @@ def plunge_warnings(plunges: tuple[RapidPlunge, ...]) -> tuple[str, ...]:
     rest = plunges[WARNINGS_SHOWN:]
     if not rest:
         return shown
-    lines = ", ".join(str(plunge.line) for plunge in rest[:20])
-    more = f" and {len(rest) - 20} more" if len(rest) > 20 else ""
+    lines = ", ".join(str(plunge.line) for plunge in rest[:LINES_NAMED])
+    more = f" and {len(rest) - LINES_NAMED} more" if len(rest) > LINES_NAMED else ""
     return (*shown, f"{len(rest)} more rapids reach below work Z0 inside the stock's XY"
                     f" extent: lines {lines}{more}")
 
