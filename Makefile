@@ -20,20 +20,26 @@ run: $(STAMP)
 	@mkdir -p out
 	$(BIN)/usbmotion run $(DEMO) --plot out/demo-1.png --report out/demo-1.json
 
-# The Python suite and, beside it on the other core, the firmware's (firmware-test: its build
-# and the emulated chip's tests; its output is printed when it ends); then lint and types. A
-# machine without the firmware's toolchain fails only firmware-test, after saying what to
-# install; the Python suite still runs. The real-time tests run while the other core is busy
-# with the firmware's: they must pass on a loaded machine. The G-code senders the grbl
-# front is tested with are installed first (senders); where they cannot be, their tests skip
-# (fail under CI=true) and the rest still runs.
+# The Python suite and, beside it, the firmware's (firmware-test: its build and the emulated
+# chip's tests) and the G-code senders' (tests/senders: real time, mostly waiting on the
+# machine's clock); their output is printed when they end; then lint and types. A machine
+# without the firmware's toolchain fails only firmware-test, after saying what to install;
+# the Python suite still runs. The real-time tests run while both cores are busy with the
+# rest: they must pass on a loaded machine. The G-code senders the grbl front is tested
+# with are installed first (senders); where they cannot be, their tests skip (fail under
+# CI=true) and the rest still runs.
 test: $(STAMP)
 	@mkdir -p build; status=0; \
 	bash tests/senders/install.sh || status=1; \
 	( $(MAKE) --no-print-directory firmware-test > build/firmware-test.log 2>&1; \
 	  echo $$? > build/firmware-test.status ) & \
-	$(BIN)/python -m pytest -q -x -p no:cacheprovider $(EMULATED_IGNORE) || status=1; \
-	wait; echo "--- make firmware-test:"; cat build/firmware-test.log; \
+	( $(BIN)/python -m pytest -q -x -p no:cacheprovider --basetemp=build/senders-tmp \
+	  tests/senders > build/senders-test.log 2>&1; echo $$? > build/senders-test.status ) & \
+	$(BIN)/python -m pytest -q -x -p no:cacheprovider $(EMULATED_IGNORE) \
+	  --ignore=tests/senders || status=1; \
+	wait; echo "--- the senders' tests:"; cat build/senders-test.log; \
+	[ "$$(cat build/senders-test.status)" = 0 ] || status=1; \
+	echo "--- make firmware-test:"; cat build/firmware-test.log; \
 	[ "$$(cat build/firmware-test.status)" = 0 ] || status=1; \
 	$(BIN)/ruff check src tests benchmarks || status=1; \
 	$(BIN)/mypy || status=1; \
