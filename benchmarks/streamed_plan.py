@@ -97,7 +97,7 @@ def _executed(config: MachineConfig, text: str, name: str, *, streamed: bool,
         assert run is not None
         end = np.array([session.machine.status()[a].desired_counts for a in "XYZ"])
         session.shutdown()
-        return report.executed_time_s, end, len(run.legs)
+        return report.executed_time_s, end, len(run.legs.legs)
 
 
 def streamed_against_whole(conformance: Path) -> list[dict[str, Any]]:
@@ -152,7 +152,7 @@ def jog_cancel(config: MachineConfig, request_tick: int) -> tuple[float, float, 
         run = session.last_run
         assert run is not None and report.stop_reason == "jog cancelled"
         session.shutdown()
-        latency_ms = (run.stop_tick - asked[0]) * config.servo_period_s * 1000
+        latency_ms = (run.stops.stop_tick - asked[0]) * config.servo_period_s * 1000
         return latency_ms, report.stop_distance_mm, report.stop_planned_mm
 
 
