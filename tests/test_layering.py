@@ -149,6 +149,18 @@ def test_importing_the_host_loads_neither_the_simulator_nor_the_device() -> None
         " if m.startswith(('usbmotion.sim', 'usbmotion.device'))))") == "[]"
 
 
+def test_the_command_lines_help_imports_nothing_it_does_not_use() -> None:
+    """``usbmotion --help`` (the command line, before any command runs) loads neither
+    numpy, numba nor matplotlib, nor the simulator, the device, the session or the links:
+    each command imports those when it runs."""
+    heavy = ("numpy", "numba", "matplotlib", "usbmotion.sim", "usbmotion.device",
+             "usbmotion.session", "usbmotion.host")
+    assert _in_fresh_python(
+        "import sys, usbmotion.cli.main;"
+        f" print(sorted({{m.split('.')[0] if not m.startswith('usbmotion') else m"
+        f" for m in sys.modules if m.startswith({heavy!r})}}))") == "[]"
+
+
 def test_importing_the_host_leaves_pyserials_url_handlers_alone() -> None:
     assert _in_fresh_python(
         "import serial; before = list(serial.protocol_handler_packages);"

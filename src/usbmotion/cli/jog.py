@@ -18,7 +18,6 @@ from usbmotion.errors import (
     PlanningError,
     UsbMotionError,
 )
-from usbmotion.session.operator import parse_steps
 
 if TYPE_CHECKING:
     from usbmotion.host.config import MachineConfig
@@ -59,6 +58,8 @@ def jog(
     machine file (nothing moved); 130 interrupted by Ctrl-C, 143 by SIGTERM.
     """
     config = load_machine(machine, "jog")
+    from usbmotion.session.operator import parse_steps  # noqa: PLC0415 - quick --help
+
     try:
         moves = parse_steps(steps)
     except ValueError as error:

@@ -10,16 +10,15 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 from types import FrameType
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail, os_problem
 from usbmotion.cli.machines import hold, state_dir
-from usbmotion.protocol import device_name_problem, encode_device_name
-from usbmotion.sim.pty_dir import announced
-from usbmotion.sim.server import DeviceServer
-from usbmotion.sim.world import SimWorld
+
+if TYPE_CHECKING:
+    from usbmotion.sim.world import SimWorld
 
 
 def default_flash_dir() -> Path:
@@ -35,6 +34,8 @@ def _slug(name: str) -> str:
 def build_world(names: list[str], count: int, flash_dir: Path) -> SimWorld:
     """A world of ``count`` devices; the first ones take ``names`` (written to their flash)."""
     from usbmotion.device import Device, FileFlash  # noqa: PLC0415 - keeps start-up light
+    from usbmotion.protocol import encode_device_name  # noqa: PLC0415
+    from usbmotion.sim.world import SimWorld  # noqa: PLC0415
 
     flash_dir.mkdir(parents=True, exist_ok=True)
     world = SimWorld()
@@ -116,6 +117,8 @@ def sim(
     folder (two usbmotion sim at once) is refused in one line naming the first one's
     process, as a port another program holds; give it another --flash-dir.
     """
+    from usbmotion.protocol import device_name_problem  # noqa: PLC0415 - quick --help
+
     names = list(name or [])
     for each in names:
         problem = device_name_problem(each, allow_empty=False)
@@ -210,6 +213,9 @@ def _signals_stop_serving() -> Iterator[threading.Event]:
 def _serve(world: SimWorld, *, pty: bool, tcp_port: int) -> None:
     """Serve ``world``'s devices until a signal; print each one's address once it answers
     (and announce its terminal to ``usbmotion devices``)."""
+    from usbmotion.sim.pty_dir import announced  # noqa: PLC0415 - keeps start-up light
+    from usbmotion.sim.server import DeviceServer  # noqa: PLC0415
+
     try:
         server = DeviceServer(world, pty=pty, tcp_port=tcp_port, on_notice=_say)
     except OSError as error:
@@ -244,6 +250,7 @@ def _serve_firmware(
     """``sim --firmware``: ``devices`` emulated RP2040s, served until a signal."""
     from usbmotion.errors import DeviceError  # noqa: PLC0415 - keeps start-up light
     from usbmotion.sim.firmware import FirmwareServer  # noqa: PLC0415
+    from usbmotion.sim.pty_dir import announced  # noqa: PLC0415
 
     try:
         server = FirmwareServer(image, devices, pty=pty, tcp_port=tcp_port,
