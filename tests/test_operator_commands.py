@@ -20,12 +20,12 @@ from tests.reliability.bench import bench_machine, served
 from typer.testing import CliRunner
 
 from usbmotion import __version__
-from usbmotion.cli.jog import parse_steps
 from usbmotion.cli.main import app
 from usbmotion.cli.run import default_machine
 from usbmotion.session import MachineState
 from usbmotion.session.live import AxisNow
 from usbmotion.session.live import LiveSnapshot as Progress
+from usbmotion.session.operator import parse_steps
 from usbmotion.sim.machine import connect_session, load_machine_file
 
 COMMANDS = (
