@@ -21,8 +21,9 @@ run: $(STAMP)
 	$(BIN)/usbmotion run $(DEMO) --plot out/demo-1.png --report out/demo-1.json
 
 # The Python suite and, beside it, the firmware's (firmware-test: its build and the emulated
-# chip's tests) and the G-code senders' (tests/senders: real time, mostly waiting on the
-# machine's clock); their output is printed when they end; then lint and types. A machine
+# chip's tests) and the real-time ones of the G-code senders and of reliability
+# (tests/senders, tests/reliability: mostly waiting on the machine's clock); their output is
+# printed when they end; then lint and types. A machine
 # without the firmware's toolchain fails only firmware-test, after saying what to install;
 # the Python suite still runs. The real-time tests run while both cores are busy with the
 # rest: they must pass on a loaded machine. The G-code senders the grbl front is tested
@@ -34,10 +35,11 @@ test: $(STAMP)
 	( $(MAKE) --no-print-directory firmware-test > build/firmware-test.log 2>&1; \
 	  echo $$? > build/firmware-test.status ) & \
 	( $(BIN)/python -m pytest -q -x -p no:cacheprovider --basetemp=build/senders-tmp \
-	  tests/senders > build/senders-test.log 2>&1; echo $$? > build/senders-test.status ) & \
+	  tests/senders tests/reliability > build/senders-test.log 2>&1; \
+	  echo $$? > build/senders-test.status ) & \
 	$(BIN)/python -m pytest -q -x -p no:cacheprovider $(EMULATED_IGNORE) \
-	  --ignore=tests/senders || status=1; \
-	wait; echo "--- the senders' tests:"; cat build/senders-test.log; \
+	  --ignore=tests/senders --ignore=tests/reliability || status=1; \
+	wait; echo "--- the senders' and reliability tests:"; cat build/senders-test.log; \
 	[ "$$(cat build/senders-test.status)" = 0 ] || status=1; \
 	echo "--- make firmware-test:"; cat build/firmware-test.log; \
 	[ "$$(cat build/firmware-test.status)" = 0 ] || status=1; \
