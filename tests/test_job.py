@@ -179,12 +179,13 @@ def test_console_through_a_pseudo_terminal() -> None:
         send("$c")
         text = read_until(b"\ndone")
         assert "cycle start" in text and "faults         none" in text
-        send("?")
-        text = read_until(b"state: ") + read_until(b"\r\n")
-        if "program:" not in text:  # asked as the run's last reading ended: the live line
-            assert "state: Idle; line 17 of 18; machine X 5.000" in text, text
+        for _ in range(100):  # the live line while the run's last reading ends, then idle
             send("?")
             text = read_until(b"state: ") + read_until(b"\r\n")
+            if "program:" in text:
+                break
+            assert "state: Idle; line 17 of 18; machine X 5.000" in text, text
+            time.sleep(0.1)
         text += read_until(b"\r\nZ:") + read_until(b"\r\n")
         assert "state: Idle; program: 1-rounded-square.ngc; homed: yes; last run: completed" in text
         assert re.search(r"X:\s+(4\.99|5\.00)\d mm", text), text
