@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -86,25 +87,41 @@ def whole_program(plan: Plan) -> Leg:
     return Leg(plan, np.arange(count, dtype=np.int64), np.zeros(count), np.zeros(count))
 
 
+class _Trapezoid(NamedTuple):
+    """One segment's speed profile: duration (s), acceleration (mm/s^2), entry, cruise and
+    exit speeds (mm/s), acceleration and cruise times (s), length (mm)."""
+
+    segment_s: float
+    a: float
+    v_entry: float
+    v_cruise: float
+    v_exit: float
+    t_accel: float
+    t_cruise: float
+    length: float
+
+
+def _trapezoid(plan: Plan, index: int) -> _Trapezoid:
+    """Segment ``index``'s profile as Python floats."""
+    return _Trapezoid(
+        float(plan.segment_duration_s[index]), float(plan.accel_mm_s2[index]),
+        float(plan.v_entry_mm_s[index]), float(plan.v_cruise_mm_s[index]),
+        float(plan.v_exit_mm_s[index]), float(plan.t_accel_s[index]),
+        float(plan.t_cruise_s[index]), float(plan.length_mm[index]))
+
+
 def _segment_state(plan: Plan, index: int, elapsed_s: float) -> tuple[float, float]:
     """Distance along segment ``index`` and path speed, ``elapsed_s`` after its start."""
-    segment_s = float(plan.segment_duration_s[index])
-    t = min(max(elapsed_s, 0.0), segment_s)
-    a = float(plan.accel_mm_s2[index])
-    v_entry = float(plan.v_entry_mm_s[index])
-    v_cruise = float(plan.v_cruise_mm_s[index])
-    v_exit = float(plan.v_exit_mm_s[index])
-    t_accel = float(plan.t_accel_s[index])
-    t_cruise = float(plan.t_cruise_s[index])
     if plan.kind[index] == SegmentKind.DWELL:
         return 0.0, 0.0
+    segment_s, a, v_entry, v_cruise, v_exit, t_accel, t_cruise, length = _trapezoid(plan, index)
+    t = min(max(elapsed_s, 0.0), segment_s)
     if t < t_accel:
         return v_entry * t + 0.5 * a * t * t, v_entry + a * t
     if t < t_accel + t_cruise:
         s_accel = v_entry * t_accel + 0.5 * a * t_accel * t_accel
         return s_accel + v_cruise * (t - t_accel), v_cruise
     left = max(0.0, segment_s - t)
-    length = float(plan.length_mm[index])
     return max(0.0, length - (v_exit * left + 0.5 * a * left * left)), v_exit + a * left
 
 
@@ -139,15 +156,8 @@ def _time_along(plan: Plan, index: int, distance_mm: float, dwelt_s: float) -> f
     trapezoid's distance inverted phase by phase (accelerate, cruise, decelerate)."""
     if plan.kind[index] == SegmentKind.DWELL:
         return dwelt_s
-    segment_s = float(plan.segment_duration_s[index])
-    length = float(plan.length_mm[index])
+    segment_s, a, v_entry, v_cruise, v_exit, t_accel, t_cruise, length = _trapezoid(plan, index)
     s = min(max(distance_mm, 0.0), length)
-    a = float(plan.accel_mm_s2[index])
-    v_entry = float(plan.v_entry_mm_s[index])
-    v_cruise = float(plan.v_cruise_mm_s[index])
-    v_exit = float(plan.v_exit_mm_s[index])
-    t_accel = float(plan.t_accel_s[index])
-    t_cruise = float(plan.t_cruise_s[index])
     s_accel = v_entry * t_accel + 0.5 * a * t_accel * t_accel
     if s <= s_accel and t_accel > 0.0:
         return min(t_accel, _time_to_cover(s, v_entry, a))
