@@ -9,8 +9,9 @@ import json
 import math
 import os
 import shutil
+import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -294,6 +295,39 @@ def served_fake(**server_options: object) -> Iterator[tuple[GrblServer, FakeMach
         server.start()
         yield server, machine
         assert server.error is None
+
+
+@contextmanager
+def executing_lines(session: MachineSession) -> Iterator[list[tuple[float, int]]]:
+    """While inside: every 2 ms, when (monotonic s) and which line the live model shows
+    executing, in the list given."""
+    executing: list[tuple[float, int]] = []
+    done = threading.Event()
+
+    def watch() -> None:
+        while not done.wait(0.002):
+            executing.append((time.monotonic(), session.live.read().line))
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    try:
+        yield executing
+    finally:
+        done.set()
+        watcher.join(timeout=5)
+
+
+def most_lines_ahead(executing: list[tuple[float, int]], acked: Iterable[tuple[int, float]],
+                     first_line: int) -> int:
+    """The most lines acknowledged ahead of the line executing: ``acked`` holds each
+    program line's index (0: ``first_line``) and when its ``ok`` came; before the program's
+    first line executes (its motion not begun), none counts."""
+    ahead = 0
+    for index, when in acked:
+        now = max((line for at, line in executing if at <= when), default=0)
+        if now >= first_line:
+            ahead = max(ahead, first_line + index - now)
+    return ahead
 
 
 def wait_for(condition: object, *, timeout_s: float, what: str,

@@ -23,6 +23,8 @@ from tests.senders.helpers import (
     PROGRAM_PATH,
     SHORT_PROGRAM,
     SHORT_PROGRAM_PATH,
+    executing_lines,
+    most_lines_ahead,
     need,
     path_deviation,
     record,
@@ -146,34 +148,18 @@ def test_grbl_streamer_homes_and_streams_a_program_on_the_simulated_machine(
         before = len(sender.events)
         feed = real.operator.feed
         first_line = (feed.lines if feed is not None else 0) + 2  # after the G4 P0 it sends
-        executing: list[tuple[float, int]] = []
-        done = threading.Event()
-
-        def watch() -> None:
-            while not done.wait(0.002):
-                executing.append((time.monotonic(), real.session.live.read().line))
-
-        watcher = threading.Thread(target=watch, daemon=True)
-        watcher.start()
-        try:
+        with executing_lines(real.session) as executing:
             sender.run(SHORT_PROGRAM)
             wait_for(lambda: any(e == "on_job_completed" for e, _ in sender.events_since(before))
                      and sender.streamer.job_finished and sender.streamer.streaming_complete,
                      timeout_s=40, what="the job's end",
                      seen=lambda: sender.events_since(before)[-3:])
-        finally:
-            done.set()
-            watcher.join(timeout=5)
         acked: dict[int, float] = {}  # the job's line index -> when its ok was processed
         for (event, data), when in zip(sender.events[before:], sender.times[before:],
                                        strict=True):
             if event == "on_processed_command" and data[0] >= 0:
                 acked.setdefault(int(data[0]), when)
-        ahead = 0  # while a line of the job executes (before its motion began, none did)
-        for index, when in acked.items():
-            now = max((line for at, line in executing if at <= when), default=0)
-            if now >= first_line:
-                ahead = max(ahead, first_line + index - now)
+        ahead = most_lines_ahead(executing, acked.items(), first_line)
         wait_for(lambda: _at_rest_at(sender, (0.0, 0.0, -1.0), after=before) and real.idle(),
                  timeout_s=10, what="the report of the machine at rest at the program's end",
                  seen=lambda: sender.data("on_stateupdate")[-3:])

@@ -11,7 +11,6 @@ from __future__ import annotations
 import itertools
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -22,7 +21,13 @@ import numpy as np
 import pytest
 from tests.programs.engraving import engraving
 from tests.reliability.bench import bench_machine, served
-from tests.senders.helpers import fast_homing_machine, path_deviation, served_real
+from tests.senders.helpers import (
+    executing_lines,
+    fast_homing_machine,
+    most_lines_ahead,
+    path_deviation,
+    served_real,
+)
 from tests.senders.raw_sender import RawSender
 
 from usbmotion.console import Console
@@ -206,26 +211,10 @@ def test_a_senders_ok_follows_the_machine_and_its_plan_keeps_time(tmp_path: Path
         here = real.session.live.read().machine_mm(measured=False)
         _, plan = plan_gcode(real.session.config, "\n".join(THIRTY_SIX) + "\n",
                              start_mm=tuple(here[a] for a in "XYZ"))
-        executing: list[tuple[float, int]] = []
-        done = threading.Event()
-
-        def watch() -> None:
-            while not done.wait(0.002):
-                executing.append((time.monotonic(), real.session.live.read().line))
-
-        watcher = threading.Thread(target=watch, daemon=True)
-        watcher.start()
-        try:
+        with executing_lines(real.session) as executing:
             acks = sender.stream(THIRTY_SIX, timeout_s=120)
             sender.wait(real.idle, timeout_s=120, what="the program's end")
-        finally:
-            done.set()
-            watcher.join(timeout=5)
-        ahead = 0  # while a line of the program executes (before its motion began, none did)
-        for index, acked_s in enumerate(acks, start=1):
-            line_then = max((line for at, line in executing if at <= acked_s), default=0)
-            if line_then > base:
-                ahead = max(ahead, base + index - line_then)
+        ahead = most_lines_ahead(executing, enumerate(acks), base + 1)
         assert ahead <= 16, f"acknowledged up to {ahead} lines ahead of the line executing"
         report = real.operator.last_report
         assert report is not None and report.completed, report
