@@ -37,3 +37,12 @@ class WallClock:
 
 
 WALL_CLOCK = WallClock()
+
+
+def is_paced(clock: Clock) -> bool:
+    """Whether sleeping on ``clock`` takes that long on the wall clock (the wall clock, a
+    real-time simulation), rather than returning as soon as the simulation has run (a
+    virtual-time world, whose clock says so with ``paced = False``). Code that checks
+    something every so many milliseconds while it waits checks it between slices of a
+    paced clock's sleep; a virtual clock's whole sleep passes in less than a slice."""
+    return bool(getattr(clock, "paced", True))

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Generic, Protocol, TypeVar
 
-from usbmotion.clock import Clock
+from usbmotion.clock import Clock, is_paced
 from usbmotion.errors import ArgumentError, SequenceFaultError, StopRequestedError
 
 
@@ -168,7 +168,8 @@ class Chain(Generic[InT, OutT]):
 
 
 STOP_CHECK_S = 0.002
-"""How often :func:`run_sequence` asks ``should_stop`` while it waits between polls."""
+"""How often :func:`run_sequence` asks ``should_stop`` while it waits between polls (on a
+paced clock: a virtual-time world's wait between polls passes in less than that)."""
 
 
 def run_sequence(
@@ -195,6 +196,7 @@ def run_sequence(
     if not (math.isfinite(rate_hz) and rate_hz > 0):
         raise ArgumentError(f"rate_hz {rate_hz!r} must be > 0", reason="rate_hz")
     period = 1.0 / rate_hz
+    sliced = should_stop is not None and is_paced(clock)
     start = clock.now()
     polls = 0
     while True:
@@ -229,4 +231,4 @@ def run_sequence(
                 break
             if should_stop is not None and should_stop():
                 break
-            clock.sleep(min(left, STOP_CHECK_S) if should_stop is not None else left)
+            clock.sleep(min(left, STOP_CHECK_S) if sliced else left)

@@ -335,6 +335,12 @@ class VirtualClock:
     def __init__(self, world: SimWorld) -> None:
         self.world = world
 
+    @property
+    def paced(self) -> bool:
+        """Whether sleeping takes wall time: a real-time world's does, a virtual-time
+        world's returns once its devices have run (:func:`usbmotion.clock.is_paced`)."""
+        return self.world.realtime
+
     def now(self) -> float:
         """The world's time in seconds."""
         return self.world.time_us / 1e6
