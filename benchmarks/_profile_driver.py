@@ -127,8 +127,9 @@ def _install() -> None:
         importlib.import_module(module_name)
     from usbmotion.device import core0, kernel  # noqa: PLC0415
 
+    compiled = kernel.compile_kernel()  # numba imported (charged to imports)
     _switch("kernel load")
-    compiled = kernel.compile_kernel()
+    kernel.warm_up()  # the machine code loaded from numba's cache (or compiled)
     _back()
     servo = charged("kernel", compiled)
     core0.compile_kernel = lambda: servo  # type: ignore[attr-defined]

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -27,7 +29,9 @@ from usbmotion.protocol import (
     LineSplitter,
     Overlong,
     ReplyKind,
+    codec,
     encode_call,
+    encode_counted,
     format_err,
     parse_call,
     parse_diagnostics,
@@ -287,3 +291,59 @@ def test_protocol_md_matches_the_table() -> None:
         "PROTOCOL.md disagrees with the command table; regenerate it with "
         "`python -m usbmotion.protocol.reference --write PROTOCOL.md`"
     )
+
+
+def _outcome(action: Callable[[], object]) -> object:
+    """What ``action`` returns, or the type and message of what it raises."""
+    try:
+        return action()
+    except ProtocolError as error:
+        return (type(error), str(error))
+
+
+_TOKENS = st.one_of(
+    st.integers(-(2**31), 2**31 - 1).map(str),
+    st.integers(-(10**25), 10**25).map(str),
+    st.sampled_from(["-", "--5", "5-", "+7", "-0", "007", "1-2", "- 3", "99999999999999999999"]),
+)
+
+
+@given(st.sampled_from([0, 1, 3, 18, 38]), st.lists(_TOKENS, min_size=0, max_size=120),
+       st.sampled_from([" ", "  ", "\t", " \t"]), st.sampled_from(["\n", "\r\n", "", " \n"]))
+@settings(max_examples=400, deadline=None)
+def test_a_long_line_of_numbers_parses_as_token_by_token(
+    number: int, tokens: list[str], gap: str, end: str
+) -> None:
+    """The bulk conversion of long lines (numpy, one pass) answers exactly what the
+    token-by-token path answers (``parse_call`` of text), errors and messages included."""
+    count = [str(len(tokens))] if number in (1, 18) else []
+    line = gap.join([str(number), *count, *tokens]) + end
+    assert _outcome(lambda: parse_call(line.encode("ascii"))) == _outcome(
+        lambda: parse_call(line))
+
+
+def test_the_bulk_path_is_taken_and_refuses_a_misplaced_sign() -> None:
+    values = list(range(-300, 300))
+    line = encode_call(1, len(values), *values)
+    assert len(line) > codec.BULK_BYTES
+    assert parse_call(line) == Call(1, (len(values), *values))
+    for bad in (b" 5- ", b" -- ", b" - ", b" 1-2 ", b" +-3 "):
+        broken = line.replace(b" 7 ", bad, 1)
+        with pytest.raises(NonIntegerTokenError):
+            parse_call(broken)
+    huge = line.replace(b" 7 ", b" 99999999999999999999999 ", 1)
+    with pytest.raises(OutOfRangeError, match=r"999999999999999999\.\.\.\(23 digits\)"):
+        parse_call(huge)
+
+
+@given(st.sampled_from([1, 18, 38, 3]),
+       st.lists(st.integers(-(2**33), 2**33), min_size=0, max_size=30),
+       st.lists(st.integers(-(2**31), 2**31), min_size=0, max_size=2))
+@settings(max_examples=300, deadline=None)
+def test_a_counted_call_encodes_as_encode_call(number: int, items: list[int],
+                                               lead: list[int]) -> None:
+    """``encode_counted`` gives the bytes (or the error) ``encode_call`` gives."""
+    array = np.asarray(items, dtype=np.int64)
+    expected = _outcome(lambda: encode_call(number, *lead, len(items), *items))
+    assert _outcome(lambda: encode_counted(number, tuple(lead), array)) == expected
+    assert _outcome(lambda: encode_counted(number, tuple(lead), items)) == expected

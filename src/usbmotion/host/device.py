@@ -15,6 +15,9 @@ import random
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 
+import numpy as np
+import numpy.typing as npt
+
 from usbmotion.clock import Clock
 from usbmotion.errors import (
     ArgumentError,
@@ -39,6 +42,7 @@ from usbmotion.protocol import (
     Status,
     SwitchEdge,
     encode_call,
+    encode_counted,
     encode_device_name,
     parse_diagnostics,
     parse_reply,
@@ -194,6 +198,14 @@ class DeviceClient:
         """Send one call and a queue-status query behind it in the same write, without
         waiting: the status answer (:meth:`next_reply`) says the call has executed."""
         self.transport.write(encode_call(number, *args) + encode_call(C.MOTION_QUEUE, -1))
+
+    def send_counted_with_status(self, number: int, lead: Sequence[int],
+                                 items: Sequence[int] | npt.NDArray[np.integer]) -> None:
+        """As :meth:`send_with_status` for a counted call (``number``, ``lead``, the count
+        and the ``items``: a batch of setpoints), its items checked and written as one
+        array (:func:`~usbmotion.protocol.codec.encode_counted`)."""
+        self.transport.write(encode_counted(number, lead, items)
+                             + encode_call(C.MOTION_QUEUE, -1))
 
     def take_debug_lines(self, number: int) -> list[Reply]:
         """The debug lines of call ``number`` read so far (oldest first), no longer kept."""
@@ -475,7 +487,7 @@ class DeviceClient:
         Raises:
             QueueFullError: the device answered ``E1`` (nothing was queued).
         """
-        self._confirm(encode_call(C.ADD_MULTIPLE, len(values), *values))
+        self._confirm(encode_counted(C.ADD_MULTIPLE, (), values))
 
     def replace_setpoints(self, values: Sequence[int]) -> tuple[int, int]:
         """Calls 4 and 1 in one exchange: empty the queue, then queue these values.
@@ -489,7 +501,8 @@ class DeviceClient:
                                      + encode_call(C.ADD_MULTIPLE, len(values), *values)).values
         return queued, free
 
-    def replace_from(self, tick: int, values: Sequence[int]) -> Replaced:
+    def replace_from(self, tick: int,
+                     values: Sequence[int] | npt.NDArray[np.integer]) -> Replaced:
         """Call 38: the queue's future from device tick ``tick`` becomes ``values``.
 
         Queued values due before ``tick`` are kept, value ``k`` is for tick ``tick + k x
@@ -505,7 +518,7 @@ class DeviceClient:
             self.set_debug_flag(C.REPLACE_FROM, 1)
             self._replace_acknowledged = True
         self.take_debug_lines(C.REPLACE_FROM)
-        self._confirm(encode_call(C.REPLACE_FROM, tick, len(values), *values))
+        self._confirm(encode_counted(C.REPLACE_FROM, (tick,), values))
         acks = self.take_debug_lines(C.REPLACE_FROM)
         if len(acks) != 1:
             raise LinkCorruptedError(
@@ -513,7 +526,7 @@ class DeviceClient:
                 call=C.REPLACE_FROM)
         replaced, crc = read_replaced(acks[0].values)
         if (replaced.added != len(values) - replaced.skipped
-                or crc != values_crc32(list(values[replaced.skipped:]))):
+                or crc != values_crc32(values[replaced.skipped:])):
             raise LinkCorruptedError(
                 f"{self.name}: call 38 acknowledged {acks[0].line!r}, which is not what was"
                 f" sent ({len(values)} values)", device=self.name, call=C.REPLACE_FROM)

@@ -240,7 +240,7 @@ class SetpointStream:
         count = max(0, min(array.size, most, QUEUE_CAPACITY - kept - REPLACE_ROOM_MARGIN))
         while True:
             try:
-                replaced = self.client.replace_from(tick, array[:count].tolist())
+                replaced = self.client.replace_from(tick, array[:count])
             except QueueFullError:
                 if count == 0:
                     raise
@@ -335,7 +335,7 @@ class SetpointStream:
         if count <= 0:
             return
         chunk = self._values[self.sent : self.sent + count]
-        if self._send_batch(chunk.tolist(), crc=values_crc32(chunk)):
+        if self._send_batch(chunk, crc=values_crc32(chunk)):
             self.sent += count
             self.batches += 1
 
@@ -355,7 +355,7 @@ class SetpointStream:
             device=self.client.name, call=C.MOTION_QUEUE,
         )
 
-    def _send_batch(self, batch: list[int], *, crc: int) -> bool:
+    def _send_batch(self, batch: npt.NDArray[np.integer], *, crc: int) -> bool:
         """Send one call-1 batch with a status query behind it; True if the device took it.
 
         With ``verify`` the device acknowledges every batch it takes with its count and
@@ -375,7 +375,7 @@ class SetpointStream:
         self._refused = False
         self._errors_at_batch = self.errors
         garbled_before = self.garbled_lines
-        self.client.send_with_status(C.ADD_MULTIPLE, len(batch), *batch)
+        self.client.send_counted_with_status(C.ADD_MULTIPLE, (), batch)
         self.status_queries += 1
         answer = self._exchange()
         if answer is not None:
