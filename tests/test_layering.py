@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import ast
 import re
+import os
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -159,6 +160,29 @@ def test_the_command_lines_help_imports_nothing_it_does_not_use() -> None:
         "import sys, usbmotion.cli.main;"
         f" print(sorted({{m.split('.')[0] if not m.startswith('usbmotion') else m"
         f" for m in sys.modules if m.startswith({heavy!r})}}))") == "[]"
+
+
+@pytest.mark.parametrize("command", [
+    ["status"], ["jog", "X+1"], ["get", "X", "kp"], ["home"],
+])
+def test_an_operator_command_on_a_real_machine_loads_no_simulator(
+        tmp_path: Path, command: list[str]) -> None:
+    """An operator command on a machine of real devices (here on TCP ports nothing
+    listens on: it fails to connect) imports neither numba, matplotlib, the simulator's
+    world nor the device: only the ``sim://`` URL checks of the machine file."""
+    machine = tmp_path / "machine.toml"
+    served = (Path(__file__).parents[1] / "examples" / "served-machine.toml").read_text()
+    machine.write_text(served.replace("socket://127.0.0.1:700", "socket://127.0.0.1:1"))
+    script = (
+        "import runpy, sys; sys.argv = ['usbmotion', *sys.argv[1:]]\n"
+        "try:\n    runpy.run_module('usbmotion', run_name='__main__')\n"
+        "except SystemExit:\n    pass\n"
+        "heavy = ('numba', 'matplotlib', 'usbmotion.sim.world', 'usbmotion.device')\n"
+        "sys.stderr.write(repr(sorted(m for m in sys.modules if m.startswith(heavy))))\n")
+    done = subprocess.run([sys.executable, "-c", script, *command, "--machine", str(machine)],
+                          capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "USBMOTION_STATE_DIR": str(tmp_path / "state")})
+    assert done.stderr.splitlines()[-1] == "[]", done.stderr
 
 
 def test_importing_the_host_leaves_pyserials_url_handlers_alone() -> None:

@@ -309,7 +309,8 @@ _TOKENS = st.one_of(
 
 
 @given(st.sampled_from([0, 1, 3, 18, 38]), st.lists(_TOKENS, min_size=0, max_size=120),
-       st.sampled_from([" ", "  ", "\t", " \t"]), st.sampled_from(["\n", "\r\n", "", " \n"]))
+       st.sampled_from([" ", "  ", "\t", " \t", " \r "]),
+       st.sampled_from(["\n", "\r\n", "", " \n", "-", "-\n"]))
 @settings(max_examples=400, deadline=None)
 def test_a_long_line_of_numbers_parses_as_token_by_token(
     number: int, tokens: list[str], gap: str, end: str

@@ -46,3 +46,16 @@ def is_paced(clock: Clock) -> bool:
     something every so many milliseconds while it waits checks it between slices of a
     paced clock's sleep; a virtual clock's whole sleep passes in less than a slice."""
     return bool(getattr(clock, "paced", True))
+
+
+def sleep_quiet(clock: Clock, seconds: float, *, quiet_until: float) -> None:
+    """Sleep ``seconds`` on ``clock``, promising to send nothing to a device before
+    ``quiet_until`` (on ``clock``): a virtual-time simulation then runs its devices ahead
+    to that time in one block instead of one per wake (its clock has ``sleep_quiet``);
+    any other clock just sleeps. A promise broken costs the simulation time, never a
+    difference in what its devices do."""
+    quiet = getattr(clock, "sleep_quiet", None)
+    if quiet is None:
+        clock.sleep(seconds)
+    else:
+        quiet(seconds, quiet_until=quiet_until)

@@ -37,14 +37,37 @@ def opened_machine(config: MachineConfig, command: str) -> Iterator[Machine]:
     """The machine's links opened and resynchronised, nothing configured or cleared (so
     what the devices hold is what a command reads); closed on leaving. A link that
     cannot be opened or a device that does not answer ends the command with status 1."""
-    from usbmotion.sim.machine import connect_machine  # noqa: PLC0415
-
     try:
-        machine = connect_machine(config)
+        if any(axis.is_simulated for axis in config.axes):
+            from usbmotion.sim.machine import connect_machine  # noqa: PLC0415
+
+            machine = connect_machine(config)
+        else:
+            from usbmotion.host.machine import Machine  # noqa: PLC0415 - no simulator
+
+            machine = Machine.connect(config)
     except (UsbMotionError, OSError) as error:
         fail(command, str(error), EXIT_FAULT)
     with machine:
         yield machine
+
+
+def connect_any(config: MachineConfig, *, realtime: bool = False) -> MachineSession:
+    """A machine session on ``config``'s machine: its simulated devices in a world of
+    their own (in real time with ``realtime``), or its devices on their links; the
+    simulator is imported only for a simulated machine.
+
+    Raises:
+        UsbMotionError, OSError: connecting failed.
+    """
+    if config.is_simulated:
+        from usbmotion.sim.machine import connect_session  # noqa: PLC0415
+        from usbmotion.sim.world import SimWorld  # noqa: PLC0415
+
+        return connect_session(config, world=SimWorld(realtime=True) if realtime else None)
+    from usbmotion.session import MachineSession  # noqa: PLC0415 - no simulator
+
+    return MachineSession.connect(config)
 
 
 @contextmanager
@@ -52,12 +75,8 @@ def taken_over(config: MachineConfig, command: str) -> Iterator[MachineSession]:
     """A machine session on the machine, taken over as ``usbmotion run`` takes it (faults
     an earlier host left read and cleared, the machine file's settings sent); its notices
     printed; closed on leaving. Failing to connect ends the command with status 1."""
-    from usbmotion.session import MachineSession  # noqa: PLC0415
-    from usbmotion.sim.machine import connect_session  # noqa: PLC0415
-
     try:
-        session = (connect_session(config) if config.is_simulated
-                   else MachineSession.connect(config))
+        session = connect_any(config)
     except (UsbMotionError, OSError) as error:
         fail(command, str(error), EXIT_FAULT)
     with session:

@@ -7,6 +7,7 @@ import sys
 
 import typer
 
+from usbmotion.cli.connect import connect_any
 from usbmotion.cli.exits import EXIT_FAULT
 from usbmotion.cli.machines import MachineOption, load_machine
 from usbmotion.cli.signals import stop_on_signals
@@ -29,8 +30,6 @@ def console(
     leaving, the servos are disabled (the machine stays homed for the next host).
     """
     from usbmotion.console import Console  # noqa: PLC0415 - keep --help fast
-    from usbmotion.session import MachineSession  # noqa: PLC0415
-    from usbmotion.sim.machine import connect_session  # noqa: PLC0415
 
     config = load_machine(machine, "console")
     interactive = sys.stdin.isatty()
@@ -40,8 +39,7 @@ def console(
         sys.stdout.flush()
 
     try:
-        with (connect_session(config) if config.is_simulated
-              else MachineSession.connect(config)) as session:
+        with connect_any(config) as session:
             for notice in session.notices:
                 write(f"notice: {notice}")
             console_session = Console(session, write)

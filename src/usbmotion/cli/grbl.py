@@ -57,8 +57,6 @@ def grbl(
     from usbmotion.grbl.session_machine import SessionMachine  # noqa: PLC0415
     from usbmotion.session import MachineSession  # noqa: PLC0415
     from usbmotion.session.operator import Operator  # noqa: PLC0415
-    from usbmotion.sim.machine import connect_session  # noqa: PLC0415
-    from usbmotion.sim.world import SimWorld  # noqa: PLC0415
 
     config = load_machine(machine, "grbl")
     if tcp is not None and not 0 <= tcp <= 65535:
@@ -72,10 +70,16 @@ def grbl(
         problem = link_problem(Path(link))
         if problem is not None:
             fail("grbl", problem, EXIT_BAD_INPUT)
-    world = SimWorld(realtime=True) if config.is_simulated else None
+    world = None
     try:
-        session = (connect_session(config, world=world) if world is not None
-                   else MachineSession.connect(config))
+        if config.is_simulated:
+            from usbmotion.sim.machine import connect_session  # noqa: PLC0415
+            from usbmotion.sim.world import SimWorld  # noqa: PLC0415
+
+            world = SimWorld(realtime=True)
+            session = connect_session(config, world=world)
+        else:
+            session = MachineSession.connect(config)
     except UsbMotionError as error:
         fail("grbl", str(error), EXIT_FAULT)
     status = 0

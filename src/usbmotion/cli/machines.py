@@ -108,7 +108,8 @@ def load_machine(machine: Path | None, command: str | None = None) -> MachineCon
         machine: the ``--machine`` file, or None.
         command: the command's name in the message (default: the running command's).
     """
-    from usbmotion.sim.machine import load_machine_file  # noqa: PLC0415 - keeps --help fast
+    from usbmotion.host.config import load_config  # noqa: PLC0415 - keeps --help fast
+    from usbmotion.sim.urls import URL_CHECKS  # noqa: PLC0415 - the sim:// checks alone
 
     name = command_name() if command is None else command
     path = machine or default_machine()
@@ -116,7 +117,7 @@ def load_machine(machine: Path | None, command: str | None = None) -> MachineCon
     if problem is not None:
         fail(name, f"cannot read the machine file {path}: {problem}", EXIT_BAD_INPUT)
     try:
-        config = load_machine_file(path)
+        config = load_config(path, url_checks=URL_CHECKS)
     except ConfigError as error:
         fail(name, str(error), EXIT_BAD_INPUT)
     if machine is None:

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+from usbmotion.cli.connect import connect_any
 from usbmotion.cli.exits import (
     EXIT_BAD_INPUT,
     EXIT_COMPLETED,
@@ -131,10 +132,7 @@ def run(
     from usbmotion.motion.gcode import parse_gcode, read_gcode_text  # noqa: PLC0415
     from usbmotion.motion.offsets import format_point, read_parameter_file  # noqa: PLC0415
     from usbmotion.motion.tools import NO_TOOLS, load_tool_table  # noqa: PLC0415
-    from usbmotion.session import MachineSession  # noqa: PLC0415
     from usbmotion.session.planning import machine_axes, machine_dialect  # noqa: PLC0415
-    from usbmotion.sim.machine import connect_session  # noqa: PLC0415
-    from usbmotion.sim.world import SimWorld  # noqa: PLC0415
 
     chosen: Dialect | None = None
     if dialect is not None:
@@ -162,10 +160,7 @@ def run(
         raise typer.Exit(EXIT_BAD_INPUT) from None
 
     try:
-        if config.is_simulated:
-            session = connect_session(config, world=SimWorld(realtime=realtime))
-        else:
-            session = MachineSession.connect(config)
+        session = connect_any(config, realtime=realtime)
     except UsbMotionError as error:
         typer.echo(f"usbmotion run: {error}", err=True)
         raise typer.Exit(EXIT_FAULT) from None

@@ -171,6 +171,19 @@ class DeviceSettings:
     flash_writes: int
 
 
+@dataclass(frozen=True, slots=True)
+class Checkpoint:
+    """What running a device changes, at one moment (:meth:`Device.checkpoint`)."""
+
+    state: IntArray
+    params: IntArray
+    settle_left: int
+    curve: object
+    output: bytes
+    stamps: tuple[tuple[int, int], ...]
+    fed: int
+
+
 class _RefusedError(Exception):
     """A call the table accepts but the device state refuses: answered ``ERR <call> ...``."""
 
@@ -224,6 +237,9 @@ class Device:
             number: getattr(self, f"_call_{number}") for number in BY_NUMBER
         }
         self._empty = np.zeros(0, dtype=np.int64)
+        self._fed = 0
+        """Pieces of input taken (:meth:`feed`): a checkpoint is only rewound to with none
+        taken since."""
         self._power_up()
 
     # --- power -------------------------------------------------------------------------
@@ -255,6 +271,7 @@ class Device:
         self._output.clear()
         self._stamps.clear()
         self._splitter.reset()
+        self._fed += 1
         self._clock_base += self.clock
         self._power_up()
 
@@ -300,6 +317,7 @@ class Device:
         """
         if not isinstance(data, bytes | bytearray | memoryview):
             raise TypeError(f"data {data!r} is not bytes")
+        self._fed += 1
         for line in self._splitter.feed(bytes(data)):
             if isinstance(line, Overlong):
                 self._print(
@@ -325,6 +343,32 @@ class Device:
                 idle_advance(self._state, self._params, remaining)
                 return
             remaining -= done
+
+    def checkpoint(self) -> Checkpoint:
+        """Everything :meth:`run` changes, now: :meth:`rewind` returns to it. A simulation
+        that runs a device ahead of its host's clock keeps one, to take the device back
+        when input arrives for a tick it already ran (``usbmotion.sim.world``)."""
+        return Checkpoint(self._state.copy(), self._params.copy(), self._settle_left,
+                          self._curve.snapshot(), bytes(self._output), tuple(self._stamps),
+                          self._fed)
+
+    def rewind(self, checkpoint: Checkpoint) -> None:
+        """Return to ``checkpoint``: the ticks run since it are undone, as if never run
+        (what they printed too), so the same ticks run again print the same lines.
+
+        Raises:
+            DeviceParameterError: input was fed since the checkpoint (running is undone,
+                never a call), or it is not one of this device's checkpoints.
+        """
+        if not isinstance(checkpoint, Checkpoint) or checkpoint.fed != self._fed:
+            raise DeviceParameterError(
+                "a device rewinds only to a checkpoint with no input fed since it")
+        self._state[:] = checkpoint.state
+        self._params[:] = checkpoint.params
+        self._settle_left = checkpoint.settle_left
+        self._curve.restore(checkpoint.curve)  # type: ignore[arg-type]
+        self._output[:] = checkpoint.output
+        self._stamps[:] = checkpoint.stamps
 
     def take_output(self) -> bytes:
         """Everything the device printed since the last call (ASCII lines ending in ``\\n``)."""
@@ -675,7 +719,7 @@ class Device:
         state[core1.S_DESIRED_VEL] = 0
         self._curve.interrupt(int(state[core1.S_ACTUAL]))
 
-    def _push(self, values: tuple[int, ...]) -> int:
+    def _push(self, values: tuple[int, ...] | IntArray) -> int:
         """Append to the queue ring; returns the slot of the first value."""
         state = self._state
         count = int(state[core1.S_QUEUE_COUNT])
@@ -726,7 +770,7 @@ class Device:
 
     def _call_1(self, call: Call) -> None:
         self._refuse_in_curve_mode()
-        values = call.args[1:]
+        values = call.args[1:] if call.items is None else call.items
         if int(self._state[core1.S_QUEUE_COUNT]) + len(values) > QUEUE_CAPACITY:
             self._print("E1")
             return

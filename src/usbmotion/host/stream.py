@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from usbmotion.clock import sleep_quiet
 from usbmotion.errors import (
     ArgumentError,
     DeviceTimeoutError,
@@ -589,13 +590,17 @@ def run_streams(
     *,
     should_stop: Callable[[], bool] | None = None,
     max_wait_s: float = 0.05,
+    sends_from: Callable[[], float] | None = None,
 ) -> None:
     """Service several streams until every value is confirmed queued.
 
-    ``should_stop`` is asked at least every ``max_wait_s`` (a fault check, Ctrl-C).
+    ``should_stop`` is asked at least every ``max_wait_s`` (a fault check, Ctrl-C);
+    ``sends_from`` says the earliest time (on the streams' clock) it may send to a device
+    itself, unless something unforeseen asks it to (without it: at any time).
 
     All streams must share one clock (the same virtual world, or the wall clock); between
-    services this sleeps until the earliest stream wants attention.
+    services this sleeps until the earliest stream wants attention (promising the clock
+    quiet until then: :func:`usbmotion.clock.sleep_quiet`).
     """
     if not streams:
         return
@@ -612,9 +617,11 @@ def run_streams(
             stream.service()
         if not due:
             wake = min(s.wake_time() for s in pending)
-            if should_stop is not None:
-                wake = min(wake, now + max_wait_s)
-            clock.sleep(wake - now)
+            if should_stop is None:
+                clock.sleep(wake - now)
+                continue
+            quiet = min(wake, sends_from()) if sends_from is not None else now
+            sleep_quiet(clock, min(wake, now + max_wait_s) - now, quiet_until=quiet)
 
 
 def wait_until_drained(

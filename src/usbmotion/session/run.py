@@ -228,7 +228,8 @@ class Run:
         if self.feeding.stepped:
             done = self.feeding.stream(self._look, take=self._take_feed, check_s=self.check_s)
         else:
-            self.streams.stream(self._look, max_wait_s=self.check_s)
+            self.streams.stream(self._look, max_wait_s=self.check_s,
+                                sends_from=self.watch.next_status_s)
             done = not self._look() and self.feeding.wait_drained(self._look,
                                                                   check_s=self.check_s)
             if done:

@@ -145,9 +145,12 @@ class RunStreams:
             self.streams[name].replace_from(tick, index, given[:, column], most=REPLACE_BATCH)
         self.released = limit
 
-    def stream(self, should_stop: Callable[[], bool], *, max_wait_s: float) -> None:
-        """Service the streams until every row given is sent, or ``should_stop``."""
-        run_streams(list(self.streams.values()), should_stop=should_stop, max_wait_s=max_wait_s)
+    def stream(self, should_stop: Callable[[], bool], *, max_wait_s: float,
+               sends_from: Callable[[], float] | None = None) -> None:
+        """Service the streams until every row given is sent, or ``should_stop``
+        (``sends_from``: as :func:`~usbmotion.host.stream.run_streams`)."""
+        run_streams(list(self.streams.values()), should_stop=should_stop, max_wait_s=max_wait_s,
+                    sends_from=sends_from)
 
     # --- waiting for the devices ----------------------------------------------------------------
 

@@ -147,6 +147,10 @@ class Watch:
                     self.record(name, status.fault, fault_tick)
         return bool(self.faults)
 
+    def next_status_s(self) -> float:
+        """When :meth:`check` next asks the devices their status (sends to them)."""
+        return self.status_s + STATUS_CHECK_S
+
     def words(self) -> str:
         """The faults, in words."""
         return "; ".join(f"axis {f.axis} {f.fault}" for f in self.faults)

@@ -16,7 +16,8 @@ from usbmotion.sim.world import SimWorld
 
 class ExecutedRecorder:
     """Records, for the named devices of a world, the device clock and the desired position
-    after every servo tick (a context manager: leaving it stops recording).
+    after every servo tick (a context manager: leaving it stops recording). While it
+    records, the world runs its devices in step with its clock (never ahead).
 
     Parameters:
         world: the world the devices run in.
@@ -29,6 +30,9 @@ class ExecutedRecorder:
         self.clocks: dict[str, list[int]] = {key: [] for key in keys}
         self.desired: dict[str, list[int]] = {key: [] for key in keys}
         self._devices: dict[str, Device] = {}
+        self._world = world
+        self._ran_ahead = world.run_ahead
+        world.run_ahead = False  # every tick recorded once, at the world's time
         for index, key in enumerate(keys):
             device = world.device(key)
             if not isinstance(device, Device):
@@ -63,6 +67,8 @@ class ExecutedRecorder:
         """Stop recording (safe twice)."""
         for device in self._devices.values():
             device.__dict__.pop("run", None)
+        if self._devices:
+            self._world.run_ahead = self._ran_ahead
         self._devices = {}
 
     def __enter__(self) -> ExecutedRecorder:

@@ -18,13 +18,16 @@ from __future__ import annotations
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Protocol, cast, runtime_checkable
 
 from usbmotion.errors import ArgumentError, NoSuchDeviceError
 
 REALTIME_SLACK_S = 0.05
 """How far a real-time world may lag the wall clock and still catch up (running its
 devices without sleeping); a longer lag is time it stood still."""
+MAX_AHEAD_US = 500_000
+"""The furthest a virtual-time world runs a device ahead of its clock in one block (when
+its host promises quiet: :meth:`SimWorld.advance_to`)."""
 IDLE_STEP_S = 0.25
 """The most :meth:`SimWorld.keep_pace` moves a real-time world at once: an idle host calls
 it every 0.1 s or so, a longer gap since the world last moved is the host computing."""
@@ -46,6 +49,15 @@ class SimulatedDevice(Protocol):
     def take_timed_output(self) -> list[tuple[int, bytes]]: ...
 
     def ticks_until_event(self, *, diagnostics: bool = True) -> int | None: ...
+
+
+@runtime_checkable
+class RewindableDevice(SimulatedDevice, Protocol):
+    """A device the world can run ahead of its clock (``usbmotion.device.Device``)."""
+
+    def checkpoint(self) -> object: ...
+
+    def rewind(self, checkpoint: object) -> None: ...
 
 
 @dataclass(slots=True)
@@ -93,6 +105,11 @@ class _Member:
     time_us: int = 0
     inbox: deque[tuple[int, bytes]] = field(default_factory=deque)
     links: list[SimLink] = field(default_factory=list)
+    ahead_from: tuple[int, object] | None = None
+    """While the device has run ahead of the world's clock: when it started to, and its
+    checkpoint then."""
+    rewindable: bool = False
+    """Whether the device can be run ahead (:class:`RewindableDevice`)."""
 
 
 class SimLink:
@@ -156,8 +173,16 @@ class SimLink:
         return self.faults.incoming(bytes(out))
 
     def discard_input(self) -> None:
-        """Drop everything the device sent that the host has not read."""
-        self._outbox.clear()
+        """Drop everything the device sent that the host has not read (what a device run
+        ahead of the world's clock printed later than now stays to come)."""
+        now, latency = self.world.time_us, self.latency_us
+        self._outbox = deque(item for item in self._outbox if item[0] - latency > now)
+
+    def _drop_after(self, time_us: int) -> None:
+        """Forget what the device printed after ``time_us`` (it is being run again)."""
+        latency = self.latency_us
+        if self._outbox and self._outbox[-1][0] - latency > time_us:
+            self._outbox = deque(item for item in self._outbox if item[0] - latency <= time_us)
 
     def next_arrival_us(self) -> int | None:
         """When the next byte for the host arrives, if one is on its way."""
@@ -178,6 +203,13 @@ class SimWorld:
         self._time_us = 0
         self.realtime = realtime
         self._wall_origin = time.monotonic()
+        self.run_ahead = True
+        """Whether devices may run ahead of the clock when the host promises quiet (off:
+        every tick runs only once the clock reaches it, for what watches ticks as they
+        run: :class:`usbmotion.sim.recording.ExecutedRecorder`)."""
+        self.rewinds = 0
+        """How often a device run ahead of the clock was taken back to it (input came
+        before the time its host promised: :meth:`advance_to`)."""
         self.clock = VirtualClock(self)
         """The world's one clock: every port onto its devices waits on this object, so
         links share a clock exactly when they share a world."""
@@ -201,7 +233,8 @@ class SimWorld:
         key = device.name if key is None else key
         if key in self._members:
             raise ArgumentError(f"device key {key!r} is already in this world", reason="key")
-        self._members[key] = _Member(device, time_us=self._time_us)
+        self._members[key] = _Member(device, time_us=self._time_us,
+                                     rewindable=isinstance(device, RewindableDevice))
         return key
 
     def device(self, key: str) -> SimulatedDevice:
@@ -214,6 +247,7 @@ class SimWorld:
         if member is None:
             raise NoSuchDeviceError(
                 f"no simulated device {key!r}; this world has {sorted(self._members)}")
+        self._rewind(member)
         return member.device
 
     def connect(self, key: str, *, latency_us: int = 0) -> SimLink:
@@ -233,6 +267,7 @@ class SimWorld:
 
     def _deliver(self, key: str, due_us: int, data: bytes) -> None:
         member = self._members[key]
+        self._rewind(member)
         if due_us <= self._time_us and not member.inbox:
             self._catch_up(member, self._time_us)
             member.device.feed(data)
@@ -253,8 +288,9 @@ class SimWorld:
         member.time_us += ticks * device.tick_us
         self._collect(member)
 
-    def _catch_up(self, member: _Member, target_us: int) -> None:
-        """Run a device's whole ticks up to ``target_us``, delivering its inbox on time."""
+    def _catch_up(self, member: _Member, target_us: int, quiet_until_us: int = 0) -> None:
+        """Run a device's whole ticks up to ``target_us``, delivering its inbox on time;
+        with no input due before ``quiet_until_us``, on to that in the same block."""
         while True:
             tick = member.device.tick_us
             if member.inbox and member.inbox[0][0] <= target_us:
@@ -265,12 +301,52 @@ class SimWorld:
                 member.device.feed(data)
                 self._collect(member)
                 continue
-            if target_us - member.time_us >= tick:
+            ahead = min(quiet_until_us, target_us + MAX_AHEAD_US)
+            if (ahead > target_us and not member.inbox and member.ahead_from is None
+                    and member.rewindable and self.run_ahead and not self.realtime
+                    and (ahead - member.time_us) // tick > (target_us - member.time_us) // tick):
+                member.ahead_from = (member.time_us,
+                                     cast(RewindableDevice, member.device).checkpoint())
+                self._run(member, (ahead - member.time_us) // tick)
+            elif target_us - member.time_us >= tick:
                 self._run(member, (target_us - member.time_us) // tick)
             return
 
-    def advance_to(self, target_us: int) -> None:
-        """Move the world's clock forward to ``target_us`` (never back)."""
+    def _rewind(self, member: _Member) -> None:
+        """A device run ahead of the world's clock back to it (to the last tick at or
+        before it), before it takes input or is looked at: from its checkpoint, the ticks up
+        to now run again (printing what they printed before, already delivered) and what it
+        printed later is forgotten. A device that is not ahead is left as it is."""
+        if member.ahead_from is None:
+            return
+        started, checkpoint = member.ahead_from
+        member.ahead_from = None
+        if member.time_us <= self._time_us:
+            return
+        device = cast(RewindableDevice, member.device)
+        device.rewind(checkpoint)
+        self.rewinds += 1
+        tick = device.tick_us
+        ticks = (self._time_us - started) // tick
+        if ticks:
+            device.run(ticks)
+            device.take_timed_output()
+        member.time_us = started + ticks * tick
+        for link in member.links:
+            link._drop_after(member.time_us)
+
+    def advance_to(self, target_us: int, *, quiet_until_us: int = 0) -> None:
+        """Move the world's clock forward to ``target_us`` (never back).
+
+        ``quiet_until_us``: the host will send nothing before then (a promise that lets a
+        virtual-time world run its devices ahead that far in one block, up to
+        :data:`MAX_AHEAD_US`: what they print reaches the host at its time, and input that
+        comes earlier after all takes the device back to the world's clock first,
+        running again the ticks up to it; what the devices do is the same either way).
+        """
+        for member in self._members.values():
+            if member.ahead_from is not None and member.time_us <= target_us:
+                member.ahead_from = None  # the clock reaches where it ran ahead to
         if target_us <= self._time_us:
             return
         if self.realtime:
@@ -280,7 +356,8 @@ class SimWorld:
             elif lag < -REALTIME_SLACK_S:  # the host was busy: the world stood still
                 self._wall_origin -= lag + REALTIME_SLACK_S
         for member in self._members.values():
-            self._catch_up(member, target_us)
+            if member.time_us < target_us:
+                self._catch_up(member, target_us, quiet_until_us)
         self._time_us = target_us
 
     def keep_pace(self) -> None:
@@ -349,3 +426,12 @@ class VirtualClock:
         """Advance the world by ``seconds`` (rounded up to a microsecond)."""
         if seconds > 0:
             self.world.advance(max(1, round(seconds * 1e6)))
+
+    def sleep_quiet(self, seconds: float, *, quiet_until: float) -> None:
+        """As :meth:`sleep`, the caller promising to send nothing to a device before
+        ``quiet_until`` (this clock's seconds): the devices may run ahead to it at once
+        (:meth:`SimWorld.advance_to`)."""
+        if seconds > 0:
+            world = self.world
+            world.advance_to(world.time_us + max(1, round(seconds * 1e6)),
+                             quiet_until_us=int(min(quiet_until * 1e6, 2.0**62)))
