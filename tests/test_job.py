@@ -112,6 +112,35 @@ def test_usbmotion_run_a_demo_as_a_user_does(tmp_path: Path) -> None:
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_a_run_interprets_its_program_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                           ) -> None:
+    """Checked, homed and run: the program is interpreted (and planned) once, from where
+    homing leaves the machine."""
+    from typer.testing import CliRunner
+
+    from usbmotion.cli.main import app
+    from usbmotion.motion import gcode
+    from usbmotion.session import planning
+
+    calls: list[str] = []
+    original = gcode.parse_gcode
+
+    def counted(*args: object, **kwargs: object) -> object:
+        calls.append(str(kwargs.get("file")))
+        return original(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(gcode, "parse_gcode", counted)
+    monkeypatch.setattr(planning, "parse_gcode", counted)
+    program = tmp_path / "square.ngc"
+    program.write_text(demo_path(1).read_text())
+    machine = tmp_path / "machine.toml"  # its parameter file beside it, in tmp_path
+    machine.write_text(default_machine().read_text())
+    done = CliRunner().invoke(app, ["run", str(program), "-q", "--no-plot", "--machine",
+                                    str(machine)])
+    assert done.exit_code == 0, done.output
+    assert calls == [str(program)]
+
+
 def test_a_program_that_does_not_parse_stops_before_anything_moves(tmp_path: Path) -> None:
     program = tmp_path / "bad.ngc"
     program.write_text("G21 G90\nG0 X10\nG2 X20 Y0 F100\nM2\n")

@@ -35,6 +35,7 @@ from usbmotion.errors import (
 )
 
 if TYPE_CHECKING:
+    from usbmotion.host.config import MachineConfig
     from usbmotion.motion.dialects import Dialect
     from usbmotion.motion.gcode import Pause
     from usbmotion.session import MachineSession, Prepared, RunReport, Trace
@@ -129,10 +130,9 @@ def run(
     by hand before the run, or let the program's own length offsets apply).
     """
     from usbmotion.motion.dialects import dialect_named  # noqa: PLC0415
-    from usbmotion.motion.gcode import parse_gcode, read_gcode_text  # noqa: PLC0415
-    from usbmotion.motion.offsets import format_point, read_parameter_file  # noqa: PLC0415
-    from usbmotion.motion.tools import NO_TOOLS, load_tool_table  # noqa: PLC0415
-    from usbmotion.session.planning import machine_axes, machine_dialect  # noqa: PLC0415
+    from usbmotion.motion.gcode import read_gcode_text  # noqa: PLC0415
+    from usbmotion.motion.offsets import format_point  # noqa: PLC0415
+    from usbmotion.session.planning import machine_axes  # noqa: PLC0415
 
     chosen: Dialect | None = None
     if dialect is not None:
@@ -145,10 +145,8 @@ def run(
     try:
         config = load_machine(machine)
         text = read_gcode_text(program)
-        parse_gcode(text, file=str(program), machine=machine_axes(config),
-                    dialect=machine_dialect(config, chosen),
-                    tools=load_tool_table(config.tool_table) if config.tool_table else NO_TOOLS,
-                    offsets=read_parameter_file(config.parameter_path))
+        if origin_mm:  # a program refused leaves the parameter file as it was
+            _check_program(config, program, text, chosen)
     except GCodeError as error:
         typer.echo(f"{error.file}:{error.line}: {error.message}", err=True)
         raise typer.Exit(EXIT_BAD_INPUT) from None
@@ -187,6 +185,26 @@ def run(
     sys.stdout.flush()
     if code != EXIT_COMPLETED:
         raise typer.Exit(code)
+
+
+def _check_program(config: MachineConfig, program: Path, text: str,
+                   dialect: Dialect | None) -> None:
+    """Interpret the program once before anything is changed (``--origin`` saves the
+    origin first). The run interprets it again from where the machine will stand.
+
+    Raises:
+        GCodeError: the program does not parse; ConfigError: the tool table or the
+            parameter file is malformed.
+    """
+    from usbmotion.motion.gcode import parse_gcode  # noqa: PLC0415
+    from usbmotion.motion.offsets import read_parameter_file  # noqa: PLC0415
+    from usbmotion.motion.tools import NO_TOOLS, load_tool_table  # noqa: PLC0415
+    from usbmotion.session.planning import machine_axes, machine_dialect  # noqa: PLC0415
+
+    parse_gcode(text, file=str(program), machine=machine_axes(config),
+                dialect=machine_dialect(config, dialect),
+                tools=load_tool_table(config.tool_table) if config.tool_table else NO_TOOLS,
+                offsets=read_parameter_file(config.parameter_path))
 
 
 @contextmanager
@@ -274,7 +292,8 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
     try:
         if not (no_home or session.is_homed):
             homing_s = _home_with_progress(session, quiet=quiet)
-            prepared = session.prepare(program, text=text, dialect=dialect, pauses=rule)
+            if session.start_position_mm() != (prepared.start_mm, prepared.homed):
+                prepared = session.prepare(program, text=text, dialect=dialect, pauses=rule)
     except StopRequestedError as error:
         reason = f"{error.reason} (while homing)"
         return unstarted(reason, exit_code(error.reason))
