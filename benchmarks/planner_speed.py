@@ -13,22 +13,31 @@ interpolation of each axis, no rounding): the cheapest vectorised interpolation 
 Hermite: ``sample_keyframes`` against one ``hermite_position`` call per tick (how the
 device's curve mode evaluates), in ticks per second.
 
+The peer, in the same run when a Klipper checkout is given (``--klipper PATH`` or
+``KLIPPER_PATH``): Klipper's own arc segmentation (1 mm chords) and look-ahead planning the
+same mixed program (``_klipper_peer.py`` says what is and is not included), in input moves
+per second. Target: the mixed program at 200,000 moves/s.
+
 Every figure is the median of ``--runs`` runs (5 by default).
 
-Run: ``python benchmarks/planner_speed.py [--json] [--runs 5] [--moves 100000]``.
+Run: ``python benchmarks/planner_speed.py [--json] [--runs 5] [--moves 100000]
+[--klipper PATH]``.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import platform
 import sys
 from functools import partial
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from _common import argument_parser, emit, median_seconds, table_row
+from _klipper_peer import KlipperPlanner
 from usbmotion.hermite import Keyframe, hermite_position, sample_keyframes
 from usbmotion.motion.moves import Arc, Linear, Move, Plane, Point, Rapid
 from usbmotion.motion.planner import AxisLimits, Plan, PlannerConfig, plan_moves
@@ -37,6 +46,7 @@ from usbmotion.motion.sampler import sample_plan, sample_times
 LIMITS = (AxisLimits(250.0, 2000.0), AxisLimits(250.0, 2000.0), AxisLimits(80.0, 800.0))
 COUNTS_PER_MM = (1000.0, 1000.0, 2000.0)
 PLANES = (Plane.XY, Plane.XZ, Plane.YZ)
+TARGET_MIXED_MOVES_S = 200_000
 
 
 def random_program(count: int, *, seed: int, arcs: bool = True) -> list[Move]:
@@ -146,6 +156,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "--sample-moves", type=int, default=3_000, help="moves of the program to sample"
     )
     parser.add_argument("--seed", type=int, default=20260101)
+    parser.add_argument("--klipper", type=Path, default=os.environ.get("KLIPPER_PATH"),
+                        help="a Klipper checkout, to plan the same program with (the peer)")
     args = parser.parse_args(argv)
     runs = max(1, args.runs)
 
@@ -168,8 +180,19 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "plan_moves_per_s": args.moves / plan_s,
         "plan_segments_per_s": len(plan) / plan_s,
         "plan_lines_only_moves_per_s": args.moves / lines_s,
+        "target_mixed_moves_per_s": TARGET_MIXED_MOVES_S,
         "sampling": [],
+        "klipper": None,
     }
+    if args.klipper is not None:
+        peer = KlipperPlanner(Path(args.klipper), max_velocity=max(a.velocity_mm_s for a in LIMITS),
+                              max_accel=max(a.accel_mm_s2 for a in LIMITS),
+                              junction_deviation_mm=config.junction_deviation_mm)
+        chords = peer.plan(program)
+        peer_s = median_seconds(lambda: peer.plan(program), runs)
+        figures["klipper"] = {"source": peer.version, "planned_moves": chords,
+                              "plan_moves_per_s": args.moves / peer_s,
+                              "ratio": plan_s and peer_s / plan_s}
 
     part = plan_moves(program[: args.sample_moves], LIMITS, config)
     for period_s in (0.001, 0.0001):
@@ -221,11 +244,20 @@ def report(figures: dict[str, Any]) -> str:
         "",
         _line("figure", "value", "target"),
         _line(
-            "plan_moves, mixed program (moves/s)", f"{figures['plan_moves_per_s']:,.0f}", "100,000"
+            "plan_moves, mixed program (moves/s)", f"{figures['plan_moves_per_s']:,.0f}",
+            f"{figures['target_mixed_moves_per_s']:,}"
         ),
         _line("plan_moves, mixed program (segments/s)", f"{figures['plan_segments_per_s']:,.0f}"),
         _line("plan_moves, lines only (moves/s)", f"{figures['plan_lines_only_moves_per_s']:,.0f}"),
     ]
+    peer = figures["klipper"]
+    if peer is None:
+        lines.append(_line("  Klipper, same program (moves/s)", "-",
+                           "(not measured: --klipper PATH of a Klipper checkout)"))
+    else:
+        lines.append(_line("  Klipper, same program (moves/s)", f"{peer['plan_moves_per_s']:,.0f}",
+                           f"({peer['planned_moves']:,} planned moves with 1 mm arc chords;"
+                           f" plan_moves is {peer['ratio']:.2f}x its speed)"))
     for row in figures["sampling"]:
         lines.append(
             _line(

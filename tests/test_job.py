@@ -13,11 +13,14 @@ import time
 from pathlib import Path
 
 import pytest
+from typer.testing import CliRunner
 
+from usbmotion.cli.main import app
 from usbmotion.cli.run import default_machine
 from usbmotion.demos import demo_path
 from usbmotion.host.config import load_config
-from usbmotion.session import home_position_mm
+from usbmotion.motion import gcode
+from usbmotion.session import home_position_mm, planning
 from usbmotion.sim.machine import SimulatedMachine, connect_session
 from usbmotion.tuning import step_response
 
@@ -116,12 +119,6 @@ def test_a_run_interprets_its_program_once(tmp_path: Path, monkeypatch: pytest.M
                                            ) -> None:
     """Checked, homed and run: the program is interpreted (and planned) once, from where
     homing leaves the machine."""
-    from typer.testing import CliRunner
-
-    from usbmotion.cli.main import app
-    from usbmotion.motion import gcode
-    from usbmotion.session import planning
-
     calls: list[str] = []
     original = gcode.parse_gcode
 
