@@ -130,6 +130,12 @@ def rows_run(f: dict[str, Any]) -> list[Row]:
          "marginal speed beyond it", _x(fast["marginal_multiple"])),
         ("target: usbmotion run >= 100x real time with the kernel", "", "",
          _met(f["meets_target"])),
+        ("  end to end beside the bare kernel (3 axes at 10 kHz, same run)",
+         _x(fast["real_time_multiple"]),
+         f"bare kernel {_x(f['bare_kernel']['real_time_multiple'])}",
+         f"{f['bare_kernel']['share']:.0%}"),
+        ("target: end to end >= half the bare kernel's multiple", "", "",
+         _met(f["bare_kernel"]["met"])),
         ("reports of kernel and reference runs identical", "", "",
          "yes" if f["reports_identical"] else "NO"),
         (
@@ -194,9 +200,15 @@ def rows_gcode(f: dict[str, Any]) -> list[Row]:
 
 def rows_planner(f: dict[str, Any]) -> list[Row]:
     """Table rows of planner_speed."""
+    peer = f["klipper"]
     rows: list[Row] = [
         ("plan, moves/s (mixed G0-G3)", f"{f['plan_moves_per_s']:,.0f}",
-         f"{f['plan_segments_per_s']:,.0f} segments/s", ""),
+         f"Klipper {peer['plan_moves_per_s']:,.0f}" if peer else "Klipper: --klipper PATH",
+         _x(peer["ratio"]) if peer else ""),
+        ("  segments/s (arcs as chords within the arc tolerance)",
+         f"{f['plan_segments_per_s']:,.0f}", "", ""),
+        (f"target: mixed program >= {f['target_mixed_moves_per_s']:,} moves/s", "", "",
+         _met(f["plan_moves_per_s"] >= f["target_mixed_moves_per_s"])),
     ]
     for row in f["sampling"]:
         rows.append((
