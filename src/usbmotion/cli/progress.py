@@ -15,12 +15,14 @@ if TYPE_CHECKING:
 def progress_line(enabled: bool) -> Iterator[Callable[[LiveSnapshot], None]]:
     """A transient progress line on a terminal's standard error (state, program line,
     positions), updated by the callback it yields; nothing when ``enabled`` is False or
-    standard error is no terminal."""
+    standard error is no terminal (then rich is not even imported)."""
+    if not (enabled and sys.stderr.isatty()):
+        yield lambda _update: None
+        return
     from rich.progress import Progress as Bar  # noqa: PLC0415
     from rich.progress import SpinnerColumn, TextColumn  # noqa: PLC0415
 
-    with Bar(SpinnerColumn(), TextColumn("{task.description}"), transient=True,
-             disable=not (enabled and sys.stderr.isatty())) as bar:
+    with Bar(SpinnerColumn(), TextColumn("{task.description}"), transient=True) as bar:
         task = bar.add_task("", total=None)
 
         def show(update: LiveSnapshot) -> None:

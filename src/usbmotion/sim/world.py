@@ -15,8 +15,14 @@ out, queues running dry, because the machine running the simulation was busy).
 
 from __future__ import annotations
 
+import os
+import queue
+import sys
+import threading
 import time
 from collections import deque
+from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Protocol, cast, runtime_checkable
 
@@ -25,6 +31,53 @@ from usbmotion.errors import ArgumentError, NoSuchDeviceError
 REALTIME_SLACK_S = 0.05
 """How far a real-time world may lag the wall clock and still catch up (running its
 devices without sleeping); a longer lag is time it stood still."""
+_CORES = os.cpu_count() or 1
+HELPER_IDLE_S = 0.05
+"""How long the helper thread devices run on waits for more work before it ends."""
+
+
+class _Helper:
+    """One daemon thread that runs what it is given, started on demand and ended after
+    :data:`HELPER_IDLE_S` without work (a world between runs leaves no thread behind)."""
+
+    def __init__(self) -> None:
+        self._work: queue.SimpleQueue[tuple[Callable[[], None], Future[None]]] = (
+            queue.SimpleQueue())
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+
+    def submit(self, action: Callable[[], None]) -> Future[None]:
+        """Run ``action`` on the helper thread; its future."""
+        future: Future[None] = Future()
+        with self._lock:
+            self._work.put((action, future))
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._loop, name="usbmotion-world",
+                                                daemon=True)
+                self._thread.start()
+        return future
+
+    def _loop(self) -> None:
+        while True:
+            try:
+                action, future = self._work.get(timeout=HELPER_IDLE_S)
+            except queue.Empty:
+                with self._lock:
+                    if self._work.empty():
+                        self._thread = None
+                        return
+                continue
+            try:
+                action()
+            except BaseException as error:  # handed to the waiting caller
+                future.set_exception(error)
+            else:
+                future.set_result(None)
+
+
+_helper = _Helper()
+
+
 MAX_AHEAD_US = 500_000
 """The furthest a virtual-time world runs a device ahead of its clock in one block (when
 its host promises quiet: :meth:`SimWorld.advance_to`)."""
@@ -110,6 +163,9 @@ class _Member:
     checkpoint then."""
     rewindable: bool = False
     """Whether the device can be run ahead (:class:`RewindableDevice`)."""
+    parallel: bool = False
+    """Whether running the device ahead runs compiled code beside other work (a device
+    whose ``fast`` is True: the kernel releases the interpreter's lock)."""
 
 
 class SimLink:
@@ -233,8 +289,10 @@ class SimWorld:
         key = device.name if key is None else key
         if key in self._members:
             raise ArgumentError(f"device key {key!r} is already in this world", reason="key")
-        self._members[key] = _Member(device, time_us=self._time_us,
-                                     rewindable=isinstance(device, RewindableDevice))
+        rewindable = isinstance(device, RewindableDevice)
+        self._members[key] = _Member(
+            device, time_us=self._time_us, rewindable=rewindable,
+            parallel=rewindable and getattr(device, "fast", False) is True and _CORES > 1)
         return key
 
     def device(self, key: str) -> SimulatedDevice:
@@ -355,10 +413,37 @@ class SimWorld:
                 time.sleep(lag)
             elif lag < -REALTIME_SLACK_S:  # the host was busy: the world stood still
                 self._wall_origin -= lag + REALTIME_SLACK_S
-        for member in self._members.values():
-            if member.time_us < target_us:
+        behind = deque(m for m in self._members.values() if m.time_us < target_us)
+        if (len(behind) > 1 and quiet_until_us > target_us and self.run_ahead
+                and not self.realtime and all(m.parallel for m in behind)):
+            self._catch_up_together(behind, target_us, quiet_until_us)
+        else:
+            for member in behind:
                 self._catch_up(member, target_us, quiet_until_us)
         self._time_us = target_us
+
+    def _catch_up_together(self, behind: deque[_Member], target_us: int,
+                           quiet_until_us: int) -> None:
+        """:meth:`_catch_up` each device, this thread and a worker taking the next one in
+        turn: devices share nothing, and a compiled kernel runs without the interpreter's
+        lock, so two blocks run at once on two cores. What each device does is its own
+        either way; this returns once every one is done."""
+
+        def drain() -> None:
+            while True:
+                try:
+                    member = behind.popleft()
+                except IndexError:
+                    return
+                self._catch_up(member, target_us, quiet_until_us)
+
+        helper = _helper.submit(drain)
+        try:
+            drain()
+        finally:
+            if sys.exc_info()[0] is not None:
+                behind.clear()  # leaving on an error: the worker ends after its device
+            helper.result()
 
     def keep_pace(self) -> None:
         """A real-time world: move its clock up to the wall clock now (a host that is idle
