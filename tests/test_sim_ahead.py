@@ -10,13 +10,18 @@ from __future__ import annotations
 
 import math
 import random
+from pathlib import Path
 
 import pytest
 
+import usbmotion
+from usbmotion.cli.run import default_machine
 from usbmotion.device import Device
 from usbmotion.device.core0 import Checkpoint
 from usbmotion.errors import DeviceParameterError
-from usbmotion.sim.world import SimLink, SimWorld
+from usbmotion.host.config import load_config
+from usbmotion.sim.machine import connect_session
+from usbmotion.sim.world import SimLink, SimWorld, VirtualClock
 
 SETUP = b"5 1\n12 1\n6 10\n21 7\n3 1\n"
 """10 kHz servo, a diagnostics line every 7 ticks, setpoints every 10 ticks, enabled."""
@@ -104,3 +109,59 @@ def test_a_device_rewinds_only_to_a_checkpoint_with_nothing_fed_since() -> None:
     with pytest.raises(DeviceParameterError, match="no input fed since"):
         device.rewind(checkpoint)
     assert isinstance(checkpoint, Checkpoint)
+
+
+DEMO = Path(usbmotion.__file__).parent / "data" / "demos" / "1-rounded-square.ngc"
+
+
+def _held_run(monkeypatch: pytest.MonkeyPatch, *, ahead: bool) -> tuple[dict[str, object], int]:
+    """The demo, held 1.5 s into the program and resumed 1 s later (the requests made
+    when the host's clock passes those times), in a world that runs its devices ahead or
+    not: the report, and how often a device was taken back."""
+    world = SimWorld()
+    world.run_ahead = ahead
+    config = load_config(default_machine())
+    with connect_session(config, world=world) as session:
+        homing_s = session.home()
+        prepared = session.prepare(DEMO)
+        start_us = world.time_us
+        asked: list[str] = []
+
+        def ask() -> None:
+            elapsed = world.time_us - start_us
+            if not asked and elapsed >= 1_500_000:
+                session.request_hold()
+                asked.append("hold")
+            elif asked == ["hold"] and elapsed >= 2_500_000:
+                session.request_resume()
+                asked.append("resume")
+
+        sleep, sleep_quiet = VirtualClock.sleep, VirtualClock.sleep_quiet
+
+        def asking_sleep(clock: VirtualClock, seconds: float) -> None:
+            ask()
+            sleep(clock, seconds)
+
+        def asking_sleep_quiet(clock: VirtualClock, seconds: float, *,
+                               quiet_until: float) -> None:
+            ask()
+            sleep_quiet(clock, seconds, quiet_until=quiet_until)
+
+        monkeypatch.setattr(VirtualClock, "sleep", asking_sleep)
+        monkeypatch.setattr(VirtualClock, "sleep_quiet", asking_sleep_quiet)
+        report, _ = session.run(prepared, homing_s=homing_s)
+        monkeypatch.undo()
+        assert session.last_run is not None and len(session.last_run.holds) == 1
+    assert asked == ["hold", "resume"] and report.completed
+    return report.to_json(), world.rewinds
+
+
+def test_a_held_and_resumed_run_is_the_same_with_the_devices_run_ahead(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A hold comes while the devices have run ahead (the host promised quiet until its
+    next batch): they are taken back to the clock, and the run's report is the same, field
+    for field, as in a world that never runs them ahead."""
+    in_step, rewinds_in_step = _held_run(monkeypatch, ahead=False)
+    ahead, rewinds = _held_run(monkeypatch, ahead=True)
+    assert rewinds_in_step == 0 and rewinds >= 1
+    assert ahead == in_step
