@@ -5,6 +5,13 @@ line. Time only moves when something asks it to: :meth:`SimWorld.advance_to`, or
 waiting on a :class:`SimLink` (through :class:`VirtualClock`). Each device is run in
 blocks up to its next event, so a quiet device costs little per simulated second.
 
+A host that promises to send nothing until a later time (``VirtualClock.sleep_quiet``)
+lets the world run its devices ahead of the clock to that time in one block each, two at
+once on two cores; what they print reaches the host at its own tick. Input that comes
+before the promised time after all takes the device back to the clock from a checkpoint
+(:class:`RewindableDevice`) and runs those ticks again, so the devices do exactly what they
+do run only up to the clock (``tests/test_sim_ahead.py``).
+
 With ``realtime=True`` the world never runs ahead of the wall clock: advancing sleeps
 until the wall clock catches up, so a simulated machine moves at the speed of a real one.
 It may fall behind while its host computes (time passes only when the host waits on a
