@@ -38,6 +38,12 @@ _STATUS = _checked(_reply_template(CallNumber.STATUS), "clock", "actual", "desir
                    "velocity", "queued", "enable", "mode", "limits", "fault")
 _DIAGNOSTICS = _checked(DIAGNOSTICS, "clock", "desired", "actual", "velocity", "output_mv",
                         "queued", "peak")
+_DIAGNOSTICS_ORDER = ("clock", "desired", "actual", "velocity", "output_mv", "queued", "peak")
+if tuple(_DIAGNOSTICS.fields) != _DIAGNOSTICS_ORDER:
+    raise AssertionError(f"reply format {DIAGNOSTICS.text!r}: fields not in the order"
+                         f" {_DIAGNOSTICS_ORDER} that Diagnostics declares them")
+_DIAGNOSTICS_FIELDS = len(_DIAGNOSTICS_ORDER)
+"""A ``D`` line's fields are :class:`Diagnostics`'s, in its order."""
 _ALARM = _checked(ALARM, "fault", "tick")
 _SWITCH_EDGE = _checked(_reply_template(CallNumber.SWITCH_EDGE), "switch", "edges", "closed",
                         "position", "tick")
@@ -119,6 +125,8 @@ class Diagnostics:
     @classmethod
     def from_values(cls, values: Sequence[int]) -> Diagnostics:
         """The record from the values of a ``D`` line."""
+        if len(values) == _DIAGNOSTICS_FIELDS:  # the line's fields are the record's, in order
+            return cls(*values)
         v = _read(_DIAGNOSTICS, values)
         return cls(clock=v["clock"], desired=v["desired"], actual_counts=v["actual"],
                    velocity_counts_s=v["velocity"], output_mv=v["output_mv"],
