@@ -498,7 +498,7 @@ class DeviceClient:
             QueueFullError: the device answered ``E1`` (nothing was queued).
         """
         queued, free = self._confirm(encode_call(C.CLEAR_MOTION_QUEUE, 0)
-                                     + encode_call(C.ADD_MULTIPLE, len(values), *values)).values
+                                     + encode_counted(C.ADD_MULTIPLE, (), values)).values
         return queued, free
 
     def replace_from(self, tick: int,

@@ -143,17 +143,15 @@ def encode_counted(number: int, lead: Sequence[int],
     """
     spec = BY_NUMBER.get(number)
     array = np.asarray(items)
-    if (spec is not None and spec.item is not None and array.ndim == 1 and array.size
-            and array.dtype.kind in "iu" and len(lead) == len(spec.params) - 1
+    inputs = (*lead, array.size)
+    if (spec is not None and array.ndim == 1 and array.dtype.kind in "iu"
             and all(type(value) is int for value in lead)
-            and (spec.query is None or len(spec.query) != len(lead) + 1 + array.size)
-            and int(array.min()) >= spec.item.minimum
-            and int(array.max()) <= spec.item.maximum):
-        inputs = (*lead, array.size)
-        if all(p.check(v) is None for p, v in zip(spec.params, inputs, strict=True)):
-            values = tuple(array.tolist())
-            return (f"{int(number)} {_format(len(inputs)) % inputs}"
-                    f" {_format(len(values)) % values}\n").encode("ascii")
+            and _counted_fits(spec, inputs, array)):
+        head = f"{int(number)} {_format(len(inputs)) % inputs}"
+        if not array.size:
+            return f"{head}\n".encode("ascii")
+        values = tuple(array.tolist())
+        return f"{head} {_format(len(values)) % values}\n".encode("ascii")
     listed = array.tolist() if isinstance(items, np.ndarray) else list(items)
     return encode_call(number, *lead, len(listed), *listed)
 
@@ -275,19 +273,29 @@ def _bulk_call(line: bytes) -> Call | None:
     if values.size < 2:
         return None
     spec = BY_NUMBER.get(int(values[0]))
-    if spec is None or spec.item is None or spec.query is not None:
+    if spec is None:
         return None
     lead = len(spec.params)
     if values.size < lead + 1:
         return None
     items = values[lead + 1 :]
     args: tuple[int, ...] = tuple(values[1 : lead + 1].tolist())
-    if (values.size - lead - 1 != args[-1]
-            or any(p.check(v) is not None for p, v in zip(spec.params, args, strict=True))
-            or (items.size and (int(items.min()) < spec.item.minimum
-                                or int(items.max()) > spec.item.maximum))):
+    if not _counted_fits(spec, args, items):
         return None
     return Call(int(values[0]), args + tuple(items.tolist()), items)
+
+
+def _counted_fits(spec: CallSpec, inputs: tuple[int, ...],
+                  items: npt.NDArray[np.integer]) -> bool:
+    """Whether a counted call of ``spec`` with ``inputs`` (the count last) and ``items`` is
+    valid, as ``spec.problem(inputs + items)`` would find it, the items checked as one
+    array (:func:`encode_counted` and the bulk path of :func:`parse_call`)."""
+    item = spec.item
+    return (item is not None and len(inputs) == len(spec.params) and inputs[-1] == items.size
+            and (spec.query is None or len(spec.query) != len(inputs) + items.size)
+            and all(p.check(v) is None for p, v in zip(spec.params, inputs, strict=True))
+            and (not items.size or (int(items.min()) >= item.minimum
+                                    and int(items.max()) <= item.maximum)))
 
 
 HUGE_DIGITS = 18
