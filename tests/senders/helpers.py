@@ -23,7 +23,7 @@ import pytest
 from tests.grbl.fake_machine import FakeMachine
 
 from usbmotion.cli.run import default_machine
-from usbmotion.grbl.protocol import Statistics
+from usbmotion.grbl.protocol import GrblProtocol, Statistics
 from usbmotion.grbl.server import GrblServer
 from usbmotion.grbl.session_machine import SessionMachine
 from usbmotion.host.config import load_config
@@ -299,20 +299,33 @@ def served_fake(**server_options: object) -> Iterator[tuple[GrblServer, FakeMach
 
 @contextmanager
 def executing_lines(session: MachineSession) -> Iterator[list[tuple[float, int]]]:
-    """While inside: every 2 ms, when (monotonic s) and which line the live model shows
-    executing, in the list given."""
+    """While inside: when (monotonic s) and which line the live model shows executing, in
+    the list given: every 2 ms, and as the grbl front writes each ``ok`` (the line the
+    front knew then; a watcher thread starved on a loaded machine would report an older
+    one, and count an acknowledgement as further ahead than it was)."""
     executing: list[tuple[float, int]] = []
     done = threading.Event()
 
+    def sample() -> None:
+        executing.append((time.monotonic(), session.live.read().line))
+
     def watch() -> None:
         while not done.wait(0.002):
-            executing.append((time.monotonic(), session.live.read().line))
+            sample()
+
+    write_ok = GrblProtocol._ok
+
+    def sampled_ok(protocol: GrblProtocol) -> None:
+        sample()
+        write_ok(protocol)
 
     watcher = threading.Thread(target=watch, daemon=True)
     watcher.start()
+    GrblProtocol._ok = sampled_ok  # type: ignore[method-assign]
     try:
         yield executing
     finally:
+        GrblProtocol._ok = write_ok  # type: ignore[method-assign]
         done.set()
         watcher.join(timeout=5)
 
