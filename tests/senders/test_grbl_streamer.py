@@ -54,6 +54,7 @@ class _Sender:
         """When each event came (monotonic s)."""
         self._lock = threading.Lock()
         self._start_job = threading.Event()
+        self._all_answered = threading.Event()
         self.streamer = GrblStreamer(self._callback)
         self.streamer.setup_logging()
 
@@ -63,10 +64,20 @@ class _Sender:
             self.times.append(time.monotonic())
         # grbl-streamer streams from the caller of job_run and from its reader thread on
         # each ok, unguarded: started from another thread, a line can go out twice. So the
-        # job starts here, on its reader thread, after an ok.
-        if event == "on_rx_buffer_percent" and self._start_job.is_set():
+        # job starts here, on its reader thread, on the ok of the $N sent last.
+        if not self._start_job.is_set():
+            return
+        if event == "on_read" and str(data[0]).startswith("$N0="):
+            self._all_answered.set()
+        elif event == "on_rx_buffer_percent" and self._all_answered.is_set():
             self._start_job.clear()
+            self._all_answered.clear()
             self.streamer.job_run()
+            # Requests of its own queued before the job are dropped (see run); from here
+            # on, streaming, it makes none.
+            self.streamer.gcode_parser_state_requested = False
+            self.streamer.hash_state_requested = False
+            self.streamer.poll_start()
 
     def seen(self, event: str, *data: Any) -> bool:
         with self._lock:
@@ -87,13 +98,19 @@ class _Sender:
         self.streamer.killalarm()
         self.streamer.homing()
         wait_for(self.homed, timeout_s=15, what="homing")
-        time.sleep(0.3)  # the $H's ok taken before the job counts characters
 
     def run(self, program: str) -> None:
+        """Stream ``program`` counting characters. grbl-streamer sends ``$G`` of its own
+        (uncounted) whenever an idle machine's report changes, as a closed-loop machine's
+        measured position may at rest; it takes every ok for the oldest counted line's, so
+        an ok of such a line arriving after the job started would free a line still in the
+        buffer and overrun it. Its polling stops first, and the job starts on the ok of a
+        ``$N`` sent after everything else: by then every earlier line is answered."""
+        self.streamer.poll_stop()
         self.streamer.incremental_streaming = False  # character counting
         self.streamer.write(program)
         self._start_job.set()
-        self.streamer.send_immediately("G4 P0")  # its ok starts the job
+        self.streamer.send_immediately("$N")  # its ok starts the job
 
 
 @contextmanager
@@ -147,7 +164,7 @@ def test_grbl_streamer_homes_and_streams_a_program_on_the_simulated_machine(
         started = time.monotonic()
         before = len(sender.events)
         feed = real.operator.feed
-        first_line = (feed.lines if feed is not None else 0) + 2  # after the G4 P0 it sends
+        first_line = (feed.lines if feed is not None else 0) + 1
         with executing_lines(real.session) as executing:
             sender.run(SHORT_PROGRAM)
             wait_for(lambda: any(e == "on_job_completed" for e, _ in sender.events_since(before))
