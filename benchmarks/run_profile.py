@@ -28,7 +28,6 @@ Figures: the median of the runs for each part.
 from __future__ import annotations
 
 import json
-import os
 import statistics
 import subprocess
 import sys
@@ -37,7 +36,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from _common import argument_parser, parse_arguments
+from _common import argument_parser, command_environment, parse_arguments
 from _processes import run
 from run_speed import MACHINE, benchmark_program
 
@@ -61,7 +60,7 @@ def _one(program: Path, report: Path, *, plot: bool) -> dict[str, Any]:
             command.append("--no-plot")
         else:
             command += ["--plot", str(Path(folder) / "plot.png")]
-        env = {**os.environ, "USBMOTION_KERNEL": "1"}
+        env = command_environment(USBMOTION_KERNEL="1")
         started = time.perf_counter()
         done = run(command, env=env, timeout_s=1800)
         wall = time.perf_counter() - started
@@ -78,7 +77,7 @@ def _plain(program: Path, report: Path, *, plot: bool) -> float:
                str(MACHINE), "--report", str(report), "-q"]
     command += ["--plot", str(report.with_suffix(".png"))] if plot else ["--no-plot"]
     started = time.perf_counter()
-    done = run(command, env={**os.environ, "USBMOTION_KERNEL": "1"}, timeout_s=1800)
+    done = run(command, env=command_environment(USBMOTION_KERNEL="1"), timeout_s=1800)
     if done.returncode != 0:
         raise RuntimeError(f"usbmotion run failed ({done.returncode}):\n{done.stderr}")
     return time.perf_counter() - started

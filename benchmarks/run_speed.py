@@ -12,7 +12,8 @@ machine time) is run by the command a user runs::
 
 on the simulated machine of ``machine-10khz.toml`` (servo loops at 10 kHz, setpoints at
 1 kHz), once per run with the compiled kernel (``USBMOTION_KERNEL=1``) and with the
-reference core1 (``USBMOTION_KERNEL=0``), each in a fresh process, taking turns.
+reference core1 (``USBMOTION_KERNEL=0``), each in a fresh process, taking turns, with
+Python's bytecode cache on as an installed package has it (``_common.command_environment``).
 
 Figures, medians of the runs:
 
@@ -61,6 +62,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from _common import command_environment
 from _processes import run
 from kernel_speed import kernel_seconds
 
@@ -126,7 +128,7 @@ def _run_command(
     ``numba_cache``: a folder for numba's cache instead of the usual one (an empty folder
     makes the run compile the kernel afresh).
     """
-    env = {**os.environ, "USBMOTION_KERNEL": "1" if kernel else "0"}
+    env = command_environment(USBMOTION_KERNEL="1" if kernel else "0")
     if numba_cache is not None:
         env["NUMBA_CACHE_DIR"] = str(numba_cache)
     command = [sys.executable, "-m", "usbmotion", "run", str(program), "--machine",
