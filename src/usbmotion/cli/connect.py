@@ -70,6 +70,26 @@ def connect_any(config: MachineConfig, *, realtime: bool = False) -> MachineSess
     return MachineSession.connect(config)
 
 
+def connect_live(config: MachineConfig) -> tuple[MachineSession, Callable[[], None] | None]:
+    """A machine session for a front that an operator drives while it waits (the grbl
+    front, the web dashboard): a simulated machine in real time, its world kept in step
+    with the wall clock by the second value (the operator's ``on_idle``; None for devices
+    on their links).
+
+    Raises:
+        UsbMotionError, OSError: connecting failed.
+    """
+    if config.is_simulated:
+        from usbmotion.sim.machine import connect_session  # noqa: PLC0415
+        from usbmotion.sim.world import SimWorld  # noqa: PLC0415
+
+        world = SimWorld(realtime=True)
+        return connect_session(config, world=world), world.keep_pace
+    from usbmotion.session import MachineSession  # noqa: PLC0415 - no simulator
+
+    return MachineSession.connect(config), None
+
+
 @contextmanager
 def taken_over(config: MachineConfig, command: str) -> Iterator[MachineSession]:
     """A machine session on the machine, taken over as ``usbmotion run`` takes it (faults

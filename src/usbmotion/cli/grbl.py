@@ -8,6 +8,7 @@ from typing import Annotated
 
 import typer
 
+from usbmotion.cli.connect import connect_live
 from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail, os_problem
 from usbmotion.cli.machines import MachineOption, load_machine
 from usbmotion.errors import ArgumentError, UsbMotionError
@@ -55,7 +56,6 @@ def grbl(
     from usbmotion.grbl.interface import GrblMachine  # noqa: PLC0415 - keep --help fast
     from usbmotion.grbl.server import serve  # noqa: PLC0415
     from usbmotion.grbl.session_machine import SessionMachine  # noqa: PLC0415
-    from usbmotion.session import MachineSession  # noqa: PLC0415
     from usbmotion.session.operator import Operator  # noqa: PLC0415
 
     config = load_machine(machine, "grbl")
@@ -70,16 +70,8 @@ def grbl(
         problem = link_problem(Path(link))
         if problem is not None:
             fail("grbl", problem, EXIT_BAD_INPUT)
-    world = None
     try:
-        if config.is_simulated:
-            from usbmotion.sim.machine import connect_session  # noqa: PLC0415
-            from usbmotion.sim.world import SimWorld  # noqa: PLC0415
-
-            world = SimWorld(realtime=True)
-            session = connect_session(config, world=world)
-        else:
-            session = MachineSession.connect(config)
+        session, keep_pace = connect_live(config)
     except UsbMotionError as error:
         fail("grbl", str(error), EXIT_FAULT)
     status = 0
@@ -88,8 +80,7 @@ def grbl(
             typer.echo(f"notice: {notice}", err=True)
         operator = Operator(session, on_message=lambda text: typer.echo(text, err=True),
                             file="<grbl>")
-        if world is not None:
-            operator.on_idle = world.keep_pace
+        operator.on_idle = keep_pace
         front = SessionMachine(operator, keep_settings=machine is not None)
         served: GrblMachine = front
         front.start()

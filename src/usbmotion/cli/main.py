@@ -22,6 +22,7 @@ from usbmotion.cli.run import run
 from usbmotion.cli.sim import sim
 from usbmotion.cli.status import home, status
 from usbmotion.cli.tune import tune
+from usbmotion.cli.web import web
 from usbmotion.cli.zero import zero
 from usbmotion.errors import UsbMotionError
 
@@ -59,6 +60,7 @@ app.command()(console)
 app.command()(tune)
 app.command()(sim)
 app.command()(grbl)
+app.command()(web)
 app.command()(zero)
 app.command()(status)
 app.command()(home)

@@ -1,0 +1,663 @@
+"""What the dashboard's page can ask of one machine session, free of any web framework.
+
+A :class:`Dashboard` wraps the session's :class:`~usbmotion.session.operator.Operator`: the
+worker thread alone talks to the devices (homing, runs, jogs, MDI, reading parameters), the
+calls here check their input, queue the work and return; what they started is seen in the
+live model (:meth:`Dashboard.state`) and in the messages. A call that cannot be taken raises
+:class:`RefusedError` with the HTTP status it answers (400 bad input, 404 nothing there, 409 not
+now, 413 too large) and a message that names the value and what is allowed.
+
+The open program is kept with its plan from where the machine stands: its toolpath (the
+planned vertices, machine coordinates) is what the page draws, and its ``revision`` changes
+whenever it is planned again (opened, a run's start, a work offset changed).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath, PureWindowsPath
+from typing import Any, TypeVar
+
+from usbmotion.demos import DEMOS, demo_path
+from usbmotion.errors import (
+    ArgumentError,
+    GCodeError,
+    MachineStateError,
+    PlanningError,
+    UsbMotionError,
+)
+from usbmotion.motion.gcode import parse_gcode
+from usbmotion.motion.planner import SegmentKind
+from usbmotion.session.jog import check_jog
+from usbmotion.session.live import LiveReader, LiveSnapshot
+from usbmotion.session.operator import Operator
+from usbmotion.session.planning import Prepared, machine_axes, machine_dialect, program_axes
+from usbmotion.session.report_text import describe
+from usbmotion.session.state import MachineState
+
+UPLOAD_LIMIT_BYTES = 8 * 1024 * 1024
+"""The largest program an upload may carry."""
+PROGRAM_SUFFIXES = (".ngc", ".nc", ".gcode", ".gc", ".g", ".tap", ".cnc", ".txt")
+"""The file names a G-code program may have (an upload or a file of the programs folder)."""
+MESSAGES_KEPT = 200
+"""How many messages a client that connects late still gets."""
+MDI_WAIT_S = 5.0
+"""How long an MDI line waits for room in the planner before it is refused."""
+CALL_TIMEOUT_S = 30.0
+"""How long a call waits for the worker to do what it asked (planning, reading devices)."""
+READ_PERIOD_S = 0.1
+"""How often an idle machine is read (positions, switches) and its watchdogs fed."""
+MAX_SYSTEM = 9
+"""G54 (1) .. G59.3 (9)."""
+
+T = TypeVar("T")
+
+
+class RefusedError(Exception):
+    """A call the dashboard did not take: ``status`` is the HTTP status it answers."""
+
+    def __init__(self, status: int, message: str) -> None:
+        super().__init__(message)
+        self.status = status
+        self.message = message
+
+
+def _bad(message: str) -> RefusedError:
+    return RefusedError(400, message)
+
+
+def _not_now(message: str) -> RefusedError:
+    return RefusedError(409, message)
+
+
+@dataclass(slots=True)
+class Message:
+    """One line for the operator: what a call or the worker said."""
+
+    sequence: int
+    level: str
+    """``info`` or ``error``."""
+    text: str
+
+
+@dataclass(slots=True)
+class OpenProgram:
+    """The program the page has open, and its plan from where the machine stands."""
+
+    name: str
+    text: str
+    revision: int
+    toolpath: dict[str, Any] | None = None
+    duration_s: float = 0.0
+    warnings: tuple[str, ...] = ()
+    problem: str = ""
+    """Why it cannot run from where the machine stands ("" when it can)."""
+    lines: list[str] = field(default_factory=list)
+
+
+def system_name(system: int) -> str:
+    """``1`` -> ``G54`` .. ``6`` -> ``G59``, ``7`` -> ``G59.1`` .. ``9`` -> ``G59.3``."""
+    return f"G{53 + system}" if system <= 6 else f"G59.{system - 6}"
+
+
+def program_name_problem(name: str) -> str | None:
+    """Why ``name`` cannot name an uploaded or opened program, or None."""
+    if not name:
+        return "give the program's file name (name=FILE.ngc)"
+    if any(part in name for part in ("/", "\\")) or name in (".", "..") or (
+            PurePosixPath(name).name != name or PureWindowsPath(name).name != name):
+        return f"program name {name!r} has a path in it: give the file name alone"
+    if any(ord(char) < 32 for char in name):
+        return f"program name {name!r} has control characters in it"
+    if not name.lower().endswith(PROGRAM_SUFFIXES):
+        return (f"program name {name!r} is not a G-code file: allowed names end in"
+                f" {', '.join(PROGRAM_SUFFIXES)}")
+    return None
+
+
+def _toolpath(prepared: Prepared) -> dict[str, Any]:
+    plan = prepared.plan
+    return {
+        "axes": plan.axes,
+        "points": [[round(float(v), 4) for v in row] for row in plan.vertices_mm],
+        "line": [int(line) for line in plan.line],
+        "rapid": [bool(kind == SegmentKind.RAPID) for kind in plan.kind],
+    }
+
+
+class Dashboard:
+    """The page's view of one machine session (see the module docstring).
+
+    Parameters:
+        operator: the session's operator (its worker runs the motion).
+        programs: a folder whose G-code files the page may open (None: uploads only).
+        machine_name: what the page calls the machine.
+    """
+
+    def __init__(self, operator: Operator, *, programs: Path | None = None,
+                 machine_name: str = "") -> None:
+        self.operator = operator
+        self.session = operator.session
+        self.config = self.session.config
+        self.axes = program_axes(self.config)
+        self.programs = programs
+        self.machine_name = machine_name or self.config.name
+        self.program: OpenProgram | None = None
+        self._revision = 0
+        self._lock = threading.Lock()
+        self._messages: deque[Message] = deque(maxlen=MESSAGES_KEPT)
+        self._message_sequence = 0
+        operator.on_message = self._worker_message
+        self._stop = threading.Event()
+        self._reading = threading.Thread(target=self._read, name="usbmotion-web-read",
+                                         daemon=True)
+
+    # --- the machine at rest ----------------------------------------------------------------
+
+    def start(self) -> None:
+        """Read the machine while it is idle, every :data:`READ_PERIOD_S`."""
+        self._reading.start()
+
+    def close(self) -> None:
+        """Stop reading the machine (the operator is the caller's to close)."""
+        self._stop.set()
+        if self._reading.is_alive():
+            self._reading.join(timeout=5)
+
+    def _read(self) -> None:
+        while not self._stop.wait(READ_PERIOD_S):
+            try:
+                self.operator.keep_alive()
+            except UsbMotionError as error:
+                self.message(f"the machine cannot be read: {error}", level="error")
+
+    # --- messages ---------------------------------------------------------------------------
+
+    def message(self, text: str, *, level: str = "info") -> None:
+        """A line for every page (and for a page that connects later)."""
+        with self._lock:
+            self._message_sequence += 1
+            self._messages.append(Message(self._message_sequence, level, text))
+
+    def _worker_message(self, text: str) -> None:
+        self.message(text, level="error" if text.startswith(("error", "stopped")) else "info")
+
+    def messages(self, after: int = 0) -> list[Message]:
+        """The messages kept whose sequence number is after ``after``."""
+        with self._lock:
+            return [m for m in self._messages if m.sequence > after]
+
+    @property
+    def message_sequence(self) -> int:
+        """The sequence number of the last message."""
+        return self._message_sequence
+
+    # --- reading ----------------------------------------------------------------------------
+
+    def reader(self) -> LiveReader:
+        """A reader of the live model whose peaks are its own (one per client)."""
+        return self.session.live.reader()
+
+    def state(self, reader: LiveReader) -> dict[str, Any]:
+        """The machine now, as the API's state (``docs/dashboard.md``)."""
+        now = self.operator.status()
+        snapshot = reader.read()
+        return self._state_of(snapshot, hold_pending=now.hold_pending)
+
+    def _state_of(self, now: LiveSnapshot, *, hold_pending: bool) -> dict[str, Any]:
+        offsets = now.work_offset_mm
+        axes: dict[str, Any] = {}
+        for name in self.axes:
+            axis = now.axes.get(name)
+            if axis is None:
+                continue
+            offset = offsets.get(name, 0.0)
+            axes[name] = {
+                "machine_mm": axis.measured_mm,
+                "work_mm": axis.measured_mm - offset,
+                "commanded_mm": axis.commanded_mm,
+                "commanded_work_mm": axis.commanded_mm - offset,
+                "following_error_mm": axis.following_error_mm,
+                "peak_error_mm": axis.peak_error_mm,
+                "velocity_mm_s": axis.measured_velocity_mm_s,
+                "limit": axis.limit,
+                "fault": axis.fault,
+                "tick": axis.tick,
+            }
+        program = self.program
+        alarm = now.alarm
+        return {
+            "type": "state",
+            "sequence": now.sequence,
+            "machine": self.machine_name,
+            "state": now.state.value,
+            "at_rest": now.at_rest,
+            "hold_pending": hold_pending,
+            "busy": self.operator.busy,
+            "homed": now.homed,
+            "axis_order": list(self.axes),
+            "axes": axes,
+            "program": None if program is None else {
+                "name": program.name,
+                "revision": program.revision,
+                "line": now.line,
+                "lines_done": now.lines_done,
+                "lines_total": now.lines_total,
+                "done_s": now.done_s,
+                "total_s": now.total_s,
+                "eta_s": now.eta_s,
+            },
+            "feed_mm_min": now.feed_mm_min,
+            "feed_override": now.feed_override,
+            "rapid_override": now.rapid_override,
+            "coordinate_system": system_name(now.coordinate_system),
+            "work_offset_mm": {name: offsets.get(name, 0.0) for name in self.axes},
+            "tool": now.tool,
+            "tool_length_mm": now.tool_length_mm,
+            "pause": now.pause,
+            "alarm": alarm,
+            "alarm_help": self._alarm_help(now) if alarm or now.state is MachineState.ALARM
+            else "",
+            "message_sequence": self._message_sequence,
+        }
+
+    @staticmethod
+    def _alarm_help(now: LiveSnapshot) -> str:
+        if any(axis.limit for axis in now.axes.values()):
+            return ("a limit switch reads closed: Reset clears the alarm and homes the"
+                    " machine, which moves it off the switch")
+        return ("Reset stops every axis, clears the alarm and homes the machine; find why it"
+                " faulted first (the message log has the axis, the reason and the line)")
+
+    def program_view(self) -> dict[str, Any]:
+        """The open program (``GET /api/program``).
+
+        Raises:
+            RefusedError: no program is open (404).
+        """
+        program = self.program
+        if program is None:
+            raise RefusedError(404, "no program is open: open a demo, a file or upload one")
+        return {
+            "name": program.name,
+            "revision": program.revision,
+            "lines": program.lines,
+            "toolpath": program.toolpath,
+            "duration_s": program.duration_s,
+            "warnings": list(program.warnings),
+            "problem": program.problem,
+        }
+
+    def catalogue(self) -> dict[str, Any]:
+        """What can be opened (``GET /api/programs``)."""
+        files: list[str] = []
+        if self.programs is not None and self.programs.is_dir():
+            files = sorted(p.name for p in self.programs.iterdir()
+                           if p.is_file() and program_name_problem(p.name) is None)
+        return {
+            "folder": None if self.programs is None else str(self.programs),
+            "files": files,
+            "demos": [{"number": number, "name": name, "title": title}
+                      for number, (title, name) in DEMOS.items()],
+        }
+
+    # --- the program ------------------------------------------------------------------------
+
+    def upload(self, name: str, body: bytes) -> dict[str, Any]:
+        """Open an uploaded program.
+
+        Raises:
+            RefusedError: a name that is not a G-code file's or has a path in it (400), a body
+                too large (413) or not text (400), G-code that does not parse (400, the
+                line named), or the machine is busy (409).
+        """
+        problem = program_name_problem(name)
+        if problem is not None:
+            raise _bad(problem)
+        if len(body) > UPLOAD_LIMIT_BYTES:
+            raise RefusedError(413, f"program {name!r} is {len(body):,} bytes: at most"
+                               f" {UPLOAD_LIMIT_BYTES:,} bytes may be uploaded")
+        try:
+            text = body.decode("utf-8")
+        except UnicodeDecodeError as error:
+            raise _bad(f"program {name!r} is not text (byte {error.start} is not UTF-8):"
+                       " a G-code file is text") from None
+        if "\x00" in text:
+            raise _bad(f"program {name!r} is not text (it holds NUL bytes): a G-code file"
+                       " is text")
+        return self._open(name, text)
+
+    def open_file(self, name: str) -> dict[str, Any]:
+        """Open a file of the programs folder.
+
+        Raises:
+            RefusedError: no folder, a name that is not one of its G-code files (400/404), or
+                as :meth:`upload`.
+        """
+        if self.programs is None:
+            raise _bad("no programs folder: start usbmotion web with --programs DIR, or"
+                       " upload the program")
+        problem = program_name_problem(name)
+        if problem is not None:
+            raise _bad(problem)
+        path = self.programs / name
+        if not path.is_file():
+            raise RefusedError(404, f"no program {name!r} in {self.programs}")
+        body = path.read_bytes()
+        if len(body) > UPLOAD_LIMIT_BYTES:
+            raise RefusedError(413, f"program {name!r} is {len(body):,} bytes: at most"
+                               f" {UPLOAD_LIMIT_BYTES:,}")
+        return self.upload(name, body)
+
+    def open_demo(self, number: object) -> dict[str, Any]:
+        """Open demo program ``number``.
+
+        Raises:
+            RefusedError: no such demo (400), or as :meth:`upload`.
+        """
+        if not isinstance(number, int) or isinstance(number, bool) or number not in DEMOS:
+            raise _bad(f"demo {number!r}: allowed {', '.join(str(n) for n in DEMOS)}")
+        path = demo_path(number)
+        return self._open(path.name, path.read_text(encoding="utf-8"))
+
+    def _open(self, name: str, text: str) -> dict[str, Any]:
+        if self.operator.busy:
+            raise _not_now(f"the machine is busy ({self.session.state.value}): open a"
+                           " program when it is Idle")
+        try:
+            parse_gcode(text, file=name, machine=machine_axes(self.config),
+                        dialect=machine_dialect(self.config))
+        except GCodeError as error:
+            raise _bad(str(error)) from None
+        with self._lock:
+            self._revision += 1
+            self.program = OpenProgram(name, text, self._revision,
+                                       lines=text.splitlines())
+        self._on_worker(self._plan)
+        self.message(f"opened {name}")
+        return self.program_view()
+
+    def _plan(self) -> None:
+        """Plan the open program from where the machine stands (on the worker)."""
+        program = self.program
+        if program is None:
+            return
+        try:
+            prepared = self.session.prepare(program.name, text=program.text,
+                                            pauses=self.session.pause_rule())
+        except PlanningError as error:
+            self._planned(program, None, str(error))
+            return
+        self._planned(program, prepared, "")
+
+    def _planned(self, program: OpenProgram, prepared: Prepared | None, problem: str) -> None:
+        with self._lock:
+            self._revision += 1
+            program.revision = self._revision
+            program.problem = problem
+            if prepared is not None:
+                program.toolpath = _toolpath(prepared)
+                program.duration_s = prepared.plan.duration_s
+                program.warnings = prepared.warnings
+
+    # --- controls ---------------------------------------------------------------------------
+
+    def run(self) -> None:
+        """Run the open program from where the machine stands, homing first if needed.
+
+        Raises:
+            RefusedError: no program, busy, or in Alarm (409).
+        """
+        program = self.program
+        if program is None:
+            raise _not_now("no program is open: open a demo, a file or upload one")
+        self._idle_or_refuse("run a program")
+        if self.session.state is MachineState.ALARM:
+            raise _not_now("the machine is in Alarm: Reset clears it and homes the machine")
+
+        def go() -> None:
+            session = self.session
+            homing_s = 0.0
+            if not session.is_homed:
+                self.message("homing first: the machine is not homed")
+                homing_s = session.home()
+            try:
+                prepared = session.prepare(program.name, text=program.text,
+                                           pauses=session.pause_rule())
+            except PlanningError as error:
+                self._planned(program, None, str(error))
+                raise
+            self._planned(program, prepared, "")
+            self.message(f"cycle start: {program.name}, {prepared.plan.duration_s:.2f} s")
+            report, _ = session.run(prepared, homing_s=homing_s)
+            self.operator.last_report = report
+            for line in describe(report).splitlines():
+                self.message(line, level="info" if report.completed else "error")
+
+        self.operator.do(go)
+
+    def hold(self) -> None:
+        """Feed hold: to rest along the path (a jog: cancelled)."""
+        if self.session.jogging:
+            self.operator.jog_cancel()
+            self.message("jog cancelled")
+            return
+        self.operator.hold()
+        self.message("hold: decelerating to rest along the path")
+
+    def resume(self) -> None:
+        """Resume a hold or a pause.
+
+        Raises:
+            RefusedError: nothing to resume (409).
+        """
+        if not self.session.hold_requested:
+            raise _not_now("nothing to resume: no hold, no pause")
+        self.operator.resume()
+        self.message("resume")
+
+    def stop(self) -> None:
+        """Every axis to rest along its deceleration, the rest dropped."""
+        if self.operator.busy:
+            self.operator.stop()
+            self.message("stop: every axis to rest along its deceleration")
+        else:
+            self.operator.drop_held()
+            self.message("stop: nothing moves")
+
+    def reset(self) -> None:
+        """Stop what moves, clear the alarm and home the machine."""
+        if self.operator.busy:
+            self.operator.stop()
+
+        def go() -> None:
+            self.message("reset: stopping every axis")
+            self.session.reset()
+            seconds = self.session.home()
+            self.message(f"homed in {seconds:.2f} s")
+            self._plan()
+
+        self.operator.do(go)
+
+    def home(self, axes: Sequence[str] | None = None) -> None:
+        """Home every axis, or the named ones.
+
+        Raises:
+            RefusedError: an axis the machine does not have (400), busy (409).
+        """
+        names = self._axis_names(axes, "home") if axes is not None else None
+        self._idle_or_refuse("home")
+
+        def go() -> None:
+            seconds = self.session.home(axes=names)
+            which = "every axis" if names is None else " ".join(names)
+            self.message(f"homed {which} in {seconds:.2f} s")
+            self._plan()
+
+        self.operator.do(go)
+
+    def jog(self, moves: Mapping[str, object], *, feed_mm_min: object,
+            continuous: bool = False) -> None:
+        """Jog by distances (machine mm) or, ``continuous``, in the signs' directions.
+
+        Raises:
+            RefusedError: bad axes, distances or feed (400), busy or not homed (409).
+        """
+        if not isinstance(moves, Mapping) or not moves:
+            raise _bad("jog moves: give {axis: mm}, such as {\"X\": 1.0}")
+        parsed: dict[str, float] = {}
+        for name, value in moves.items():
+            letter = str(name).upper()
+            if not isinstance(value, int | float) or isinstance(value, bool):
+                raise _bad(f"jog {name}: {value!r} is not a number of mm")
+            parsed[letter] = float(value)
+        if not isinstance(feed_mm_min, int | float) or isinstance(feed_mm_min, bool):
+            raise _bad(f"jog feed_mm_min {feed_mm_min!r}: a positive number (mm/min)")
+        feed = float(feed_mm_min)
+        try:
+            check_jog(parsed, feed, self.axes)
+        except ArgumentError as error:
+            raise _bad(str(error)) from None
+        if continuous:
+            if any(v == 0 for v in parsed.values()):
+                raise _bad("a continuous jog takes a direction per axis: +1 or -1")
+            parsed = {k: math.copysign(1.0, v) for k, v in parsed.items()}
+        self._idle_or_refuse("jog")
+        if not self.session.is_homed:
+            raise _not_now("a jog needs a homed machine (its soft limits): home it first")
+        try:
+            self.operator.jog(parsed, feed_mm_min=feed, continuous=continuous)
+        except MachineStateError as error:
+            raise _not_now(str(error)) from None
+
+    def jog_cancel(self) -> None:
+        """End a jog along its deceleration."""
+        self.operator.jog_cancel()
+
+    def mdi(self, line: object) -> None:
+        """A G-code line, run at once after what is queued.
+
+        Raises:
+            RefusedError: not a line of text, a line that does not parse or leaves the travel
+                (400), the machine in Alarm or not homed, or the planner full (409).
+        """
+        if not isinstance(line, str) or not line.strip():
+            raise _bad("mdi line: give a line of G-code, such as \"G0 X10\"")
+        if "\n" in line or "\r" in line:
+            raise _bad("mdi line: one line at a time")
+        deadline = time.monotonic() + MDI_WAIT_S
+        while True:
+            try:
+                taken = self.operator.submit(line.strip())
+            except (GCodeError, PlanningError) as error:
+                raise _bad(str(error)) from None
+            except MachineStateError as error:
+                raise _not_now(str(error)) from None
+            if taken:
+                self.message(f"> {line.strip()}")
+                return
+            if time.monotonic() > deadline:
+                raise _not_now("the planner is full: try again once the machine has caught up")
+            time.sleep(0.01)
+
+    def overrides(self, *, feed: object = None, rapid: object = None) -> None:
+        """Set the feed (10..200 %) and rapid (25, 50, 100 %) overrides.
+
+        Raises:
+            RefusedError: neither given, or a value not allowed (400).
+        """
+        if feed is None and rapid is None:
+            raise _bad("overrides: give feed (10..200) or rapid (25, 50, 100), in percent")
+        for label, value, setter in (("feed", feed, self.session.set_feed_override),
+                                     ("rapid", rapid, self.session.set_rapid_override)):
+            if value is None:
+                continue
+            if not isinstance(value, int) or isinstance(value, bool):
+                raise _bad(f"{label} override {value!r}: a whole number of percent")
+            try:
+                setter(value)
+            except ArgumentError as error:
+                raise _bad(str(error)) from None
+        self.message(f"override: feed {self.session.feed_override_percent} %, rapid"
+                     f" {self.session.rapid_override_percent} %")
+
+    def zero(self, axes: Sequence[str] | None, *, system: object = 1) -> dict[str, float]:
+        """Set the work origin of ``system`` (1 = G54) where the machine stands, for the
+        named axes (all when None); returns the new offset of each axis.
+
+        Raises:
+            RefusedError: bad axes or system (400), busy or not homed (409).
+        """
+        names = self._axis_names(axes, "zero") if axes is not None else list(self.axes)
+        if not isinstance(system, int) or isinstance(system, bool) or not (
+                1 <= system <= MAX_SYSTEM):
+            raise _bad(f"system {system!r}: allowed 1 (G54) .. 6 (G59), 7..9 (G59.1..G59.3)")
+        self._idle_or_refuse("set a work origin")
+        if not self.session.is_homed:
+            raise _not_now("the machine is not homed, so its position means nothing: home"
+                           " it first")
+
+        def go() -> dict[str, float]:
+            where = self.session.positions_mm()
+            offsets = self.session.set_work_origin({n: where[n] for n in names},
+                                                   system=system)
+            self.session.read_live()
+            self._plan()
+            row = offsets.g5x[system - 1]
+            return {n: row["XYZUVW".index(n)] for n in names}
+
+        origin = self._call(go)
+        self.message(f"{system_name(system)} origin "
+                     + "  ".join(f"{n} {v:.3f}" for n, v in origin.items()) + " mm (machine)")
+        return origin
+
+    # --- helpers ----------------------------------------------------------------------------
+
+    def _axis_names(self, axes: object, what: str) -> list[str]:
+        if not isinstance(axes, list | tuple) or not axes or not all(
+                isinstance(a, str) for a in axes):
+            raise _bad(f"{what} axes: a list of axis letters, such as [\"X\", \"Y\"]")
+        names = [a.upper() for a in axes]
+        bad = [a for a in names if a not in self.axes]
+        if bad:
+            raise _bad(f"{what} axes {' '.join(bad)}: allowed {', '.join(self.axes)}")
+        return names
+
+    def _idle_or_refuse(self, what: str) -> None:
+        if self.operator.busy:
+            raise _not_now(f"the machine is busy ({self.session.state.value}): {what} when"
+                           " it is Idle")
+
+    def _on_worker(self, action: Callable[[], object]) -> None:
+        """Queue ``action`` for the worker, errors said as messages."""
+        self.operator.do(action)  # type: ignore[arg-type]
+
+    def _call(self, action: Callable[[], T]) -> T:
+        """Run ``action`` on the worker and wait for its result.
+
+        Raises:
+            RefusedError: it failed (its error, 409) or did not end within CALL_TIMEOUT_S.
+        """
+        done = threading.Event()
+        result: list[T] = []
+        failure: list[BaseException] = []
+
+        def go() -> None:
+            try:
+                result.append(action())
+            except UsbMotionError as error:
+                failure.append(error)
+            finally:
+                done.set()
+
+        self.operator.do(go)
+        if not done.wait(CALL_TIMEOUT_S):
+            raise _not_now(f"the machine did not answer within {CALL_TIMEOUT_S:g} s")
+        if failure:
+            raise _not_now(str(failure[0]))
+        return result[0]
