@@ -289,3 +289,33 @@ def test_jog_mdi_overrides_and_offsets(web: Served) -> None:
     assert origin["X"] == pytest.approx(20.0, abs=0.01)
     offsets_file = web.dashboard.config.parameter_path
     assert offsets_file is not None and offsets_file.is_file()
+
+
+def test_device_parameters_and_a_step_response(web: Served) -> None:
+    web.post("/api/tune", {"axis": "X", "step_mm": 1.0}, status=409)  # not homed
+    devices = web.get("/api/devices")["devices"]
+    assert [d["axis"] for d in devices] == ["X", "Y", "Z"]
+    kp = {p["name"]: p for p in devices[0]["parameters"]}["kp"]
+    assert kp["storage"] == "RAM" and float(kp["value"]) > 0
+    for body, words in (({"name": "kp", "value": -1}, "refused"),
+                        ({"name": "kq", "value": 1}, "no parameter 'kq'"),
+                        ({"name": "kp", "value": 2, "flash": True}, "RAM"),
+                        ({"name": "watchdog_ms", "value": 1}, "refused")):
+        error = web.post("/api/devices/X/parameters", body, status=400)["error"]
+        assert words in error, (body, error)
+    assert "allowed X, Y, Z" in web.post("/api/devices/Q/parameters",
+                                         {"name": "kp", "value": 1}, status=400)["error"]
+    taken = web.post("/api/devices/Y/parameters", {"name": "kp", "value": kp["value"]})
+    assert taken["storage"] == "RAM" and float(taken["value"]) == float(kp["value"])
+    web.post("/api/home")
+    web.wait_state("Idle", idle=True)
+    before = web.state()["axes"]["X"]["machine_mm"]
+    step = web.post("/api/tune", {"axis": "X", "step_mm": 1.0})
+    assert len(step["time_s"]) == len(step["measured_mm"]) > 100
+    assert step["overshoot_percent"] is not None and step["settling_s"] is not None
+    assert max(step["measured_mm"]) - min(step["measured_mm"]) == pytest.approx(1.0, abs=0.1)
+    assert web.state()["axes"]["X"]["machine_mm"] == pytest.approx(before, abs=0.02)
+    assert "step_mm" in web.post("/api/tune", {"axis": "X", "step_mm": 0}, status=400)["error"]
+    web.post("/api/mdi", {"line": "G0 X30"})  # the feed knows where X stands after the steps
+    wait_for(lambda: not web.state()["busy"] and abs(
+        web.state()["axes"]["X"]["machine_mm"] - 30) < 0.01, timeout_s=20, what="the MDI move")

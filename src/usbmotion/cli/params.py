@@ -7,9 +7,9 @@ from typing import TYPE_CHECKING, Annotated, NoReturn
 import typer
 
 from usbmotion.cli.connect import SIMULATED_NOTE, opened_machine
-from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail, os_problem
+from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail
 from usbmotion.cli.machines import MachineOption, load_machine
-from usbmotion.errors import ArgumentError, ConfigError, OutOfRangeError, UsbMotionError
+from usbmotion.errors import ArgumentError, OutOfRangeError, UsbMotionError
 
 if TYPE_CHECKING:
     from usbmotion.host.config import MachineConfig
@@ -115,7 +115,8 @@ def set_parameter(
     answer; 2 an unknown axis or parameter, a value that is refused, or a bad machine
     file.
     """
-    from usbmotion.host.parameters import Storage  # noqa: PLC0415
+    from usbmotion.host.parameters import Storage, machine_file_problem  # noqa: PLC0415
+    from usbmotion.sim.urls import URL_CHECKS  # noqa: PLC0415 - the sim:// checks alone
 
     config = load_machine(machine, "set")
     (letter,) = _axes(config, axis, "set")
@@ -133,7 +134,8 @@ def set_parameter(
     with opened_machine(config, "set") as opened:
         target = opened.axis(letter)
         try:
-            problem = _machine_file_problem(config, target, each, value)
+            problem = machine_file_problem(config, target.config, target.client, each, value,
+                                           url_checks=URL_CHECKS)
         except UsbMotionError as error:
             fail("set", str(error), EXIT_FAULT)
         if problem is not None:
@@ -153,34 +155,6 @@ def set_parameter(
             "RAM: lost at power-off, and set again from the machine file when usbmotion run,"
             " home, jog or console takes the machine over")
     typer.echo(f"{row} ({kept})")
-
-
-def _machine_file_problem(config: MachineConfig, axis: Axis, each: Parameter,
-                          value: str) -> str | None:
-    """Why the machine file would refuse ``value`` for ``each`` on ``axis`` (its own
-    checks: a watchdog shorter than a full queue lasts, ...), or None.
-
-    Raises:
-        UsbMotionError: reading the device's control mode (for a gain) failed.
-    """
-    from usbmotion.host.config_file import changed_config  # noqa: PLC0415
-    from usbmotion.host.parameters import machine_file_change  # noqa: PLC0415
-    from usbmotion.protocol import ControlMode  # noqa: PLC0415
-    from usbmotion.sim.urls import URL_CHECKS  # noqa: PLC0415
-
-    mode = (axis.client.control_mode() if each.name in ("kp", "ki", "kd")
-            else ControlMode.POSITION)
-    changes = machine_file_change(each, axis.config, value, mode=mode)
-    if not changes:
-        return None
-    try:
-        changed_config(config, config.path.read_text(encoding="utf-8"), changes,
-                       url_checks=URL_CHECKS)
-    except ConfigError as error:
-        return str(error)
-    except OSError as error:
-        return f"cannot read the machine file {config.path}: {os_problem(error)}"
-    return None
 
 
 set_parameter.__doc__ = f"{set_parameter.__doc__}\n    {SIMULATED_NOTE}\n"

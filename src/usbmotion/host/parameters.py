@@ -22,9 +22,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
 
-from usbmotion.errors import ArgumentError
-from usbmotion.host.config import AxisConfig
-from usbmotion.host.config_file import Key, Value
+from usbmotion.errors import ArgumentError, ConfigError
+from usbmotion.host.config import AxisConfig, MachineConfig, UrlChecks
+from usbmotion.host.config_file import Key, Value, changed_config
 from usbmotion.host.device import DeviceClient, to_sci
 from usbmotion.protocol import (
     BY_NUMBER,
@@ -266,3 +266,28 @@ def machine_file_change(each: Parameter, axis: AxisConfig, text: str, *,
     if each.name == "following_error_limit_counts":
         return {("axes", letter, "following_error_limit_mm"): value / axis.counts_per_mm}
     return {}
+
+
+def machine_file_problem(config: MachineConfig, axis: AxisConfig, client: DeviceClient,
+                         each: Parameter, text: str, *,
+                         url_checks: UrlChecks | None = None) -> str | None:
+    """Why the machine file would refuse ``text`` for ``each`` on ``axis`` (its own checks:
+    a watchdog shorter than a full queue lasts, ...), or None. ``url_checks``: as the
+    file is loaded with.
+
+    Raises:
+        ArgumentError: ``text`` is no value of the parameter.
+        UsbMotionError: reading the device's control mode (for a gain) failed.
+    """
+    mode = client.control_mode() if each.name in _GAIN_INDEX else ControlMode.POSITION
+    changes = machine_file_change(each, axis, text, mode=mode)
+    if not changes:
+        return None
+    try:
+        changed_config(config, config.path.read_text(encoding="utf-8"), changes,
+                       url_checks=url_checks)
+    except ConfigError as error:
+        return str(error)
+    except OSError as error:
+        return f"cannot read the machine file {config.path}: {error.strerror or error}"
+    return None

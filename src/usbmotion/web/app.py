@@ -213,6 +213,20 @@ def create_app(dashboard: Dashboard, *, token: str) -> ASGIApp:
                                                    system=body.get("system", 1)))
         return {"ok": True, "origin_mm": origin}
 
+    async def devices(request: Request) -> Any:
+        return await work(dashboard.devices)
+
+    async def set_parameter(request: Request) -> Any:
+        body = await _body(request)
+        axis = request.path_params["axis"]
+        return await work(lambda: dashboard.set_parameter(
+            axis, body.get("name"), body.get("value"), flash=body.get("flash", False)))
+
+    async def tune(request: Request) -> Any:
+        body = await _body(request)
+        return await work(lambda: dashboard.tune(body.get("axis"),
+                                                 step_mm=body.get("step_mm", 1.0)))
+
     async def live(socket: WebSocket) -> None:
         await socket.accept()
         reader = dashboard.reader()
@@ -255,6 +269,9 @@ def create_app(dashboard: Dashboard, *, token: str) -> ASGIApp:
         Route("/api/mdi", _api(mdi), methods=["POST"]),
         Route("/api/overrides", _api(overrides), methods=["POST"]),
         Route("/api/offsets/zero", _api(zero), methods=["POST"]),
+        Route("/api/devices", _api(devices)),
+        Route("/api/devices/{axis}/parameters", _api(set_parameter), methods=["POST"]),
+        Route("/api/tune", _api(tune), methods=["POST"]),
         WebSocketRoute("/api/live", live),
         Mount("/", StaticFiles(directory=static_folder(), html=True, check_dir=False)),
     ]

@@ -28,9 +28,12 @@ from usbmotion.errors import (
     ArgumentError,
     GCodeError,
     MachineStateError,
+    OutOfRangeError,
     PlanningError,
     UsbMotionError,
 )
+from usbmotion.host.config import UrlChecks
+from usbmotion.host.parameters import PARAMETERS, Storage, machine_file_problem, parameter
 from usbmotion.motion.gcode import parse_gcode
 from usbmotion.motion.planner import SegmentKind
 from usbmotion.session.jog import check_jog
@@ -39,6 +42,7 @@ from usbmotion.session.operator import Operator
 from usbmotion.session.planning import Prepared, machine_axes, machine_dialect, program_axes
 from usbmotion.session.report_text import describe
 from usbmotion.session.state import MachineState
+from usbmotion.tuning import StepResponse, step_response
 
 UPLOAD_LIMIT_BYTES = 8 * 1024 * 1024
 """The largest program an upload may carry."""
@@ -140,12 +144,14 @@ class Dashboard:
     """
 
     def __init__(self, operator: Operator, *, programs: Path | None = None,
-                 machine_name: str = "") -> None:
+                 machine_name: str = "", url_checks: UrlChecks | None = None) -> None:
         self.operator = operator
         self.session = operator.session
         self.config = self.session.config
         self.axes = program_axes(self.config)
         self.programs = programs
+        self.url_checks = url_checks
+        """The machine file's URL checks (a changed parameter is checked as the file is)."""
         self.machine_name = machine_name or self.config.name
         self.program: OpenProgram | None = None
         self._revision = 0
@@ -616,6 +622,125 @@ class Dashboard:
                      + "  ".join(f"{n} {v:.3f}" for n, v in origin.items()) + " mm (machine)")
         return origin
 
+    # --- devices ----------------------------------------------------------------------------
+
+    def devices(self) -> dict[str, Any]:
+        """Each axis's device and its parameters as it holds them (read at rest).
+
+        Raises:
+            RefusedError: the machine is busy (409), or a device did not answer (409).
+        """
+        self._idle_or_refuse("read the devices' parameters")
+
+        def read() -> list[dict[str, Any]]:
+            out = []
+            for name in self.config.axis_names:
+                axis = self.session.machine.axis(name)
+                out.append({
+                    "axis": name, "port": axis.url, "label": axis.config.label,
+                    "parameters": [{"name": p.name, "value": p.read(axis.client),
+                                    "unit": p.unit, "storage": p.storage.value,
+                                    "allowed": p.allowed, "meaning": p.meaning}
+                                   for p in PARAMETERS],
+                })
+            return out
+
+        return {"devices": self._call(read)}
+
+    def set_parameter(self, axis: object, name: object, value: object, *,
+                      flash: object = False) -> dict[str, Any]:
+        """Set one device parameter by name, checked first as ``usbmotion set`` checks it
+        (its range, and what the machine file would refuse). ``flash`` asks that it be
+        kept across power cycles: only a parameter kept in flash can be.
+
+        Raises:
+            RefusedError: an unknown axis or parameter, a value refused (400), busy (409).
+        """
+        if not isinstance(axis, str) or axis.upper() not in self.config.axis_names:
+            raise _bad(f"axis {axis!r}: allowed {', '.join(self.config.axis_names)}")
+        letter = axis.upper()
+        if not isinstance(name, str):
+            raise _bad(f"parameter name {name!r}: a name such as \"kp\"")
+        try:
+            each = parameter(name)
+        except ArgumentError as error:
+            raise _bad(str(error)) from None
+        if isinstance(value, bool) or not isinstance(value, int | float | str):
+            raise _bad(f"{name} value {value!r}: a number, a mode word or a name")
+        text = str(value)
+        if not isinstance(flash, bool):
+            raise _bad(f"flash {flash!r}: true or false")
+        if flash and each.storage is not Storage.FLASH:
+            raise _bad(f"{name} is kept in RAM: the device cannot keep it in flash (the"
+                       " machine file sets it at every start)")
+        try:
+            each.check(text)
+        except (ArgumentError, OutOfRangeError) as error:
+            raise _bad(f"axis {letter} {name} {text!r} refused: {error}") from None
+        self._idle_or_refuse("set a parameter")
+
+        def write() -> str:
+            target = self.session.machine.axis(letter)
+            problem = machine_file_problem(self.config, target.config, target.client, each,
+                                           text, url_checks=self.url_checks)
+            if problem is not None:
+                raise ArgumentError(f"axis {letter} {name} {text!r} refused as the machine"
+                                    f" file would refuse it: {problem}", reason=name)
+            each.write(target.client, text)
+            return each.read(target.client)
+
+        now = self._call(write, refused=400)
+        kept = "flash" if each.storage is Storage.FLASH else "RAM"
+        self.message(f"axis {letter} {name} = {now} {each.unit}".rstrip() + f" ({kept})")
+        return {"axis": letter, "name": name, "value": now, "storage": kept}
+
+    def tune(self, axis: object, *, step_mm: object = 1.0) -> dict[str, Any]:
+        """A step response of ``axis`` at rest (``usbmotion tune``'s), and a step back to
+        where it stood; the first step's record and figures.
+
+        Raises:
+            RefusedError: bad axis or step, a step beyond the travel (400), busy or not
+                homed (409).
+        """
+        if not isinstance(axis, str) or axis.upper() not in self.config.axis_names:
+            raise _bad(f"axis {axis!r}: allowed {', '.join(self.config.axis_names)}")
+        letter = axis.upper()
+        if isinstance(step_mm, bool) or not isinstance(step_mm, int | float) or not (
+                math.isfinite(step_mm) and 0 < abs(step_mm) <= 50):
+            raise _bad(f"step_mm {step_mm!r}: a distance within 0..50 mm, not 0")
+        self._idle_or_refuse("tune")
+        if not self.session.is_homed:
+            raise _not_now("tune steps a homed machine (its travel known): home it first")
+        step = float(step_mm)
+
+        def record() -> StepResponse:
+            machine = self.session.machine
+            response = step_response(machine, letter, step_mm=step)
+            step_response(machine, letter, step_mm=-step)
+            self.session.read_live()
+            return response
+
+        response = self._call(record, refused=400)
+        scale = self.config.axis(letter).counts_per_mm
+        m = response.metrics
+
+        def finite(value: float) -> float | None:
+            return None if math.isnan(value) else round(value, 6)
+
+        self.message(f"tune {letter}: step {step:g} mm, overshoot {m.overshoot_pct:.2f} %,"
+                     " settling " + ("never" if math.isnan(m.settling_time_s)
+                                     else f"{m.settling_time_s * 1000:.1f} ms"))
+        return {
+            "axis": letter, "step_mm": step,
+            "time_s": [round(float(t), 6) for t in response.times_s],
+            "commanded_mm": [float(v) / scale for v in response.desired],
+            "measured_mm": [float(v) / scale for v in response.actual],
+            "overshoot_percent": finite(m.overshoot_pct),
+            "rise_s": finite(m.rise_time_s),
+            "settling_s": finite(m.settling_time_s),
+            "steady_state_error_mm": m.steady_state_error_counts / scale,
+        }
+
     # --- helpers ----------------------------------------------------------------------------
 
     def _axis_names(self, axes: object, what: str) -> list[str]:
@@ -637,11 +762,12 @@ class Dashboard:
         """Queue ``action`` for the worker, errors said as messages."""
         self.operator.do(action)  # type: ignore[arg-type]
 
-    def _call(self, action: Callable[[], T]) -> T:
+    def _call(self, action: Callable[[], T], *, refused: int = 409) -> T:
         """Run ``action`` on the worker and wait for its result.
 
         Raises:
-            RefusedError: it failed (its error, 409) or did not end within CALL_TIMEOUT_S.
+            RefusedError: it failed (its error: ``refused`` for an ArgumentError, else 409)
+                or did not end within CALL_TIMEOUT_S.
         """
         done = threading.Event()
         result: list[T] = []
@@ -659,5 +785,7 @@ class Dashboard:
         if not done.wait(CALL_TIMEOUT_S):
             raise _not_now(f"the machine did not answer within {CALL_TIMEOUT_S:g} s")
         if failure:
-            raise _not_now(str(failure[0]))
+            error = failure[0]
+            status = refused if isinstance(error, ArgumentError | OutOfRangeError) else 409
+            raise RefusedError(status, str(error))
         return result[0]
