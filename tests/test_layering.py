@@ -240,9 +240,17 @@ def serving_calls(paths: list[Path]) -> list[str]:
     :data:`TERMINAL_MODES`)."""
     found: list[str] = []
     for path in paths:
-        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        tree = ast.parse(path.read_text(), filename=str(path))
+        # An awaited accept is a WebSocket's handshake on a connection the server took,
+        # not a listening socket's accept.
+        handshakes = {id(node.value) for node in ast.walk(tree) if isinstance(node, ast.Await)}
+        for node in ast.walk(tree):
             name = (_callee(node) if isinstance(node, ast.Call) else
                     node.attr if isinstance(node, ast.Attribute) else "")
+            if name == "accept" and (id(node) in handshakes or any(
+                    id(parent) in handshakes for parent in ast.walk(tree)
+                    if isinstance(parent, ast.Call) and parent.func is node)):
+                continue
             if name in SERVING_CALLS or name in TERMINAL_MODES:
                 found.append(f"{_where(path)}:{node.lineno} {name}")
     return sorted(set(found))

@@ -403,6 +403,28 @@ def terminal_server(terminal: str) -> str:
 # --- TCP ------------------------------------------------------------------------------------
 
 
+def listening_socket(host: str, port: int, *, backlog: int = 64) -> socket.socket:
+    """A TCP socket bound to ``host``:``port`` (IPv6 for an IPv6 address; port 0: a free
+    one) and listening, for a server that accepts on it itself (the web dashboard's).
+
+    Raises:
+        ArgumentError: a port out of 0..65535.
+        OSError: the port cannot be bound.
+    """
+    if not 0 <= port <= 65535:
+        raise ArgumentError(f"port {port!r} is not a TCP port number 0..65535", reason="port")
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    listener = socket.socket(family, socket.SOCK_STREAM)
+    listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        listener.bind((host, port))
+        listener.listen(backlog)
+    except OSError:
+        listener.close()
+        raise
+    return listener
+
+
 class TcpEndpoint(Endpoint):
     """A TCP port clients connect to, one at a time.
 

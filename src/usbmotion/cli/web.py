@@ -25,20 +25,6 @@ STARTED_TIMEOUT_S = 30.0
 """How long the server has to answer before the command gives up."""
 
 
-def _bind(host: str, port: int) -> socket.socket:
-    """A listening socket on ``host``:``port`` (IPv6 when the address is one)."""
-    family = socket.AF_INET6 if ":" in host else socket.AF_INET
-    listener = socket.socket(family, socket.SOCK_STREAM)
-    listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    try:
-        listener.bind((host, port))
-        listener.listen(64)
-    except OSError:
-        listener.close()
-        raise
-    return listener
-
-
 def web(
     machine: MachineOption = None,
     host: Annotated[str, typer.Option(
@@ -78,8 +64,10 @@ def web(
     if token is not None and (len(token) < 16 or not token.isascii() or not all(
             c.isalnum() or c in "-_." for c in token)):
         fail("web", "--token: at least 16 letters, digits, '-', '_' or '.'", EXIT_BAD_INPUT)
+    from usbmotion.serving import listening_socket  # noqa: PLC0415
+
     try:
-        listener = _bind(host, port)
+        listener = listening_socket(host, port)
     except OSError as error:
         fail("web", f"cannot listen on {host}:{port}: {os_problem(error)}", EXIT_BAD_INPUT)
     bound_port = listener.getsockname()[1]
