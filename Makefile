@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint typecheck check bench fuzz soak clean senders senders-test
+.PHONY: run test lint typecheck check bench fuzz soak clean senders senders-test web
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -16,13 +16,30 @@ $(STAMP): pyproject.toml | $(BIN)/python
 
 DEMO := src/usbmotion/data/demos/1-rounded-square.ngc
 
+# The web dashboard's page (usbmotion web): three.js and uPlot from npm, pinned by
+# src/usbmotion/web/frontend/package-lock.json, bundled by esbuild into
+# src/usbmotion/web/static/dist (a build output, never committed). Needs Node.js 20 and npm;
+# make run goes on without them (the dashboard's page then says it is not built).
+WEB := src/usbmotion/web/frontend
+WEB_BUNDLE := src/usbmotion/web/static/dist/app.js
+
+$(WEB)/node_modules/.package-lock.json: $(WEB)/package-lock.json
+	cd $(WEB) && npm ci --no-audit --no-fund --loglevel=error
+
+$(WEB_BUNDLE): $(WEB)/node_modules/.package-lock.json $(WEB)/build.mjs $(wildcard $(WEB)/src/*.js)
+	cd $(WEB) && node build.mjs
+
+web: $(WEB_BUNDLE)
+
 run: $(STAMP)
+	@command -v npm > /dev/null && $(MAKE) --no-print-directory web \
+	  || echo "make run: no npm, so the web dashboard's page is not built (usbmotion web)"
 	@mkdir -p out
 	$(BIN)/usbmotion run $(DEMO) --plot out/demo-1.png --report out/demo-1.json
 
 # The Python suite and, beside it, the firmware's (firmware-test: its build and the emulated
 # chip's tests) and the real-time ones of the G-code senders and of reliability
-# (tests/senders, tests/reliability: mostly waiting on the machine's clock); their output is
+# (tests/senders, tests/reliability, tests/web: mostly waiting on the machine's clock); their output is
 # printed when they end; then lint and types. A machine
 # without the firmware's toolchain fails only firmware-test, after saying what to install;
 # the Python suite still runs. The real-time tests run while both cores are busy with the
@@ -32,14 +49,15 @@ run: $(STAMP)
 test: $(STAMP)
 	@mkdir -p build; status=0; \
 	bash tests/senders/install.sh || status=1; \
+	$(MAKE) --no-print-directory web || status=1; \
 	( $(MAKE) --no-print-directory firmware-test > build/firmware-test.log 2>&1; \
 	  echo $$? > build/firmware-test.status ) & \
 	( $(BIN)/python -m pytest -q -x -p no:cacheprovider --basetemp=build/senders-tmp \
-	  tests/senders tests/reliability > build/senders-test.log 2>&1; \
+	  tests/senders tests/reliability tests/web > build/senders-test.log 2>&1; \
 	  echo $$? > build/senders-test.status ) & \
 	$(BIN)/python -m pytest -q -x -p no:cacheprovider $(EMULATED_IGNORE) \
-	  --ignore=tests/senders --ignore=tests/reliability || status=1; \
-	wait; echo "--- the senders' and reliability tests:"; cat build/senders-test.log; \
+	  --ignore=tests/senders --ignore=tests/reliability --ignore=tests/web || status=1; \
+	wait; echo "--- the senders', reliability and dashboard tests:"; cat build/senders-test.log; \
 	[ "$$(cat build/senders-test.status)" = 0 ] || status=1; \
 	echo "--- make firmware-test:"; cat build/firmware-test.log; \
 	[ "$$(cat build/firmware-test.status)" = 0 ] || status=1; \
