@@ -384,7 +384,7 @@ class Dashboard:
             self._revision += 1
             self.program = OpenProgram(name, text, self._revision,
                                        lines=text.splitlines())
-        self._on_worker(self._plan)
+        self._call(self._plan)
         self.message(f"opened {name}")
         return self.program_view()
 
@@ -757,10 +757,6 @@ class Dashboard:
         if self.operator.busy:
             raise _not_now(f"the machine is busy ({self.session.state.value}): {what} when"
                            " it is Idle")
-
-    def _on_worker(self, action: Callable[[], object]) -> None:
-        """Queue ``action`` for the worker, errors said as messages."""
-        self.operator.do(action)  # type: ignore[arg-type]
 
     def _call(self, action: Callable[[], T], *, refused: int = 409) -> T:
         """Run ``action`` on the worker and wait for its result.
