@@ -270,6 +270,8 @@ class Dashboard:
             "alarm_help": self._alarm_help(now) if alarm or now.state is MachineState.ALARM
             else "",
             "message_sequence": self._message_sequence,
+            "sent_s": time.time(),
+            "age_s": max(0.0, time.monotonic() - now.updated_s) if now.updated_s else 0.0,
         }
 
     @staticmethod
