@@ -17,7 +17,7 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "usbmotion"
 
-HOST_SIDE = ("host", "motion", "automation", "session", "grbl")
+HOST_SIDE = ("host", "motion", "automation", "session", "grbl", "web")
 """Packages that drive devices through ports and must not know how a device is made."""
 
 FORBIDDEN = ("usbmotion.sim", "usbmotion.device")
@@ -152,10 +152,10 @@ def test_importing_the_host_loads_neither_the_simulator_nor_the_device() -> None
 
 def test_the_command_lines_help_imports_nothing_it_does_not_use() -> None:
     """``usbmotion --help`` (the command line, before any command runs) loads neither
-    numpy, numba nor matplotlib, nor the simulator, the device, the session or the links:
-    each command imports those when it runs."""
+    numpy, numba nor matplotlib, nor the simulator, the device, the session or the links,
+    nor the web server: each command imports those when it runs."""
     heavy = ("numpy", "numba", "matplotlib", "usbmotion.sim", "usbmotion.device",
-             "usbmotion.session", "usbmotion.host")
+             "usbmotion.session", "usbmotion.host", "usbmotion.web", "starlette", "uvicorn")
     assert _in_fresh_python(
         "import sys, usbmotion.cli.main;"
         f" print(sorted({{m.split('.')[0] if not m.startswith('usbmotion') else m"
@@ -177,7 +177,8 @@ def test_an_operator_command_on_a_real_machine_loads_no_simulator(
         "import runpy, sys; sys.argv = ['usbmotion', *sys.argv[1:]]\n"
         "try:\n    runpy.run_module('usbmotion', run_name='__main__')\n"
         "except SystemExit:\n    pass\n"
-        "heavy = ('numba', 'matplotlib', 'usbmotion.sim.world', 'usbmotion.device')\n"
+        "heavy = ('numba', 'matplotlib', 'usbmotion.sim.world', 'usbmotion.device',"
+        " 'usbmotion.web', 'starlette')\n"
         "sys.stderr.write(repr(sorted(m for m in sys.modules if m.startswith(heavy))))\n")
     done = subprocess.run([sys.executable, "-c", script, *command, "--machine", str(machine)],
                           check=False, capture_output=True, text=True, timeout=120,
