@@ -319,3 +319,36 @@ def test_device_parameters_and_a_step_response(web: Served) -> None:
     web.post("/api/mdi", {"line": "G0 X30"})  # the feed knows where X stands after the steps
     wait_for(lambda: not web.state()["busy"] and abs(
         web.state()["axes"]["X"]["machine_mm"] - 30) < 0.01, timeout_s=20, what="the MDI move")
+
+
+def test_two_pages_one_machine_and_a_page_that_goes_away(web: Served) -> None:
+    web.post("/api/home")
+    web.wait_state("Idle", idle=True)
+    web.post("/api/program/open", {"demo": 1})
+    with listening(web) as first:
+        with listening(web) as second:
+            web.post("/api/run")
+            web.wait_state("Run")
+            time.sleep(1.0)
+        # The second page closed mid-run: the machine goes on.
+        time.sleep(0.5)
+        assert web.state()["state"] == "Run"
+        seen = [s["program"]["line"] for _, s in second.states if s["program"]]
+        assert max(seen) > 0
+        # A page that comes back gets the state at once, the program where it stands.
+        with web.client.websocket_connect(f"/api/live?token={TOKEN}") as socket:
+            messages = [json.loads(socket.receive_text()) for _ in range(10)]
+        states = [m for m in messages if m["type"] == "state"]
+        assert states and states[0]["state"] == "Run" and states[0]["program"]["line"] > 0
+        assert any(m["type"] == "message" and "cycle start" in m["text"] for m in messages)
+        web.post("/api/hold")
+        wait_for(lambda: web.state()["state"] == "Hold" and web.state()["at_rest"],
+                 timeout_s=10, what="Hold at rest")
+        time.sleep(0.3)
+    # Both pages saw the same machine: the first page's pushes followed the hold too.
+    assert first.states[-1][1]["state"] == "Hold"
+    first_lines = {s["program"]["line"] for _, s in first.states if s["program"]}
+    assert set(seen) <= first_lines | {0}
+    web.post("/api/stop")
+    wait_for(lambda: not web.state()["busy"], timeout_s=20, what="the stop")
+    assert web.state()["state"] == "Idle"
