@@ -251,6 +251,8 @@ def test_a_program_driven_through_the_api_and_watched_on_the_websocket(web: Serv
     last = max(n for n, text in enumerate(program["lines"], 1)
                if text.strip().upper().startswith(("G1", "G2", "G3", "G0")))
     assert lines[-1] == last
+    end = [s["program"] for t, s in pushes.states if s["program"]][-1]
+    assert end["lines_done"] == end["lines_total"] == 18, end  # M2's line: the program's end
     # The DRO at rest is what the devices' encoders read, to the count; the report's end
     # was read as the axes came within SETTLE_COUNTS of their last setpoint.
     time.sleep(0.5)

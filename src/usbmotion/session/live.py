@@ -74,7 +74,9 @@ class LiveSnapshot:
         homed: every axis is homed.
         program: the program running or last run ("" none); ``line`` the line its devices
             are executing now (0: none), ``lines_done`` / ``lines_total`` progress by
-            executed line (a fed program's total grows as its lines come).
+            executed line: the lines before the one executing, every line once the
+            devices executed the last setpoint (a fed program's total grows as its lines
+            come).
         done_s, total_s: program time done and planned (at the overrides now), s;
             ``eta_s`` what is left, s (0 at rest).
         feed_mm_min: the path speed the encoders measure, mm/min.

@@ -61,10 +61,14 @@ class RunProgress:
         row = self.row_at_tick(tick) if ticks and self.streams.sync else 0.0
         place = legs.place(row)
         total_s = legs.plan.duration_s
+        lines_total = max(self.program.end_line, self.feeding.lines_total())
+        # The lines before the one executing are done; all of them once the devices have
+        # executed the plan's last setpoint.
+        finished = legs.count > 0 and place.program_time_s >= total_s
         live.publish(
             state=state, at_rest=at_rest, hold_pending=hold_pending, program=self.program.file,
-            line=place.line, lines_done=place.line,
-            lines_total=max(self.program.end_line, self.feeding.lines_total()),
+            line=place.line, lines_done=lines_total if finished else max(0, place.line - 1),
+            lines_total=lines_total,
             done_s=min(place.program_time_s, total_s), total_s=total_s,
             eta_s=0.0 if at_rest else legs.left_s(row),
             feed_override=legs.overrides[0], rapid_override=legs.overrides[1], pause=pause,

@@ -102,6 +102,8 @@ class OpenProgram:
     problem: str = ""
     """Why it cannot run from where the machine stands ("" when it can)."""
     lines: list[str] = field(default_factory=list)
+    end_line: int = 0
+    """The line the program ends on (M2, M30, '%'): its lines to run."""
 
 
 def system_name(system: int) -> str:
@@ -191,7 +193,9 @@ class Dashboard:
             self._messages.append(Message(self._message_sequence, level, text))
 
     def _worker_message(self, text: str) -> None:
-        self.message(text, level="error" if text.startswith(("error", "stopped")) else "info")
+        failed = text.startswith("error") or (
+            text.startswith("stopped") and "jog cancelled" not in text)
+        self.message(text, level="error" if failed else "info")
 
     def messages(self, after: int = 0) -> list[Message]:
         """The messages kept whose sequence number is after ``after``."""
@@ -248,16 +252,7 @@ class Dashboard:
             "homed": now.homed,
             "axis_order": list(self.axes),
             "axes": axes,
-            "program": None if program is None else {
-                "name": program.name,
-                "revision": program.revision,
-                "line": now.line,
-                "lines_done": now.lines_done,
-                "lines_total": now.lines_total,
-                "done_s": now.done_s,
-                "total_s": now.total_s,
-                "eta_s": now.eta_s,
-            },
+            "program": None if program is None else self._progress(program, now),
             "feed_mm_min": now.feed_mm_min,
             "feed_override": now.feed_override,
             "rapid_override": now.rapid_override,
@@ -273,6 +268,18 @@ class Dashboard:
             "sent_s": time.time(),
             "age_s": max(0.0, time.monotonic() - now.updated_s) if now.updated_s else 0.0,
         }
+
+    @staticmethod
+    def _progress(program: OpenProgram, now: LiveSnapshot) -> dict[str, Any]:
+        """Where the open program stands: the live model's figures while it runs or after
+        it ran; before it runs (or while MDI lines run), at its start."""
+        if now.program == program.name:
+            return {"name": program.name, "revision": program.revision, "line": now.line,
+                    "lines_done": now.lines_done, "lines_total": now.lines_total,
+                    "done_s": now.done_s, "total_s": now.total_s, "eta_s": now.eta_s}
+        return {"name": program.name, "revision": program.revision, "line": 0,
+                "lines_done": 0, "lines_total": program.end_line, "done_s": 0.0,
+                "total_s": program.duration_s, "eta_s": program.duration_s}
 
     @staticmethod
     def _alarm_help(now: LiveSnapshot) -> str:
@@ -378,14 +385,14 @@ class Dashboard:
             raise _not_now(f"the machine is busy ({self.session.state.value}): open a"
                            " program when it is Idle")
         try:
-            parse_gcode(text, file=name, machine=machine_axes(self.config),
-                        dialect=machine_dialect(self.config))
+            parsed = parse_gcode(text, file=name, machine=machine_axes(self.config),
+                                 dialect=machine_dialect(self.config))
         except GCodeError as error:
             raise _bad(str(error)) from None
         with self._lock:
             self._revision += 1
-            self.program = OpenProgram(name, text, self._revision,
-                                       lines=text.splitlines())
+            self.program = OpenProgram(name, text, self._revision, lines=text.splitlines(),
+                                       end_line=parsed.end_line)
         self._call(self._plan)
         self.message(f"opened {name}")
         return self.program_view()
