@@ -15,6 +15,7 @@ const [url, screenshotDir, executablePath] = process.argv.slice(2);
 const STEP_TIMEOUT_MS = 30000;
 const JOG_STEP_MM = 1;
 const TOLERANCE_MM = 0.01;
+const DRO_STEADY_MS = 1000;
 const BROWSER_ARGS = ['--no-sandbox', '--disable-gpu', '--disable-background-networking',
   '--disable-component-update', '--no-first-run'];
 
@@ -164,7 +165,7 @@ async function main() {
       await page.waitForTimeout(1000);
       await page.screenshot({ path: path.join(screenshotDir, 'dashboard.png') });
       await waitFor(page, 'Idle with every line done', (now) => now.state === 'Idle'
-        && now.linesTotal > 0 && now.linesDone >= now.linesTotal - 1); // DEV ONLY
+        && now.linesTotal > 0 && now.linesDone === now.linesTotal);
       chartWindow.endMs = await page.evaluate(() => performance.now());
     });
     const highlighted = await stopRecordingHighlights(page);
@@ -199,7 +200,21 @@ async function main() {
         && Math.abs(Number(now.work.Y) - 5) <= TOLERANCE_MM);
     });
 
-    const dro = await step('read the DRO', async () => (await shown(page)).dro);
+    // The servo still settles by a few micrometres after the machine reads at rest: the DRO
+    // is read once it has shown the same figures for DRO_STEADY_MS.
+    const dro = await step('read the DRO', async () => {
+      let last = JSON.stringify((await shown(page)).dro);
+      let since = Date.now();
+      await waitFor(page, `the DRO steady for ${DRO_STEADY_MS} ms`, (now) => {
+        const texts = JSON.stringify(now.dro);
+        if (texts !== last) {
+          last = texts;
+          since = Date.now();
+        }
+        return Date.now() - since >= DRO_STEADY_MS;
+      });
+      return JSON.parse(last);
+    });
 
     await step('phone layout', async () => {
       await page.setViewportSize({ width: 390, height: 844 });

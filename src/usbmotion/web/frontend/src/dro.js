@@ -1,0 +1,89 @@
+// The digital read-out: each axis's positions and following error, the state beside them.
+
+import { byId, el, mm, setText } from './format.js';
+
+const STATE_CLASSES = ['Idle', 'Run', 'Hold', 'Paused', 'Jog', 'Homing', 'Stopping', 'Alarm'];
+
+export class Readout {
+  constructor() {
+    this.rows = byId('dro-rows');
+    this.state = byId('state');
+    this.homed = byId('homed');
+    this.motion = byId('motion');
+    this.pause = byId('pause-text');
+    this.feed = byId('feed');
+    this.overrides = byId('overrides-shown');
+    this.tool = byId('tool');
+    this.system = byId('coordinate-system');
+    this.offsets = byId('work-offsets');
+    this.cells = new Map();
+    this.axisKey = '';
+  }
+
+  // The rows follow axis_order; they are built again only if the machine's axes change.
+  build(axes) {
+    this.cells.clear();
+    this.rows.replaceChildren();
+    for (const axis of axes) {
+      const figure = (name, extra = '') => el('span', {
+        class: `figure ${extra}`, 'data-testid': `dro-${axis}-${name}`,
+      });
+      const cells = {
+        work: figure('work', 'figure-main'),
+        workCommanded: figure('work-commanded', 'figure-commanded'),
+        machine: figure('machine', 'figure-main'),
+        machineCommanded: figure('machine-commanded', 'figure-commanded'),
+        error: figure('error'),
+        row: null,
+      };
+      cells.row = el('tr', {},
+        el('th', { scope: 'row', class: 'axis-name' }, axis),
+        el('td', {}, cells.work, cells.workCommanded),
+        el('td', {}, cells.machine, cells.machineCommanded),
+        el('td', { class: 'error-cell' }, cells.error));
+      this.rows.append(cells.row);
+      this.cells.set(axis, cells);
+    }
+  }
+
+  show(state) {
+    const axes = state.axis_order;
+    const key = axes.join(',');
+    if (key !== this.axisKey) {
+      this.axisKey = key;
+      this.build(axes);
+    }
+    for (const axis of axes) {
+      const cells = this.cells.get(axis);
+      const reading = state.axes[axis];
+      if (!reading) {
+        continue;
+      }
+      setText(cells.work, mm(reading.work_mm));
+      setText(cells.workCommanded, mm(reading.commanded_work_mm));
+      setText(cells.machine, mm(reading.machine_mm));
+      setText(cells.machineCommanded, mm(reading.commanded_mm));
+      setText(cells.error, mm(reading.following_error_mm));
+      cells.row.classList.toggle('axis-limit', Boolean(reading.limit));
+      cells.row.classList.toggle('axis-fault', Boolean(reading.fault));
+    }
+
+    setText(this.state, state.state);
+    for (const name of STATE_CLASSES) {
+      this.state.classList.toggle(`state-${name.toLowerCase()}`, state.state === name);
+    }
+    setText(this.homed, state.homed ? 'homed' : 'not homed');
+    this.homed.classList.toggle('fact-warn', !state.homed);
+    setText(this.motion, state.at_rest ? 'at rest' : 'moving');
+    this.pause.hidden = !state.pause;
+    setText(this.pause, state.pause || '');
+
+    setText(this.feed, Number.isFinite(state.feed_mm_min) ? state.feed_mm_min.toFixed(0) : '—');
+    setText(this.overrides, `${state.feed_override} %, rapid ${state.rapid_override} %`);
+    const length = state.tool_length_mm ? ` (length ${mm(state.tool_length_mm)} mm)` : '';
+    setText(this.tool, `T${state.tool}${length}`);
+    setText(this.system, state.coordinate_system);
+    const offsets = state.work_offset_mm || {};
+    setText(this.offsets, axes.map((axis) => `${axis} ${mm(offsets[axis])}`).join('  '));
+  }
+}
