@@ -1,0 +1,106 @@
+"""The dashboard on a machine of three emulated RP2040s: ``usbmotion sim --firmware`` serves
+the chips on pseudo-terminals, ``usbmotion web -m`` serves the machine that finds them, and
+the page in Chromium (``tests/web/dashboard_page.js``) homes, runs demo 1 with a hold and a
+resume, stops a second run, jogs and sends an MDI line, as on the simulated machine. The
+highlighted line climbs through the program to its last motion line, the charts redraw at
+least 50 times a second, the DRO shows what the API's state holds (within the two counts
+an axis at rest may still creep), no console error."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from usbmotion.demos import demo_path
+from usbmotion.sim.firmware import default_uf2
+from usbmotion.web.app import page_built
+
+from .emulated import require_emulator
+from .jobs import machine_text, served
+from .native import ROOT
+
+pytestmark = pytest.mark.realtime
+
+PAGE_SCRIPT = ROOT / "tests" / "web" / "dashboard_page.js"
+PLAYWRIGHT = ROOT / "tests" / "senders" / "node_modules" / "playwright-core" / "package.json"
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+SCREENSHOTS = ROOT / "build" / "web" / "emulated"
+START_TIMEOUT_S = 120.0
+
+
+def _need_the_page() -> None:
+    why = None
+    if not page_built():
+        why = "the dashboard's page is not built (make web)"
+    elif not PLAYWRIGHT.is_file() or not Path(CHROMIUM).exists():
+        why = "playwright-core and Chromium are not installed (tests/senders/install.sh)"
+    if why is not None:
+        if os.environ.get("CI"):
+            pytest.fail(why)
+        pytest.skip(why)
+
+
+def test_the_dashboard_drives_emulated_rp2040s(tmp_path: Path) -> None:
+    require_emulator()
+    _need_the_page()
+    firmware = default_uf2()
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    with served(tmp_path / "flash", firmware=firmware) as sim:
+        machine = tmp_path / "emulated.toml"
+        machine.write_text(machine_text(sim.paths), encoding="utf-8")
+        web = subprocess.Popen(
+            [sys.executable, "-m", "usbmotion", "web", "--port", "0", "--machine",
+             str(machine)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            assert web.stdout is not None
+            deadline = time.monotonic() + START_TIMEOUT_S
+            address = ""
+            while not address and time.monotonic() < deadline:
+                line = web.stdout.readline()
+                if " at http://" in line:
+                    address = line.split(" at ", 1)[1].split()[0]
+                elif not line:
+                    break
+            assert address, f"usbmotion web did not start: {web.poll()}"
+            done = subprocess.run(["node", str(PAGE_SCRIPT), address, str(SCREENSHOTS),
+                                   CHROMIUM], check=False, capture_output=True, text=True,
+                                  timeout=400)
+            assert done.returncode == 0, f"{done.stderr}\n{done.stdout}"
+            result = json.loads(done.stdout.strip().splitlines()[-1])
+            base, _, token = address.partition("/?token=")
+            request = urllib.request.Request(base + "/api/state",
+                                             headers={"Authorization": f"Bearer {token}"})
+            with urllib.request.urlopen(request, timeout=10) as answer:
+                state = json.loads(answer.read())
+        finally:
+            web.send_signal(signal.SIGTERM)
+            try:
+                _, errors = web.communicate(timeout=30)
+            except subprocess.TimeoutExpired:
+                web.kill()
+                _, errors = web.communicate()
+        assert web.returncode == 0, errors
+    assert result["console_errors"] == []
+    assert result["chart_updates_per_s"] >= 50
+    lines = result["highlighted"]
+    assert lines == sorted(lines) and len(lines) >= 8, lines
+    program = demo_path(1).read_text().splitlines()
+    assert result["last_highlighted"] == max(
+        n for n, text in enumerate(program, 1)
+        if text.strip().upper().startswith(("G0", "G1", "G2", "G3")))
+    assert state["state"] == "Idle" and not state["busy"]
+    # At rest a chip's integrator may still wind up against the load's friction, a count at
+    # a time after the page read its DRO (tests/firmware/test_emulated_machine.py): within
+    # two counts of the state read after it.
+    for axis, text in result["dro"].items():
+        assert abs(float(text) - state["axes"][axis]["machine_mm"]) <= 2 / 240 + 5e-4, (
+            axis, text, state["axes"][axis])
