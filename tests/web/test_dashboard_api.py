@@ -289,6 +289,15 @@ def test_jog_mdi_overrides_and_offsets(web: Served) -> None:
              timeout_s=5, what="the overrides in the live model")
     origin = web.post("/api/offsets/zero", {"axes": ["X", "Y"], "system": 2})["origin_mm"]
     assert origin["X"] == pytest.approx(20.0, abs=0.01)
+    web.post("/api/offsets/select", {"system": 2})
+    wait_for(lambda: web.state()["coordinate_system"] == "G55", timeout_s=5,
+             what="G55 in the live model")
+    assert web.state()["axes"]["X"]["work_mm"] == pytest.approx(0.0, abs=0.01)
+    assert "allowed 1 (G54)" in web.post("/api/offsets/select", {"system": 0},
+                                         status=400)["error"]
+    web.post("/api/mdi", {"line": "G0 X2"})  # in G55: 2 mm from its origin
+    wait_for(lambda: not web.state()["busy"] and abs(
+        web.state()["axes"]["X"]["machine_mm"] - 22) < 0.01, timeout_s=20, what="G0 X2 in G55")
     offsets_file = web.dashboard.config.parameter_path
     assert offsets_file is not None and offsets_file.is_file()
 

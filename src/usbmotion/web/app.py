@@ -213,6 +213,10 @@ def create_app(dashboard: Dashboard, *, token: str) -> ASGIApp:
                                                    system=body.get("system", 1)))
         return {"ok": True, "origin_mm": origin}
 
+    async def select_system(request: Request) -> Any:
+        body = await _body(request)
+        return await work(lambda: dashboard.select_system(body.get("system")))
+
     async def devices(request: Request) -> Any:
         return await work(dashboard.devices)
 
@@ -269,6 +273,7 @@ def create_app(dashboard: Dashboard, *, token: str) -> ASGIApp:
         Route("/api/mdi", _api(mdi), methods=["POST"]),
         Route("/api/overrides", _api(overrides), methods=["POST"]),
         Route("/api/offsets/zero", _api(zero), methods=["POST"]),
+        Route("/api/offsets/select", _api(select_system), methods=["POST"]),
         Route("/api/devices", _api(devices)),
         Route("/api/devices/{axis}/parameters", _api(set_parameter), methods=["POST"]),
         Route("/api/tune", _api(tune), methods=["POST"]),

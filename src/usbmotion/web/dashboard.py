@@ -19,7 +19,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Any, TypeVar
 
@@ -749,6 +749,29 @@ class Dashboard:
             "settling_s": finite(m.settling_time_s),
             "steady_state_error_mm": m.steady_state_error_counts / scale,
         }
+
+    def select_system(self, system: object) -> None:
+        """Make ``system`` (1 = G54) the active coordinate system, as a program's ``G55``
+        then ``M2`` leaves it: kept in the parameter file, so the next run, the MDI lines
+        and the live model all use it.
+
+        Raises:
+            RefusedError: a system out of 1..9 (400), busy (409).
+        """
+        if not isinstance(system, int) or isinstance(system, bool) or not (
+                1 <= system <= MAX_SYSTEM):
+            raise _bad(f"system {system!r}: allowed 1 (G54) .. 6 (G59), 7..9 (G59.1..G59.3)")
+        self._idle_or_refuse("select a coordinate system")
+
+        def go() -> None:
+            offsets = self.session.work_offsets()
+            self.session.save_work_offsets(replace(offsets, coordinate_system=system))
+            self.operator.feed = None  # the MDI lines start again from the file's state
+            self.session.read_live()
+            self._plan()
+
+        self._call(go)
+        self.message(f"{system_name(system)} is active")
 
     # --- helpers ----------------------------------------------------------------------------
 

@@ -93,7 +93,8 @@ export class Controls {
 
     this.system.addEventListener('change', async () => {
       const name = this.system.selectedOptions[0].textContent;
-      const answer = await this.send('mdi', { line: name }, `Select ${name}`);
+      const answer = await this.send('offsets/select', { system: Number(this.system.value) },
+        `Select ${name}`);
       if (!answer && this.state) {
         this.showSystem(this.state.coordinate_system);
       }
