@@ -36,7 +36,7 @@ USAGE_ERRORS = [
     (["run", "--plo", "x.ngc"], "usbmotion run: no such option --plo; did you mean --no-plot"
      " or --plot or --report? (usbmotion run --help)"),
     (["bogus"], "usbmotion: no such command bogus; the commands are version, run, console,"
-     " tune, sim, grbl, zero, status, home, jog, get, set, devices, name, gcode"
+     " tune, sim, grbl, web, zero, status, home, jog, get, set, devices, name, gcode"
      " (usbmotion --help)"),
     (["sim", "--pty", "abc"], "usbmotion sim: --pty 'abc' is not a whole number (usbmotion"
      " sim --help)"),
@@ -56,7 +56,7 @@ USAGE_ERRORS = [
     (["gcode", "bogus"], "usbmotion gcode: no such command bogus; the commands are moves"
      " (usbmotion gcode --help)"),
     (["rn"], "usbmotion: no such command rn; did you mean run? the commands are version,"
-     " run, console, tune, sim, grbl, zero, status, home, jog, get, set, devices, name,"
+     " run, console, tune, sim, grbl, web, zero, status, home, jog, get, set, devices, name,"
      " gcode (usbmotion --help)"),
     (["run", "--no-home=3", "x.ngc"], "usbmotion run: option --no-home does not take a"
      " value (usbmotion run --help)"),
