@@ -4,6 +4,7 @@ grbl's 128-byte receive buffer; every reply and status report is kept with when 
 
 from __future__ import annotations
 
+import collections
 import os
 import re
 import threading
@@ -20,22 +21,25 @@ _FS = re.compile(r"FS:([-0-9.]+),")
 
 @dataclass(frozen=True, slots=True)
 class Report:
-    """One status report: when it came (monotonic s), the state, MPos and FS."""
+    """One status report: when it came (monotonic s), the state, MPos and FS; and when the
+    ``?`` it answers was sent (``asked_s``): the front made it between the two."""
 
     at_s: float
     state: str
     mpos: tuple[float, ...]
     feed_mm_min: float
     text: str
+    asked_s: float
 
 
-def parse_report(at_s: float, text: str) -> Report:
-    """A ``<...>`` status report, parsed."""
+def parse_report(at_s: float, text: str, asked_s: float | None = None) -> Report:
+    """A ``<...>`` status report, parsed (``asked_s``: when its ``?`` went; else ``at_s``)."""
     state = text[1:].split("|", 1)[0]
     mpos = _MPOS.search(text)
     fs = _FS.search(text)
     return Report(at_s, state, tuple(float(v) for v in mpos.group(1).split(","))
-                  if mpos else (), float(fs.group(1)) if fs else 0.0, text)
+                  if mpos else (), float(fs.group(1)) if fs else 0.0, text,
+                  at_s if asked_s is None else asked_s)
 
 
 @dataclass
@@ -52,6 +56,9 @@ class RawSender:
         self._fd = os.open(self.path, os.O_RDWR | os.O_NOCTTY)
         tty.setraw(self._fd)
         self._lock = threading.Lock()
+        self._asked: collections.deque[float] = collections.deque()
+        """When each ``?`` not answered yet was sent (the front answers each with one
+        report, in order)."""
         self._stop = threading.Event()
         self._reader = threading.Thread(target=self._read, name="raw-sender", daemon=True)
         self._reader.start()
@@ -75,7 +82,8 @@ class RawSender:
                 now = time.monotonic()
                 with self._lock:
                     if text.startswith("<"):
-                        self.reports.append(parse_report(now, text))
+                        asked = self._asked.popleft() if self._asked else None
+                        self.reports.append(parse_report(now, text, asked))
                     else:
                         self.replies.append((now, text))
                         if text == "ok" or text.startswith("error"):
@@ -83,7 +91,10 @@ class RawSender:
 
     def send(self, data: str | bytes) -> None:
         """Write ``data`` as it is."""
-        os.write(self._fd, data.encode("ascii") if isinstance(data, str) else data)
+        raw = data.encode("ascii") if isinstance(data, str) else data
+        with self._lock:
+            self._asked.extend([time.monotonic()] * raw.count(b"?"))
+        os.write(self._fd, raw)
 
     def wait(self, condition: Callable[[], bool], *, timeout_s: float, what: str) -> None:
         """Until ``condition()``; fail naming ``what`` (and the last replies) otherwise."""

@@ -119,7 +119,9 @@ def test_status_polls_follow_the_encoders_and_a_hold_shows_where_it_rests(
         speed_mm_s = FEED_MM_MIN / 60.0
         for before, after in itertools.pairwise(cruising):
             step = after.mpos[0] - before.mpos[0]
-            assert 0.0 < step <= 1.5 * speed_mm_s * (after.at_s - before.at_s), (
+            # Each report was made between its ? going out and its coming in: a late
+            # reader (a loaded machine) brings two in quick succession all the same.
+            assert 0.0 < step <= 1.5 * speed_mm_s * (after.at_s - before.asked_s), (
                 "a new position on every poll, no further than the axis can have gone",
                 before.text, after.text)
             assert after.feed_mm_min == pytest.approx(FEED_MM_MIN, rel=0.05), after.text
