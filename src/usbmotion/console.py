@@ -272,7 +272,6 @@ class Console:
             self.write(("jogged" if report.completed else report.stop_reason) + f": {where} mm")
 
         return go
-        self.write("jogging" + (" until $jx, ! or ^X" if continuous else ""))
 
     def _load(self, path: Path) -> None:
         text = read_gcode_text(path)
