@@ -13,7 +13,6 @@ front's polls read it through :meth:`SessionMachine.poll`.
 from __future__ import annotations
 
 import math
-import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -49,7 +48,7 @@ from usbmotion.motion.gcode import GCodeStream
 from usbmotion.motion.moves import AXIS_ORDER
 from usbmotion.protocol import FaultCode
 from usbmotion.session.live import LiveSnapshot
-from usbmotion.session.operator import Operator
+from usbmotion.session.operator import IdleReader, Operator
 from usbmotion.session.planning import machine_axes, program_axes
 from usbmotion.session.state import MachineState
 
@@ -69,8 +68,6 @@ def rejection(error: GCodeError | PlanningError | MachineStateError) -> Rejected
     return Rejected(code, str(error))
 
 
-READ_PERIOD_S = 0.1
-"""How often an idle machine is read (positions, switches) and its watchdogs fed."""
 _FIXED_ON = {20: "soft limits are the travel ($130..), kept on a homed machine",
              21: "every device stops its axis at a limit switch",
              22: "homing gives the machine coordinates soft limits need"}
@@ -101,29 +98,22 @@ class SessionMachine:
         self._fault: Fault | None = None
         self._homing = False
         self._checker: GCodeStream | None = None
-        self._stop = threading.Event()
-        self._reading = threading.Thread(target=self._read, name="usbmotion-grbl-read",
-                                         daemon=True)
+        self._reading = IdleReader(operator, on_error=self._unreadable,
+                                   name="usbmotion-grbl-read")
 
     # --- what the front polls --------------------------------------------------------------
 
     def start(self) -> None:
-        """Read the machine while it is idle, every :data:`READ_PERIOD_S` on a thread of
-        its own (its watchdogs fed, its positions and switches current)."""
+        """Read the machine while it is idle, on a thread of its own (:class:`IdleReader`:
+        its watchdogs fed, its positions and switches current)."""
         self._reading.start()
 
     def close(self) -> None:
         """Stop reading the machine."""
-        self._stop.set()
-        if self._reading.is_alive():
-            self._reading.join(timeout=5)
+        self._reading.close()
 
-    def _read(self) -> None:
-        while not self._stop.wait(READ_PERIOD_S):
-            try:
-                self.operator.keep_alive()
-            except UsbMotionError as error:
-                self._fault = Fault(AlarmCode.ABORT_CYCLE, f"the machine cannot be read: {error}")
+    def _unreadable(self, error: UsbMotionError) -> None:
+        self._fault = Fault(AlarmCode.ABORT_CYCLE, f"the machine cannot be read: {error}")
 
     def poll(self) -> None:
         """Take up how the last action ended (a fault, a failed homing)."""

@@ -412,4 +412,46 @@ class Operator:
         return tuple(where[name] for name in program_axes(self.session.config))
 
 
-__all__ = ["Operator", "parse_steps"]
+IDLE_READ_S = 0.1
+"""How often a front's :class:`IdleReader` reads an idle machine."""
+
+
+class IdleReader:
+    """Reads an idle machine for a front, on a thread of its own: every ``period_s`` the
+    operator's :meth:`Operator.keep_alive` (its watchdogs fed, its positions and switches
+    current in the live model); a read that fails goes to ``on_error``.
+
+    Parameters:
+        operator: the session's operator.
+        on_error: told of each read that failed.
+        name: the thread's name.
+        period_s: how often.
+    """
+
+    def __init__(self, operator: Operator, *, on_error: Callable[[UsbMotionError], None],
+                 name: str, period_s: float = IDLE_READ_S) -> None:
+        self.operator = operator
+        self.on_error = on_error
+        self.period_s = period_s
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._read, name=name, daemon=True)
+
+    def start(self) -> None:
+        """Begin reading."""
+        self._thread.start()
+
+    def close(self) -> None:
+        """Stop reading (safe when never started)."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=5)
+
+    def _read(self) -> None:
+        while not self._stop.wait(self.period_s):
+            try:
+                self.operator.keep_alive()
+            except UsbMotionError as error:
+                self.on_error(error)
+
+
+__all__ = ["IdleReader", "Operator", "parse_steps"]

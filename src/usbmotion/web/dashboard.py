@@ -38,7 +38,7 @@ from usbmotion.motion.gcode import parse_gcode
 from usbmotion.motion.planner import SegmentKind
 from usbmotion.session.jog import check_jog
 from usbmotion.session.live import LiveReader, LiveSnapshot
-from usbmotion.session.operator import Operator
+from usbmotion.session.operator import IdleReader, Operator
 from usbmotion.session.planning import Prepared, machine_axes, machine_dialect, program_axes
 from usbmotion.session.report_text import describe
 from usbmotion.session.state import MachineState
@@ -54,8 +54,6 @@ MDI_WAIT_S = 5.0
 """How long an MDI line waits for room in the planner before it is refused."""
 CALL_TIMEOUT_S = 30.0
 """How long a call waits for the worker to do what it asked (planning, reading devices)."""
-READ_PERIOD_S = 0.1
-"""How often an idle machine is read (positions, switches) and its watchdogs fed."""
 MAX_SYSTEM = 9
 """G54 (1) .. G59.3 (9)."""
 
@@ -161,28 +159,19 @@ class Dashboard:
         self._messages: deque[Message] = deque(maxlen=MESSAGES_KEPT)
         self._message_sequence = 0
         operator.on_message = self._worker_message
-        self._stop = threading.Event()
-        self._reading = threading.Thread(target=self._read, name="usbmotion-web-read",
-                                         daemon=True)
+        self._reading = IdleReader(operator, name="usbmotion-web-read", on_error=lambda error:
+                                   self.message(f"the machine cannot be read: {error}",
+                                                level="error"))
 
     # --- the machine at rest ----------------------------------------------------------------
 
     def start(self) -> None:
-        """Read the machine while it is idle, every :data:`READ_PERIOD_S`."""
+        """Read the machine while it is idle (:class:`IdleReader`)."""
         self._reading.start()
 
     def close(self) -> None:
         """Stop reading the machine (the operator is the caller's to close)."""
-        self._stop.set()
-        if self._reading.is_alive():
-            self._reading.join(timeout=5)
-
-    def _read(self) -> None:
-        while not self._stop.wait(READ_PERIOD_S):
-            try:
-                self.operator.keep_alive()
-            except UsbMotionError as error:
-                self.message(f"the machine cannot be read: {error}", level="error")
+        self._reading.close()
 
     # --- messages ---------------------------------------------------------------------------
 
