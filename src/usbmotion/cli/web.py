@@ -100,12 +100,9 @@ def _serve(session: MachineSession, keep_pace: Callable[[], None] | None,
 
     operator = Operator(session, file="<web>")
     operator.on_idle = keep_pace
-    url_checks = None
-    if session.config.is_simulated or any(a.is_simulated for a in session.config.axes):
-        from usbmotion.sim.urls import URL_CHECKS  # noqa: PLC0415 - the sim:// checks alone
+    from usbmotion.sim.urls import URL_CHECKS  # noqa: PLC0415 - the sim:// checks alone
 
-        url_checks = URL_CHECKS
-    dashboard = Dashboard(operator, programs=programs, url_checks=url_checks)
+    dashboard = Dashboard(operator, programs=programs, url_checks=URL_CHECKS)
     dashboard.start()
     app = create_app(dashboard, token=token)
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="off",
