@@ -352,11 +352,11 @@ class Dashboard:
         path = self.programs / name
         if not path.is_file():
             raise RefusedError(404, f"no program {name!r} in {self.programs}")
-        body = path.read_bytes()
-        if len(body) > UPLOAD_LIMIT_BYTES:
-            raise RefusedError(413, f"program {name!r} is {len(body):,} bytes: at most"
+        size = path.stat().st_size
+        if size > UPLOAD_LIMIT_BYTES:  # before reading it
+            raise RefusedError(413, f"program {name!r} is {size:,} bytes: at most"
                                f" {UPLOAD_LIMIT_BYTES:,}")
-        return self.upload(name, body)
+        return self.upload(name, path.read_bytes())
 
     def open_demo(self, number: object) -> dict[str, Any]:
         """Open demo program ``number``.
