@@ -363,3 +363,24 @@ def test_two_pages_one_machine_and_a_page_that_goes_away(web: Served) -> None:
     web.post("/api/stop")
     wait_for(lambda: not web.state()["busy"], timeout_s=20, what="the stop")
     assert web.state()["state"] == "Idle"
+
+
+def test_a_programs_folder(tmp_path: Path) -> None:
+    folder = tmp_path / "programs"
+    folder.mkdir()
+    (folder / "square.ngc").write_text("G21 G90\nG0 X10 Y10\nM2\n")
+    (folder / "notes.pdf").write_bytes(b"%PDF")
+    (folder / "huge.ngc").write_bytes(b"G0 X1\n" * (UPLOAD_LIMIT_BYTES // 6 + 1))
+    (tmp_path / "machine").mkdir()
+    with served(tmp_path / "machine", programs=folder) as web:
+        catalogue = web.get("/api/programs")
+        assert catalogue["files"] == ["huge.ngc", "square.ngc"]
+        assert web.post("/api/program/open", {"file": "square.ngc"})["name"] == "square.ngc"
+        assert "no program 'gone.ngc'" in web.post("/api/program/open", {"file": "gone.ngc"},
+                                                   status=404)["error"]
+        assert "not a G-code file" in web.post("/api/program/open", {"file": "notes.pdf"},
+                                               status=400)["error"]
+        assert "path" in web.post("/api/program/open", {"file": "../square.ngc"},
+                                  status=400)["error"]
+        assert f"{UPLOAD_LIMIT_BYTES:,}" in web.post("/api/program/open", {"file": "huge.ngc"},
+                                                     status=413)["error"]
