@@ -316,8 +316,10 @@ def test_device_parameters_and_a_step_response(web: Served) -> None:
         assert words in error, (body, error)
     assert "allowed X, Y, Z" in web.post("/api/devices/Q/parameters",
                                          {"name": "kp", "value": 1}, status=400)["error"]
-    taken = web.post("/api/devices/Y/parameters", {"name": "kp", "value": kp["value"]})
-    assert taken["storage"] == "RAM" and float(taken["value"]) == float(kp["value"])
+    for _ in range(20):  # a call on the worker's heels is not refused as busy
+        web.get("/api/devices")
+        taken = web.post("/api/devices/Y/parameters", {"name": "kp", "value": kp["value"]})
+        assert taken["storage"] == "RAM" and float(taken["value"]) == float(kp["value"])
     web.post("/api/home")
     web.wait_state("Idle", idle=True)
     before = web.state()["axes"]["X"]["machine_mm"]

@@ -22,6 +22,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import replace
+from typing import TypeVar
 
 from usbmotion.errors import MachineStateError, UsbMotionError
 from usbmotion.host.config import MachineConfig
@@ -35,6 +36,7 @@ from usbmotion.session.session import MachineSession
 from usbmotion.session.state import MachineState, StopReason
 
 Action = Callable[[], None]
+T = TypeVar("T")
 
 
 _STEP = re.compile(r"\s*([A-Za-z])\s*=?\s*([-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?)")
@@ -93,7 +95,8 @@ class Operator:
         self.feed: ProgramFeed | None = None
         self.last_report: RunReport | None = None
         self.last_error: str = ""
-        self._actions: queue.Queue[Action | None] = queue.Queue()
+        self._actions: queue.Queue[tuple[Action, threading.Event | None] | None] = \
+            queue.Queue()
         self._pending = 0
         """Actions queued or running: counted up before one is queued and down once it has
         ended, so the operator is never seen idle between taking an action and starting it."""
@@ -261,6 +264,31 @@ class Operator:
         what it is doing and what is queued."""
         self._put(action)
 
+    def call(self, action: Callable[[], T], *, timeout_s: float) -> T:
+        """Run ``action`` on the worker, after what is queued, and return its result once
+        the worker has ended it (so the operator is no longer busy on its account).
+
+        Raises:
+            UsbMotionError: what ``action`` raised.
+            TimeoutError: it did not end within ``timeout_s``.
+        """
+        ended = threading.Event()
+        result: list[T] = []
+        failure: list[UsbMotionError] = []
+
+        def go() -> None:
+            try:
+                result.append(action())
+            except UsbMotionError as error:
+                failure.append(error)
+
+        self._put(go, ended)
+        if not ended.wait(timeout_s):
+            raise TimeoutError(f"the machine did not answer within {timeout_s:g} s")
+        if failure:
+            raise failure[0]
+        return result[0]
+
     def jog_cancel(self) -> None:
         """Cancel a jog (0x85)."""
         self.session.request_jog_cancel()
@@ -340,17 +368,19 @@ class Operator:
 
     # --- the worker -----------------------------------------------------------------------------
 
-    def _put(self, action: Action) -> None:
-        """Queue ``action`` for the worker, busy from now until it has ended."""
+    def _put(self, action: Action, ended: threading.Event | None = None) -> None:
+        """Queue ``action`` for the worker, busy from now until it has ended (then
+        ``ended`` is set, when given)."""
         with self._pending_lock:
             self._pending += 1
-        self._actions.put(action)
+        self._actions.put((action, ended))
 
     def _serve(self) -> None:
         while True:
-            action = self._actions.get()
-            if action is None:
+            item = self._actions.get()
+            if item is None:
                 return
+            action, ended = item
             with self._links:
                 try:
                     self.last_error = ""
@@ -366,6 +396,8 @@ class Operator:
                         self.on_message(f"error: reading the positions: {error}")
                     with self._pending_lock:
                         self._pending -= 1
+                    if ended is not None:
+                        ended.set()
 
     def _run_feed(self) -> None:
         with self._lock:

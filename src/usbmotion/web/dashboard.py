@@ -780,29 +780,17 @@ class Dashboard:
                            " it is Idle")
 
     def _call(self, action: Callable[[], T], *, refused: int = 409) -> T:
-        """Run ``action`` on the worker and wait for its result.
+        """Run ``action`` on the worker and wait for its result (the operator no longer
+        busy on its account: a call right after it is not refused as busy).
 
         Raises:
             RefusedError: it failed (its error: ``refused`` for an ArgumentError, else 409)
                 or did not end within CALL_TIMEOUT_S.
         """
-        done = threading.Event()
-        result: list[T] = []
-        failure: list[BaseException] = []
-
-        def go() -> None:
-            try:
-                result.append(action())
-            except UsbMotionError as error:
-                failure.append(error)
-            finally:
-                done.set()
-
-        self.operator.do(go)
-        if not done.wait(CALL_TIMEOUT_S):
-            raise _not_now(f"the machine did not answer within {CALL_TIMEOUT_S:g} s")
-        if failure:
-            error = failure[0]
+        try:
+            return self.operator.call(action, timeout_s=CALL_TIMEOUT_S)
+        except TimeoutError as error:
+            raise _not_now(str(error)) from None
+        except UsbMotionError as error:
             status = refused if isinstance(error, ArgumentError | OutOfRangeError) else 409
-            raise RefusedError(status, str(error))
-        return result[0]
+            raise RefusedError(status, str(error)) from None
