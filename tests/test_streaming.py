@@ -197,7 +197,7 @@ def test_the_operator_is_busy_from_queueing_an_action_to_its_end(config: Machine
             waiting = operator._actions
             operator._actions = SlowQueue()  # type: ignore[assignment]
             operator._pending += 1
-            waiting.put(lambda: None)  # wakes the worker: it waits on the slow queue next
+            waiting.put((lambda: None, None))  # wakes the worker: it waits on the slow queue next
             release.set()
             assert operator.wait_idle(5)
             taken.clear()
