@@ -163,8 +163,9 @@ def test_a_program_that_leaves_the_travel_is_refused_before_anything_moves(
 
 def test_two_runs_in_a_row_ending_at_the_top_of_z_both_complete(config: MachineConfig) -> None:
     """``usbmotion run`` twice on the same devices, each a take-over, a program ending with
-    the CAM retract G53 G0 Z0 and the servos disabled at its end: the servo settled a count
-    or two above the top of Z's travel, and the next run, a jog back inside and MDI start
+    the CAM retract G53 G0 Z0 and the servos disabled at its end. The run ends with Z on its
+    last setpoint, the top of its travel; a servo that holds a count past it (friction) is
+    what a travel one count shorter shows: the next run, a jog back inside and MDI start
     from there; a move farther out is still refused."""
     program = "G21 G90\nG0 X10 Y10 Z-20\nG53 G0 Z0\nM2\n"
     world = SimWorld()
@@ -172,27 +173,37 @@ def test_two_runs_in_a_row_ending_at_the_top_of_z_both_complete(config: MachineC
         first.home()
         report, _ = first.run(first.prepare("retract.ngc", text=program))
         assert report.completed, report.stop_reason
+        assert report.end_position_mm["Z"] == 0.0, "the run ends on its last setpoint"
         first.shutdown()
-    with connect_session(config, world=world) as second:
+    top = -1 / 240  # one count below where Z stands
+    shorter = replace(config, axes=tuple(
+        replace(axis, travel_mm=(axis.travel_mm[0], top)) if axis.name == "Z" else axis
+        for axis in config.axes))
+    with connect_session(shorter, world=world) as second:
         assert second.is_homed
         start_z = second.positions_mm()["Z"]
-        assert 0.0 < start_z <= SETTLED_BAND_COUNTS / 240, (
+        assert 0.0 < start_z - top <= SETTLED_BAND_COUNTS / 240, (
             "outside the travel's top, within the settled band: what refused every program")
-        report, _ = second.run(second.prepare("retract.ngc", text=program))
+        report, _ = second.run(second.prepare("retract.ngc", text=program.replace(
+            "G53 G0 Z0", f"G53 G0 Z{top!r}")))
         assert report.completed, report.stop_reason
         second.shutdown()
-    with connect_session(config, world=world) as third:
+    top = -2 / 240  # a count shorter again: Z stands a count outside
+    shorter = replace(shorter, axes=tuple(
+        replace(axis, travel_mm=(axis.travel_mm[0], top)) if axis.name == "Z" else axis
+        for axis in shorter.axes))
+    with connect_session(shorter, world=world) as third:
         start_z = third.positions_mm()["Z"]
-        assert start_z > 0.0
+        assert start_z > top
         with pytest.raises(SoftLimitError) as caught:
             third.jog({"Z": 1.0}, feed_mm_min=600)
-        assert (caught.value.axis, caught.value.limit_mm) == ("Z", 0.0)
+        assert caught.value.axis == "Z" and caught.value.limit_mm == pytest.approx(top)
         assert "farther out than" in str(caught.value)
         report = third.jog({"Z": -5.0}, feed_mm_min=600)
         assert report.completed
         assert third.positions_mm()["Z"] == pytest.approx(start_z - 5.0, abs=1 / 240)
         third.shutdown()
-    with connect_session(config, world=world) as mdi:
+    with connect_session(shorter, world=world) as mdi:
         feed = mdi.open_feed(file="<console>")
         feed.add("G91 G0 X1")
         feed.close()

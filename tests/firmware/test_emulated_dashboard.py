@@ -106,6 +106,13 @@ def test_the_dashboard_drives_emulated_rp2040s(tmp_path: Path) -> None:
         n for n, text in enumerate(program, 1)
         if text.strip().upper().startswith(("G0", "G1", "G2", "G3")))
     assert state["state"] == "Idle" and not state["busy"]
+    # The run's report ends where the DRO showed it at rest, within the counts an emulated
+    # chip's integrator may still creep against its load's friction (on the simulated
+    # machine, to the count: tests/web/test_dashboard_browser.py).
+    run_end = result["run_end"]
+    assert run_end["completed"], run_end
+    for axis, text in run_end["dro"].items():
+        assert abs(float(text) - run_end["report_end_mm"][axis]) <= 2 / 240 + 5e-4, (axis, run_end)
     # At rest a chip's integrator may still wind up against the load's friction, a count at
     # a time after the page read its DRO (tests/firmware/test_emulated_machine.py): within
     # two counts of the state read after it.

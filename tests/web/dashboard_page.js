@@ -1,7 +1,9 @@
 // Drives usbmotion web's dashboard in headless Chromium (the system's browser, through
 // playwright-core) as an operator would: home, open demo 1, run it with a hold and a resume
-// to its end, run it again and stop it, jog X+ by a step, send an MDI line, and read the DRO.
-// Prints one JSON line: the DRO's machine positions as shown, the program lines highlighted
+// to its end, read the DRO beside the run's report, run it again and stop it, jog X+ by a
+// step, send an MDI line, and read the DRO.
+// Prints one JSON line: the DRO's machine positions as shown (at the end of the first run,
+// with the report's and the API state's, and at the end), the program lines highlighted
 // in the order first seen, the chart redraws a second while the program ran, the console
 // errors and the steps done. Exits 1 with the failing step on stderr.
 //
@@ -111,6 +113,32 @@ function stopRecordingHighlights(page) {
   });
 }
 
+// The DRO's machine positions once they have shown the same figures for DRO_STEADY_MS.
+async function steadyDro(page) {
+  let last = JSON.stringify((await shown(page)).dro);
+  let since = Date.now();
+  await waitFor(page, `the DRO steady for ${DRO_STEADY_MS} ms`, (now) => {
+    const texts = JSON.stringify(now.dro);
+    if (texts !== last) {
+      last = texts;
+      since = Date.now();
+    }
+    return Date.now() - since >= DRO_STEADY_MS;
+  });
+  return JSON.parse(last);
+}
+
+// An API call with the page's token, as a script would make it.
+async function api(apiPath) {
+  const address = new URL(apiPath, url);
+  address.searchParams.set('token', new URL(url).searchParams.get('token'));
+  const answer = await fetch(address);
+  if (!answer.ok) {
+    throw new Error(`GET ${apiPath}: ${answer.status} ${await answer.text()}`);
+  }
+  return answer.json();
+}
+
 function median(values) {
   const sorted = [...values].sort((a, b) => a - b);
   const middle = sorted.length >> 1;
@@ -175,6 +203,18 @@ async function main() {
       perSecond.push(redraws.filter((time) => time >= second && time < second + 1000).length);
     }
 
+    const runEnd = await step('the DRO beside the run report', async () => {
+      const dro = await steadyDro(page);
+      const report = await api('/api/report');
+      const state = await api('/api/state');
+      const machine = {};
+      for (const [axis, figures] of Object.entries(state.axes)) {
+        machine[axis] = figures.machine_mm;
+      }
+      return { dro, report_end_mm: report.end_position_mm, completed: report.completed,
+        state_machine_mm: machine };
+    });
+
     await step('run again and stop', async () => {
       await click(page, 'Run');
       await waitFor(page, 'Run', (now) => now.state === 'Run');
@@ -200,21 +240,7 @@ async function main() {
         && Math.abs(Number(now.work.Y) - 5) <= TOLERANCE_MM);
     });
 
-    // The servo still settles by a few micrometres after the machine reads at rest: the DRO
-    // is read once it has shown the same figures for DRO_STEADY_MS.
-    const dro = await step('read the DRO', async () => {
-      let last = JSON.stringify((await shown(page)).dro);
-      let since = Date.now();
-      await waitFor(page, `the DRO steady for ${DRO_STEADY_MS} ms`, (now) => {
-        const texts = JSON.stringify(now.dro);
-        if (texts !== last) {
-          last = texts;
-          since = Date.now();
-        }
-        return Date.now() - since >= DRO_STEADY_MS;
-      });
-      return JSON.parse(last);
-    });
+    const dro = await step('read the DRO', () => steadyDro(page));
 
     await step('phone layout', async () => {
       await page.setViewportSize({ width: 390, height: 844 });
@@ -228,6 +254,7 @@ async function main() {
 
     process.stdout.write(`${JSON.stringify({
       dro,
+      run_end: runEnd,
       highlighted,
       last_highlighted: highlighted[highlighted.length - 1],
       chart_updates_per_s: perSecond.length ? median(perSecond) : null,

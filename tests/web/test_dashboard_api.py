@@ -24,7 +24,6 @@ from tests.senders.helpers import fast_homing_machine, wait_for
 from usbmotion.demos import demo_path
 from usbmotion.host.config import load_config
 from usbmotion.session.operator import Operator
-from usbmotion.session.report import SETTLE_COUNTS
 from usbmotion.sim.machine import connect_session
 from usbmotion.sim.world import SimWorld
 from usbmotion.web.app import create_app
@@ -43,9 +42,9 @@ class Served:
     operator: Operator
     folder: Path
 
-    def get(self, path: str) -> Any:
+    def get(self, path: str, *, status: int = 200) -> Any:
         response = self.client.get(path, headers=AUTH)
-        assert response.status_code == 200, response.text
+        assert response.status_code == status, f"{path}: {response.status_code} {response.text}"
         return response.json()
 
     def post(self, path: str, body: object = None, *, status: int = 200) -> Any:
@@ -197,6 +196,7 @@ def listening(web: Served) -> Iterator[Pushes]:
 
 
 def test_a_program_driven_through_the_api_and_watched_on_the_websocket(web: Served) -> None:
+    assert "no program has run" in web.get("/api/report", status=404)["error"]
     with listening(web) as pushes:
         web.post("/api/home")
         web.wait_state("Idle", idle=True)
@@ -253,16 +253,19 @@ def test_a_program_driven_through_the_api_and_watched_on_the_websocket(web: Serv
     assert lines[-1] == last
     end = [s["program"] for t, s in pushes.states if s["program"]][-1]
     assert end["lines_done"] == end["lines_total"] == 18, end  # M2's line: the program's end
-    # The DRO at rest is what the devices' encoders read, to the count; the report's end
-    # was read as the axes came within SETTLE_COUNTS of their last setpoint.
+    # The DRO at rest is what the devices' encoders read, and the run's report
+    # (GET /api/report) ends there, to the count.
     time.sleep(0.5)
     devices = web.dashboard._call(web.dashboard.session.machine.status)
     end = web.state()["axes"]
+    reported = web.get("/api/report")
+    assert reported["completed"] and reported["program"] == report.program, reported
+    assert [a["max_error_counts"] for a in reported["axes"]] == [
+        a.max_error_counts for a in report.axes]
     for name, status in devices.items():
         shown = round(end[name]["machine_mm"] * counts_per_mm[name])
         assert shown == status.actual_counts, name
-        assert abs(shown - round(report.end_position_mm[name] * counts_per_mm[name])) \
-            <= SETTLE_COUNTS, name
+        assert round(reported["end_position_mm"][name] * counts_per_mm[name]) == shown, name
     assert any("cycle start" in text for text in pushes.messages)
 
 
@@ -298,6 +301,15 @@ def test_jog_mdi_overrides_and_offsets(web: Served) -> None:
     web.post("/api/mdi", {"line": "G0 X2"})  # in G55: 2 mm from its origin
     wait_for(lambda: not web.state()["busy"] and abs(
         web.state()["axes"]["X"]["machine_mm"] - 22) < 0.01, timeout_s=20, what="G0 X2 in G55")
+    # A line of modes alone (no motion) changes what the live model shows at once.
+    web.post("/api/mdi", {"line": "G54"})
+    wait_for(lambda: web.state()["coordinate_system"] == "G54", timeout_s=5,
+             what="G54 from an MDI line in the live model")
+    assert web.state()["axes"]["X"]["work_mm"] == pytest.approx(22.0, abs=0.01)
+    web.post("/api/mdi", {"line": "G55"})
+    wait_for(lambda: web.state()["coordinate_system"] == "G55", timeout_s=5,
+             what="G55 from an MDI line in the live model")
+    assert web.state()["axes"]["X"]["work_mm"] == pytest.approx(2.0, abs=0.01)
     offsets_file = web.dashboard.config.parameter_path
     assert offsets_file is not None and offsets_file.is_file()
 

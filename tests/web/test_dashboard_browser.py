@@ -3,7 +3,8 @@
 operator drives it: home, open demo 1, run it with a hold and a resume to its end, run it
 again and stop it, jog, an MDI line. The highlighted line runs through the program in order
 and ends on its last motion line; the charts redraw at least 50 times a second; the DRO at
-the end shows what the live model holds, to the count; no console error. Screenshots go to
+the end of the run shows the run's report (``GET /api/report``) to the count, and at the end
+what the live model holds; no console error. Screenshots go to
 ``build/web/`` (one, at a laptop's width, is the README's)."""
 
 from __future__ import annotations
@@ -76,6 +77,7 @@ def test_the_page_drives_a_program_and_shows_the_machine(tmp_path: Path) -> None
     need(page_built(), "the dashboard's page (make web)")
     SCREENSHOTS.mkdir(parents=True, exist_ok=True)
     with served_page(tmp_path) as (url, dashboard, operator):
+        counts_per_mm = {axis.name: axis.counts_per_mm for axis in operator.session.config.axes}
         started = time.monotonic()
         done = subprocess.run(["node", str(HERE / "dashboard_page.js"), url, str(SCREENSHOTS),
                                CHROMIUM], check=False, capture_output=True, text=True,
@@ -97,6 +99,13 @@ def test_the_page_drives_a_program_and_shows_the_machine(tmp_path: Path) -> None
     assert set(shown) == {"X", "Y", "Z"}
     for axis, value in shown.items():
         assert f"{value:.3f}" == f"{now['axes'][axis]['machine_mm']:.3f}", axis
+    run_end = result["run_end"]
+    assert run_end["completed"], run_end
+    for axis in ("X", "Y", "Z"):
+        half_count = 0.5 / counts_per_mm[axis]
+        report_mm = run_end["report_end_mm"][axis]
+        assert abs(run_end["state_machine_mm"][axis] - report_mm) < half_count, (axis, run_end)
+        assert abs(float(run_end["dro"][axis]) - report_mm) <= 0.0005 + 1e-9, (axis, run_end)
     assert (SCREENSHOTS / "dashboard.png").is_file()
     assert (SCREENSHOTS / "dashboard-phone.png").is_file()
     print(f"dashboard page: steps {', '.join(result['steps'])}; chart redraws"

@@ -19,6 +19,9 @@ REST_POLL_S = 0.005
 """How often a stopped homing looks whether every axis is at rest."""
 SETTLE_TIMEOUT_S = 1.0
 """How long a stopped axis then has to settle within SETTLE_COUNTS of where it was sent."""
+SETTLE_STILL_S = 0.2
+"""How long an axis within SETTLE_COUNTS of where it was sent, but not on it, has to stand
+still before a run that ends there counts it settled (its servo holds it against friction)."""
 
 
 def wait_for_rest(machine: Machine, names: list[str], *, stop_now: Callable[[], bool],

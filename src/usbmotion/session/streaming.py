@@ -21,7 +21,7 @@ from usbmotion.host.machine import Machine
 from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams
 from usbmotion.host.timesync import SyncReport, synchronise_start
 from usbmotion.session.report import SETTLE_COUNTS
-from usbmotion.session.rest import REST_POLL_S, SETTLE_TIMEOUT_S, STOP_LEAD_S
+from usbmotion.session.rest import REST_POLL_S, SETTLE_STILL_S, SETTLE_TIMEOUT_S, STOP_LEAD_S
 
 START_MARGIN_S = 0.2
 """A run's common start tick, beyond the round trips that arm it."""
@@ -155,14 +155,27 @@ class RunStreams:
     # --- waiting for the devices ----------------------------------------------------------------
 
     def settle(self) -> None:
-        """After the last setpoint: until every axis is within SETTLE_COUNTS of it, for at
-        most SETTLE_TIMEOUT_S."""
+        """After the last setpoint: until every axis is where it was sent, or within
+        SETTLE_COUNTS of it and still for SETTLE_STILL_S (a servo holding a count or two
+        against friction), for at most SETTLE_TIMEOUT_S. The report's end position is read
+        after it: what the machine then shows, to the count."""
         clock = self.machine.clock
-        deadline = clock.now() + SETTLE_TIMEOUT_S
-        while clock.now() < deadline:
+        start = clock.now()
+        deadline = start + SETTLE_TIMEOUT_S
+        last: dict[str, int] = {}
+        still_since = start
+        while True:
             statuses = self.machine.status()
-            if all(abs(s.desired_counts - s.actual_counts) <= SETTLE_COUNTS
-                   for s in statuses.values()):
+            now = clock.now()
+            counts = {name: status.actual_counts for name, status in statuses.items()}
+            if counts != last:
+                last = counts
+                still_since = now
+            worst = max((abs(s.desired_counts - s.actual_counts) for s in statuses.values()),
+                        default=0)
+            if worst == 0 or (worst <= SETTLE_COUNTS and now - still_since >= SETTLE_STILL_S):
+                return
+            if now >= deadline:
                 return
             clock.sleep(REST_POLL_S)
 

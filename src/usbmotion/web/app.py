@@ -147,6 +147,9 @@ def create_app(dashboard: Dashboard, *, token: str) -> ASGIApp:
     async def programs(request: Request) -> Any:
         return dashboard.catalogue()
 
+    async def report(request: Request) -> Any:
+        return dashboard.report()
+
     async def messages(request: Request) -> Any:
         try:
             after = int(request.query_params.get("after", "0"))
@@ -260,6 +263,7 @@ def create_app(dashboard: Dashboard, *, token: str) -> ASGIApp:
         Route("/api/program", _api(program)),
         Route("/api/programs", _api(programs)),
         Route("/api/messages", _api(messages)),
+        Route("/api/report", _api(report)),
         Route("/api/program/upload", _api(upload), methods=["POST"]),
         Route("/api/program/open", _api(open_program), methods=["POST"]),
         Route("/api/run", _api(simple(dashboard.run)), methods=["POST"]),

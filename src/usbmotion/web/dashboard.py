@@ -297,6 +297,18 @@ class Dashboard:
             "problem": program.problem,
         }
 
+    def report(self) -> dict[str, Any]:
+        """The report of the last program run (``GET /api/report``): the figures ``usbmotion
+        run`` prints, as JSON (``docs/dashboard.md``).
+
+        Raises:
+            RefusedError: no program has run in this session (404).
+        """
+        report = self.operator.last_report
+        if report is None:
+            raise RefusedError(404, "no program has run yet: open one and Run it")
+        return report.to_json()
+
     def catalogue(self) -> dict[str, Any]:
         """What can be opened (``GET /api/programs``)."""
         files: list[str] = []
