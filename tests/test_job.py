@@ -169,6 +169,7 @@ def test_a_fault_during_the_run_stops_every_axis_and_says_where(tmp_path: Path) 
     assert fault["time_s"] > 0
     assert report["stop_reason"] == "fault: axis X following error"
     assert "STOPPED (fault: axis X following error) at program line 2" in done.stdout
+    assert f"resume         from line 2: usbmotion run {program} --from-line 2" in done.stdout
 
 
 def test_console_through_a_pseudo_terminal() -> None:

@@ -56,6 +56,8 @@ MDI_WAIT_S = 5.0
 
 HELP = """\
 $c        cycle start: run the loaded program from where the machine stands (or resume)
+$c N      run the loaded program from line N (after a stop: the report names the line);
+          the lines before it set the modes without moving, then up, over and down into it
 G0 X10    MDI: any other G-code line runs at once (modal state kept between lines)
 !  ~      feed hold; resume (cycle start) a hold or a pause (M0, M1, M6)
 ^X  $x    stop: every axis to rest along its deceleration, the rest dropped
@@ -111,6 +113,12 @@ class Console:
             return False
         elif command == "$c" and not value:
             machine = self._cycle_start
+        elif command == "$c":
+            if not value.isdigit() or int(value) < 1:
+                self.write(f"error: $c {value}: a line number, 1 or more ($c 120 runs the"
+                           " loaded program from line 120)")
+                return True
+            machine = partial(self._cycle_start, int(value))
         elif command == "$r" and not value:
             machine = self._reset
         elif command == "$d":
@@ -303,7 +311,7 @@ class Console:
         except OSError as error:
             self.write(f"error: cannot read {value!r}: {error.strerror or error}")
 
-    def _cycle_start(self) -> None:
+    def _cycle_start(self, from_line: int | None = None) -> None:
         session = self.session
         if self.path is None:
             self.write("error: no program loaded; $d N loads a demo, $l FILE a file")
@@ -311,15 +319,19 @@ class Console:
         if session.state is MachineState.ALARM:
             self.write("error: the machine is in Alarm; $r resets and homes it")
             return
-        prepared = session.prepare(self.path, text=self.text, pauses=session.pause_rule())
+        prepared = session.prepare(self.path, text=self.text, pauses=session.pause_rule(),
+                                   from_line=from_line)
         homing_s = 0.0
         if not session.is_homed:
             self.write("homing first: the machine is not homed")
             homing_s = session.home()
-            prepared = session.prepare(self.path, text=self.text, pauses=session.pause_rule())
+            prepared = session.prepare(self.path, text=self.text, pauses=session.pause_rule(),
+                                       from_line=from_line)
         start = "  ".join(f"{a} {v:.3f}" for a, v in zip(prepared.axes, prepared.start_mm,
                                                           strict=True))
-        self.write(f"cycle start: {self.path} from {start} mm, {prepared.plan.duration_s:.2f} s")
+        joined = "" if from_line is None else f", joining it at line {from_line}"
+        self.write(f"cycle start: {self.path} from {start} mm{joined},"
+                   f" {prepared.plan.duration_s:.2f} s")
 
         report, _ = session.run(prepared, homing_s=homing_s)
         self.last_result = report.stop_reason

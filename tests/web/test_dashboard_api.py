@@ -162,6 +162,24 @@ def test_controls_refuse_bad_input_naming_it(web: Served) -> None:
     response = web.client.post("/api/mdi", headers=AUTH, content=b"{not json")
     assert response.status_code == 400 and "JSON" in response.json()["error"]
     assert web.state()["state"] == "Idle"
+    web.post("/api/program/open", {"demo": 2})
+    for line in (0, 17, "9", True):
+        error = web.post("/api/run", {"from_line": line}, status=400)["error"]
+        assert "allowed 1..16" in error, (line, error)
+    assert web.state()["state"] == "Idle" and not web.state()["busy"]
+
+
+def test_a_run_from_a_line(web: Served) -> None:
+    """Demo 2 from line 12: homed first, joined there, run to its end; the report says so."""
+    web.post("/api/program/open", {"demo": 2})
+    web.post("/api/run", {"from_line": 12})
+    wait_for(lambda: web.operator.last_report is not None and not web.state()["busy"],
+             timeout_s=120, what="the run from line 12")
+    report = web.get("/api/report")
+    assert report["completed"], report
+    assert report["notes"][0].startswith("run from line 12"), report["notes"]
+    texts = [m["text"] for m in web.get("/api/messages")["messages"]]
+    assert any(t.startswith("cycle start: 2-star.ngc from line 12") for t in texts), texts
 
 
 @dataclass

@@ -158,9 +158,19 @@ def _bad_value(error: typer.BadParameter, args: list[str]) -> str:
     if isinstance(param, TyperOption) and not param.type_descriptor.is_path:
         wanted = _NUMBER_WORDS.get(param.bare_type())
         given = _given(param.opts, args)
-        if wanted is not None and given is not None:
+        if wanted is not None and given is not None and not _parses(given, param.bare_type()):
             return f"{_names(param)} {given!r} is not {wanted}"
     return f"{_plain(named)}: {_plain(error.message)}" if named else _plain(error.message)
+
+
+def _parses(text: str, kind: str) -> bool:
+    """Whether ``text`` reads as a number of ``kind`` (``int`` or ``float``): a value that
+    does is refused for its range, and the message says so."""
+    try:
+        (int if kind == "int" else float)(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _given(opts: Sequence[str], args: list[str]) -> str | None:

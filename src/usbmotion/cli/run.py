@@ -25,6 +25,7 @@ from usbmotion.cli.exits import (
 from usbmotion.cli.machines import MachineOption, default_machine, load_machine
 from usbmotion.cli.signals import stop_on_signals
 from usbmotion.errors import (
+    ArgumentError,
     ConfigError,
     GCodeError,
     PlanningError,
@@ -104,6 +105,11 @@ def run(
         "--pause-on-m6", help="Someone is at the machine: pause at each tool change (M6 of"
         " another tool) and at M0, saying which tool and pocket, until Enter is pressed"
         " (standard input ending stops the run there).")] = False,
+    from_line: Annotated[int | None, typer.Option(
+        "--from-line", min=1, help="Run from this line (after a stop, a fault or a broken"
+        " tool: the report of the stopped run names it): the lines before it set the modes,"
+        " offsets and tool without moving, then Z goes up to where homing leaves it, over"
+        " the line's start, and down at the program's feed.")] = None,
 ) -> None:
     """Run a G-code program: home if needed, plan from where the machine stands, stream, report.
 
@@ -173,7 +179,7 @@ def run(
         with resumed_from_stdin(session, enabled=pause_on_m6):
             code, report, trace, prepared = _job(session, program, text, no_home=no_home,
                                                   quiet=quiet, dialect=chosen,
-                                                  pauses=pause_on_m6)
+                                                  pauses=pause_on_m6, from_line=from_line)
         try:
             session.shutdown()
         except UsbMotionError as error:
@@ -253,6 +259,7 @@ def resumed_from_stdin(session: MachineSession, *, enabled: bool) -> Iterator[No
 
 def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
          quiet: bool, dialect: Dialect | None = None, pauses: bool = False,
+         from_line: int | None = None,
          ) -> tuple[int, RunReport | None, Trace | None, Prepared | None]:
     """Prepare, home if needed, run: (exit status, report, trace, the prepared program).
     ``pauses``: M0 and tool changes pause the run (someone is there to resume it)."""
@@ -266,14 +273,14 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
     homing_s = 0.0
     try:
         prepared = session.prepare(program, text=text, unhomed=no_home, dialect=dialect,
-                                   pauses=rule)
+                                   pauses=rule, from_line=from_line)
     except SoftLimitError as error:
         _refused(program, error)
         return EXIT_BAD_INPUT, None, None, None
     except GCodeError as error:
         typer.echo(f"{error.file}:{error.line}: {error.message}", err=True)
         return EXIT_BAD_INPUT, None, None, None
-    except (ConfigError, PlanningError) as error:
+    except (ConfigError, PlanningError, ArgumentError) as error:
         typer.echo(f"usbmotion run: {error}", err=True)
         return EXIT_BAD_INPUT, None, None, None
     config = session.config
@@ -293,7 +300,8 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
         if not (no_home or session.is_homed):
             homing_s = _home_with_progress(session, quiet=quiet)
             if session.start_position_mm() != (prepared.start_mm, prepared.homed):
-                prepared = session.prepare(program, text=text, dialect=dialect, pauses=rule)
+                prepared = session.prepare(program, text=text, dialect=dialect, pauses=rule,
+                                           from_line=from_line)
     except StopRequestedError as error:
         reason = f"{error.reason} (while homing)"
         return unstarted(reason, exit_code(error.reason))

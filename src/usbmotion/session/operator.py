@@ -173,7 +173,8 @@ class Operator:
             if not feed.add(line):
                 return False
             self._unrun = self._unrun or feed.has_moves
-            if not feed.has_moves and not self._run_queued:
+            if not (feed.has_moves or self._run_queued or self.busy
+                    or session.hold_requested):
                 self._put(self._keep_modes)
             self._queue_run()
             return True

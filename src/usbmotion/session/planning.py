@@ -22,6 +22,7 @@ from usbmotion.motion.moves import AXIS_ORDER, Point
 from usbmotion.motion.offsets import NO_OFFSETS, WorkOffsets
 from usbmotion.motion.planner import Plan, plan_moves
 from usbmotion.motion.plunges import plunge_warnings, rapid_plunges
+from usbmotion.motion.resume import resume_from_line
 from usbmotion.motion.tools import NO_TOOLS, ToolTable
 from usbmotion.session.homing import home_position_mm
 
@@ -96,39 +97,54 @@ def machine_dialect(config: MachineConfig, dialect: Dialect | None = None) -> Di
 def prepare_program(config: MachineConfig, text: str, *, file: str, start_mm: Point,
                     homed: bool, dialect: Dialect | None = None, tools: ToolTable = NO_TOOLS,
                     offsets: WorkOffsets | None = None, pauses: Pauses = Pauses.NONE,
-                    ) -> Prepared:
+                    from_line: int | None = None) -> Prepared:
     """Interpret and plan a program for a machine from ``start_mm`` with a tool table and
     work offsets (machine coordinates result); a homed start is also checked against every
     axis's travel, and every program for rapids into the stock (``Prepared.warnings``).
+    With ``from_line``, the program runs from that line (:func:`plan_gcode`).
 
     Raises:
         GCodeError, PlanningError: as :func:`plan_gcode`.
+        ArgumentError: as :func:`plan_gcode`.
         SoftLimitError: a move leaves an axis's travel (names the line, the axis, the
             coordinate and the limit).
         ConfigError: the machine has no linear axis.
     """
     offsets = offsets or NO_OFFSETS
     program, plan = plan_gcode(config, text, file=file, start_mm=start_mm, dialect=dialect,
-                               tools=tools, offsets=offsets, pauses=pauses)
+                               tools=tools, offsets=offsets, pauses=pauses,
+                               from_line=from_line)
     if homed:
         axes = plan_axes(config)
         check_travel(plan.vertices_mm, plan.line, [a.travel_mm for a in axes],
                      axes=tuple(plan.axes),
                      band_mm=settled_band_mm([a.counts_per_mm for a in axes]))
     warnings = plunge_warnings(rapid_plunges(program, plan))
+    if from_line is not None:
+        warnings = (f"run from line {from_line}: the lines before it set the modes, offsets"
+                    " and tool without moving; the re-entry went up to the safe height, over"
+                    " and down to where the program stands there", *warnings)
     return Prepared(program, plan, start_mm, homed, offsets, warnings)
 
 
 def plan_gcode(config: MachineConfig, text: str, *, file: str = "<string>",
                start_mm: Point | None = None, dialect: Dialect | None = None,
                tools: ToolTable = NO_TOOLS, offsets: WorkOffsets | None = None,
-               pauses: Pauses = Pauses.NONE) -> tuple[GCodeProgram, Plan]:
+               pauses: Pauses = Pauses.NONE, from_line: int | None = None,
+               ) -> tuple[GCodeProgram, Plan]:
     """Interpret and plan a program for a machine from ``start_mm`` (zeros when not
     given), in ``dialect`` or the machine file's (pure: no machine is needed;
     :meth:`MachineSession.prepare` adds where the machine stands and soft limits).
 
+    With ``from_line``, the whole program is interpreted from ``start_mm`` (the lines
+    before it move nothing but set the modal state, offsets and tool), and the run joins it
+    at that line by a safe re-entry (:mod:`usbmotion.motion.resume`): up to where homing
+    leaves Z, over, and down at the program's feed (a tenth of Z's top speed when no feed
+    move follows).
+
     Raises:
         GCodeError, PlanningError: as :meth:`MachineSession.prepare`.
+        ArgumentError: ``from_line`` is not a line of the program or no move follows it.
         ConfigError: the machine has no linear axis.
     """
     limits, planner, _ = planner_inputs(config)
@@ -136,6 +152,13 @@ def plan_gcode(config: MachineConfig, text: str, *, file: str = "<string>",
     program = parse_gcode(text, file=file, start=start_mm, machine=axes,
                           dialect=machine_dialect(config, dialect), tools=tools,
                           offsets=offsets, pauses=pauses)
+    if from_line is not None:
+        here = start_mm if start_mm is not None else (0.0,) * len(axes.axes)
+        z = axes.axes.find("Z")
+        safe_z = None if z < 0 or axes.home_mm is None else axes.home_mm[z]
+        z_speed = config.axis("Z").max_velocity_mm_s if z >= 0 else limits[0].velocity_mm_s
+        program = resume_from_line(program, from_line, here=here, safe_z_mm=safe_z,
+                                   descent_feed_mm_min=z_speed * 60.0 / 10.0)
     return program, plan_moves(program.moves, limits, planner, start=start_mm,
                                axes=axes.axes)
 

@@ -52,6 +52,9 @@ def describe(report: RunReport) -> str:
         lines.append(f"STOPPED ({report.stop_reason}) at program line {report.stopped_at_line},"
                      f" {what} {report.stopped_at_setpoint} of {report.setpoints_per_axis},"
                      f" {report.stopped_at_s:.3f} s into the program")
+        if report.stopped_at_line:
+            lines.append(f"resume         from line {report.stopped_at_line}: usbmotion run"
+                         f" {report.program} --from-line {report.stopped_at_line}")
         if report.stop_latency_s and not (report.stop_planned_mm or report.stop_distance_mm):
             lines.append(f"stop           every axis at rest {report.stop_latency_s * 1000:.0f} ms"
                          " after it was asked")

@@ -349,7 +349,7 @@ class MachineSession:
 
     def prepare(self, source: str | Path, *, text: str | None = None,
                 unhomed: bool = False, dialect: Dialect | None = None,
-                pauses: Pauses = Pauses.NONE) -> Prepared:
+                pauses: Pauses = Pauses.NONE, from_line: int | None = None) -> Prepared:
         """Interpret and plan a program from where the machine will start it, and check it
         against every axis's travel; nothing moves.
 
@@ -364,6 +364,10 @@ class MachineSession:
             dialect: read the program in this dialect instead of the machine file's.
             pauses: which of M0, M1, M6 pause it (:meth:`pause_rule` gives the session's;
                 by default none: a run nobody can resume).
+            from_line: run it from this line: the lines before it are interpreted without
+                moving (modal state, units, offsets, tool), then a safe re-entry joins the
+                program there (:func:`usbmotion.session.planning.plan_gcode`); needs a
+                homed machine, or one homing will leave homed.
 
         The program runs with the machine's tool table and the work offsets of its
         parameter file (:attr:`MachineConfig.parameter_path`).
@@ -373,15 +377,21 @@ class MachineSession:
             SoftLimitError: a move leaves an axis's travel (names the line, the axis, the
                 coordinate and the limit).
             PlanningError: a move the machine cannot make.
+            ArgumentError: ``from_line`` is not a line of the program, no move follows it,
+                or the machine is planned unhomed (the safe height is a machine position).
             ConfigError: the tool table or the parameter file is malformed.
             OSError: the file cannot be read.
         """
         start_mm, homed = self.start_position_mm(unhomed=unhomed)
+        if from_line is not None and not homed and unhomed:
+            raise ArgumentError(f"from line {from_line}: running from a line needs a homed"
+                                " machine (its safe height is a machine position): home it",
+                                reason="from_line")
         body = read_gcode_text(source) if text is None else text
         self.program = prepare_program(self.config, body, file=str(source), start_mm=start_mm,
                                        homed=homed, dialect=dialect,
                                        tools=self.tool_table(), offsets=self.work_offsets(),
-                                       pauses=pauses)
+                                       pauses=pauses, from_line=from_line)
         return self.program
 
     def open_feed(self, *, file: str = "<stream>", source: Iterator[str] | None = None,

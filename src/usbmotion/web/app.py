@@ -188,6 +188,10 @@ def create_app(dashboard: Dashboard, *, token: str) -> ASGIApp:
             return await work(action)
         return handler
 
+    async def run(request: Request) -> Any:
+        body = await _body(request)
+        return await work(lambda: dashboard.run(body.get("from_line")))
+
     async def home(request: Request) -> Any:
         body = await _body(request)
         return await work(lambda: dashboard.home(body.get("axes")))
@@ -266,7 +270,7 @@ def create_app(dashboard: Dashboard, *, token: str) -> ASGIApp:
         Route("/api/report", _api(report)),
         Route("/api/program/upload", _api(upload), methods=["POST"]),
         Route("/api/program/open", _api(open_program), methods=["POST"]),
-        Route("/api/run", _api(simple(dashboard.run)), methods=["POST"]),
+        Route("/api/run", _api(run), methods=["POST"]),
         Route("/api/hold", _api(simple(dashboard.hold)), methods=["POST"]),
         Route("/api/resume", _api(simple(dashboard.resume)), methods=["POST"]),
         Route("/api/stop", _api(simple(dashboard.stop)), methods=["POST"]),

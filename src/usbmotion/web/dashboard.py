@@ -423,15 +423,24 @@ class Dashboard:
 
     # --- controls ---------------------------------------------------------------------------
 
-    def run(self) -> None:
-        """Run the open program from where the machine stands, homing first if needed.
+    def run(self, from_line: object = None) -> None:
+        """Run the open program from where the machine stands, homing first if needed;
+        with ``from_line``, from that line (``usbmotion run --from-line``: the lines before
+        it set the modes without moving, then up, over and down into it).
 
         Raises:
-            RefusedError: no program, busy, or in Alarm (409).
+            RefusedError: no program, busy, or in Alarm (409); a start line that is not one
+                of the program's lines to run, or with no move after it (400).
         """
         program = self.program
         if program is None:
             raise _not_now("no program is open: open a demo, a file or upload one")
+        if from_line is not None:
+            last = program.end_line or len(program.lines)
+            if (not isinstance(from_line, int) or isinstance(from_line, bool)
+                    or not 1 <= from_line <= last):
+                raise _bad(f"from_line {from_line!r}: allowed 1..{last} (the lines of"
+                           f" {program.name})")
         self._idle_or_refuse("run a program")
         if self.session.state is MachineState.ALARM:
             raise _not_now("the machine is in Alarm: Reset clears it and homes the machine")
@@ -444,12 +453,18 @@ class Dashboard:
                 homing_s = session.home()
             try:
                 prepared = session.prepare(program.name, text=program.text,
-                                           pauses=session.pause_rule())
+                                           pauses=session.pause_rule(), from_line=from_line)
             except PlanningError as error:
-                self._planned(program, None, str(error))
+                if from_line is None:
+                    self._planned(program, None, str(error))
                 raise
-            self._planned(program, prepared, "")
-            self.message(f"cycle start: {program.name}, {prepared.plan.duration_s:.2f} s")
+            joined = ""
+            if from_line is None:
+                self._planned(program, prepared, "")
+            else:
+                joined = f" from line {from_line}"
+            self.message(f"cycle start: {program.name}{joined},"
+                         f" {prepared.plan.duration_s:.2f} s")
             report, _ = session.run(prepared, homing_s=homing_s)
             self.operator.last_report = report
             for line in describe(report).splitlines():

@@ -45,6 +45,7 @@ export class Controls {
     this.rapidChoices = [...document.querySelectorAll('input[name="rapid-override"]')];
     this.system = byId('coordinate-select');
     this.mdi = byId('mdi');
+    this.fromLine = byId('from-line');
     this.programChoice = byId('program-choice');
     this.upload = byId('program-upload');
     this.mdiHistory = [];
@@ -69,9 +70,36 @@ export class Controls {
     }
   }
 
+  // Run: from the start, or from the line in "From line" (then cleared: the next Run is a
+  // whole one unless a line is given again).
+  async run() {
+    const text = this.fromLine.value.trim();
+    if (!text) {
+      return this.send('run', undefined, 'Run');
+    }
+    const line = Number(text);
+    if (!Number.isInteger(line) || line < 1) {
+      this.log.error(`Run from line ${text}: a line number, 1 or more`);
+      return null;
+    }
+    const answer = await this.send('run', { from_line: line }, `Run from line ${line}`);
+    if (answer) {
+      this.fromLine.value = '';
+    }
+    return answer;
+  }
+
+  // After a run that stopped, the line to resume from, offered (not filled in: a Run that
+  // is not asked for from a line runs the whole program).
+  offerResume(line) {
+    if (Number.isInteger(line) && line > 0) {
+      this.fromLine.placeholder = `stopped at ${line}`;
+    }
+  }
+
   wire() {
     const { buttons } = this;
-    buttons.run.addEventListener('click', () => this.send('run', undefined, 'Run'));
+    buttons.run.addEventListener('click', () => this.run());
     buttons.hold.addEventListener('click', () => this.send('hold', undefined, 'Hold'));
     buttons.resume.addEventListener('click', () => this.send('resume', undefined, 'Resume'));
     buttons.stop.addEventListener('click', () => this.send('stop', undefined, 'Stop'));

@@ -127,6 +127,12 @@ function showState(state, { push }) {
   const line = program ? program.line : 0;
   programText.setCurrent(line);
   programText.showProgress(program);
+  // A program that left Run, Hold or Paused before its end: its line is where to resume.
+  const was = previousState ? previousState.state : 'Idle';
+  if (PROGRAM_STATES.has(was) && !PROGRAM_STATES.has(state.state) && program
+      && program.lines_done < program.lines_total && line > 0) {
+    controls.offerResume(line);
+  }
 
   if (toolpath) {
     // A new run starts a new executed path. The server plans the program again as a run
