@@ -35,11 +35,13 @@ USAGE_ERRORS = [
      " --help)"),
     (["run", "--plo", "x.ngc"], "usbmotion run: no such option --plo; did you mean --no-plot"
      " or --plot or --report? (usbmotion run --help)"),
-    (["bogus"], "usbmotion: no such command bogus; the commands are version, run, console,"
-     " tune, sim, grbl, web, zero, status, home, jog, get, set, devices, name, gcode"
+    (["bogus"], "usbmotion: no such command bogus; the commands are version, run, play,"
+     " console, tune, sim, grbl, web, zero, status, home, jog, get, set, devices, name, gcode"
      " (usbmotion --help)"),
     (["sim", "--pty", "abc"], "usbmotion sim: --pty 'abc' is not a whole number (usbmotion"
      " sim --help)"),
+    (["run", "x.ngc", "--from-line", "0"], "usbmotion run: --from-line: input should be greater"
+     " than or equal to 1 (usbmotion run --help)"),
     (["sim", "--pty=abc"], "usbmotion sim: --pty 'abc' is not a whole number (usbmotion"
      " sim --help)"),
     (["sim", "--pty"], "usbmotion sim: option --pty requires an argument (usbmotion sim"
@@ -56,7 +58,7 @@ USAGE_ERRORS = [
     (["gcode", "bogus"], "usbmotion gcode: no such command bogus; the commands are moves"
      " (usbmotion gcode --help)"),
     (["rn"], "usbmotion: no such command rn; did you mean run? the commands are version,"
-     " run, console, tune, sim, grbl, web, zero, status, home, jog, get, set, devices, name,"
+     " run, play, console, tune, sim, grbl, web, zero, status, home, jog, get, set, devices, name,"
      " gcode (usbmotion --help)"),
     (["run", "--no-home=3", "x.ngc"], "usbmotion run: option --no-home does not take a"
      " value (usbmotion run --help)"),

@@ -18,6 +18,7 @@ from usbmotion.cli.help import UsbMotionTyper
 from usbmotion.cli.jog import jog
 from usbmotion.cli.name import name
 from usbmotion.cli.params import get, set_parameter
+from usbmotion.cli.play import play
 from usbmotion.cli.run import run
 from usbmotion.cli.sim import sim
 from usbmotion.cli.status import home, status
@@ -56,6 +57,7 @@ def version() -> None:
 
 
 app.command()(run)
+app.command()(play)
 app.command()(console)
 app.command()(tune)
 app.command()(sim)

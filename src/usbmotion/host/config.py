@@ -331,6 +331,36 @@ class AxisConfig:
         )
 
 
+JOINT_UNITS = ("deg", "mm")
+"""The units a joint is in: degrees (a rotary joint) or millimetres (a linear one)."""
+
+
+@dataclass(frozen=True, slots=True)
+class JointConfig:
+    """A robot joint (the file's ``[joints.<name>]``): a named position in degrees or mm on
+    one axis's device, for :mod:`usbmotion.robot`.
+
+    Fields:
+        name: the joint's name (``shoulder``).
+        axis: the axis whose device drives it.
+        unit: ``"deg"`` or ``"mm"``.
+        counts_per_unit: encoder counts per degree (or mm) of the joint (> 0); joint 0 is
+            the axis's machine zero.
+        max_velocity, max_accel, max_jerk: the joint's limits, unit/s, unit/s^2, unit/s^3
+            (by default the axis's, converted).
+        range: (lowest, highest) joint value: the axis's travel, converted.
+    """
+
+    name: str
+    axis: str
+    unit: str
+    counts_per_unit: float
+    max_velocity: float
+    max_accel: float
+    max_jerk: float
+    range: tuple[float, float]
+
+
 @dataclass(frozen=True, slots=True)
 class MachineConfig:
     """A machine: several axes, each a device, with settings they share.
@@ -359,6 +389,7 @@ class MachineConfig:
         parameter_file: where work offsets and G28/G30 positions persist across runs, in
             LinuxCNC's ``.var`` format and numbers; by default the machine file's name
             with ``.var`` (``machine.toml`` -> ``machine.var``), next to it.
+        joints: the robot joints the file names (``[joints.<name>]``), in file order.
     """
 
     path: Path
@@ -375,6 +406,7 @@ class MachineConfig:
     dialect: str = "linuxcnc"
     tool_table: Path | None = None
     parameter_file: Path | None = None
+    joints: tuple[JointConfig, ...] = ()
 
     @property
     def parameter_path(self) -> Path:
@@ -643,8 +675,9 @@ def _unknown_key(name: str, known: tuple[str, ...]) -> str:
 _MACHINE_KEYS = (
     "name", "servo_interval_dms", "motion_scalar", "junction_deviation_mm", "arc_tolerance_mm",
     "watchdog_ms", "reply_timeout_s", "ports", "homing_order", "axes", "dialect",
-    "tool_table", "parameter_file",
+    "tool_table", "parameter_file", "joints",
 )
+_JOINT_KEYS = ("axis", "unit", "counts_per_unit", "max_velocity", "max_accel", "max_jerk")
 _AXIS_KEYS = (
     "device", "url", "counts_per_mm", "max_velocity_mm_s", "max_accel_mm_s2", "max_jerk_mm_s3",
     "travel_mm", "gains", "velocity_gains", "following_error_limit_mm", "homing", "sim", "reach",
@@ -709,14 +742,59 @@ def _machine(top: _Reader) -> MachineConfig:
     assert axes_table is not None
     axes = _axes(axes_table, servo_interval_dms)
     order = _homing_order(top, axes)
+    joints_table = top.table("joints", allowed="a table of robot joints, [joints.<name>]")
+    joints = () if joints_table is None else _joints(joints_table, axes)
     top.finish()
     return MachineConfig(
         path=path, name=name, axes=axes, servo_interval_dms=servo_interval_dms,
         motion_scalar=motion_scalar, junction_deviation_mm=junction_deviation_mm,
         arc_tolerance_mm=arc_tolerance_mm, homing_order=order, watchdog_ms=watchdog_ms,
         reply_timeout_s=reply_timeout_s, ports=ports, dialect=dialect, tool_table=tool_table,
-        parameter_file=parameter_file,
+        parameter_file=parameter_file, joints=joints,
     )
+
+
+def _joints(table: _Reader, axes: tuple[AxisConfig, ...]) -> tuple[JointConfig, ...]:
+    by_name = {axis.name: axis for axis in axes}
+    letters = ", ".join(by_name)
+    joints: list[JointConfig] = []
+    used: dict[str, str] = {}
+    for name in table.data:
+        if not (isinstance(name, str) and name.isidentifier() and len(name) <= 32):
+            table.fail(name, f"{name!r} is not a joint name; allowed: a name of letters,"
+                       " digits and _ (up to 32), not starting with a digit: shoulder, pan")
+        reader = table.table(name, required=True, allowed="a table of joint settings")
+        assert reader is not None
+        reader.expect(_JOINT_KEYS)
+        axis_name = reader.string("axis", allowed=f"the axis that drives it: {letters}")
+        if axis_name not in by_name:
+            reader.fail("axis", f"{axis_name!r} is not an axis of this machine; allowed:"
+                        f" {letters}")
+        if axis_name in used:
+            reader.fail("axis", f"axis {axis_name} already drives joint {used[axis_name]};"
+                        " allowed: one joint an axis")
+        used[axis_name] = name
+        axis = by_name[axis_name]
+        units = ", ".join(repr(u) for u in JOINT_UNITS)
+        unit = reader.string("unit", default="deg", allowed=f"{units}")
+        if unit not in JOINT_UNITS:
+            reader.fail("unit", f"{unit!r} is not a joint unit; allowed: {units}")
+        per_unit = reader.number("counts_per_unit", above=0, maximum=1e7,
+                                 unit=f"encoder counts per {unit}")
+        to_joint = axis.counts_per_mm / per_unit  # joint units per axis mm
+        velocity = reader.number("max_velocity", default=axis.max_velocity_mm_s * to_joint,
+                                 above=0, maximum=axis.max_velocity_mm_s * to_joint * (1 + 1e-9),
+                                 unit=f"{unit}/s, at most the axis's")
+        accel = reader.number("max_accel", default=axis.max_accel_mm_s2 * to_joint, above=0,
+                              maximum=axis.max_accel_mm_s2 * to_joint * (1 + 1e-9),
+                              unit=f"{unit}/s^2, at most the axis's")
+        jerk = reader.number("max_jerk", default=20 * accel, above=0, maximum=1e12,
+                             unit=f"{unit}/s^3; default 20 x max_accel")
+        reader.finish()
+        low, high = axis.travel_mm
+        joints.append(JointConfig(name, axis_name, unit, per_unit, velocity, accel, jerk,
+                                  (low * to_joint, high * to_joint)))
+    return tuple(joints)
 
 
 def _file(reader: _Reader, name: str, allowed: str) -> Path | None:
