@@ -221,6 +221,13 @@ async function main() {
       await page.waitForTimeout(1000);
       await click(page, 'Stop');
       await waitFor(page, 'Idle at rest after the stop', (now) => now.state === 'Idle' && now.atRest);
+      // The line it stopped at is offered to run from (not filled in: Run stays a whole run).
+      const fromLine = page.getByLabel('From line', { exact: true });
+      await page.waitForFunction((element) => /^stopped at \d+$/.test(element.placeholder),
+        await fromLine.elementHandle(), { timeout: STEP_TIMEOUT_MS });
+      if (await fromLine.inputValue() !== '') {
+        throw new Error(`From line was filled in after the stop: ${await fromLine.inputValue()}`);
+      }
     });
 
     await step('jog X+ by a step', async () => {
