@@ -30,7 +30,7 @@ from usbmotion.errors import ArgumentError, DeviceError, DeviceFaultError
 from usbmotion.host.device import ControlMode, Diagnostics
 from usbmotion.host.machine import Machine
 from usbmotion.protocol import CallNumber
-from usbmotion.tuning import check_within_travel
+from usbmotion.tuning import check_within_travel, stands_at_mm
 
 MAX_DURATION_S = 10.0
 """The longest an identification may move the axis, probe included."""
@@ -79,6 +79,7 @@ class Identification:
         positions: the count at the end of each tick.
         desired: the position asked for on each tick.
         origin_counts: where the axis stood before the test.
+        origin_mm: the same in machine mm, when known (:func:`usbmotion.tuning.stands_at_mm`).
         low_counts, high_counts: the stretch the test was allowed, counts.
         reached_low_counts, reached_high_counts: the least and most position recorded.
         probe_v, probe_counts: the probe's mean voltage and how far it moved (toward the
@@ -93,6 +94,7 @@ class Identification:
     positions: FloatArray
     desired: FloatArray
     origin_counts: int
+    origin_mm: float | None
     low_counts: int
     high_counts: int
     reached_low_counts: int
@@ -191,6 +193,7 @@ def identify_axis(machine: Machine, axis: str, *, travel_mm: float,
     check_within_travel(machine, axis, travel_mm, what="the identification's travel",
                         reason="travel_mm")
     direction = 1 if travel_mm > 0 else -1
+    origin_mm = stands_at_mm(machine, axis)
     tick_s = machine.config.servo_period_s
     period_s = machine.config.motion_period_s
     records: list[Diagnostics] = []
@@ -237,6 +240,7 @@ def identify_axis(machine: Machine, axis: str, *, travel_mm: float,
         axis=axis, fit=fit, tick_s=tick_s,
         times_s=(clocks - clocks[0]).astype(np.float64) * tick_s,
         voltages_v=volts, positions=positions, desired=desired, origin_counts=origin,
+        origin_mm=origin_mm,
         low_counts=low, high_counts=high,
         reached_low_counts=int(min(positions.min(), *(r.actual_counts for r in records))),
         reached_high_counts=int(max(positions.max(), *(r.actual_counts for r in records))),

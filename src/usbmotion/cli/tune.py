@@ -1,5 +1,7 @@
 """``usbmotion tune``: a position step on one axis, its figures and a plot; or, with
-``--reach``, what the axis's motor can do at full voltage, as a line for the machine file."""
+``--reach``, what the axis's motor can do at full voltage, as a line for the machine file;
+or, with ``--auto``, the axis identified, its gains placed and checked
+(:mod:`usbmotion.cli.tune_auto`)."""
 
 from __future__ import annotations
 
@@ -48,6 +50,38 @@ def tune(
             " (negative: toward lower positions; default a quarter of the travel, at most 30).",
         ),
     ] = None,
+    auto: Annotated[
+        bool,
+        typer.Option(
+            "--auto",
+            help="Instead of a step: identify the axis within --travel, pick PID gains for"
+            " a bandwidth with at least 45 deg of phase margin and 6 dB of gain margin,"
+            " check them with a step and a move, predicted beside measured.",
+        ),
+    ] = False,
+    travel: Annotated[
+        float | None,
+        typer.Option("--travel", help="With --auto: the room the test may use from where the"
+                     " axis stands, mm (negative: toward lower positions)."),
+    ] = None,
+    excite_s: Annotated[
+        float | None,
+        typer.Option("--excite-s", help="With --auto: how long the identification moves the"
+                     " axis, s (default 6, at most 10)."),
+    ] = None,
+    bandwidth_hz: Annotated[
+        float | None,
+        typer.Option("--bandwidth-hz", help="With --auto: the loop's gain crossover, Hz"
+                     " (default: the best of 5..80 Hz on the model)."),
+    ] = None,
+    write: Annotated[
+        bool,
+        typer.Option("--write", help="With --auto: put the gains and the identified model"
+                     " (as comments) into the machine file, its comments kept."),
+    ] = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="With --auto: print every figure as JSON.")
+    ] = False,
     machine: MachineOption = None,
     plot: Annotated[
         Path | None, typer.Option("--plot", help="PNG to write (default: tune-AXIS.png).")
@@ -61,13 +95,43 @@ def tune(
     whole travel is refused). --kp/--ki/--kd try gains without editing the
     configuration. --reach measures instead what the motor can do (keep --distance-mm
     free ahead of the axis) and prints the reach line that lets the machine file refuse
-    limits the motor cannot reach.
+    limits the motor cannot reach. --auto identifies the axis's model within --travel
+    (at most 10 s, never beyond that room nor the soft limits; a stall or a reversed
+    encoder stops it), places its PID gains for a bandwidth with at least 45 degrees of
+    phase margin and 6 dB of gain margin, checks them with a step and a move, and prints
+    predicted beside measured; --write puts the gains and the model into the machine file.
     """
     config = load_machine(machine, "tune")
     if axis.upper() not in config.axis_names:
         fail("tune", f"no axis {axis!r}; {config.path} has {', '.join(config.axis_names)}",
              EXIT_BAD_INPUT)
     axis_config = config.axis(axis.upper())
+    auto_only = [name for name, value in (("--travel", travel), ("--excite-s", excite_s),
+                                          ("--bandwidth-hz", bandwidth_hz))
+                 if value is not None] + [name for name, on in (("--write", write),
+                                                                ("--json", as_json)) if on]
+    if auto:
+        given = [name for name, value in (("--step-mm", step_mm), ("--duration-s", duration_s),
+                                          ("--kp", kp), ("--ki", ki), ("--kd", kd),
+                                          ("--plot", plot), ("--distance-mm", distance_mm))
+                 if value is not None] + (["--reach"] if reach else [])
+        if given:
+            verb = "does" if len(given) == 1 else "do"
+            fail("tune", f"{', '.join(given)} {verb} not apply to --auto; allowed with --auto:"
+                 " --axis, --travel, --excite-s, --bandwidth-hz, --write, --json, --machine",
+                 EXIT_BAD_INPUT)
+        if travel is None:
+            fail("tune", "--auto needs --travel MM: the room the test may use from where the"
+                 " axis stands (negative: toward lower positions)", EXIT_BAD_INPUT)
+        from usbmotion.cli.tune_auto import auto_tune  # noqa: PLC0415
+
+        auto_tune(config, axis_config, travel_mm=travel,
+                  excite_s=6.0 if excite_s is None else excite_s, bandwidth_hz=bandwidth_hz,
+                  write=write, as_json=as_json)
+        return
+    if auto_only:
+        verb = "applies" if len(auto_only) == 1 else "apply"
+        fail("tune", f"{', '.join(auto_only)} {verb} to --auto only", EXIT_BAD_INPUT)
     if reach:
         given = [name for name, value in (("--step-mm", step_mm), ("--duration-s", duration_s),
                                           ("--kp", kp), ("--ki", ki), ("--kd", kd),

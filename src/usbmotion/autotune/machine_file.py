@@ -1,0 +1,79 @@
+"""Writing what ``tune --auto`` found into a machine file: the axis's gains as keys, the
+identified model as a block of comments at the end of the axis's table (the file's
+parser takes no key it does not know, and the model is a record, not a setting), every
+other line and comment kept (tomlkit)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import tomlkit
+from tomlkit.exceptions import TOMLKitError
+from tomlkit.items import Whitespace
+
+from usbmotion.errors import ConfigError
+from usbmotion.host.config import PidGains
+
+MARK = "tune --auto"
+"""The first words of the comment block; a new block replaces the axis's old one."""
+
+
+def _without_old_block(text: str, axis: str) -> str:
+    """``text`` without the comment block an earlier run wrote for ``axis``."""
+    lines = text.splitlines(keepends=True)
+    kept: list[str] = []
+    inside = False
+    head = f"# {MARK} axis {axis}:"
+    for line in lines:
+        stripped = line.strip()
+        if stripped.startswith(head):
+            inside = True
+            continue
+        if inside and stripped.startswith("#   "):
+            continue
+        inside = False
+        kept.append(line)
+    return "".join(kept)
+
+
+def write_tuning(text: str, axis: str, gains: PidGains, model_lines: Sequence[str]) -> str:
+    """``text`` (a machine file) with ``axes.<axis>.gains`` set to ``gains`` and
+    ``model_lines`` as a comment block at the end of the axis's table (replacing an
+    earlier one); the rest as it was.
+
+    Raises:
+        ConfigError: the text is not TOML or has no ``[axes.<axis>]`` table.
+    """
+    try:
+        document = tomlkit.parse(_without_old_block(text, axis))
+    except TOMLKitError as error:
+        raise ConfigError(f"the machine file is not valid TOML: {error}") from error
+    axes: Any = document.get("axes")
+    if not isinstance(axes, Mapping) or not isinstance(axes.get(axis), Mapping):
+        raise ConfigError(f"the machine file has no [axes.{axis}] table", key=f"axes.{axis}")
+    table: Any = axes[axis]
+    values = {"kp": gains.kp, "ki": gains.ki, "kd": gains.kd}
+    if isinstance(table.get("gains"), Mapping):
+        for key, value in values.items():
+            table["gains"][key] = value
+    else:
+        inline = tomlkit.inline_table()
+        inline.update(values)
+        table["gains"] = inline
+    container = getattr(table, "value", None)
+    body = getattr(container, "body", None)
+    trailing: list[Any] = []
+    if isinstance(body, list):
+        while body and body[-1][0] is None and isinstance(body[-1][1], Whitespace):
+            trailing.insert(0, body.pop())
+    first, *rest = model_lines
+    table.add(tomlkit.comment(f"{MARK} axis {axis}: {first}"))
+    for line in rest:
+        table.add(tomlkit.comment(f"  {line}"))
+    if isinstance(body, list):
+        body.extend(trailing)
+    return tomlkit.dumps(document)
+
+
+__all__ = ["MARK", "write_tuning"]
