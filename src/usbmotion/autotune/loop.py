@@ -90,10 +90,14 @@ def _polynomials(model: AxisModel, gains: PidGains, tick_s: float
     z_w = np.zeros(window + 1)
     z_w[0] = 1.0                                        # z^W
     zm1 = np.array([1.0, -1.0])                         # z - 1
-    num_c = (gains.kp * np.polymul(z_w, zm1)
-             + ki_t * np.polymul(z_w, np.array([1.0, 0.0]))
-             + kd_w * np.polymul(np.polysub(z_w, np.array([1.0])), zm1))
-    den_c = np.polymul(z_w, zm1)
+    if ki_t:
+        num_c = (gains.kp * np.polymul(z_w, zm1)
+                 + ki_t * np.polymul(z_w, np.array([1.0, 0.0]))
+                 + kd_w * np.polymul(np.polysub(z_w, np.array([1.0])), zm1))
+        den_c = np.polymul(z_w, zm1)
+    else:  # no integrator: no pole at 1 to cancel against the numerator
+        num_c = gains.kp * z_w + kd_w * np.polysub(z_w, np.array([1.0]))
+        den_c = z_w
     num_p = g * np.array([lag, spread])
     den_p = np.polymul(zm1, np.array([1.0, -keep]))
     return np.polymul(num_c, num_p), np.polymul(den_c, den_p)
@@ -309,8 +313,24 @@ class Design:
     move_ise_counts2_s: float
 
 
-PHASE_MARGINS_DEG = (50.0, 55.0, 60.0, 65.0)
-INTEGRAL_RATIOS = (0.03, 0.06, 0.1, 0.2)
+OBJECTIVES = ("aligned", "device")
+"""What the design minimises: the following error against the count at the tick's start
+(``aligned``: the error the PID acts on, zero for a loop that tracks without lag) or
+against the count at its end, as the device's statistics count it (``device``: call 35,
+what ``usbmotion run`` reports). They differ by one tick of motion, ``v T``: a loop with
+integral action drives the first to zero and leaves ``v T`` in the second; a loop without
+one that lags a tick (``kp`` near ``1 / (g T)``) zeroes the second instead."""
+
+
+def following_ise(run: ClosedLoopRun, *, tick_s: float, objective: str = "aligned") -> float:
+    """The integrated squared following error of ``run``, counts^2 s (:data:`OBJECTIVES`)."""
+    device = objective == "device"
+    error = run.desired - run.actual if device else run.desired[1:] - run.actual[:-1]
+    return float(error @ error) * tick_s
+
+
+PHASE_MARGINS_DEG = (48.0, 52.0, 56.0, 60.0, 65.0)
+INTEGRAL_RATIOS = (0.0, 0.03, 0.1, 0.2, 0.3, 0.45)
 BANDWIDTHS_HZ = (5.0, 7.0, 10.0, 14.0, 20.0, 28.0, 40.0, 56.0, 80.0)
 """The bandwidths tried when none is asked for."""
 
@@ -323,20 +343,24 @@ def overshoot_pct(run: ClosedLoopRun, start: float, step: float) -> float:
 
 def design(model: AxisModel, *, tick_s: float, step_desired: FloatArray,
            move_desired: FloatArray, crossover_hz: float | None = None,
-           max_overshoot_pct: float = MAX_OVERSHOOT_PCT - 1.0) -> Design:
+           max_overshoot_pct: float = MAX_OVERSHOOT_PCT - 1.0,
+           objective: str = "aligned") -> Design:
     """The gains for ``crossover_hz`` (or for the best of :data:`BANDWIDTHS_HZ`) that keep
     :data:`MIN_PHASE_MARGIN_DEG` and :data:`MIN_GAIN_MARGIN_DB` on the discrete loop (the
     gains rounded as the device holds them) and a predicted overshoot of ``step_desired``
     of at most ``max_overshoot_pct``; of those, the one whose predicted ``move_desired``
-    has the least integrated squared following error (both predictions with the supply's
-    ceiling, the Coulomb torque and the encoder's counts, so a derivative gain that
-    chatters on the counts pays for it). ``step_desired`` and
-    ``move_desired`` hold one desired position per tick.
+    has the least integrated squared following error (:func:`following_ise` of
+    ``objective``; both predictions with the supply's ceiling, the Coulomb torque and the
+    encoder's counts, so a derivative gain that chatters on the counts pays for it).
+    ``step_desired`` and ``move_desired`` hold one desired position per tick.
 
     Raises:
-        ArgumentError: no gains meet the margins and the overshoot at that bandwidth (the
-            message says which bandwidths do).
+        ArgumentError: no gains meet the margins and the overshoot at that bandwidth, or an
+            unknown ``objective``.
     """
+    if objective not in OBJECTIVES:
+        raise ArgumentError(f"objective {objective!r} is not one of {', '.join(OBJECTIVES)}",
+                            reason="objective")
     bandwidths = BANDWIDTHS_HZ if crossover_hz is None else (crossover_hz,)
     step_size = float(step_desired[-1] - step_desired[0])
     if step_size == 0:
@@ -361,8 +385,7 @@ def design(model: AxisModel, *, tick_s: float, step_desired: FloatArray,
                     continue
                 move = simulate_closed_loop(model, gains, move_desired, tick_s=tick_s,
                                             start_counts=float(move_desired[0]))
-                error = move.desired - move.actual
-                ise = float(error @ error) * tick_s
+                ise = following_ise(move, tick_s=tick_s, objective=objective)
                 if best is None or ise < best.move_ise_counts2_s:
                     best = Design(gains, bandwidth, found, step, move, ise)
     if best is None:
@@ -376,5 +399,6 @@ def design(model: AxisModel, *, tick_s: float, step_desired: FloatArray,
     return best
 
 
-__all__ = ["ClosedLoopRun", "Design", "Margins", "derivative_window", "design", "gains_for",
-           "margins", "overshoot_pct", "quantise", "simulate_closed_loop"]
+__all__ = ["ClosedLoopRun", "Design", "Margins", "derivative_window", "design",
+           "following_ise", "gains_for", "margins", "overshoot_pct", "quantise",
+           "simulate_closed_loop"]

@@ -342,10 +342,18 @@ def _initial_guess(voltages_v: FloatArray, positions: FloatArray, segments: Sequ
 
 def _segment_residuals(params: FloatArray, voltages: Sequence[FloatArray],
                        moved: FloatArray, tick_s: float, supply_v: float) -> FloatArray:
+    """Measured less modelled positions of every stretch, each less its mean (clipped to a
+    count: the unknown place of the resting shaft within its count)."""
     tau, g, coulomb = math.exp(params[0]), math.exp(params[1]), float(params[2])
     model = AxisModel(tau, g, coulomb, supply_v)
     runs = [simulate_open_loop(model, v, tick_s=tick_s) for v in voltages]
-    return moved - np.concatenate(runs)
+    residual = moved - np.concatenate(runs)
+    first = 0
+    for run in runs:
+        part = residual[first:first + run.size]
+        part -= max(-1.0, min(1.0, float(np.mean(part))))
+        first += run.size
+    return residual
 
 
 def fit_model(voltages_v: FloatArray, positions: FloatArray, *, tick_s: float,
@@ -360,8 +368,11 @@ def fit_model(voltages_v: FloatArray, positions: FloatArray, *, tick_s: float,
     on each, the model (:func:`simulate_open_loop`: the exact solution over each tick, the
     Coulomb torque holding the shaft below ``C`` and stopping it where it would reverse)
     runs from rest under the measured voltages and is compared with the measured
-    positions. Output error, not equation error: the encoder's quantisation is noise on
-    what is compared, never on what the model is fed, so it does not bias the fit.
+    positions, less the stretch's mean difference (within one count: where in its count
+    the shaft rested is unknown, and a position loop rests it at a count's edge, not
+    uniformly within). Output error, not equation error: the encoder's quantisation is
+    noise on what is compared, never on what the model is fed, so it does not bias the
+    fit.
     Levenberg-Marquardt on ``(log tau, log g, C)`` from a first guess of a model without
     stiction; then once more without the stretches whose resting voltage was above the
     fitted ``C`` (the shaft may have crept there, not rested). The standard errors come

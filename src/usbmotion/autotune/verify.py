@@ -18,6 +18,7 @@ from usbmotion.autotune.loop import (
 )
 from usbmotion.autotune.model import FloatArray
 from usbmotion.errors import DeviceError, DeviceFaultError
+from usbmotion.host.config import AxisConfig
 from usbmotion.host.device import ControlMode, Diagnostics
 from usbmotion.host.machine import Machine
 
@@ -38,13 +39,19 @@ class Figures:
         settling_time_s: from the step (the move's end) until the position stays within
             2 % of the distance (at least 2 counts) of the end; NaN if it never does.
         peak_following_error_counts: the largest ``|desired - actual|``.
-        ise_counts2_s: the integrated squared following error, counts^2 s.
+        ise_counts2_s: the integrated squared following error, counts^2 s, as the device's
+            statistics count it (the desired position of a tick against the count at its
+            end: call 35).
+        ise_aligned_counts2_s: the same against the count at the tick's start (the error
+            the PID acts on: a loop that tracks with no lag has none; the device's own
+            figure then carries one tick of motion, ``v T``).
     """
 
     overshoot_pct: float
     settling_time_s: float
     peak_following_error_counts: float
     ise_counts2_s: float
+    ise_aligned_counts2_s: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -103,8 +110,9 @@ def figures(run: ClosedLoopRun, *, start_tick: int, tick_s: float, distance: flo
     else:
         settling = float(outside[-1] + 1) * tick_s
     error = desired[start_tick:] - actual[start_tick:]
+    aligned = desired[start_tick + 1:] - actual[start_tick:-1]
     return Figures(overshoot, settling, float(np.max(np.abs(error))) if error.size else 0.0,
-                   float(error @ error) * tick_s)
+                   float(error @ error) * tick_s, float(aligned @ aligned) * tick_s)
 
 
 def step_and_move(room_counts: int, *, counts_per_mm: float, max_velocity_mm_s: float,
@@ -123,21 +131,42 @@ def step_and_move(room_counts: int, *, counts_per_mm: float, max_velocity_mm_s: 
     return np.round(step_run), np.round(move)
 
 
-def place_loop(identification: Identification, *, counts_per_mm: float,
-               max_velocity_mm_s: float, max_accel_mm_s2: float,
-               bandwidth_hz: float | None = None) -> Design:
-    """The gains for the identified model (:func:`usbmotion.autotune.loop.design`), judged
-    on the step and move :func:`step_and_move` makes for the identification's travel.
+OBJECTIVE_MAX_MM = 30.0
+"""The design's objective move: half the axis's travel, at most this, there and back."""
+
+
+def objective_move(axis: AxisConfig, *, tick_s: float) -> FloatArray:
+    """The move the design minimises the predicted following error of (a prediction only:
+    it never runs on the axis): a trapezoid over half the axis's travel (at most
+    :data:`OBJECTIVE_MAX_MM`) at its ``max_velocity_mm_s`` and ``max_accel_mm_s2``, there
+    and back, desired counts per tick from 0."""
+    low, high = axis.travel_mm
+    length = min(OBJECTIVE_MAX_MM, (high - low) / 2) * axis.counts_per_mm
+    there = trapezoid(length, axis.max_velocity_mm_s * axis.counts_per_mm,
+                      axis.max_accel_mm_s2 * axis.counts_per_mm, tick_s)
+    hold = round(MOVE_HOLD_S / tick_s)
+    return np.round(np.concatenate([np.zeros(LEAD_TICKS), there, np.full(hold, there[-1]),
+                                    there[-1] - there, np.zeros(hold)]))
+
+
+def place_loop(identification: Identification, axis: AxisConfig, *,
+               bandwidth_hz: float | None = None, objective: str = "aligned") -> Design:
+    """The gains for the identified model (:func:`usbmotion.autotune.loop.design`): the
+    step of :func:`step_and_move` for the identification's travel bounds the overshoot,
+    :func:`objective_move` is the move whose following error (``objective``:
+    :data:`usbmotion.autotune.loop.OBJECTIVES`) is minimised.
 
     Raises:
         ArgumentError: no gains meet the margins at that bandwidth.
     """
     room = identification.high_counts - identification.low_counts
-    step, move = step_and_move(room, counts_per_mm=counts_per_mm,
-                               max_velocity_mm_s=max_velocity_mm_s,
-                               max_accel_mm_s2=max_accel_mm_s2, tick_s=identification.tick_s)
-    return design(identification.fit.model, tick_s=identification.tick_s, step_desired=step,
-                  move_desired=move, crossover_hz=bandwidth_hz)
+    tick_s = identification.tick_s
+    step, _ = step_and_move(room, counts_per_mm=axis.counts_per_mm,
+                            max_velocity_mm_s=axis.max_velocity_mm_s,
+                            max_accel_mm_s2=axis.max_accel_mm_s2, tick_s=tick_s)
+    return design(identification.fit.model, tick_s=tick_s, step_desired=step,
+                  move_desired=objective_move(axis, tick_s=tick_s), crossover_hz=bandwidth_hz,
+                  objective=objective)
 
 
 def check_on_axis(machine: Machine, axis: str, identification: Identification,
@@ -231,6 +260,7 @@ def predicted_versus_measured(check: Check) -> dict[str, tuple[float, float]]:
         "peak_following_error_counts": (p.peak_following_error_counts,
                                         m.peak_following_error_counts),
         "ise_counts2_s": (p.ise_counts2_s, m.ise_counts2_s),
+        "ise_aligned_counts2_s": (p.ise_aligned_counts2_s, m.ise_aligned_counts2_s),
     }
 
 
@@ -241,5 +271,15 @@ def relative_gap(predicted: float, measured: float) -> float:
     return measured / predicted - 1.0
 
 
-__all__ = ["Check", "Figures", "Placement", "check_on_axis", "figures", "place_loop",
-           "predicted_versus_measured", "relative_gap", "step_and_move"]
+__all__ = [
+    "Check",
+    "Figures",
+    "Placement",
+    "check_on_axis",
+    "figures",
+    "objective_move",
+    "place_loop",
+    "predicted_versus_measured",
+    "relative_gap",
+    "step_and_move",
+]

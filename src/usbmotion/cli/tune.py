@@ -74,6 +74,13 @@ def tune(
         typer.Option("--bandwidth-hz", help="With --auto: the loop's gain crossover, Hz"
                      " (default: the best of 5..80 Hz on the model)."),
     ] = None,
+    objective: Annotated[
+        str | None,
+        typer.Option("--objective", help="With --auto: the following error the gains"
+                     " minimise: 'aligned' (against the count at the tick's start, the error"
+                     " the PID acts on; default) or 'device' (at the tick's end, as the"
+                     " device's statistics and usbmotion run count it)."),
+    ] = None,
     write: Annotated[
         bool,
         typer.Option("--write", help="With --auto: put the gains and the identified model"
@@ -107,7 +114,8 @@ def tune(
              EXIT_BAD_INPUT)
     axis_config = config.axis(axis.upper())
     auto_only = [name for name, value in (("--travel", travel), ("--excite-s", excite_s),
-                                          ("--bandwidth-hz", bandwidth_hz))
+                                          ("--bandwidth-hz", bandwidth_hz),
+                                          ("--objective", objective))
                  if value is not None] + [name for name, on in (("--write", write),
                                                                 ("--json", as_json)) if on]
     if auto:
@@ -118,16 +126,20 @@ def tune(
         if given:
             verb = "does" if len(given) == 1 else "do"
             fail("tune", f"{', '.join(given)} {verb} not apply to --auto; allowed with --auto:"
-                 " --axis, --travel, --excite-s, --bandwidth-hz, --write, --json, --machine",
+                 " --axis, --travel, --excite-s, --bandwidth-hz, --objective, --write, --json,"
+                 " --machine",
                  EXIT_BAD_INPUT)
         if travel is None:
             fail("tune", "--auto needs --travel MM: the room the test may use from where the"
                  " axis stands (negative: toward lower positions)", EXIT_BAD_INPUT)
+        if objective not in (None, "aligned", "device"):
+            fail("tune", f"--objective {objective!r} is not one of aligned, device",
+                 EXIT_BAD_INPUT)
         from usbmotion.cli.tune_auto import auto_tune  # noqa: PLC0415
 
         auto_tune(config, axis_config, travel_mm=travel,
                   excite_s=6.0 if excite_s is None else excite_s, bandwidth_hz=bandwidth_hz,
-                  write=write, as_json=as_json)
+                  objective=objective or "aligned", write=write, as_json=as_json)
         return
     if auto_only:
         verb = "applies" if len(auto_only) == 1 else "apply"

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 
 
 def auto_tune(config: MachineConfig, axis_config: AxisConfig, *, travel_mm: float,
-              excite_s: float, bandwidth_hz: float | None, write: bool,
+              excite_s: float, bandwidth_hz: float | None, objective: str, write: bool,
               as_json: bool) -> None:
     """Run ``tune --auto`` on one axis and print (or write) what it found."""
     from usbmotion.autotune.identify import identify_axis  # noqa: PLC0415
@@ -43,10 +43,8 @@ def auto_tune(config: MachineConfig, axis_config: AxisConfig, *, travel_mm: floa
             try:
                 found = identify_axis(connected, name, travel_mm=travel_mm,
                                       duration_s=excite_s)
-                chosen = place_loop(found, counts_per_mm=axis_config.counts_per_mm,
-                                    max_velocity_mm_s=axis_config.max_velocity_mm_s,
-                                    max_accel_mm_s2=axis_config.max_accel_mm_s2,
-                                    bandwidth_hz=bandwidth_hz)
+                chosen = place_loop(found, axis_config, bandwidth_hz=bandwidth_hz,
+                                    objective=objective)
                 placed = check_on_axis(connected, name, found, chosen)
             finally:
                 connected.stop()
@@ -55,7 +53,7 @@ def auto_tune(config: MachineConfig, axis_config: AxisConfig, *, travel_mm: floa
     except UsbMotionError as error:
         fail("tune", str(error), EXIT_FAULT)
     physical = _physical(found, axis_config)
-    figures = _figures(config, axis_config, found, placed, physical)
+    figures = _figures(config, axis_config, found, placed, physical, objective)
     if write:
         _write(config, axis_config, found, placed, physical)
         figures["written_to"] = str(config.path)
@@ -109,7 +107,8 @@ def _physical_sigmas(found: Identification, axis_config: AxisConfig) -> dict[str
 
 
 def _figures(config: MachineConfig, axis_config: AxisConfig, found: Identification,
-             placed: Placement, physical: PhysicalModel | None) -> dict[str, Any]:
+             placed: Placement, physical: PhysicalModel | None,
+             objective: str) -> dict[str, Any]:
     from usbmotion.autotune.verify import predicted_versus_measured  # noqa: PLC0415
 
     scale = axis_config.counts_per_mm
@@ -147,6 +146,7 @@ def _figures(config: MachineConfig, axis_config: AxisConfig, found: Identificati
         },
         "gains": {"kp": chosen.gains.kp, "ki": chosen.gains.ki, "kd": chosen.gains.kd},
         "loop": {
+            "objective": objective,
             "bandwidth_hz": chosen.crossover_hz,
             "crossover_hz": chosen.margins.crossover_hz,
             "phase_margin_deg": chosen.margins.phase_margin_deg,
@@ -214,7 +214,8 @@ def _print(figures: dict[str, Any], axis_config: AxisConfig) -> None:
         echo(f"  load torque          {pm(physical['load_torque_nm'] * 1000, physical['load_torque_sigma_nm'] * 1000, 'mNm')}")  # noqa: E501
     gains = figures["gains"]
     echo(f"gains for {loop['bandwidth_hz']:g} Hz: kp {gains['kp']:g} ki {gains['ki']:g}"
-         f" kd {gains['kd']:g} (as the device holds them)")
+         f" kd {gains['kd']:g} (as the device holds them; least {loop['objective']} following"
+         " error on a move over half the travel)")
     echo(f"loop: crossover {loop['crossover_hz']:.1f} Hz, phase margin"
          f" {loop['phase_margin_deg']:.1f} deg, gain margin {loop['gain_margin_db']:.1f} dB")
     echo(f"{'':32}{'predicted':>12}{'measured':>12}")
@@ -225,7 +226,8 @@ def _print(figures: dict[str, Any], axis_config: AxisConfig) -> None:
                 ("overshoot_pct", "overshoot", "%", 1.0),
                 ("settling_time_s", "settling time", "ms", 1000.0),
                 ("peak_following_error_counts", "peak following error", "counts", 1.0),
-                ("ise_counts2_s", "ISE", "counts^2 s", 1.0)):
+                ("ise_counts2_s", "ISE", "counts^2 s", 1.0),
+                ("ise_aligned_counts2_s", "ISE, tick's start", "counts^2 s", 1.0)):
             predicted = check[key]["predicted"] * factor
             measured = check[key]["measured"] * factor
             echo(f"  {label + ' (' + unit + ')':30}{predicted:12.4g}{measured:12.4g}")
