@@ -218,7 +218,7 @@ def _print(figures: dict[str, Any], axis_config: AxisConfig) -> None:
          " error on a move over half the travel)")
     echo(f"loop: crossover {loop['crossover_hz']:.1f} Hz, phase margin"
          f" {loop['phase_margin_deg']:.1f} deg, gain margin {loop['gain_margin_db']:.1f} dB")
-    echo(f"{'':32}{'predicted':>12}{'measured':>12}")
+    echo(" " * 32 + "predicted".rjust(12) + "measured".rjust(12))
     for what, check in figures["checks"].items():
         echo(f"{what} {check['distance_counts']} counts ({check['distance_mm']:g} mm)"
              + (" there and back" if what == "move" else ""))
@@ -230,7 +230,7 @@ def _print(figures: dict[str, Any], axis_config: AxisConfig) -> None:
                 ("ise_aligned_counts2_s", "ISE, tick's start", "counts^2 s", 1.0)):
             predicted = check[key]["predicted"] * factor
             measured = check[key]["measured"] * factor
-            echo(f"  {label + ' (' + unit + ')':30}{predicted:12.4g}{measured:12.4g}")
+            echo(f"  {(label + ' (' + unit + ')').ljust(30)}{predicted:12.4g}{measured:12.4g}")
     if "written_to" in figures:
         echo(f"written to {figures['written_to']}: axes.{axis_config.name}.gains and the model"
              " (as comments)")
