@@ -49,9 +49,15 @@ import numpy as np
 
 from _common import argument_parser, emit, parse_arguments
 from usbmotion.autotune.identify import identify_axis
-from usbmotion.autotune.loop import following_ise, margins, quantise, simulate_closed_loop
+from usbmotion.autotune.loop import (
+    following_ise,
+    margins,
+    overshoot_pct,
+    quantise,
+    simulate_closed_loop,
+)
 from usbmotion.autotune.model import AxisModel, true_model
-from usbmotion.autotune.verify import check_on_axis, place_loop
+from usbmotion.autotune.verify import check_on_axis, place_loop, step_and_move
 from usbmotion.cli.machines import default_machine
 from usbmotion.demos import demo_path
 from usbmotion.errors import UsbMotionError
@@ -218,6 +224,9 @@ def one_machine(base: MachineConfig, index: int, seed: int, travel_mm: float
                 "coulomb_v": relative(fit.coulomb_v, exact.coulomb_v),
                 "inertia": relative(physical.inertia_kg_m2, motor.inertia_kg_m2),
                 "viscous": relative(physical.viscous_nm_s_per_rad, motor.viscous_nm_s_per_rad),
+                "viscous_of_damping": ((physical.viscous_nm_s_per_rad
+                                        - motor.viscous_nm_s_per_rad)
+                                       / motor.damping_nm_s_per_rad),
                 "load_torque": relative(physical.load_torque_nm, motor.load_torque_nm),
             }
             row["sigmas"] = {
@@ -241,7 +250,15 @@ def one_machine(base: MachineConfig, index: int, seed: int, travel_mm: float
             }
             gains, relay = relay_gains(machine, axis.name)
             found_margins = margins(exact, gains, tick_s=config.servo_period_s)
+            shape, _ = step_and_move(found.high_counts - found.low_counts,
+                                     counts_per_mm=axis.counts_per_mm,
+                                     max_velocity_mm_s=axis.max_velocity_mm_s,
+                                     max_accel_mm_s2=axis.max_accel_mm_s2,
+                                     tick_s=config.servo_period_s)
+            zn_step = simulate_closed_loop(exact, gains, shape, tick_s=config.servo_period_s)
             row["baseline"] = {"gains": dataclasses.asdict(gains), **relay,
+                               "step_overshoot_pct": overshoot_pct(zn_step, 0.0,
+                                                                   float(shape[-1])),
                                "stable": found_margins.stable,
                                "phase_margin_deg": found_margins.phase_margin_deg,
                                "gain_margin_db": found_margins.gain_margin_db}
@@ -282,7 +299,7 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """The figures over every axis."""
     out: dict[str, Any] = {"axes": len(rows)}
     for key in ("time_constant", "speed_per_volt", "coulomb_v", "inertia", "viscous",
-                "load_torque"):
+                "viscous_of_damping", "load_torque"):
         errors = [abs(r["errors"][key]) for r in rows]
         out[f"{key}_error_max"] = max(errors)
         out[f"{key}_error_median"] = statistics.median(errors)
@@ -313,6 +330,14 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
                 - 1) for r in rows if r["demo1"]["auto_completed"]]
     out["demo1_prediction_gap_max"] = max(gaps) if gaps else math.nan
     out["baseline_unstable"] = sum(not r["baseline"]["stable"] for r in rows)
+    out["baseline_phase_margin_deg_median"] = statistics.median(
+        r["baseline"]["phase_margin_deg"] for r in rows)
+    out["baseline_step_overshoot_pct_median"] = statistics.median(
+        r["baseline"]["step_overshoot_pct"] for r in rows)
+    out["baseline_step_overshoot_pct_max"] = max(r["baseline"]["step_overshoot_pct"]
+                                                 for r in rows)
+    out["auto_phase_margin_deg_min"] = min(r["auto"]["phase_margin_deg"] for r in rows)
+    out["auto_gain_margin_db_min"] = min(r["auto"]["gain_margin_db"] for r in rows)
     out["tune_wall_s_median"] = statistics.median(r["tune_wall_s"] for r in rows)
     return out
 
@@ -327,6 +352,7 @@ def text(figures: dict[str, Any]) -> str:
                        ("coulomb_v", "Coulomb voltage"),
                        ("inertia", "inertia (Kt, R given)"),
                        ("viscous", "viscous friction (Kt, R given)"),
+                       ("viscous_of_damping", "  the same, share of Kt^2/R + b"),
                        ("load_torque", "load torque (Kt, R given)")):
         lines.append(f"  {label:32} {s[key + '_error_max'] * 100:7.2f} %"
                      f" ({s[key + '_error_median'] * 100:.2f} %)  {s[key + '_within_5pct']}/{n}")
@@ -348,8 +374,13 @@ def text(figures: dict[str, Any]) -> str:
                  f" baseline {s['demo1_baseline_faulted_axes']}, --objective device"
                  f" {s['demo1_device_faulted_axes']}; the model's prediction of the measured"
                  f" ISE (auto) within {s['demo1_prediction_gap_max'] * 100:.1f} %")
-    lines.append(f"baseline loops unstable on the true model: {s['baseline_unstable']}/{n};"
-                 f" tune --auto per axis {s['tune_wall_s_median']:.1f} s wall (median)")
+    lines.append(f"auto loops: phase margin >= {s['auto_phase_margin_deg_min']:.1f} deg, gain"
+                 f" margin >= {s['auto_gain_margin_db_min']:.1f} dB; baseline loops on the true"
+                 f" model: unstable {s['baseline_unstable']}/{n}, phase margin median"
+                 f" {s['baseline_phase_margin_deg_median']:.1f} deg, step overshoot median"
+                 f" {s['baseline_step_overshoot_pct_median']:.1f} % (max"
+                 f" {s['baseline_step_overshoot_pct_max']:.1f} %)")
+    lines.append(f"tune --auto per axis {s['tune_wall_s_median']:.1f} s wall (median)")
     lines.append("")
     lines.append(f"{'axis':>6} {'tau':>7} {'g':>7} {'C':>7} {'J':>7} {'b':>7} {'T':>7}"
                  f" {'bw Hz':>6} {'os p/m %':>11} {'settle p/m ms':>14} {'ZN kp ki kd':>22}"
