@@ -123,8 +123,12 @@ def test_every_example_machine_homes_z_up_and_x_y_to_their_lower_ends(path: Path
     """The CNC convention: Z's switch is at the top and machine Z runs negative below it
     (G53 G0 Z0 is the safe retract); X and Y run positive from their switches."""
     config = load_config(path, url_checks=URL_CHECKS)
+    if config.joints:
+        pytest.skip("a robot: its joints home to an end of their range, 0 in the middle")
     assert config.homing_order[0] == ("Z",) or "Z" not in config.axis_names
     for axis in config.axes:
+        if axis.rotary:
+            continue  # degrees: a rotary table homes where the file says
         low, high = axis.travel_mm
         up = axis.name == "Z"
         assert axis.homing.direction == (1 if up else -1), axis.name
@@ -428,9 +432,9 @@ SIM_KEYS = ("counts_per_revolution, inertia_kg_m2, load_torque_mnm, source_volta
     [
         ("servo_interval_dms = 10", "servo_interval_ms = 10", "servo_interval_ms",
          "unknown key 'servo_interval_ms'; did you mean 'servo_interval_dms'? allowed keys here:"
-         " arc_tolerance_mm, axes, dialect, homing_order, junction_deviation_mm, motion_scalar,"
-         " name, parameter_file, ports, reply_timeout_s, servo_interval_dms, tool_table,"
-         " watchdog_ms"),
+         " arc_tolerance_mm, axes, dialect, homing_order, joints, junction_deviation_mm,"
+         " motion_scalar, name, parameter_file, ports, reply_timeout_s, servo_interval_dms,"
+         " tool_table, watchdog_ms"),
         ("max_accel_mm_s2 = 500", "max_acel_mm_s2 = 500", "axes.X.max_acel_mm_s2",
          "unknown key 'max_acel_mm_s2'; did you mean 'max_accel_mm_s2'? allowed keys here: "
          + AXIS_KEYS),
@@ -444,7 +448,7 @@ SIM_KEYS = ("counts_per_revolution, inertia_kg_m2, load_torque_mnm, source_volta
          "unknown key 'kii'; did you mean 'ki'? allowed keys here: kd, ki, kp"),
         ("speed_mm_s = 5", "sped_mm_s = 5", "axes.Z.homing.sped_mm_s",
          "unknown key 'sped_mm_s'; did you mean 'speed_mm_s'? allowed keys here: backoff_mm,"
-         " direction, position_mm, pull_off_mm, search_mm, slow_speed_mm_s, speed_mm_s"),
+         " declare, direction, position_mm, pull_off_mm, search_mm, slow_speed_mm_s, speed_mm_s"),
         ("travel_mm = [0, 200]", "travel_mm = [0, 200]\nsim = { inertia_kg_m = 1e-3 }",
          "axes.X.sim.inertia_kg_m",
          "unknown key 'inertia_kg_m'; did you mean 'inertia_kg_m2'? allowed keys here: "
@@ -455,7 +459,7 @@ SIM_KEYS = ("counts_per_revolution, inertia_kg_m2, load_torque_mnm, source_volta
          " velocity_mm_s"),
         ("servo_interval_dms = 10", "servo_interval_dms = 10\ncolour = 'red'", "colour",
          "unknown key 'colour'; allowed keys here: arc_tolerance_mm, axes, dialect,"
-         " homing_order, junction_deviation_mm, motion_scalar, name, parameter_file, ports,"
+         " homing_order, joints, junction_deviation_mm, motion_scalar, name, parameter_file, ports,"
          " reply_timeout_s, servo_interval_dms, tool_table, watchdog_ms"),
     ],
 )

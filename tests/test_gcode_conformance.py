@@ -203,7 +203,7 @@ def test_a_wrong_g54_offset_fails_the_comparison(tmp_path: Path) -> None:
     case = SECOND_SET / "g92-family"
     program, error = _interpret(case)
     assert error is None and _agrees(case, program, tmp_path)[0] == 0
-    stale = WorkOffsets().with_g5x(1, (1e-5, 0.0, 0.0, 0.0, 0.0, 0.0))
+    stale = WorkOffsets().with_g5x(1, (1e-5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
     program, error = _interpret(case, offsets=stale)
     status, report = _agrees(case, program, tmp_path)
     assert error is None and status == 1 and "problems" in report

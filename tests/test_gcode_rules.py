@@ -41,7 +41,7 @@ HOMED = MachineAxes(axes="XYZ", home_mm=(1.0, 2.0, 90.0), homing_order=("Z", "XY
 
 
 def _xyz(x: float, y: float, z: float) -> tuple[float, ...]:
-    return (x, y, z, 0.0, 0.0, 0.0)
+    return (x, y, z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 # --- names ----------------------------------------------------------------------------------

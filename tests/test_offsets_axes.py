@@ -23,19 +23,19 @@ SIX = MachineAxes(axes="XYZUVW")
 
 def test_uvw_offsets_are_linuxcncs_parameters_and_apply_on_a_six_axis_machine() -> None:
     offsets = parse_parameter_file("5221 10\n5227 1\n5228 2\n5229 3\n5230 0\n")
-    assert offsets.g5x[0] == (10.0, 0.0, 0.0, 1.0, 2.0, 3.0)
+    assert offsets.g5x[0] == (10.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 2.0, 3.0)
     program = parse_gcode("G0 X1 Y0 Z0 U0 V0 W0\nM2\n", machine=SIX, offsets=offsets)
     assert program.moves[-1].end == (11.0, 0.0, 0.0, 1.0, 2.0, 3.0)
     set_here = parse_gcode("G10 L20 P1 V5\nM2\n", machine=SIX, start=(0.0,) * 6)
-    assert set_here.offsets.g5x[0][4] == -5.0
+    assert set_here.offsets.g5x[0][7] == -5.0
     assert "5228\t-5.000000" in format_parameter_file(set_here.offsets)
 
 
 def test_a_machine_without_some_axes_keeps_their_offsets_as_read() -> None:
-    offsets = NO_OFFSETS.with_g5x(1, (1.0, 2.0, 3.0, 4.0, 5.0, 6.0))
+    offsets = NO_OFFSETS.with_g5x(1, (1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 4.0, 5.0, 6.0))
     program = parse_gcode("G10 L2 P1 X7 W8\nG0 X0 Z0 W0\nM2\n", machine=XZW, offsets=offsets)
     assert program.moves[-1].end == (7.0, 3.0, 8.0)
-    assert program.offsets.g5x[0] == (7.0, 2.0, 3.0, 4.0, 5.0, 8.0)
+    assert program.offsets.g5x[0] == (7.0, 2.0, 3.0, 0.0, 0.0, 0.0, 4.0, 5.0, 8.0)
 
 
 def test_g92_g53_g28_on_a_plotter() -> None:
@@ -45,12 +45,12 @@ def test_g92_g53_g28_on_a_plotter() -> None:
     assert ends[1] == (15.0, 10.0)  # G92 shifted X
     assert ends[2] == (0.0, 0.0)  # G53: machine coordinates
     assert ends[-1] == (15.0, 10.0)  # G28: the stored position
-    assert program.offsets.g28 == (15.0, 10.0, 0.0, 0.0, 0.0, 0.0)
+    assert program.offsets.g28 == (15.0, 10.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 def test_g28_is_a_stored_position_in_linuxcnc_and_grbl_and_homing_in_marlin() -> None:
     homed = MachineAxes(axes="XYZ", home_mm=(1.0, 2.0, 90.0))
-    offsets = WorkOffsets(g28=(5.0, 6.0, 7.0, 0.0, 0.0, 0.0))
+    offsets = WorkOffsets(g28=(5.0, 6.0, 7.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
     text = "G0 X20 Y20 Z20\nG28\nM2\n"
     for dialect in (Dialect.LINUXCNC, Dialect.GRBL):
         program = parse_gcode(text, machine=homed, offsets=offsets, dialect=dialect)
@@ -98,6 +98,6 @@ def test_a_rotation_needs_x_and_y() -> None:
 
 def test_console_settings_on_a_plotter() -> None:
     offsets = interpret_setting("G10 L20 P1 X0 Y0", start=(3.0, 4.0), machine=XY)
-    assert offsets.g5x[0] == (3.0, 4.0, 0.0, 0.0, 0.0, 0.0)
+    assert offsets.g5x[0] == (3.0, 4.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     with pytest.raises(GCodeError):
         interpret_setting("G10 L20 P1 Z0", start=(3.0, 4.0), machine=XY)

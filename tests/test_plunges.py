@@ -19,7 +19,7 @@ from usbmotion.motion.plunges import RapidPlunge, rapid_plunges
 from usbmotion.motion.tools import NO_TOOLS, ToolTable, parse_tool_table
 
 PROGRAMS = Path(__file__).resolve().parent / "programs"
-STOCK = NO_OFFSETS.with_g5x(1, (100.0, 100.0, -60.0, 0.0, 0.0, 0.0))
+STOCK = NO_OFFSETS.with_g5x(1, (100.0, 100.0, -60.0) + (0.0,) * 6)
 """G54 on the stock's top front-left corner at machine X100 Y100 Z-60."""
 LIMITS = [AxisLimits(20.0, 500.0)] * 3
 
@@ -107,7 +107,7 @@ def test_peck_drilling_returns_into_its_hole_unreported_a_low_r_plane_is() -> No
 
 def test_work_z_is_the_tool_tip_in_the_offsets_each_move_was_made_in() -> None:
     tools = parse_tool_table("T1 P1 Z20.0\n")
-    two_stocks = STOCK.with_g5x(2, (150.0, 100.0, -80.0, 0.0, 0.0, 0.0))
+    two_stocks = STOCK.with_g5x(2, (150.0, 100.0, -80.0) + (0.0,) * 6)
     text = ("G21 G90 G54\nT1 M6\nG43 H1\nG0 Z5\nG0 X2 Y2\nG1 Z-1 F200\nG1 X10 F600\n"
             "G53 G0 Z0\nG55\nG0 X2 Y2\nG0 Z5\nG1 Z-1\nG1 X10\nG53 G0 Z0\n"
             "G54\nG0 X5 Y2\nG0 Z{z}\nM2\n")

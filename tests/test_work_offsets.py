@@ -42,7 +42,7 @@ def _machine_file(tmp_path: Path, extra: str = "") -> Path:
 
 def _xyz(x: float, y: float, z: float) -> tuple[float, ...]:
     """A point of the parameter file or the tool table (X Y Z U V W) with U V W at 0."""
-    return (x, y, z, 0.0, 0.0, 0.0)
+    return (x, y, z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 # --- the parameter file ----------------------------------------------------------------------
@@ -61,9 +61,9 @@ def test_parameter_file_uses_linuxcnc_numbers_and_round_trips(tmp_path: Path) ->
 
 
 def test_parameter_file_keeps_numbers_it_does_not_use() -> None:
-    offsets = parse_parameter_file("5224 7.5\n5161 1\n31 2.5\n")
+    offsets = parse_parameter_file("5235 7.5\n5161 1\n31 2.5\n")
     assert offsets.g28 == _xyz(1.0, 0.0, 0.0)
-    assert dict(offsets.other) == {31: 2.5, 5224: 7.5}
+    assert dict(offsets.other) == {31: 2.5, 5235: 7.5}
     assert "31\t2.500000\n" in format_parameter_file(offsets)
 
 

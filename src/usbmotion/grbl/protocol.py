@@ -364,13 +364,15 @@ class GrblProtocol:
         state = self.machine.state()
         status = self.machine.status()
         inches = self._report_inches
+        letters = "".join(self._axes)
         fields = [self._state_name(state)]
         if self._report_mask & REPORT_MACHINE_POSITION:
-            fields.append(f"MPos:{coordinates(status.machine_position_mm, inches=inches)}")
+            fields.append("MPos:" + coordinates(status.machine_position_mm, inches=inches,
+                                                 axes=letters))
         else:
             work = [m - o for m, o in zip(status.machine_position_mm, status.work_offset_mm,
                                           strict=True)]
-            fields.append(f"WPos:{coordinates(work, inches=inches)}")
+            fields.append(f"WPos:{coordinates(work, inches=inches, axes=letters)}")
         if self._report_mask & REPORT_BUFFER_STATE:
             fields.append(f"Bf:{self.machine.planner_blocks_free()},{self.rx_bytes_free}")
         if status.line_number and state in (MotionState.RUN, MotionState.HOLD_COMPLETE,
@@ -390,7 +392,8 @@ class GrblProtocol:
             if self._ovr_counter == 0:
                 self._ovr_counter = 1
             self._last_wco = status.work_offset_mm
-            fields.append(f"WCO:{coordinates(status.work_offset_mm, inches=inches)}")
+            fields.append("WCO:" + coordinates(status.work_offset_mm, inches=inches,
+                                                axes=letters))
         if self._ovr_counter > 0:
             self._ovr_counter -= 1
         else:
@@ -398,7 +401,8 @@ class GrblProtocol:
             fields.append(f"Ov:{self._feed_override},{self._rapid_override},"
                           f"{self._spindle_override}")
         if status.following_error_mm:
-            fields.append(f"FE:{coordinates(status.following_error_mm, inches=inches)}")
+            fields.append("FE:" + coordinates(status.following_error_mm, inches=inches,
+                                               axes=letters))
         self._line(f"<{'|'.join(fields)}>")
 
     # ---- the loop

@@ -44,9 +44,12 @@ def coordinate(value_mm: float, *, inches: bool = False) -> str:
     return text[1:] if text.startswith("-") and float(text) == 0 else text
 
 
-def coordinates(values_mm: Iterable[float], *, inches: bool = False) -> str:
-    """Comma-separated coordinates."""
-    return ",".join(coordinate(value, inches=inches) for value in values_mm)
+def coordinates(values_mm: Iterable[float], *, inches: bool = False, axes: str = "") -> str:
+    """Comma-separated coordinates; those of the rotary axes among ``axes`` (one letter a
+    value) are degrees, never inches (grblHAL's way: ``MPos:x,y,z,a``)."""
+    return ",".join(
+        coordinate(value, inches=inches and not (index < len(axes) and axes[index] in "ABC"))
+        for index, value in enumerate(values_mm))
 
 
 def rate(value_mm_min: float, *, inches: bool = False) -> str:

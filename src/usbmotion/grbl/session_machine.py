@@ -419,7 +419,9 @@ class SessionMachine:
             coordinate_system=f"G{53 + system}" if system <= 6 else f"G59.{system - 6}",
             plane=f"G{modes.plane}", units="G20" if modes.inches else "G21",
             distance="G91" if modes.incremental else "G90", tool=modes.tool,
-            feed=modes.feed_mm_min / (25.4 if modes.inches else 1.0))
+            feed_rate_mode="G93" if modes.inverse_time else "G94",
+            feed=modes.feed_mm_min / (25.4 if modes.inches and not modes.inverse_time
+                                      else 1.0))
 
 
 __all__ = ["SessionMachine"]

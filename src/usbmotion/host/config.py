@@ -92,6 +92,8 @@ class HomingConfig:
             down), which must be inside the travel.
         search_mm: the longest the seek for the switch may go before homing fails naming
             the axis and the distance (default 1.5 x the travel).
+        declare: no switch: homing declares that the axis stands at ``position_mm`` (a
+            rotary axis, a wrapped one always).
     """
 
     direction: int
@@ -101,6 +103,7 @@ class HomingConfig:
     position_mm: float
     pull_off_mm: float = 1.0
     search_mm: float = math.inf
+    declare: bool = False
 
 
 SIM_MOTOR_CALLS: tuple[tuple[str, CallNumber], ...] = (
@@ -271,7 +274,18 @@ class AxisConfig:
             of a simulated axis, keeping :data:`REACH_MARGIN`.
         sim: the simulated motor, for simulated axes (always set for ``sim://`` axes;
             ``None`` on real hardware unless the file gives a ``sim`` table).
+        wrapped: a rotary axis that turns on without end (``wrapped = true``): no travel, no
+            soft limits, homed by declaring its angle.
+
+    A rotary axis (A, B, C) is in degrees: its file writes ``counts_per_degree``,
+    ``max_velocity_deg_s``, ``travel_deg`` and so on (:data:`_ROTARY_NAMES`), and every
+    ``_mm`` field here holds degrees.
     """
+
+    @property
+    def rotary(self) -> bool:
+        """True for A, B and C: degrees."""
+        return self.name in ROTARY_LETTERS
 
     name: str
     device: str | None
@@ -287,6 +301,7 @@ class AxisConfig:
     homing: HomingConfig
     reach: AxisReach | None
     sim: SimMotorConfig | None
+    wrapped: bool = False
 
     @property
     def scale(self) -> AxisScale:
@@ -557,30 +572,49 @@ def _show(value: object) -> str:
 
 
 class _Reader:
-    """One table of the file: typed getters that record which keys were read."""
+    """One table of the file: typed getters that record which keys were read.
 
-    def __init__(self, source: _Source, data: Mapping[str, Any], prefix: tuple[str, ...]) -> None:
+    ``names`` renames keys: the schema asks for ``counts_per_mm``, a rotary axis's file
+    writes ``counts_per_degree`` (:data:`_ROTARY_NAMES`); messages name the file's key and
+    say ``deg`` for ``mm``."""
+
+    def __init__(self, source: _Source, data: Mapping[str, Any], prefix: tuple[str, ...],
+                 names: Mapping[str, str] | None = None) -> None:
         self.source = source
         self.data = data
         self.prefix = prefix
+        self.names: Mapping[str, str] = names or {}
         self._read: set[str] = set()
         self._known: tuple[str, ...] = ()
 
+    def _file(self, name: str) -> str:
+        return self.names.get(name, name)
+
+    def say(self, text: str) -> str:
+        """``text`` as this table's file says it (renamed keys, degrees for mm)."""
+        if not self.names:
+            return text
+        for ours, theirs in self.names.items():
+            text = re.sub(rf"\b{ours}\b", theirs, text)
+        return re.sub(r"\bmm\b", "deg", text)
+
     def key(self, name: str) -> tuple[str, ...]:
-        return (*self.prefix, name)
+        return (*self.prefix, self._file(name))
 
     def fail(self, name: str | None, problem: str) -> NoReturn:
-        self.source.fail(self.key(name) if name is not None else self.prefix, problem)
+        self.source.fail(self.key(name) if name is not None else self.prefix, self.say(problem))
 
     def has(self, name: str) -> bool:
-        return name in self.data
+        return self._file(name) in self.data
 
     def _get(self, name: str, default: Any, allowed: str) -> Any:
+        name = self._file(name)
         self._read.add(name)
         if name in self.data:
             return self.data[name]
         if default is _REQUIRED:
-            self.fail(name, f"missing required key {name!r}; allowed: {allowed}")
+            self.source.fail((*self.prefix, name),
+                             self.say(f"missing required key {name!r}; allowed: {allowed}"))
         return default
 
     def number(self, name: str, *, default: Any = _REQUIRED, minimum: float | None = None,
@@ -633,7 +667,7 @@ class _Reader:
             return None
         if not isinstance(value, dict):
             self.fail(name, f"{_show(value)} is not a table; allowed: {allowed}")
-        return _Reader(self.source, value, self.key(name))
+        return _Reader(self.source, value, self.key(name), self.names)
 
     def raw(self, name: str, *, default: Any = _REQUIRED, allowed: str) -> Any:
         """A value of any type, for the caller to check."""
@@ -645,20 +679,23 @@ class _Reader:
         So a misspelt required key is named as unknown, with the closest known key, rather
         than reported as the correct key missing.
         """
+        known = tuple(self._file(name) for name in known)
         self._known = known
         for name in self.data:
             if name not in known:
-                self.fail(name, _unknown_key(name, known))
+                self.source.fail((*self.prefix, name), _unknown_key(name, known))
 
     def finish(self) -> None:
         """Reject every key that was not read: a key :meth:`expect` let through that the
         schema then never read is a fault of this module, never silently ignored."""
         for name in self.data:
             if name not in self._read:
+                where = (*self.prefix, name)
                 if name in self._known:
-                    self.fail(name, f"key {name!r} is allowed here but was not read (a fault"
-                              " of usbmotion's configuration reader; please report it)")
-                self.fail(name, _unknown_key(name, self._known or tuple(self._read)))
+                    self.source.fail(where, f"key {name!r} is allowed here but was not read"
+                                     " (a fault of usbmotion's configuration reader; please"
+                                     " report it)")
+                self.source.fail(where, _unknown_key(name, self._known or tuple(self._read)))
 
 
 def _unknown_key(name: str, known: tuple[str, ...]) -> str:
@@ -691,6 +728,18 @@ _SIM_KEYS = (
     "viscous_friction_unm_per_rad_s", "load_torque_mnm", "start_mm",
 )
 _REACH_KEYS = ("velocity_mm_s", "accel_mm_s2")
+ROTARY_LETTERS = "ABC"
+"""The rotary axes: their file's keys are in degrees."""
+_ROTARY_NAMES = {
+    "counts_per_mm": "counts_per_degree", "max_velocity_mm_s": "max_velocity_deg_s",
+    "max_accel_mm_s2": "max_accel_deg_s2", "max_jerk_mm_s3": "max_jerk_deg_s3",
+    "travel_mm": "travel_deg", "following_error_limit_mm": "following_error_limit_deg",
+    "speed_mm_s": "speed_deg_s", "slow_speed_mm_s": "slow_speed_deg_s",
+    "backoff_mm": "backoff_deg", "position_mm": "position_deg", "pull_off_mm": "pull_off_deg",
+    "search_mm": "search_deg", "start_mm": "start_deg", "velocity_mm_s": "velocity_deg_s",
+    "accel_mm_s2": "accel_deg_s2",
+}
+"""A rotary axis's keys in its file, by the schema's (linear) names."""
 
 
 def _machine(top: _Reader) -> MachineConfig:
@@ -872,7 +921,10 @@ def _url(reader: _Reader) -> str | None:
 
 
 def _axis(name: str, reader: _Reader, servo_interval_dms: int) -> AxisConfig:
-    reader.expect(_AXIS_KEYS)
+    rotary = name in ROTARY_LETTERS
+    if rotary:
+        reader = _Reader(reader.source, reader.data, reader.prefix, _ROTARY_NAMES)
+    reader.expect((*_AXIS_KEYS, "wrapped") if rotary else _AXIS_KEYS)
     device = _device_name(reader)
     url = _url(reader)
     if device is None and url is None:
@@ -887,7 +939,21 @@ def _axis(name: str, reader: _Reader, servo_interval_dms: int) -> AxisConfig:
     max_accel = reader.number("max_accel_mm_s2", above=0, maximum=1e7, unit="mm/s^2")
     max_jerk = reader.number("max_jerk_mm_s3", default=20 * max_accel, above=0, maximum=1e10,
                              unit="mm/s^3; default 20 x max_accel_mm_s2")
-    travel = _travel(reader, counts_per_mm)
+    wrapped = False
+    if rotary:
+        flag = reader.raw("wrapped", default=False, allowed="true or false")
+        if not isinstance(flag, bool):
+            reader.fail("wrapped", f"{_show(flag)} is not true or false; allowed: true (the"
+                        " axis turns on without end, LinuxCNC's WRAPPED_ROTARY) or false")
+        wrapped = flag
+    if wrapped:
+        if reader.has("travel_mm"):
+            reader.fail("travel_mm", "a wrapped axis turns on without end: it has no travel"
+                        " (and no soft limits); allowed: no travel_mm with wrapped = true")
+        turns = INT32_MAX // 4 / counts_per_mm
+        travel = (-turns, turns)
+    else:
+        travel = _travel(reader, counts_per_mm)
     gains = _gains(reader, "gains", defaults=None, mode="position and curve modes")
     velocity_gains = _gains(reader, "velocity_gains", defaults=VELOCITY_GAINS_DEFAULT,
                             mode="velocity mode")
@@ -896,7 +962,7 @@ def _axis(name: str, reader: _Reader, servo_interval_dms: int) -> AxisConfig:
         maximum=min(travel[1] - travel[0], INT32_MAX / counts_per_mm),
         unit="mm; 0 turns the limit off",
     )
-    homing = _homing(reader, travel, max_velocity)
+    homing = _homing(reader, travel, max_velocity, wrapped=wrapped)
     simulated = url is not None and url.lower().startswith(SIM_SCHEME)
     sim = _sim(reader, travel, counts_per_mm, servo_interval_dms, simulated=simulated)
     reach = _reach(reader)
@@ -926,6 +992,7 @@ def _axis(name: str, reader: _Reader, servo_interval_dms: int) -> AxisConfig:
         max_velocity_mm_s=max_velocity, max_accel_mm_s2=max_accel, max_jerk_mm_s3=max_jerk,
         travel_mm=travel, gains=gains, velocity_gains=velocity_gains,
         following_error_limit_mm=fe_limit, homing=homing, reach=reach, sim=sim,
+        wrapped=wrapped,
     )
 
 
@@ -1048,11 +1115,27 @@ def _gains(reader: _Reader, name: str, *, defaults: PidGains | None, mode: str) 
     return PidGains(**values)
 
 
-def _homing(reader: _Reader, travel: tuple[float, float], max_velocity: float) -> HomingConfig:
+def _homing(reader: _Reader, travel: tuple[float, float], max_velocity: float, *,
+            wrapped: bool = False) -> HomingConfig:
     table = reader.table("homing", allowed="a table: direction, speed_mm_s, slow_speed_mm_s,"
-                         " backoff_mm, position_mm, pull_off_mm, search_mm")
-    table = table if table is not None else _Reader(reader.source, {}, reader.key("homing"))
-    table.expect(_HOMING_KEYS)
+                         " backoff_mm, position_mm, pull_off_mm, search_mm, declare")
+    table = table if table is not None else _Reader(reader.source, {}, reader.key("homing"),
+                                                    reader.names)
+    table.expect((*_HOMING_KEYS, "declare"))
+    declare = table.raw("declare", default=wrapped, allowed="true or false")
+    if not isinstance(declare, bool):
+        table.fail("declare", f"{_show(declare)} is not true or false; allowed: true (homing"
+                   " declares where the axis stands to be position_mm, with no switch) or"
+                   " false (homing seeks the limit switch)")
+    if wrapped and not declare:
+        table.fail("declare", "a wrapped axis has no end switches to home on; allowed: true")
+    if declare:
+        position = table.number("position_mm", default=0.0, minimum=travel[0],
+                                maximum=travel[1], unit="mm, within the travel: where the"
+                                " axis is declared to stand")
+        table.finish()
+        return HomingConfig(-1, max_velocity, max_velocity, 0.0, position, 1.0, math.inf,
+                            declare=True)
     allowed = "-1 (home onto the lower limit switch) or 1 (the upper one)"
     direction = table.raw("direction", default=-1, allowed=allowed)
     if isinstance(direction, bool) or direction not in (-1, 1):

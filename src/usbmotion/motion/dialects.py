@@ -219,6 +219,7 @@ RULES: dict[Dialect, DialectRules] = {
                             "Marlin keeps no stored positions (its G28 homes)"),
             **dict.fromkeys((GCode.G_43, GCode.G_43_1), "Marlin has no tool length offsets"),
             **dict.fromkeys(_CANNED_CYCLES, "Marlin has no canned cycles"),
+            GCode.G_93: "Marlin has no inverse time feed (G93)",
         },
         letters={"E": "extruder position (no extruder)"},
         letter_meanings={"S": "spindle speed, laser power or the parameter of its M code"},

@@ -89,6 +89,7 @@ from usbmotion.motion.gcode_lexer import Block, Word, parse_blocks, tokenize, wo
 from usbmotion.motion.moves import (
     AXIS_ORDER,
     DEFAULT_AXES,
+    ROTARY_AXES,
     Arc,
     Dwell,
     Linear,
@@ -149,6 +150,7 @@ NO_MOTION = -1
 _MOTION, _DWELL, _PLANE, _UNITS, _DISTANCE, _ARC_DISTANCE, _HOME, _HOME_SET, _OFFSET = range(9)
 _IGNORED, _UNSUPPORTED = 9, 10
 _SET_OFFSETS, _TOOL_LENGTH, _MACHINE, _SYSTEM, _RETRACT, _G92_APPLIED = 11, 12, 13, 14, 15, 16
+_FEED_MODE = 17
 
 _G = GCode
 _GROUP = ModalGroup
@@ -203,7 +205,8 @@ _G_CODES: dict[int, tuple[ModalGroup, int, str]] = {
                "exact stop mode (path blending belongs to the planner)"),
     _G.G_64: (_GROUP.CONTROL_MODE, _IGNORED,
              "path blending tolerance (path blending belongs to the planner)"),
-    _G.G_94: (_GROUP.FEED_MODE, _IGNORED, "units-per-minute feed mode, the only one"),
+    _G.G_93: (_GROUP.FEED_MODE, _FEED_MODE, "inverse time feed mode"),
+    _G.G_94: (_GROUP.FEED_MODE, _FEED_MODE, "units-per-minute feed mode"),
     _G.G_96: (_GROUP.SPINDLE_MODE, _IGNORED, "constant surface speed (spindle)"),
     _G.G_97: (_GROUP.SPINDLE_MODE, _IGNORED, "spindle RPM mode"),
 }
@@ -236,7 +239,6 @@ _G_UNSUPPORTED: dict[int, str] = {
     _G.G_72_1: "lathe roughing cycles are not supported",
     _G.G_74: "left-hand tapping cycles are not supported",
     _G.G_76: "threading cycles are not supported",
-    _G.G_93: "inverse time feed is not supported",
     _G.G_95: "feed per revolution is not supported",
 }
 _G_UNSUPPORTED |= dict.fromkeys(
@@ -291,6 +293,8 @@ _G_49, _G_53, _G_64, _G_80 = GCode.G_49, GCode.G_53, GCode.G_64, GCode.G_80
 _G_82, _G_89, _G_91, _G_91_1 = GCode.G_82, GCode.G_89, GCode.G_91, GCode.G_91_1
 _G_92, _G_92_1, _G_92_3, _G_96 = GCode.G_92, GCode.G_92_1, GCode.G_92_3, GCode.G_96
 _G_99 = GCode.G_99
+_G_93 = GCode.G_93
+_GM_FEED_MODE = ModalGroup.FEED_MODE
 _GM_CONTROL_MODE = ModalGroup.CONTROL_MODE
 _GM_COORD_SYSTEM = ModalGroup.COORD_SYSTEM
 _GM_DISTANCE_MODE = ModalGroup.DISTANCE_MODE
@@ -308,9 +312,6 @@ _MG_OVERRIDES, _MG_STOPPING, _MG_TOOL_CHANGE = MGroup.OVERRIDES, MGroup.STOPPING
 _PAUSE_CODES = (_M_0, _M_1)
 
 _LETTERS_UNSUPPORTED = {
-    "A": "the rotary axis A is not supported",
-    "B": "the rotary axis B is not supported",
-    "C": "the rotary axis C is not supported",
     "E": "E words (an extruder axis, G76 or M66) are not supported",
 }
 _NOT_NEGATIVE = {"F": "feed rate", "S": "spindle speed", "T": "tool number"}
@@ -470,26 +471,31 @@ class MachineAxes:
     """What the interpreter needs to know of the machine a program is read for.
 
     Fields:
-        axes: its linear axes, a subsequence of ``"XYZUVW"`` (one to six letters).
+        axes: its axes, a subsequence of ``"XYZABCUVW"`` (one to nine letters; A B C are
+            rotary, in degrees).
         home_mm: where homing leaves each axis (machine coordinates, mm), for grbl's
             ``$H`` and Marlin's ``G28``; zeros (the default machine's) when not given.
         homing_order: the groups of axes homed together, in order (``("Z", "XY")``);
             every axis of ``axes`` in one group; one group of all axes when empty.
+        wrapped: its rotary axes that wrap (LinuxCNC's ``WRAPPED_ROTARY``): an absolute
+            move takes the short way round, whatever the turns between.
 
     Raises:
-        ValueError: the axes are not a non-empty subsequence of ``"XYZUVW"``, the home
-            position has not one coordinate per axis, or the order misses or repeats one.
+        ValueError: the axes are not a non-empty subsequence of ``"XYZABCUVW"``, the home
+            position has not one coordinate per axis, the order misses or repeats one, or a
+            wrapped axis is not one of its rotary axes.
     """
 
     axes: str = DEFAULT_AXES
     home_mm: Point | None = None
     homing_order: tuple[str, ...] = ()
+    wrapped: str = ""
 
     def __post_init__(self) -> None:
         axes = self.axes
         if not axes or axes != "".join(a for a in AXIS_ORDER if a in axes) or len(
                 set(axes)) != len(axes):
-            raise ValueError(f"axes {axes!r} must be one to six of {AXIS_ORDER!r}, in that"
+            raise ValueError(f"axes {axes!r} must be one to nine of {AXIS_ORDER!r}, in that"
                              " order, each once")
         if self.home_mm is not None and len(self.home_mm) != len(axes):
             raise ValueError(f"home_mm {self.home_mm!r} needs one coordinate per axis of"
@@ -498,6 +504,8 @@ class MachineAxes:
         if self.homing_order and sorted(grouped) != sorted(axes):
             raise ValueError(f"homing_order {self.homing_order!r} must hold every axis of"
                              f" {axes!r} once")
+        if any(letter not in ROTARY_AXES or letter not in axes for letter in self.wrapped):
+            raise ValueError(f"wrapped {self.wrapped!r}: rotary axes (A, B, C) of {axes!r}")
 
 
 DEFAULT_MACHINE = MachineAxes()
@@ -585,11 +593,13 @@ class Modes:
     offset_mm: Point
     g92_mm: Point = ()
     """The G92 offset as it applies now (zeros while suspended), per axis."""
+    inverse_time: bool = False
+    """G93 (inverse time feed: ``feed_mm_min`` is then F, per minute), not G94."""
 
 
 _MODAL_STATE = ("position", "frame", "offset", "tools", "cycle", "retract_to_r", "scale",
-                "incremental", "arc_incremental", "plane", "motion", "feed_mm_min", "ended_by",
-                "end_line")
+                "scales", "inverse_time", "incremental", "arc_incremental", "plane", "motion",
+                "feed_mm_min", "ended_by", "end_line")
 """What a line may change of the interpreter's state besides what it adds (a failed line
 of a stream is undone)."""
 
@@ -688,7 +698,8 @@ class GCodeStream:
         return Modes(motion_x10=state.motion, coordinate_system=state.frame.system + 1,
                      plane=plane, inches=state.scale != 1.0, incremental=state.incremental,
                      feed_mm_min=state.feed_mm_min, tool=state.tools.spindle,
-                     offset_mm=_point(state.offset), g92_mm=_point(state.frame.active_g92()))
+                     offset_mm=_point(state.offset), g92_mm=_point(state.frame.active_g92()),
+                     inverse_time=state.inverse_time)
 
     def restart(self, start: Point) -> None:
         """A new program from ``start`` (where the machine stands), the modal state kept:
@@ -856,6 +867,7 @@ class _Interpreter:
         "cycle",
         "end_line",
         "ended_by",
+        "feed_lengths",
         "feed_mm_min",
         "file",
         "frame",
@@ -864,6 +876,7 @@ class _Interpreter:
         "ignored",
         "ignored_letters",
         "incremental",
+        "inverse_time",
         "m_codes",
         "machine",
         "motion",
@@ -878,6 +891,7 @@ class _Interpreter:
         "retract_to_r",
         "rules",
         "scale",
+        "scales",
         "tool_changes",
         "tools",
     )
@@ -902,6 +916,9 @@ class _Interpreter:
         self.cycle = _CycleSeries()
         self.retract_to_r = False  # G99; G98 (retract to the initial level) at the start
         self.scale = 1.0  # mm per program unit
+        self.scales = [1.0] * len(axes)  # per axis: mm (degrees for A B C) per program unit
+        self.inverse_time = False  # G93
+        self.feed_lengths = _feed_lengths(axes)
         self.incremental = False
         self.arc_incremental = True
         self.plane = Plane.XY
@@ -1131,8 +1148,12 @@ class _Interpreter:
         motion = self.check(block, params, where, g_codes, g_where, m_codes, m_where, ignored)
 
         # Act, in LinuxCNC's order of execution.
+        feed_mode = g_codes.get(_GM_FEED_MODE)
+        if feed_mode is not None and (feed_mode == _G_93) != self.inverse_time:
+            self.inverse_time = feed_mode == _G_93
+            self.feed_mm_min = 0.0  # LinuxCNC sets the feed rate to 0 on a change of mode
         if "F" in params:
-            self.feed_mm_min = params["F"] * self.scale
+            self.feed_mm_min = params["F"] * (1.0 if self.inverse_time else self.scale)
         if "T" in params or _MG_TOOL_CHANGE in m_codes:
             self.change_tool(block, params, where, m_codes, m_where)
         if len(g_codes) > (_GM_MOTION in g_codes):  # G codes besides the motion one
@@ -1182,6 +1203,8 @@ class _Interpreter:
         units = g_codes.get(_GM_LENGTH_UNITS)
         if units is not None:
             self.scale = MM_PER_INCH if units == _G_20 else 1.0
+            self.scales = [1.0 if letter in ROTARY_AXES else self.scale
+                           for letter in self.axes]
         tool_length = g_codes.get(_GM_TOOL_LENGTH_OFFSET)
         if tool_length is not None:
             self.tool_length(block, tool_length, g_where[_GM_TOOL_LENGTH_OFFSET],
@@ -1413,7 +1436,7 @@ class _Interpreter:
             frame.g30 = list(self.position)
             return
         frame.set_g92(self.position, {  # G92
-            axis: params[letter] * self.scale
+            axis: params[letter] * self.scales[axis]
             for axis, letter in enumerate(self.axes) if letter in params
         })
         self.reframe()
@@ -1453,7 +1476,7 @@ class _Interpreter:
             )
         frame = self.frame
         system = int(number) - 1 if number else frame.system
-        values = {axis: params[letter] * self.scale
+        values = {axis: params[letter] * self.scales[axis]
                   for axis, letter in enumerate(self.axes) if letter in params}
         if level == 2.0:
             offset = frame.g5x[system]
@@ -1483,7 +1506,8 @@ class _Interpreter:
         if code == _G_49:
             frame.tool = [0.0] * len(self.axes)
         elif code == _G_43_1:
-            frame.tool = [params.get(letter, 0.0) * self.scale for letter in self.axes]
+            frame.tool = [params.get(letter, 0.0) * scale
+                          for letter, scale in zip(self.axes, self.scales, strict=True)]
         else:
             if "H" in params:
                 number = params["H"]
@@ -1578,20 +1602,36 @@ class _Interpreter:
                 "are absolute; use G90",
             )
 
+    def check_wrapped(self, block: Block, params: dict[str, float], *,
+                      absolute: bool) -> None:
+        """Refuse an absolute position of a wrapped rotary axis of a whole turn or more."""
+        if not absolute:
+            return
+        for letter in self.machine.wrapped:
+            value = params.get(letter)
+            if value is not None and not -360.0 < value < 360.0:
+                index = block.letters.index(letter)
+                raise self.error(
+                    block, index,
+                    f"{letter}{block.numbers[index]}: {letter} is a wrapped rotary axis; an"
+                    " absolute position is within -360..360 degrees, its sign the way to turn")
+
     def machine_move(self, block: Block, motion: int, params: dict[str, float]) -> None:
         """G0/G1 with G53: the axis words are machine coordinates (offsets not applied)."""
+        self.check_wrapped(block, params, absolute=True)
         self.motion = motion
         self.cycle.level = None
         end = list(self.position)
         for axis, letter in enumerate(self.axes):
             if letter in params:
-                end[axis] = params[letter] * self.scale
+                end[axis] = (_unwrap(end[axis], params[letter]) if letter in self.machine.wrapped
+                             else params[letter] * self.scales[axis])
         if motion == _G_0:
             self.traverse(block.line, end)
             return
         self.require_feed(block, -1, "G1")
         self.moves.append(Linear(block.line, _point(self.position), _point(end),
-                                 self.feed_mm_min))
+                                 self.path_feed(self.position, end)))
         self.position = end
 
     def home(self, line: int, named: str) -> None:
@@ -1701,25 +1741,34 @@ class _Interpreter:
         if self.frame.rotated:
             return self.rotated_ends(params)
         end = list(self.position)
-        scale = self.scale
+        scales = self.scales
+        wrapped = self.machine.wrapped
         for axis, letter in enumerate(self.axes):
             value = params.get(letter)
             if value is not None:
                 if self.incremental:
-                    end[axis] += value * scale
+                    end[axis] += value * scales[axis]
+                elif letter in wrapped:
+                    offset = self.offset[axis]
+                    end[axis] = _unwrap(end[axis] - offset, value) + offset
                 else:
-                    end[axis] = value * scale + self.offset[axis]
+                    end[axis] = value * scales[axis] + self.offset[axis]
         return end
 
     def rotated_ends(self, params: dict[str, float]) -> list[float]:
         """:meth:`ends` in a coordinate system with an XY rotation."""
         frame = self.frame
         end = frame.to_program(self.position)
+        wrapped = self.machine.wrapped
         for axis, letter in enumerate(self.axes):
             value = params.get(letter)
             if value is not None:
-                end[axis] = end[axis] + value * self.scale if self.incremental else (
-                    value * self.scale)
+                if self.incremental:
+                    end[axis] += value * self.scales[axis]
+                elif letter in wrapped:
+                    end[axis] = _unwrap(end[axis], value)
+                else:
+                    end[axis] = value * self.scales[axis]
         return frame.to_machine(end)
 
     def traverse(self, line: int, end: list[float]) -> None:
@@ -1727,7 +1776,16 @@ class _Interpreter:
         self.position = end
 
     def require_feed(self, block: Block, blame: int, name: str) -> None:
-        """Refuse the feed move ``name`` (G1, G2, G3) while the feed rate is 0."""
+        """Refuse the feed move ``name`` (G1, G2, G3, a canned cycle) while the feed rate
+        is 0, and in inverse time (G93) without an F word of its own (a cycle: at all)."""
+        if self.inverse_time:
+            cycle = name not in ("G1", "G2", "G3")
+            if cycle or "F" not in block.letters:
+                raise self.error(
+                    block, blame,
+                    f"{name} in inverse time feed (G93): " + (
+                        "canned cycles need G94 (units per minute)" if cycle else
+                        "every feed move needs its own F word (1/F minutes)"))
         if self.feed_mm_min == 0.0:
             error = self.error(
                 block,
@@ -1737,6 +1795,41 @@ class _Interpreter:
             )
             raise FeedRateError(error.message, file=error.file, line=error.line,
                                 column=error.column, word=error.word)
+
+    def path_feed(self, start: list[float], end: list[float], *,
+                  arc: tuple[Plane, list[float], int, bool] | None = None) -> float:
+        """The feed a move from ``start`` to ``end`` is planned at (mm per minute along its
+        path, every axis alike: see ``motion.moves``), giving it LinuxCNC's time: F units
+        per minute along its X Y Z length, along its U V W length when those alone move,
+        along its A B C length (degrees per minute) when only rotary axes turn; in G93, 1/F
+        minutes. ``arc``: (plane, centre, turns, clockwise) of an arc, whose X Y Z length
+        is its helix."""
+        groups = self.feed_lengths
+        if groups is None and not self.inverse_time:
+            return self.feed_mm_min  # X Y Z alone: the path is the X Y Z length
+        lengths = []
+        for group in groups or (tuple(range(len(self.axes))), (), ()):
+            lengths.append(math.sqrt(sum((end[i] - start[i]) ** 2 for i in group)))
+        if arc is not None:
+            plane, centre, turns, clockwise = arc
+            first, second, normal = plane.indices(self.axes)
+            r0 = math.hypot(start[first] - centre[first], start[second] - centre[second])
+            r1 = math.hypot(end[first] - centre[first], end[second] - centre[second])
+            theta0 = math.atan2(start[second] - centre[second], start[first] - centre[first])
+            theta1 = math.atan2(end[second] - centre[second], end[first] - centre[first])
+            sweep = (theta0 - theta1) if clockwise else (theta1 - theta0)
+            sweep %= 2.0 * math.pi
+            if sweep <= 1e-12:
+                sweep = 2.0 * math.pi
+            sweep += 2.0 * math.pi * (turns - 1)
+            planar = sweep * 0.5 * (r0 + r1)
+            normal_travel = end[normal] - start[normal] if normal >= 0 else 0.0
+            lengths[0] = math.hypot(planar, normal_travel)
+        total = math.sqrt(sum(length * length for length in lengths))
+        if self.inverse_time:
+            return self.feed_mm_min * total if total > 0.0 else self.feed_mm_min
+        primary = next((length for length in lengths if length > 0.0), 0.0)
+        return self.feed_mm_min * total / primary if primary > 0.0 else self.feed_mm_min
 
     def move(
         self,
@@ -1750,6 +1843,7 @@ class _Interpreter:
             self.motion = NO_MOTION
             self.cycle.level = None
             return
+        self.check_wrapped(block, params, absolute=not self.incremental)
         previous = self.motion
         self.motion = motion
         # The word to blame: the motion G code, else (-1) the first axis or centre word.
@@ -1765,7 +1859,8 @@ class _Interpreter:
             self.require_feed(block, blame, "G1")
             end = self.ends(params)
             self.moves.append(
-                Linear(block.line, _point(self.position), _point(end), self.feed_mm_min)
+                Linear(block.line, _point(self.position), _point(end),
+                       self.path_feed(self.position, end))
             )
             self.position = end
             return
@@ -1992,7 +2087,7 @@ class _Interpreter:
                 _point(centre),
                 plane,
                 -turns if motion == _G_2 else turns,
-                self.feed_mm_min,
+                self.path_feed(start, end, arc=(plane, centre, turns, motion == _G_2)),
             )
         )
         self.position = end
@@ -2172,6 +2267,26 @@ def _point(values: list[float]) -> Point:
     return tuple(values)
 
 
+def _feed_lengths(axes: str) -> tuple[tuple[int, ...], ...] | None:
+    """The indices of the X Y Z, the U V W and the A B C axes of ``axes`` (LinuxCNC measures
+    a feed along the first group that moves); None when ``axes`` are X Y Z only."""
+    if all(letter in "XYZ" for letter in axes):
+        return None
+    return tuple(tuple(i for i, letter in enumerate(axes) if letter in group)
+                 for group in ("XYZ", "UVW", ROTARY_AXES))
+
+
+def _unwrap(here: float, value: float) -> float:
+    """Where a wrapped rotary axis at ``here`` (degrees, program coordinates, counted on
+    across turns) goes for the absolute word ``value`` (-360 < value < 360), as LinuxCNC's
+    interpreter unwraps it: to the angle ``|value|`` of the turn it is on, the sign the way
+    it turns (positive: up from ``here``, negative: down), so never a whole turn or more."""
+    target = abs(value) + 360.0 * math.floor(here / 360.0)
+    if math.copysign(1.0, value) > 0.0:
+        return target + 360.0 if target < here else target
+    return target - 360.0 if target > here else target
+
+
 def _plane_indices(axes: str) -> dict[Plane, tuple[int, int, int] | str]:
     """Each plane's axis indices in ``axes`` (the normal -1 when absent), or why an arc in
     it is impossible there."""
@@ -2192,8 +2307,7 @@ def _letter_tables(axes: str, rules: DialectRules) -> tuple[dict[str, str], dict
     machine of ``axes`` in a dialect; ``$`` is among the refused when the dialect has
     controller commands (the interpreter reads them there)."""
     where = f"its axes are {', '.join(axes)}"
-    refused = {letter: f"{reason} ({where})" if letter in "ABC" else reason
-               for letter, reason in _LETTERS_UNSUPPORTED.items()}
+    refused = dict(_LETTERS_UNSUPPORTED)
     for letter in AXIS_ORDER:
         if letter not in axes:
             refused[letter] = f"the machine has no axis {letter} ({where})"

@@ -1,9 +1,14 @@
 """The typed moves a G-code program turns into: plain frozen data, lengths in mm.
 
 These are the interface between the interpreter (``motion.gcode``) and the planner
-(``motion.planner``). Coordinates are absolute machine positions in mm, one per axis of the
-program's axis set (:data:`AXIS_ORDER`'s letters the machine has, in that order; ``"XYZ"``
-by default, so a point is ``(x, y, z)``).
+(``motion.planner``). Coordinates are absolute machine positions in mm (degrees for the
+rotary axes A B C), one per axis of the program's axis set (:data:`AXIS_ORDER`'s letters the
+machine has, in that order; ``"XYZ"`` by default, so a point is ``(x, y, z)``).
+
+A feed move's ``feed_mm_min`` is the speed along its path as the planner measures it, every
+axis's coordinate alike (mm and degrees): the programmed feed on a machine of linear axes X Y
+Z; where rotary (or U V W) axes move too, the feed that gives the move the time LinuxCNC
+gives it (``motion.gcode``: F along the X Y Z length, or 1/F minutes in G93).
 """
 
 from __future__ import annotations
@@ -14,8 +19,10 @@ from enum import Enum
 Point = tuple[float, ...]
 """A machine position in mm, one coordinate per axis of the program's axis set."""
 
-AXIS_ORDER = "XYZUVW"
-"""The linear axes G-code can move, in LinuxCNC's order; an axis set is a subsequence."""
+AXIS_ORDER = "XYZABCUVW"
+"""The axes G-code can move, in LinuxCNC's order; an axis set is a subsequence."""
+ROTARY_AXES = "ABC"
+"""The rotary axes: their coordinates are degrees (whatever G20/G21 say)."""
 DEFAULT_AXES = "XYZ"
 
 

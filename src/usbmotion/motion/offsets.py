@@ -10,8 +10,8 @@ A program position becomes a machine position as LinuxCNC's task makes it
 the machine's units); :class:`Frame` is the interpreter's working copy while a program is
 read, with the tool offset, which does not persist.
 
-Parameter numbers (each block is X Y Z A B C U V W; usbmotion keeps the linear axes X Y Z
-U V W, the machine's own among them in effect, and the rotary A B C as read):
+Parameter numbers (each block is X Y Z A B C U V W, mm and degrees; the machine's own axes
+among them are in effect, the others kept as read):
 
 - 5161-5169 the G28 position, 5181-5189 the G30 position (machine coordinates);
 - 5210 1 when the G92 offset is applied, 5211-5219 the G92 offset;
@@ -45,9 +45,10 @@ __all__ = [
 ]
 
 Point = tuple[float, ...]
-"""One value per linear axis of :data:`~usbmotion.motion.moves.AXIS_ORDER` (X Y Z U V W), mm."""
+"""One value per axis of :data:`~usbmotion.motion.moves.AXIS_ORDER` (X Y Z A B C U V W): mm,
+degrees for A B C."""
 _ZERO: Point = (0.0,) * len(AXIS_ORDER)
-# where each of X Y Z U V W sits in a parameter block of X Y Z A B C U V W
+# where each axis sits in a parameter block of X Y Z A B C U V W (the same order)
 _SLOTS = tuple("XYZABCUVW".index(letter) for letter in AXIS_ORDER)
 
 COORDINATE_SYSTEMS = ("G54", "G55", "G56", "G57", "G58", "G59", "G59.1", "G59.2", "G59.3")
@@ -78,18 +79,19 @@ class WorkOffsets:
 
     Fields:
         g5x: the offset of each coordinate system, G54 first (index 0) to G59.3; every
-            point here holds X Y Z U V W (:data:`Point`), whatever axes a machine has.
+            point here holds X Y Z A B C U V W (:data:`Point`), whatever axes a machine has.
         rotation_deg: each system's XY rotation about its origin (``G10 L2 R``), degrees.
         coordinate_system: the active system, 1 (G54) to 9 (G59.3).
         g92: the G92 offset, applied only while ``g92_enabled``.
         g92_enabled: whether the G92 offset applies (G92 and G92.3 set it; G92.1, G92.2
             and a program's end clear it).
         g28: the position G28 goes to; g30: the position G30 goes to.
-        other: every other numbered parameter of the file, kept as read (the A-C values
-            of the blocks above, and numbers usbmotion does not use).
+        other: every other numbered parameter of the file, kept as read (numbers
+            usbmotion does not use).
 
     Raises:
-        ValueError: a point has not one value per axis of X Y Z U V W, or not nine systems.
+        ValueError: a point has not one value per axis of X Y Z A B C U V W, or not nine
+            systems.
     """
 
     g5x: tuple[Point, ...] = field(default_factory=_zero_systems)
@@ -112,7 +114,7 @@ class WorkOffsets:
 
     def with_g5x(self, system: int, offset: Point) -> WorkOffsets:
         """These offsets with coordinate system ``system`` (1-9) at ``offset`` (mm, one
-        value per axis of X Y Z U V W)."""
+        value per axis of X Y Z A B C U V W)."""
         systems = list(self.g5x)
         systems[system - 1] = offset
         return replace(self, g5x=tuple(systems))
@@ -240,7 +242,7 @@ def read_parameter_file(path: str | os.PathLike[str]) -> WorkOffsets:
 
 
 def format_point(point: Point, axes: str, *, separator: str = "") -> str:
-    """``X100.000 Y100.000 Z60.000``: the values of ``point`` (X Y Z U V W) for ``axes``."""
+    """``X100.000 Y100.000 Z60.000``: the values of ``point`` (X Y Z A B C U V W) for ``axes``."""
     return " ".join(f"{letter}{separator}{point[AXIS_ORDER.index(letter)]:.3f}"
                     for letter in axes)
 
@@ -264,7 +266,7 @@ class Frame:
     """The interpreter's offsets while a program is read, for a machine's axes (mm; mutable,
     one per program).
 
-    Every list holds one value per axis of ``axes`` (a subsequence of X Y Z U V W);
+    Every list holds one value per axis of ``axes`` (a subsequence of X Y Z A B C U V W);
     :meth:`snapshot` writes them back over the offsets it was made from, so the values of
     axes the machine lacks are kept as read. ``translation`` is G5x + G92 + tool, the whole
     transform while the active system has no rotation (``rotated`` false), which is what

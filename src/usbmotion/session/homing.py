@@ -32,7 +32,9 @@ def homed_mark(config: MachineConfig, axis: AxisConfig) -> int:
 
 def home_position_mm(axis: AxisConfig) -> float:
     """Where homing leaves an axis: the switch's machine position, pulled off toward the
-    travel."""
+    travel (an axis homed by declaring: the position declared)."""
+    if axis.homing.declare:
+        return axis.homing.position_mm
     return axis.homing.position_mm - axis.homing.direction * axis.homing.pull_off_mm
 
 

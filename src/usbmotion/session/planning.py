@@ -18,7 +18,7 @@ from usbmotion.host.config import AxisConfig, MachineConfig
 from usbmotion.motion.dialects import Dialect, dialect_named
 from usbmotion.motion.gcode import GCodeProgram, MachineAxes, Pauses, parse_gcode
 from usbmotion.motion.limits import AxisLimits, PlannerConfig, check_travel, settled_band_mm
-from usbmotion.motion.moves import AXIS_ORDER, Point
+from usbmotion.motion.moves import AXIS_ORDER, ROTARY_AXES, Point
 from usbmotion.motion.offsets import NO_OFFSETS, WorkOffsets
 from usbmotion.motion.planner import Plan, plan_moves
 from usbmotion.motion.plunges import plunge_warnings, rapid_plunges
@@ -54,17 +54,18 @@ class Prepared:
 
 
 def program_axes(config: MachineConfig) -> str:
-    """The letters of the machine's linear axes, in X Y Z U V W order: the axes a program
-    moves.
+    """The letters of the machine's axes, in LinuxCNC's X Y Z A B C U V W order: the axes a
+    program moves.
 
     Raises:
-        ConfigError: the machine has none (only rotary axes).
+        ConfigError: the machine has no linear axis (a program needs one: X, Y, Z, U, V or
+            W).
     """
     axes = "".join(letter for letter in AXIS_ORDER if letter in config.axis_names)
-    if not axes:
+    if not any(letter not in ROTARY_AXES for letter in axes):
         raise ConfigError(
-            f"{config.path}: G-code programs move linear axes ({', '.join(AXIS_ORDER)}); this"
-            f" machine has {', '.join(config.axis_names)}",
+            f"{config.path}: G-code programs move a linear axis (X, Y, Z, U, V or W) besides"
+            f" any rotary one; this machine has {', '.join(config.axis_names)}",
             path=str(config.path), key="axes",
         )
     return axes
@@ -86,7 +87,8 @@ def machine_axes(config: MachineConfig) -> MachineAxes:
         order = (*order, "".join(a for a in axes if a not in ordered))
     return MachineAxes(axes=axes,
                        home_mm=tuple(home_position_mm(config.axis(a)) for a in axes),
-                       homing_order=order)
+                       homing_order=order,
+                       wrapped="".join(a for a in axes if config.axis(a).wrapped))
 
 
 def machine_dialect(config: MachineConfig, dialect: Dialect | None = None) -> Dialect:

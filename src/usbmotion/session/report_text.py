@@ -6,7 +6,13 @@ from __future__ import annotations
 from pathlib import Path
 
 from usbmotion.motion.gcode import ignored_kind_label
+from usbmotion.motion.moves import ROTARY_AXES
 from usbmotion.session.report import RunReport
+
+
+def _unit(axis: str) -> str:
+    """mm, or deg for a rotary axis (A, B, C)."""
+    return "deg" if axis in ROTARY_AXES else "mm"
 
 
 def describe(report: RunReport) -> str:
@@ -21,13 +27,17 @@ def describe(report: RunReport) -> str:
         "following error (every servo tick, desired - actual):",
     ]
     for axis in report.axes:
+        unit = _unit(axis.name)
         lines.append(
-            f"  {axis.name}  max {axis.max_error_mm:8.4f} mm ({axis.max_error_counts:5d} counts)"
-            f" at {axis.max_error_time_s:.3f} s, line {axis.max_error_line}"
-            f"   rms {axis.rms_error_mm:8.4f} mm ({axis.rms_error_counts:8.2f} counts)"
+            f"  {axis.name}  max {axis.max_error_mm:8.4f} {unit} ({axis.max_error_counts:5d}"
+            f" counts) at {axis.max_error_time_s:.3f} s, line {axis.max_error_line}"
+            f"   rms {axis.rms_error_mm:8.4f} {unit} ({axis.rms_error_counts:8.2f} counts)"
         )
-    position = "  ".join(f"{k} {v:.3f}" for k, v in report.end_position_mm.items())
-    lines.append(f"end position   {position} mm")
+    linear = "  ".join(f"{k} {v:.3f}" for k, v in report.end_position_mm.items()
+                       if k not in ROTARY_AXES)
+    rotary = "  ".join(f"{k} {v:.3f}" for k, v in report.end_position_mm.items()
+                       if k in ROTARY_AXES)
+    lines.append(f"end position   {linear} mm" + (f", {rotary} deg" if rotary else ""))
     if report.endpoints_checked:
         lines.append(f"end points     {report.endpoints_checked} programmed, the actual path passed"
                      f" within {report.max_endpoint_miss_mm:.4f} mm of each")

@@ -39,7 +39,7 @@ from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
-from usbmotion.automation.device_io import MachineZero
+from usbmotion.automation.device_io import MachineZero, wrap_int32
 from usbmotion.errors import (
     ArgumentError,
     DeviceError,
@@ -49,6 +49,7 @@ from usbmotion.errors import (
     UsbMotionError,
 )
 from usbmotion.host.config import MachineConfig
+from usbmotion.host.device import ControlMode
 from usbmotion.host.machine import Machine
 from usbmotion.motion.dialects import Dialect
 from usbmotion.motion.gcode import GCodeProgram, Pause, Pauses, read_gcode_text
@@ -699,8 +700,13 @@ class MachineSession:
         for name in names:
             self.homed[name] = False
             self.machine.axis(name).client.set_homed_marker(0)
+        declared = [name for name in names if self.machine.axis(name).config.homing.declare]
+        self._declare_home(declared)
+        switched = [name for name in names if name not in declared]
+        if not switched:
+            return self._homed(names, started)
         cycle = HomingCycle(self.machine, keep_alive_period_s=self.keep_alive_period_s(),
-                            stop_now=self._stop_now, axes=names)
+                            stop_now=self._stop_now, axes=switched)
         cycle.enter_velocity_mode()
 
         def progress(where: dict[str, float]) -> None:
@@ -728,6 +734,23 @@ class MachineSession:
             self.publish_live(alarm=f"homing failed: {error}")
             raise
         self.zeroes.update(zeroes)
+        return self._homed(names, started)
+
+    def _declare_home(self, names: list[str]) -> None:
+        """Home axes with no switch (``homing.declare``, a wrapped rotary axis): each is
+        declared to stand at its ``homing.position_mm`` (one shift of its counter, call 37),
+        in position mode and enabled, holding where it stands."""
+        for name in names:
+            axis = self.machine.axis(name)
+            client = axis.client
+            self.machine.set_mode(ControlMode.POSITION, axes=[name])
+            client.clear_queue()
+            here = client.status().actual_counts
+            client.shift_position(wrap_int32(
+                axis.scale.to_counts(axis.config.homing.position_mm) - here))
+            client.set_servo_enable(True)
+
+    def _homed(self, names: list[str], started: float) -> float:
         for name in names:
             axis = self.machine.axis(name)
             axis.client.set_homed_marker(homed_mark(self.config, axis.config))

@@ -35,6 +35,7 @@ from usbmotion.errors import (
 from usbmotion.host.config import UrlChecks
 from usbmotion.host.parameters import PARAMETERS, Storage, machine_file_problem, parameter
 from usbmotion.motion.gcode import parse_gcode
+from usbmotion.motion.moves import ROTARY_AXES
 from usbmotion.motion.planner import SegmentKind
 from usbmotion.session.jog import check_jog
 from usbmotion.session.live import LiveReader, LiveSnapshot
@@ -149,6 +150,7 @@ class Dashboard:
         self.session = operator.session
         self.config = self.session.config
         self.axes = program_axes(self.config)
+        self.wrapped = "".join(a.name for a in self.config.axes if a.wrapped)
         self.programs = programs
         self.url_checks = url_checks
         """The machine file's URL checks (a changed parameter is checked as the file is)."""
@@ -227,6 +229,8 @@ class Dashboard:
                 "limit": axis.limit,
                 "fault": axis.fault,
                 "tick": axis.tick,
+                "unit": "deg" if name in ROTARY_AXES else "mm",
+                "wrapped": name in self.wrapped,
             }
         program = self.program
         alarm = now.alarm

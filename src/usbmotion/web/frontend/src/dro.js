@@ -2,6 +2,12 @@
 
 import { byId, el, mm, setText } from './format.js';
 
+// An angle in degrees, 0 to 360.
+function angle(value) {
+  return typeof value === 'number' && Number.isFinite(value)
+    ? mm(((value % 360) + 360) % 360) : mm(value);
+}
+
 const STATE_CLASSES = ['Idle', 'Run', 'Hold', 'Paused', 'Jog', 'Homing', 'Stopping', 'Alarm'];
 
 export class Readout {
@@ -59,11 +65,14 @@ export class Readout {
       if (!reading) {
         continue;
       }
-      setText(cells.work, mm(reading.work_mm));
-      setText(cells.workCommanded, mm(reading.commanded_work_mm));
-      setText(cells.machine, mm(reading.machine_mm));
-      setText(cells.machineCommanded, mm(reading.commanded_mm));
+      // A wrapped rotary axis turns on without end: its angle is shown modulo 360.
+      const place = reading.wrapped ? angle : mm;
+      setText(cells.work, place(reading.work_mm));
+      setText(cells.workCommanded, place(reading.commanded_work_mm));
+      setText(cells.machine, place(reading.machine_mm));
+      setText(cells.machineCommanded, place(reading.commanded_mm));
       setText(cells.error, mm(reading.following_error_mm));
+      cells.row.title = reading.unit === 'deg' ? `${axis}: degrees` : `${axis}: mm`;
       cells.row.classList.toggle('axis-limit', Boolean(reading.limit));
       cells.row.classList.toggle('axis-fault', Boolean(reading.fault));
     }
