@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from usbmotion.errors import ConfigError, GCodeError
+from usbmotion.errors import ConfigError, GCodeError, SoftLimitError
 from usbmotion.host.config import load_config, parse_config
 from usbmotion.motion.gcode import GCodeProgram, MachineAxes, move_record, parse_gcode
 from usbmotion.session import describe
@@ -232,3 +232,28 @@ def test_a_refused_line_leaves_the_feed_mode_and_units_as_they_were() -> None:
     assert stream.moves[-1].end == (1.0, 0.0, 0.0, 5.0)
     stream.feed("G93 G1 X2 A10 F60")
     assert stream.modes().inverse_time
+
+
+def test_a_limited_rotary_axis_homes_on_its_switch_and_keeps_its_travel() -> None:
+    """A tilting B of -90..90 degrees homing down onto its switch, as a linear axis does;
+    a move beyond its travel is refused in degrees before anything moves."""
+    text = FOUR_AXIS.read_text()
+    limited = text[:text.index("[axes.A]")] + (
+        '[axes.B]\nurl = "sim://B"\ndevice = "B AXIS"\ncounts_per_degree = 53.3333333333\n'
+        "max_velocity_deg_s = 90.0\nmax_accel_deg_s2 = 900.0\ntravel_deg = [-90.0, 90.0]\n"
+        "gains = { kp = 0.5, ki = 5.0, kd = 0.002 }\n"
+        "velocity_gains = { kp = 0.001, ki = 0.5, kd = 0.0 }\n"
+        "homing = { direction = -1, speed_deg_s = 30.0, slow_speed_deg_s = 5.0,"
+        " backoff_deg = 2.0 }\nsim = { start_deg = -60.0 }\n")
+    limited = limited.replace('homing_order = ["Z", ["X", "Y"], "A"]',
+                              'homing_order = ["Z", ["X", "Y"], "B"]')
+    config = parse_config(limited, path=FOUR_AXIS)
+    with connect_session(config) as session:
+        session.home()
+        assert session.positions_mm()["B"] == pytest.approx(-90.0, abs=2 / 53.3)
+        assert session.zeroes["B"].edge_counts != 0  # the latched switch edge
+        with pytest.raises(SoftLimitError, match=r"B would reach 120\.000 deg, beyond the"
+                           r" upper end 90 deg of axis B's travel_deg"):
+            session.prepare("tilt.ngc", text="G21 G90\nG0 B120\nM2\n")
+        report, _ = session.run(session.prepare("tilt.ngc", text="G21 G90\nG1 B45 F1800\nM2\n"))
+    assert report.completed and report.end_position_mm["B"] == pytest.approx(45.0, abs=0.05)

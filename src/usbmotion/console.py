@@ -390,9 +390,10 @@ class Console:
         self.write(f"state: {session.state.value}; program: {loaded}; homed: {homed};"
                    f" last run: {self.last_result or 'none'}")
         for name, status in session.machine.status().items():
-            scale = session.machine.axis(name).scale
+            axis = session.machine.axis(name)
             self.write(
-                f"{name}: {scale.to_mm(status.actual_counts):9.3f} mm"
+                f"{name}: {axis.scale.to_mm(status.actual_counts):9.3f}"
+                f" {'deg' if axis.config.rotary else 'mm'}"
                 f"  {'enabled' if status.enabled else 'disabled'}  mode {int(status.mode)}"
                 f"  queued {status.queued}  limits {'L' if status.lower_limit else '-'}"
                 f"{'U' if status.upper_limit else '-'}  fault {status.fault_name}"

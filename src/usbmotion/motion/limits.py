@@ -174,12 +174,13 @@ def check_travel(vertices_mm: npt.ArrayLike, lines: npt.ArrayLike,
     end = "lower" if below_end else "upper"
     start = float(points[0, column])
     came_from = ""
+    unit, key = _unit(axis)
     if (below[0, column] if below_end else above[0, column]) > 0:
-        came_from = (f", farther out than the {start:.3f} mm it started from: outside its"
+        came_from = (f", farther out than the {start:.3f} {unit} it started from: outside its"
                      " travel an axis may only come back")
     raise SoftLimitError(
-        f"line {line}: {axis} would reach {coordinate:.3f} mm, beyond the {end} end"
-        f" {limit:g} mm of axis {axis}'s travel_mm [{lowest:g}, {highest:g}]{came_from};"
+        f"line {line}: {axis} would reach {coordinate:.3f} {unit}, beyond the {end} end"
+        f" {limit:g} {unit} of axis {axis}'s {key} [{lowest:g}, {highest:g}]{came_from};"
         " nothing was moved",
         line=line, axis=axis, coordinate_mm=coordinate, limit_mm=limit)
 
@@ -190,6 +191,12 @@ def _standing(axis: str, coordinate_mm: float, travel_mm: tuple[float, float],
     lowest, highest = travel_mm
     below = coordinate_mm < lowest
     side, limit = ("below the lower", lowest) if below else ("above the upper", highest)
-    return (f"{axis} {coordinate_mm:.3f} mm, {abs(coordinate_mm - limit):.3f} mm {side} end"
-            f" {limit:g} mm of axis {axis}'s travel_mm [{lowest:g}, {highest:g}], more than"
-            f" the {band_mm:.4f} mm a settled servo may stand beyond it")
+    unit, key = _unit(axis)
+    return (f"{axis} {coordinate_mm:.3f} {unit}, {abs(coordinate_mm - limit):.3f} {unit} {side}"
+            f" end {limit:g} {unit} of axis {axis}'s {key} [{lowest:g}, {highest:g}], more than"
+            f" the {band_mm:.4f} {unit} a settled servo may stand beyond it")
+
+
+def _unit(axis: str) -> tuple[str, str]:
+    """The unit of an axis and its travel's key: degrees for A B C."""
+    return ("deg", "travel_deg") if axis in "ABC" else ("mm", "travel_mm")
