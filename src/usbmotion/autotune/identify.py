@@ -10,7 +10,9 @@ output the drive held over that tick, so any excitation serves. Two are used:
    move a few counts, and the way the voltage pushes. It stops here, servo disabled, when
    it does not move (a stall: blocked, unpowered, encoder unplugged) or moves the other way
    (the encoder or the motor wired reversed).
-2. moves in position mode on the axis's own gains: trapezoids of varied length, speed and
+2. moves in position mode on the axis's own proportional and derivative gains, its integral
+   gain off (so that each rest is a rest: an integrator would keep pushing the stuck shaft
+   past its Coulomb torque, a count at a time): trapezoids of varied length, speed and
    acceleration (up to the machine file's ``max_velocity_mm_s`` and ``max_accel_mm_s2``),
    both ways, each followed by a rest, all within ``[here, here + travel]`` less a margin;
    the host watches every tick as it comes and stops the axis if it leaves that stretch,
@@ -206,7 +208,9 @@ def identify_axis(machine: Machine, axis: str, *, travel_mm: float,
             client.set_diagnostics_interval(1)
             supply = client.sim_value(CallNumber.SET_SIM_SOURCE_VOLTAGE)
             probe_v, probe_counts = _probe(machine, axis, records, direction, supply)
-            machine.set_mode(ControlMode.POSITION, axes=[axis])
+            gains = settings.gains
+            client.set_gains(kp=gains.kp, ki=0.0, kd=gains.kd)
+            client.set_control_mode(ControlMode.POSITION)
             client.sync()
             begin = len(records)
             plan = excitation(room, max_velocity_counts_s=settings.max_velocity_mm_s
@@ -227,6 +231,8 @@ def identify_axis(machine: Machine, axis: str, *, travel_mm: float,
         finally:
             client.set_diagnostics_interval(0)
             client.sync()
+    if client.servo_enabled():
+        machine.set_mode(ControlMode.POSITION, axes=[axis])
     run = records[begin:]
     clocks = np.array([r.clock for r in run], dtype=np.int64)
     if np.any(np.diff(clocks) != 1):

@@ -210,7 +210,17 @@ class ModelFit:
 
 
 REST_TICKS = 10
-"""A position unchanged for this many ticks is at rest (the speed is 0 in the middle)."""
+"""A position unchanged for this many ticks is at rest (the speed is 0 in the middle)..."""
+REST_S = 0.003
+"""... and for at least this long (at 10 kHz a shaft creeping at 1000 counts/s keeps its
+count for 10 ticks; one whose count stays 3 ms is slower than 333 counts/s, and the fit's
+second pass drops the rests whose voltage could move it)."""
+
+
+def rest_ticks_for(tick_s: float) -> int:
+    """The ticks a rest lasts at least at a servo period: :data:`REST_TICKS`, at least
+    :data:`REST_S`."""
+    return max(REST_TICKS, round(REST_S / tick_s))
 MIN_SEGMENT_COUNTS = 20
 """A stretch that moves less than this is left out of the fit (quantisation and stiction)."""
 
@@ -364,7 +374,8 @@ def fit_model(voltages_v: FloatArray, positions: FloatArray, *, tick_s: float,
 
     ``voltages_v[k]`` is the output the drive held over tick ``k`` and ``positions[k]`` the
     count at its end (what a diagnostics line carries). The record is cut into stretches
-    that start in the middle of a rest (:func:`rest_segments`), where the shaft is still;
+    that start in the middle of a rest (:func:`rest_segments`, :func:`rest_ticks_for`),
+    where the shaft is still;
     on each, the model (:func:`simulate_open_loop`: the exact solution over each tick, the
     Coulomb torque holding the shaft below ``C`` and stopping it where it would reverse)
     runs from rest under the measured voltages and is compared with the measured
@@ -387,10 +398,12 @@ def fit_model(voltages_v: FloatArray, positions: FloatArray, *, tick_s: float,
                             " must be one-dimensional and match", reason="arrays")
     if not tick_s > 0:
         raise ArgumentError(f"tick_s {tick_s!r} must be above 0", reason="tick_s")
-    chosen = list(rest_segments(positions) if segments is None else segments)
+    rest_ticks = rest_ticks_for(tick_s)
+    chosen = list(rest_segments(positions, rest_ticks=rest_ticks) if segments is None
+                  else segments)
     if not chosen:
         raise ArgumentError(
-            f"no stretch of the record starts at rest ({REST_TICKS} ticks still) and moves"
+            f"no stretch of the record starts at rest ({rest_ticks} ticks still) and moves"
             f" {MIN_SEGMENT_COUNTS} counts: nothing to fit", reason="record")
     tau, g, coulomb = _initial_guess(voltages_v, positions, chosen, tick_s)
     fit = _refine(voltages_v, positions, chosen, tick_s, supply_v, (tau, g, coulomb),
