@@ -6,10 +6,10 @@ output the drive held over that tick, so any excitation serves. Two are used:
 
 1. a probe, before any position loop closes: velocity mode on a small proportional gain
    (a loop too weak to run away even with the encoder reversed) asking for a speed that
-   puts about a quarter of the supply on the motor for :data:`PROBE_S`; the axis must
-   move a few counts, and the way the voltage pushes. It stops here, servo disabled, when
-   it does not move (a stall: blocked, unpowered, encoder unplugged) or moves the other way
-   (the encoder or the motor wired reversed).
+   puts about a quarter of the supply on the motor for :data:`PROBE_S` (half, when that
+   did not move it); the axis must move a few counts, and the way the voltage pushes. It
+   stops here, servo disabled, when it does not move (a stall: blocked, unpowered, encoder
+   unplugged) or moves the other way (the encoder or the motor wired reversed).
 2. moves in position mode on the axis's own proportional and derivative gains, its integral
    gain off (so that each rest is a rest: an integrator would keep pushing the stuck shaft
    past its Coulomb torque, a count at a time): trapezoids of varied length, speed and
@@ -39,7 +39,7 @@ MAX_DURATION_S = 10.0
 PROBE_S = 0.04
 """How long the probe pushes."""
 PROBE_SHARE = 0.25
-"""The share of the supply the probe asks for."""
+"""The share of the supply the probe asks for (twice that when the axis did not move)."""
 PROBE_GAIN_V_PER_COUNT_S = 1e-4
 """The probe's velocity-mode gain: a loop gain of about 0.1 on a motor like the default
 (900 counts/s per V), stable whichever way the encoder counts."""
@@ -264,47 +264,51 @@ def _disable(machine: Machine, axis: str) -> None:
 
 def _probe(machine: Machine, axis: str, records: list[Diagnostics], direction: int,
            supply_v: float) -> tuple[float, int]:
-    """Push the axis gently in ``direction`` and check it moves that way.
+    """Push the axis gently in ``direction`` and check it moves that way: with
+    :data:`PROBE_SHARE` of the supply, then, if it did not move, twice that.
 
     Returns the probe's mean voltage and the counts it moved in ``direction``.
     """
     client = machine.axis(axis).client
     clock = machine.clock
     period_s = machine.config.motion_period_s
-    begin = len(records)
-    speed = round(PROBE_SHARE * supply_v / PROBE_GAIN_V_PER_COUNT_S)
     client.set_gains(kp=PROBE_GAIN_V_PER_COUNT_S, ki=0.0, kd=0.0)
-    client.set_control_mode(ControlMode.VELOCITY)
-    client.add_setpoints([direction * speed] * max(1, round(PROBE_S / period_s)))
-    clock.sleep(PROBE_S + 0.01)
-    client.sync()
-    pushed = [r for r in records[begin:] if r.desired == direction * speed]
-    status = client.status()
-    if status.fault:
-        raise DeviceFaultError(f"axis {axis}: {status.fault_name} during the probe",
-                               device=client.name)
-    if not pushed:
-        raise DeviceError(f"axis {axis}: the probe recorded nothing (no diagnostics came)",
-                          device=client.name)
-    first = records[begin - 1].actual_counts if begin else pushed[0].actual_counts
-    moved = direction * (pushed[-1].actual_counts - first)
-    volts = float(np.mean([r.output_mv for r in pushed])) / 1000
-    ms = len(pushed) * machine.config.servo_period_s * 1000
-    if moved <= -PROBE_MIN_COUNTS:
-        client.set_servo_enable(False)
-        raise DeviceError(
-            f"axis {axis}: {volts:+.2f} V for {ms:.0f} ms moved it {direction * moved:+d}"
-            " counts, against the voltage: the encoder counts backwards or the motor is"
-            " wired reversed (swap the encoder's A and B channels, or the motor's leads);"
-            " the servo is disabled", device=client.name)
-    if moved < PROBE_MIN_COUNTS:
-        client.set_servo_enable(False)
-        raise DeviceError(
-            f"axis {axis}: stalled: {volts:+.2f} V for {ms:.0f} ms moved it {moved} counts"
-            f" (at least {PROBE_MIN_COUNTS} expected): is it blocked, is the motor powered"
-            " and connected, is the encoder plugged in? The servo is disabled",
-            device=client.name)
-    return volts, moved
+    for attempt, share in enumerate((PROBE_SHARE, 2 * PROBE_SHARE)):
+        begin = len(records)
+        speed = round(share * supply_v / PROBE_GAIN_V_PER_COUNT_S)
+        client.set_control_mode(ControlMode.VELOCITY)
+        client.add_setpoints([direction * speed] * max(1, round(PROBE_S / period_s)))
+        clock.sleep(PROBE_S + 0.01)
+        client.sync()
+        pushed = [r for r in records[begin:] if r.desired == direction * speed]
+        status = client.status()
+        if status.fault:
+            raise DeviceFaultError(f"axis {axis}: {status.fault_name} during the probe",
+                                   device=client.name)
+        if not pushed:
+            raise DeviceError(f"axis {axis}: the probe recorded nothing (no diagnostics"
+                              " came)", device=client.name)
+        first = records[begin - 1].actual_counts if begin else pushed[0].actual_counts
+        moved = direction * (pushed[-1].actual_counts - first)
+        volts = float(np.mean([r.output_mv for r in pushed])) / 1000
+        ms = len(pushed) * machine.config.servo_period_s * 1000
+        if moved <= -PROBE_MIN_COUNTS:
+            client.set_servo_enable(False)
+            raise DeviceError(
+                f"axis {axis}: {volts:+.2f} V for {ms:.0f} ms moved it {direction * moved:+d}"
+                " counts, against the voltage: the encoder counts backwards or the motor is"
+                " wired reversed (swap the encoder's A and B channels, or the motor's"
+                " leads); the servo is disabled", device=client.name)
+        if moved >= PROBE_MIN_COUNTS:
+            return volts, moved
+        if attempt == 1:
+            client.set_servo_enable(False)
+            raise DeviceError(
+                f"axis {axis}: stalled: {volts:+.2f} V for {ms:.0f} ms moved it {moved}"
+                f" counts (at least {PROBE_MIN_COUNTS} expected): is it blocked, is the motor"
+                " powered and connected, is the encoder plugged in? The servo is disabled",
+                device=client.name)
+    raise AssertionError("unreachable")
 
 
 def _stream(machine: Machine, axis: str, records: list[Diagnostics], setpoints: list[int],

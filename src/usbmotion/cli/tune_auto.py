@@ -58,9 +58,20 @@ def auto_tune(config: MachineConfig, axis_config: AxisConfig, *, travel_mm: floa
         _write(config, axis_config, found, placed, physical)
         figures["written_to"] = str(config.path)
     if as_json:
-        typer.echo(json.dumps(figures, indent=2, allow_nan=True))
+        typer.echo(json.dumps(_finite(figures), indent=2, allow_nan=False))
         return
     _print(figures, axis_config)
+
+
+def _finite(value: Any) -> Any:
+    """``value`` with every NaN or infinite float as None (JSON has neither)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: _finite(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(item) for item in value]
+    return value
 
 
 def _physical(found: Identification, axis_config: AxisConfig) -> PhysicalModel | None:
