@@ -27,7 +27,9 @@ STEP_MAX_MM = 1.0
 LEAD_TICKS = 20
 """Ticks of holding before the step and the move."""
 STEP_HOLD_S = 0.4
+"""How long the step is held (recorded) after it is asked for."""
 MOVE_HOLD_S = 0.2
+"""How long the move holds at each end."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -264,13 +266,6 @@ def predicted_versus_measured(check: Check) -> dict[str, tuple[float, float]]:
     }
 
 
-def relative_gap(predicted: float, measured: float) -> float:
-    """``measured / predicted - 1`` (NaN when either is NaN or the prediction is 0)."""
-    if math.isnan(predicted) or math.isnan(measured) or predicted == 0:
-        return math.nan
-    return measured / predicted - 1.0
-
-
 __all__ = [
     "Check",
     "Figures",
@@ -280,6 +275,5 @@ __all__ = [
     "objective_move",
     "place_loop",
     "predicted_versus_measured",
-    "relative_gap",
     "step_and_move",
 ]
