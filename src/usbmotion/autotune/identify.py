@@ -313,11 +313,12 @@ def _probe(machine: Machine, axis: str, records: list[Diagnostics], direction: i
 
 def _stream(machine: Machine, axis: str, records: list[Diagnostics], setpoints: list[int],
             *, low: int, high: int, supply_v: float, watch_from: int) -> None:
-    """Feed ``setpoints`` and watch every tick until the queue runs dry and the axis rests.
+    """Feed ``setpoints`` and watch every tick until the queue has run dry for a few polls.
 
     Raises:
-        DeviceError: the axis left ``[low, high]``, stalled at the ceiling or ran against
-            its voltage.
+        DeviceError: the axis left ``[low, high]``, stalled at the ceiling (:data:`STALL_TICKS`
+            at 95 % of it without a count of motion) or sped up against a voltage of at
+            least half the supply for 20 ticks (braking slows it down).
         DeviceFaultError: the device faulted.
     """
     client = machine.axis(axis).client
@@ -327,6 +328,8 @@ def _stream(machine: Machine, axis: str, records: list[Diagnostics], setpoints: 
     checked = watch_from
     ceiling_run = 0
     against_run = 0
+    against_from = 0
+    last_speed = 0
     idle_polls = 0
     while True:
         queued, free = client.queue_status()
@@ -348,24 +351,27 @@ def _stream(machine: Machine, axis: str, records: list[Diagnostics], setpoints: 
                 ceiling_run += 1
             else:
                 ceiling_run = 0
+            speed = abs(record.velocity_counts_s)
             if (abs(volts) >= 0.5 * supply_v and record.velocity_counts_s * volts < 0
-                    and abs(record.velocity_counts_s) > 0):
+                    and speed >= last_speed):
+                if against_run == 0:
+                    against_from = last_speed
                 against_run += 1
             else:
                 against_run = 0
+            last_speed = speed
             if ceiling_run >= STALL_TICKS:
                 raise DeviceError(
                     f"axis {axis}: stalled at {position} counts: {volts:+.2f} V for"
                     f" {STALL_TICKS} ticks and it did not move: is it blocked? The servo is"
                     " disabled", device=client.name)
-            if against_run >= 20:
+            if against_run >= 20 and speed > against_from:
                 raise DeviceError(
-                    f"axis {axis}: it ran against its voltage ({volts:+.2f} V,"
+                    f"axis {axis}: it sped up against its voltage ({volts:+.2f} V,"
                     f" {record.velocity_counts_s:+d} counts/s) for 20 ticks: the encoder or the"
                     " motor is wired reversed; the servo is disabled", device=client.name)
         checked = len(records)
-        status_needed = sent >= len(setpoints) and queued == 0
-        if status_needed:
+        if sent >= len(setpoints) and queued == 0:
             idle_polls += 1
             if idle_polls > 3:
                 break
