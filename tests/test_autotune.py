@@ -12,7 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tests.test_layering import layering_violations
 
+import usbmotion.autotune
 from usbmotion.autotune.identify import MAX_DURATION_S, excitation, identify_axis
 from usbmotion.autotune.loop import (
     MIN_GAIN_MARGIN_DB,
@@ -51,6 +53,13 @@ def default_model(axis: AxisConfig) -> AxisModel:
 @pytest.fixture(scope="module")
 def config() -> MachineConfig:
     return load_config(default_machine())
+
+
+def test_autotuning_is_host_side() -> None:
+    """The tuning modules drive devices through ports: no import of the simulator or the
+    device (the machine is connected by the command, the tests and the benchmark)."""
+    folder = Path(usbmotion.autotune.__file__).parent
+    assert layering_violations(sorted(folder.glob("*.py"))) == []
 
 
 # --- the fit (pure) ------------------------------------------------------------------------
