@@ -239,6 +239,13 @@ def test_writing_keeps_the_comments_and_replaces_the_old_block() -> None:
     loaded = parse_config(twice, path="machine.toml")
     assert loaded.axis("Y").gains == PidGains(1.15, 13.0, 0.00735)
     assert loaded.axis("X").gains == PidGains(0.5, 5.0, 0.002)
+    examples = Path(__file__).resolve().parents[1] / "examples" / "real-machine.toml"
+    tables = examples.read_text(encoding="utf-8")  # gains in an [axes.X.gains] table
+    first = write_tuning(tables, "X", PidGains(1.14, 12.0, 0.00734), ["earliest", "a = 1"])
+    again = write_tuning(write_tuning(first, "X", PidGains(1.0, 1.0, 0.0), ["second"]),
+                         "X", PidGains(1.14, 12.0, 0.00734), ["earliest", "a = 1"])
+    assert again == first  # a block replaces the last, blank lines and all
+    assert parse_config(first, path="real.toml").axis("X").gains == PidGains(1.14, 12.0, 0.00734)
     with pytest.raises(Exception, match=r"no \[axes.Q\] table"):
         write_tuning(text, "Q", PidGains(1.0, 1.0, 0.0), ["x"])
 

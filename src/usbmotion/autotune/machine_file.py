@@ -20,7 +20,8 @@ MARK = "tune --auto"
 
 
 def _without_old_block(text: str, axis: str) -> str:
-    """``text`` without the comment block an earlier run wrote for ``axis``."""
+    """``text`` without the comment block an earlier run wrote for ``axis`` (and the blank
+    line after it)."""
     lines = text.splitlines(keepends=True)
     kept: list[str] = []
     inside = False
@@ -32,6 +33,9 @@ def _without_old_block(text: str, axis: str) -> str:
             continue
         if inside and stripped.startswith("#   "):
             continue
+        if inside and not stripped:
+            inside = False
+            continue  # the blank line written after the block
         inside = False
         kept.append(line)
     return "".join(kept)
@@ -73,7 +77,13 @@ def write_tuning(text: str, axis: str, gains: PidGains, model_lines: Sequence[st
         table.add(tomlkit.comment(f"  {line}"))
     if isinstance(body, list):
         body.extend(trailing)
-    return tomlkit.dumps(document)
+    text = tomlkit.dumps(document)
+    block_end = f"#   {rest[-1]}\n" if rest else f"# {MARK} axis {axis}: {first}\n"
+    at = text.find(block_end)
+    after = at + len(block_end)
+    if at >= 0 and after < len(text) and text[after] != "\n":
+        text = text[:after] + "\n" + text[after:]  # a blank line before the next table
+    return text
 
 
 __all__ = ["MARK", "write_tuning"]
