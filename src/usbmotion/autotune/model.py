@@ -20,8 +20,9 @@ Everything here is pure: arrays in, figures out.
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -193,6 +194,8 @@ class ModelFit:
         rms_residual_counts: how far the measured positions are from the model's, RMS.
         samples: the ticks the fit used.
         segments: the stretches from rest it used.
+        covariance: the covariance of ``(tau, g, C)``, row by row (their correlations
+            matter for figures made of several: the inertia is ``Kt / (R k g / tau)``).
     """
 
     model: AxisModel
@@ -203,10 +206,25 @@ class ModelFit:
     samples: int
     segments: int
 
-    def covariance(self) -> FloatArray:
-        """The diagonal covariance of ``(tau, g, C)`` (the fit's full one is not kept)."""
-        return np.diag([self.time_constant_sigma_s ** 2,
-                        self.speed_per_volt_sigma_counts_s ** 2, self.coulomb_sigma_v ** 2])
+    covariance: tuple[tuple[float, ...], ...] = ()
+
+    def sigma_of(self, figure: Callable[[AxisModel], float], *, step: float = 1e-6) -> float:
+        """One standard error of ``figure(model)``, from the fit's covariance (the figure
+        linearised by central differences of each of ``tau``, ``g``, ``C``)."""
+        if not self.covariance:
+            return math.nan
+        base = self.model
+        fields = ("time_constant_s", "speed_per_volt_counts_s", "coulomb_v")
+        gradient = []
+        for name in fields:
+            value = getattr(base, name)
+            h = step * max(abs(value), 1e-12)
+            up = figure(dataclasses.replace(base, **{name: value + h}))
+            down = figure(dataclasses.replace(base, **{name: value - h}))
+            gradient.append((up - down) / (2 * h))
+        grad = np.array(gradient)
+        variance = float(grad @ np.array(self.covariance) @ grad)
+        return math.sqrt(variance) if variance >= 0 else math.nan
 
 
 REST_TICKS = 10
@@ -472,13 +490,14 @@ def _refine(voltages_v: FloatArray, positions: FloatArray, chosen: Sequence[Segm
     variance = cost / max(1, n - 3)
     tau, g, coulomb = math.exp(p[0]), math.exp(p[1]), float(p[2])
     try:
-        covariance = variance * np.linalg.inv(jac.T @ jac)
-        log_sigmas = np.sqrt(np.maximum(np.diag(covariance), 0.0))
-        sigmas = (tau * float(log_sigmas[0]), g * float(log_sigmas[1]), float(log_sigmas[2]))
+        scale = np.diag([tau, g, 1.0])  # from (log tau, log g, C) to (tau, g, C)
+        covariance = scale @ (variance * np.linalg.inv(jac.T @ jac)) @ scale
     except np.linalg.LinAlgError:
-        sigmas = (math.inf, math.inf, math.inf)
-    return ModelFit(AxisModel(tau, g, coulomb, supply_v), sigmas[0], sigmas[1], sigmas[2],
-                    math.sqrt(cost / n), n, len(chosen))
+        covariance = np.full((3, 3), math.inf)
+    sigmas = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    return ModelFit(AxisModel(tau, g, coulomb, supply_v), float(sigmas[0]), float(sigmas[1]),
+                    float(sigmas[2]), math.sqrt(cost / n), n, len(chosen),
+                    tuple(tuple(float(v) for v in row) for row in covariance))
 
 
 __all__ = ["AxisModel", "ModelFit", "PhysicalModel", "Segment", "fit_model", "rest_runs",

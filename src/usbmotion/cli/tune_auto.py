@@ -17,7 +17,7 @@ from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail
 
 if TYPE_CHECKING:
     from usbmotion.autotune.identify import Identification
-    from usbmotion.autotune.model import PhysicalModel
+    from usbmotion.autotune.model import AxisModel, PhysicalModel
     from usbmotion.autotune.verify import Placement
     from usbmotion.host.config import AxisConfig, MachineConfig
 
@@ -87,34 +87,21 @@ def _physical(found: Identification, axis_config: AxisConfig) -> PhysicalModel |
 
 
 def _physical_sigmas(found: Identification, axis_config: AxisConfig) -> dict[str, float]:
-    """One standard error of each SI figure, propagated from the model's (linearised)."""
+    """One standard error of each SI figure, from the fit's covariance (linearised)."""
     sim = axis_config.sim
     if sim is None:
         return {}
-    import dataclasses  # noqa: PLC0415
-
     motor = sim.model()
+
+    def si(model: AxisModel) -> PhysicalModel:
+        return model.physical(torque_constant_nm_per_a=motor.torque_constant_nm_per_a,
+                              resistance_ohm=motor.resistance_ohm,
+                              counts_per_revolution=motor.counts_per_revolution)
+
     fit = found.fit
-    base = fit.model
-    sigmas = (fit.time_constant_sigma_s, fit.speed_per_volt_sigma_counts_s, fit.coulomb_sigma_v)
-    names = ("time_constant_s", "speed_per_volt_counts_s", "coulomb_v")
-
-    def si(model: Any) -> tuple[float, float, float]:
-        p = model.physical(torque_constant_nm_per_a=motor.torque_constant_nm_per_a,
-                           resistance_ohm=motor.resistance_ohm,
-                           counts_per_revolution=motor.counts_per_revolution)
-        return (p.inertia_kg_m2, p.viscous_nm_s_per_rad, p.load_torque_nm)
-
-    centre = si(base)
-    total = [0.0, 0.0, 0.0]
-    for field, sigma in zip(names, sigmas, strict=True):
-        if not math.isfinite(sigma) or sigma == 0:
-            continue
-        shifted = si(dataclasses.replace(base, **{field: getattr(base, field) + sigma}))
-        for i in range(3):
-            total[i] += (shifted[i] - centre[i]) ** 2
-    return {"inertia_kg_m2": math.sqrt(total[0]), "viscous_nm_s_per_rad": math.sqrt(total[1]),
-            "load_torque_nm": math.sqrt(total[2])}
+    return {"inertia_kg_m2": fit.sigma_of(lambda m: si(m).inertia_kg_m2),
+            "viscous_nm_s_per_rad": fit.sigma_of(lambda m: si(m).viscous_nm_s_per_rad),
+            "load_torque_nm": fit.sigma_of(lambda m: si(m).load_torque_nm)}
 
 
 def _figures(config: MachineConfig, axis_config: AxisConfig, found: Identification,
