@@ -229,6 +229,14 @@ def one_machine(base: MachineConfig, index: int, seed: int, travel_mm: float
                                        / motor.damping_nm_s_per_rad),
                 "load_torque": relative(physical.load_torque_nm, motor.load_torque_nm),
             }
+            row["z_scores"] = {
+                "time_constant": ((fit.time_constant_s - exact.time_constant_s)
+                                  / found.fit.time_constant_sigma_s),
+                "speed_per_volt": ((fit.speed_per_volt_counts_s - exact.speed_per_volt_counts_s)
+                                   / found.fit.speed_per_volt_sigma_counts_s),
+                "coulomb_v": (fit.coulomb_v - exact.coulomb_v) / found.fit.coulomb_sigma_v,
+            }
+            row["uncertainty"] = found.fit.uncertainty
             row["sigmas"] = {
                 "time_constant": found.fit.time_constant_sigma_s / fit.time_constant_s,
                 "speed_per_volt": (found.fit.speed_per_volt_sigma_counts_s
@@ -304,6 +312,11 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
         out[f"{key}_error_max"] = max(errors)
         out[f"{key}_error_median"] = statistics.median(errors)
         out[f"{key}_within_5pct"] = sum(e <= 0.05 for e in errors)
+    for key in ("time_constant", "speed_per_volt", "coulomb_v"):
+        scores = [abs(r["z_scores"][key]) for r in rows]
+        out[f"{key}_within_2_sigma"] = sum(z <= 2 for z in scores)
+        out[f"{key}_sigma_median"] = statistics.median(r["sigmas"][key] for r in rows)
+    out["jackknifed"] = sum(r["uncertainty"] == "jackknife" for r in rows)
     overshoots = [r["auto"]["overshoot_pct"][1] for r in rows]
     gaps = []
     for r in rows:
@@ -356,6 +369,12 @@ def text(figures: dict[str, Any]) -> str:
                        ("load_torque", "load torque (Kt, R given)")):
         lines.append(f"  {label:32} {s[key + '_error_max'] * 100:7.2f} %"
                      f" ({s[key + '_error_median'] * 100:.2f} %)  {s[key + '_within_5pct']}/{n}")
+    lines.append("the printed standard errors (jackknife over the stretches on"
+                 f" {s['jackknifed']}/{n} axes): the error within 2 sigma on " + ", ".join(
+                     f"{label} {s[key + '_within_2_sigma']}/{n} (sigma median"
+                     f" {s[key + '_sigma_median'] * 100:.2f} %)"
+                     for key, label in (("time_constant", "tau"), ("speed_per_volt", "g"),
+                                        ("coulomb_v", "C"))))
     lines.append(f"step: overshoot <= 5 % on {s['overshoot_within_5pct']}/{n} (max"
                  f" {s['overshoot_max_pct']:.2f} %); settling within 10 % of the prediction on"
                  f" {s['settling_within_10pct']}/{n} (worst gap {s['settling_gap_max'] * 100:.1f}"

@@ -131,6 +131,7 @@ def _figures(config: MachineConfig, axis_config: AxisConfig, found: Identificati
             "stretches": fit.segments,
             "samples": fit.samples,
             "rms_residual_counts": fit.rms_residual_counts,
+            "uncertainty": fit.uncertainty,
         },
         "model": {
             "time_constant_s": model.time_constant_s,
@@ -196,7 +197,9 @@ def _print(figures: dict[str, Any], axis_config: AxisConfig) -> None:
         share = f" ({sigma / abs(value) * 100:.2g} %)" if value else ""
         return f"{value:.{digits}g} {unit} +- {sigma:.2g}{share}"
 
-    echo("model as the drive sees it (1 sigma; volts in, counts out):")
+    how = ("jackknife over the stretches" if ident["uncertainty"] == "jackknife"
+           else "least squares")
+    echo(f"model as the drive sees it (volts in, counts out; 1 sigma, {how}):")
     echo(f"  time constant        {pm(model['time_constant_s'] * 1000, model['time_constant_sigma_s'] * 1000, 'ms')}")  # noqa: E501
     echo(f"  speed per volt       {pm(model['speed_per_volt_counts_s'], model['speed_per_volt_sigma_counts_s'], 'counts/s per V')}")  # noqa: E501
     echo(f"  Coulomb voltage      {pm(model['coulomb_v'], model['coulomb_sigma_v'], 'V')}")
@@ -246,7 +249,7 @@ def _write(config: MachineConfig, axis_config: AxisConfig, found: Identification
     margins = placed.design.margins
     today = datetime.datetime.now(tz=datetime.UTC).date().isoformat()
     lines = [
-        f"identified {today}, the model as the drive sees it (1 sigma):",
+        f"identified {today}, the model as the drive sees it (1 sigma, {fit.uncertainty}):",
         f"time_constant_s = {model.time_constant_s:.5g} +- {fit.time_constant_sigma_s:.2g}",
         f"speed_per_volt_counts_s = {model.speed_per_volt_counts_s:.5g}"
         f" +- {fit.speed_per_volt_sigma_counts_s:.2g}",
