@@ -17,8 +17,10 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "usbmotion"
 
-HOST_SIDE = ("host", "motion", "automation", "session", "grbl", "web")
-"""Packages that drive devices through ports and must not know how a device is made."""
+HOST_SIDE = ("host", "motion", "automation", "session", "grbl", "web", "autotune", "robot",
+             "tuning")
+"""Packages (and modules) that drive devices through ports and must not know how a device
+is made."""
 
 FORBIDDEN = ("usbmotion.sim", "usbmotion.device")
 
@@ -39,7 +41,11 @@ LINE_TEXT = re.compile(r"^\d{1,2}(?: -?\d+)*(?: |\\n|\n|$)")
 
 def _python_files(*packages: str) -> Iterator[Path]:
     for package in packages:
-        yield from sorted((SRC / package).rglob("*.py"))
+        module = SRC / f"{package}.py"
+        if module.is_file():
+            yield module
+        else:
+            yield from sorted((SRC / package).rglob("*.py"))
 
 
 def _imports(tree: ast.AST) -> Iterator[tuple[int, str]]:
