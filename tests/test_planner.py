@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import hashlib
 import math
+import platform
 
 import numpy as np
 import pytest
@@ -474,3 +476,90 @@ def test_arc_smaller_than_the_tolerance_still_turns() -> None:
     assert len(plan) == 3
     radius = np.hypot(plan.vertices_mm[:, 0], plan.vertices_mm[:, 1])
     assert np.allclose(radius, 0.001, atol=1e-12)
+
+
+# --- the plan itself, pinned -----------------------------------------------------------------
+
+PLAN_COLUMNS = (
+    "vertices_mm", "unit", "kind", "line", "length_mm", "v_entry_mm_s", "v_cruise_mm_s",
+    "v_exit_mm_s", "accel_mm_s2", "t_accel_s", "t_cruise_s", "t_decel_s", "start_time_s",
+    "v_junction_max_mm_s", "feed_mm_s",
+)
+
+
+def seeded_program(count: int, *, seed: int, arcs: bool) -> list[Move]:
+    """``count`` connected moves from the origin on a 1 um grid, drawn without trigonometry:
+    rapids, lines (a few of zero length), dwells and, with ``arcs``, arcs in all three planes
+    ending a quarter, half or three quarters of a turn on, or where they start (full
+    circles), some helical, some turning twice."""
+    rng = np.random.default_rng(seed)
+    moves: list[Move] = []
+    position: Point = (0.0, 0.0, 0.0)
+    for line in range(1, count + 1):
+        roll = rng.random()
+        step = tuple(int(value) / 1000 for value in rng.integers(-20_000, 20_000, 3))
+        if roll < 0.1:
+            end: Point = tuple(c + 5.0 * d for c, d in zip(position, step, strict=True))
+            moves.append(Rapid(line, position, end))
+        elif roll < 0.15:
+            moves.append(Dwell(line, position, float(rng.integers(0, 500)) / 1000))
+            continue
+        elif roll < 0.6 or not arcs:
+            if roll < 0.17:
+                step = (0.0, 0.0, 0.0)
+            end = tuple(c + d for c, d in zip(position, step, strict=True))
+            moves.append(Linear(line, position, end, float(rng.integers(60, 12_000))))
+        else:
+            plane = (Plane.XY, Plane.XZ, Plane.YZ)[int(rng.integers(0, 3))]
+            first, second, normal = plane.axes
+            u, v = step[0] / 2, step[1] / 2  # from the centre to the start
+            quarters = int(rng.integers(0, 4))
+            for _ in range(quarters):
+                u, v = -v, u
+            centre = list(position)
+            centre[first] -= step[0] / 2
+            centre[second] -= step[1] / 2
+            end_list = list(position)
+            end_list[first] = centre[first] + u
+            end_list[second] = centre[second] + v
+            if rng.random() < 0.3:
+                end_list[normal] += step[2] / 4
+            rotation = int(rng.choice([-2, -1, -1, 1, 1, 2]))
+            end = (end_list[0], end_list[1], end_list[2])
+            moves.append(Arc(line, position, end, (centre[0], centre[1], centre[2]), plane,
+                             rotation, float(rng.integers(60, 6_000))))
+        position = end
+    return moves
+
+
+def plan_digest(plan: Plan) -> str:
+    """SHA-256 of every column's bytes (little-endian) and the duration."""
+    digest = hashlib.sha256()
+    for name in PLAN_COLUMNS:
+        column = getattr(plan, name)
+        digest.update(np.ascontiguousarray(column, dtype=column.dtype.newbyteorder("<")))
+    digest.update(repr(plan.duration_s).encode())
+    return digest.hexdigest()
+
+
+PINNED_LINES = (2951, "0dc81c086f2f1b38f7f77180359b6bb2781ecab8b4077eb47fcefbe289daefa5")
+PINNED_ARCS = (106591, "09806d2f0bf1b6215257c1e2d1a7eb12ecf24190bbb63f47ed64d8245500560b")
+
+
+def test_plan_of_lines_is_pinned() -> None:
+    # Square roots and the four operations only: the same bits on every IEEE machine. A
+    # change to how the planner computes must leave these unchanged (or say why not).
+    plan = plan_moves(seeded_program(3000, seed=20260101, arcs=False), UNEVEN, CONFIG)
+    assert len(plan) == PINNED_LINES[0]
+    assert plan_digest(plan) == PINNED_LINES[1]
+
+
+@pytest.mark.skipif(
+    platform.system() != "Linux" or platform.machine() != "x86_64"
+    or platform.libc_ver()[0] != "glibc",
+    reason="arcs go through the C library's trigonometry: pinned on Linux x86_64 glibc",
+)
+def test_plan_with_arcs_is_pinned() -> None:
+    plan = plan_moves(seeded_program(2000, seed=20260102, arcs=True), UNEVEN, CONFIG)
+    assert len(plan) == PINNED_ARCS[0]
+    assert plan_digest(plan) == PINNED_ARCS[1]

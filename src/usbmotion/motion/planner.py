@@ -31,9 +31,13 @@
 5. Each segment gets a trapezoidal (or triangular) velocity profile.
 
 Speed: the only per-move Python work is reading the moves (and the arc geometry); chord
-generation, junctions, passes and profiles are numpy passes over all segments, so planning is
-bounded by the Python loop for line-heavy programs and by the number of chords for arc-heavy
-ones (see ``benchmarks/planner_speed.py``).
+generation, junctions, passes and profiles are numpy work over all segments, in blocks that
+stay in cache and write straight into the plan's columns (one sweep forward for the geometry,
+the junctions and the prefix sums, the backward pass, one sweep forward for the forward pass,
+the profiles and the start times). Planning is bounded by the Python loop for line-heavy
+programs and by the number of chords for arc-heavy ones, of which writing the columns (about
+160 bytes a segment with three axes, all of it fresh memory) is a fair part (see
+``benchmarks/planner_speed.py``).
 
 The ``Plan`` holds its segments as columns (numpy arrays, read-only); ``Plan.segments``
 materialises ``PlannedSegment`` objects on first use.
@@ -82,6 +86,9 @@ _SPLIT_SHIFT = 2.0**32
 _BLOCK = 32768
 
 _ArcRow = tuple[int, int, float, float, float, float, float, float, float, float]
+"""An arc cut into chords: first segment, chords, centre (first, second axis), start radius,
+radius change, start angle, sweep, start and travel along the normal."""
+_ARC_ROW_SIZE = 10
 
 
 class SegmentKind(IntEnum):
@@ -322,6 +329,17 @@ def _arc_sweep(move: Arc, theta0: float, theta1: float, chord_mm: float) -> floa
     return -(sweep + _TWO_PI * (-rotation - 1))
 
 
+def _squared_gap(end: Point, kept: Point) -> float:
+    """The squared distance from ``kept`` to ``end``, added axis by axis (a move whose end is
+    less than ``min_segment_mm`` from the last end kept is dropped)."""
+    return sum([(a - b) * (a - b) for a, b in zip(end, kept, strict=True)])
+
+
+def _wrong_end(move: Move, end: Point, axes: str) -> PlanningError:
+    return PlanningError(f"line {move.line}: end {end!r} has {len(end)} coordinates; the"
+                         f" program's axes have {len(axes)}")
+
+
 def plan_moves(
     moves: Sequence[Move],
     limits: Sequence[AxisLimits],
@@ -346,8 +364,8 @@ def plan_moves(
     Raises:
         PlanningError: bad limits, a non-finite coordinate, a feed that is not positive and
             finite, a negative or non-finite dwell, a zero-radius arc, a zero rotation, a gap
-            between moves, or an object that is not a move; the message names the G-code line
-            and the value.
+            between moves, an end with the wrong number of coordinates, or an object that is
+            not a move; the message names the G-code line and the value.
     """
     axes = _check_axes(axes)
     axis_limits = _check_limits(limits, axes)
@@ -359,20 +377,34 @@ def plan_moves(
     min_segment = config.min_segment_mm
     min_segment_sq = min_segment * min_segment
     arc_tolerance = config.arc_tolerance_mm
+    axis_count = len(axes)
+    # A move longer than near_mm (math.dist) moves along some axis by more than
+    # near_mm / sqrt(axis_count) >= 2 * min_segment, so its squared length added axis by axis
+    # is more than min_segment_sq however either rounds: only nearer ends need that sum.
+    near_mm = 2.0 * axis_count * min_segment
 
+    # One entry per kept move (``dwell_s``: per dwell); ``end_coords`` holds the ends'
+    # coordinates one after another, ``arc_values`` an ``_ArcRow`` per arc cut into chords.
     item_kind: list[int] = []
     item_line: list[int] = []
-    item_feed: list[float] = []
-    item_dwell: list[float] = []
+    item_feed: list[object] = []
     item_count: list[int] = []
-    end_points: list[Point] = []
-    arc_rows: list[_ArcRow] = []
+    dwell_s: list[float] = []
+    end_coords: list[float] = []
+    arc_values: list[float] = []
     arc_planes: list[tuple[int, int, int]] = []
+    add_kind = item_kind.append
+    add_line = item_line.append
+    add_feed = item_feed.append
+    add_count = item_count.append
+    add_end = end_coords.extend
 
     kept = origin
     expected = origin
     total = 0
     inf = math.inf
+    dist = math.dist
+    isfinite = math.isfinite
     hypot = math.hypot
     atan2 = math.atan2
     acos = math.acos
@@ -381,6 +413,8 @@ def plan_moves(
     for plane in Plane:
         if plane.letters[0] in axes and plane.letters[1] in axes:
             plane_axes[plane] = plane.indices(axes)
+    # Planes are looked up by identity first: an Enum member hashes in Python.
+    plane_axes_by_id = {id(plane): indices for plane, indices in plane_axes.items()}
 
     for move in moves:
         cls = type(move)
@@ -391,15 +425,18 @@ def plan_moves(
                 _check_join(move, s, expected, tolerance)
             e = line_move.end
             expected = e
-            if sum([(a - b) * (a - b) for a, b in zip(e, kept, strict=True)]) < min_segment_sq:
+            try:
+                near = dist(e, kept) <= near_mm
+            except ValueError:
+                raise _wrong_end(move, e, axes) from None
+            if near and _squared_gap(e, kept) < min_segment_sq:
                 continue
             if cls is Linear:
-                kind = 1
-                feed = line_move.feed_mm_min  # type: ignore[union-attr]
+                add_kind(1)
+                add_feed(line_move.feed_mm_min)  # type: ignore[union-attr]
             else:
-                kind = 0
-                feed = inf
-            dwell_s = 0.0
+                add_kind(0)
+                add_feed(inf)
             count = 1
         elif cls is Arc:
             arc: Arc = move  # type: ignore[assignment]
@@ -408,19 +445,21 @@ def plan_moves(
                 _check_join(move, s, expected, tolerance)
             e = arc.end
             expected = e
-            indices = plane_axes.get(arc.plane)
+            indices = plane_axes_by_id.get(id(arc.plane)) or plane_axes.get(arc.plane)
             if indices is None:
                 raise PlanningError(f"line {arc.line}: arc plane {arc.plane!r} is not a Plane"
                                     f" of two of the axes {', '.join(axes)}")
             a1, a2, an = indices
             c = arc.centre
-            su = s[a1] - c[a1]
-            sv = s[a2] - c[a2]
-            eu = e[a1] - c[a1]
-            ev = e[a2] - c[a2]
+            cu = c[a1]
+            cv = c[a2]
+            su = s[a1] - cu
+            sv = s[a2] - cv
+            eu = e[a1] - cu
+            ev = e[a2] - cv
             r0 = hypot(su, sv)
             r1 = hypot(eu, ev)
-            if not (r0 > min_segment and r1 > min_segment and math.isfinite(r0 + r1)):
+            if not (r0 > min_segment and r1 > min_segment and isfinite(r0 + r1)):
                 raise PlanningError(
                     f"line {arc.line}: arc from {s!r} to {e!r} about centre {c!r} has "
                     f"radius {r0!r} at the start and {r1!r} at the end; both must be "
@@ -430,21 +469,24 @@ def plan_moves(
             sweep = _arc_sweep(arc, theta0, atan2(ev, eu), hypot(eu - su, ev - sv))
             normal_travel = e[an] - s[an] if an >= 0 else 0.0
             turn = sweep if sweep > 0.0 else -sweep
-            r_min, r_max = (r0, r1) if r0 < r1 else (r1, r0)
+            r_min = r0 if r0 < r1 else r1
+            r_max = r1 if r0 < r1 else r0
             planar = turn * 0.5 * (r0 + r1)
             if planar * planar + normal_travel * normal_travel < min_segment_sq:
                 continue
+            if len(e) != axis_count:
+                raise _wrong_end(move, e, axes)
             cosine = 1.0 - arc_tolerance / r_max
             chords = ceil(turn / (2.0 * acos(cosine if cosine > 0.5 else 0.5)))
             shortest = int(0.8 * hypot(turn * r_min, normal_travel) / min_segment)
-            count = max(1, min(chords, shortest))
+            count = chords if chords <= shortest else shortest
             if count > 1:
-                arc_rows.append(
+                arc_values.extend(
                     (
                         total,
                         count,
-                        c[a1],
-                        c[a2],
+                        cu,
+                        cv,
                         r0,
                         r1 - r0,
                         theta0,
@@ -453,10 +495,11 @@ def plan_moves(
                         normal_travel,
                     )
                 )
-                arc_planes.append((a1, a2, an))
-            kind = 2
-            feed = arc.feed_mm_min
-            dwell_s = 0.0
+                arc_planes.append(indices)
+            else:
+                count = 1
+            add_kind(2)
+            add_feed(arc.feed_mm_min)
         elif cls is Dwell:
             dwell: Dwell = move  # type: ignore[assignment]
             p = dwell.position
@@ -469,38 +512,58 @@ def plan_moves(
                 raise PlanningError(
                     f"line {dwell.line}: dwell {seconds!r} s must be finite and >= 0"
                 )
-            kind = 3
-            feed = 0.0
-            dwell_s = float(seconds)
+            add_kind(3)
+            add_feed(0.0)
+            dwell_s.append(float(seconds))
             count = 1
             e = kept
         else:
             raise PlanningError(f"moves holds {move!r}, which is not a Rapid, Linear, Arc or Dwell")
-        item_kind.append(kind)
-        item_feed.append(feed)
-        item_line.append(move.line)
-        item_dwell.append(dwell_s)
-        item_count.append(count)
-        end_points.append(e)
+        add_line(move.line)
+        add_count(count)
+        add_end(e)
         kept = e
         total += count
 
-    return _plan_columns(
-        origin=origin,
-        limits=axis_limits,
-        config=config,
-        move_count=len(moves),
-        total=total,
-        item_kind=item_kind,
-        item_line=item_line,
-        item_feed=item_feed,
-        item_dwell=item_dwell,
-        item_count=item_count,
-        ends=end_points,
-        arc_rows=arc_rows,
+    items = _Items(
+        kind=np.array(item_kind, dtype=np.int8),
+        line=np.array(item_line, dtype=np.int64),
+        feed=item_feed,
+        count=np.array(item_count, dtype=np.int64),
+        ends=np.fromiter(end_coords, np.float64, len(end_coords)).reshape(-1, axis_count),
+        dwell_s=np.array(dwell_s, dtype=np.float64),
+        arc_rows=np.fromiter(arc_values, np.float64, len(arc_values)).reshape(-1, _ARC_ROW_SIZE),
         arc_planes=arc_planes,
-        axes=axes,
     )
+    return _plan_items(
+        items, origin=origin, limits=axis_limits, config=config, move_count=len(moves), axes=axes
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class _Items:
+    """The moves a plan keeps (``m`` of them, zero-length ones dropped) as columns.
+
+    Fields:
+        kind: (m,) ``SegmentKind`` codes.
+        line: (m,) G-code lines.
+        feed: the feeds as given, mm/min (``inf`` for rapids, 0 for dwells): checked, and
+            quoted in the message when bad.
+        count: (m,) segments of each (an arc's chords, 1 otherwise).
+        ends: (m, k) where each ends, mm (a dwell: where it holds).
+        dwell_s: (d,) the dwells' seconds, in order.
+        arc_rows: (a, 10) an ``_ArcRow`` per arc cut into more than one chord.
+        arc_planes: the (first, second, normal) axis indices of each arc row.
+    """
+
+    kind: npt.NDArray[np.int8]
+    line: npt.NDArray[np.int64]
+    feed: Sequence[object]
+    count: npt.NDArray[np.int64]
+    ends: FloatArray
+    dwell_s: FloatArray
+    arc_rows: FloatArray
+    arc_planes: Sequence[tuple[int, int, int]]
 
 
 def _plan_columns(
@@ -521,33 +584,114 @@ def _plan_columns(
     axes: str,
     entry_speed_mm_s: float = 0.0,
 ) -> Plan:
-    counts = np.array(item_count, dtype=np.int64)
-    kinds_item = np.array(item_kind, dtype=np.int8)
-    lines_item = np.array(item_line, dtype=np.int64)
+    """``_plan_items`` of moves given as lists, one entry per move, ``item_dwell`` 0 but
+    for dwells (``motion.replanning``'s way in); ``total``, the sum of ``item_count``, is
+    not needed."""
+    kind = np.array(item_kind, dtype=np.int8)
+    items = _Items(
+        kind=kind,
+        line=np.array(item_line, dtype=np.int64),
+        feed=item_feed,
+        count=np.array(item_count, dtype=np.int64),
+        ends=np.array(ends, dtype=np.float64).reshape(-1, len(axes)),
+        dwell_s=np.array(item_dwell, dtype=np.float64)[kind == SegmentKind.DWELL],
+        arc_rows=np.array(arc_rows, dtype=np.float64).reshape(-1, _ARC_ROW_SIZE),
+        arc_planes=arc_planes,
+    )
+    return _plan_items(items, origin=origin, limits=limits, config=config,
+                       move_count=move_count, axes=axes, entry_speed_mm_s=entry_speed_mm_s)
+
+
+def _feeds(feed: Sequence[object]) -> FloatArray:
+    """The feeds as floats (NaN for one that is not a number)."""
     try:
-        feed_item = np.array(item_feed, dtype=np.float64)
+        return np.fromiter(feed, np.float64, len(feed))
     except (TypeError, ValueError):
-        feed_item = np.array([_as_float(feed) for feed in item_feed], dtype=np.float64)
+        return np.array([_as_float(value) for value in feed], dtype=np.float64)
+
+
+def _plan_items(
+    items: _Items,
+    *,
+    origin: Point,
+    limits: tuple[AxisLimits, ...],
+    config: PlannerConfig,
+    move_count: int,
+    axes: str,
+    entry_speed_mm_s: float = 0.0,
+) -> Plan:
+    """Plan the kept moves ``items``: steps 1 to 5 of the module docstring, vectorised.
+
+    Elementwise work runs in blocks of ``_BLOCK`` segments that stay in cache, written
+    straight into the plan's columns, in three sweeps: geometry, junction limits and the
+    prefix sums of ``2 a L`` going forward (``_segments``), the backward pass from the end
+    (``_backward_pass``), then the forward pass with the profiles and the start times
+    (``_forward_pass``).
+    """
+    kinds_item = items.kind
+    lines_item = items.line
+    counts = items.count
+    feed_item = _feeds(items.feed)
     feed_moves = (kinds_item == SegmentKind.LINEAR) | (kinds_item == SegmentKind.ARC)
     bad_feed = feed_moves & ~(np.isfinite(feed_item) & (feed_item > 0.0))
     if bad_feed.any():
         index = int(np.flatnonzero(bad_feed)[0])
         raise PlanningError(
-            f"line {int(lines_item[index])}: feed {item_feed[index]!r} mm/min must "
+            f"line {int(lines_item[index])}: feed {items.feed[index]!r} mm/min must "
             "be positive and finite"
         )
     speed_item = feed_item / 60.0
 
     # Columns: vertices[axis, i]; the Plan exposes the (n + 1, k) transpose.
-    k = len(axes)
-    vertices = np.empty((k, total + 1), dtype=np.float64)
-    vertices[:, 0] = origin
     last_vertex = np.cumsum(counts)
-    if ends:
-        vertices[:, last_vertex] = np.array(ends, dtype=np.float64).T
-    if arc_rows:
-        _fill_arc_vertices(vertices, arc_rows, arc_planes)
+    total = int(last_vertex[-1]) if last_vertex.size else 0
+    vertices = np.empty((len(axes), total + 1), dtype=np.float64)
+    vertices[:, 0] = origin
+    for row, ends in zip(vertices, items.ends.T, strict=True):
+        row[last_vertex] = ends  # a row's own index is the quicker scatter
+    if items.arc_rows.size:
+        _fill_arc_vertices(vertices, items.arc_rows, items.arc_planes)
 
+    kind = np.repeat(kinds_item, counts)
+    line = np.repeat(lines_item, counts)
+    speed = np.repeat(speed_item, counts)
+    dwells = last_vertex[kinds_item == SegmentKind.DWELL] - 1
+    segments = _segments(vertices, speed, dwells, limits, config)
+    if not np.isfinite(segments.length).all():  # so is every vertex when all lengths are
+        _check_finite(vertices, last_vertex, lines_item)
+    junction_sq = segments.junction_sq
+    junction_sq[0] = entry_speed_mm_s * entry_speed_mm_s
+    junction_sq[dwells] = 0.0
+    junction_sq[dwells + 1] = 0.0
+    v_junction_max = np.sqrt(junction_sq)
+    _backward_pass(junction_sq, segments.prefix)
+    profile = _forward_pass(segments, dwells, items.dwell_s)
+    return Plan(
+        vertices_mm=_readonly(vertices.T),  # type: ignore[arg-type]
+        unit=_readonly(segments.unit.T),  # type: ignore[arg-type]
+        kind=_readonly(kind),  # type: ignore[arg-type]
+        line=_readonly(line),  # type: ignore[arg-type]
+        length_mm=_readonly(segments.length),  # type: ignore[arg-type]
+        v_entry_mm_s=_readonly(profile.v_at_vertex[:-1]),  # type: ignore[arg-type]
+        v_cruise_mm_s=_readonly(profile.v_cruise),  # type: ignore[arg-type]
+        v_exit_mm_s=_readonly(profile.v_at_vertex[1:]),  # type: ignore[arg-type]
+        accel_mm_s2=_readonly(segments.accel),  # type: ignore[arg-type]
+        t_accel_s=_readonly(profile.t_accel),  # type: ignore[arg-type]
+        t_cruise_s=_readonly(profile.t_cruise),  # type: ignore[arg-type]
+        t_decel_s=_readonly(profile.t_decel),  # type: ignore[arg-type]
+        start_time_s=_readonly(profile.start_time),  # type: ignore[arg-type]
+        v_junction_max_mm_s=_readonly(v_junction_max),  # type: ignore[arg-type]
+        duration_s=profile.duration_s,
+        move_count=move_count,
+        feed_mm_s=_readonly(speed),  # type: ignore[arg-type]
+        axes=axes,
+    )
+
+
+def _check_finite(
+    vertices: FloatArray, last_vertex: npt.NDArray[np.int64], lines_item: npt.NDArray[np.int64]
+) -> None:
+    """Refuse the first vertex that is not finite, naming the line of its move."""
     if not np.isfinite(vertices).all():
         bad_vertex = int(np.flatnonzero(~np.isfinite(vertices).all(axis=0))[0])
         index = int(np.searchsorted(last_vertex, bad_vertex, side="left"))
@@ -556,115 +700,222 @@ def _plan_columns(
             f"{tuple(vertices[:, bad_vertex].tolist())!r} is not finite"
         )
 
-    kind = np.repeat(kinds_item, counts)
-    line = np.repeat(lines_item, counts)
-    speed = np.repeat(speed_item, counts)
-    dwells = np.flatnonzero(kind == SegmentKind.DWELL)
+
+@dataclass(frozen=True, eq=False)
+class _Segments:
+    """What the forward sweep finds for n segments (``_segments``).
+
+    Fields:
+        unit: (k, n) unit directions (zero for dwells).
+        length: (n,) lengths, mm.
+        v_nominal_sq: (n,) squared nominal speeds (0 for dwells).
+        accel: (n,) accelerations (0 for dwells).
+        junction_sq: (n + 1,) squared speed limits at the vertices (0 at both ends).
+        prefix: (n + 1,) sums of ``2 a L`` over the segments before each vertex.
+    """
+
+    unit: FloatArray
+    length: FloatArray
+    v_nominal_sq: FloatArray
+    accel: FloatArray
+    junction_sq: FloatArray
+    prefix: FloatArray
+
+
+def _segments(
+    vertices: FloatArray,
+    speed: FloatArray,
+    dwells: npt.NDArray[np.int64],
+    limits: tuple[AxisLimits, ...],
+    config: PlannerConfig,
+) -> _Segments:
+    """Geometry, junction limits and prefix sums of the segments between ``vertices``,
+    block by block; ``speed`` is each segment's feed, ``dwells`` the dwells' segments."""
+    k, total = vertices.shape[0], vertices.shape[1] - 1
     inv_v = [1.0 / axis.velocity_mm_s for axis in limits]
     inv_a = [1.0 / axis.accel_mm_s2 for axis in limits]
-
-    # Elementwise work runs in blocks that stay in cache; only the passes span the program.
-    # Dwells (zero length) divide by zero in the blocks and are set right afterwards.
     unit = np.empty((k, total), dtype=np.float64)
     length = np.empty(total, dtype=np.float64)
     v_nominal_sq = np.empty(total, dtype=np.float64)
     accel = np.empty(total, dtype=np.float64)
+    junction_sq = np.zeros(total + 1, dtype=np.float64)
+    prefix = np.empty(total + 1, dtype=np.float64)
+    prefix[0] = 0.0
+    # Dwells (zero length) divide by zero and are set right afterwards.
     with np.errstate(divide="ignore", invalid="ignore"):
         for lo in range(0, total, _BLOCK):
             hi = min(total, lo + _BLOCK)
-            unit[:, lo:hi], length[lo:hi], v_nominal_sq[lo:hi], accel[lo:hi] = _geometry(
-                vertices[:, lo : hi + 1], speed[lo:hi], inv_v, inv_a
-            )
-        unit[:, dwells] = 0.0
-        v_nominal_sq[dwells] = 0.0
-        accel[dwells] = 0.0
-        junction_sq = np.zeros(total + 1, dtype=np.float64)
-        for lo in range(0, total - 1, _BLOCK):
-            hi = min(total - 1, lo + _BLOCK)
-            junction_sq[lo + 1 : hi + 1] = _junction_limits(
-                unit[:, lo : hi + 1],
-                length[lo : hi + 1],
-                v_nominal_sq[lo : hi + 1],
-                accel[lo : hi + 1],
+            _geometry(vertices[:, lo : hi + 1], speed[lo:hi], inv_v, inv_a, unit=unit[:, lo:hi],
+                      length=length[lo:hi], v_nominal_sq=v_nominal_sq[lo:hi],
+                      accel=accel[lo:hi])
+            if dwells.size:
+                held = dwells[np.searchsorted(dwells, lo) : np.searchsorted(dwells, hi)]
+                unit[:, held] = 0.0
+                v_nominal_sq[held] = 0.0
+                accel[held] = 0.0
+            reach = _reach(accel[lo:hi], length[lo:hi])
+            if lo:
+                reach[0] += prefix[lo]  # one running sum over the program, as np.cumsum
+            np.cumsum(reach, out=prefix[lo + 1 : hi + 1])
+            first = max(lo, 1)  # junction j joins segments j - 1 and j
+            _junction_limits(
+                unit[:, first - 1 : hi],
+                length[first - 1 : hi],
+                v_nominal_sq[first - 1 : hi],
+                accel[first - 1 : hi],
                 inv_a,
                 config.junction_deviation_mm,
+                out=junction_sq[first:hi],
             )
-    junction_sq[0] = entry_speed_mm_s * entry_speed_mm_s
-    junction_sq[dwells] = 0.0
-    junction_sq[dwells + 1] = 0.0
+    return _Segments(unit, length, v_nominal_sq, accel, junction_sq, prefix)
 
-    reach = 2.0 * accel * length
-    prefix = np.concatenate(([0.0], np.cumsum(reach)))
-    # The j == i term of each minimum is taken exactly (``np.minimum`` with the limit itself),
-    # so rounding in the prefix sums never nudges a speed that no pass had to lower.
-    backward = np.minimum(
-        junction_sq, np.minimum.accumulate((junction_sq + prefix)[::-1])[::-1] - prefix
-    )
-    forward = prefix + np.minimum.accumulate(backward - prefix)
-    speed_sq = np.maximum(np.minimum(backward, forward), 0.0)
 
-    profile = np.empty((6, total), dtype=np.float64)
+def _reach(accel: FloatArray, length: FloatArray) -> FloatArray:
+    """``2 a L``: how much a segment can change the squared speed."""
+    reach = np.multiply(accel, 2.0)
+    reach *= length
+    return reach
+
+
+def _backward_pass(limit_sq: FloatArray, prefix: FloatArray) -> None:
+    """Lower each vertex's squared speed limit ``limit_sq`` in place to what the rest of
+    the program lets it decelerate from (``min_j (limit_j + prefix_j) - prefix_i`` over
+    ``j >= i``), block by block from the end."""
+    carry = math.inf
+    for hi in range(limit_sq.shape[0], 0, -_BLOCK):
+        lo = max(0, hi - _BLOCK)
+        limit = limit_sq[lo:hi]
+        reachable = np.add(limit, prefix[lo:hi])
+        np.minimum.accumulate(reachable[::-1], out=reachable[::-1])
+        np.minimum(reachable, carry, out=reachable)
+        carry = float(reachable[0])
+        reachable -= prefix[lo:hi]
+        # The j == i term is taken exactly, so rounding in the prefix sums never nudges a
+        # speed that no pass had to lower.
+        np.minimum(limit, reachable, out=limit)
+
+
+@dataclass(frozen=True, eq=False)
+class _Profile:
+    """The speeds and times of n segments (``_forward_pass``).
+
+    Fields:
+        v_at_vertex: (n + 1,) speed at each vertex (entry of segment i, exit of i - 1).
+        v_cruise, t_accel, t_cruise, t_decel: (n,) cruise speed and phase durations.
+        start_time: (n,) when each segment starts (``exact_cumsum`` of the durations).
+        duration_s: the total.
+    """
+
+    v_at_vertex: FloatArray
+    v_cruise: FloatArray
+    t_accel: FloatArray
+    t_cruise: FloatArray
+    t_decel: FloatArray
+    start_time: FloatArray
+    duration_s: float
+
+
+def _forward_pass(
+    segments: _Segments, dwells: npt.NDArray[np.int64], dwell_s: FloatArray
+) -> _Profile:
+    """The forward pass over the backward pass's limits (``segments.junction_sq`` by now),
+    the trapezoids and the start times, block by block; the ``dwells`` segments hold for
+    ``dwell_s``."""
+    limit_sq, prefix = segments.junction_sq, segments.prefix
+    total = limit_sq.shape[0] - 1
+    v_at_vertex = np.empty(total + 1, dtype=np.float64)
+    v_cruise = np.empty(total, dtype=np.float64)
+    t_accel = np.empty(total, dtype=np.float64)
+    t_cruise = np.empty(total, dtype=np.float64)
+    t_decel = np.empty(total, dtype=np.float64)
+    sums = np.zeros(total + 1, dtype=np.float64)
+    carry = math.inf
+    high_sum = low_sum = 0.0
+    splits = True
     with np.errstate(divide="ignore", invalid="ignore"):
         for lo in range(0, total, _BLOCK):
             hi = min(total, lo + _BLOCK)
-            profile[:, lo:hi] = _trapezoids(
-                speed_sq[lo:hi],
-                speed_sq[lo + 1 : hi + 1],
-                reach[lo:hi],
-                v_nominal_sq[lo:hi],
-                accel[lo:hi],
-                length[lo:hi],
+            # The block's vertices lo..hi: the next block redoes hi, from the same carry.
+            speed_sq = np.subtract(limit_sq[lo : hi + 1], prefix[lo : hi + 1])
+            np.minimum.accumulate(speed_sq, out=speed_sq)
+            np.minimum(speed_sq, carry, out=speed_sq)
+            carry = float(speed_sq[-1])
+            speed_sq += prefix[lo : hi + 1]
+            np.minimum(limit_sq[lo : hi + 1], speed_sq, out=speed_sq)
+            np.maximum(speed_sq, 0.0, out=speed_sq)
+            np.sqrt(speed_sq, out=v_at_vertex[lo : hi + 1])
+            _trapezoids(
+                speed_sq[:-1],
+                speed_sq[1:],
+                v_at_vertex[lo:hi],
+                v_at_vertex[lo + 1 : hi + 1],
+                _reach(segments.accel[lo:hi], segments.length[lo:hi]),
+                segments.v_nominal_sq[lo:hi],
+                segments.accel[lo:hi],
+                segments.length[lo:hi],
+                v_cruise=v_cruise[lo:hi],
+                t_accel=t_accel[lo:hi],
+                t_cruise=t_cruise[lo:hi],
+                t_decel=t_decel[lo:hi],
             )
-    v_entry, v_cruise, v_exit, t_accel, t_cruise, t_decel = profile
-    if dwells.size:
-        v_cruise[dwells] = 0.0
-        t_accel[dwells] = 0.0
-        t_decel[dwells] = 0.0
-        dwell_item = np.flatnonzero(kinds_item == SegmentKind.DWELL)
-        t_cruise[dwells] = np.array(item_dwell, dtype=np.float64)[dwell_item]
-
-    start_time, duration = exact_cumsum(t_accel + t_cruise + t_decel)
-    return Plan(
-        vertices_mm=_readonly(vertices.T),  # type: ignore[arg-type]
-        unit=_readonly(unit.T),  # type: ignore[arg-type]
-        kind=_readonly(kind),  # type: ignore[arg-type]
-        line=_readonly(line),  # type: ignore[arg-type]
-        length_mm=_readonly(length),  # type: ignore[arg-type]
-        v_entry_mm_s=_readonly(v_entry),  # type: ignore[arg-type]
-        v_cruise_mm_s=_readonly(v_cruise),  # type: ignore[arg-type]
-        v_exit_mm_s=_readonly(v_exit),  # type: ignore[arg-type]
-        accel_mm_s2=_readonly(accel),  # type: ignore[arg-type]
-        t_accel_s=_readonly(t_accel),  # type: ignore[arg-type]
-        t_cruise_s=_readonly(t_cruise),  # type: ignore[arg-type]
-        t_decel_s=_readonly(t_decel),  # type: ignore[arg-type]
-        start_time_s=_readonly(start_time),  # type: ignore[arg-type]
-        v_junction_max_mm_s=_readonly(np.sqrt(junction_sq)),  # type: ignore[arg-type]
-        duration_s=duration,
-        move_count=move_count,
-        feed_mm_s=_readonly(speed),  # type: ignore[arg-type]
-        axes=axes,
-    )
+            if dwells.size:
+                begin, end = np.searchsorted(dwells, (lo, hi))
+                held = dwells[begin:end]
+                v_cruise[held] = 0.0
+                t_accel[held] = 0.0
+                t_decel[held] = 0.0
+                t_cruise[held] = dwell_s[begin:end]
+            # exact_cumsum of the durations, its two running sums carried across blocks.
+            duration = t_accel[lo:hi] + t_cruise[lo:hi]
+            duration += t_decel[lo:hi]
+            splits = splits and bool(duration.max() < _SPLIT_SHIFT)
+            high = duration + _SPLIT_SHIFT
+            high -= _SPLIT_SHIFT
+            low = np.subtract(duration, high, out=duration)
+            if lo:
+                high[0] += high_sum
+                low[0] += low_sum
+            np.cumsum(high, out=high)
+            np.cumsum(low, out=low)
+            high_sum = float(high[-1])
+            low_sum = float(low[-1])
+            np.add(high, low, out=sums[lo + 1 : hi + 1])
+    if splits:
+        start_time, duration_s = sums[:-1], float(sums[-1])
+    else:  # a segment of 2**32 s or more: exact_cumsum splits on a coarser grid
+        start_time, duration_s = exact_cumsum(t_accel + t_cruise + t_decel)
+    return _Profile(v_at_vertex, v_cruise, t_accel, t_cruise, t_decel, start_time, duration_s)
 
 
 def _geometry(
-    vertices: FloatArray, speed: FloatArray, inv_v: list[float], inv_a: list[float]
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Unit directions (k, m), lengths, squared nominal speeds and accelerations of a block."""
-    delta = vertices[:, 1:] - vertices[:, :-1]
-    length = np.sqrt(_sum_of_squares(delta))
-    unit = delta / length
+    vertices: FloatArray,
+    speed: FloatArray,
+    inv_v: list[float],
+    inv_a: list[float],
+    *,
+    unit: FloatArray,
+    length: FloatArray,
+    v_nominal_sq: FloatArray,
+    accel: FloatArray,
+) -> None:
+    """Unit directions (k, m), lengths, squared nominal speeds and accelerations of a block
+    of m segments, written into the arrays given."""
+    np.subtract(vertices[:, 1:], vertices[:, :-1], out=unit)
+    np.sqrt(_sum_of_squares(unit, out=length), out=length)
+    unit /= length
     share = np.abs(unit)
-    v_share = _largest_share(share, inv_v)
-    a_share = _largest_share(share, inv_a)
-    v_nominal = np.minimum(speed, 1.0 / v_share)
-    return unit, length, v_nominal * v_nominal, 1.0 / a_share
+    v_nominal = _largest_share(share, inv_v)
+    np.divide(1.0, v_nominal, out=v_nominal)
+    np.minimum(speed, v_nominal, out=v_nominal)
+    np.multiply(v_nominal, v_nominal, out=v_nominal_sq)
+    np.divide(1.0, _largest_share(share, inv_a), out=accel)
 
 
-def _sum_of_squares(rows: FloatArray) -> FloatArray:
+def _sum_of_squares(rows: FloatArray, *, out: FloatArray | None = None) -> FloatArray:
     """Per column, the sum of the squares of the rows (added in row order)."""
-    total: FloatArray = rows[0] * rows[0]
+    total: FloatArray = np.multiply(rows[0], rows[0], out=out)
     for row in rows[1:]:
-        total = total + row * row
+        total += row * row
     return total
 
 
@@ -672,50 +923,51 @@ def _largest_share(shares: FloatArray, inverse: list[float]) -> FloatArray:
     """Per column, the largest ``shares[k] * inverse[k]`` over the axes ``k``."""
     largest: FloatArray = shares[0] * inverse[0]
     for row, factor in zip(shares[1:], inverse[1:], strict=True):
-        largest = np.maximum(largest, row * factor)
+        np.maximum(largest, row * factor, out=largest)
     return largest
 
 
 def _trapezoids(
     entry_sq: FloatArray,
     exit_sq: FloatArray,
+    v_entry: FloatArray,
+    v_exit: FloatArray,
     reach: FloatArray,
     v_nominal_sq: FloatArray,
     accel: FloatArray,
     length: FloatArray,
-) -> FloatArray:
-    """Rows v_entry, v_cruise, v_exit, t_accel, t_cruise, t_decel of a block."""
+    *,
+    v_cruise: FloatArray,
+    t_accel: FloatArray,
+    t_cruise: FloatArray,
+    t_decel: FloatArray,
+) -> None:
+    """The cruise speeds and phase durations of a block, written into the arrays given."""
     peak_sq = 0.5 * (entry_sq + exit_sq + reach)
     cruise_sq = np.maximum(np.minimum(v_nominal_sq, peak_sq), np.maximum(entry_sq, exit_sq))
-    out = np.empty((6, entry_sq.shape[0]), dtype=np.float64)
-    v_entry, v_cruise, v_exit, t_accel, t_cruise, t_decel = out
-    np.sqrt(entry_sq, out=v_entry)
     np.sqrt(cruise_sq, out=v_cruise)
-    np.sqrt(exit_sq, out=v_exit)
     half_inv_accel = 0.5 / accel
     s_accel = (cruise_sq - entry_sq) * half_inv_accel
     s_decel = (cruise_sq - exit_sq) * half_inv_accel
     np.divide(2.0 * s_accel, v_cruise + v_entry, out=t_accel)
     np.divide(2.0 * s_decel, v_cruise + v_exit, out=t_decel)
-    length = length - s_accel
-    length -= s_decel
-    np.maximum(length, 0.0, out=length)
-    np.divide(length, v_cruise, out=t_cruise)
-    return out
+    remaining = length - s_accel
+    remaining -= s_decel
+    np.maximum(remaining, 0.0, out=remaining)
+    np.divide(remaining, v_cruise, out=t_cruise)
 
 
 def _fill_arc_vertices(
     vertices: FloatArray,
-    arc_rows: list[_ArcRow],
-    arc_planes: list[tuple[int, int, int]],
+    arc_rows: FloatArray,
+    arc_planes: Sequence[tuple[int, int, int]],
 ) -> None:
     """Write the inner chord vertices of every arc: per plane, in blocks of about
     ``_BLOCK`` vertices."""
-    rows = np.array(arc_rows, dtype=np.float64)
     plane_of = np.array([axes[0] for axes in arc_planes], dtype=np.int64)
     axes_by_first = {axes[0]: axes for axes in arc_planes}
     for first_axis in np.unique(plane_of).tolist():
-        selected = rows[plane_of == first_axis]
+        selected = arc_rows[plane_of == first_axis]
         inner = selected[:, 1].astype(np.int64) - 1
         ends = np.cumsum(inner)
         begin = 0
@@ -736,10 +988,10 @@ def _arc_block(vertices: FloatArray, rows: FloatArray, axes: tuple[int, int, int
     angle = np.repeat(rows[:, 6], inner) + np.repeat(rows[:, 7], inner) * fraction
     radius = np.repeat(rows[:, 4], inner) + np.repeat(rows[:, 5], inner) * fraction
     index = np.repeat(first, inner) + step
-    vertices[axis1, index] = np.repeat(rows[:, 2], inner) + radius * np.cos(angle)
-    vertices[axis2, index] = np.repeat(rows[:, 3], inner) + radius * np.sin(angle)
+    vertices[axis1][index] = np.repeat(rows[:, 2], inner) + radius * np.cos(angle)
+    vertices[axis2][index] = np.repeat(rows[:, 3], inner) + radius * np.sin(angle)
     if normal >= 0:
-        vertices[normal, index] = (np.repeat(rows[:, 8], inner)
+        vertices[normal][index] = (np.repeat(rows[:, 8], inner)
                                    + np.repeat(rows[:, 9], inner) * fraction)
     others = [axis for axis in range(vertices.shape[0]) if axis not in (axis1, axis2, normal)]
     if others:
@@ -748,8 +1000,8 @@ def _arc_block(vertices: FloatArray, rows: FloatArray, axes: tuple[int, int, int
         start = np.repeat(first, inner)
         end = np.repeat(first + chords, inner)
         for axis in others:
-            begin = vertices[axis, start]
-            vertices[axis, index] = begin + (vertices[axis, end] - begin) * fraction
+            begin = vertices[axis][start]
+            vertices[axis][index] = begin + (vertices[axis][end] - begin) * fraction
 
 
 def _junction_limits(
@@ -759,8 +1011,10 @@ def _junction_limits(
     accel: FloatArray,
     inv_a: list[float],
     deviation_mm: float,
-) -> FloatArray:
-    """Squared speed limits at the m - 1 junctions of a block of m segments.
+    *,
+    out: FloatArray,
+) -> None:
+    """Squared speed limits at the m - 1 junctions of a block of m segments, into ``out``.
 
     A straight continuation (``cos_half == 0``) divides by zero to an infinite limit, and its
     undefined junction direction (0 / 0) is skipped by ``fmin``: the nominal speeds rule.
@@ -775,7 +1029,6 @@ def _junction_limits(
     a_junction = np.fmin(w_length / a_share, np.minimum(accel[1:], accel[:-1]))
     deviation_sq = a_junction * deviation_mm * sin_half * (1.0 + sin_half) / (cos_half * cos_half)
     centripetal_sq = a_junction * 0.5 * np.minimum(length[1:], length[:-1]) * sin_half / cos_half
-    limit = np.minimum(v_nominal_sq[1:], v_nominal_sq[:-1])
-    np.minimum(limit, deviation_sq, out=limit)
-    np.minimum(limit, centripetal_sq, out=limit)
-    return limit
+    np.minimum(v_nominal_sq[1:], v_nominal_sq[:-1], out=out)
+    np.minimum(out, deviation_sq, out=out)
+    np.minimum(out, centripetal_sq, out=out)
