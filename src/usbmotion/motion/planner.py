@@ -274,7 +274,7 @@ def _check_point(name: str, point: object, axes: str) -> Point:
 def _check_axes(axes: object) -> str:
     if (not isinstance(axes, str) or not axes or len(set(axes)) != len(axes)
             or axes != "".join(a for a in AXIS_ORDER if a in axes)):
-        raise PlanningError(f"axes {axes!r} must be one to six of {AXIS_ORDER!r}, in that"
+        raise PlanningError(f"axes {axes!r} must be one to nine of {AXIS_ORDER!r}, in that"
                             " order, each once")
     return axes
 
@@ -356,8 +356,8 @@ def plan_moves(
         limits: ``AxisLimits`` for each axis of ``axes``.
         config: arc tolerance, junction deviation, minimum segment.
         start: the machine's position before the first move, mm (zeros when not given).
-        axes: the letters of the moves' coordinates (X, Y, Z by default; one to six of
-            X Y Z U V W).
+        axes: the letters of the moves' coordinates (X, Y, Z by default; one to nine of
+            X Y Z A B C U V W, A B C in degrees).
 
     Returns a ``Plan`` that starts and ends at rest.
 
