@@ -95,6 +95,9 @@ def test_every_straight_feed_move_takes_linuxcncs_time(case: Path) -> None:
         their_minutes = primary / float(theirs["feed"])
         our_minutes = total / move.feed_mm_min  # type: ignore[union-attr]
         assert our_minutes == pytest.approx(their_minutes, rel=1e-4), (theirs, move)
+        # and the feed it is shown with (usbmotion gcode moves) is LinuxCNC's own
+        ours = move_record(move, axes=program.axes)["feed"]
+        assert ours == pytest.approx(float(theirs["feed"]), rel=1e-4), (theirs, ours)
         checked += 1
     assert checked >= 1
 

@@ -76,7 +76,7 @@ from __future__ import annotations
 import copy
 import math
 import os
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from enum import Enum
 from pathlib import Path
@@ -810,8 +810,9 @@ def move_record(move: Move, *, axes: str = DEFAULT_AXES) -> dict[str, object]:
     """A move as a JSON-ready record in the conformance schema (lengths in mm).
 
     Rapid, linear and arc records have ``line``, ``type``, ``start`` and ``end``; linear
-    and arc add ``feed`` (mm/min); arcs add ``plane`` (``"XY"``, ``"XZ"``, ``"YZ"``),
-    ``direction`` (``"cw"``/``"ccw"``), ``rotation`` and ``centre`` (the coordinate
+    and arc add ``feed`` (as LinuxCNC states it: :func:`programmed_feed`); arcs add
+    ``plane`` (``"XY"``, ``"XZ"``, ``"YZ"``), ``direction`` (``"cw"``/``"ccw"``),
+    ``rotation`` and ``centre`` (the coordinate
     along the plane's normal is ``None``). Dwells have ``line``, ``type``, ``seconds``
     and ``position``. Points have one coordinate per letter of ``axes``.
     """
@@ -828,7 +829,7 @@ def move_record(move: Move, *, axes: str = DEFAULT_AXES) -> dict[str, object]:
             "type": "linear",
             "start": list(move.start),
             "end": list(move.end),
-            "feed": move.feed_mm_min,
+            "feed": programmed_feed(move, axes),
         }
     if isinstance(move, Arc):
         normal = move.plane.indices(axes)[2]
@@ -844,7 +845,7 @@ def move_record(move: Move, *, axes: str = DEFAULT_AXES) -> dict[str, object]:
             "direction": "cw" if move.rotation < 0 else "ccw",
             "rotation": move.rotation,
             "centre": centre,
-            "feed": move.feed_mm_min,
+            "feed": programmed_feed(move, axes),
         }
     return {
         "line": move.line,
@@ -1807,28 +1808,9 @@ class _Interpreter:
         groups = self.feed_lengths
         if groups is None and not self.inverse_time:
             return self.feed_mm_min  # X Y Z alone: the path is the X Y Z length
-        lengths = []
-        for group in groups or (tuple(range(len(self.axes))), (), ()):
-            lengths.append(math.sqrt(sum((end[i] - start[i]) ** 2 for i in group)))
-        if arc is not None:
-            plane, centre, turns, clockwise = arc
-            first, second, normal = plane.indices(self.axes)
-            r0 = math.hypot(start[first] - centre[first], start[second] - centre[second])
-            r1 = math.hypot(end[first] - centre[first], end[second] - centre[second])
-            theta0 = math.atan2(start[second] - centre[second], start[first] - centre[first])
-            theta1 = math.atan2(end[second] - centre[second], end[first] - centre[first])
-            sweep = (theta0 - theta1) if clockwise else (theta1 - theta0)
-            sweep %= 2.0 * math.pi
-            if sweep <= 1e-12:
-                sweep = 2.0 * math.pi
-            sweep += 2.0 * math.pi * (turns - 1)
-            planar = sweep * 0.5 * (r0 + r1)
-            normal_travel = end[normal] - start[normal] if normal >= 0 else 0.0
-            lengths[0] = math.hypot(planar, normal_travel)
-        total = math.sqrt(sum(length * length for length in lengths))
+        primary, total = _feed_and_path_lengths(start, end, self.axes, groups, arc)
         if self.inverse_time:
             return self.feed_mm_min * total if total > 0.0 else self.feed_mm_min
-        primary = next((length for length in lengths if length > 0.0), 0.0)
         return self.feed_mm_min * total / primary if primary > 0.0 else self.feed_mm_min
 
     def move(
@@ -2274,6 +2256,49 @@ def _feed_lengths(axes: str) -> tuple[tuple[int, ...], ...] | None:
         return None
     return tuple(tuple(i for i, letter in enumerate(axes) if letter in group)
                  for group in ("XYZ", "UVW", ROTARY_AXES))
+
+
+def _feed_and_path_lengths(
+        start: Sequence[float], end: Sequence[float], axes: str,
+        groups: tuple[tuple[int, ...], ...] | None,
+        arc: tuple[Plane, Sequence[float], int, bool] | None) -> tuple[float, float]:
+    """A move's length as LinuxCNC measures its feed (along X Y Z, an arc's helix; else
+    U V W; else A B C) and its length along its path, every axis alike (the planner's)."""
+    lengths = [math.sqrt(sum((end[i] - start[i]) ** 2 for i in group))
+               for group in groups or (tuple(range(len(axes))), (), ())]
+    if arc is not None:
+        plane, centre, turns, clockwise = arc
+        first, second, normal = plane.indices(axes)
+        r0 = math.hypot(start[first] - centre[first], start[second] - centre[second])
+        r1 = math.hypot(end[first] - centre[first], end[second] - centre[second])
+        theta0 = math.atan2(start[second] - centre[second], start[first] - centre[first])
+        theta1 = math.atan2(end[second] - centre[second], end[first] - centre[first])
+        sweep = (theta0 - theta1) if clockwise else (theta1 - theta0)
+        sweep %= 2.0 * math.pi
+        if sweep <= 1e-12:
+            sweep = 2.0 * math.pi
+        sweep += 2.0 * math.pi * (turns - 1)
+        planar = sweep * 0.5 * (r0 + r1)
+        normal_travel = end[normal] - start[normal] if normal >= 0 else 0.0
+        lengths[0] = math.hypot(planar, normal_travel)
+    total = math.sqrt(sum(length * length for length in lengths))
+    return next((length for length in lengths if length > 0.0), 0.0), total
+
+
+def programmed_feed(move: Linear | Arc, axes: str) -> float:
+    """The feed of a move as LinuxCNC states it (its canonical feed rate): units per
+    minute along the length it measures the feed on (:func:`_feed_and_path_lengths`),
+    where ``move.feed_mm_min`` is along the planner's all-axes path; the same on a machine
+    of X Y Z alone."""
+    groups = _feed_lengths(axes)
+    if groups is None:
+        return move.feed_mm_min
+    arc = None
+    if isinstance(move, Arc):
+        arc = (move.plane, move.centre, abs(move.rotation), move.rotation < 0)
+    primary, total = _feed_and_path_lengths(move.start, move.end, axes, groups, arc)
+    return move.feed_mm_min * primary / total if total > 0.0 and primary > 0.0 else (
+        move.feed_mm_min)
 
 
 def _unwrap(here: float, value: float) -> float:
