@@ -65,16 +65,17 @@ def describe_status(machine: Machine) -> list[str]:
         states.append(axis_state)
         switches = [side for side, closed in (("lower", state.lower_limit),
                                               ("upper", state.upper_limit)) if closed]
+        unit = "deg" if axis.config.rotary else "mm"
         rows.append((
             name, axis_state.value, "yes" if homed and code == FaultCode.NONE else "no",
-            f"{axis.scale.to_mm(state.actual_counts):.3f}",
-            f"{axis.scale.to_mm(state.desired_counts - state.actual_counts):.3f}",
+            f"{axis.scale.to_mm(state.actual_counts):.3f} {unit}",
+            f"{axis.scale.to_mm(state.desired_counts - state.actual_counts):.3f} {unit}",
             "on" if state.enabled else "off", client.control_mode().word, str(state.queued),
             ",".join(switches) or "open", fault))
     worst = next((s for s in (MachineState.ALARM, MachineState.RUN) if s in states),
                  MachineState.IDLE)
     homed_all = all(row[2] == "yes" for row in rows)
-    header = ("axis", "state", "homed", "position mm", "error mm", "servo", "mode", "queued",
+    header = ("axis", "state", "homed", "position", "error", "servo", "mode", "queued",
               "switches", "fault")
     widths = [max(len(row[i]) for row in (header, *rows)) for i in range(len(header))]
     table = ["  ".join(cell.ljust(width) for cell, width in zip(row, widths, strict=True))
