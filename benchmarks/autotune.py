@@ -56,7 +56,7 @@ from usbmotion.autotune.loop import (
     quantise,
     simulate_closed_loop,
 )
-from usbmotion.autotune.model import AxisModel, true_model
+from usbmotion.autotune.model import AxisModel, simulated_model
 from usbmotion.autotune.verify import check_on_axis, place_loop, step_and_move
 from usbmotion.cli.machines import default_machine
 from usbmotion.demos import demo_path
@@ -108,14 +108,7 @@ def draw_machine(base: MachineConfig, rng: np.random.Generator) -> MachineConfig
 
 def truth(axis: AxisConfig) -> AxisModel:
     """The drawn motor's model, from the figures the device simulates (4 digits)."""
-    assert axis.sim is not None
-    motor = axis.sim.model()
-    return true_model(torque_constant_nm_per_a=motor.torque_constant_nm_per_a,
-                      resistance_ohm=motor.resistance_ohm, inertia_kg_m2=motor.inertia_kg_m2,
-                      viscous_nm_s_per_rad=motor.viscous_nm_s_per_rad,
-                      load_torque_nm=motor.load_torque_nm,
-                      counts_per_revolution=motor.counts_per_revolution,
-                      supply_v=motor.source_voltage_v)
+    return simulated_model(axis)
 
 
 def relay_gains(machine: Machine, axis: str) -> tuple[PidGains, dict[str, float]]:

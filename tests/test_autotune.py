@@ -25,7 +25,12 @@ from usbmotion.autotune.loop import (
     simulate_closed_loop,
 )
 from usbmotion.autotune.machine_file import write_tuning
-from usbmotion.autotune.model import AxisModel, fit_model, simulate_open_loop, true_model
+from usbmotion.autotune.model import (
+    AxisModel,
+    fit_model,
+    simulate_open_loop,
+    simulated_model,
+)
 from usbmotion.autotune.verify import check_on_axis, place_loop, step_and_move
 from usbmotion.cli.run import default_machine
 from usbmotion.device import core0
@@ -40,14 +45,7 @@ TICK_S = 1e-3
 
 def default_model(axis: AxisConfig) -> AxisModel:
     """The exact model of a simulated axis's motor."""
-    assert axis.sim is not None
-    motor = axis.sim.model()
-    return true_model(torque_constant_nm_per_a=motor.torque_constant_nm_per_a,
-                      resistance_ohm=motor.resistance_ohm, inertia_kg_m2=motor.inertia_kg_m2,
-                      viscous_nm_s_per_rad=motor.viscous_nm_s_per_rad,
-                      load_torque_nm=motor.load_torque_nm,
-                      counts_per_revolution=motor.counts_per_revolution,
-                      supply_v=motor.source_voltage_v)
+    return simulated_model(axis)
 
 
 @pytest.fixture(scope="module")

@@ -16,9 +16,9 @@ from tests.test_gcode_conformance import ACCEPTED, CONFORMANCE, _interpret
 from usbmotion.demos import DEMOS, demo_path
 from usbmotion.errors import ArgumentError
 from usbmotion.motion.gcode import GCodeProgram, parse_gcode, read_gcode_text
-from usbmotion.motion.moves import Linear, Rapid
+from usbmotion.motion.moves import Linear, Rapid, start_of
 from usbmotion.motion.planner import AxisLimits, Plan, PlannerConfig, plan_moves
-from usbmotion.motion.resume import reentry_moves, resume_from_line, start_of
+from usbmotion.motion.resume import reentry_moves, resume_from_line
 
 LIMITS = [AxisLimits(200.0, 2000.0), AxisLimits(200.0, 2000.0), AxisLimits(100.0, 1000.0)]
 HERE = (-37.5, 81.25, -12.0)  # where a stopped run left the machine: anywhere

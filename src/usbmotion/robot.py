@@ -41,6 +41,8 @@ from usbmotion.host.device import ControlMode, DeviceClient, Diagnostics
 from usbmotion.host.machine import Machine
 from usbmotion.host.timesync import synchronise_start
 from usbmotion.motion.profiles import jerk_limited_profile
+from usbmotion.session.report import SETTLE_COUNTS
+from usbmotion.session.rest import wait_until_settled
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -54,10 +56,6 @@ AT_START_TOLERANCE = 0.5
 """How far (in counts, per joint) the joints may stand from a trajectory's first point."""
 CHECK_STEP_S = 0.001
 """The time step a trajectory's limits are checked at."""
-SETTLE_COUNTS = 2
-"""An arrival is settled within this many counts of the last keyframe."""
-SETTLE_TIMEOUT_S = 1.0
-SETTLE_STILL_S = 0.2
 
 
 # --- trajectories -----------------------------------------------------------------------------
@@ -471,7 +469,8 @@ class _Player:
                              for joint, client in zip(self.joints, self.clients, strict=True)}
             start_tick, started_s = self._start(zero=True)
             stopped = self._play(on_progress)
-            self._settle()
+            wait_until_settled(lambda: [client.status() for client in self.clients],
+                               machine.clock)
             finished_s = machine.clock.now()
         except DeviceFaultError:
             machine.stop()
@@ -605,26 +604,6 @@ class _Player:
             for client in self.clients:
                 client.status()  # keeps the watchdogs fed
             clock.sleep(0.02)
-
-    def _settle(self) -> None:
-        """Until every joint is on its last keyframe, or within :data:`SETTLE_COUNTS` of it
-        and still for :data:`SETTLE_STILL_S` (its servo holding a count against friction),
-        for at most :data:`SETTLE_TIMEOUT_S`."""
-        clock = self.machine.clock
-        start = clock.now()
-        last: list[int] = []
-        still_since = start
-        while clock.now() < start + SETTLE_TIMEOUT_S:
-            statuses = [client.status() for client in self.clients]
-            now = clock.now()
-            counts = [status.actual_counts for status in statuses]
-            if counts != last:
-                last, still_since = counts, now
-            worst = max(abs(s.desired_counts - s.actual_counts) for s in statuses)
-            if worst == 0 or (worst <= SETTLE_COUNTS and now - still_since >= SETTLE_STILL_S):
-                return
-            clock.sleep(0.005)
-
 
 __all__ = ["KEYFRAME_MS", "JointTrajectory", "PlayReport", "Robot", "check_limits",
            "ramp_time_s"]

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from usbmotion.autotune.model import AxisModel, FloatArray, tick_constants
+from usbmotion.autotune.model import AxisModel, FloatArray, motor_tick, tick_constants
 from usbmotion.errors import ArgumentError
 from usbmotion.host.config import PidGains
 from usbmotion.host.device import from_sci, to_sci
@@ -252,15 +252,9 @@ def simulate_closed_loop(model: AxisModel, gains: PidGains, desired: Sequence[fl
         else:
             direction = 1.0 if volts > 0 else -1.0
         if direction:
-            u = g * (volts - direction * coulomb)
-            w_next = keep * w + decay * u
-            travel = spread * w + lag * u
-            if direction > 0:
-                w_next, travel = max(w_next, 0.0), max(travel, 0.0)
-            else:
-                w_next, travel = min(w_next, 0.0), min(travel, 0.0)
+            w, travel = motor_tick(w, g * (volts - direction * coulomb), direction,
+                                   keep=keep, decay=decay, spread=spread, lag=lag)
             x += travel
-            w = w_next
         count = math.floor(x)
         actual[k] = count
         output[k] = volts

@@ -29,6 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from usbmotion.errors import ArgumentError
+from usbmotion.host.config import AxisConfig
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -119,6 +120,25 @@ def true_model(*, torque_constant_nm_per_a: float, resistance_ohm: float,
     )
 
 
+def simulated_model(axis: AxisConfig) -> AxisModel:
+    """The exact model of a simulated axis's motor (its ``sim`` table, as the device
+    holds it: :func:`true_model` of its figures).
+
+    Raises:
+        ArgumentError: the axis has no ``sim`` table.
+    """
+    if axis.sim is None:
+        raise ArgumentError(f"axis {axis.name} has no sim table: no simulated motor",
+                            reason="axis")
+    motor = axis.sim.model()
+    return true_model(torque_constant_nm_per_a=motor.torque_constant_nm_per_a,
+                      resistance_ohm=motor.resistance_ohm, inertia_kg_m2=motor.inertia_kg_m2,
+                      viscous_nm_s_per_rad=motor.viscous_nm_s_per_rad,
+                      load_torque_nm=motor.load_torque_nm,
+                      counts_per_revolution=motor.counts_per_revolution,
+                      supply_v=motor.source_voltage_v)
+
+
 # --- the discrete-time model -----------------------------------------------------------------
 
 
@@ -153,17 +173,24 @@ def simulate_open_loop(model: AxisModel, voltages_v: FloatArray, *, tick_s: floa
             continue
         else:
             direction = 1.0 if v > 0 else -1.0
-        u = g * (v - direction * coulomb)
-        w_next = keep * w + decay * u
-        travel = spread * w + lag * u
-        if direction > 0:
-            w_next, travel = max(w_next, 0.0), max(travel, 0.0)
-        else:
-            w_next, travel = min(w_next, 0.0), min(travel, 0.0)
+        w, travel = motor_tick(w, g * (v - direction * coulomb), direction,
+                               keep=keep, decay=decay, spread=spread, lag=lag)
         x += travel
-        w = w_next
         out[k] = x
     return out
+
+
+def motor_tick(w: float, u: float, direction: float, *, keep: float, decay: float,
+               spread: float, lag: float) -> tuple[float, float]:
+    """One tick of the motor moving in ``direction`` (+1, -1) from speed ``w`` (counts/s)
+    toward ``u`` (speed per volt x the voltage beyond the Coulomb voltage): its speed at
+    the tick's end and the counts it travelled (:func:`tick_constants`); a tick in which
+    the speed would reverse ends at rest."""
+    w_next = keep * w + decay * u
+    travel = spread * w + lag * u
+    if direction > 0:
+        return max(w_next, 0.0), max(travel, 0.0)
+    return min(w_next, 0.0), min(travel, 0.0)
 
 
 # --- the fit ---------------------------------------------------------------------------------

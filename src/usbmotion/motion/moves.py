@@ -117,3 +117,8 @@ class Dwell:
 
 
 Move = Rapid | Linear | Arc | Dwell
+
+
+def start_of(move: Move) -> Point:
+    """Where ``move`` starts (a dwell: where it stays)."""
+    return move.position if isinstance(move, Dwell) else move.start

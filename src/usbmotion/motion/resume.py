@@ -25,12 +25,7 @@ from dataclasses import replace
 
 from usbmotion.errors import ArgumentError
 from usbmotion.motion.gcode import GCodeProgram
-from usbmotion.motion.moves import Arc, Dwell, Linear, Move, Point, Rapid
-
-
-def start_of(move: Move) -> Point:
-    """Where ``move`` starts."""
-    return move.position if isinstance(move, Dwell) else move.start
+from usbmotion.motion.moves import Arc, Linear, Move, Point, Rapid, start_of
 
 
 def first_move_from(program: GCodeProgram, line: int) -> int:
@@ -126,4 +121,4 @@ def _with(point: Point, index: int, value: float) -> Point:
     return (*point[:index], value, *point[index + 1:])
 
 
-__all__ = ["first_move_from", "reentry_moves", "resume_from_line", "start_of"]
+__all__ = ["first_move_from", "reentry_moves", "resume_from_line"]

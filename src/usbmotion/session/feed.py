@@ -28,7 +28,7 @@ from usbmotion.host.config import MachineConfig
 from usbmotion.motion.dialects import Dialect
 from usbmotion.motion.gcode import GCodeProgram, GCodeStream, Modes, Pause, Pauses
 from usbmotion.motion.limits import check_travel, settled_band_mm
-from usbmotion.motion.moves import Dwell, Move, Point
+from usbmotion.motion.moves import Move, Point, start_of
 from usbmotion.motion.offsets import NO_OFFSETS, WorkOffsets
 from usbmotion.motion.planner import Plan, plan_moves
 from usbmotion.motion.tools import NO_TOOLS, ToolTable
@@ -153,7 +153,7 @@ class ProgramFeed:
 
     def _check_travel(self, moves: list[Move]) -> None:
         """Soft limits on a line's moves (every chord of every arc), in machine coordinates."""
-        plan = plan_moves(moves, self._limits, self._planner, start=_start_of(moves[0]),
+        plan = plan_moves(moves, self._limits, self._planner, start=start_of(moves[0]),
                           axes=self._axes)
         check_travel(plan.vertices_mm, plan.line, self._travel, axes=tuple(plan.axes),
                      band_mm=self._band)
@@ -323,11 +323,6 @@ class ProgramFeed:
         """The program as fed so far."""
         with self._lock:
             return self._stream.result()
-
-
-def _start_of(move: Move) -> Point:
-    """Where ``move`` starts."""
-    return move.position if isinstance(move, Dwell) else move.start
 
 
 __all__ = ["FeedSnapshot", "ProgramFeed"]

@@ -4,9 +4,11 @@ stop or a stopped homing)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
+from usbmotion.clock import Clock
 from usbmotion.errors import DeviceError
+from usbmotion.host.device import Status
 from usbmotion.host.machine import Machine
 from usbmotion.session.report import SETTLE_COUNTS
 
@@ -22,6 +24,29 @@ SETTLE_TIMEOUT_S = 1.0
 SETTLE_STILL_S = 0.2
 """How long an axis within SETTLE_COUNTS of where it was sent, but not on it, has to stand
 still before a run that ends there counts it settled (its servo holds it against friction)."""
+
+
+def wait_until_settled(read: Callable[[], Sequence[Status]], clock: Clock) -> None:
+    """After the last setpoint: until every axis ``read`` gives is where it was sent, or
+    within :data:`SETTLE_COUNTS` of it and still for :data:`SETTLE_STILL_S` (a servo
+    holding a count or two against friction), for at most :data:`SETTLE_TIMEOUT_S`."""
+    start = clock.now()
+    deadline = start + SETTLE_TIMEOUT_S
+    last: list[int] = []
+    still_since = start
+    while True:
+        statuses = read()
+        now = clock.now()
+        counts = [status.actual_counts for status in statuses]
+        if counts != last:
+            last = counts
+            still_since = now
+        worst = max((abs(s.desired_counts - s.actual_counts) for s in statuses), default=0)
+        if worst == 0 or (worst <= SETTLE_COUNTS and now - still_since >= SETTLE_STILL_S):
+            return
+        if now >= deadline:
+            return
+        clock.sleep(REST_POLL_S)
 
 
 def wait_for_rest(machine: Machine, names: list[str], *, stop_now: Callable[[], bool],

@@ -20,8 +20,7 @@ from usbmotion.host.device import DeviceClient
 from usbmotion.host.machine import Machine
 from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams
 from usbmotion.host.timesync import SyncReport, synchronise_start
-from usbmotion.session.report import SETTLE_COUNTS
-from usbmotion.session.rest import REST_POLL_S, SETTLE_STILL_S, SETTLE_TIMEOUT_S, STOP_LEAD_S
+from usbmotion.session.rest import STOP_LEAD_S, wait_until_settled
 
 START_MARGIN_S = 0.2
 """A run's common start tick, beyond the round trips that arm it."""
@@ -155,29 +154,10 @@ class RunStreams:
     # --- waiting for the devices ----------------------------------------------------------------
 
     def settle(self) -> None:
-        """After the last setpoint: until every axis is where it was sent, or within
-        SETTLE_COUNTS of it and still for SETTLE_STILL_S (a servo holding a count or two
-        against friction), for at most SETTLE_TIMEOUT_S. The report's end position is read
-        after it: what the machine then shows, to the count."""
-        clock = self.machine.clock
-        start = clock.now()
-        deadline = start + SETTLE_TIMEOUT_S
-        last: dict[str, int] = {}
-        still_since = start
-        while True:
-            statuses = self.machine.status()
-            now = clock.now()
-            counts = {name: status.actual_counts for name, status in statuses.items()}
-            if counts != last:
-                last = counts
-                still_since = now
-            worst = max((abs(s.desired_counts - s.actual_counts) for s in statuses.values()),
-                        default=0)
-            if worst == 0 or (worst <= SETTLE_COUNTS and now - still_since >= SETTLE_STILL_S):
-                return
-            if now >= deadline:
-                return
-            clock.sleep(REST_POLL_S)
+        """After the last setpoint: every axis settled (:func:`wait_until_settled`). The
+        report's end position is read after it: what the machine then shows, to the
+        count."""
+        wait_until_settled(lambda: list(self.machine.status().values()), self.machine.clock)
 
     def drain(self, should_stop: Callable[[], bool], *, poll_s: float) -> None:
         """Until every row given is sent and every queue is empty (the machine executed
