@@ -1,7 +1,8 @@
-"""Writing what ``tune --auto`` found into a machine file: the axis's gains as keys, the
-identified model as a block of comments at the end of the axis's table (the file's
-parser takes no key it does not know, and the model is a record, not a setting), every
-other line and comment kept (tomlkit)."""
+"""Writing what ``tune --auto`` found into a machine file: the axis's gains and its
+identified model (the ``model`` table ``usbmotion run --predict`` plays programs on) as
+keys, the record of the identification (uncertainties, the SI figures, the loop's
+margins) as a block of comments at the end of the axis's table, every other line and
+comment kept (tomlkit)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from tomlkit.exceptions import TOMLKitError
 from tomlkit.items import Whitespace
 
 from usbmotion.errors import ConfigError
-from usbmotion.host.config import PidGains
+from usbmotion.host.config import MotorModelConfig, PidGains
 
 MARK = "tune --auto"
 """The first words of the comment block; a new block replaces the axis's old one."""
@@ -41,10 +42,23 @@ def _without_old_block(text: str, axis: str) -> str:
     return "".join(kept)
 
 
-def write_tuning(text: str, axis: str, gains: PidGains, model_lines: Sequence[str]) -> str:
-    """``text`` (a machine file) with ``axes.<axis>.gains`` set to ``gains`` and
-    ``model_lines`` as a comment block at the end of the axis's table (replacing an
-    earlier one); the rest as it was.
+def _set_table(table: Any, key: str, values: Mapping[str, float]) -> None:
+    """``table[key]`` holding ``values``: its keys changed where it is a table already, a new
+    inline table otherwise."""
+    if isinstance(table.get(key), Mapping):
+        for name, value in values.items():
+            table[key][name] = value
+    else:
+        inline = tomlkit.inline_table()
+        inline.update(values)
+        table[key] = inline
+
+
+def write_tuning(text: str, axis: str, gains: PidGains, model_lines: Sequence[str],
+                 model: MotorModelConfig | None = None) -> str:
+    """``text`` (a machine file) with ``axes.<axis>.gains`` set to ``gains``,
+    ``axes.<axis>.model`` to ``model`` (when given) and ``model_lines`` as a comment block
+    at the end of the axis's table (replacing an earlier one); the rest as it was.
 
     Raises:
         ConfigError: the text is not TOML or has no ``[axes.<axis>]`` table.
@@ -57,14 +71,13 @@ def write_tuning(text: str, axis: str, gains: PidGains, model_lines: Sequence[st
     if not isinstance(axes, Mapping) or not isinstance(axes.get(axis), Mapping):
         raise ConfigError(f"the machine file has no [axes.{axis}] table", key=f"axes.{axis}")
     table: Any = axes[axis]
-    values = {"kp": gains.kp, "ki": gains.ki, "kd": gains.kd}
-    if isinstance(table.get("gains"), Mapping):
-        for key, value in values.items():
-            table["gains"][key] = value
-    else:
-        inline = tomlkit.inline_table()
-        inline.update(values)
-        table["gains"] = inline
+    _set_table(table, "gains", {"kp": gains.kp, "ki": gains.ki, "kd": gains.kd})
+    if model is not None:
+        _set_table(table, "model", {
+            "time_constant_s": float(f"{model.time_constant_s:.6g}"),
+            "speed_per_volt_counts_s": float(f"{model.speed_per_volt_counts_s:.6g}"),
+            "coulomb_v": float(f"{max(0.0, model.coulomb_v):.6g}"),
+            "supply_v": float(f"{model.supply_v:.6g}")})
     container = getattr(table, "value", None)
     body = getattr(container, "body", None)
     trailing: list[Any] = []

@@ -41,6 +41,7 @@ if TYPE_CHECKING:
     from usbmotion.motion.gcode import Pause
     from usbmotion.session import MachineSession, Prepared, RunReport, Trace
     from usbmotion.session.live import LiveSnapshot
+    from usbmotion.sim.predict import Prediction
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_COMPLETED", "EXIT_FAULT", "EXIT_INTERRUPTED",
            "EXIT_TERMINATED", "MachineOption", "default_machine", "exit_code", "load_machine",
@@ -110,6 +111,18 @@ def run(
         " tool: the report of the stopped run names it): the lines before it set the modes,"
         " offsets and tool without moving, then Z goes up to where homing leaves it, over"
         " the line's start, and down at the program's feed.")] = None,
+    predict: Annotated[bool, typer.Option(
+        "--predict", help="Before anything moves, play the program on every axis's"
+        " identified model (its model table, written by usbmotion tune --auto --write; a"
+        " simulated axis's sim table) and print the predicted following error; after the"
+        " run, predicted beside measured, per axis and per line.")] = False,
+    predict_only: Annotated[bool, typer.Option(
+        "--predict-only", help="Print the prediction and stop: nothing connects to the"
+        " machine.")] = False,
+    tolerance: Annotated[float | None, typer.Option(
+        "--tolerance", help="With --predict or --predict-only (implies --predict): name the"
+        " lines whose predicted peak following error exceeds this many mm (deg on a rotary"
+        " axis); any such line refuses the run (exit 2, nothing moved).")] = None,
 ) -> None:
     """Run a G-code program: home if needed, plan from where the machine stands, stream, report.
 
@@ -148,6 +161,11 @@ def run(
             typer.echo(f"usbmotion run: --dialect: {error}", err=True)
             raise typer.Exit(EXIT_BAD_INPUT) from None
     origin_mm = parse_origin(origin or [])
+    if tolerance is not None and not (math.isfinite(tolerance) and tolerance > 0):
+        typer.echo(f"usbmotion run: --tolerance: {tolerance!r} is not a following error;"
+                   " allowed: mm above 0, such as 0.05", err=True)
+        raise typer.Exit(EXIT_BAD_INPUT)
+    predicting = predict or predict_only or tolerance is not None
     try:
         config = load_machine(machine)
         text = read_gcode_text(program)
@@ -163,11 +181,21 @@ def run(
         typer.echo(f"usbmotion run: cannot read {error.filename!r}: {error.strerror}", err=True)
         raise typer.Exit(EXIT_BAD_INPUT) from None
 
+    if predict_only:
+        if origin_mm:
+            typer.echo("usbmotion run: --origin with --predict-only: nothing connects to the"
+                       " machine, so no origin is set; set it first (usbmotion zero, or"
+                       " --origin with --predict)", err=True)
+            raise typer.Exit(EXIT_BAD_INPUT)
+        _predict(config, program, text, chosen, from_line=from_line, standing_mm=None,
+                 tolerance_mm=tolerance)
+        return
     try:
         session = connect_any(config, realtime=realtime)
     except UsbMotionError as error:
         typer.echo(f"usbmotion run: {error}", err=True)
         raise typer.Exit(EXIT_FAULT) from None
+    predicted: Prediction | None = None
     with session, stop_on_signals(session):
         for notice in session.notices:
             typer.echo(f"notice         {notice}", err=True)
@@ -176,6 +204,10 @@ def run(
             shown = format_point(offsets.g5x[0], machine_axes(config).axes)
             typer.echo(f"work origin    G54 {shown} mm (machine), saved in"
                        f" {config.parameter_path}", err=True)
+        if predicting:
+            standing = session.positions_mm() if session.is_homed else None
+            predicted = _predict(config, program, text, chosen, from_line=from_line,
+                                 standing_mm=standing, tolerance_mm=tolerance)
         with resumed_from_stdin(session, enabled=pause_on_m6):
             code, report, trace, prepared = _job(session, program, text, no_home=no_home,
                                                   quiet=quiet, dialect=chosen,
@@ -187,7 +219,7 @@ def run(
             code = max(code, EXIT_FAULT) if code == EXIT_COMPLETED else code
     if report is not None:
         _write(report, trace, prepared, program, report_path=report_path, plot=plot,
-               no_plot=no_plot)
+               no_plot=no_plot, predicted=predicted, config=config)
     sys.stdout.flush()
     if code != EXIT_COMPLETED:
         raise typer.Exit(code)
@@ -339,13 +371,56 @@ def _refused(program: Path, error: SoftLimitError) -> None:
     typer.echo(f"{program}:{error.line}: {message}", err=True)
 
 
+def _predict(config: MachineConfig, program: Path, text: str, dialect: Dialect | None, *,
+             from_line: int | None, standing_mm: dict[str, float] | None,
+             tolerance_mm: float | None) -> Prediction:
+    """Play the program on the axes' models and print the prediction; exits 2 when it
+    cannot be made or a line is predicted beyond ``tolerance_mm``."""
+    from usbmotion.session.report_text import describe_prediction, lines_over  # noqa: PLC0415
+    from usbmotion.sim.predict import predict  # noqa: PLC0415
+
+    try:
+        predicted = predict(config, program, text, dialect=dialect, from_line=from_line,
+                            standing_mm=standing_mm)
+    except SoftLimitError as error:
+        _refused(program, error)
+        raise typer.Exit(EXIT_BAD_INPUT) from None
+    except GCodeError as error:
+        typer.echo(f"{error.file}:{error.line}: {error.message}", err=True)
+        raise typer.Exit(EXIT_BAD_INPUT) from None
+    except (ConfigError, PlanningError, ArgumentError) as error:
+        typer.echo(f"usbmotion run: --predict: {error}", err=True)
+        raise typer.Exit(EXIT_BAD_INPUT) from None
+    scales = {axis.name: axis.counts_per_mm for axis in config.axes}
+    typer.echo(describe_prediction(predicted.report, predicted.motors, predicted.wall_s,
+                                   scales=scales, tolerance_mm=tolerance_mm))
+    sys.stdout.flush()
+    if tolerance_mm is not None and lines_over(predicted.report, tolerance_mm, scales):
+        typer.echo(f"usbmotion run: lines predicted beyond --tolerance {tolerance_mm:g}:"
+                   " the run is refused, nothing moved (lower those lines' feed, or tune"
+                   " the axes: usbmotion tune -a AXIS --auto)", err=True)
+        raise typer.Exit(EXIT_BAD_INPUT)
+    return predicted
+
+
 def _write(report: RunReport, trace: Trace | None, prepared: Prepared | None, program: Path, *,
-           report_path: Path | None, plot: Path | None, no_plot: bool) -> None:
+           report_path: Path | None, plot: Path | None, no_plot: bool,
+           predicted: Prediction | None = None, config: MachineConfig | None = None) -> None:
     from usbmotion.session import describe  # noqa: PLC0415
+    from usbmotion.session.report_text import describe_comparison  # noqa: PLC0415
 
     typer.echo(describe(report))
+    data = report.to_json()
+    if predicted is not None and config is not None:
+        scales = {axis.name: axis.counts_per_mm for axis in config.axes}
+        typer.echo(describe_comparison(predicted.report, report, scales=scales))
+        forecast = predicted.report.to_json()
+        data["prediction"] = {
+            "motors": dict(predicted.motors), "wall_s": predicted.wall_s,
+            "completed": forecast["completed"], "axes": forecast["axes"],
+            "line_peaks": forecast["line_peaks"]}
     if report_path is not None:
-        report_path.write_text(json.dumps(report.to_json(), indent=2) + "\n", encoding="utf-8")
+        report_path.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
         typer.echo(f"report         {report_path}")
     if not no_plot and trace is not None and prepared is not None:
         from usbmotion.cli.plots import plot_run  # noqa: PLC0415

@@ -84,7 +84,8 @@ def tune(
     write: Annotated[
         bool,
         typer.Option("--write", help="With --auto: put the gains and the identified model"
-                     " (as comments) into the machine file, its comments kept."),
+                     " (the axis's model table, which usbmotion run --predict plays programs"
+                     " on) into the machine file, its comments kept."),
     ] = False,
     as_json: Annotated[
         bool, typer.Option("--json", help="With --auto: print every figure as JSON.")

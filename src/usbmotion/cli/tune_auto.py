@@ -233,15 +233,16 @@ def _print(figures: dict[str, Any], axis_config: AxisConfig) -> None:
             measured = check[key]["measured"] * factor
             echo(f"  {(label + ' (' + unit + ')').ljust(30)}{predicted:12.4g}{measured:12.4g}")
     if "written_to" in figures:
-        echo(f"written to {figures['written_to']}: axes.{axis_config.name}.gains and the model"
-             " (as comments)")
+        echo(f"written to {figures['written_to']}: axes.{axis_config.name}.gains and"
+             f" axes.{axis_config.name}.model (usbmotion run --predict plays programs on it),"
+             " the identification's record as comments")
 
 
 def _write(config: MachineConfig, axis_config: AxisConfig, found: Identification,
            placed: Placement, physical: PhysicalModel | None) -> None:
     from usbmotion.autotune.machine_file import write_tuning  # noqa: PLC0415
     from usbmotion.errors import ConfigError  # noqa: PLC0415
-    from usbmotion.host.config import parse_config  # noqa: PLC0415
+    from usbmotion.host.config import MotorModelConfig, parse_config  # noqa: PLC0415
     from usbmotion.sim.urls import URL_CHECKS  # noqa: PLC0415
 
     fit = found.fit
@@ -269,7 +270,9 @@ def _write(config: MachineConfig, axis_config: AxisConfig, found: Identification
     path = config.path
     try:
         text = path.read_text(encoding="utf-8")
-        changed = write_tuning(text, axis_config.name, placed.design.gains, lines)
+        identified = MotorModelConfig(model.time_constant_s, model.speed_per_volt_counts_s,
+                                      model.coulomb_v, model.supply_v)
+        changed = write_tuning(text, axis_config.name, placed.design.gains, lines, identified)
         parse_config(changed, path=path, url_checks=URL_CHECKS)
     except ConfigError as error:
         fail("tune", f"--write: {error}", EXIT_BAD_INPUT)

@@ -247,6 +247,26 @@ def simulated_reach(sim: SimMotorConfig, counts_per_mm: float) -> AxisReach:
 
 
 @dataclass(frozen=True, slots=True)
+class MotorModelConfig:
+    """An axis's motor as ``usbmotion tune --auto`` identified it (the file's ``model``
+    table), in the drive's units: what volts and counts tell of a brushed DC motor and its
+    load (``usbmotion.autotune.model``). ``usbmotion run --predict`` plays a program on it.
+
+    Fields:
+        time_constant_s: the mechanical time constant, s.
+        speed_per_volt_counts_s: the steady speed one volt above the Coulomb voltage holds,
+            counts/s per V.
+        coulomb_v: the voltage the Coulomb (load) torque takes, V.
+        supply_v: the drive's ceiling, V.
+    """
+
+    time_constant_s: float
+    speed_per_volt_counts_s: float
+    coulomb_v: float
+    supply_v: float
+
+
+@dataclass(frozen=True, slots=True)
 class AxisConfig:
     """One axis: which device drives it, its scale, limits, gains and homing.
 
@@ -276,6 +296,8 @@ class AxisConfig:
             ``None`` on real hardware unless the file gives a ``sim`` table).
         wrapped: a rotary axis that turns on without end (``wrapped = true``): no travel, no
             soft limits, homed by declaring its angle.
+        model: the motor as ``usbmotion tune --auto --write`` identified it (the file's
+            ``model`` table), or ``None``.
 
     A rotary axis (A, B, C) is in degrees: its file writes ``counts_per_degree``,
     ``max_velocity_deg_s``, ``travel_deg`` and so on (:data:`_ROTARY_NAMES`), and every
@@ -302,6 +324,7 @@ class AxisConfig:
     reach: AxisReach | None
     sim: SimMotorConfig | None
     wrapped: bool = False
+    model: MotorModelConfig | None = None
 
     @property
     def scale(self) -> AxisScale:
@@ -718,6 +741,7 @@ _JOINT_KEYS = ("axis", "unit", "counts_per_unit", "max_velocity", "max_accel", "
 _AXIS_KEYS = (
     "device", "url", "counts_per_mm", "max_velocity_mm_s", "max_accel_mm_s2", "max_jerk_mm_s3",
     "travel_mm", "gains", "velocity_gains", "following_error_limit_mm", "homing", "sim", "reach",
+    "model",
 )
 _GAINS_KEYS = ("kp", "ki", "kd")
 _HOMING_KEYS = ("direction", "speed_mm_s", "slow_speed_mm_s", "backoff_mm", "position_mm",
@@ -728,6 +752,7 @@ _SIM_KEYS = (
     "viscous_friction_unm_per_rad_s", "load_torque_mnm", "start_mm",
 )
 _REACH_KEYS = ("velocity_mm_s", "accel_mm_s2")
+_MODEL_KEYS = ("time_constant_s", "speed_per_volt_counts_s", "coulomb_v", "supply_v")
 ROTARY_LETTERS = "ABC"
 """The rotary axes: their file's keys are in degrees."""
 _ROTARY_NAMES = {
@@ -966,6 +991,7 @@ def _axis(name: str, reader: _Reader, servo_interval_dms: int) -> AxisConfig:
     simulated = url is not None and url.lower().startswith(SIM_SCHEME)
     sim = _sim(reader, travel, counts_per_mm, servo_interval_dms, simulated=simulated)
     reach = _reach(reader)
+    model = _model(reader)
     if sim is not None:
         volts = f"{sim.source_voltage_v:g} V"
         table = ".".join(reader.key("sim"))
@@ -992,7 +1018,7 @@ def _axis(name: str, reader: _Reader, servo_interval_dms: int) -> AxisConfig:
         max_velocity_mm_s=max_velocity, max_accel_mm_s2=max_accel, max_jerk_mm_s3=max_jerk,
         travel_mm=travel, gains=gains, velocity_gains=velocity_gains,
         following_error_limit_mm=fe_limit, homing=homing, reach=reach, sim=sim,
-        wrapped=wrapped,
+        wrapped=wrapped, model=model,
     )
 
 
@@ -1009,6 +1035,27 @@ def _reach(reader: _Reader) -> AxisReach | None:
                          unit="mm/s^2, the acceleration from standstill it measured")
     table.finish()
     return AxisReach(velocity, accel)
+
+
+def _model(reader: _Reader) -> MotorModelConfig | None:
+    table = reader.table(
+        "model", allowed="a table: time_constant_s, speed_per_volt_counts_s, coulomb_v,"
+        " supply_v (as usbmotion tune --auto --write writes it)")
+    if table is None:
+        return None
+    table.expect(_MODEL_KEYS)
+    tau = table.number("time_constant_s", above=0, maximum=100.0,
+                       unit="s, the mechanical time constant")
+    speed = table.number("speed_per_volt_counts_s", above=0, maximum=1e9,
+                         unit="counts/s per V, the steady speed one volt holds")
+    supply = table.number("supply_v", above=0, maximum=1000.0, unit="V, the drive's ceiling")
+    coulomb = table.number("coulomb_v", minimum=0, unit="V, the voltage the Coulomb torque"
+                           " takes, below supply_v")
+    if coulomb >= supply:
+        table.fail("coulomb_v", f"{coulomb!r} V is not below supply_v ({supply!r} V): the"
+                   " motor could not move; allowed: 0 <= coulomb_v < supply_v")
+    table.finish()
+    return MotorModelConfig(tau, speed, coulomb, supply)
 
 
 def round_down(value: float, *, digits: int = 4) -> float:

@@ -13,7 +13,14 @@ from usbmotion.host.machine import Machine
 from usbmotion.session.legs import Legs
 from usbmotion.session.live import LiveModel
 from usbmotion.session.planning import Prepared
-from usbmotion.session.report import LastHeard, RunEnding, RunReport, Trace, build_report
+from usbmotion.session.report import (
+    LastHeard,
+    RunEnding,
+    RunReport,
+    SegmentsAt,
+    Trace,
+    build_report,
+)
 from usbmotion.session.seams import Decelerated
 from usbmotion.session.state import StopReason
 from usbmotion.session.streaming import RunStreams
@@ -100,7 +107,8 @@ def report_of(prepared: Prepared, machine: Machine, legs: Legs, streams: RunStre
               watch: Watch, live: LiveModel, trace: Trace, ending: Ending, stops: Stops, *,
               homing_s: float, skew_s: float, notes: list[str],
               statuses: dict[str, Status], stats: dict[str, MotionStats],
-              line_at_tick: Callable[[int], int]) -> RunReport:
+              line_at_tick: Callable[[int], int],
+              segments_at_ticks: SegmentsAt | None = None) -> RunReport:
     """The run's report."""
     completed = ending.reason == StopReason.COMPLETED.value
     if ending.link_error:
@@ -132,4 +140,5 @@ def report_of(prepared: Prepared, machine: Machine, legs: Legs, streams: RunStre
         stop_planned_mm=stops.planned_mm, stop_latency_s=stops.latency_s, skew_s=skew_s,
         link_error=ending.link_error, notes=tuple(notes))
     return build_report(prepared.program, machine, legs.plan, trace, homing_s, statuses, stats,
-                        watch.faults, run_ending, line_at_tick=line_at_tick, last_heard=heard)
+                        watch.faults, run_ending, line_at_tick=line_at_tick, last_heard=heard,
+                        segments_at_ticks=segments_at_ticks)

@@ -148,6 +148,25 @@ class Legs:
         return RowPlace(int(plan.line[segment]), point.program_time_s, point.speed_mm_s,
                         point.segment)
 
+    def segments(self, rows: npt.NDArray[np.float64]) -> npt.NDArray[np.int64]:
+        """:meth:`place`'s ``segment`` of each of ``rows`` at once (-1 past the end of a
+        row's leg)."""
+        out = np.full(rows.shape, -1, dtype=np.int64)
+        if not len(self.plan):
+            return np.zeros(rows.shape, dtype=np.int64)
+        rows = np.clip(rows, 0.0, max(self.count - 1, 0))
+        firsts = np.array([first for first, _ in self.legs], dtype=np.float64)
+        which = np.maximum(np.searchsorted(firsts, rows, side="right") - 1, 0)
+        for index, (first, leg) in enumerate(self.legs):
+            plan = leg.plan
+            elapsed = (rows - first) * self.period_s
+            mine = (which == index) & (elapsed < plan.duration_s)
+            if not len(plan) or not mine.any():
+                continue
+            at = np.searchsorted(plan.start_time_s, elapsed[mine], side="right") - 1
+            out[mine] = leg.source[np.maximum(at, 0)]
+        return out
+
     def left_s(self, row: float) -> float:
         """Planned time from row ``row`` to the end of the rows, s."""
         return max(0.0, (self.count - row) * self.period_s)

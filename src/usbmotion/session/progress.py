@@ -6,6 +6,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numpy as np
+import numpy.typing as npt
+
 from usbmotion.motion.gcode import GCodeProgram
 from usbmotion.session.feeding import Feeding
 from usbmotion.session.legs import Legs
@@ -43,6 +46,16 @@ class RunProgress:
     def line_at_tick(self, tick: int) -> int:
         """The program line the devices execute at device tick ``tick``."""
         return self.legs.place(self.row_at_tick(tick)).line if self.legs.count else 0
+
+    def segments_at_ticks(self, ticks: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+        """The plan segment the devices execute at each device tick of ``ticks`` (the
+        last one from the end of the rows on)."""
+        if not self.legs.count:
+            return np.zeros(ticks.shape, dtype=np.int64)
+        rows = (ticks - self.streams.start_tick).astype(np.float64) / self.streams.scalar
+        segments = self.legs.segments(rows)
+        segments[segments < 0] = max(0, len(self.legs.plan) - 1)
+        return segments
 
     def publish(self, state: MachineState, *, force: bool, at_rest: bool, hold_pending: bool,
                 pause: str) -> None:

@@ -19,6 +19,9 @@ from usbmotion.motion.planner import Plan
 
 SETTLE_COUNTS = 2
 
+SegmentsAt = Callable[[npt.NDArray[np.int64]], npt.NDArray[np.int64]]
+"""Device ticks -> the plan segment the devices execute at each."""
+
 
 @dataclass(frozen=True, slots=True)
 class AxisResult:
@@ -40,6 +43,22 @@ class AxisResult:
     ticks: int = 0
     max_error_time_s: float = 0.0
     max_error_line: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class LinePeak:
+    """The largest following error of each program axis while a program line executed,
+    counts (magnitudes).
+
+    From the devices' diagnostics lines: each carries the peak of every servo tick since
+    the line before (call 21's ``peak``), and that peak counts for every program line the
+    ticks between the two executed, so a line's figure is exact where a diagnostics period
+    falls within it and an upper bound where the period spans the line's ends (the period
+    is the trace's: 10 ms for a program under 100 s).
+    """
+
+    line: int
+    peak_error_counts: Mapping[str, int]
 
 
 @dataclass(frozen=True, slots=True)
@@ -133,11 +152,15 @@ class RunReport:
     link_error: str = ""
     notes: tuple[str, ...] = ()
     tool_changes: tuple[ToolChangeRecord, ...] = ()
+    line_peaks: tuple[LinePeak, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         """The report as plain JSON-ready data."""
         data = asdict(self)
         data["end_position_mm"] = dict(self.end_position_mm)
+        data["line_peaks"] = [{"line": peak.line,
+                               "peak_error_counts": dict(peak.peak_error_counts)}
+                              for peak in self.line_peaks]
         return data
 
 
@@ -155,20 +178,26 @@ class Trace:
     desired: dict[str, array[int]] = field(default_factory=dict)
     actual: dict[str, array[int]] = field(default_factory=dict)
     queued: dict[str, array[int]] = field(default_factory=dict)
+    peak: dict[str, array[int]] = field(default_factory=dict)
+    """The magnitude of the largest following error of the ticks since the line kept before
+    (the devices' own peak, over every tick their statistics counted), counts."""
     counts_per_mm: dict[str, float] = field(default_factory=dict)
 
-    def record(self, axis: str) -> Callable[[Diagnostics], None]:
-        """A diagnostics callback that appends to this trace."""
-        stores = (self.clock, self.desired, self.actual, self.queued)
+    def record(self, axis: str) -> Callable[[Diagnostics, int], None]:
+        """A diagnostics callback that appends to this trace: the line, and the largest
+        following error magnitude since the line kept before (its own peak's when every
+        line is kept)."""
+        stores = (self.clock, self.desired, self.actual, self.queued, self.peak)
         for store in stores:
             store.setdefault(axis, array("q"))
-        clock, desired, actual, queued = (store[axis] for store in stores)
+        clock, desired, actual, queued, peak = (store[axis] for store in stores)
 
-        def on_line(line: Diagnostics) -> None:
+        def on_line(line: Diagnostics, peak_counts: int) -> None:
             clock.append(line.clock)
             desired.append(line.desired)
             actual.append(line.actual_counts)
             queued.append(line.queued)
+            peak.append(peak_counts)
 
         return on_line
 
@@ -185,6 +214,42 @@ class Trace:
         clock = self.column(self.clock, axis)
         return ((clock - self.start_tick).astype(np.float64) * self.tick_s,
                 self.column(self.desired, axis), self.column(self.actual, axis))
+
+
+def line_peaks(plan: Plan, trace: Trace,
+               segments_at_ticks: SegmentsAt) -> tuple[LinePeak, ...]:
+    """Each program line's largest following error per axis (:class:`LinePeak`), in line
+    order, from the trace's diagnostics lines; ``segments_at_ticks`` gives the plan segment
+    the devices execute at each of an array of device ticks."""
+    if not len(plan):
+        return ()
+    peaks: dict[str, npt.NDArray[np.int64]] = {}
+    touched = np.zeros(len(plan), dtype=bool)
+    for name in plan.axes:
+        clock = trace.column(trace.clock, name)
+        peak = trace.column(trace.peak, name)
+        if not clock.size:
+            continue
+        low = segments_at_ticks(np.concatenate((clock[:1], clock[:-1] + 1)))
+        high = segments_at_ticks(clock)
+        lengths = np.maximum(high, low) - low + 1
+        begins = np.cumsum(lengths) - lengths
+        index = (np.arange(int(lengths.sum()), dtype=np.int64) - np.repeat(begins, lengths)
+                 + np.repeat(low, lengths))
+        by_segment = np.zeros(len(plan), dtype=np.int64)
+        np.maximum.at(by_segment, index, np.repeat(np.abs(peak), lengths))
+        touched[index] = True
+        peaks[name] = by_segment
+    if not peaks:
+        return ()
+    lines, inverse = np.unique(plan.line[touched], return_inverse=True)
+    by_line: dict[str, list[int]] = {}
+    for name, by_segment in peaks.items():
+        most = np.zeros(lines.size, dtype=np.int64)
+        np.maximum.at(most, inverse, by_segment[touched])
+        by_line[name] = most.tolist()
+    return tuple(LinePeak(int(line), {name: values[i] for name, values in by_line.items()})
+                 for i, line in enumerate(lines.tolist()))
 
 
 def line_at(plan: Plan, time_s: float) -> int:
@@ -250,9 +315,12 @@ def build_report(
     *,
     line_at_tick: Callable[[int], int],
     last_heard: Mapping[str, LastHeard] | None = None,
+    segments_at_ticks: SegmentsAt | None = None,
 ) -> RunReport:
     """The report of a run from what the devices said at its end (an axis that said
-    nothing more: from what was last heard of it, and a note says so)."""
+    nothing more: from what was last heard of it, and a note says so); with
+    ``segment_at_tick`` (the plan segment executing at a device tick), each line's peak
+    following error (:func:`line_peaks`)."""
     config = machine.config
     period_s = config.motion_period_s
     heard = last_heard or {}
@@ -331,6 +399,8 @@ def build_report(
         link_error=ending.link_error,
         notes=tuple(notes),
         tool_changes=ToolChangeRecord.all_of(program),
+        line_peaks=(line_peaks(plan, trace, segments_at_ticks)
+                    if segments_at_ticks is not None else ()),
     )
 
 

@@ -3,6 +3,7 @@ print."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 from usbmotion.motion.gcode import ignored_kind_label
@@ -72,4 +73,88 @@ def describe(report: RunReport) -> str:
             lines.append(f"stop           along the path to rest in {report.stop_distance_mm:.3f}"
                          f" mm (planned deceleration v^2/2a {report.stop_planned_mm:.3f} mm),"
                          f" at rest {report.stop_latency_s * 1000:.0f} ms after it was asked")
+    return "\n".join(lines)
+
+
+LINES_SHOWN = 10
+"""The most program lines the prediction's comparison lists."""
+
+
+def lines_over(report: RunReport, tolerance_mm: float,
+               scales: Mapping[str, float]) -> list[tuple[int, str, float]]:
+    """(line, axis, peak mm) of every program line whose peak following error on an axis
+    exceeds ``tolerance_mm`` (``scales``: counts per mm of each axis), the worst axis of
+    each line, in line order."""
+    over: list[tuple[int, str, float]] = []
+    for peak in report.line_peaks:
+        worst = max(((peak.peak_error_counts[name] / scales[name], name)
+                     for name in peak.peak_error_counts), default=(0.0, ""))
+        if worst[0] > tolerance_mm:
+            over.append((peak.line, worst[1], worst[0]))
+    return over
+
+
+def describe_prediction(predicted: RunReport, motors: Mapping[str, str], wall_s: float, *,
+                        scales: Mapping[str, float], tolerance_mm: float | None) -> str:
+    """The prediction before a run: where each motor came from, each axis's predicted peak
+    and RMS following error, and (with a tolerance) the lines predicted beyond it."""
+    speed = predicted.planned_time_s / wall_s if wall_s > 0 else 0.0
+    lines = [f"prediction     {Path(predicted.program).name} played on the axes' models in"
+             f" {wall_s:.2f} s ({speed:.0f} x the program's {predicted.planned_time_s:.3f} s)"]
+    sources: dict[str, list[str]] = {}
+    for name, source in motors.items():
+        sources.setdefault(source, []).append(name)
+    for source, names in sources.items():
+        lines.append(f"  motors       {', '.join(names)}: {source}")
+    lines.append("predicted following error (every servo tick, desired - actual):")
+    for axis in predicted.axes:
+        unit = _unit(axis.name)
+        lines.append(
+            f"  {axis.name}  max {axis.max_error_mm:8.4f} {unit} ({axis.max_error_counts:5d}"
+            f" counts) at {axis.max_error_time_s:.3f} s, line {axis.max_error_line}"
+            f"   rms {axis.rms_error_mm:8.4f} {unit} ({axis.rms_error_counts:8.2f} counts)")
+    if not predicted.completed:
+        lines.append(f"  the predicted run did not complete: {predicted.stop_reason}")
+    if tolerance_mm is not None:
+        over = lines_over(predicted, tolerance_mm, scales)
+        if not over:
+            lines.append(f"tolerance      {tolerance_mm:g} mm: every line within it")
+        else:
+            shown = ", ".join(f"{line} ({axis} {mm:.4f} {_unit(axis)})"
+                              for line, axis, mm in over[:LINES_SHOWN])
+            more = f" and {len(over) - LINES_SHOWN} more" if len(over) > LINES_SHOWN else ""
+            lines.append(f"tolerance      {tolerance_mm:g} mm: {len(over)} line(s) predicted"
+                         f" beyond it: {shown}{more}")
+    return "\n".join(lines)
+
+
+def describe_comparison(predicted: RunReport, measured: RunReport, *,
+                        scales: Mapping[str, float]) -> str:
+    """Predicted beside measured: each axis's peak and RMS following error, then the
+    program lines of the largest peaks (either's), each axis's peak in counts."""
+    lines = ["predicted vs measured following error (counts):",
+             "  axis     peak predicted  measured      rms predicted  measured"]
+    measured_axes = {axis.name: axis for axis in measured.axes}
+    for axis in predicted.axes:
+        got = measured_axes.get(axis.name)
+        if got is None:
+            continue
+        lines.append(f"  {axis.name:<4}{axis.max_error_counts:20d}{got.max_error_counts:10d}"
+                     f"{axis.rms_error_counts:19.2f}{got.rms_error_counts:10.2f}")
+    measured_lines = {peak.line: peak.peak_error_counts for peak in measured.line_peaks}
+    rows: list[tuple[float, int, str]] = []
+    for peak in predicted.line_peaks:
+        got_line = measured_lines.get(peak.line)
+        if got_line is None:
+            continue
+        worst = max(max(peak.peak_error_counts[n], got_line.get(n, 0)) / scales[n]
+                    for n in peak.peak_error_counts)
+        cells = "  ".join(f"{n} {peak.peak_error_counts[n]:4d} |{got_line.get(n, 0):4d}"
+                          for n in peak.peak_error_counts)
+        rows.append((worst, peak.line, cells))
+    if rows:
+        rows.sort(key=lambda row: (-row[0], row[1]))
+        lines.append(f"lines of the largest peaks (predicted | measured; {len(rows)} lines"
+                     " in --report's JSON):")
+        lines.extend(f"  line {line:<6}{cells}" for _, line, cells in rows[:LINES_SHOWN])
     return "\n".join(lines)

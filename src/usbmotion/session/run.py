@@ -389,7 +389,8 @@ class Run:
         report = report_of(self.prepared, self.machine, self.legs, self.streams, self.watch,
                            self.live, self.trace, ending, self.stops, homing_s=self.homing_s,
                            skew_s=self.skew_s, notes=self.notes, statuses=statuses,
-                           stats=stats, line_at_tick=self.progress.line_at_tick)
+                           stats=stats, line_at_tick=self.progress.line_at_tick,
+                           segments_at_ticks=self.progress.segments_at_ticks)
         self.faulted_axes = [name for name, status in statuses.items()
                              if status.fault != FaultCode.NONE]
         self.faulted = bool(self.watch.faults or ending.link_error or self.faulted_axes)

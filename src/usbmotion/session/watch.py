@@ -90,12 +90,15 @@ class Watch:
         keep_line = self.trace.record(axis)
         take = self.live.take_line
         count = [0]
+        peak = [0]  # of the lines since the one kept before
 
         def on_line(line: Diagnostics) -> None:
             take(axis, line.clock, line.desired, line.actual_counts, line.peak_error_counts)
+            peak[0] = max(peak[0], abs(line.peak_error_counts))
             count[0] += 1
             if count[0] % self.keep == 0:
-                keep_line(line)
+                keep_line(line, peak[0])
+                peak[0] = 0
 
         return on_line
 
