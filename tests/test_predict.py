@@ -18,8 +18,8 @@ from usbmotion.autotune.identify import identify_axis
 from usbmotion.autotune.machine_file import write_tuning
 from usbmotion.autotune.model import AxisModel, true_model
 from usbmotion.autotune.verify import place_loop
-from usbmotion.cli.main import app
 from usbmotion.cli.machines import default_machine
+from usbmotion.cli.main import app
 from usbmotion.demos import demo_path
 from usbmotion.errors import ConfigError
 from usbmotion.host.config import (
