@@ -215,6 +215,16 @@ def test_the_grbl_front_reports_the_rotary_axis_in_degrees() -> None:
         inches = _mpos(out)
         assert inches == pytest.approx((1.0, 0.0, 0.0, 90.0), abs=2 / 53.3)
         assert re.search(r"MPos:[-\d.]+,[-\d.]+,[-\d.]+,\d+\.\d{3}\|", b"".join(out).decode())
+        out.clear()
+        front.receive(b"$$\n")
+        front.poll()
+        settings = b"".join(out).decode()
+        assert "$133=0.000" in settings, "a wrapped axis has no travel"
+        assert "$130=200.000" in settings, "settings in mm whatever $13 says (grbl)"
+        out.clear()
+        front.receive(b"$133=0\n")  # a sender restoring its backup changes nothing
+        front.poll()
+        assert b"".join(out).strip().endswith(b"ok"), out
 
 
 def _mpos(out: list[bytes]) -> tuple[float, ...]:

@@ -292,8 +292,9 @@ class SessionMachine:
 
     def settings(self) -> MachineSettings:
         config = self.config
+        # A wrapped rotary axis turns on without end: no travel ($13x 0, grbl's "none").
         axes = tuple(AxisSettings(a.counts_per_mm, a.max_velocity_mm_s * 60.0, a.max_accel_mm_s2,
-                                  a.travel_mm[1] - a.travel_mm[0])
+                                  0.0 if a.wrapped else a.travel_mm[1] - a.travel_mm[0])
                      for a in (config.axis(name) for name in self._axes))
         first = config.axis(self._axes[0])
         mask = sum(1 << index for index, name in enumerate(self._axes)
