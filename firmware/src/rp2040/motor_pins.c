@@ -2,37 +2,9 @@
  * H-bridge, two debounced limit switches whose edges latch the counter at once, and the
  * enable output (pins.h has the pin map).
  *
- * The quadrature program, assembled by hand (the SDK's pioasm is not built here), 4x
- * counting. X holds the count. The ISR holds the pin history: each pass shifts the two
- * encoder pins in (`in pins, 2`, shifting left), so its low four bits are the previous
- * (B, A) and the new (B, A); `out pc, 4` jumps through the table at addresses 0-15, which
- * sends each of the 16 transitions to increment, decrement or nothing (no change, or both
- * pins changed at once: an invalid step, not counted). Every pass then pushes X to the RX
- * FIFO without blocking (dropped while the FIFO is full), keeping the history in Y
- * meanwhile. A pass takes 8 cycles (no change), 9 (down) or 12 (up): the pins are sampled
- * at least every 12 system clock cycles, 96 ns at 125 MHz, so every edge is counted as long
- * as two edges are more than 96 ns apart: QUADRATURE_MAX_COUNTS_PER_S (10.4 M counts/s with
- * evenly spaced edges; a real encoder's phase error brings its edges closer together).
- *
- *   addr  code    instruction
- *    0-15         the table: jmp up (19), jmp down (23) or jmp publish (24), by
- *                 index = previous (B, A) << 2 | new (B, A); forward is (B, A) = 0, 1, 3, 2
- *   16    0x4002  sample:   in pins, 2          ; .wrap_target
- *   17    0xa0e6            mov osr, isr
- *   18    0x60a4            out pc, 4
- *   19    0xa029  up:       mov x, ~x           ; x + 1 = ~(~x - 1)
- *   20    0x0055            jmp x--, 21
- *   21    0xa029            mov x, ~x
- *   22    0x0018            jmp publish
- *   23    0x0058  down:     jmp x--, publish    ; falls through to publish when x was 0
- *   24    0xa046  publish:  mov y, isr
- *   25    0xa0c1            mov isr, x
- *   26    0x8000            push noblock
- *   27    0xa0c2            mov isr, y          ; .wrap (to 16)
- *   28    0x4002  start:    in pins, 2          ; the pins as they are: no count at start
- *   29    0x0018            jmp publish
- *
- * The program must sit at address 0 (`out pc` jumps to absolute addresses). */
+ * Quadrature decoding runs quadrature.pio (assembled by the SDK's pioasm at build time):
+ * 4x counting, the count pushed to the RX FIFO after every pass, the pins sampled at
+ * least every 12 system clock cycles. The program sits at address 0. */
 #include <stdbool.h>
 #include <stdint.h>
 
@@ -45,39 +17,9 @@
 #include "pico/platform.h"
 
 #include "pins.h"
+#include "quadrature.pio.h"
 #include "platform.h"
 #include "rp2040_platform.h"
-
-#define UP 0x0013u      /* jmp 19 */
-#define DOWN 0x0017u    /* jmp 23 */
-#define NONE 0x0018u    /* jmp 24 */
-#define QUADRATURE_WRAP_TARGET 16u
-#define QUADRATURE_WRAP 27u
-#define QUADRATURE_START 28u
-
-static const uint16_t quadrature_instructions[] = {
-    /* previous (B, A) = 0: new 0, 1, 2, 3 */
-    NONE, UP, DOWN, NONE,
-    /* previous 1 */
-    DOWN, NONE, NONE, UP,
-    /* previous 2 */
-    UP, NONE, NONE, DOWN,
-    /* previous 3 */
-    NONE, DOWN, UP, NONE,
-    0x4002u, 0xa0e6u, 0x60a4u,                 /* 16 sample */
-    0xa029u, 0x0055u, 0xa029u, 0x0018u,        /* 19 up */
-    0x0058u,                                   /* 23 down */
-    0xa046u, 0xa0c1u, 0x8000u, 0xa0c2u,        /* 24 publish */
-    0x4002u, 0x0018u,                          /* 28 start */
-};
-_Static_assert(sizeof quadrature_instructions / sizeof quadrature_instructions[0] == 30,
-               "the quadrature program has 30 instructions");
-
-static const pio_program_t quadrature_program = {
-    .instructions = quadrature_instructions,
-    .length = (uint8_t)(sizeof quadrature_instructions / sizeof quadrature_instructions[0]),
-    .origin = 0,
-};
 
 /* One limit switch: its debounced state, written by the GPIO interrupt and by the tick's
  * sample (both on core1, the sample with interrupts off). */
@@ -142,14 +84,13 @@ void platform_motor_pins_start(void) {
         gpio_pull_up(pin);
     }
     pio_add_program_at_offset(pio, &quadrature_program, 0);
-    pio_sm_config config = pio_get_default_sm_config();
-    sm_config_set_wrap(&config, QUADRATURE_WRAP_TARGET, QUADRATURE_WRAP);
+    pio_sm_config config = quadrature_program_get_default_config(0);
     sm_config_set_in_pins(&config, PIN_ENCODER_A);
     sm_config_set_in_shift(&config, false, false, 32);   /* left, no autopush */
     sm_config_set_out_shift(&config, true, false, 32);   /* right: out takes the low bits */
     sm_config_set_clkdiv_int_frac(&config, 1, 0);
     pio_sm_set_consecutive_pindirs(pio, QUADRATURE_SM, PIN_ENCODER_A, 2, false);
-    pio_sm_init(pio, QUADRATURE_SM, QUADRATURE_START, &config);
+    pio_sm_init(pio, QUADRATURE_SM, quadrature_offset_start, &config);
     pio_sm_set_enabled(pio, QUADRATURE_SM, true);
 
     gpio_set_function(PIN_BRIDGE_IN1, GPIO_FUNC_PWM);
