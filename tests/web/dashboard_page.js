@@ -1,10 +1,10 @@
 // Drives usbmotion web's dashboard in headless Chromium (the system's browser, through
-// playwright-core) as an operator would: home, open demo 1, run it with a hold and a resume
-// to its end, read the DRO beside the run's report, run it again and stop it, jog X+ by a
+// playwright-core) as an operator would: home, open demo 1, predict it with a tolerance,
+// run it with a hold and a resume to its end (then predicted beside measured), read the DRO beside the run's report, run it again and stop it, jog X+ by a
 // step, send an MDI line, and read the DRO.
 // Prints one JSON line: the DRO's machine positions as shown (at the end of the first run,
 // with the report's and the API state's, and at the end), the program lines highlighted
-// in the order first seen, the chart redraws a second while the program ran, the console
+// in the order first seen, what the prediction showed, the chart redraws a second while the program ran, the console
 // errors and the steps done. Exits 1 with the failing step on stderr.
 //
 // usage: node dashboard_page.js URL_WITH_TOKEN SCREENSHOT_DIR CHROMIUM
@@ -18,6 +18,7 @@ const STEP_TIMEOUT_MS = 30000;
 const JOG_STEP_MM = 1;
 const TOLERANCE_MM = 0.01;
 const DRO_STEADY_MS = 1000;
+const PREDICT_TOLERANCE_MM = 0.03;
 const BROWSER_ARGS = ['--no-sandbox', '--disable-gpu', '--disable-background-networking',
   '--disable-component-update', '--no-first-run'];
 
@@ -179,6 +180,30 @@ async function main() {
       await page.locator('#program-text .program-line').first().waitFor();
     });
 
+    const predicted = await step('predict with a tolerance', async () => {
+      await page.getByLabel('Tolerance (mm)', { exact: true }).fill(String(PREDICT_TOLERANCE_MM));
+      await click(page, 'Predict');
+      const summary = page.locator('[data-testid="over-tolerance"]');
+      await summary.waitFor();
+      const text = (await summary.textContent()).trim();
+      const count = /^(\d+) lines? beyond /.exec(text);
+      if (!count) {
+        throw new Error(`the prediction names no lines beyond ${PREDICT_TOLERANCE_MM} mm: ${JSON.stringify(text)}`);
+      }
+      const listed = await page.getByRole('list', { name: `Lines beyond ${PREDICT_TOLERANCE_MM} mm` })
+        .getByRole('button').allTextContents();
+      const marked = await page.locator('#program-text .program-line.over-tolerance')
+        .evaluateAll((rows) => rows.map((row) => Number(row.dataset.line)));
+      const peaks = {};
+      for (const row of await page.locator('[data-testid^="predicted-"]').all()) {
+        const cells = await row.locator('td').allTextContents();
+        peaks[(await row.getAttribute('data-testid')).split('-')[1]] = parseFloat(cells[0]);
+      }
+      await page.getByRole('button', { name: listed[listed.length - 1], exact: true }).click();
+      return { tolerance_mm: PREDICT_TOLERANCE_MM, count: Number(count[1]),
+        listed: listed.map((name) => Number(name.replace('Line ', ''))), marked, peaks_mm: peaks };
+    });
+
     const chartWindow = {};
     await step('run with a hold to the end', async () => {
       await recordHighlights(page);
@@ -211,8 +236,15 @@ async function main() {
       for (const [axis, figures] of Object.entries(state.axes)) {
         machine[axis] = figures.machine_mm;
       }
+      // The run of the predicted program: predicted beside measured, per axis.
+      await page.locator('[data-testid="compared-X"]').waitFor();
+      const compared = {};
+      for (const row of await page.locator('[data-testid^="compared-"]').all()) {
+        const cells = await row.locator('td').allTextContents();
+        compared[(await row.getAttribute('data-testid')).split('-')[1]] = cells.map(Number);
+      }
       return { dro, report_end_mm: report.end_position_mm, completed: report.completed,
-        state_machine_mm: machine };
+        state_machine_mm: machine, compared };
     });
 
     await step('run again and stop', async () => {
@@ -262,6 +294,7 @@ async function main() {
     process.stdout.write(`${JSON.stringify({
       dro,
       run_end: runEnd,
+      predicted,
       highlighted,
       last_highlighted: highlighted[highlighted.length - 1],
       chart_updates_per_s: perSecond.length ? median(perSecond) : null,

@@ -21,6 +21,7 @@ from starlette.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 from tests.senders.helpers import fast_homing_machine, wait_for
 
+from usbmotion.cli.web import model_predictor
 from usbmotion.demos import demo_path
 from usbmotion.host.config import load_config
 from usbmotion.session.operator import Operator
@@ -66,13 +67,14 @@ class Served:
 @contextmanager
 def served(folder: Path, *, programs: Path | None = None) -> Iterator[Served]:
     """The default simulated machine (homing fast) in real time behind the dashboard's
-    application, as ``usbmotion web`` serves it."""
+    application, as ``usbmotion web`` serves it (its predictor too)."""
     config = load_config(fast_homing_machine(folder))
     world = SimWorld(realtime=True)
     with connect_session(config, world=world) as session:
         operator = Operator(session, file="<web>")
         operator.on_idle = world.keep_pace
-        dashboard = Dashboard(operator, programs=programs)
+        dashboard = Dashboard(operator, programs=programs,
+                              predictor=model_predictor(session.config))
         dashboard.start()
         try:
             with TestClient(create_app(dashboard, token=TOKEN)) as client:

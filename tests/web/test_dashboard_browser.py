@@ -1,11 +1,13 @@
 """The dashboard's page in Debian's Chromium (playwright-core, ``dashboard_page.js``) against
 ``usbmotion web``'s application on the simulated machine in real time, driven as an
-operator drives it: home, open demo 1, run it with a hold and a resume to its end, run it
-again and stop it, jog, an MDI line. The highlighted line runs through the program in order
-and ends on its last motion line; the charts redraw at least 50 times a second; the DRO at
-the end of the run shows the run's report (``GET /api/report``) to the count, and at the end
-what the live model holds; no console error. Screenshots go to
-``build/web/`` (one, at a laptop's width, is the README's)."""
+operator drives it: home, open demo 1, predict it with a tolerance (the lines beyond it
+listed and marked as the prediction says), run it with a hold and a resume to its end
+(predicted beside measured after it), run it again and stop it, jog, an MDI line. The
+highlighted line runs through the program in order and ends on its last motion line; the
+charts redraw at least 50 times a second; the DRO at the end of the run shows the run's
+report (``GET /api/report``) to the count, and at the end what the live model holds; no
+console error. Screenshots go to ``build/web/`` (one, at a laptop's width, is the
+README's)."""
 
 from __future__ import annotations
 
@@ -22,10 +24,12 @@ import pytest
 import uvicorn
 from tests.senders.helpers import fast_homing_machine, need, node_package, wait_for
 
+from usbmotion.cli.web import model_predictor
 from usbmotion.demos import demo_path
 from usbmotion.host.config import load_config
 from usbmotion.serving import listening_socket
 from usbmotion.session.operator import Operator
+from usbmotion.session.report_text import lines_over
 from usbmotion.sim.machine import connect_session
 from usbmotion.sim.world import SimWorld
 from usbmotion.web.app import create_app, page_built
@@ -49,7 +53,7 @@ def served_page(folder: Path) -> Iterator[tuple[str, Dashboard, Operator]]:
     with connect_session(config, world=world) as session:
         operator = Operator(session, file="<web>")
         operator.on_idle = world.keep_pace
-        dashboard = Dashboard(operator)
+        dashboard = Dashboard(operator, predictor=model_predictor(session.config))
         dashboard.start()
         listener = listening_socket("127.0.0.1", 0)
         server = uvicorn.Server(uvicorn.Config(
@@ -87,6 +91,8 @@ def test_the_page_drives_a_program_and_shows_the_machine(tmp_path: Path) -> None
         wait_for(lambda: not operator.busy, timeout_s=20, what="the machine at rest")
         time.sleep(0.3)
         now = dashboard.state(dashboard.reader())
+        kept = dashboard.prediction
+        last_report = operator.last_report
     assert result["console_errors"] == []
     assert result["chart_updates_per_s"] >= 50, result["chart_updates_per_s"]
     lines = result["highlighted"]
@@ -106,6 +112,27 @@ def test_the_page_drives_a_program_and_shows_the_machine(tmp_path: Path) -> None
         report_mm = run_end["report_end_mm"][axis]
         assert abs(run_end["state_machine_mm"][axis] - report_mm) < half_count, (axis, run_end)
         assert abs(float(run_end["dro"][axis]) - report_mm) <= 0.0005 + 1e-9, (axis, run_end)
+    # The prediction as the page showed it: the lines beyond the tolerance listed and
+    # marked are the prediction's, each axis's peak the prediction's to 0.0001 mm.
+    shown_prediction = result["predicted"]
+    assert kept is not None and kept.name == "1-rounded-square.ngc"
+    over = [line for line, _, _ in lines_over(kept.predicted.report,
+                                              shown_prediction["tolerance_mm"], counts_per_mm)]
+    assert over and shown_prediction["count"] == len(over), (shown_prediction, over)
+    assert shown_prediction["listed"] == over
+    assert sorted(shown_prediction["marked"]) == over
+    for axis in kept.predicted.report.axes:
+        assert shown_prediction["peaks_mm"][axis.name] == pytest.approx(axis.max_error_mm,
+                                                                        abs=0.00005), axis.name
+    # After the run of the predicted program, predicted beside measured (peak predicted,
+    # peak measured, RMS predicted, RMS measured, mm): the first run's (a hold and a
+    # resume in it), as the page read it then.
+    assert last_report is not None
+    compared = run_end["compared"]
+    assert set(compared) == {"X", "Y", "Z"}, compared
+    for axis in kept.predicted.report.axes:
+        assert compared[axis.name][0] == pytest.approx(axis.max_error_mm, abs=0.00005)
+    assert all(len(cells) == 4 and all(c >= 0 for c in cells) for cells in compared.values())
     assert (SCREENSHOTS / "dashboard.png").is_file()
     assert (SCREENSHOTS / "dashboard-phone.png").is_file()
     print(f"dashboard page: steps {', '.join(result['steps'])}; chart redraws"

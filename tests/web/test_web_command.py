@@ -70,6 +70,11 @@ def test_bound_beyond_loopback_it_needs_the_token_and_sigterm_stops_it(tmp_path:
         status, answer = _call(base + "/api/state", token=token)
         assert status == 200 and answer["state"] == "Idle" and not answer["homed"]
         assert _call(base + "/api/program/open", token=token, body={"demo": 1})[0] == 200
+        # The command hands the page its predictor: demo 1 on the axes' sim tables.
+        status, answer = _call(base + "/api/predict", token=token, body={"tolerance_mm": 1})
+        assert status == 200 and answer["completed"], answer
+        assert [a["name"] for a in answer["axes"]] == ["X", "Y", "Z"]
+        assert all(a["max_error_counts"] > 0 for a in answer["axes"]), answer["axes"]
         assert _call(base + "/api/run", token=token, body={})[0] == 200
         deadline = time.monotonic() + 60
         while _call(base + "/api/state", token=token)[1]["state"] != "Run":

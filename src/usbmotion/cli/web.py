@@ -5,7 +5,7 @@ from __future__ import annotations
 import socket
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -18,7 +18,9 @@ from usbmotion.cli.signals import stop_on_signals
 from usbmotion.errors import UsbMotionError
 
 if TYPE_CHECKING:
+    from usbmotion.host.config import MachineConfig
     from usbmotion.session import MachineSession
+    from usbmotion.web.dashboard import Predicted, Predictor
 
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 STARTED_TIMEOUT_S = 30.0
@@ -102,7 +104,8 @@ def _serve(session: MachineSession, keep_pace: Callable[[], None] | None,
     operator.on_idle = keep_pace
     from usbmotion.sim.urls import URL_CHECKS  # noqa: PLC0415 - the sim:// checks alone
 
-    dashboard = Dashboard(operator, programs=programs, url_checks=URL_CHECKS)
+    dashboard = Dashboard(operator, programs=programs, url_checks=URL_CHECKS,
+                          predictor=model_predictor(session.config))
     dashboard.start()
     app = create_app(dashboard, token=token)
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="off",
@@ -142,3 +145,19 @@ def _serve(session: MachineSession, keep_pace: Callable[[], None] | None,
             status = EXIT_FAULT
         listener.close()
     return status
+
+
+def model_predictor(config: MachineConfig) -> Predictor:
+    """What plays a program on the models of ``config``'s axes for the dashboard: ``usbmotion
+    run --predict``'s simulator (:func:`usbmotion.sim.predict.predict`), which the web
+    package may not import itself."""
+
+    def play(name: str, text: str, *, from_line: int | None,
+             standing_mm: Mapping[str, float] | None) -> Predicted:
+        from usbmotion.sim.predict import predict  # noqa: PLC0415 - loaded on first use
+        from usbmotion.web.dashboard import Predicted  # noqa: PLC0415
+
+        made = predict(config, Path(name), text, from_line=from_line, standing_mm=standing_mm)
+        return Predicted(made.report, made.motors, made.wall_s)
+
+    return play

@@ -192,6 +192,15 @@ def create_app(dashboard: Dashboard, *, token: str) -> ASGIApp:
         body = await _body(request)
         return await work(lambda: dashboard.run(body.get("from_line")))
 
+    async def predict(request: Request) -> Any:
+        body = await _body(request)
+        unknown = sorted(set(body) - {"tolerance_mm", "from_line"})
+        if unknown:
+            raise RefusedError(422, f"predict: unknown key {unknown[0]!r}: allowed"
+                                    " tolerance_mm, from_line")
+        return await work(lambda: dashboard.predict(body.get("tolerance_mm"),
+                                                    body.get("from_line")))
+
     async def home(request: Request) -> Any:
         body = await _body(request)
         return await work(lambda: dashboard.home(body.get("axes")))
@@ -271,6 +280,7 @@ def create_app(dashboard: Dashboard, *, token: str) -> ASGIApp:
         Route("/api/program/upload", _api(upload), methods=["POST"]),
         Route("/api/program/open", _api(open_program), methods=["POST"]),
         Route("/api/run", _api(run), methods=["POST"]),
+        Route("/api/predict", _api(predict), methods=["POST"]),
         Route("/api/hold", _api(simple(dashboard.hold)), methods=["POST"]),
         Route("/api/resume", _api(simple(dashboard.resume)), methods=["POST"]),
         Route("/api/stop", _api(simple(dashboard.stop)), methods=["POST"]),

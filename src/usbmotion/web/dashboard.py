@@ -5,11 +5,18 @@ worker thread alone talks to the devices (homing, runs, jogs, MDI, reading param
 calls here check their input, queue the work and return; what they started is seen in the
 live model (:meth:`Dashboard.state`) and in the messages. A call that cannot be taken raises
 :class:`RefusedError` with the HTTP status it answers (400 bad input, 404 nothing there, 409 not
-now, 413 too large) and a message that names the value and what is allowed.
+now, 413 too large, 422 a prediction that cannot be made) and a message that names the value
+and what is allowed.
 
 The open program is kept with its plan from where the machine stands: its toolpath (the
 planned vertices, machine coordinates) is what the page draws, and its ``revision`` changes
 whenever it is planned again (opened, a run's start, a work offset changed).
+
+A prediction (``usbmotion run --predict``'s) plays the open program on the identified
+models of the axes before anything moves. The simulator that makes it is not this
+package's to import: whoever builds the dashboard hands it a :class:`Predictor`. The last
+prediction is kept, and a run of the same program text from the same line carries it into
+its report, predicted beside measured.
 """
 
 from __future__ import annotations
@@ -21,11 +28,12 @@ from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path, PurePosixPath, PureWindowsPath
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from usbmotion.demos import DEMOS, demo_path
 from usbmotion.errors import (
     ArgumentError,
+    ConfigError,
     GCodeError,
     MachineStateError,
     OutOfRangeError,
@@ -41,7 +49,8 @@ from usbmotion.session.jog import check_jog
 from usbmotion.session.live import LiveReader, LiveSnapshot
 from usbmotion.session.operator import IdleReader, Operator
 from usbmotion.session.planning import Prepared, machine_axes, machine_dialect, program_axes
-from usbmotion.session.report_text import describe
+from usbmotion.session.report import RunReport
+from usbmotion.session.report_text import describe, lines_over
 from usbmotion.session.state import MachineState
 from usbmotion.tuning import StepResponse, step_response
 
@@ -105,6 +114,49 @@ class OpenProgram:
     """The line the program ends on (M2, M30, '%'): its lines to run."""
 
 
+@dataclass(frozen=True, slots=True)
+class Predicted:
+    """A program played on the axes' identified models before anything moves.
+
+    Fields:
+        report: the predicted run's report (its ``axes`` each axis's predicted peak and
+            RMS following error, its ``line_peaks`` each program line's predicted peak).
+        motors: axis -> where its motor came from (its model table, or its sim table).
+        wall_s: how long the prediction took, s.
+    """
+
+    report: RunReport
+    motors: Mapping[str, str]
+    wall_s: float
+
+
+class Predictor(Protocol):
+    """What makes a prediction: ``usbmotion.sim.predict.predict`` bound to the machine.
+
+    Raises:
+        ConfigError: an axis has no model to predict with; GCodeError, PlanningError
+            (SoftLimitError): as the program's planning.
+    """
+
+    def __call__(self, name: str, text: str, *, from_line: int | None,
+                 standing_mm: Mapping[str, float] | None) -> Predicted:
+        """Play program ``name`` (``text``) from ``from_line`` (None: the whole program)
+        with the machine standing at ``standing_mm`` (None: where homing leaves it)."""
+        ...
+
+
+@dataclass(frozen=True, slots=True)
+class KeptPrediction:
+    """The last prediction of the open program, and what it was made of."""
+
+    name: str
+    text: str
+    from_line: int | None
+    standing_mm: Mapping[str, float] | None
+    """Where the machine stood (None: not homed, so from where homing leaves it)."""
+    predicted: Predicted
+
+
 def system_name(system: int) -> str:
     """``1`` -> ``G54`` .. ``6`` -> ``G59``, ``7`` -> ``G59.1`` .. ``9`` -> ``G59.3``."""
     return f"G{53 + system}" if system <= 6 else f"G59.{system - 6}"
@@ -142,10 +194,15 @@ class Dashboard:
         operator: the session's operator (its worker runs the motion).
         programs: a folder whose G-code files the page may open (None: uploads only).
         machine_name: what the page calls the machine.
+        url_checks: the machine file's URL checks (a changed parameter is checked as the
+            file is).
+        predictor: what plays a program on the axes' models (None: the dashboard cannot
+            predict, ``POST /api/predict`` is refused).
     """
 
     def __init__(self, operator: Operator, *, programs: Path | None = None,
-                 machine_name: str = "", url_checks: UrlChecks | None = None) -> None:
+                 machine_name: str = "", url_checks: UrlChecks | None = None,
+                 predictor: Predictor | None = None) -> None:
         self.operator = operator
         self.session = operator.session
         self.config = self.session.config
@@ -155,7 +212,13 @@ class Dashboard:
         self.url_checks = url_checks
         """The machine file's URL checks (a changed parameter is checked as the file is)."""
         self.machine_name = machine_name or self.config.name
+        self.predictor = predictor
         self.program: OpenProgram | None = None
+        self.prediction: KeptPrediction | None = None
+        """The last prediction made (of the program then open)."""
+        self._predicting = threading.Lock()
+        self._run_prediction: tuple[RunReport, KeptPrediction] | None = None
+        """The last run's report and the prediction of what it ran, when there was one."""
         self._revision = 0
         self._lock = threading.Lock()
         self._messages: deque[Message] = deque(maxlen=MESSAGES_KEPT)
@@ -311,7 +374,11 @@ class Dashboard:
         report = self.operator.last_report
         if report is None:
             raise RefusedError(404, "no program has run yet: open one and Run it")
-        return report.to_json()
+        data = report.to_json()
+        kept = self._run_prediction
+        if kept is not None and kept[0] is report:
+            data["prediction"] = self._prediction_json(kept[1])
+        return data
 
     def catalogue(self) -> dict[str, Any]:
         """What can be opened (``GET /api/programs``)."""
@@ -470,11 +537,105 @@ class Dashboard:
             self.message(f"cycle start: {program.name}{joined},"
                          f" {prepared.plan.duration_s:.2f} s")
             report, _ = session.run(prepared, homing_s=homing_s)
+            kept = self.prediction
+            if kept is not None and kept.text == program.text and kept.from_line == from_line:
+                self._run_prediction = (report, kept)
             self.operator.last_report = report
             for line in describe(report).splitlines():
                 self.message(line, level="info" if report.completed else "error")
 
         self.operator.do(go)
+
+    # --- prediction -------------------------------------------------------------------------
+
+    def predict(self, tolerance_mm: object = None, from_line: object = None) -> dict[str, Any]:
+        """Play the open program on the axes' models before anything moves, from where the
+        machine stands (from where homing leaves it when it is not homed): each axis's
+        predicted peak and RMS following error, each line's predicted peak, and the lines
+        predicted beyond ``tolerance_mm`` (mm, degrees on a rotary axis; None: no
+        tolerance). Kept as the open program's last prediction. Blocks for as long as the
+        prediction takes (a second or so): call it off the event loop.
+
+        Raises:
+            RefusedError: no program open, the machine busy, a prediction already under way
+                or no predictor (409); a tolerance or start line not allowed, an axis without
+                a model, a program that cannot be planned from there (422).
+        """
+        program = self.program
+        if program is None:
+            raise _not_now("no program is open: open a demo, a file or upload one")
+        if self.predictor is None:
+            raise _not_now("this dashboard cannot predict: it was started without the"
+                           " axes' models (usbmotion web predicts)")
+        if tolerance_mm is not None and (
+                isinstance(tolerance_mm, bool) or not isinstance(tolerance_mm, int | float)
+                or not math.isfinite(tolerance_mm) or tolerance_mm <= 0):
+            raise RefusedError(422, f"tolerance_mm {tolerance_mm!r}: a positive number of mm"
+                                    " (degrees on a rotary axis), or null for none")
+        if from_line is not None:
+            last = program.end_line or len(program.lines)
+            if (not isinstance(from_line, int) or isinstance(from_line, bool)
+                    or not 1 <= from_line <= last):
+                raise RefusedError(422, f"from_line {from_line!r}: allowed 1..{last} (the"
+                                        f" lines of {program.name}), or null for the whole"
+                                        " program")
+        self._idle_or_refuse("predict")
+        if not self._predicting.acquire(blocking=False):
+            raise _not_now("a prediction is already being made: wait for its answer")
+        try:
+            standing = (self._call(self.session.positions_mm) if self.session.is_homed
+                        else None)
+            try:
+                predicted = self.predictor(program.name, program.text, from_line=from_line,
+                                           standing_mm=standing)
+            except (ConfigError, GCodeError, PlanningError, ArgumentError) as error:
+                raise RefusedError(422, str(error)) from None
+            except UsbMotionError as error:
+                raise RefusedError(500, f"the prediction failed: {error}") from None
+        finally:
+            self._predicting.release()
+        kept = KeptPrediction(program.name, program.text, from_line, standing, predicted)
+        self.prediction = kept
+        data = self._prediction_json(kept)
+        over = ([] if tolerance_mm is None
+                else lines_over(predicted.report, float(tolerance_mm), self._scales()))
+        data["tolerance_mm"] = tolerance_mm
+        data["over_tolerance"] = [{"line": line, "axis": axis, "peak_mm": peak}
+                                  for line, axis, peak in over]
+        peaks = "  ".join(f"{a.name} {a.max_error_mm:.4f}" for a in predicted.report.axes)
+        beyond = "" if tolerance_mm is None else (
+            f"; {len(over)} line(s) beyond {tolerance_mm:g}" if over
+            else f"; every line within {tolerance_mm:g}")
+        self.message(f"predicted {program.name}: peak following error {peaks}{beyond}"
+                     f" (in {predicted.wall_s:.2f} s)")
+        return data
+
+    def _scales(self) -> dict[str, float]:
+        """Counts per mm (per degree) of each axis."""
+        return {axis.name: axis.counts_per_mm for axis in self.config.axes}
+
+    def _prediction_json(self, kept: KeptPrediction) -> dict[str, Any]:
+        """A prediction as the API gives it (``docs/dashboard.md``)."""
+        predicted = kept.predicted
+        report = predicted.report
+        data = report.to_json()
+        wall_s = predicted.wall_s
+        return {
+            "program": kept.name,
+            "from_line": kept.from_line,
+            "standing_mm": None if kept.standing_mm is None else dict(kept.standing_mm),
+            "motors": dict(predicted.motors),
+            "wall_s": wall_s,
+            "speed_ratio": report.planned_time_s / wall_s if wall_s > 0 else None,
+            "planned_time_s": report.planned_time_s,
+            "completed": report.completed,
+            "stop_reason": report.stop_reason,
+            "axes": data["axes"],
+            "line_peaks": data["line_peaks"],
+            "counts_per_mm": self._scales(),
+        }
+
+    # --- controls, continued ----------------------------------------------------------------
 
     def hold(self) -> None:
         """Feed hold: to rest along the path (a jog: cancelled)."""

@@ -10,6 +10,7 @@ import { DevicesPanel } from './devices.js';
 import { Readout } from './dro.js';
 import { byId, el, setText } from './format.js';
 import { MessageLog } from './log.js';
+import { PredictionPanel } from './prediction.js';
 import { ProgramText } from './program.js';
 import { ToolpathView, webglAvailable } from './toolpath.js';
 import { TuningPanel } from './tuning.js';
@@ -43,7 +44,13 @@ if (webglAvailable()) {
   toolpathBox.append(el('p', { class: 'no-webgl' },
     'The toolpath needs WebGL, which this browser has turned off.'));
 }
-const controls = new Controls(api, log, { onProgramOpened: (program) => showProgram(program) });
+const controls = new Controls(api, log, {
+  onProgramOpened: (program) => {
+    prediction.clear();
+    showProgram(program);
+  },
+});
+const prediction = new PredictionPanel(api, log, programText, { fromLine: byId('from-line') });
 const tuning = new TuningPanel(api, log);
 new DevicesPanel(api, log);
 
@@ -109,6 +116,7 @@ function showState(state, { push }) {
   setText(machineName, state.machine || '');
   readout.show(state);
   controls.update(state);
+  prediction.update(state);
   tuning.update(state);
   if (push) {
     exposed.pushes += 1;
@@ -168,6 +176,7 @@ const live = new Live(api, {
   onOpen: (reconnected) => {
     downBanner.hidden = true;
     controls.setConnected(true);
+    prediction.setConnected(true);
     document.body.classList.remove('offline');
     setText(connection, 'live');
     connection.classList.remove('connection-down');
@@ -185,6 +194,7 @@ const live = new Live(api, {
   onDown: () => {
     downBanner.hidden = false;
     controls.setConnected(false);
+    prediction.setConnected(false);
     document.body.classList.add('offline');
     setText(connection, 'disconnected');
     connection.classList.add('connection-down');

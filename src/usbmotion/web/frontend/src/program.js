@@ -17,6 +17,8 @@ export class ProgramText {
     this.eta = byId('eta');
     this.lines = [];
     this.current = 0;
+    // The lines a prediction put beyond the tolerance.
+    this.marked = new Set();
     this.rendered = { first: -1, last: -1 };
     this.sizer = el('div', { class: 'program-sizer' });
     this.list = el('ol', { class: 'program-lines' });
@@ -61,6 +63,10 @@ export class ProgramText {
         row.classList.add('current');
         row.setAttribute('aria-current', 'true');
       }
+      if (this.marked.has(number)) {
+        row.classList.add('over-tolerance');
+        row.title = 'predicted beyond the tolerance';
+      }
       rows.push(row);
     }
     this.list.style.transform = `translateY(${first * height}px)`;
@@ -85,6 +91,26 @@ export class ProgramText {
       row.classList.add('current');
       row.setAttribute('aria-current', 'true');
     }
+  }
+
+  // Marks `lines` (and only those) as predicted beyond the tolerance.
+  setMarked(lines) {
+    if (this.marked.size === 0 && lines.length === 0) {
+      return;
+    }
+    this.marked = new Set(lines);
+    this.renderRows(true);
+  }
+
+  // Line `line` scrolled into view, a third of the way down, and given the focus ring.
+  showLine(line) {
+    if (line <= 0 || line > this.lines.length) {
+      return;
+    }
+    const height = this.rowHeight();
+    this.box.scrollTop = Math.max(0, (line - 1) * height - this.box.clientHeight / 3);
+    this.renderRows();
+    this.box.focus({ preventScroll: true });
   }
 
   scrollToCurrent() {
