@@ -6,15 +6,23 @@ comment kept (tomlkit)."""
 
 from __future__ import annotations
 
+import datetime
 from collections.abc import Mapping, Sequence
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import tomlkit
 from tomlkit.exceptions import TOMLKitError
 from tomlkit.items import Whitespace
 
 from usbmotion.errors import ConfigError
-from usbmotion.host.config import MotorModelConfig, PidGains
+from usbmotion.files import write_text_atomically
+from usbmotion.host.config import MotorModelConfig, PidGains, UrlChecks, parse_config
+
+if TYPE_CHECKING:
+    from usbmotion.autotune.identify import Identification
+    from usbmotion.autotune.model import PhysicalModel
+    from usbmotion.autotune.verify import Placement
 
 MARK = "tune --auto"
 """The first words of the comment block; a new block replaces the axis's old one."""
@@ -99,4 +107,59 @@ def write_tuning(text: str, axis: str, gains: PidGains, model_lines: Sequence[st
     return text
 
 
-__all__ = ["MARK", "write_tuning"]
+def identified_model(found: Identification) -> MotorModelConfig:
+    """The machine file's ``model`` table of what ``found`` identified (a Coulomb voltage
+    fitted below 0, friction the fit could not tell from none, as 0)."""
+    model = found.fit.model
+    return MotorModelConfig(model.time_constant_s, model.speed_per_volt_counts_s,
+                            max(0.0, model.coulomb_v), model.supply_v)
+
+
+def record_lines(found: Identification, placed: Placement,
+                 physical: PhysicalModel | None) -> list[str]:
+    """The comment block's lines: when, the model with its standard errors, the SI figures
+    (given the file's torque constant and resistance), the loop's margins."""
+    fit = found.fit
+    model = fit.model
+    margins = placed.design.margins
+    today = datetime.datetime.now(tz=datetime.UTC).date().isoformat()
+    lines = [
+        f"identified {today}, the model as the drive sees it (1 sigma, {fit.uncertainty}):",
+        f"time_constant_s = {model.time_constant_s:.5g} +- {fit.time_constant_sigma_s:.2g}",
+        f"speed_per_volt_counts_s = {model.speed_per_volt_counts_s:.5g}"
+        f" +- {fit.speed_per_volt_sigma_counts_s:.2g}",
+        f"coulomb_v = {model.coulomb_v:.5g} +- {fit.coulomb_sigma_v:.2g}"
+        f" (supply {model.supply_v:g} V, {fit.samples} ticks, fit RMS"
+        f" {fit.rms_residual_counts:.2f} counts)",
+    ]
+    if physical is not None:
+        lines.append(
+            f"with Kt {physical.torque_constant_nm_per_a * 1000:.4g} mNm/A and R"
+            f" {physical.resistance_ohm:.4g} ohm: inertia_kg_m2 = {physical.inertia_kg_m2:.4g},"
+            f" viscous_friction_unm_per_rad_s = {physical.viscous_nm_s_per_rad * 1e6:.4g},"
+            f" load_torque_mnm = {physical.load_torque_nm * 1000:.4g}")
+    lines.append(f"gains for {placed.design.crossover_hz:g} Hz: phase margin"
+                 f" {margins.phase_margin_deg:.1f} deg, gain margin"
+                 f" {margins.gain_margin_db:.1f} dB")
+    return lines
+
+
+def write_tuning_file(path: Path, axis: str, found: Identification, placed: Placement,
+                      physical: PhysicalModel | None, *,
+                      url_checks: UrlChecks | None = None) -> None:
+    """Write ``found``'s model and ``placed``'s gains into the machine file at ``path``
+    (:func:`write_tuning`), the changed file checked as a file is when it loads before it
+    replaces the old one (atomically, its mode kept).
+
+    Raises:
+        ConfigError: the file is not a machine file with that axis, or the change would
+            not load; OSError: it cannot be read or written.
+    """
+    text = path.read_text(encoding="utf-8")
+    changed = write_tuning(text, axis, placed.design.gains, record_lines(found, placed, physical),
+                           identified_model(found))
+    parse_config(changed, path=path, url_checks=url_checks)
+    write_text_atomically(path, changed)
+
+
+__all__ = ["MARK", "identified_model", "record_lines", "write_tuning", "write_tuning_file"]

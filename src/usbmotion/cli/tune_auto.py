@@ -3,12 +3,8 @@
 
 from __future__ import annotations
 
-import datetime
 import json
 import math
-import os
-import tempfile
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import typer
@@ -240,53 +236,16 @@ def _print(figures: dict[str, Any], axis_config: AxisConfig) -> None:
 
 def _write(config: MachineConfig, axis_config: AxisConfig, found: Identification,
            placed: Placement, physical: PhysicalModel | None) -> None:
-    from usbmotion.autotune.machine_file import write_tuning  # noqa: PLC0415
+    from usbmotion.autotune.machine_file import write_tuning_file  # noqa: PLC0415
     from usbmotion.errors import ConfigError  # noqa: PLC0415
-    from usbmotion.host.config import MotorModelConfig, parse_config  # noqa: PLC0415
     from usbmotion.sim.urls import URL_CHECKS  # noqa: PLC0415
 
-    fit = found.fit
-    model = fit.model
-    margins = placed.design.margins
-    today = datetime.datetime.now(tz=datetime.UTC).date().isoformat()
-    lines = [
-        f"identified {today}, the model as the drive sees it (1 sigma, {fit.uncertainty}):",
-        f"time_constant_s = {model.time_constant_s:.5g} +- {fit.time_constant_sigma_s:.2g}",
-        f"speed_per_volt_counts_s = {model.speed_per_volt_counts_s:.5g}"
-        f" +- {fit.speed_per_volt_sigma_counts_s:.2g}",
-        f"coulomb_v = {model.coulomb_v:.5g} +- {fit.coulomb_sigma_v:.2g}"
-        f" (supply {model.supply_v:g} V, {fit.samples} ticks, fit RMS"
-        f" {fit.rms_residual_counts:.2f} counts)",
-    ]
-    if physical is not None:
-        lines.append(
-            f"with Kt {physical.torque_constant_nm_per_a * 1000:.4g} mNm/A and R"
-            f" {physical.resistance_ohm:.4g} ohm: inertia_kg_m2 = {physical.inertia_kg_m2:.4g},"
-            f" viscous_friction_unm_per_rad_s = {physical.viscous_nm_s_per_rad * 1e6:.4g},"
-            f" load_torque_mnm = {physical.load_torque_nm * 1000:.4g}")
-    lines.append(f"gains for {placed.design.crossover_hz:g} Hz: phase margin"
-                 f" {margins.phase_margin_deg:.1f} deg, gain margin"
-                 f" {margins.gain_margin_db:.1f} dB")
     path = config.path
     try:
-        text = path.read_text(encoding="utf-8")
-        identified = MotorModelConfig(model.time_constant_s, model.speed_per_volt_counts_s,
-                                      model.coulomb_v, model.supply_v)
-        changed = write_tuning(text, axis_config.name, placed.design.gains, lines, identified)
-        parse_config(changed, path=path, url_checks=URL_CHECKS)
+        write_tuning_file(path, axis_config.name, found, placed, physical,
+                          url_checks=URL_CHECKS)
     except ConfigError as error:
         fail("tune", f"--write: {error}", EXIT_BAD_INPUT)
-    except OSError as error:
-        fail("tune", f"--write: cannot read {path}: {error.strerror or error}", EXIT_FAULT)
-    try:
-        mode = path.stat().st_mode & 0o777
-        descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-        os.chmod(temporary, mode)
-        with os.fdopen(descriptor, "w", encoding="utf-8") as handle:
-            handle.write(changed)
-            handle.flush()
-            os.fsync(handle.fileno())
-        Path(temporary).replace(path)
     except OSError as error:
         fail("tune", f"--write: cannot write {path}: {error.strerror or error}", EXIT_FAULT)
 
