@@ -17,11 +17,26 @@ import numpy.typing as npt
 
 from usbmotion.errors import ArgumentError, DeviceError, DeviceFaultError
 from usbmotion.host.config import AxisReach, PidGains
-from usbmotion.host.device import ControlMode, Diagnostics
+from usbmotion.host.device import ControlMode, DeviceClient, Diagnostics
 from usbmotion.host.machine import Machine
 from usbmotion.session.homing import homed_mark
 
 FloatArray = npt.NDArray[np.float64]
+
+
+FEED_S = 0.2
+"""While a test's motion plays out, the host asks the device something at least this often,
+so its watchdog (a real machine's: 2 s) never mistakes the wait for a lost host."""
+
+
+def wait_feeding(machine: Machine, client: DeviceClient, seconds: float) -> None:
+    """Wait ``seconds`` on the machine's clock, a queue query to ``client`` every
+    :data:`FEED_S` (each call restarts the device's watchdog)."""
+    clock = machine.clock
+    end = clock.now() + seconds
+    while (left := end - clock.now()) > 0:
+        clock.sleep(min(left, FEED_S))
+        client.queue_status()
 
 
 @dataclass(frozen=True, slots=True)
@@ -191,7 +206,7 @@ def step_response(
             while client.queue_status()[1] < 500:
                 machine.clock.sleep(0.2)
             client.add_setpoints(values[first:first + 500])
-        machine.clock.sleep((lead + hold) * period_s + 0.05)
+        wait_feeding(machine, client, (lead + hold) * period_s + 0.05)
         client.set_diagnostics_interval(0)
         client.sync()
     client.set_following_error_limit(limit)

@@ -1,7 +1,8 @@
 // Drives usbmotion web's dashboard in headless Chromium (the system's browser, through
 // playwright-core) as an operator would: home, open demo 1, predict it with a tolerance,
-// run it with a hold and a resume to its end (then predicted beside measured), read the DRO beside the run's report, run it again and stop it, jog X+ by a
-// step, send an MDI line, and read the DRO.
+// run it with a hold and a resume to its end (then predicted beside measured), read the DRO
+// beside the run's report, run it again and stop it, jog X+ by a step, send an MDI line,
+// tune X automatically from the Tuning panel, and read the DRO.
 // Prints one JSON line: the DRO's machine positions as shown (at the end of the first run,
 // with the report's and the API state's, and at the end), the program lines highlighted
 // in the order first seen, what the prediction showed, the chart redraws a second while the program ran, the console
@@ -279,6 +280,19 @@ async function main() {
         && Math.abs(Number(now.work.Y) - 5) <= TOLERANCE_MM);
     });
 
+    const tuned = await step('tune X automatically', async () => {
+      await page.locator('#tuning-panel > summary').click();
+      await page.locator('#tune-axis').selectOption('X');
+      await page.getByLabel('Travel (mm)', { exact: true }).fill('20');
+      await click(page, 'Identify and place gains');
+      const result = page.getByTestId('auto-result');
+      await result.getByRole('table').waitFor({ timeout: 60_000 });
+      return {
+        text: await result.innerText(),
+        cells: await result.getByRole('cell').allTextContents(),
+      };
+    });
+
     const dro = await step('read the DRO', () => steadyDro(page));
 
     await step('phone layout', async () => {
@@ -295,6 +309,7 @@ async function main() {
       dro,
       run_end: runEnd,
       predicted,
+      tuned,
       highlighted,
       last_highlighted: highlighted[highlighted.length - 1],
       chart_updates_per_s: perSecond.length ? median(perSecond) : null,

@@ -2,7 +2,8 @@
 ``usbmotion web``'s application on the simulated machine in real time, driven as an
 operator drives it: home, open demo 1, predict it with a tolerance (the lines beyond it
 listed and marked as the prediction says), run it with a hold and a resume to its end
-(predicted beside measured after it), run it again and stop it, jog, an MDI line. The
+(predicted beside measured after it), run it again and stop it, jog, an MDI line, tune X
+automatically. The
 highlighted line runs through the program in order and ends on its last motion line; the
 charts redraw at least 50 times a second; the DRO at the end of the run shows the run's
 report (``GET /api/report``) to the count, and at the end what the live model holds; no
@@ -133,6 +134,14 @@ def test_the_page_drives_a_program_and_shows_the_machine(tmp_path: Path) -> None
     for axis in kept.predicted.report.axes:
         assert compared[axis.name][0] == pytest.approx(axis.max_error_mm, abs=0.00005)
     assert all(len(cells) == 4 and all(c >= 0 for c in cells) for cells in compared.values())
+    # Automatic tuning from the Tuning panel: the model, the gains with their margins, and
+    # each check's figures predicted beside measured; not written (the box unticked).
+    tuned = result["tuned"]
+    assert "gains kp" in tuned["text"] and "phase margin" in tuned["text"], tuned
+    assert "not written" in tuned["text"], tuned
+    rows = [tuned["cells"][i:i + 4] for i in range(0, len(tuned["cells"]), 4)]
+    assert [row[0] for row in rows] == ["step"] * 3 + ["move"] * 3, rows
+    assert all(float(row[3]) >= 0 for row in rows if row[3] != "—"), rows
     assert (SCREENSHOTS / "dashboard.png").is_file()
     assert (SCREENSHOTS / "dashboard-phone.png").is_file()
     print(f"dashboard page: steps {', '.join(result['steps'])}; chart redraws"

@@ -21,6 +21,7 @@ from usbmotion.errors import DeviceError, DeviceFaultError
 from usbmotion.host.config import AxisConfig
 from usbmotion.host.device import ControlMode, Diagnostics
 from usbmotion.host.machine import Machine
+from usbmotion.tuning import wait_feeding
 
 STEP_MAX_MM = 1.0
 """The verification step: a quarter of the test's travel, at most this."""
@@ -236,7 +237,7 @@ def _play(machine: Machine, axis: str, wanted: list[int]) -> list[Diagnostics]:
             while client.queue_status()[1] < 500:
                 machine.clock.sleep(0.1)
             client.add_setpoints(values[first:first + 500])
-        machine.clock.sleep(len(values) * period_s + 0.05)
+        wait_feeding(machine, client, len(values) * period_s + 0.05)
         client.set_diagnostics_interval(0)
         client.sync()
     status = client.status()

@@ -18,7 +18,6 @@ import os
 from collections.abc import Iterator
 from contextvars import ContextVar
 from dataclasses import replace
-from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -44,7 +43,9 @@ BUILT_IN_LOCK = "machine.lock"
 
 def default_machine() -> Path:
     """The built-in simulated 3-axis machine (the same file as ``examples/machine.toml``)."""
-    return Path(str(resources.files("usbmotion") / "data" / "machine.toml"))
+    from usbmotion.host.config import builtin_machine_file  # noqa: PLC0415
+
+    return builtin_machine_file()
 
 
 def state_dir() -> Path:

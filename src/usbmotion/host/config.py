@@ -20,6 +20,7 @@ import re
 import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -489,6 +490,12 @@ class MachineConfig:
 UrlChecks = Mapping[str, Callable[[str], str | None]]
 """URL scheme (``sim``) -> why a URL of that scheme is wrong, or ``None``: the checks of
 the links this host cannot read itself (:data:`usbmotion.sim.urls.URL_CHECKS`)."""
+
+
+def builtin_machine_file() -> Path:
+    """The built-in simulated 3-axis machine's file: part of the package
+    (``usbmotion/data/machine.toml``, the same as ``examples/machine.toml``), never written."""
+    return Path(str(resources.files("usbmotion") / "data" / "machine.toml"))
 
 
 def load_config(path: str | Path, *, url_checks: UrlChecks | None = None) -> MachineConfig:

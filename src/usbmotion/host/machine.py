@@ -187,8 +187,10 @@ class Machine:
     def reconfigure(self, config: MachineConfig) -> None:
         """Take a changed configuration of the same machine: its host-side values (scale,
         limits, travel, homing, planning) take effect at once; of what :meth:`configure`
-        sends, only the following-error limit may change (it is in counts: it follows the
-        scale) and it is sent again. Each axis keeps the link it was connected on.
+        sends, the following-error limit (it is in counts: it follows the scale) and the
+        position gains are sent again when they changed (the devices hold in position mode
+        while the machine is idle; the velocity gains take effect at the next homing). Each
+        axis keeps the link it was connected on.
 
         Raises:
             ConfigError: the axes, their devices or a value only a restart applies differ
@@ -211,7 +213,7 @@ class Machine:
             for axis in config.axes))
         for axis in self.axes.values():
             new = config.axis(axis.name)
-            for key in ("device", "gains", "velocity_gains", "sim"):
+            for key in ("device", "sim"):
                 if getattr(new, key) != getattr(axis.config, key):
                     raise ConfigError(
                         f"{config.path}: axes.{axis.name}.{key} takes effect only when the"
@@ -222,6 +224,8 @@ class Machine:
             new = config.axis(axis.name)
             if new.following_error_limit_counts != axis.config.following_error_limit_counts:
                 axis.client.set_following_error_limit(new.following_error_limit_counts)
+            if new.gains != axis.config.gains:  # idle: the devices hold in position mode
+                axis.client.set_gains(kp=new.gains.kp, ki=new.gains.ki, kd=new.gains.kd)
             axis.client.scale = new.scale
             axes[axis.name] = Axis(axis.name, new, axis.client, axis.url)
         self.axes = axes

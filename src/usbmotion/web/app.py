@@ -247,6 +247,11 @@ def create_app(dashboard: Dashboard, *, token: str) -> ASGIApp:
         return await work(lambda: dashboard.tune(body.get("axis"),
                                                  step_mm=body.get("step_mm", 1.0)))
 
+    async def tune_auto(request: Request) -> Any:
+        body = await _body(request)
+        return await work(lambda: dashboard.tune_auto(
+            body.get("axis"), travel_mm=body.get("travel_mm"), write=body.get("write", False)))
+
     async def live(socket: WebSocket) -> None:
         await socket.accept()
         reader = dashboard.reader()
@@ -295,6 +300,7 @@ def create_app(dashboard: Dashboard, *, token: str) -> ASGIApp:
         Route("/api/devices", _api(devices)),
         Route("/api/devices/{axis}/parameters", _api(set_parameter), methods=["POST"]),
         Route("/api/tune", _api(tune), methods=["POST"]),
+        Route("/api/tune/auto", _api(tune_auto), methods=["POST"]),
         WebSocketRoute("/api/live", live),
         Mount("/", StaticFiles(directory=static_folder(), html=True, check_dir=False)),
     ]

@@ -30,6 +30,14 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Any, Protocol, TypeVar
 
+from usbmotion.autotune.identify import Identification, identify_axis
+from usbmotion.autotune.machine_file import write_tuning_file
+from usbmotion.autotune.verify import (
+    Placement,
+    check_on_axis,
+    place_loop,
+    predicted_versus_measured,
+)
 from usbmotion.demos import DEMOS, demo_path
 from usbmotion.errors import (
     ArgumentError,
@@ -40,7 +48,7 @@ from usbmotion.errors import (
     PlanningError,
     UsbMotionError,
 )
-from usbmotion.host.config import UrlChecks
+from usbmotion.host.config import UrlChecks, builtin_machine_file, load_config
 from usbmotion.host.parameters import PARAMETERS, Storage, machine_file_problem, parameter
 from usbmotion.motion.gcode import parse_gcode
 from usbmotion.motion.moves import ROTARY_AXES
@@ -85,6 +93,11 @@ def _bad(message: str) -> RefusedError:
 
 def _not_now(message: str) -> RefusedError:
     return RefusedError(409, message)
+
+
+def _finite(value: float) -> float | None:
+    """``value``, or None for NaN or an infinity (JSON has neither)."""
+    return value if math.isfinite(value) else None
 
 
 @dataclass(slots=True)
@@ -929,6 +942,96 @@ class Dashboard:
             "rise_s": finite(m.rise_time_s),
             "settling_s": finite(m.settling_time_s),
             "steady_state_error_mm": m.steady_state_error_counts / scale,
+        }
+
+    def tune_auto(self, axis: object, *, travel_mm: object, write: object = False
+                  ) -> dict[str, Any]:
+        """``usbmotion tune --auto`` on ``axis`` at rest: identified within ``travel_mm`` of
+        where it stands (negative: toward lower positions), its gains placed and checked with
+        a step and a move, predicted beside measured. With ``write`` the gains and the model
+        go into the machine file (the command's ``--write``) and the machine takes them at
+        once; without, the axis gets the file's gains back.
+
+        Raises:
+            RefusedError: a bad axis, travel or write (400), busy, or the built-in machine's
+                file to write (409); the identification refused (400) or failed (409).
+        """
+        if not isinstance(axis, str) or axis.upper() not in self.config.axis_names:
+            raise _bad(f"axis {axis!r}: allowed {', '.join(self.config.axis_names)}")
+        letter = axis.upper()
+        low, high = self.config.axis(letter).travel_mm
+        if isinstance(travel_mm, bool) or not isinstance(travel_mm, int | float) or not (
+                math.isfinite(travel_mm) and 0 < abs(travel_mm) <= high - low):
+            raise _bad(f"travel_mm {travel_mm!r}: the room the test may use from where the"
+                       f" axis stands, mm, not 0, within {high - low:g} (negative: toward"
+                       " lower positions)")
+        if not isinstance(write, bool):
+            raise _bad(f"write {write!r}: true or false")
+        if write and self.config.path.resolve() == builtin_machine_file().resolve():
+            raise _not_now(f"{self.config.path} is the built-in machine's file, part of the"
+                           " package: copy it (examples/machine.toml is the same) and serve"
+                           " the copy (usbmotion web --machine FILE) to write it")
+        self._idle_or_refuse("tune")
+        room = float(travel_mm)
+
+        def identify() -> tuple[Identification, Placement]:
+            machine = self.session.machine
+            target = machine.axis(letter)
+            try:
+                found = identify_axis(machine, letter, travel_mm=room)
+                chosen = place_loop(found, target.config)
+                placed = check_on_axis(machine, letter, found, chosen)
+            finally:
+                if not write:
+                    gains = target.config.gains
+                    target.client.set_gains(kp=gains.kp, ki=gains.ki, kd=gains.kd)
+                self.session.read_live()
+            return found, placed
+
+        found, placed = self._call(identify, refused=400)
+        written = ""
+        if write:
+            path = self.config.path
+            try:
+                write_tuning_file(path, letter, found, placed, None, url_checks=self.url_checks)
+            except ConfigError as error:
+                raise _not_now(f"the machine file was not written: {error}") from None
+            except OSError as error:
+                raise _not_now(f"cannot write {path}: {error.strerror or error}") from None
+            try:
+                self.operator.reconfigure(load_config(path, url_checks=self.url_checks))
+            except (ConfigError, MachineStateError) as error:
+                raise _not_now(f"{path} is written, but the machine takes it only when it"
+                               f" starts again: {error}") from None
+            self.config = self.session.config
+            written = str(path)
+        model, fit, design = found.fit.model, found.fit, placed.design
+        checks: dict[str, Any] = {}
+        for check in (placed.step, placed.move):
+            if check is not None:
+                checks[check.what] = {
+                    "distance_counts": check.distance_counts,
+                    **{key: {"predicted": _finite(pair[0]), "measured": _finite(pair[1])}
+                       for key, pair in predicted_versus_measured(check).items()}}
+        gains = design.gains
+        self.message(f"tune {letter} automatically: kp {gains.kp:g} ki {gains.ki:g} kd"
+                     f" {gains.kd:g}, phase margin {design.margins.phase_margin_deg:.1f} deg"
+                     + (f"; written to {written}" if written else "; not written"))
+        return {
+            "axis": letter, "travel_mm": room,
+            "model": {
+                "time_constant_s": model.time_constant_s,
+                "time_constant_sigma_s": fit.time_constant_sigma_s,
+                "speed_per_volt_counts_s": model.speed_per_volt_counts_s,
+                "speed_per_volt_sigma_counts_s": fit.speed_per_volt_sigma_counts_s,
+                "coulomb_v": model.coulomb_v, "coulomb_sigma_v": fit.coulomb_sigma_v,
+                "supply_v": model.supply_v},
+            "gains": {"kp": gains.kp, "ki": gains.ki, "kd": gains.kd},
+            "loop": {"crossover_hz": design.margins.crossover_hz,
+                     "phase_margin_deg": _finite(design.margins.phase_margin_deg),
+                     "gain_margin_db": _finite(design.margins.gain_margin_db)},
+            "checks": checks,
+            "written_to": written or None,
         }
 
     def select_system(self, system: object) -> None:

@@ -1,5 +1,6 @@
 // The tuning panel: a step response of one axis at rest, plotted with its overshoot and
-// settling time.
+// settling time; and the automatic tuning (usbmotion tune --auto): the axis identified,
+// its gains placed, checked, predicted beside measured, written to the machine file if asked.
 
 import uPlot from 'uplot';
 import { byId, setText } from './format.js';
@@ -22,6 +23,14 @@ export class TuningPanel {
       event.preventDefault();
       this.run();
     });
+    this.autoTravel = byId('auto-travel');
+    this.autoWrite = byId('auto-write');
+    this.autoButton = byId('auto-run');
+    this.autoResult = byId('auto-result');
+    byId('auto-form').addEventListener('submit', (event) => {
+      event.preventDefault();
+      this.runAuto();
+    });
     new ResizeObserver(() => {
       if (this.chart && this.chartBox.clientWidth) {
         this.chart.setSize({ width: this.chartBox.clientWidth, height: HEIGHT_PX });
@@ -32,6 +41,80 @@ export class TuningPanel {
   update(state) {
     this.idle = state.state === 'Idle' && !state.busy && state.homed;
     this.button.disabled = this.running || !this.idle;
+    this.autoIdle = state.state === 'Idle' && !state.busy;
+    this.autoButton.disabled = this.running || !this.autoIdle;
+  }
+
+  async runAuto() {
+    const axis = this.axis.value;
+    const travelMm = Number(this.autoTravel.value);
+    if (!Number.isFinite(travelMm) || travelMm === 0) {
+      this.log.error(`Tuning: travel ${JSON.stringify(this.autoTravel.value)} is not a distance in mm (not 0)`);
+      return;
+    }
+    const write = this.autoWrite.checked;
+    this.running = true;
+    this.autoButton.disabled = true;
+    this.button.disabled = true;
+    this.autoResult.replaceChildren(document.createTextNode(
+      `identifying ${axis} within ${travelMm} mm of where it stands…`));
+    try {
+      const answer = await this.api.post('tune/auto', { axis, travel_mm: travelMm, write });
+      this.showAuto(answer);
+    } catch (error) {
+      this.autoResult.replaceChildren();
+      this.log.error(`Tuning ${axis} automatically: ${error.message}`);
+    } finally {
+      this.running = false;
+      this.autoButton.disabled = !this.autoIdle;
+      this.button.disabled = !this.idle;
+    }
+  }
+
+  showAuto(answer) {
+    const m = answer.model;
+    const g = answer.gains;
+    const loop = answer.loop;
+    const lines = [
+      `${answer.axis}: time constant ${(m.time_constant_s * 1000).toFixed(2)} ms,`
+        + ` ${m.speed_per_volt_counts_s.toPrecision(4)} counts/s per V,`
+        + ` Coulomb ${m.coulomb_v.toFixed(3)} V`,
+      `gains kp ${g.kp} ki ${g.ki} kd ${g.kd}: crossover ${loop.crossover_hz.toFixed(1)} Hz,`
+        + ` phase margin ${loop.phase_margin_deg === null ? '—' : loop.phase_margin_deg.toFixed(1)} deg,`
+        + ` gain margin ${loop.gain_margin_db === null ? '—' : loop.gain_margin_db.toFixed(1)} dB`,
+      answer.written_to ? `written to ${answer.written_to}` : 'not written: the axis keeps the file\'s gains',
+    ];
+    const table = document.createElement('table');
+    table.className = 'auto-checks';
+    const head = table.createTHead().insertRow();
+    for (const title of ['check', 'figure', 'predicted', 'measured']) {
+      const cell = document.createElement('th');
+      cell.textContent = title;
+      head.appendChild(cell);
+    }
+    const body = table.createTBody();
+    const shown = [
+      ['overshoot_pct', 'overshoot (%)', 1, 2],
+      ['settling_time_s', 'settling (ms)', 1000, 1],
+      ['peak_following_error_counts', 'peak error (counts)', 1, 0],
+    ];
+    for (const [what, check] of Object.entries(answer.checks)) {
+      for (const [key, label, factor, digits] of shown) {
+        const row = body.insertRow();
+        const pair = check[key];
+        for (const text of [what, label,
+          pair.predicted === null ? '—' : (pair.predicted * factor).toFixed(digits),
+          pair.measured === null ? '—' : (pair.measured * factor).toFixed(digits)]) {
+          row.insertCell().textContent = text;
+        }
+      }
+    }
+    const paragraphs = lines.map((text) => {
+      const p = document.createElement('p');
+      p.textContent = text;
+      return p;
+    });
+    this.autoResult.replaceChildren(...paragraphs, table);
   }
 
   async run() {
