@@ -82,6 +82,8 @@ POWER_UP_QUERIES = {
     "34 -1 -1": "SIM_TRAVEL -2147483648 2147483647",
     "35 -1": "MOTION_STATS 0 0 0 0 -1",
     "36 1": "SWITCH_EDGE 1 0 0 0 0",
+    "40 -1 0": "SIM_PROBE 0 0",
+    "41 -1": "PROBE 0 0 0 0 0",
 }
 
 
@@ -126,6 +128,8 @@ SET_THEN_QUERY = [
     ("32 1 -12", "32 -1 0", "SIM_VISCOUS_FRICTION 1 -12"),
     ("33 0 0", "33 -1 0", "SIM_LOAD_TORQUE 0 0"),
     ("34 -100 100", "34 -1 -1", "SIM_TRAVEL -100 100"),
+    ("40 2 -7", "40 -1 0", "SIM_PROBE 2 -7"),
+    ("40 1 0", "41 -1", "PROBE 1 0 0 0 0"),  # touching at once, and no edge
     ("0 42", "2 -1", "MOTION_QUEUE 1 999"),
     ("37 -12", "20 -1", "STATUS 0 -12 -12 0 0 0 1 0 0"),
 ]
@@ -175,6 +179,7 @@ DEBUG_LINES = [
     ([], "37 -3", "POSITION SHIFTED BY -3"),
     ([], "38 0 2 5 -5", "REPLACED 0 0 2 CRC 2082170553"),
     ([], "39 1", "MOTOR MODIFIED TO 1"),
+    ([], "40 2 -250", "SIM PROBE MODIFIED TO 2 -250"),
 ]
 
 

@@ -258,10 +258,13 @@ class Device:
         self._diag_n = 0
         self._watchdog_ms = 0
         self._fe_limit = 0
+        self._probe_side = 0
+        self._probe_position = 0
         self._state[core1.S_MODE] = contents.default_control_mode
         self._settle_left = 0
         self._copy_in()
         self._state[core1.S_LIMITS] = self._switches()
+        self._state[core1.S_PROBE] = self._probe()
 
     def restart(self) -> None:
         """Power cycle: RAM defaults, position 0, servo disabled; flash is kept.
@@ -687,6 +690,8 @@ class Device:
             core1.P_STOP_LOW: constants.stop_low_micro,
             core1.P_STOP_HIGH: constants.stop_high_micro,
             core1.P_WINDOW: window,
+            core1.P_PROBE_SIDE: self._probe_side,
+            core1.P_PROBE_POSITION: self._probe_position,
         }
         for index, value in values.items():
             params[index] = value
@@ -699,6 +704,11 @@ class Device:
         if count >= self._motor.travel_upper_counts:
             bits |= 2
         return bits
+
+    def _probe(self) -> int:
+        """The simulated probe input where the motor stands (call 40's surface)."""
+        count = int(self._state[core1.S_THETA]) // MICRO
+        return core1.probe_closed(count, self._probe_side, self._probe_position)
 
     # --- core0: shared actions -----------------------------------------------------------
 
@@ -1108,6 +1118,21 @@ class Device:
         self._set_motor(travel_lower_counts=lower, travel_upper_counts=upper)
         self._state[core1.S_LIMITS] = self._switches()
         self._debug_line(34, lower, upper)
+
+    def _call_40(self, call: Call) -> None:
+        if call.is_query:
+            self._reply(40, self._probe_side, self._probe_position)
+            return
+        self._probe_side, self._probe_position = call.args
+        self._copy_in()
+        self._state[core1.S_PROBE] = self._probe()  # a moved surface is no edge
+        self._debug_line(40, self._probe_side, self._probe_position)
+
+    def _call_41(self, call: Call) -> None:
+        state = self._state
+        base = core1.S_PROBE_EDGE
+        edge = state[base : base + core1.EDGE_FIELDS].tolist()
+        self._reply(41, int(state[core1.S_PROBE]), *edge)
 
 
 __all__ = [

@@ -22,8 +22,9 @@ One servo tick, in order:
 3. the motor over the tick, in ``steps`` equal integration steps.
 4. encoder: counter, velocity over the window (counts/s), limit switches, and for each switch
    that changed, the edge latch (call 36: the counter and the clock of the tick it changed
-   on); in velocity mode the counter is reset to 0 after every 60 s of device time spent in
-   that mode (latched edge positions move with it).
+   on); the probe input (call 40's surface) and its edge latch the same way (call 41); in
+   velocity mode the counter is reset to 0 after every 60 s of device time spent in that
+   mode (latched edge positions move with it).
 5. faults (servo enabled): limit switch closing in mode 1 or 3, following error in mode 1
    or 3, then watchdog; a fault disables the servo and cuts its output to 0 V (as call
    ``3 0`` does), so no line reports a drive the servo no longer applies.
@@ -139,12 +140,16 @@ EDGE_CLOSED = 1
 EDGE_POSITION = 2
 EDGE_TICK = 3
 EDGE_COUNT_MODULUS = 1 << 32
+S_PROBE_EDGE = S_EDGES + 2 * EDGE_FIELDS
+"""The probe input's edge latch (call 41): ``EDGE_FIELDS`` entries as a switch's."""
+S_PROBE = S_PROBE_EDGE + EDGE_FIELDS
+"""The probe input now: 1 closed (touching), 0 open."""
 DIAG_SLOTS = 64
 """Diagnostics records ``state`` holds."""
 DIAG_RECORD = 8
 """Entries of one record: clock, desired (velocity in mode 2), actual, velocity, output
 (coefficient, exponent), queued values, peak following error."""
-S_DIAG = S_EDGES + 2 * EDGE_FIELDS
+S_DIAG = S_PROBE + 1
 """First entry of the ``DIAG_SLOTS`` records."""
 STATE_SIZE = S_DIAG + DIAG_SLOTS * DIAG_RECORD
 STATS_SUM_CAP = 1 << 62
@@ -187,7 +192,12 @@ one tick, at most ``HISTORY_SLOTS``), so encoder quantisation does not grow with
 P_DIAG_ROOM = 28
 """Diagnostics records core0 takes per block: the block ends when this many are written
 (1 to ``DIAG_SLOTS``; 1 prints every line at its own tick)."""
-PARAMS_SIZE = 29
+P_PROBE_SIDE = 29
+"""The simulated probe surface's side (call 40): 0 none, 1 the probe closes at or below
+:data:`P_PROBE_POSITION`, 2 at or above it."""
+P_PROBE_POSITION = 30
+"""The simulated probe surface, motor counts from power-up."""
+PARAMS_SIZE = 31
 
 _DYNAMIC = (
     S_ENABLE,
@@ -208,6 +218,7 @@ _DYNAMIC = (
     S_QUEUE_COUNT,
     S_START,
     S_LIMITS,
+    S_PROBE,
     *range(S_HISTORY, S_HISTORY + 2 * HISTORY_SLOTS),
 )
 DYNAMIC_FIELDS: tuple[int, ...] = _DYNAMIC
@@ -235,12 +246,21 @@ def wrap_int32(value: int) -> int:
     return ((value + 2147483648) & 0xFFFFFFFF) - 2147483648
 
 
+def probe_closed(count: int, side: int, position: int) -> int:
+    """The simulated probe input at motor count ``count``: 1 touching the surface (call 40's
+    ``side`` and ``position``), else 0."""
+    if side == 1 and count <= position:
+        return 1
+    if side == 2 and count >= position:
+        return 1
+    return 0
+
+
 def shift_edges(state: IntArray, shift: int) -> None:
-    """Move the latched edge positions with the encoder counter (``shift`` counts, wrapping
-    as the counter does); a switch with no edge yet (its tick is 0: an edge's tick is at least
-    1) keeps position 0."""
-    for switch in range(2):
-        base = S_EDGES + switch * EDGE_FIELDS
+    """Move the latched edge positions (the switches' and the probe's) with the encoder
+    counter (``shift`` counts, wrapping as the counter does); an input with no edge yet (its
+    tick is 0: an edge's tick is at least 1) keeps position 0."""
+    for base in (S_EDGES, S_EDGES + EDGE_FIELDS, S_PROBE_EDGE):
         if state[base + EDGE_TICK] != 0:
             state[base + EDGE_POSITION] = wrap_int32(int(state[base + EDGE_POSITION]) + shift)
 
@@ -304,6 +324,8 @@ def servo_block(
     stop_high = int(params[P_STOP_HIGH])
     window = int(params[P_WINDOW])
     diag_room = min(max(1, int(params[P_DIAG_ROOM])), DIAG_SLOTS)
+    probe_side = int(params[P_PROBE_SIDE])
+    probe_position = int(params[P_PROBE_POSITION])
 
     clock = int(state[S_CLOCK])
     enable = int(state[S_ENABLE])
@@ -331,6 +353,7 @@ def servo_block(
     velocity_mode_us = int(state[S_VELOCITY_MODE_US])
     diag_left = int(state[S_DIAG_LEFT])
     limits = int(state[S_LIMITS])
+    probe = int(state[S_PROBE])
     stats_ticks = int(state[S_STATS_TICKS])
     stats_max = int(state[S_STATS_MAX])
     stats_max_tick = int(state[S_STATS_MAX_TICK])
@@ -466,6 +489,15 @@ def servo_block(
                     state[base + EDGE_CLOSED] = (new_limits >> switch) & 1
                     state[base + EDGE_POSITION] = actual
                     state[base + EDGE_TICK] = clock + 1
+        touching = probe_closed(count, probe_side, probe_position)
+        if touching != probe:
+            probe = touching
+            state[S_PROBE_EDGE + EDGE_COUNT] = (int(state[S_PROBE_EDGE + EDGE_COUNT]) + 1) % (
+                EDGE_COUNT_MODULUS
+            )
+            state[S_PROBE_EDGE + EDGE_CLOSED] = probe
+            state[S_PROBE_EDGE + EDGE_POSITION] = actual
+            state[S_PROBE_EDGE + EDGE_TICK] = clock + 1
         if mode == MODE_VELOCITY:
             velocity_mode_us += tick_us
             if velocity_mode_us >= VELOCITY_RESET_US:
@@ -561,6 +593,7 @@ def servo_block(
     state[S_VELOCITY_MODE_US] = velocity_mode_us
     state[S_DIAG_LEFT] = diag_left
     state[S_LIMITS] = limits
+    state[S_PROBE] = probe
     state[S_EVENTS] = events
     state[S_STATS_TICKS] = stats_ticks
     state[S_STATS_MAX] = stats_max

@@ -181,6 +181,7 @@ def compile_kernel() -> BlockFunction:
                 core1.wrap_int32,
                 core1.trunc_div,
                 core1.shift_edges,
+                core1.probe_closed,
                 motor._trunc_div,
                 motor.motor_step,
             ):

@@ -36,6 +36,7 @@ from usbmotion.protocol import (
     ControlMode,
     Diagnostics,
     MotionStats,
+    ProbeState,
     Replaced,
     Reply,
     ReplyKind,
@@ -650,6 +651,16 @@ class DeviceClient:
         lower, upper = self.query(C.SET_SIM_TRAVEL, -1, -1).values
         return lower, upper
 
+    def set_sim_probe(self, side: int, position_counts: int) -> None:
+        """Call 40: the simulated probe's surface: ``side`` 0 none, 1 the probe closes at or
+        below ``position_counts`` (motor counts from power-up), 2 at or above it."""
+        self.command(C.SET_SIM_PROBE, side, position_counts)
+
+    def sim_probe(self) -> tuple[int, int]:
+        """Call 40 query: (side, position counts)."""
+        side, position = self.query(C.SET_SIM_PROBE, -1, 0).values
+        return side, position
+
     # --- flash ------------------------------------------------------------------------------
 
     def set_name(self, name: str) -> None:
@@ -703,6 +714,10 @@ class DeviceClient:
     def switch_edge(self, switch: int) -> SwitchEdge:
         """Call 36: the last edge of the lower (1) or upper (2) limit switch."""
         return SwitchEdge.from_values(self.query(C.SWITCH_EDGE, switch).values)
+
+    def probe(self) -> ProbeState:
+        """Call 41: the probe input now and its last edge."""
+        return ProbeState.from_values(self.query(C.PROBE, -1).values)
 
     def set_homed_marker(self, value: int) -> None:
         """Mark the device as homed since its power-up (the flag of :data:`HOMED_MARKER_CALL`,
@@ -847,6 +862,7 @@ __all__ = [
     "DeviceClient",
     "Diagnostics",
     "MotionStats",
+    "ProbeState",
     "Replaced",
     "Status",
     "SwitchEdge",

@@ -53,6 +53,8 @@ class CallNumber(IntEnum):
     SHIFT_POSITION = 37
     REPLACE_FROM = 38
     SET_MOTOR = 39
+    SET_SIM_PROBE = 40
+    PROBE = 41
 
 
 class ControlMode(IntEnum):

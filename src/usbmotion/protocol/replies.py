@@ -47,6 +47,8 @@ _DIAGNOSTICS_FIELDS = len(_DIAGNOSTICS_ORDER)
 _ALARM = _checked(ALARM, "fault", "tick")
 _SWITCH_EDGE = _checked(_reply_template(CallNumber.SWITCH_EDGE), "switch", "edges", "closed",
                         "position", "tick")
+_PROBE = _checked(_reply_template(CallNumber.PROBE), "closed", "edges", "edge_closed",
+                  "position", "tick")
 _MOTION_STATS = _checked(_reply_template(CallNumber.MOTION_STATS), "ticks", "max_error",
                          "max_error_tick", "sum_sq_error", "last_take_tick")
 REPLACED = _checked(_debug_template(CallNumber.REPLACE_FROM, 1), "kept", "skipped", "added",
@@ -172,6 +174,30 @@ class SwitchEdge:
         """The edge from the values of a ``SWITCH_EDGE`` line."""
         v = _read(_SWITCH_EDGE, values)
         return cls(switch=v["switch"], edges=v["edges"], closed=v["closed"] == 1,
+                   position_counts=v["position"], tick=v["tick"])
+
+
+@dataclass(frozen=True, slots=True)
+class ProbeState:
+    """Call 41: the probe input now and its last edge, latched by the device on its tick.
+
+    ``closed`` is True while the probe touches; ``edges`` counts its edges since power-up
+    (modulo 2**32; 0: none yet), ``edge_closed`` says whether the last one closed it,
+    ``position_counts`` is the counter on that tick (in the counter's current coordinates)
+    and ``tick`` the clock after it.
+    """
+
+    closed: bool
+    edges: int
+    edge_closed: bool
+    position_counts: int
+    tick: int
+
+    @classmethod
+    def from_values(cls, values: Sequence[int]) -> ProbeState:
+        """The state from the values of a ``PROBE`` line."""
+        v = _read(_PROBE, values)
+        return cls(closed=v["closed"] == 1, edges=v["edges"], edge_closed=v["edge_closed"] == 1,
                    position_counts=v["position"], tick=v["tick"])
 
 

@@ -567,6 +567,40 @@ CALLS: tuple[CallSpec, ...] = (
         " bridge's supply). The Python device stores and answers the choice and always runs"
         " its simulated motor (it has no pins): its `running` is 0.",
     ),
+    CallSpec(
+        C.SET_SIM_PROBE,
+        "Simulated axis: where the probe touches (a plate, a workpiece top): side and position.",
+        (
+            _p("side", 0, 2, "0 no probe surface, 1 the probe closes at or below position,"
+               " 2 at or above it"),
+            _p("position", INT32_MIN, INT32_MAX, "the surface, motor counts from power-up"),
+        ),
+        query=(-1, 0),
+        query_reply=_t("SIM_PROBE {side} {position}"),
+        debug={1: _t("SIM PROBE MODIFIED TO {side} {position}")},
+        notes="The simulated probe input (call 41) closes on every tick the motor's count is at"
+        " or beyond the surface on its side, and opens when it leaves it. Measured in motor"
+        " counts from power-up like call 34's travel (call 23 does not move it). Power-up: no"
+        " surface (0 0). Changing it is no edge: the input takes its new state at once."
+        " With the motor on the pins the probe input is the probe pin's.",
+    ),
+    CallSpec(
+        C.PROBE,
+        "The probe input: its state now and its last edge, latched by core1 on the tick it"
+        " happened.",
+        (_p("query", -1, -1, "-1 queries"),),
+        query=(-1,),
+        query_reply=_t("PROBE {closed} {edges} {edge_closed} {position} {tick}"),
+        notes="Always a query. `closed` is 1 while the probe touches. On every servo tick the"
+        " probe input changes state (in any mode, enabled or not) core1 latches the encoder"
+        " counter and the clock of that tick, as call 36 does for a limit switch: `edges`"
+        " counts the probe's edges since power-up (modulo 2^32), `edge_closed` is 1 when the"
+        " last one closed it, `position` is the counter on that tick (in the counter's current"
+        " coordinates: calls 23 and 37 and the velocity-mode reset move it) and `tick` the"
+        " clock after it. Before the first edge: `0 0 0 0`. A probing move stops when the host"
+        " sees the edge; the contact position is the latched one, exact to the count however"
+        " late the host looks.",
+    ),
 )
 BY_NUMBER: Mapping[int, CallSpec] = {spec.number: spec for spec in CALLS}
 BY_NAME: Mapping[str, CallSpec] = {spec.name: spec for spec in CALLS}
