@@ -138,6 +138,10 @@ class SimMotorConfig:
         start_mm: where the carriage stands at power-up, in machine millimetres; the
             simulated limit switches close ``switch_margin_mm`` beyond the ends of the
             axis's ``travel_mm``, relative to it.
+        probe_side: where a probe touches on this axis (call 40): 0 nowhere, 1 at or below
+            ``probe_mm`` (a plate under a Z probe: the file's ``probe_below_mm``), 2 at or
+            above it (``probe_above_mm``).
+        probe_mm: the probe's surface, machine millimetres.
     """
 
     update_interval_dms: int
@@ -149,6 +153,8 @@ class SimMotorConfig:
     viscous_friction_unm_per_rad_s: float
     load_torque_mnm: float
     start_mm: float
+    probe_side: int = 0
+    probe_mm: float = 0.0
 
     def model(self) -> DcMotorModel:
         """The motor's continuous model, each value to the 4 significant digits the device's
@@ -368,6 +374,15 @@ class AxisConfig:
             round((low - margin - self.sim.start_mm) * self.counts_per_mm),
             round((high + margin - self.sim.start_mm) * self.counts_per_mm),
         )
+
+    @property
+    def sim_probe_counts(self) -> tuple[int, int]:
+        """The simulated probe surface as call 40 takes it: (side, motor counts from
+        power-up); (0, 0) without one."""
+        if self.sim is None or not self.sim.probe_side:
+            return 0, 0
+        return self.sim.probe_side, round((self.sim.probe_mm - self.sim.start_mm)
+                                          * self.counts_per_mm)
 
 
 JOINT_UNITS = ("deg", "mm")
@@ -756,7 +771,8 @@ _HOMING_KEYS = ("direction", "speed_mm_s", "slow_speed_mm_s", "backoff_mm", "pos
 _SIM_KEYS = (
     "update_interval_dms", "source_voltage_v", "torque_constant_mnm_per_a",
     "winding_resistance_ohm", "counts_per_revolution", "inertia_kg_m2",
-    "viscous_friction_unm_per_rad_s", "load_torque_mnm", "start_mm",
+    "viscous_friction_unm_per_rad_s", "load_torque_mnm", "start_mm", "probe_below_mm",
+    "probe_above_mm",
 )
 _REACH_KEYS = ("velocity_mm_s", "accel_mm_s2")
 _MODEL_KEYS = ("time_constant_s", "speed_per_volt_counts_s", "coulomb_v", "supply_v")
@@ -1269,10 +1285,19 @@ def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
     for end in travel:
         if not INT32_MIN <= round((end - start) * counts_per_mm) <= INT32_MAX:
             table.fail("start_mm", f"{start!r} puts a switch outside int32 counts")
+    probe_side, probe_mm = 0, 0.0
+    for side, key in ((1, "probe_below_mm"), (2, "probe_above_mm")):
+        if table.has(key):
+            if probe_side:
+                table.fail(key, "the probe touches one surface: give probe_below_mm (a plate"
+                           " under it) or probe_above_mm, not both")
+            probe_side = side
+            probe_mm = table.number(key, minimum=travel[0], maximum=travel[1],
+                                    unit="mm, the probe's surface within travel_mm")
     table.finish()
     return SimMotorConfig(
         update_interval_dms=interval, counts_per_revolution=counts_per_rev, start_mm=start,
-        **values,
+        probe_side=probe_side, probe_mm=probe_mm, **values,
     )
 
 

@@ -183,6 +183,7 @@ class Machine:
                     client.set_sim_value(call, getattr(sim, key), label=key)
                 client.set_sim_counts_per_revolution(sim.counts_per_revolution)
                 client.set_sim_travel(*travel)
+                client.set_sim_probe(*settings.sim_probe_counts)
 
     def reconfigure(self, config: MachineConfig) -> None:
         """Take a changed configuration of the same machine: its host-side values (scale,
