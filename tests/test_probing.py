@@ -51,7 +51,7 @@ def test_a_plate_under_z_latches_the_contact_at_its_height(tmp_path: Path) -> No
 
 def test_a_probe_surface_is_one_and_within_the_travel(tmp_path: Path) -> None:
     both = _machine_with_plate(tmp_path, "probe_below_mm = -20.0, probe_above_mm = -10.0")
-    with pytest.raises(ConfigError, match="probe_below_mm .* or probe_above_mm, not both"):
+    with pytest.raises(ConfigError, match=r"probe_below_mm .* or probe_above_mm, not both"):
         load_config(both)
     beyond = _machine_with_plate(tmp_path, "probe_below_mm = -120.0")
     with pytest.raises(ConfigError, match=r"axes\.Z\.sim\.probe_below_mm: -120"):
