@@ -41,6 +41,8 @@ from .test_native_device import (  # the scripted sessions, run here on the emul
     test_the_crc_acknowledgement_of_a_full_queue,
     test_the_crc_of_a_batch_that_wraps_the_queue_ring,
     test_the_peak_of_diagnostics_lines,
+    test_the_probe_edge_in_velocity_mode_and_its_counter_reset,
+    test_the_probe_input,
     test_tokens_shown_as_python_repr_shows_them,
 )
 
@@ -70,6 +72,8 @@ SCRIPTED = (
     test_the_crc_acknowledgement_of_a_full_queue,
     test_the_crc_of_a_batch_that_wraps_the_queue_ring,
     test_the_peak_of_diagnostics_lines,
+    test_the_probe_edge_in_velocity_mode_and_its_counter_reset,
+    test_the_probe_input,
     test_tokens_shown_as_python_repr_shows_them,
 )
 

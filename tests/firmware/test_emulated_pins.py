@@ -15,12 +15,15 @@
 
 from __future__ import annotations
 
+import itertools
 import math
+import re
 from collections.abc import Iterator
 
 import pytest
 
 from usbmotion.device import Device
+from usbmotion.sim.firmware import PinsMotor, emulator_dir
 
 from .emulated import require_emulator
 from .pins import PinsChip
@@ -240,3 +243,78 @@ def test_a_bounce_longer_than_the_debounce_time_is_caught() -> None:
     assert world["switchPinChanges"] == 3
     assert edge[1] == 3 and edge[2] == 1
     assert edge[1:4] != [1, 1, lower]
+
+
+def test_the_pin_map_is_the_firmwares() -> None:
+    """The harness drives the pins pins.h names (the probe's among them)."""
+    root = emulator_dir().parent
+    header = (root / "src" / "rp2040" / "pins.h").read_text(encoding="ascii")
+    defined = {name: int(number) for name, number
+               in re.findall(r"#define PIN_(\w+) (\d+)u", header)}
+    source = (emulator_dir() / "lib" / "pins.js").read_text(encoding="utf-8")
+    block = re.search(r"PIN_MAP = \{(.*?)\};", source, re.S)
+    assert block is not None
+    harness = {name: int(number) for name, number in re.findall(r"(\w+): (\d+)", block.group(1))}
+    assert harness == {"encoderA": defined["ENCODER_A"], "encoderB": defined["ENCODER_B"],
+                       "in1": defined["BRIDGE_IN1"], "in2": defined["BRIDGE_IN2"],
+                       "enable": defined["ENABLE"], "lower": defined["SWITCH_LOWER"],
+                       "upper": defined["SWITCH_UPPER"], "probe": defined["PROBE"]}
+
+
+PROBE_SURFACE = -800
+"""Where the probe of the tests below touches: at or below this count."""
+
+
+def probe_down_and_back(chip: PinsChip) -> tuple[list[list[int]], list[int]]:
+    """A smooth move from 0 to -1200 counts and back (up to 3.2 counts a tick) across the
+    probe's surface, the probe read by call 41 near the bottom (with call 40 changing the
+    simulated surface meanwhile, which the pin ignores) and at the end; the largest step of
+    the counter between two ticks."""
+    chip.feed("21 1\n23 0\n")
+    profile = move_profile(-1200, 600)
+    replies = []
+    lines: list[str] = []
+    for start in range(0, len(profile), 500):
+        batch = profile[start : start + 500]
+        lines += chip.feed(f"1 {len(batch)} {' '.join(map(str, batch))}\n")
+        if start == 0:
+            lines += chip.feed("3 1\n")
+        lines += chip.run(500)
+        if start == 0:   # near the bottom: -1120 counts
+            replies += chip.feed("41 -1\n40 2 100000\n41 -1\n40 0 0\n")
+    replies += chip.feed("3 0\n21 0\n41 -1\n")
+    actual = [int(line.split()[3]) for line in lines if line.startswith("D ")]
+    steps = [abs(b - a) for a, b in itertools.pairwise(actual)]
+    return [[int(word) for word in reply.split()[1:]] for reply in replies], steps
+
+
+def test_the_probe_pin_latches_the_count_where_the_motor_crossed_its_surface() -> None:
+    require_emulator()
+    motor = PinsMotor(probe_side=1, probe_counts=PROBE_SURFACE)
+    with PinsChip(pins=True) as chip:
+        chip.request(cmd="motor", options=motor.options())
+        (bottom, after_call_40, end), steps = probe_down_and_back(chip)
+        world = chip.request(cmd="world")["world"]
+    step = max(steps)
+    print(f"probe: closed at {bottom[3]} (tick {bottom[4]}), opened at {end[3]} (tick"
+          f" {end[4]}); the surface at {PROBE_SURFACE}, at most {step} counts a tick")
+    assert world["probeEdges"] == 2 and not world["probeClosed"]
+    # closed, one edge, latched on the tick the pin first read low: at or below the surface,
+    # within the counts of that tick's step
+    assert bottom[:3] == [1, 1, 1]
+    assert PROBE_SURFACE - step <= bottom[3] <= PROBE_SURFACE
+    # call 40's simulated surface does not override the pin
+    assert after_call_40 == bottom
+    # opened again on the way back, above the surface, within a tick's step
+    assert end[:3] == [0, 2, 0]
+    assert PROBE_SURFACE < end[3] <= PROBE_SURFACE + 1 + step
+    assert bottom[4] < end[4]
+
+
+def test_without_a_probe_surface_the_probe_stays_open() -> None:
+    # the test of the test: the same move with no surface latches nothing
+    require_emulator()
+    with PinsChip(pins=True) as chip:
+        chip.request(cmd="motor", options=PinsMotor().options())
+        (bottom, _, end), _ = probe_down_and_back(chip)
+    assert bottom == end == [0, 0, 0, 0, 0]

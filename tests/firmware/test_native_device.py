@@ -338,6 +338,33 @@ def test_alarms_of_every_fault(driver: Driver) -> None:
     ])
 
 
+def test_the_probe_input(driver: Driver) -> None:
+    """Calls 40 and 41: a surface on each side crossed both ways in position mode, the edges
+    latched and shifted by calls 37 and 23, a moved surface taking its state without an
+    edge, the debug line, bad values, and a power cycle back to no surface."""
+    assert_same(driver, [
+        lines("41 -1", "40 -1 0", "8 40 1", "40 2 300", "41 -1", "3 1", "0 500"), Run(150),
+        lines("41 -1", "36 2"), Run(250), lines("41 -1", "0 100"), Run(400),
+        lines("41 -1", "37 1000", "41 -1", "36 1", "23 -5", "41 -1", "20 -1"),
+        lines("40 1 50", "41 -1", "0 -100"), Run(400), lines("41 -1", "40 -1 0"),
+        lines("40 1 200", "41 -1", "40 2 200", "41 -1", "40 0 0", "41 -1", "8 40 2",
+              "40 2 -2147483648", "41 -1", "40 1 2147483647", "40 -1 0", "41 -1"),
+        lines("40 3 0", "40 -1 5", "40 1", "40 -2 0", "41 0", "41", "41 -1 -1", "40 -1 0"),
+        Run(3), Power(), lines("40 -1 0", "41 -1"),
+    ])
+
+
+def test_the_probe_edge_in_velocity_mode_and_its_counter_reset(driver: Driver) -> None:
+    """A probe edge latched in velocity mode moves with the counter at its 60 s reset (100 ms
+    ticks: 600 of them), as the switches' edges do."""
+    assert_same(driver, [
+        lines("5 1000", "12 1000", "40 2 2000", "34 -100000 100000", "7 2", "3 1",
+              "1 1 100"), Run(200),
+        lines("41 -1", "20 -1", "0 0"), Run(390), lines("41 -1", "20 -1"), Run(60),
+        lines("41 -1", "20 -1", "40 -1 0"),
+    ])
+
+
 @pytest.mark.parametrize("scalar", [1, 3])
 def test_replacing_the_queue_future(driver: Driver, scalar: int) -> None:
     ramp = " ".join(str(3 * k) for k in range(1, 401))

@@ -47,3 +47,11 @@ def test_a_bad_value_is_refused_by_name(field: str, value: float) -> None:
 def test_switches_out_of_order_are_refused() -> None:
     with pytest.raises(ArgumentError, match="lower_counts 10 must be below upper_counts 10"):
         PinsMotor(lower_counts=10, upper_counts=10)
+
+
+def test_the_probe_surface_is_given_as_call_40_gives_it() -> None:
+    options = PinsMotor(probe_side=1, probe_counts=-800).options()
+    assert (options["probeSide"], options["probePosition"]) == (1, -800)
+    assert "probeSide" not in PinsMotor().options()
+    with pytest.raises(ArgumentError, match="probe_side 3 must be 0"):
+        PinsMotor(probe_side=3)

@@ -20,7 +20,8 @@
 // shaft instead of reversing it, and hard stops beyond the switches), in binary64; its
 // quadrature encoder's A/B pins (an edge at each count, at the time the motion crosses it)
 // and its two limit switches (closed, low, at or beyond their positions; open, high through
-// the pull-up, otherwise), optionally bouncing. EncoderSweep drives the encoder pins alone
+// the pull-up, otherwise), optionally bouncing; and a probe touching a surface (closed, low,
+// while the shaft is at or beyond it on its side). EncoderSweep drives the encoder pins alone
 // at a set rate, for the decoder's own tests.
 
 const IO_BANK0_KEY = 0x40014;
@@ -216,10 +217,13 @@ export const DEFAULT_MOTOR = {
 const MOTOR_KEYS = new Set([
   ...Object.keys(DEFAULT_MOTOR),
   'pins', 'lower', 'upper', 'overtravel', 'bounce', 'bounceNanos', 'startCount',
+  'probeSide', 'probePosition',
 ]);
 
 /** The firmware's pin map (firmware/src/rp2040/pins.h). */
-export const PIN_MAP = { encoderA: 2, encoderB: 3, in1: 6, in2: 7, enable: 8, lower: 10, upper: 11 };
+export const PIN_MAP = {
+  encoderA: 2, encoderB: 3, in1: 6, in2: 7, enable: 8, lower: 10, upper: 11, probe: 12,
+};
 
 export class MotorWorld {
   /**
@@ -228,7 +232,10 @@ export class MotorWorld {
    * @param {object} options the motor (DEFAULT_MOTOR's keys), `lower`/`upper` switch
    *   positions in counts from power-up (default: none), `overtravel` (200 counts from each
    *   switch to its hard stop), `bounce` (each switch edge bounces this many times, 0) and
-   *   `bounceNanos` (apart, 50 us), `startCount` (the shaft's count at power-up, 0)
+   *   `bounceNanos` (apart, 50 us), `startCount` (the shaft's count at power-up, 0), and the
+   *   probe's surface as call 40 gives it: `probeSide` (0 none, the default: the probe pin
+   *   is left to its pull-up; 1 the probe closes at or below `probePosition`, 2 at or above
+   *   it) and `probePosition` (counts from power-up, 0)
    */
   constructor(clock, mcu, options = {}) {
     for (const key of Object.keys(options)) {
@@ -265,11 +272,29 @@ export class MotorWorld {
     this.switchEdges = 0;
     this.switchPinChanges = 0; // the switch edges and their bounces, as the pins saw them
     this.closed = [this.count <= this.lower, this.count >= this.upper];
+    this.probeSide = options.probeSide ?? 0;
+    this.probePosition = options.probePosition ?? 0;
+    if (![0, 1, 2].includes(this.probeSide) || !Number.isInteger(this.probePosition)) {
+      throw new Error(`motor probeSide ${JSON.stringify(this.probeSide)} must be 0, 1 or 2 and`
+        + ` probePosition ${JSON.stringify(this.probePosition)} an integer`);
+    }
+    this.probeClosed = this.touching(this.count);
+    this.probeEdges = 0;
     clock.drive(PIN_MAP.encoderA, PIN_MAP.encoderB, PIN_MAP.lower, PIN_MAP.upper);
     this.setEncoderPins(this.count, 0);
     for (let i = 0; i < 2; i++) {
       mcu.gpio[i === 0 ? PIN_MAP.lower : PIN_MAP.upper].setInputValue(!this.closed[i]);
     }
+    if (this.probeSide !== 0) {
+      clock.drive(PIN_MAP.probe);
+      mcu.gpio[PIN_MAP.probe].setInputValue(!this.probeClosed);
+    }
+  }
+
+  /** The probe touches its surface at this count (call 40's rule). */
+  touching(count) {
+    return (this.probeSide === 1 && count <= this.probePosition)
+      || (this.probeSide === 2 && count >= this.probePosition);
   }
 
   setEncoderPins(count, nanos) {
@@ -371,6 +396,12 @@ export class MotorWorld {
         }
       }
     }
+    const touching = this.touching(count);
+    if (touching !== this.probeClosed) {
+      this.probeClosed = touching;
+      this.probeEdges++;
+      this.clock.schedule(nanos, PIN_MAP.probe, !touching); // touching pulls the pin low
+    }
   }
 
   /** What the world holds, for the tests. */
@@ -385,6 +416,8 @@ export class MotorWorld {
       edges: this.edgesEmitted,
       switchEdges: this.switchEdges,
       switchPinChanges: this.switchPinChanges,
+      probeClosed: this.probeClosed,
+      probeEdges: this.probeEdges,
     };
   }
 }

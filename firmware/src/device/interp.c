@@ -1048,6 +1048,35 @@ static void call_shift_position(const call_t *call) {
     debug_line(CALL_SHIFT_POSITION, (field_t[]){NUMBER(call->args[0])});
 }
 
+static void call_set_sim_probe(const call_t *call) {
+    if (call->is_query) {
+        reply(CALL_SET_SIM_PROBE,
+              (field_t[]){NUMBER(vars.probe_side), NUMBER(vars.probe_position)});
+        return;
+    }
+    vars.probe_side = (int32_t)call->args[0];
+    vars.probe_position = (int32_t)call->args[1];
+    derive();
+    platform_servo_lock();
+    copy_in_locked();
+    if (!servo_params.motor_pins) {
+        servo_state.probe = servo_probe(&servo_state, &servo_params);   /* no edge */
+    }
+    platform_servo_unlock();
+    debug_line(CALL_SET_SIM_PROBE,
+               (field_t[]){NUMBER(vars.probe_side), NUMBER(vars.probe_position)});
+}
+
+static void call_probe(const call_t *call) {
+    (void)call;
+    platform_servo_lock();
+    int32_t closed = servo_state.probe;
+    switch_edge_t edge = servo_state.probe_edge;
+    platform_servo_unlock();
+    reply(CALL_PROBE, (field_t[]){NUMBER(closed), NUMBER(edge.edges), NUMBER(edge.closed),
+                                  NUMBER(edge.position), NUMBER(edge.tick)});
+}
+
 static int64_t ceil_div(int64_t numerator, int64_t denominator) {
     return numerator >= 0 ? (numerator + denominator - 1) / denominator
                           : -((-numerator) / denominator);
@@ -1178,6 +1207,7 @@ void device_power_up(void) {
         servo_pins_power_up(&servo_state, &pins);
     } else {
         servo_state.limits = servo_switches(&servo_state, &servo_params);
+        servo_state.probe = servo_probe(&servo_state, &servo_params);
     }
     platform_servo_unlock();
 }

@@ -96,5 +96,7 @@ void servo_params_derive(const device_vars_t *vars, servo_params_t *params) {
     params->stop_low = constants.stop_low_micro;
     params->stop_high = constants.stop_high_micro;
     params->window = (int32_t)window;
+    params->probe_side = vars->probe_side;
+    params->probe_position = vars->probe_position;
     servo_params_finish(params);
 }

@@ -40,15 +40,17 @@ bool platform_flash_erase(unsigned sector);              /* false: the erase fai
 bool platform_flash_program(unsigned sector, uint32_t offset, const uint8_t *page);
                                                          /* one page; false: it failed */
 
-/* The motor on the pins (call 39): an H-bridge, a quadrature encoder and two limit switches.
+/* The motor on the pins (call 39): an H-bridge, a quadrature encoder, two limit switches and
+ * a probe input.
  * Started once by core0 at power-up when the flash selects them (before core1 ticks); read
  * and driven by core1 on each tick. A platform without them (the native build) reads a
- * bare board: the counter stands still and both switches are open. */
+ * bare board: the counter stands still and both switches and the probe are open. */
 typedef struct {
     int32_t count;            /* the quadrature counter (4 counts per encoder cycle, wraps) */
     int32_t switches;         /* debounced: bit 0 lower closed, bit 1 upper closed */
     uint32_t edges[2];        /* debounced edges of each switch since the start, mod 2^32 */
     int32_t edge_count[2];    /* the counter when each switch's last edge happened */
+    int32_t probe;            /* the probe input as it reads now: 1 closed */
 } motor_pins_sample_t;
 void platform_motor_pins_start(void);                          /* core0 */
 void platform_motor_pins_sample(motor_pins_sample_t *sample);  /* core1 */

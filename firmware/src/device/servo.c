@@ -1,6 +1,6 @@
 /* core1's servo tick (servo.h): core1.servo_block for one tick, the same operations in the
  * same order, over servo_state_t and servo_params_t; and the state changes core0 makes on
- * core1's state (power-up, switches, coordinate shift).
+ * core1's state (power-up, switches, the probe, coordinate shift).
  *
  * Ranges (why int64 suffices where the Python's ints are unbounded): the shaft stays within
  * the hard stops, |theta| < (2^31 + 201) * 10^6 < 2^52; |omega| <= 10^12 (motor_step moves it
@@ -33,13 +33,28 @@ static inline int64_t floor_micro(int64_t theta) {
     return -(int64_t)sci_div_u64_small((magnitude + (MOTOR_MICRO - 1)) >> 6, 15625u);
 }
 
-static void shift_edges(servo_state_t *state, int64_t shift) {
-    for (unsigned i = 0; i < 2; i++) {
-        switch_edge_t *edge = &state->edges[i];
-        if (edge->tick != EDGE_TICK_NONE) {
-            edge->position = wrap_int32((int64_t)edge->position + shift);
-        }
+static inline void shift_edge(switch_edge_t *edge, int64_t shift) {
+    if (edge->tick != EDGE_TICK_NONE) {
+        edge->position = wrap_int32((int64_t)edge->position + shift);
     }
+}
+
+/* core1.shift_edges: the switches' and the probe's latched positions */
+static void shift_edges(servo_state_t *state, int64_t shift) {
+    shift_edge(&state->edges[0], shift);
+    shift_edge(&state->edges[1], shift);
+    shift_edge(&state->probe_edge, shift);
+}
+
+/* core1.probe_closed: the simulated probe input at this shaft count. */
+static inline int32_t probe_closed(int64_t count, const servo_params_t *p) {
+    if (p->probe_side == PROBE_SIDE_BELOW) {
+        return count <= p->probe_position;
+    }
+    if (p->probe_side == PROBE_SIDE_ABOVE) {
+        return count >= p->probe_position;
+    }
+    return 0;
 }
 
 /* The slot the next record goes to, or NULL (counted as dropped) when the ring is full;
@@ -75,6 +90,10 @@ int32_t servo_switches(const servo_state_t *state, const servo_params_t *params)
         bits |= 2;
     }
     return bits;
+}
+
+int32_t servo_probe(const servo_state_t *state, const servo_params_t *params) {
+    return probe_closed(floor_micro(state->theta), params);
 }
 
 void servo_shift_position(servo_state_t *state, int64_t shift) {
@@ -169,11 +188,12 @@ static void pid(servo_state_t *s, const servo_params_t *p) {
     s->out = u;
 }
 
-/* 4. encoder, switches, the edge latch and the velocity-mode counter reset; returns the
- * switches that closed on this tick. `count` is the shaft's count, `limits` the switches;
- * `pins` the edges the switches' pins latched (NULL: the simulated travel's, latched here). */
+/* 4. encoder, switches, the edge latch, the probe and its edge latch, and the velocity-mode
+ * counter reset; returns the switches that closed on this tick. `count` is the shaft's
+ * count, `limits` the switches, `probe` the probe input; `pins` the edges the switches' pins
+ * latched (NULL: the simulated travel's, latched here). */
 static inline int32_t encoder(servo_state_t *s, const servo_params_t *p, int64_t count,
-                              int32_t limits, const motor_pins_sample_t *pins) {
+                              int32_t limits, int32_t probe, const motor_pins_sample_t *pins) {
     s->actual = wrap_int32(count + s->offset);
     int32_t then = s->counts[s->counts_pos];
     /* wrap32(actual - then) * 10^6 / (window * tick_us) truncated toward zero (trunc_div),
@@ -219,6 +239,14 @@ static inline int32_t encoder(servo_state_t *s, const servo_params_t *p, int64_t
                 edge->tick = s->clock + 1;
             }
         }
+    }
+    if (probe != s->probe) {
+        s->probe = probe;
+        switch_edge_t *edge = &s->probe_edge;
+        edge->edges += 1u;   /* modulo 2^32 */
+        edge->closed = probe;
+        edge->position = s->actual;
+        edge->tick = s->clock + 1;
     }
     if (s->mode == MODE_VELOCITY) {
         s->velocity_mode_us += p->tick_us;
@@ -366,7 +394,8 @@ void servo_tick(servo_state_t *s, const servo_params_t *p, record_ring_t *ring) 
     }
 
     int64_t count = floor_micro(s->theta);
-    int32_t closing = encoder(s, p, count, travel_switches(count, p), NULL);
+    int32_t closing =
+        encoder(s, p, count, travel_switches(count, p), probe_closed(count, p), NULL);
     tick_finish(s, p, ring, enabled, closing);
 }
 
@@ -379,7 +408,7 @@ void servo_tick_pins(servo_state_t *s, const servo_params_t *p, record_ring_t *r
     motor_pins_sample_t pins;
     platform_motor_pins_sample(&pins);
     if (s->pins_started) {
-        int32_t closing = encoder(s, p, pins.count, pins.switches, &pins);
+        int32_t closing = encoder(s, p, pins.count, pins.switches, pins.probe, &pins);
         tick_finish(s, p, ring, s->pins_enabled, closing);
     }
     s->pins_started = true;
@@ -389,6 +418,7 @@ void servo_tick_pins(servo_state_t *s, const servo_params_t *p, record_ring_t *r
 
 void servo_pins_power_up(servo_state_t *s, const motor_pins_sample_t *sample) {
     s->limits = sample->switches;
+    s->probe = sample->probe;
     s->pins_edges[0] = sample->edges[0];
     s->pins_edges[1] = sample->edges[1];
     s->offset = wrap_int32(-(int64_t)sample->count);

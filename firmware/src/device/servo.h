@@ -20,6 +20,10 @@
 #define FAULT_LIMIT_SWITCH 3
 #define FAULT_INTERNAL 4
 
+#define PROBE_SIDE_NONE 0
+#define PROBE_SIDE_BELOW 1   /* the probe closes at or below the surface */
+#define PROBE_SIDE_ABOVE 2   /* ... at or above it */
+
 #define SERVO_HISTORY_SLOTS 10
 #define CURVE_BUFFER_CAPACITY 8
 #define VELOCITY_RESET_US 60000000LL
@@ -85,7 +89,7 @@ typedef struct {
     uint32_t warm_remainder[4];
 } curve_player_t;
 
-/* The latch of one limit switch (call 36). */
+/* The latch of one limit switch (call 36) or of the probe input (call 41). */
 typedef struct {
     uint32_t edges;    /* edges since power-up, modulo 2^32 */
     int32_t closed;    /* 1: the last edge closed the switch */
@@ -128,6 +132,8 @@ typedef struct {
     int32_t diag_peak;         /* the next diagnostics line's peak: the counted following
                                 * error of the largest magnitude since the last line, signed */
     switch_edge_t edges[2];    /* lower, upper */
+    switch_edge_t probe_edge;  /* the probe input's last edge (call 41) */
+    int32_t probe;             /* the probe input now: 1 closed (touching) */
     curve_player_t curve;
     /* Not in core1.py: the motor on the pins (servo_tick_pins). A tick there reads the
      * encoder and the switches as it starts, which completes the tick before it (its
@@ -160,6 +166,8 @@ typedef struct {
     int64_t stop_low;          /* hard stops, micro-counts */
     int64_t stop_high;
     int32_t window;            /* derivative window, ticks (1..SERVO_HISTORY_SLOTS) */
+    int32_t probe_side;        /* the simulated probe surface (call 40): PROBE_SIDE_* */
+    int32_t probe_position;    /* ... counts from power-up */
     /* Not in core1.py: the motor on the pins (call 39, at power-up) and the bridge's level
      * per volt of output (platform_motor_pins_full over the supply voltage). */
     int32_t motor_pins;
@@ -194,6 +202,8 @@ typedef struct {
     int32_t watchdog_ms;                /* call 28 */
     int32_t fe_limit;                   /* call 29 */
     int32_t motor_pins;                 /* call 39 as the flash held it at power-up */
+    int32_t probe_side;                 /* call 40 */
+    int32_t probe_position;
 } device_vars_t;
 
 /* The records core1 writes for core0 to print, in order: a diagnostics line (call 21) or an
@@ -242,11 +252,15 @@ void servo_tick(servo_state_t *state, const servo_params_t *params, record_ring_
  * PID and bridge output. The caller holds the servo lock. */
 void servo_tick_pins(servo_state_t *state, const servo_params_t *params, record_ring_t *ring);
 
-/* Power-up with the motor on the pins: the switches as they read, no edge yet. */
+/* Power-up with the motor on the pins: the switches and the probe as they read, no edge
+ * yet. */
 void servo_pins_power_up(servo_state_t *state, const motor_pins_sample_t *sample);
 
 /* The switch bits the shaft position gives (core0._switches). */
 int32_t servo_switches(const servo_state_t *state, const servo_params_t *params);
+
+/* The simulated probe input the shaft position gives (core0._probe). */
+int32_t servo_probe(const servo_state_t *state, const servo_params_t *params);
 
 /* Calls 23 and 37: move the counter's coordinates by `shift` (core0._shift_position, without
  * the queue and curve clearing, which the caller does). */

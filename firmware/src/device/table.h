@@ -15,7 +15,7 @@
 #define TABLE_DEVICE_NAME_MAX 25u
 #define TABLE_DEFAULT_DEVICE_NAME "GENERIC USB MOTION DEVICE"
 #define TABLE_HUGE_DIGITS 18u
-#define TABLE_CALLS 40u
+#define TABLE_CALLS 42u
 #define TABLE_MAX_PARAMS 4u
 #define TABLE_MAX_DEBUG_FLAG 2u
 #define TABLE_FAULTS 5u
@@ -80,6 +80,8 @@
 #define CALL_SHIFT_POSITION 37
 #define CALL_REPLACE_FROM 38
 #define CALL_SET_MOTOR 39
+#define CALL_SET_SIM_PROBE 40
+#define CALL_PROBE 41
 
 /* Every call as X(NAME, name), in number order: the firmware builds its handler table
  * from this list (a handler call_<name> for each CALL_<NAME>), so none is left out. */
@@ -123,7 +125,9 @@
     X(SWITCH_EDGE, switch_edge) \
     X(SHIFT_POSITION, shift_position) \
     X(REPLACE_FROM, replace_from) \
-    X(SET_MOTOR, set_motor)
+    X(SET_MOTOR, set_motor) \
+    X(SET_SIM_PROBE, set_sim_probe) \
+    X(PROBE, probe)
 
 /* One supporting input: its name and inclusive range (Param). */
 typedef struct {

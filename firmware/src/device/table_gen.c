@@ -379,6 +379,25 @@ const call_spec_t call_table[TABLE_CALLS] = {
         .query_reply = {"MOTOR {stored} {running}", 2, 0x0},
         .debug = {[1] = {"MOTOR MODIFIED TO {value}", 1, 0x0}},
     },
+    [40] = {
+        .name = "SET_SIM_PROBE",
+        .param_count = 2,
+        .params = {{"side", 0, 2}, {"position", INT32_MIN, 2147483647}},
+        .query_count = 2,
+        .query_any = 0x0,
+        .query = {-1, 0},
+        .query_reply = {"SIM_PROBE {side} {position}", 2, 0x0},
+        .debug = {[1] = {"SIM PROBE MODIFIED TO {side} {position}", 2, 0x0}},
+    },
+    [41] = {
+        .name = "PROBE",
+        .param_count = 1,
+        .params = {{"query", -1, -1}},
+        .query_count = 1,
+        .query_any = 0x0,
+        .query = {-1},
+        .query_reply = {"PROBE {closed} {edges} {edge_closed} {position} {tick}", 5, 0x0},
+    },
 };
 
 const char *const fault_names[TABLE_FAULTS] = {"none", "watchdog", "following error", "limit switch", "internal error"};

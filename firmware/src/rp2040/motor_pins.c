@@ -1,6 +1,6 @@
 /* The motor on the pins: quadrature decoding in a PIO state machine, PWM to a two-input
- * H-bridge, two debounced limit switches whose edges latch the counter at once, and the
- * enable output (pins.h has the pin map).
+ * H-bridge, two debounced limit switches whose edges latch the counter at once, the probe
+ * input read on each servo tick, and the enable output (pins.h has the pin map).
  *
  * Quadrature decoding runs quadrature.pio (assembled by the SDK's pioasm at build time):
  * 4x counting, the count pushed to the RX FIFO after every pass, the pins sampled at
@@ -21,18 +21,28 @@
 #include "platform.h"
 #include "rp2040_platform.h"
 
+/* A contact's debounced state: an edge is taken at once, then the contact is ignored for
+ * USBMOTION_SWITCH_DEBOUNCE_US. */
+typedef struct {
+    bool closed;
+    bool settling;         /* edge_us is less than the debounce time ago */
+    uint32_t edge_us;
+} debounced_t;
+
 /* One limit switch: its debounced state, written by the GPIO interrupt and by the tick's
  * sample (both on core1, the sample with interrupts off). */
 typedef struct {
     uint32_t pin;
-    bool closed;
-    bool settling;         /* edge_us is less than the debounce time ago */
-    uint32_t edge_us;
+    debounced_t contact;
     uint32_t edges;
     int32_t edge_count;
 } limit_switch_t;
 
 static limit_switch_t switches[2] = {{.pin = PIN_SWITCH_LOWER}, {.pin = PIN_SWITCH_UPPER}};
+
+/* The probe: read by the tick's sample only (core1 latches its edge on that tick, with the
+ * tick's count, as the simulated probe's). */
+static debounced_t probe;
 static uint32_t pwm_slice;
 static int32_t pwm_full;   /* the compare level of a whole period high: TOP + 1 */
 static bool started;
@@ -49,19 +59,28 @@ static int32_t __not_in_flash_func(read_count)(void) {
     return (int32_t)pio->rxf[QUADRATURE_SM];
 }
 
-/* A switch reads `closed` at `now_us`: an edge, unless it is still settling from the last. */
+/* A contact reads `closed` at `now_us`: true when that is an edge, false when it is no
+ * change or the contact is still settling from its last edge. */
+static bool __not_in_flash_func(contact_reads)(debounced_t *contact, bool closed,
+                                               uint32_t now_us) {
+    if (contact->settling && now_us - contact->edge_us >= USBMOTION_SWITCH_DEBOUNCE_US) {
+        contact->settling = false;
+    }
+    if (closed == contact->closed || contact->settling) {
+        return false;
+    }
+    contact->closed = closed;
+    contact->edge_us = now_us;
+    contact->settling = true;
+    return true;
+}
+
+/* A switch reads `closed` at `now_us`: an edge latches the counter now. */
 static void __not_in_flash_func(switch_reads)(limit_switch_t *sw, bool closed, uint32_t now_us) {
-    if (sw->settling && now_us - sw->edge_us >= USBMOTION_SWITCH_DEBOUNCE_US) {
-        sw->settling = false;
+    if (contact_reads(&sw->contact, closed, now_us)) {
+        sw->edges += 1u;
+        sw->edge_count = read_count();
     }
-    if (closed == sw->closed || sw->settling) {
-        return;
-    }
-    sw->closed = closed;
-    sw->edges += 1u;
-    sw->edge_count = read_count();
-    sw->edge_us = now_us;
-    sw->settling = true;
 }
 
 static void __not_in_flash_func(switch_irq)(void) {
@@ -114,10 +133,14 @@ void platform_motor_pins_start(void) {
         gpio_set_dir(sw->pin, GPIO_IN);
         gpio_pull_up(sw->pin);
     }
+    gpio_init(PIN_PROBE);
+    gpio_set_dir(PIN_PROBE, GPIO_IN);
+    gpio_pull_up(PIN_PROBE);
     busy_wait_at_least_cycles(SYS_CLK_HZ / 100000u);   /* 10 us: the pull-ups charge the lines */
     for (unsigned i = 0; i < 2u; i++) {
-        switches[i].closed = !gpio_get(switches[i].pin);
+        switches[i].contact.closed = !gpio_get(switches[i].pin);
     }
+    probe.closed = !gpio_get(PIN_PROBE);
     started = true;
 }
 
@@ -142,11 +165,13 @@ void __not_in_flash_func(platform_motor_pins_sample)(motor_pins_sample_t *sample
     for (unsigned i = 0; i < 2u; i++) {
         limit_switch_t *sw = &switches[i];
         switch_reads(sw, !gpio_get(sw->pin), now_us);   /* the end of a debounce wait */
-        closed |= sw->closed ? (int32_t)(1u << i) : 0;
+        closed |= sw->contact.closed ? (int32_t)(1u << i) : 0;
         sample->edges[i] = sw->edges;
         sample->edge_count[i] = sw->edge_count;
     }
     sample->switches = closed;
+    (void)contact_reads(&probe, !gpio_get(PIN_PROBE), now_us);
+    sample->probe = probe.closed ? 1 : 0;
     restore_interrupts(saved);
 }
 

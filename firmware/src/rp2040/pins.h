@@ -1,6 +1,6 @@
 /* The pin map of the motor on the pins (call 39), for a Raspberry Pi Pico: a brushed DC motor
- * through a two-input H-bridge (DRV8871: IN1, IN2), its two-channel quadrature encoder and
- * two limit switches. Every pin the firmware drives or reads is named here and only here;
+ * through a two-input H-bridge (DRV8871: IN1, IN2), its two-channel quadrature encoder, two
+ * limit switches and a probe input. Every pin the firmware drives or reads is named here and only here;
  * firmware/README.md draws the wiring. GP numbers are the RP2040's GPIOs (the Pico's pin
  * numbers are in the README). */
 #ifndef USBMOTION_PINS_H
@@ -24,6 +24,10 @@
 #define PIN_SWITCH_LOWER 10u
 #define PIN_SWITCH_UPPER 11u
 
+/* Probe input (call 41), between its pin and GND like the switches, with the chip's pull-up:
+ * a touch probe or a plate's contact closes it, and it reads low. */
+#define PIN_PROBE 12u
+
 /* The PIO block and state machine of the quadrature decoder. */
 #define QUADRATURE_PIO pio0
 #define QUADRATURE_SM 0u
@@ -40,7 +44,8 @@ _Static_assert(USBMOTION_PWM_HZ >= USBMOTION_PWM_HZ_MIN && USBMOTION_PWM_HZ <= U
 
 /* Switch debouncing: an edge is taken at once (its count latched then), and the switch is
  * then ignored for this long, microseconds; if it reads otherwise after that, that is its
- * next edge. */
+ * next edge. The probe, read once per servo tick, is debounced the same way over those
+ * reads: a change read within this time of its last edge waits until a tick after it. */
 #ifndef USBMOTION_SWITCH_DEBOUNCE_US
 #define USBMOTION_SWITCH_DEBOUNCE_US 1000u
 #endif

@@ -228,12 +228,13 @@ class StackUsage:
 
 @dataclass(frozen=True, slots=True)
 class PinsMotor:
-    """A brushed DC motor on an H-bridge, its quadrature encoder and two limit switches,
-    outside the emulated chip and wired to the firmware's pins (``firmware/src/rp2040/pins.h``;
-    the harness's ``lib/pins.js`` MotorWorld): the bridge's voltage read from the PWM levels,
-    the motor integrated exactly in binary64 with the on-chip simulated motor's model
-    (PROTOCOL.md, "The model"), an encoder edge at each count crossed, the switches driven
-    low while the shaft is at or beyond them. The defaults are the on-chip motor's at
+    """A brushed DC motor on an H-bridge, its quadrature encoder, two limit switches and a
+    probe, outside the emulated chip and wired to the firmware's pins
+    (``firmware/src/rp2040/pins.h``; the harness's ``lib/pins.js`` MotorWorld): the bridge's
+    voltage read from the PWM levels, the motor integrated exactly in binary64 with the
+    on-chip simulated motor's model (PROTOCOL.md, "The model"), an encoder edge at each count
+    crossed, the switches driven low while the shaft is at or beyond them, the probe's pin low
+    while the shaft is at or beyond its surface. The defaults are the on-chip motor's at
     power-up; :meth:`like` copies an on-chip motor's parameters.
 
     Fields:
@@ -250,6 +251,10 @@ class PinsMotor:
         bounces: each switch edge is followed by this many bounces ...
         bounce_interval_us: ... each this long, microseconds: half way through one the pin
             goes back to its level before the edge, at its end it returns.
+        probe_side: the probe's surface as call 40 gives it: 0 none (the probe pin is left
+            to its pull-up: open), 1 the probe touches at or below ``probe_counts``, 2 at or
+            above it.
+        probe_counts: the surface, counts from the first power-up.
     """
 
     supply_v: float = 12.0
@@ -264,6 +269,8 @@ class PinsMotor:
     overtravel_counts: int = 200
     bounces: int = 0
     bounce_interval_us: float = 50.0
+    probe_side: int = 0
+    probe_counts: int = 0
 
     def __post_init__(self) -> None:
         for label in ("supply_v", "torque_constant_nm_per_a", "resistance_ohm",
@@ -279,6 +286,10 @@ class PinsMotor:
                 and self.lower_counts >= self.upper_counts):
             raise ArgumentError(f"motor lower_counts {self.lower_counts!r} must be below "
                                 f"upper_counts {self.upper_counts!r}", reason="lower_counts")
+        if self.probe_side not in (0, 1, 2):
+            raise ArgumentError(f"motor probe_side {self.probe_side!r} must be 0 (none), 1 "
+                                f"(at or below probe_counts) or 2 (at or above)",
+                                reason="probe_side")
 
     @classmethod
     def like(cls, params: MotorParams, *, bounces: int = 0,
@@ -324,6 +335,9 @@ class PinsMotor:
             options["lower"] = self.lower_counts
         if self.upper_counts is not None:
             options["upper"] = self.upper_counts
+        if self.probe_side != 0:
+            options["probeSide"] = self.probe_side
+            options["probePosition"] = self.probe_counts
         return options
 
 
@@ -341,6 +355,8 @@ class MotorState:
         encoder_edges: encoder edges sent to the chip since the motor was attached.
         switch_edges: switch changes since then (bounces not counted).
         switch_pin_changes: the switch pins' changes since then, each bounce's two included.
+        probe_closed: the probe touches its surface.
+        probe_edges: the probe's changes since the motor was attached.
     """
 
     count: int
@@ -353,6 +369,8 @@ class MotorState:
     encoder_edges: int
     switch_edges: int
     switch_pin_changes: int
+    probe_closed: bool
+    probe_edges: int
 
     @classmethod
     def from_reply(cls, world: dict[str, Any]) -> MotorState:
@@ -361,7 +379,8 @@ class MotorState:
         return cls(int(world["count"]), float(world["theta"]), float(world["omega"]),
                    float(world["voltage"]), bool(world["enabled"]), bool(lower), bool(upper),
                    int(world["edges"]), int(world["switchEdges"]),
-                   int(world["switchPinChanges"]))
+                   int(world["switchPinChanges"]), bool(world["probeClosed"]),
+                   int(world["probeEdges"]))
 
 
 class EmulatedDevice:
