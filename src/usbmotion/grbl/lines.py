@@ -111,9 +111,11 @@ def line_number(line: str) -> int | None:
 
 _OFFSET_G = frozenset({100, 431, 490, 540, 550, 560, 570, 580, 590, 920, 921, 922, 923})
 """G codes (times ten) that change the work coordinate offset (or may: G10)."""
-_SYNC_G = _OFFSET_G | {40, 281, 301}
-"""G codes grbl answers only once the motion before them is done: the dwell, offset changes
-and stored positions."""
+_PROBE_G = frozenset({382, 383, 384, 385})
+"""G38.2 to G38.5 (times ten): probing, answered once the probe has run with ``[PRB:...]``."""
+_SYNC_G = _OFFSET_G | _PROBE_G | {40, 281, 301}
+"""G codes grbl answers only once the motion before them is done: the dwell, offset changes,
+stored positions and probing."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -128,6 +130,8 @@ class LineEffects:
     """M2 or M30: ``[MSG:Pgm End]``."""
     offsets: bool = False
     """It changes the work coordinate offset: the next report carries ``WCO:``."""
+    probe: bool = False
+    """G38.2 to G38.5: ``[PRB:...]`` once the probe has run, before the ``ok``."""
 
 
 def line_effects(line: str) -> LineEffects:
@@ -137,16 +141,17 @@ def line_effects(line: str) -> LineEffects:
         parsed = words(line)
     except WordError:
         return LineEffects()
-    sync = pause = end = offsets = False
+    sync = pause = end = offsets = probe = False
     for letter, value in parsed:
         if letter == "G" and round(value * 10) in _SYNC_G:
             sync = True
             offsets = offsets or round(value * 10) in _OFFSET_G
+            probe = probe or round(value * 10) in _PROBE_G
         elif letter == "M" and value == int(value) and int(value) in (0, 2, 30):
             sync = True
             pause = pause or int(value) == 0
             end = end or int(value) in (2, 30)
-    return LineEffects(sync, pause, end, offsets)
+    return LineEffects(sync, pause, end, offsets, probe)
 
 
 _JOG_MODAL_GROUPS = {200: "units", 210: "units", 900: "distance", 910: "distance"}

@@ -45,6 +45,7 @@ from usbmotion.grbl.reports import (
     message,
     modal_line,
     parameter_lines,
+    probe_line,
     rate,
     setting_value,
     settings_lines,
@@ -509,6 +510,8 @@ class GrblProtocol:
             self.machine.feed_hold()
         if effects.end:
             self._line("[MSG:Pgm End]")
+        if effects.probe:
+            self._line(probe_line(self.machine.work_offsets(), inches=self._report_inches))
         self._ok()
 
     # ---- $ commands

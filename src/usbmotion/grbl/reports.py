@@ -108,9 +108,15 @@ def parameter_lines(offsets: WorkOffsets, *, inches: bool = False) -> list[str]:
     lines.append(f"[G30:{coordinates(offsets.g30, inches=inches)}]")
     lines.append(f"[G92:{coordinates(offsets.g92, inches=inches)}]")
     lines.append(f"[TLO:{coordinate(offsets.tool_length_offset, inches=inches)}]")
-    probe = offsets.probe or (0.0,) * len(offsets.g92)
-    lines.append(f"[PRB:{coordinates(probe, inches=inches)}:{int(offsets.probe_succeeded)}]")
+    lines.append(probe_line(offsets, inches=inches))
     return lines
+
+
+def probe_line(offsets: WorkOffsets, *, inches: bool = False) -> str:
+    """``[PRB:x,y,z:1]``: the last probe's position (machine coordinates; zeros before any)
+    and whether it touched, as ``$#`` and a probing line's answer print it."""
+    probe = offsets.probe or (0.0,) * len(offsets.g92)
+    return f"[PRB:{coordinates(probe, inches=inches)}:{int(offsets.probe_succeeded)}]"
 
 
 def modal_line(modal: ModalState) -> str:

@@ -50,6 +50,7 @@ from usbmotion.protocol import FaultCode
 from usbmotion.session.live import LiveSnapshot
 from usbmotion.session.operator import IdleReader, Operator
 from usbmotion.session.planning import machine_axes, program_axes
+from usbmotion.session.probing import ProbeFailedError, probing_line
 from usbmotion.session.state import MachineState
 
 
@@ -125,6 +126,12 @@ class SessionMachine:
             self._homing = False
             if self.operator.last_error:
                 self._fault = Fault(AlarmCode.HOMING_FAIL_APPROACH, self.operator.last_error)
+        failure = self.operator.last_failure
+        if isinstance(failure, ProbeFailedError) and self._fault is None:
+            alarm = (AlarmCode.PROBE_FAIL_INITIAL if failure.at_start
+                     else AlarmCode.PROBE_FAIL_CONTACT)
+            self._fault = Fault(alarm, str(failure))
+            self.operator.last_failure = None
         report = self.operator.last_report
         if report is not None and report.faults and self._fault is None:
             first = report.faults[0]
@@ -193,14 +200,18 @@ class SessionMachine:
             checker = self._checker = GCodeStream(
                 file="<check>", machine=machine, dialect=Dialect.GRBL,
                 start=tuple(where.get(a, 0.0) for a in machine.axes))
+        probing = probing_line(line)
         try:
-            checker.feed(line)
+            checker.feed(line if probing is None else probing[1])
         except GCodeError as error:
             return rejection(error)
         return None
 
     def motion_done(self) -> bool:
-        return not self.operator.busy
+        if self.operator.busy:
+            return False
+        self._take_ending()  # a failure (a probe that found nothing) is an alarm, not done
+        return self._fault is None
 
     def planner_blocks(self) -> int:
         return self.operator.window
@@ -404,8 +415,12 @@ class SessionMachine:
             g92 = tuple(feed.modes().g92_mm)
         else:
             g92 = pick(offsets.g92) if offsets.g92_enabled else (0.0,) * len(self._axes)
+        probe = self.session.last_probe
+        found = (tuple(probe.position_mm.get(a, 0.0) for a in self._axes) if probe is not None
+                 else ())
         return WorkOffsets(tuple(pick(p) for p in offsets.g5x[:6]), pick(offsets.g28),
-                           pick(offsets.g30), g92)
+                           pick(offsets.g30), g92, probe=found,
+                           probe_succeeded=probe is not None and probe.tripped)
 
     def modal_state(self) -> ModalState:
         feed = self.operator.feed

@@ -157,6 +157,10 @@ _GROUP = ModalGroup
 _SYSTEM_CODES = (_G.G_54, _G.G_55, _G.G_56, _G.G_57, _G.G_58, _G.G_59, _G.G_59_1, _G.G_59_2,
                  _G.G_59_3)
 
+_PROBING_ALONE = ("probing runs a line at a time, from the console, a grbl sender or the"
+                  " dashboard's MDI, not inside a program (a program is planned ahead of"
+                  " where the probe stops)")
+
 # code -> (modal group, kind, meaning or reason)
 _G_CODES: dict[int, tuple[ModalGroup, int, str]] = {
     _G.G_0: (_GROUP.MOTION, _MOTION, "rapid"),
@@ -222,10 +226,10 @@ _G_UNSUPPORTED: dict[int, str] = {
     _G.G_19_1: "the VW plane is not supported",
     _G.G_33: "spindle-synchronized motion is not supported",
     _G.G_33_1: "rigid tapping is not supported",
-    _G.G_38_2: "probing is not supported",
-    _G.G_38_3: "probing is not supported",
-    _G.G_38_4: "probing is not supported",
-    _G.G_38_5: "probing is not supported",
+    _G.G_38_2: _PROBING_ALONE,
+    _G.G_38_3: _PROBING_ALONE,
+    _G.G_38_4: _PROBING_ALONE,
+    _G.G_38_5: _PROBING_ALONE,
     _G.G_41: "cutter radius compensation is not supported",
     _G.G_41_1: "cutter radius compensation is not supported",
     _G.G_42: "cutter radius compensation is not supported",

@@ -28,7 +28,7 @@ from usbmotion.host.config import MachineConfig
 from usbmotion.motion.dialects import Dialect
 from usbmotion.motion.gcode import GCodeProgram, GCodeStream, Modes, Pause, Pauses
 from usbmotion.motion.limits import check_travel, settled_band_mm
-from usbmotion.motion.moves import Move, Point, start_of
+from usbmotion.motion.moves import Linear, Move, Point, start_of
 from usbmotion.motion.offsets import NO_OFFSETS, WorkOffsets
 from usbmotion.motion.planner import Plan, plan_moves
 from usbmotion.motion.tools import NO_TOOLS, ToolTable
@@ -157,6 +157,32 @@ class ProgramFeed:
                           axes=self._axes)
         check_travel(plan.vertices_mm, plan.line, self._travel, axes=tuple(plan.axes),
                      band_mm=self._band)
+
+    def probe_target(self, text: str, *, line: int | None = None) -> tuple[Point, float]:
+        """Where a probing line goes and at what feed: ``text`` is the line with its G38.n
+        read as G1 (:func:`usbmotion.session.probing.probing_line`), interpreted with the
+        feed's modes (distance mode, units, offsets; its feed word kept for the lines after
+        it): the move's machine end, one coordinate per program axis, and its feed, mm/min.
+        The feed then stands at that end until :meth:`restart` puts it where the probe
+        stopped.
+
+        Raises:
+            GCodeError: the line is invalid, or makes no single straight move with a feed.
+            PlanningError: the move leaves an axis's travel (SoftLimitError).
+        """
+        with self._lock:
+            number = line if line is not None else self._stream.lines + 1
+            moves = self._stream.feed(text, line=line,
+                                      check=self._check_travel if self.homed else None)
+            if len(moves) != 1 or not isinstance(moves[0], Linear):
+                raise GCodeError("a probing line (G38.2 to G38.5) makes one straight move:"
+                                 " give the axis words of its target", file=self.file,
+                                 line=number)
+            move = moves[0]
+            if not move.feed_mm_min > 0:
+                raise GCodeError("a probing move needs a feed rate: give F (mm/min)",
+                                 file=self.file, line=number)
+            return move.end, move.feed_mm_min
 
     def close(self) -> None:
         """No more lines: the run plays out what the feed has and ends."""

@@ -31,6 +31,7 @@ from usbmotion.motion.gcode import Pause
 from usbmotion.session.feed import FRONT_HORIZON_S, FRONT_WINDOW_MOVES, ProgramFeed
 from usbmotion.session.live import LiveSnapshot
 from usbmotion.session.planning import program_axes
+from usbmotion.session.probing import ProbeMode, probing_line
 from usbmotion.session.report import RunReport
 from usbmotion.session.session import MachineSession
 from usbmotion.session.state import MachineState, StopReason
@@ -100,10 +101,16 @@ class Operator:
         self._pending = 0
         """Actions queued or running: counted up before one is queued and down once it has
         ended, so the operator is never seen idle between taking an action and starting it."""
+        self.last_failure: UsbMotionError | None = None
+        """The error of the last action that failed, until a front takes it (sets it to
+        None): for a front that tells failures apart (a probe that found nothing is grbl's
+        alarm 5)."""
         self._pending_lock = threading.Lock()
         self._run_queued = False
         self._unrun = False
         """The feed holds moves no run has taken yet."""
+        self._probing = False
+        """A probing line waits or runs: the lines after it wait."""
         self._lock = threading.Lock()
         self.lines_waiting: Callable[[], bool] | None = None
         """Asked before a streamed run that played out everything it was given ends: True
@@ -154,6 +161,11 @@ class Operator:
                                         state=session.state.value)
             if session.state is MachineState.HOMING:
                 raise MachineStateError("the machine is homing", state=session.state.value)
+            if self._probing:
+                return False  # the lines after a probe go on from where it stopped
+            probing = probing_line(line)
+            if probing is not None:
+                return self._submit_probe(*probing)
             feed = self.feed
             if feed is not None and feed.homed != session.is_homed and not self.busy:
                 feed = self.feed = None
@@ -178,6 +190,50 @@ class Operator:
                 self._put(self._keep_modes)
             self._queue_run()
             return True
+
+    def _submit_probe(self, mode: ProbeMode, move: str) -> bool:
+        """A probing line (its G38.n read as G1 in ``move``): run once the motion before it
+        has ended, alone (:meth:`MachineSession.probe`); the lines after it wait, and go on
+        from where the probe stopped (under :attr:`_lock`). False while anything runs or
+        waits to."""
+        session = self.session
+        if self.busy or self._run_queued or self._unrun:
+            if self.feed is not None and not self.feed.closed:
+                self.feed.close()  # no line joins the run before the probe: it ends
+            return False
+        if not session.is_homed:
+            raise MachineStateError(f"{mode.code} needs a homed machine (its soft limits):"
+                                    " home it first", state=session.state.value)
+        feed = self.feed
+        if feed is None or feed.homed != session.is_homed:
+            feed = self.feed = session.open_feed(
+                file=self.file, unhomed=False, window=self.window, horizon_s=self.horizon_s,
+                dialect=self.dialect)
+            feed.more_coming = self._more_coming
+        elif feed.closed or feed.has_moves:
+            feed.restart(self._where())
+        try:
+            target, feed_mm_min = feed.probe_target(move)
+        except BaseException:
+            feed.restart(self._where())
+            raise
+        axes = program_axes(session.config)
+        goal = dict(zip(axes, target, strict=True))
+
+        def go() -> None:
+            try:
+                result = session.probe(goal, feed_mm_min=feed_mm_min, mode=mode)
+            finally:
+                with self._lock:
+                    feed.restart(self._where())
+                    self._probing = False
+            shown = " ".join(f"{name}{value:.3f}" for name, value in result.position_mm.items())
+            self.on_message(f"{mode.code}: {'contact' if result.tripped else 'no contact'}"
+                            f" at {shown} (machine)")
+
+        self._probing = True
+        self._put(go)
+        return True
 
     def _keep_modes(self) -> None:
         """A line of modes alone (``G55``, ``G10 L20 P1 X0``, ``G92 Z0``) taken while nothing
@@ -406,6 +462,7 @@ class Operator:
                     action()
                 except UsbMotionError as error:
                     self.last_error = str(error)
+                    self.last_failure = error
                     self.on_message(f"error: {error}")
                 finally:
                     self.session.clear_stop_request()

@@ -64,6 +64,15 @@ from usbmotion.session.homing import HomingCycle, home_position_mm, homed_mark
 from usbmotion.session.jog import check_jog, jog_text
 from usbmotion.session.live import AxisScale, LiveModel, LiveSnapshot
 from usbmotion.session.planning import Prepared, plan_axes, prepare_program, program_axes
+from usbmotion.session.probing import (
+    ProbeFailedError,
+    ProbeMode,
+    ProbeResult,
+    changed,
+    contact_position,
+    probe_states,
+    probe_touching,
+)
 from usbmotion.session.report import RunReport, Trace
 from usbmotion.session.requests import (
     Request,
@@ -130,6 +139,8 @@ class MachineSession:
         self.last_run: Run | None = None
         """The last run: its holds (:attr:`Run.holds`) and override seams (:attr:`Run.seams`)
         for the figures of a benchmark."""
+        self.last_probe: ProbeResult | None = None
+        """What the last probing move found (:meth:`probe`), None before any."""
         self._jogging = False
         self._hold_asked = False
         self._feed: ProgramFeed | None = None
@@ -479,6 +490,54 @@ class MachineSession:
             if self.requests.taken.stop_reason == StopReason.JOG_CANCELLED.value:
                 self.clear_stop_request()
         return report
+
+    def probe(self, target_mm: Mapping[str, float], *, feed_mm_min: float,
+              mode: ProbeMode) -> ProbeResult:
+        """A probing move (G38.2 to G38.5, :mod:`usbmotion.session.probing`): straight toward
+        ``target_mm`` (machine mm, the axes it names) at ``feed_mm_min``, within the soft
+        limits, stopped along its deceleration once the probe changes as ``mode`` says; the
+        position of the change (the devices' latches), kept as :attr:`last_probe`. A probe
+        toward contact (G38.2, G38.3) then moves back onto the contact position at the same
+        feed, so the machine stands where the probe touched (a sender's ``G10 L20`` after it
+        sets the origin there, as cncjs's probe widget does).
+
+        Raises:
+            ProbeFailedError: the probe already was as the move was to make it, or a G38.2
+                or G38.4 ended without the change (the machine is left Idle where it
+                stopped; grbl then alarms).
+            as :meth:`jog`: not homed or not idle, a target beyond the travel.
+        """
+        machine = self.machine
+        before = probe_states(machine)
+        if probe_touching(before) == mode.toward:
+            raise ProbeFailedError(
+                f"{mode.code}: the probe already {'touches' if mode.toward else 'is clear'}"
+                " before the move: nothing moved", at_start=True)
+        start = self.live.read().machine_mm(measured=False)
+        seen: list[bool] = []
+
+        def watch(_: LiveSnapshot) -> None:
+            if not seen and changed(before, probe_states(machine), mode):
+                seen.append(True)
+                self.request_jog_cancel()
+
+        self.jog(target_mm, feed_mm_min=feed_mm_min, absolute=True, on_progress=watch)
+        after = probe_states(machine)
+        latched = changed(before, after, mode)
+        if latched:
+            where = contact_position(machine, latched, after, start, target_mm)
+            if mode.toward:  # back onto the contact: the position now is the contact's
+                self.jog({name: where[name] for name in target_mm}, feed_mm_min=feed_mm_min,
+                         absolute=True)
+        else:
+            where = dict(self.live.read().machine_mm(measured=False))
+        result = ProbeResult(mode.code, bool(latched), where, latched)
+        self.last_probe = result
+        if not latched and mode.required:
+            raise ProbeFailedError(
+                f"{mode.code}: the move ended without the probe"
+                f" {'touching' if mode.toward else 'clearing'}", at_start=False)
+        return result
 
     def request_jog_cancel(self) -> None:
         """Cancel a jog (grbl's 0x85): every axis to rest along its deceleration, the rest
