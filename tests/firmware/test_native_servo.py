@@ -104,7 +104,7 @@ class ServoState(ctypes.Structure):
         ("history", c_i64 * 10), ("counts", c_i32 * 10), ("stats_ticks", c_i64),
         ("stats_max", c_i64), ("stats_max_tick", c_i64), ("stats_sum_sq", c_i64),
         ("last_take", c_i64), ("diag_peak", c_i32), ("edges", SwitchEdgeC * 2),
-        ("curve", CurvePlayerC),
+        ("probe_edge", SwitchEdgeC), ("probe", c_i32), ("curve", CurvePlayerC),
         ("pins_started", ctypes.c_bool), ("pins_enabled", ctypes.c_bool),
         ("pins_edges", c_u32 * 2),
     ]
@@ -116,7 +116,8 @@ class ServoParams(ctypes.Structure):
         ("vs", Sci), ("integral_limit", c_i64), ("watchdog_us", c_i64), ("fe_limit", c_i64),
         ("diag_n", c_i64), ("steps", c_i32), ("drive", Sci), ("friction", Sci), ("decay", Sci),
         ("lag", Sci), ("lower", c_i32), ("upper", c_i32), ("stop_low", c_i64),
-        ("stop_high", c_i64), ("window", c_i32), ("motor_pins", c_i32),
+        ("stop_high", c_i64), ("window", c_i32), ("probe_side", c_i32),
+        ("probe_position", c_i32), ("motor_pins", c_i32),
         ("pins_level_per_volt", Sci), ("travel_num", c_i64), ("travel_den", c_i64),
         ("velocity_num", c_i64), ("velocity_den", c_i64),
     ]
@@ -131,7 +132,8 @@ class DeviceVars(ctypes.Structure):
         ("viscous_friction_unm_per_rad_s", Sci), ("load_torque_mnm", Sci),
         ("travel_lower_counts", c_i32), ("travel_upper_counts", c_i32),
         ("overtravel_counts", c_i32), ("diag_n", c_i32), ("watchdog_ms", c_i32),
-        ("fe_limit", c_i32), ("motor_pins", c_i32),
+        ("fe_limit", c_i32), ("motor_pins", c_i32), ("probe_side", c_i32),
+        ("probe_position", c_i32),
     ]
 
 
@@ -670,6 +672,7 @@ PARAM_FIELDS = [
     (core1.P_FE_LIMIT, "fe_limit"), (core1.P_DIAG_N, "diag_n"), (core1.P_STEPS, "steps"),
     (core1.P_LOWER, "lower"), (core1.P_UPPER, "upper"), (core1.P_STOP_LOW, "stop_low"),
     (core1.P_STOP_HIGH, "stop_high"), (core1.P_WINDOW, "window"),
+    (core1.P_PROBE_SIDE, "probe_side"), (core1.P_PROBE_POSITION, "probe_position"),
 ]
 PARAM_SCI_FIELDS = [
     (core1.P_KP_C, "kp"), (core1.P_KI_C, "ki_dt"), (core1.P_KD_C, "kd_dt"),

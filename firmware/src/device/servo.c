@@ -242,11 +242,10 @@ static inline int32_t encoder(servo_state_t *s, const servo_params_t *p, int64_t
     }
     if (probe != s->probe) {
         s->probe = probe;
-        switch_edge_t *edge = &s->probe_edge;
-        edge->edges += 1u;   /* modulo 2^32 */
-        edge->closed = probe;
-        edge->position = s->actual;
-        edge->tick = s->clock + 1;
+        s->probe_edge.edges += 1u;   /* modulo 2^32 */
+        s->probe_edge.closed = probe;
+        s->probe_edge.position = s->actual;
+        s->probe_edge.tick = s->clock + 1;
     }
     if (s->mode == MODE_VELOCITY) {
         s->velocity_mode_us += p->tick_us;
