@@ -174,12 +174,21 @@ class RealMachine:
 
 
 @contextmanager
-def served_real(folder: Path, **server_options: object) -> Iterator[RealMachine]:
+def served_real(folder: Path, *, plate_mm: float | None = None,
+                **server_options: object) -> Iterator[RealMachine]:
     """The default simulated machine (homing fast: :func:`fast_homing_machine` in
-    ``folder``) in real time through an operator and the grbl front, served on a
-    pseudo-terminal (or as asked), as ``usbmotion grbl`` serves it. Leaving it stops the
-    machine and closes everything it opened."""
-    config = load_config(fast_homing_machine(folder))
+    ``folder``; with ``plate_mm``, a probe plate under Z at that height) in real time through
+    an operator and the grbl front, served on a pseudo-terminal (or as asked), as
+    ``usbmotion grbl`` serves it. Leaving it stops the machine and closes everything it
+    opened."""
+    path = fast_homing_machine(folder)
+    if plate_mm is not None:
+        text = path.read_text()
+        z_sim = f"sim = {{ start_mm = {-START_MM}"
+        assert text.count(z_sim) == 1, f"Z's sim table no longer starts {z_sim!r}"
+        path.write_text(text.replace(z_sim, f"sim = {{ probe_below_mm = {plate_mm},"
+                                             f" start_mm = {-START_MM}"))
+    config = load_config(path)
     world = SimWorld(realtime=True)
     with connect_session(config, world=world) as session:
         messages: list[str] = []

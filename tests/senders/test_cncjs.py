@@ -268,3 +268,36 @@ def test_cncjs_web_page_homes_runs_a_program_and_its_dro_shows_the_end_on_the_si
                ), shown
     assert statistics.dropped_rx_bytes == 0
     assert problems == [], real.messages
+
+
+PLATE_MM = -12.0
+"""Where the touch plate's top is under Z (machine mm) for the probe widget's test."""
+TOUCH_PLATE_MM = 10.0
+PROBE_LINES = ("G91", "G38.2 Z-15 F200", "G90", f"G10 L20 P1 Z{TOUCH_PLATE_MM:g}", "G91",
+               "G0 Z4", "G90")
+"""cncjs's probe widget's Z probe (its lines for a 15 mm probe depth at 200 mm/min, a 10 mm
+touch plate and a 4 mm retraction)."""
+
+
+def test_cncjs_probe_widget_zeroes_z_on_the_touch_plate(cncjs: Cncjs, tmp_path: Path) -> None:
+    """The widget's lines through cncjs: the probe stops on the plate (``[PRB:...:1]`` at the
+    plate's height to the count, before G38.2's ``ok``), G10 L20 puts work Z at the plate's
+    thickness above the contact, the retraction ends 4 mm above the plate."""
+    with served_real(tmp_path, link=str(cncjs.link), plate_mm=PLATE_MM) as real:
+        seen = _node("cncjs_probe.js", cncjs.url, str(cncjs.link),
+                     env={"PROBE_LINES": "\n".join(PROBE_LINES)})
+        wait_for(real.idle, timeout_s=10, what="the machine at rest")
+        offsets = real.session.work_offsets()
+        probe = real.session.last_probe
+    assert seen["alarms"] == [] and seen["errors"] == [], seen
+    reads = seen["reads"]
+    assert isinstance(reads, list)
+    found = [line for line in reads if line.startswith("[PRB:")]
+    assert len(found) == 1 and found[0].endswith(":1]"), found
+    z = float(found[0].removeprefix("[PRB:").split(":")[0].split(",")[2])
+    assert abs(z - PLATE_MM) <= 1.0 / 240 + 1e-9, f"{found[0]}: the plate to the count"
+    assert probe is not None and probe.position_mm["Z"] == pytest.approx(z, abs=1e-3)
+    assert offsets.g5x[0][2] == pytest.approx(z - TOUCH_PLATE_MM, abs=1e-3)
+    final = seen["final"]
+    assert isinstance(final, dict)
+    assert float(final["z"]) == pytest.approx(z + 4.0, abs=AT_REST_MM), final
