@@ -13,6 +13,7 @@ README's)."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import threading
@@ -86,7 +87,7 @@ def test_the_page_drives_a_program_and_shows_the_machine(tmp_path: Path) -> None
         started = time.monotonic()
         done = subprocess.run(["node", str(HERE / "dashboard_page.js"), url, str(SCREENSHOTS),
                                CHROMIUM], check=False, capture_output=True, text=True,
-                              timeout=PAGE_TIMEOUT_S)
+                              timeout=PAGE_TIMEOUT_S, env={**os.environ, "TUNE_AUTO": "1"})
         assert done.returncode == 0, f"{done.stderr}\n{done.stdout}"
         result = json.loads(done.stdout.strip().splitlines()[-1])
         wait_for(lambda: not operator.busy, timeout_s=20, what="the machine at rest")
