@@ -281,14 +281,16 @@ touch plate and a 4 mm retraction)."""
 
 def test_cncjs_probe_widget_zeroes_z_on_the_touch_plate(cncjs: Cncjs, tmp_path: Path) -> None:
     """The widget's lines through cncjs: the probe stops on the plate (``[PRB:...:1]`` at the
-    plate's height to the count, before G38.2's ``ok``), G10 L20 puts work Z at the plate's
-    thickness above the contact, the retraction ends 4 mm above the plate."""
+    plate's height to the count, before G38.2's ``ok``), G10 L20 makes the contact work Z =
+    the plate's thickness (work Z0 on the workpiece under the plate), the retraction ends
+    4 mm above the plate."""
     with served_real(tmp_path, link=str(cncjs.link), plate_mm=PLATE_MM) as real:
         seen = _node("cncjs_probe.js", cncjs.url, str(cncjs.link),
                      env={"PROBE_LINES": "\n".join(PROBE_LINES)})
         wait_for(real.idle, timeout_s=10, what="the machine at rest")
         offsets = real.session.work_offsets()
         probe = real.session.last_probe
+        final_z = real.session.positions_mm()["Z"]
     assert seen["alarms"] == [] and seen["errors"] == [], seen
     reads = seen["reads"]
     assert isinstance(reads, list)
@@ -298,6 +300,6 @@ def test_cncjs_probe_widget_zeroes_z_on_the_touch_plate(cncjs: Cncjs, tmp_path: 
     assert abs(z - PLATE_MM) <= 1.0 / 240 + 1e-9, f"{found[0]}: the plate to the count"
     assert probe is not None and probe.position_mm["Z"] == pytest.approx(z, abs=1e-3)
     assert offsets.g5x[0][2] == pytest.approx(z - TOUCH_PLATE_MM, abs=1e-3)
-    final = seen["final"]
-    assert isinstance(final, dict)
-    assert float(final["z"]) == pytest.approx(z + 4.0, abs=AT_REST_MM), final
+    # cncjs's own last report may come before the retraction ran (a line's ok comes as it
+    # reaches the planner): where the machine stands once at rest, from its encoders.
+    assert final_z == pytest.approx(z + 4.0, abs=AT_REST_MM)
