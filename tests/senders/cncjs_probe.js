@@ -9,7 +9,7 @@
 // environment: PROBE_LINES, the widget's lines joined by newlines
 'use strict';
 
-const http = require('http');
+const { signin } = require('./cncjs_signin');
 const io = require('socket.io-client');
 
 const [url, portPath] = process.argv.slice(2);
@@ -17,24 +17,8 @@ const LINES = process.env.PROBE_LINES.split('\n');
 const STEP_TIMEOUT_MS = 30000;
 const HOMING_TIMEOUT_MS = 60000;
 
-function signin() {
-  return new Promise((resolve, reject) => {
-    const request = http.request(`${url}/api/signin`, {
-      method: 'POST', headers: { 'Content-Type': 'application/json' },
-    }, (response) => {
-      let body = '';
-      response.on('data', (chunk) => { body += chunk; });
-      response.on('end', () => {
-        try { resolve(JSON.parse(body).token); } catch (error) { reject(error); }
-      });
-    });
-    request.on('error', reject);
-    request.end('{}');
-  });
-}
-
 async function main() {
-  const token = await signin();
+  const token = await signin(url);
   const socket = io.connect(url, { query: `token=${token}` });
   const reads = [];
   const alarms = [];

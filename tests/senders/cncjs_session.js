@@ -9,7 +9,7 @@
 'use strict';
 
 const fs = require('fs');
-const http = require('http');
+const { signin } = require('./cncjs_signin');
 const io = require('socket.io-client');
 
 const [url, portPath, programFile] = process.argv.slice(2);
@@ -18,24 +18,8 @@ const STEP_TIMEOUT_MS = 15000;
 const HOMING_TIMEOUT_MS = 60000;
 const JOG = process.env.JOG || '$J=G91 G21 X20 Y-10 F1200'; // 1.1 s: seen in the reports
 
-function signin() {
-  return new Promise((resolve, reject) => {
-    const request = http.request(`${url}/api/signin`, {
-      method: 'POST', headers: { 'Content-Type': 'application/json' },
-    }, (response) => {
-      let body = '';
-      response.on('data', (chunk) => { body += chunk; });
-      response.on('end', () => {
-        try { resolve(JSON.parse(body).token); } catch (error) { reject(error); }
-      });
-    });
-    request.on('error', reject);
-    request.end('{}');
-  });
-}
-
 async function main() {
-  const token = await signin();
+  const token = await signin(url);
   const socket = io.connect(url, { query: `token=${token}` });
   const seen = { states: [], reads: [], alarms: [], errors: [], sender: null, workflow: [] };
   const log = [];
