@@ -117,14 +117,20 @@ def test_status_polls_follow_the_encoders_and_a_hold_shows_where_it_rests(
                     and start[0] + 2 < r.mpos[0] < start[0] + 14]
         assert len(cruising) >= 8, cruising
         speed_mm_s = FEED_MM_MIN / 60.0
+        advanced = 0
         for before, after in itertools.pairwise(cruising):
             step = after.mpos[0] - before.mpos[0]
             # Each report was made between its ? going out and its coming in: a late
             # reader (a loaded machine) brings two in quick succession all the same.
-            assert 0.0 < step <= 1.5 * speed_mm_s * (after.at_s - before.asked_s), (
-                "a new position on every poll, no further than the axis can have gone",
+            assert 0.0 <= step <= 1.5 * speed_mm_s * (after.at_s - before.asked_s), (
+                "never backward, no further than the axis can have gone",
                 before.text, after.text)
+            advanced += step > 0.0
             assert after.feed_mm_min == pytest.approx(FEED_MM_MIN, rel=0.05), after.text
+        # A host starved of both cores holds the simulated world still while it computes
+        # (its devices take no time the host did not give them): two polls answered in
+        # that while report the same encoders, truly. Most polls see the axis move.
+        assert advanced >= 0.75 * (len(cruising) - 1), (advanced, len(cruising))
         held = [r for r in sender.reports if r.state == "Hold:0"]
         assert len(held) >= 2, held
         sender.send(b"\x18")
