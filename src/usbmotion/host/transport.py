@@ -45,6 +45,12 @@ def open_problem(error: BaseException) -> str:
     return text
 
 
+_EMPTY_READ = "device reports readiness to read but returned no data"
+"""pyserial's words for a read that select called ready and that returned nothing."""
+EMPTY_READS_LOST = 20
+"""Such reads in a row after which the link counts as lost (a gone device gives one on
+every read; a flushed terminal, one now and then)."""
+
 class LineTransport:
     """Lines in and out of one serial port.
 
@@ -61,6 +67,8 @@ class LineTransport:
         self._splitter = LineSplitter(max_bytes=_MAX_REPLY_LINE)
         self._lines: deque[bytes] = deque()
         self._drop_to_newline = False
+        self._empty_reads = 0
+        """Reads in a row that pyserial called ready but empty (see :data:`EMPTY_READS_LOST`)."""
         self.bytes_written = 0
         self.bytes_read = 0
         self._closed = False
@@ -122,7 +130,15 @@ class LineTransport:
                     if more:
                         chunk += self.port.read(more)
         except (serial.SerialException, OSError) as error:
+            if (isinstance(error, serial.SerialException) and str(error).startswith(_EMPTY_READ)
+                    and self._empty_reads < EMPTY_READS_LOST):
+                # A terminal whose input was flushed between select and read (a pty's
+                # server tidying up after another program closed it) reads nothing once;
+                # a device that is gone reads nothing every time.
+                self._empty_reads += 1
+                return False
             raise LinkLostError(f"{self.label}: read failed: {error}", device=self.label) from error
+        self._empty_reads = 0
         if not chunk:
             return False
         self.bytes_read += len(chunk)
