@@ -172,10 +172,7 @@ class Operator:
             if feed is None:
                 if self.busy:
                     return False
-                feed = self.feed = session.open_feed(
-                    file=self.file, unhomed=self.unlocked and not session.is_homed,
-                    window=self.window, horizon_s=self.horizon_s, dialect=self.dialect)
-                feed.more_coming = self._more_coming
+                feed = self._open_feed()
                 self._unrun = False
             elif feed.closed:
                 if self.busy:
@@ -190,6 +187,16 @@ class Operator:
                 self._put(self._keep_modes)
             self._queue_run()
             return True
+
+    def _open_feed(self) -> ProgramFeed:
+        """A new feed for the lines from where the machine stands (under :attr:`_lock`):
+        unhomed only when the operator unlocked a machine that is not homed."""
+        session = self.session
+        feed = self.feed = session.open_feed(
+            file=self.file, unhomed=self.unlocked and not session.is_homed,
+            window=self.window, horizon_s=self.horizon_s, dialect=self.dialect)
+        feed.more_coming = self._more_coming
+        return feed
 
     def _submit_probe(self, mode: ProbeMode, move: str) -> bool:
         """A probing line (its G38.n read as G1 in ``move``): run once the motion before it
@@ -206,10 +213,7 @@ class Operator:
                                     " home it first", state=session.state.value)
         feed = self.feed
         if feed is None or feed.homed != session.is_homed:
-            feed = self.feed = session.open_feed(
-                file=self.file, unhomed=False, window=self.window, horizon_s=self.horizon_s,
-                dialect=self.dialect)
-            feed.more_coming = self._more_coming
+            feed = self._open_feed()
         elif feed.closed or feed.has_moves:
             feed.restart(self._where())
         try:
