@@ -2,9 +2,10 @@
 by the devices: in real time, on the built-in simulated machine and on devices served by
 ``usbmotion sim --pty 3``. Polled at 10 Hz during a move, the status report follows the
 axis, never backward and never further than the axis can have gone since the move was sent;
-``FS`` is the speed the encoders measure; a hold reports where the machine came to rest; a sender's ``ok`` follows
-the machine (at most 16 lines ahead of the one executing); a streamed engraving of short
-moves runs to its end on its own path with both cores loaded."""
+``FS`` is the speed the encoders measure; a hold reports where the machine came to rest; a
+sender's ``ok`` follows the machine (at most 16 lines ahead of the one executing); a
+streamed engraving of short moves runs to its end on its own path with both cores
+loaded."""
 
 from __future__ import annotations
 
