@@ -173,8 +173,16 @@ def test_the_grbl_front_answers_a_probe_as_grbl_does(tmp_path: Path) -> None:
         assert found is not None, answer
         assert float(found.group(3)) == pytest.approx(PLATE_MM, abs=1.5 / 240)
         assert found.group(0) in exchange(b"$#\n", b"ok")
+        operator.wait_idle(30)
+        operator.keep_alive()  # at rest, on the plate: the idle read sees the probe closed
+        touching = exchange(b"?", b">")
+        assert re.search(r"\|Pn:[XYZ]*P[|>]", touching), touching
         alarm = exchange(b"G38.2 Z-35 F100\n", b"ALARM:")
         assert "ALARM:4" in alarm, alarm
         exchange(b"$X\n", b"ok")
         failed = exchange(b"G0 Z-10\nG38.2 Z-12 F100\n", b"ALARM:")
         assert "ALARM:5" in failed, failed
+        operator.wait_idle(30)
+        operator.keep_alive()
+        lifted = exchange(b"?", b">")
+        assert "Pn:" not in lifted, "Z at -10 mm, 10 mm above the plate: the probe open"

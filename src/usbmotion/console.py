@@ -190,7 +190,7 @@ class Console:
     def _live_status(self) -> None:
         """The machine now, from the session's live model: the state, the line the devices
         execute, the encoders' machine and work positions, the feed they move at, the
-        overrides and each axis's following error."""
+        overrides, each axis's following error and the spindle's measured speed."""
         now = self.session.live.read()
         axes = program_axes(self.session.config)
         machine = now.machine_mm()
@@ -208,7 +208,12 @@ class Console:
             f" rapid {now.rapid_override} %; following error {error} mm"
             + (f"; {now.done_s:.1f} of {now.total_s:.1f} s, {now.eta_s:.1f} s left"
                if now.total_s and not now.at_rest else "")
-            + (f"; paused: {now.pause}" if now.pause else ""))
+            + (f"; paused: {now.pause}" if now.pause else "")
+            + (f"; spindle {abs(now.spindle.measured_rpm):.0f} rpm"
+               + (" counter-clockwise" if now.spindle.commanded_rpm < 0 else "")
+               + ("" if now.spindle.at_speed
+                  else f" (to {abs(now.spindle.commanded_rpm):.0f} rpm)")
+               if now.spindle is not None else ""))
 
     def _override(self, value: str) -> None:
         kind, number = value[:1].upper(), value[1:].strip()
@@ -398,3 +403,10 @@ class Console:
                 f"  queued {status.queued}  limits {'L' if status.lower_limit else '-'}"
                 f"{'U' if status.upper_limit else '-'}  fault {status.fault_name}"
             )
+        spindle = session.machine.spindle
+        if spindle is not None:
+            now = spindle.read()
+            turn = " counter-clockwise" if now.commanded_rpm < 0 else ""
+            self.write(f"spindle: {abs(now.measured_rpm):.0f} rpm{turn} measured,"
+                       f" {abs(now.commanded_rpm):.0f} rpm commanded"
+                       + ("" if now.at_speed else " (ramping)"))

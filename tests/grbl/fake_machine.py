@@ -373,6 +373,10 @@ class FakeMachine:
         self.calls.append(f"rapid_override {percent}")
         self.rapid_override = percent
 
+    def set_spindle_override(self, percent: int) -> None:
+        self._advance()
+        self.calls.append(f"spindle_override {percent}")
+
     def home(self) -> None:
         self._advance()
         self.calls.append("home")

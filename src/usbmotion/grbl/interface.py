@@ -106,6 +106,10 @@ class MachineStatus:
     fault: Fault | None = None
     """Why the machine stopped on its own, until :meth:`GrblMachine.unlock` or a successful
     homing clears it (a soft reset keeps it)."""
+    spindle_rpm: float = 0.0
+    """The spindle's speed as its encoder measures it (0: stopped, or no spindle)."""
+    probe: bool = False
+    """The probe input reads closed (grbl's ``Pn:P``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -266,6 +270,10 @@ class GrblMachine(Protocol):
 
     def set_rapid_override(self, percent: int) -> None:
         """Scale rapids: 25, 50 or 100 %."""
+        ...
+
+    def set_spindle_override(self, percent: int) -> None:
+        """Scale the spindle's speed, 10 to 200 % (a machine without one ignores it)."""
         ...
 
     def home(self) -> None:

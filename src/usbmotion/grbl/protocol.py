@@ -328,6 +328,7 @@ class GrblProtocol:
             target = min(max(target, OVERRIDE_MIN_PERCENT), OVERRIDE_MAX_PERCENT)
             if target != self._spindle_override:
                 self._spindle_override = target
+                self.machine.set_spindle_override(target)
                 self._ovr_counter = 0
         # Every other extended byte (spindle stop, coolant toggles, unknown) is dropped.
 
@@ -379,8 +380,10 @@ class GrblProtocol:
         if status.line_number and state in (MotionState.RUN, MotionState.HOLD_COMPLETE,
                                             MotionState.HOLD_IN_PROGRESS):
             fields.append(f"Ln:{status.line_number}")
-        fields.append(f"FS:{rate(status.feed_mm_min, inches=inches)},0")
-        pins = "".join(axis for axis in self._axes if axis in status.limit_pins)
+        fields.append(f"FS:{rate(status.feed_mm_min, inches=inches)},"
+                      f"{abs(status.spindle_rpm):.0f}")
+        pins = "".join(axis for axis in self._axes if axis in status.limit_pins) + (
+            "P" if status.probe else "")
         if pins:
             fields.append(f"Pn:{pins}")
         busy = state in _BUSY

@@ -174,9 +174,10 @@ class SessionMachine:
         error = tuple(now.axes[axis].following_error_mm for axis in self._axes)
         limits = frozenset(name for name, axis in now.axes.items() if axis.limit)
         moving = self.operator.busy and not now.at_rest
+        spindle = now.spindle.measured_rpm if now.spindle is not None else 0.0
         return MachineStatus(where, self._work_offset(now), now.feed_mm_min if moving else 0.0,
                              now.line or None if self.operator.busy else None, error, limits,
-                             self._fault)
+                             self._fault, spindle_rpm=spindle, probe=now.probe)
 
     def _work_offset(self, now: LiveSnapshot) -> tuple[float, ...]:
         return tuple(now.work_offset_mm.get(axis, 0.0) for axis in self._axes)
@@ -284,6 +285,9 @@ class SessionMachine:
     def set_rapid_override(self, percent: int) -> None:
         self.session.set_rapid_override(percent if percent in (25, 50, 100) else 100)
 
+    def set_spindle_override(self, percent: int) -> None:
+        self.session.set_spindle_override(percent)
+
     def home(self) -> None:
         self._fault = None
         try:
@@ -315,7 +319,8 @@ class SessionMachine:
                                hard_limits=True, homing=True, homing_dir_mask=mask,
                                homing_feed_mm_min=first.homing.slow_speed_mm_s * 60.0,
                                homing_seek_mm_min=first.homing.speed_mm_s * 60.0,
-                               homing_pull_off_mm=first.homing.pull_off_mm)
+                               homing_pull_off_mm=first.homing.pull_off_mm,
+                               extra={30: config.spindle.max_rpm} if config.spindle else {})
 
     def set_setting(self, number: int, value: float) -> Rejected | Taken | None:
         current = self._setting_values().get(number)
@@ -429,7 +434,10 @@ class SessionMachine:
         modes = feed.modes()
         motion = modes.motion_x10
         system = modes.coordinate_system
+        spindle = self.session.live.read().spindle
+        rpm = spindle.commanded_rpm if spindle is not None else 0.0
         return ModalState(
+            spindle="M3" if rpm > 0 else "M4" if rpm < 0 else "M5", spindle_speed=abs(rpm),
             motion="G80" if motion < 0 else f"G{motion // 10}" + (
                 f".{motion % 10}" if motion % 10 else ""),
             coordinate_system=f"G{53 + system}" if system <= 6 else f"G59.{system - 6}",

@@ -19,7 +19,7 @@ import math
 import re
 import tomllib
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any, NoReturn
@@ -66,6 +66,8 @@ class PidGains:
 
 
 VELOCITY_GAINS_DEFAULT = PidGains(kp=0.001, ki=0.5, kd=0.0)
+SPINDLE_GAINS_DEFAULT = PidGains(kp=0.001, ki=0.1, kd=0.0)
+"""A spindle's velocity loop when its table gives none (the default simulated spindle)."""
 """Velocity-mode gains when a file gives none: a PI loop that holds the default simulated
 motor within a count per second of its target. The velocity it is fed is measured over one
 servo tick (1000 counts/s per count at 1 ms), so a small ``kp`` keeps that quantisation
@@ -416,6 +418,74 @@ class JointConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class SpindleConfig:
+    """The spindle: a USB Motion Device run in velocity mode (``[spindle]``).
+
+    Fields:
+        device, url: the device, as an axis names its own (a name in its flash, a port or
+            ``sim://NAME``).
+        counts_per_revolution: encoder counts per spindle revolution (quadrature x4).
+        max_rpm: the fastest ``S`` a program may ask (a faster one is refused, naming it).
+        accel_rpm_s: how fast the speed ramps, rpm per second, up and down (``M5`` and a
+            stop decelerate along it).
+        at_speed_tolerance: the share of the commanded speed within which the measured
+            speed counts as at speed (LinuxCNC's spindle-at-speed); a program's feed moves
+            after an ``M3``/``M4``/``S`` wait for it.
+        stall_tolerance: once at speed, a measured speed further than this share from the
+            commanded one is a stall: an alarm that stops every axis along its path.
+        spin_up_timeout_s: the longest a program waits for the spindle to reach speed
+            beyond its ramp; then the same alarm.
+        velocity_gains: the device's PID in velocity mode (V per count/s, V per count,
+            V s per count/s).
+        sim: the simulated motor of a ``sim://`` spindle (``[spindle.sim]``; no switches).
+    """
+
+    device: str | None
+    url: str | None
+    counts_per_revolution: int
+    max_rpm: float
+    accel_rpm_s: float
+    at_speed_tolerance: float
+    stall_tolerance: float
+    spin_up_timeout_s: float
+    velocity_gains: PidGains
+    sim: SimMotorConfig | None
+
+    @property
+    def is_simulated(self) -> bool:
+        """True when the spindle is an in-process simulated device (a ``sim://`` URL)."""
+        return self.url is not None and self.url.lower().startswith(SIM_SCHEME)
+
+    @property
+    def label(self) -> str:
+        """How messages name the spindle's device: ``spindle (sim://S)``."""
+        return f"spindle ({self.device or self.url})"
+
+    def counts_per_s(self, rpm: float) -> int:
+        """A speed in rpm as the device's velocity setpoint, counts per second."""
+        return round(rpm * self.counts_per_revolution / 60.0)
+
+    def rpm(self, counts_per_s: float) -> float:
+        """A device velocity, counts per second, in rpm."""
+        return counts_per_s * 60.0 / self.counts_per_revolution
+
+
+SPINDLE_SIM_DEFAULTS: Mapping[str, float] = {
+    "update_interval_dms": 10,
+    "source_voltage_v": 48.0,
+    "torque_constant_mnm_per_a": 30.0,
+    "winding_resistance_ohm": 0.5,
+    "counts_per_revolution": 400,
+    "inertia_kg_m2": 5e-5,
+    "viscous_friction_unm_per_rad_s": 20.0,
+    "load_torque_mnm": 5.0,
+}
+"""The simulated spindle motor of a ``[spindle.sim]`` table's omitted keys: a 48 V DC
+spindle motor (30 mNm/A: about 15,000 rpm without load) with a 100-line encoder (400 counts
+per revolution)."""
+
+
+@dataclass(frozen=True, slots=True)
 class MachineConfig:
     """A machine: several axes, each a device, with settings they share.
 
@@ -444,6 +514,8 @@ class MachineConfig:
             LinuxCNC's ``.var`` format and numbers; by default the machine file's name
             with ``.var`` (``machine.toml`` -> ``machine.var``), next to it.
         joints: the robot joints the file names (``[joints.<name>]``), in file order.
+        spindle: the spindle device (``[spindle]``), or ``None``: ``M3``-``M5`` and ``S``
+            are then listed as ignored words.
     """
 
     path: Path
@@ -461,6 +533,7 @@ class MachineConfig:
     tool_table: Path | None = None
     parameter_file: Path | None = None
     joints: tuple[JointConfig, ...] = ()
+    spindle: SpindleConfig | None = None
 
     @property
     def parameter_path(self) -> Path:
@@ -757,8 +830,14 @@ def _unknown_key(name: str, known: tuple[str, ...]) -> str:
 _MACHINE_KEYS = (
     "name", "servo_interval_dms", "motion_scalar", "junction_deviation_mm", "arc_tolerance_mm",
     "watchdog_ms", "reply_timeout_s", "ports", "homing_order", "axes", "dialect",
-    "tool_table", "parameter_file", "joints",
+    "tool_table", "parameter_file", "joints", "spindle",
 )
+_SPINDLE_KEYS = ("device", "url", "counts_per_revolution", "max_rpm", "accel_rpm_s",
+                 "at_speed_tolerance", "stall_tolerance", "spin_up_timeout_s", "velocity_gains",
+                 "sim")
+_SPINDLE_SIM_KEYS = ("update_interval_dms", "source_voltage_v", "torque_constant_mnm_per_a",
+                     "winding_resistance_ohm", "inertia_kg_m2",
+                     "viscous_friction_unm_per_rad_s", "load_torque_mnm")
 _JOINT_KEYS = ("axis", "unit", "counts_per_unit", "max_velocity", "max_accel", "max_jerk")
 _AXIS_KEYS = (
     "device", "url", "counts_per_mm", "max_velocity_mm_s", "max_accel_mm_s2", "max_jerk_mm_s3",
@@ -841,13 +920,16 @@ def _machine(top: _Reader) -> MachineConfig:
     order = _homing_order(top, axes)
     joints_table = top.table("joints", allowed="a table of robot joints, [joints.<name>]")
     joints = () if joints_table is None else _joints(joints_table, axes)
+    spindle_table = top.table("spindle", allowed="a table: the spindle's device in velocity"
+                              " mode (device or url, counts_per_revolution, max_rpm, ...)")
+    spindle = None if spindle_table is None else _spindle(spindle_table, servo_interval_dms)
     top.finish()
     return MachineConfig(
         path=path, name=name, axes=axes, servo_interval_dms=servo_interval_dms,
         motion_scalar=motion_scalar, junction_deviation_mm=junction_deviation_mm,
         arc_tolerance_mm=arc_tolerance_mm, homing_order=order, watchdog_ms=watchdog_ms,
         reply_timeout_s=reply_timeout_s, ports=ports, dialect=dialect, tool_table=tool_table,
-        parameter_file=parameter_file, joints=joints,
+        parameter_file=parameter_file, joints=joints, spindle=spindle,
     )
 
 
@@ -1248,6 +1330,12 @@ def _homing(reader: _Reader, travel: tuple[float, float], max_velocity: float, *
     return HomingConfig(int(direction), speed, slow, backoff, position, pull_off, search)
 
 
+_SIM_UNITS = {"source_voltage_v": "volts", "torque_constant_mnm_per_a": "mNm per ampere",
+              "winding_resistance_ohm": "ohms", "inertia_kg_m2": "kg m^2",
+              "viscous_friction_unm_per_rad_s": "uNm per rad/s",
+              "load_torque_mnm": "mNm, 0 for none"}
+
+
 def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
          servo_interval_dms: int, *, simulated: bool) -> SimMotorConfig | None:
     table = reader.table("sim", allowed="a table describing the simulated motor")
@@ -1263,10 +1351,7 @@ def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
         maximum=servo_interval_dms, unit="tenths of a millisecond, at most servo_interval_dms",
     )
     values: dict[str, float] = {}
-    units = {"source_voltage_v": "volts", "torque_constant_mnm_per_a": "mNm per ampere",
-             "winding_resistance_ohm": "ohms", "inertia_kg_m2": "kg m^2",
-             "viscous_friction_unm_per_rad_s": "uNm per rad/s",
-             "load_torque_mnm": "mNm, 0 for none"}
+    units = _SIM_UNITS
     for key, call in SIM_MOTOR_CALLS:
         unit = units[key]
         zero = key == "load_torque_mnm"
@@ -1299,6 +1384,80 @@ def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
         update_interval_dms=interval, counts_per_revolution=counts_per_rev, start_mm=start,
         probe_side=probe_side, probe_mm=probe_mm, **values,
     )
+
+
+def _spindle(reader: _Reader, servo_interval_dms: int) -> SpindleConfig:
+    reader.expect(_SPINDLE_KEYS)
+    device = _device_name(reader)
+    url = _url(reader)
+    if device is None and url is None:
+        reader.fail("device", "missing required key 'device' or 'url'; allowed: the spindle"
+                    " device's name in its flash, or its port/URL (sim://S, /dev/ttyACM3)")
+    simulated = url is not None and url.lower().startswith(SIM_SCHEME)
+    sim = _spindle_sim(reader, servo_interval_dms, simulated=simulated)
+    counts = reader.integer(
+        "counts_per_revolution",
+        default=sim.counts_per_revolution if sim is not None else _REQUIRED, minimum=1,
+        maximum=BY_NUMBER[CallNumber.SET_SIM_COUNTS_PER_REVOLUTION].params[0].maximum,
+        unit="encoder counts per spindle revolution (quadrature x4)")
+    if sim is not None:
+        sim = replace(sim, counts_per_revolution=counts)
+    top_rpm = INT32_MAX * 60.0 / counts
+    max_rpm = reader.number("max_rpm", above=0, maximum=min(top_rpm, 1e6), unit="rpm")
+    accel = reader.number("accel_rpm_s", default=max_rpm, above=0, maximum=1e7,
+                          unit="rpm per second; default max_rpm (a second from rest)")
+    at_speed = reader.number("at_speed_tolerance", default=0.02, above=0, maximum=0.5,
+                             unit="a share of the commanded speed: 0.02 = 2 %")
+    stall = reader.number("stall_tolerance", default=max(0.15, 2 * at_speed), above=at_speed,
+                          maximum=1.0, unit="a share of the commanded speed, beyond"
+                          " at_speed_tolerance")
+    timeout = reader.number("spin_up_timeout_s", default=5.0, above=0, maximum=600,
+                            unit="seconds beyond the ramp's own time")
+    gains = _gains(reader, "velocity_gains", defaults=SPINDLE_GAINS_DEFAULT,
+                   mode="velocity mode")
+    if sim is not None:
+        top = simulated_reach(sim, float(counts)).velocity_mm_s * 60.0
+        if max_rpm > (1 - REACH_MARGIN) * top:
+            reader.fail("max_rpm", f"{max_rpm:g} rpm is more than the simulated motor reaches"
+                        f" with a tenth of its supply left to the PID: at most"
+                        f" {_down((1 - REACH_MARGIN) * top)} rpm (no-load {top:.0f} rpm at"
+                        f" {sim.source_voltage_v:g} V)")
+    reader.finish()
+    return SpindleConfig(
+        device=device, url=url, counts_per_revolution=counts, max_rpm=max_rpm,
+        accel_rpm_s=accel, at_speed_tolerance=at_speed, stall_tolerance=stall,
+        spin_up_timeout_s=timeout, velocity_gains=gains, sim=sim)
+
+
+def _spindle_sim(reader: _Reader, servo_interval_dms: int, *,
+                 simulated: bool) -> SimMotorConfig | None:
+    table = reader.table("sim", allowed="a table describing the simulated spindle motor")
+    if table is None:
+        if not simulated:
+            return None
+        table = _Reader(reader.source, {}, reader.key("sim"))
+    table.expect(_SPINDLE_SIM_KEYS)
+    d = SPINDLE_SIM_DEFAULTS
+    interval = table.integer(
+        "update_interval_dms", default=min(int(d["update_interval_dms"]), servo_interval_dms),
+        minimum=1, maximum=servo_interval_dms,
+        unit="tenths of a millisecond, at most servo_interval_dms")
+    values: dict[str, float] = {}
+    for key, call in SIM_MOTOR_CALLS:
+        if key == "load_torque_mnm":
+            values[key] = table.number(key, default=d[key], minimum=0, unit="mNm, 0 for none")
+        else:
+            values[key] = table.number(key, default=d[key], above=0, unit=_SIM_UNITS[key])
+        _sci(table, key, values[key], call=call, digits=4)
+    table.finish()
+    return SimMotorConfig(
+        update_interval_dms=interval, counts_per_revolution=int(d["counts_per_revolution"]),
+        start_mm=0.0, source_voltage_v=values["source_voltage_v"],
+        torque_constant_mnm_per_a=values["torque_constant_mnm_per_a"],
+        winding_resistance_ohm=values["winding_resistance_ohm"],
+        inertia_kg_m2=values["inertia_kg_m2"],
+        viscous_friction_unm_per_rad_s=values["viscous_friction_unm_per_rad_s"],
+        load_torque_mnm=values["load_torque_mnm"])
 
 
 def _homing_order(top: _Reader, axes: tuple[AxisConfig, ...]) -> tuple[tuple[str, ...], ...]:

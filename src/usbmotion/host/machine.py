@@ -25,6 +25,7 @@ from usbmotion.errors import (
 from usbmotion.host.config import SIM_MOTOR_CALLS, AxisConfig, MachineConfig
 from usbmotion.host.device import AxisScale, ControlMode, DeviceClient, Status
 from usbmotion.host.discovery import PROBE_TIMEOUT_S, discover
+from usbmotion.host.spindle import Spindle
 from usbmotion.host.timesync import (
     DEFAULT_MARGIN_S,
     DEFAULT_SAMPLES,
@@ -34,6 +35,9 @@ from usbmotion.host.timesync import (
 )
 from usbmotion.host.transport import LineTransport
 from usbmotion.protocol import CallNumber
+
+SPINDLE_KEY = "spindle"
+"""The spindle's device among the machine's links (discovery, URLs)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,12 +76,16 @@ class Machine:
         ConfigError: the axes' links do not share one clock.
     """
 
-    def __init__(self, config: MachineConfig, axes: Sequence[Axis]) -> None:
+    def __init__(self, config: MachineConfig, axes: Sequence[Axis],
+                 spindle: Spindle | None = None) -> None:
         self.config = config
         self.axes: Mapping[str, Axis] = {axis.name: axis for axis in axes}
+        self.spindle = spindle
+        """The spindle device (``[spindle]``), or None."""
         self._closed = False
         try:
-            self.clock: Clock = shared_clock([axis.client for axis in axes])
+            self.clock: Clock = shared_clock([axis.client for axis in axes] + (
+                [spindle.client] if spindle is not None else []))
         except UsbMotionError as error:
             raise ConfigError(
                 f"{config.path}: {error}; a machine's axes must all be simulated in one"
@@ -120,18 +128,24 @@ class Machine:
             ConfigError: the axes do not share one clock (simulated and real mixed).
         """
         urls = {axis.name: axis.url for axis in config.axes if axis.url is not None}
+        spindle_config = config.spindle
+        if spindle_config is not None and spindle_config.url is not None:
+            urls[SPINDLE_KEY] = spindle_config.url
         opened: list[Axis] = []
+        spindle: Spindle | None = None
         try:
-            lost = [axis for axis in config.axes if axis.name not in urls]
+            lost = [(axis.name, axis.device) for axis in config.axes if axis.name not in urls]
+            if spindle_config is not None and SPINDLE_KEY not in urls:
+                lost.append((SPINDLE_KEY, spindle_config.device))
             if lost:
                 found = discover(
-                    [axis.device for axis in lost if axis.device is not None],
+                    [device for _, device in lost if device is not None],
                     urls=list(ports) + list(config.ports), search_ports=search_ports,
                     timeout_s=probe_timeout_s,
                 )
-                for axis in lost:
-                    assert axis.device is not None
-                    urls[axis.name] = found[axis.device]
+                for key, device in lost:
+                    assert device is not None
+                    urls[key] = found[device]
             for axis in config.axes:
                 url = urls[axis.name]
                 client = DeviceClient(
@@ -140,14 +154,25 @@ class Machine:
                 )
                 client.scale = axis.scale
                 opened.append(Axis(axis.name, axis, client, url))
-            machine = cls(config, opened)
+            if spindle_config is not None:
+                client = DeviceClient(
+                    LineTransport.open(urls[SPINDLE_KEY], label=spindle_config.label),
+                    name=spindle_config.label, timeout_s=config.reply_timeout_s)
+                spindle = Spindle(client, spindle_config,
+                                  servo_interval_dms=config.servo_interval_dms,
+                                  watchdog_ms=config.watchdog_ms)
+            machine = cls(config, opened, spindle)
         except BaseException:
             for axis_open in opened:
                 axis_open.client.close()
+            if spindle is not None:
+                spindle.client.close()
             raise
         try:
             for axis_open in opened:
                 _take_over(axis_open)
+            if spindle is not None:
+                _take_over_spindle(spindle)
         except BaseException:
             machine.close()
             raise
@@ -184,6 +209,8 @@ class Machine:
                 client.set_sim_counts_per_revolution(sim.counts_per_revolution)
                 client.set_sim_travel(*travel)
                 client.set_sim_probe(*settings.sim_probe_counts)
+        if self.spindle is not None:
+            self.spindle.configure()
 
     def reconfigure(self, config: MachineConfig) -> None:
         """Take a changed configuration of the same machine: its host-side values (scale,
@@ -209,7 +236,13 @@ class Machine:
             if getattr(config, key) != getattr(old, key):
                 raise ConfigError(f"{config.path}: {key} takes effect only when the machine"
                                   " connects: restart", path=str(config.path), key=key)
-        config = dataclasses.replace(config, axes=tuple(
+        spindle = config.spindle
+        if old.spindle is not None and spindle is not None:
+            spindle = dataclasses.replace(spindle, url=old.spindle.url)
+        if spindle != old.spindle:
+            raise ConfigError(f"{config.path}: spindle takes effect only when the machine"
+                              " connects: restart", path=str(config.path), key="spindle")
+        config = dataclasses.replace(config, spindle=spindle, axes=tuple(
             dataclasses.replace(axis, url=self.axes[axis.name].config.url)
             for axis in config.axes))
         for axis in self.axes.values():
@@ -358,6 +391,11 @@ class Machine:
                     action()
                 except (UsbMotionError, OSError) as error:
                     failures.append(f"{name} ({step}): {error}")
+        if self.spindle is not None:
+            try:
+                self.spindle.halt()
+            except (UsbMotionError, OSError) as error:
+                failures.append(f"spindle (stop): {error}")
         if failures:
             raise DeviceError(
                 f"stop failed on {len(failures)} step(s): " + "; ".join(failures),
@@ -405,6 +443,8 @@ class Machine:
         self._closed = True
         for axis in self.axes.values():
             axis.client.close()
+        if self.spindle is not None:
+            self.spindle.client.close()
 
     def __enter__(self) -> Machine:
         return self
@@ -429,6 +469,18 @@ def _take_over(axis: Axis) -> None:
                 f" configured device {settings.device!r}",
                 name=settings.device, searched=(settings.url,),
             )
+
+
+def _take_over_spindle(spindle: Spindle) -> None:
+    """As :func:`_take_over`, for the spindle's device."""
+    client, settings = spindle.client, spindle.config
+    client.resynchronise(stop_diagnostics=True)
+    if settings.device is not None and settings.url is not None:
+        answered = client.device_name()
+        if answered != settings.device:
+            raise DeviceNotFoundError(
+                f"spindle: {settings.url} answers to {answered!r}, not to the configured"
+                f" device {settings.device!r}", name=settings.device, searched=(settings.url,))
 
 
 def _set_mode(client: DeviceClient, axis: AxisConfig, mode: ControlMode) -> None:

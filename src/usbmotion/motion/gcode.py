@@ -313,6 +313,8 @@ _GM_SPINDLE_MODE = ModalGroup.SPINDLE_MODE
 _GM_TOOL_LENGTH_OFFSET = ModalGroup.TOOL_LENGTH_OFFSET
 _M_0, _M_1, _M_6, _M_61 = MCode.M_0, MCode.M_1, MCode.M_6, MCode.M_61
 _MG_OVERRIDES, _MG_STOPPING, _MG_TOOL_CHANGE = MGroup.OVERRIDES, MGroup.STOPPING, MGroup.TOOL_CHANGE
+_MG_SPINDLE = MGroup.SPINDLE
+_M_3, _M_4 = MCode.M_3, MCode.M_4
 _PAUSE_CODES = (_M_0, _M_1)
 
 _LETTERS_UNSUPPORTED = {
@@ -429,12 +431,16 @@ class Pause:
     ``code`` is ``"M0"``, ``"M1"`` or ``"M6"``; ``message`` says what the operator is to do
     (a tool change names the tool and its pocket); ``move`` is the index in the program's
     moves of the zero-second :class:`Dwell` that brings the machine to rest there.
+    ``spindle_rpm``: a spindle pause (``M3``, ``M4``, ``M5``, ``S``, the program's end):
+    the speed the spindle is to turn at (+ clockwise, - counter-clockwise, 0 stopped);
+    the run goes on by itself once it is there. None: a pause for the operator.
     """
 
     line: int
     code: str
     message: str
     move: int
+    spindle_rpm: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -483,6 +489,11 @@ class MachineAxes:
             every axis of ``axes`` in one group; one group of all axes when empty.
         wrapped: its rotary axes that wrap (LinuxCNC's ``WRAPPED_ROTARY``): an absolute
             move takes the short way round, whatever the turns between.
+        spindle_max_rpm: the fastest ``S`` of its spindle; 0: it has none (``S`` and
+            ``M3``-``M5`` are then listed as ignored words). With one, every ``M3``,
+            ``M4``, ``M5``, a change of ``S`` while it turns and the program's end bring the
+            machine to rest at a spindle :class:`Pause` that waits until the spindle is at
+            its new speed (LinuxCNC's spindle-at-speed), then goes on by itself.
 
     Raises:
         ValueError: the axes are not a non-empty subsequence of ``"XYZABCUVW"``, the home
@@ -494,6 +505,7 @@ class MachineAxes:
     home_mm: Point | None = None
     homing_order: tuple[str, ...] = ()
     wrapped: str = ""
+    spindle_max_rpm: float = 0.0
 
     def __post_init__(self) -> None:
         axes = self.axes
@@ -897,6 +909,9 @@ class _Interpreter:
         "rules",
         "scale",
         "scales",
+        "spindle_rpm",
+        "spindle_speed",
+        "spindle_turn",
         "tool_changes",
         "tools",
     )
@@ -907,6 +922,9 @@ class _Interpreter:
         self.file = file
         self.pause_rule = pauses
         self.pauses: list[Pause] = []
+        self.spindle_speed = 0.0  # S, rpm
+        self.spindle_turn = 0  # M3 1, M4 -1, M5 0
+        self.spindle_rpm = 0.0  # the speed the spindle was last told, signed
         self.machine = machine
         self.rules = rules
         axes = machine.axes
@@ -977,6 +995,10 @@ class _Interpreter:
         offset suspended as G92.2 does (cleared where it is volatile: grbl, Marlin)."""
         self.ended_by = ended_by
         self.end_line = line
+        if self.machine.spindle_max_rpm:  # M2 and M30 stop the spindle (LinuxCNC, grbl)
+            self.spindle_turn = 0
+            self.spindle_rpm = 0.0
+            self.pause(line, ended_by, "spindle stop at the program's end", spindle_rpm=0.0)
         frame = self.frame
         frame.system = 0
         if self.rules.g92_volatile:
@@ -1161,6 +1183,12 @@ class _Interpreter:
             self.feed_mm_min = params["F"] * (1.0 if self.inverse_time else self.scale)
         if "T" in params or _MG_TOOL_CHANGE in m_codes:
             self.change_tool(block, params, where, m_codes, m_where)
+        if self.machine.spindle_max_rpm:
+            self.spindle_words(block, params, where, m_codes)
+            spindle_words = {where["S"]} if "S" in where else set()
+            if _MG_SPINDLE in m_where:
+                spindle_words.add(m_where[_MG_SPINDLE])
+            ignored = [(i, meaning) for i, meaning in ignored if i not in spindle_words]
         if len(g_codes) > (_GM_MOTION in g_codes):  # G codes besides the motion one
             self.set_modes(block, g_codes, g_where, params, where)
         if motion != NO_MOTION:
@@ -1190,10 +1218,35 @@ class _Interpreter:
             return False
         return code != _M_1 or rule is Pauses.OPTIONAL
 
-    def pause(self, line: int, code: str, message: str) -> None:
-        """The machine to rest where it stands, waiting for the operator's cycle start."""
-        self.pauses.append(Pause(line, code, message, len(self.moves)))
+    def pause(self, line: int, code: str, message: str, *,
+              spindle_rpm: float | None = None) -> None:
+        """The machine to rest where it stands, waiting for the operator's cycle start (or,
+        a spindle pause, for the spindle to reach ``spindle_rpm``)."""
+        self.pauses.append(Pause(line, code, message, len(self.moves), spindle_rpm))
         self.moves.append(Dwell(line, _point(self.position), 0.0))
+
+    def spindle_words(self, block: Block, params: dict[str, float], where: dict[str, int],
+                      m_codes: dict[int, int]) -> None:
+        """``S`` and ``M3``/``M4``/``M5`` on a machine with a spindle, in LinuxCNC's order
+        (the speed, then the direction, both before the line's motion): a spindle pause
+        whenever the speed the spindle is to turn at may change."""
+        speed = params.get("S")
+        if speed is not None:
+            top = self.machine.spindle_max_rpm
+            if speed > top:
+                raise self.error(block, where["S"], f"S{speed:g} is beyond the spindle's"
+                                 f" max_rpm {top:g}; allowed: 0..{top:g} rpm")
+            self.spindle_speed = speed
+        code = m_codes.get(_MG_SPINDLE)
+        if code is not None:
+            self.spindle_turn = 1 if code == _M_3 else -1 if code == _M_4 else 0
+        rpm = self.spindle_turn * self.spindle_speed
+        if code is not None or rpm != self.spindle_rpm:
+            self.spindle_rpm = rpm
+            said = f"M{code}" if code is not None else "S"
+            message = (f"spindle to {abs(rpm):g} rpm" + (" counter-clockwise" if rpm < 0 else "")
+                       if rpm else "spindle stop")
+            self.pause(block.line, said, message, spindle_rpm=rpm)
 
     def set_modes(self, block: Block, g_codes: dict[ModalGroup, int],
                   g_where: dict[ModalGroup, int], params: dict[str, float],

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import numpy.typing as npt
 
+from usbmotion.host.spindle import SpindleNow
 from usbmotion.session.state import MachineState
 
 PEAK_LINES = 4096
@@ -87,6 +88,9 @@ class LiveSnapshot:
         pause: the message of the program pause the machine waits at ("" none).
         alarm: what the last fault was, in words, with its axis and line ("" none).
         tool_changes: every tool change the program made so far, in words.
+        spindle: the spindle as its encoder last said (None: the machine has none).
+        probe: the probe input read closed (any device's: the probe line is one), as last
+            read at rest.
         sequence: counts the snapshots published; ``updated_s`` when (monotonic wall time).
     """
 
@@ -112,6 +116,8 @@ class LiveSnapshot:
     pause: str = ""
     alarm: str = ""
     tool_changes: tuple[str, ...] = ()
+    spindle: SpindleNow | None = None
+    probe: bool = False
     sequence: int = 0
     updated_s: float = 0.0
 

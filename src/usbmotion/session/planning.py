@@ -73,7 +73,7 @@ def program_axes(config: MachineConfig) -> str:
 
 def machine_axes(config: MachineConfig) -> MachineAxes:
     """What the interpreter needs of the machine: its program axes, where homing leaves
-    them, and the order it homes them in.
+    them, the order it homes them in, and its spindle's top speed.
 
     Raises:
         ConfigError: as :func:`program_axes`.
@@ -88,7 +88,8 @@ def machine_axes(config: MachineConfig) -> MachineAxes:
     return MachineAxes(axes=axes,
                        home_mm=tuple(home_position_mm(config.axis(a)) for a in axes),
                        homing_order=order,
-                       wrapped="".join(a for a in axes if config.axis(a).wrapped))
+                       wrapped="".join(a for a in axes if config.axis(a).wrapped),
+                       spindle_max_rpm=config.spindle.max_rpm if config.spindle else 0.0)
 
 
 def machine_dialect(config: MachineConfig, dialect: Dialect | None = None) -> Dialect:

@@ -113,6 +113,18 @@ class ToolChangeRecord:
 
 
 @dataclass(frozen=True, slots=True)
+class SpindleRecord:
+    """A spindle pause of the run: its line, the speed asked (rpm, signed: - for M4), how
+    long the program waited at rest for the spindle to reach it (s), and the speed its
+    encoder measured when the program went on (rpm)."""
+
+    line: int
+    rpm: float
+    waited_s: float
+    measured_rpm: float
+
+
+@dataclass(frozen=True, slots=True)
 class RunReport:
     """The figures of one run.
 
@@ -153,6 +165,7 @@ class RunReport:
     notes: tuple[str, ...] = ()
     tool_changes: tuple[ToolChangeRecord, ...] = ()
     line_peaks: tuple[LinePeak, ...] = ()
+    spindle: tuple[SpindleRecord, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         """The report as plain JSON-ready data."""

@@ -54,6 +54,12 @@ def describe(report: RunReport) -> str:
         pocket = f" (pocket {change.pocket})" if change.pocket else ""
         what = "put in the spindle (M6)" if change.manual else "said to be in the spindle (M61)"
         lines.append(f"tool change    line {change.line}: tool {change.tool}{pocket} {what}")
+    for wait in report.spindle:
+        turn = " counter-clockwise" if wait.rpm < 0 else ""
+        lines.append(f"spindle        line {wait.line}: {abs(wait.rpm):g} rpm{turn}, at speed"
+                     f" after {wait.waited_s:.2f} s (measured {abs(wait.measured_rpm):.0f} rpm)"
+                     if wait.rpm else f"spindle        line {wait.line}: stopped after"
+                     f" {wait.waited_s:.2f} s")
     if report.link_error:
         lines.append(f"LINK LOST      {report.link_error}")
     for note in report.notes:

@@ -20,6 +20,7 @@ from contextlib import ExitStack
 from dataclasses import replace
 
 from usbmotion.errors import DeviceTimeoutError, LinkCorruptedError, LinkLostError, UsbMotionError
+from usbmotion.host.spindle import Spindle
 from usbmotion.motion.gcode import Pause
 from usbmotion.motion.replanning import PathPoint
 from usbmotion.protocol import FaultCode
@@ -30,12 +31,16 @@ from usbmotion.session.feeding import Feeding
 from usbmotion.session.legs import Legs
 from usbmotion.session.planning import Prepared, planner_inputs
 from usbmotion.session.progress import RunProgress
-from usbmotion.session.report import RunReport, Trace
+from usbmotion.session.report import RunReport, SpindleRecord, Trace
 from usbmotion.session.seams import decelerate, replan_from_seam, stop_time_s
 from usbmotion.session.state import Event, MachineState, StopReason
 from usbmotion.session.streaming import RunStreams
 from usbmotion.session.watch import FAULT_CHECK_S, Watch
 
+SPINDLE_POLL_S = 0.01
+"""How often a spindle pause reads the spindle's speed while it waits for it."""
+SPINDLE_CHECK_S = 0.1
+"""How often a running program reads the spindle's speed (a stall's latency)."""
 REQUEST_CHECK_S = 0.01
 """The longest a live run goes without looking at the operator's requests (hold, stop,
 overrides): with the stop's lead it bounds a hold's latency."""
@@ -88,6 +93,10 @@ class Run:
         self.hold_point: PathPoint | None = None
         self.paused: list[Pause] = []
         """The program pauses the run waited at, in order."""
+        self.spindle_waits: list[tuple[int, float, float, float]] = []
+        """Each spindle pause: its line, the speed asked (rpm), how long the program waited
+        for it (s) and the speed measured when it went on (rpm)."""
+        self._spindle_read_s = 0.0
         self.seams: list[tuple[float, int]] = []
         """Every override's request time (s) and the device tick its new speed began on."""
         self.skew_s = 0.0
@@ -190,6 +199,9 @@ class Run:
         while held). Publishes the live model when due."""
         self.requests.take()
         faulted = self.watch.check(self.clock.now(), at_once=at_once)
+        spindle = self.machine.spindle
+        if spindle is not None and spindle.running:
+            faulted = self._check_spindle(spindle) or faulted
         fed = self.feeding.feed is not None
         self.publish(force=fed)
         if fed:  # a fed program's window follows what the live model shows
@@ -202,6 +214,22 @@ class Run:
                     or (taken.hold and state in (MachineState.RUN, MachineState.JOG))
                     or (taken.resume and state in (MachineState.HOLD, MachineState.PAUSED))
                     or self._overrides() != self.legs.overrides)
+
+    def _check_spindle(self, spindle: Spindle) -> bool:
+        """The spindle's queue fed, and every :data:`SPINDLE_CHECK_S` its speed read: a
+        stall is the run's fault."""
+        spindle.service()
+        now = self.clock.now()
+        if now - self._spindle_read_s < SPINDLE_CHECK_S:
+            return False
+        self._spindle_read_s = now
+        spindle.read()
+        stalled = spindle.stalled()
+        if stalled is None:
+            return False
+        self.watch.record_words("spindle", stalled, elapsed_s=self._elapsed_s(),
+                                line=self.live.read().line)
+        return True
 
     def _event(self) -> None:
         """What the run's requests and faults make of the state (or of the speed)."""
@@ -240,9 +268,8 @@ class Run:
             return Ending(StopReason.COMPLETED.value)
         pause = None if self._look() else self.feeding.at_pause()
         if pause is not None:
-            self._enter_pause(pause)
-        else:
-            self._event()
+            return self._enter_pause(pause)
+        self._event()
         return None
 
     def _take_feed(self, *, streaming: bool = True) -> None:
@@ -295,13 +322,72 @@ class Run:
         self._decelerate(asked_s=self.requests.taken.hold_at_s)
         return self._wait_at_rest()
 
-    def _enter_pause(self, pause: Pause) -> None:
+    def _enter_pause(self, pause: Pause) -> Ending | None:
+        if pause.spindle_rpm is not None:
+            self.hold_point = self.feeding.pass_pause()
+            return self._spindle_pause(pause, pause.spindle_rpm)
         self.requests.clear_hold()
         self.hold_point = self.feeding.pass_pause()
         self.paused.append(pause)
         self.states.fire(Event.PAUSE)
         self.context.on_pause(pause)
         self.publish(force=True, at_rest=True)
+        return None
+
+    def _spindle_pause(self, pause: Pause, rpm: float) -> Ending | None:
+        """At rest at a spindle pause: the spindle to ``rpm``, and the program on once its
+        encoder says it is there (within ``at_speed_tolerance``); no speed within the ramp
+        and ``spin_up_timeout_s`` is an alarm. A stop or a fault meanwhile ends the run."""
+        spindle = self.machine.spindle
+        self.publish(force=True, at_rest=True)
+        if spindle is not None:
+            clock = self.clock
+            began = clock.now()
+            deadline = began + spindle.ramp_s(rpm) + spindle.config.spin_up_timeout_s
+            unchanged = spindle.commanded_rpm == rpm and spindle.now.at_speed
+            spindle.command(rpm)
+            keep_alive_s, pinged = self.context.keep_alive_s, began
+            taken = self.requests.taken
+            while not spindle.read().at_speed:
+                self._look(at_once=True)
+                if self.watch.faults:
+                    self.states.fire(Event.FAULT)
+                    return self._stop()
+                if taken.stop_reason:
+                    self.states.fire(Event.STOP, at_rest=True)
+                    self._spindle_off()
+                    return Ending(taken.stop_reason)
+                now = clock.now()
+                if now > deadline:
+                    measured = spindle.now.measured_rpm
+                    self.watch.record_words(
+                        "spindle", f"spindle not at speed: {measured:.0f} rpm measured"
+                        f" {now - began:.1f} s after line {pause.line} asked {rpm:g} rpm",
+                        elapsed_s=self._elapsed_s(), line=pause.line)
+                    self.states.fire(Event.FAULT)
+                    return self._stop()
+                if keep_alive_s and now - pinged >= keep_alive_s:
+                    self.context.keep_alive()
+                    pinged = now
+                clock.sleep(SPINDLE_POLL_S)
+            if not unchanged:
+                self.spindle_waits.append(
+                    (pause.line, rpm, clock.now() - began, spindle.now.measured_rpm))
+            self.publish(force=True, at_rest=True)
+        return self._resume()
+
+    def _elapsed_s(self) -> float:
+        """How far into the run the devices are, by the live model's last device tick."""
+        ticks = [axis.tick for axis in self.live.read().axes.values()]
+        start = self.streams.start_tick
+        return max(0, max(ticks, default=start) - start) * self.config.servo_period_s
+
+    def _spindle_off(self) -> None:
+        """The spindle to rest along its ramp (a stop, an alarm: grbl's and LinuxCNC's
+        spindle stops with the program)."""
+        spindle = self.machine.spindle
+        if spindle is not None and spindle.commanded_rpm:
+            spindle.command(0.0)
 
     def _wait_at_rest(self) -> Ending | None:
         """At rest (Hold, Paused): until a resume (None: the run goes on), a stop or a
@@ -356,6 +442,7 @@ class Run:
         faulted = self.states.state is MachineState.ALARM
         asked_s = taken.stop_at_s if taken.stop_reason else self.clock.now()
         self._decelerate(asked_s=asked_s)
+        self._spindle_off()
         if faulted:
             return Ending(f"fault: {self.watch.words()}")
         self.states.fire(Event.AT_REST)
@@ -391,6 +478,9 @@ class Run:
                            skew_s=self.skew_s, notes=self.notes, statuses=statuses,
                            stats=stats, line_at_tick=self.progress.line_at_tick,
                            segments_at_ticks=self.progress.segments_at_ticks)
+        report = replace(report, spindle=tuple(
+            SpindleRecord(line, rpm, waited_s, measured)
+            for line, rpm, waited_s, measured in self.spindle_waits))
         self.faulted_axes = [name for name, status in statuses.items()
                              if status.fault != FaultCode.NONE]
         self.faulted = bool(self.watch.faults or ending.link_error or self.faulted_axes)

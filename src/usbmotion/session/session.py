@@ -298,15 +298,21 @@ class MachineSession:
 
     def read_live(self, *, moving: bool = False) -> LiveSnapshot:
         """Refresh the live model from every device's status (at rest, or between the
-        polls of what moves) and publish it; the snapshot."""
+        polls of what moves), the probe input and the spindle, and publish it; the
+        snapshot."""
         live = self.live
         for name, status in self.machine.status().items():
             live.take_status(name, clock=status.clock, desired=status.desired_counts,
                              actual=status.actual_counts,
                              limit=bool(status.lower_limit or status.upper_limit),
                              fault=int(status.fault), moving=moving)
+        spindle = self.machine.spindle
+        if spindle is not None:
+            spindle.service()
+            spindle.read()
+        probe = any(axis.client.probe().closed for axis in self.machine.axes.values())
         self._live_read_s = self.clock.now()
-        return self.publish_live()
+        return self.publish_live(probe=probe)
 
     def publish_live(self, **fields: object) -> LiveSnapshot:
         """Publish the live model with what the session knows (state, homed, overrides,
@@ -337,20 +343,22 @@ class MachineSession:
         coordinate system and the tool (a fed program's modal state, else the parameter
         file's)."""
         axes = program_axes(self.config)
+        spindle = self.machine.spindle
+        shown: dict[str, object] = {} if spindle is None else {"spindle": spindle.now}
         feed = self._feed
         if feed is not None:
             modes = feed.modes()
             return {"work_offset_mm": dict(zip(axes, modes.offset_mm, strict=True)),
-                    "coordinate_system": modes.coordinate_system, "tool": modes.tool}
+                    "coordinate_system": modes.coordinate_system, "tool": modes.tool, **shown}
         try:
             offsets = self.work_offsets()
         except (UsbMotionError, OSError):
-            return {}
+            return shown
         base = offsets.g5x[offsets.coordinate_system - 1]
         g92 = offsets.g92 if offsets.g92_enabled else (0.0,) * len(AXIS_ORDER)
         return {"work_offset_mm": {a: base[AXIS_ORDER.index(a)] + g92[AXIS_ORDER.index(a)]
                                    for a in axes},
-                "coordinate_system": offsets.coordinate_system}
+                "coordinate_system": offsets.coordinate_system, **shown}
 
     # --- programs -----------------------------------------------------------------------------
 
@@ -703,6 +711,14 @@ class MachineSession:
                                   value=check_feed_override(percent)))
         self._take_when_idle()
 
+    def set_spindle_override(self, percent: int) -> None:
+        """The spindle speed override, 10..200 % (grbl's 0x99-0x9D), from any thread: the
+        spindle follows along its ramp at the next look of whoever drives the machine (a
+        machine without a spindle ignores it)."""
+        spindle = self.machine.spindle
+        if spindle is not None:
+            spindle.ask_override(percent)
+
     def set_rapid_override(self, percent: int) -> None:
         """Run rapids at ``percent`` of the fastest the axes allow (grbl's rapid override:
         100, 50 or 25), taking effect as :meth:`set_feed_override` does.
@@ -922,15 +938,20 @@ class MachineSession:
         return watchdog_ms / 1000.0 / 4 if watchdog_ms > 0 else 0.0
 
     def keep_alive(self) -> None:
-        """Feed every device's watchdog (a queue query each: any command does)."""
+        """Feed every device's watchdog (a queue query each: any command does), the
+        spindle's queue too."""
         self.machine.ping()
+        spindle = self.machine.spindle
+        if spindle is not None:
+            spindle.service()
+            spindle.client.queue_status()
 
     # --- leaving ------------------------------------------------------------------------------
 
     def shutdown(self) -> None:
-        """The clean exit: every queue empty, every servo disabled (no fault latches: a
-        disabled servo has no watchdog), diagnostics off; the homed mark stays on the
-        devices for the next host.
+        """The clean exit: every queue empty, every servo disabled (the spindle's too: it
+        coasts to rest; no fault latches: a disabled servo has no watchdog), diagnostics
+        off; the homed mark stays on the devices for the next host.
 
         Raises:
             DeviceError: a device could not be reached (names it), after trying every axis.
@@ -944,6 +965,12 @@ class MachineSession:
                 client.set_servo_enable(False)
             except (UsbMotionError, OSError) as error:
                 failures.append(f"{name}: {error}")
+        spindle = self.machine.spindle
+        if spindle is not None:
+            try:
+                spindle.halt()
+            except (UsbMotionError, OSError) as error:
+                failures.append(f"spindle: {error}")
         if failures:
             raise DeviceError("shutdown: " + "; ".join(failures))
 

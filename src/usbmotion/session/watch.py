@@ -114,6 +114,13 @@ class Watch:
         self.faults.append(FaultRecord(axis, fault_words(code), elapsed,
                                        self.line_at_tick(tick), int(code)))
 
+    def record_words(self, axis: str, words: str, *, elapsed_s: float, line: int) -> None:
+        """A fault the host found (a stalled spindle), ``elapsed_s`` into the run at program
+        line ``line`` (the first of each device)."""
+        if any(f.axis == axis for f in self.faults):
+            return
+        self.faults.append(FaultRecord(axis, words, elapsed_s, line, 0))
+
     def begin(self, axes: Sequence[str], duration_s: float, *, live: bool) -> None:
         """A run's first start (the clocks just zeroed): each program axis's statistics
         reset and its diagnostics lines at the trace's period (or the live one, the trace

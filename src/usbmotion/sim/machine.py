@@ -24,7 +24,9 @@ from usbmotion.host.config import AxisConfig, MachineConfig, SimMotorConfig, loa
 from usbmotion.host.device import to_sci
 from usbmotion.host.discovery import PROBE_TIMEOUT_S
 from usbmotion.host.machine import Axis, Machine
+from usbmotion.host.spindle import Spindle
 from usbmotion.protocol import encode_device_name
+from usbmotion.protocol.table import INT32_MAX, INT32_MIN
 from usbmotion.session import MachineSession
 from usbmotion.sim.registry import drop_world, set_world
 from usbmotion.sim.urls import URL_CHECKS, machine_url_problem, parse_sim_url
@@ -103,7 +105,22 @@ def simulate(config: MachineConfig, world: SimWorld, alias: str) -> MachineConfi
             _add_simulated(world, key, axis)
             axis = dataclasses.replace(axis, url=_sim_url(key, alias, latency_us))
         axes.append(axis)
-    return dataclasses.replace(config, axes=tuple(axes))
+    spindle = config.spindle
+    if spindle is not None and spindle.is_simulated:
+        assert spindle.url is not None and spindle.sim is not None
+        problem = machine_url_problem(spindle.url)
+        if problem is not None:
+            raise ConfigError(f"{config.path}: spindle.url: {problem}",
+                              path=str(config.path), key="spindle.url")
+        key, _, latency_us = parse_sim_url(spindle.url)
+        if key not in world.keys:
+            device = Device(flash=MemoryFlash(), motor=sim_motor_params(
+                spindle.sim, travel_counts=(INT32_MIN, INT32_MAX)))
+            device.feed(encode_device_name(spindle.device or key))
+            device.take_output()
+            world.add(device, key=key)
+        spindle = dataclasses.replace(spindle, url=_sim_url(key, alias, latency_us))
+    return dataclasses.replace(config, axes=tuple(axes), spindle=spindle)
 
 
 class SimulatedMachine(Machine):
@@ -112,8 +129,9 @@ class SimulatedMachine(Machine):
     Build one with :meth:`connect`; closing it also forgets the world's URL alias.
     """
 
-    def __init__(self, config: MachineConfig, axes: Sequence[Axis]) -> None:
-        super().__init__(config, axes)
+    def __init__(self, config: MachineConfig, axes: Sequence[Axis],
+                 spindle: Spindle | None = None) -> None:
+        super().__init__(config, axes, spindle)
         self.world = SimWorld()
         """The world the simulated axes live in."""
         self._alias = ""

@@ -30,11 +30,14 @@ from pathlib import Path
 
 from usbmotion.errors import ConfigError
 from usbmotion.host.config import (
+    REACH_MARGIN,
     SIM_MOTOR_DEFAULTS,
+    SPINDLE_SIM_DEFAULTS,
     AxisConfig,
     MachineConfig,
     MotorModelConfig,
     SimMotorConfig,
+    SpindleConfig,
 )
 from usbmotion.motion.dialects import Dialect
 from usbmotion.motion.gcode import Pauses
@@ -155,8 +158,30 @@ def model_machine(config: MachineConfig, *, parameter_file: Path,
         axes.append(modelled)
     machine = dataclasses.replace(
         config, axes=tuple(axes), name=f"{config.name} (predicted)", watchdog_ms=0, ports=(),
-        parameter_file=parameter_file, joints=())
+        parameter_file=parameter_file, joints=(),
+        spindle=None if config.spindle is None else model_spindle(config.spindle))
     return machine, motors
+
+
+def model_spindle(spindle: SpindleConfig) -> SpindleConfig:
+    """A simulated spindle for a prediction: its own ``sim`` table when it has one, else
+    the default simulated spindle motor wound to reach ``max_rpm`` with a tenth of its
+    supply left (the axes wait at each spindle pause as long as the ramp takes)."""
+    sim = spindle.sim
+    if sim is None:
+        defaults = SPINDLE_SIM_DEFAULTS
+        volts = defaults["source_voltage_v"]
+        no_load_rad_s = spindle.max_rpm / (1 - REACH_MARGIN) / 0.95 * 2 * math.pi / 60
+        sim = SimMotorConfig(
+            update_interval_dms=int(defaults["update_interval_dms"]),
+            source_voltage_v=volts,
+            torque_constant_mnm_per_a=round(volts / no_load_rad_s * 1000, 3),
+            winding_resistance_ohm=defaults["winding_resistance_ohm"],
+            counts_per_revolution=spindle.counts_per_revolution,
+            inertia_kg_m2=defaults["inertia_kg_m2"],
+            viscous_friction_unm_per_rad_s=defaults["viscous_friction_unm_per_rad_s"],
+            load_torque_mnm=defaults["load_torque_mnm"], start_mm=0.0)
+    return dataclasses.replace(spindle, url="sim://predicted-spindle", device=None, sim=sim)
 
 
 def predict(config: MachineConfig, program: Path, text: str, *,

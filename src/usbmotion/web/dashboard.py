@@ -329,6 +329,10 @@ class Dashboard:
             "work_offset_mm": {name: offsets.get(name, 0.0) for name in self.axes},
             "tool": now.tool,
             "tool_length_mm": now.tool_length_mm,
+            "spindle": None if now.spindle is None else {
+                "commanded_rpm": now.spindle.commanded_rpm,
+                "measured_rpm": now.spindle.measured_rpm,
+                "at_speed": now.spindle.at_speed},
             "pause": now.pause,
             "alarm": alarm,
             "alarm_help": self._alarm_help(now) if alarm or now.state is MachineState.ALARM

@@ -20,6 +20,8 @@ export class Readout {
     this.feed = byId('feed');
     this.overrides = byId('overrides-shown');
     this.tool = byId('tool');
+    this.spindleFact = byId('spindle-fact');
+    this.spindle = byId('spindle');
     this.system = byId('coordinate-system');
     this.offsets = byId('work-offsets');
     this.cells = new Map();
@@ -91,6 +93,16 @@ export class Readout {
     setText(this.overrides, `${state.feed_override} %, rapid ${state.rapid_override} %`);
     const length = state.tool_length_mm ? ` (length ${mm(state.tool_length_mm)} mm)` : '';
     setText(this.tool, `T${state.tool}${length}`);
+    // The spindle's speed as its encoder measures it, and the speed asked when it differs.
+    const spindle = state.spindle;
+    this.spindleFact.hidden = !spindle;
+    if (spindle) {
+      const measured = Math.abs(spindle.measured_rpm).toFixed(0);
+      const asked = Math.abs(spindle.commanded_rpm).toFixed(0);
+      const turn = spindle.commanded_rpm < 0 ? ' CCW' : '';
+      setText(this.spindle, spindle.at_speed ? `${measured} rpm${turn}`
+        : `${measured} rpm${turn} (to ${asked})`);
+    }
     setText(this.system, state.coordinate_system);
     const offsets = state.work_offset_mm || {};
     setText(this.offsets, axes.map((axis) => `${axis} ${mm(offsets[axis])}`).join('  '));
