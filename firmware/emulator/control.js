@@ -8,7 +8,7 @@ import { createInterface } from 'node:readline';
 
 import { parseArgs } from './lib/args.js';
 import { DeviceError, EmulatedDevice } from './lib/emulated-device.js';
-import { PIN_MAP, sweepEncoder } from './lib/pins.js';
+import { PIN_MAP, outputLevels, sweepEncoder } from './lib/pins.js';
 
 const options = parseArgs(process.argv.slice(2), ['bootrom']);
 let device = null;
@@ -170,6 +170,10 @@ const commands = {
       throw new DeviceError('no motor attached: send {"cmd": "motor", "options": {...}} first');
     }
     return { world: d.world.state, pins: pinLevels(d) };
+  },
+  outputs() {
+    const d = requireDevice();
+    return { levels: outputLevels(d.mcu) };
   },
   sweep(request) {
     const d = requireDevice();

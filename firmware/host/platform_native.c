@@ -211,3 +211,11 @@ void platform_motor_pins_drive(int32_t level, bool enable) {
 int32_t platform_motor_pins_full(void) {
     return 6250;
 }
+
+/* The outputs: the native build has no pins for them; core1's state holds their values. */
+void platform_outputs_start(void) {}
+
+void platform_output_set(uint32_t output, int32_t value) {
+    (void)output;
+    (void)value;
+}

@@ -84,6 +84,7 @@ POWER_UP_QUERIES = {
     "36 1": "SWITCH_EDGE 1 0 0 0 0",
     "40 -1 0": "SIM_PROBE 0 0",
     "41 -1": "PROBE 0 0 0 0 0",
+    "43 0": "OUTPUTS 0 0 0 0 0 -1",
 }
 
 
@@ -130,6 +131,8 @@ SET_THEN_QUERY = [
     ("34 -100 100", "34 -1 -1", "SIM_TRAVEL -100 100"),
     ("40 2 -7", "40 -1 0", "SIM_PROBE 2 -7"),
     ("40 1 0", "41 -1", "PROBE 1 0 0 0 0"),  # touching at once, and no edge
+    ("42 3 250 9", "43 0", "OUTPUTS 0 0 0 0 1 -1"),
+    ("42 1 1000 0", "43 1", "OUTPUTS 0 0 0 0 0 -1"),  # cleared before it applied
     ("0 42", "2 -1", "MOTION_QUEUE 1 999"),
     ("37 -12", "20 -1", "STATUS 0 -12 -12 0 0 0 1 0 0"),
 ]
@@ -180,6 +183,7 @@ DEBUG_LINES = [
     ([], "38 0 2 5 -5", "REPLACED 0 0 2 CRC 2082170553"),
     ([], "39 1", "MOTOR MODIFIED TO 1"),
     ([], "40 2 -250", "SIM PROBE MODIFIED TO 2 -250"),
+    (["43 1"], "42 0 1000 7", "OUTPUT 0 TO 1000 AT 7 FREE 15"),
 ]
 
 

@@ -318,3 +318,67 @@ def test_without_a_probe_surface_the_probe_stays_open() -> None:
         chip.request(cmd="motor", options=PinsMotor().options())
         (bottom, _, end), _ = probe_down_and_back(chip)
     assert bottom == end == [0, 0, 0, 0, 0]
+
+
+def test_the_output_pins_are_the_firmwares() -> None:
+    """The harness reads the outputs of call 42 off the pins pins.h names."""
+    header = (emulator_dir().parent / "src" / "rp2040" / "pins.h").read_text(encoding="ascii")
+    defined = [int(number) for number in re.findall(r"#define PIN_OUTPUT_\d (\d+)u", header)]
+    source = (emulator_dir() / "lib" / "pins.js").read_text(encoding="utf-8")
+    block = re.search(r"OUTPUT_PINS = \[(.*?)\];", source)
+    assert block is not None
+    assert [int(pin) for pin in block.group(1).split(",")] == defined == [13, 14, 16, 17]
+
+
+def levels_tick_by_tick(chip: PinsChip, ticks: int) -> list[tuple[int, list[float]]]:
+    """Run tick by tick; after each, the ticks run since power-up and the output pins'
+    levels (per mille), read without a line to the device."""
+    seen = []
+    for _ in range(ticks):
+        done = int(chip.request(cmd="run", ticks=1)["tick"])
+        seen.append((done, [float(level) for level in chip.request(cmd="outputs")["levels"]]))
+    return seen
+
+
+def first_tick_at(seen: list[tuple[int, list[float]]], output: int, level: float) -> int:
+    """The first tick after which ``output`` shows ``level``."""
+    return next(done for done, levels in seen if levels[output] == level)
+
+
+@pytest.mark.parametrize("pins", [False, True], ids=["simulated motor", "motor on the pins"])
+def test_the_output_pins_change_on_the_named_tick(pins: bool) -> None:
+    """Changes queued for ticks 40, 57 and 90 show on GP13 and on GP16/GP17's PWM duty on
+    exactly those ticks: the servo tick that starts with the clock at T is the device's
+    (T + 1)-th since power-up on either motor (with the motor on the pins the clock counts
+    the ticks completed, one behind, and a tick starts as the one before it completes)."""
+    require_emulator()
+    with PinsChip(pins=pins) as chip:
+        assert chip.request(cmd="outputs")["levels"] == [0, 0, 0, 0], "all off at power-up"
+        assert chip.feed("42 0 1000 40\n42 2 375 40\n42 3 1000 57\n42 0 0 90\n") == []
+        seen = levels_tick_by_tick(chip, 100)
+        (reply,) = chip.feed("43 0\n")
+    assert first_tick_at(seen, 0, 1000) == 41
+    assert first_tick_at(seen, 2, 375) == 41
+    assert first_tick_at(seen, 3, 1000) == 58
+    assert next(done for done, levels in seen if done > 41 and levels[0] == 0) == 91
+    assert seen[-1][1] == [0, 0, 375, 1000]
+    assert all(levels[1] == 0 for _, levels in seen)
+    assert reply == "OUTPUTS 0 0 375 1000 0 90"
+
+
+@pytest.mark.parametrize("pins", [False, True], ids=["simulated motor", "motor on the pins"])
+def test_a_fault_turns_the_output_pins_off_on_its_tick(pins: bool) -> None:
+    """The watchdog trips: every output pin goes low on the tick the fault latches (with the
+    motor on the pins the tick completes, and latches, on the alarm after it started)."""
+    require_emulator()
+    with PinsChip(pins=pins) as chip:
+        chip.feed("42 1 1000 0\n42 2 800 0\n42 3 200 0\n42 0 1000 5000\n28 5\n3 1\n")
+        seen = levels_tick_by_tick(chip, 20)
+        (fault,) = chip.feed("30 -1\n")
+        (outputs,) = chip.feed("43 0\n")
+    fault_tick = int(fault.split()[2])
+    assert fault.split()[1] == "1"
+    off = next(done for done, levels in seen if levels == [0, 0, 0, 0])
+    assert off == fault_tick + (1 if pins else 0)
+    assert seen[0][1] == [0, 1000, 800, 200]
+    assert outputs == "OUTPUTS 0 0 0 0 0 0"

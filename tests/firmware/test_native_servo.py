@@ -93,6 +93,17 @@ class SwitchEdgeC(ctypes.Structure):
     ]
 
 
+class OutputChangeC(ctypes.Structure):
+    _fields_ = [("tick", c_i64), ("output", c_i32), ("value", c_i32)]
+
+
+class OutputQueueC(ctypes.Structure):
+    _fields_ = [
+        ("next", c_i64), ("last", c_i64), ("pending", c_u32), ("head", c_u32),
+        ("values", c_i32 * 4), ("queue", OutputChangeC * 16),
+    ]
+
+
 class ServoState(ctypes.Structure):
     _fields_ = [
         ("clock", c_i64), ("enable", c_i32), ("mode", c_i32), ("fault", c_i32),
@@ -104,7 +115,8 @@ class ServoState(ctypes.Structure):
         ("history", c_i64 * 10), ("counts", c_i32 * 10), ("stats_ticks", c_i64),
         ("stats_max", c_i64), ("stats_max_tick", c_i64), ("stats_sum_sq", c_i64),
         ("last_take", c_i64), ("diag_peak", c_i32), ("edges", SwitchEdgeC * 2),
-        ("probe_edge", SwitchEdgeC), ("probe", c_i32), ("curve", CurvePlayerC),
+        ("probe_edge", SwitchEdgeC), ("probe", c_i32), ("outputs", OutputQueueC),
+        ("curve", CurvePlayerC),
         ("pins_started", ctypes.c_bool), ("pins_enabled", ctypes.c_bool),
         ("pins_edges", c_u32 * 2),
     ]
@@ -164,7 +176,9 @@ class MotorConstantsC(ctypes.Structure):
 STRUCTS: dict[str, type[ctypes.Structure]] = {
     "sci_t": Sci, "keyframe_t": KeyframeC, "curve_coefficients_t": CoefficientsC,
     "curve_player_t": CurvePlayerC,
-    "switch_edge_t": SwitchEdgeC, "servo_state_t": ServoState, "servo_params_t": ServoParams,
+    "switch_edge_t": SwitchEdgeC, "output_change_t": OutputChangeC,
+    "output_queue_t": OutputQueueC,
+    "servo_state_t": ServoState, "servo_params_t": ServoParams,
     "device_vars_t": DeviceVars, "record_t": RecordC, "record_ring_t": RecordRing,
     "motor_constants_t": MotorConstantsC,
 }
@@ -223,6 +237,12 @@ def _shim_source() -> str:
         "    (void)enable;",
         "}",
         "int32_t platform_motor_pins_full(void) { return 6250; }",
+        "/* the outputs: core1's state holds them */",
+        "void platform_outputs_start(void) {}",
+        "void platform_output_set(uint32_t output, int32_t value) {",
+        "    (void)output;",
+        "    (void)value;",
+        "}",
         f"const size_t test_layout[] = {{{', '.join(layout)}}};",
         "const size_t test_layout_count = sizeof test_layout / sizeof test_layout[0];",
         "",
@@ -1071,6 +1091,12 @@ SCALAR_STATE = [
     (core1.S_STATS_SUM_SQ, "stats_sum_sq"), (core1.S_LAST_TAKE, "last_take"),
     (core1.S_DIAG_PEAK, "diag_peak"),
 ]
+OUTPUT_STATE = [(core1.S_OUT_PENDING, "pending"), (core1.S_OUT_HEAD, "head"),
+                (core1.S_OUT_NEXT, "next"), (core1.S_OUT_LAST, "last")]
+"""The outputs' scalars: the Python's entries and the fields of servo_state_t's outputs."""
+OUTPUT_CHANGE_FIELDS = [(2, "tick"), (0, "output"), (1, "value")]
+"""The entries of one pending change in the Python's ring (``core1.OUT_RECORD``), by the C
+field they are."""
 EDGE_FIELDS = [(core1.EDGE_COUNT, "edges"), (core1.EDGE_CLOSED, "closed"),
                (core1.EDGE_POSITION, "position"), (core1.EDGE_TICK, "tick")]
 HISTORY = core1.HISTORY_SLOTS
@@ -1135,6 +1161,14 @@ class CDevice:
             base = core1.S_EDGES + switch * core1.EDGE_FIELDS
             for offset, name in EDGE_FIELDS:
                 setattr(c.edges[switch], name, int(s[base + offset]))
+        for index, name in OUTPUT_STATE:
+            setattr(c.outputs, name, int(s[index]))
+        for output in range(4):
+            c.outputs.values[output] = int(s[core1.S_OUTPUTS + output])
+        for slot in range(16):
+            base = core1.S_OUT_QUEUE + slot * core1.OUT_RECORD
+            for offset, name in OUTPUT_CHANGE_FIELDS:
+                setattr(c.outputs.queue[slot], name, int(s[base + offset]))
         set_player(c.curve, python.player, head)
         lib.mq_clear()
         for value in python.queue_values():
@@ -1173,6 +1207,14 @@ def state_mismatches(python: PythonDevice, c: CDevice) -> list[str]:
         base = core1.S_EDGES + switch * core1.EDGE_FIELDS
         found += [f"edges[{switch}].{name}" for offset, name in EDGE_FIELDS
                   if getattr(cs.edges[switch], name) != int(s[base + offset])]
+    found += [f"outputs.{name}" for index, name in OUTPUT_STATE
+              if getattr(cs.outputs, name) != int(s[index])]
+    found += [f"outputs.values[{i}]" for i in range(4)
+              if cs.outputs.values[i] != int(s[core1.S_OUTPUTS + i])]
+    for slot in range(16):
+        base = core1.S_OUT_QUEUE + slot * core1.OUT_RECORD
+        found += [f"outputs.queue[{slot}].{name}" for offset, name in OUTPUT_CHANGE_FIELDS
+                  if getattr(cs.outputs.queue[slot], name) != int(s[base + offset])]
     if c.queue_values() != python.queue_values():
         found.append("queue")
     found += player_mismatches(cs.curve, python.player)
@@ -1274,6 +1316,20 @@ def random_device(rnd: random.Random, setting: Setting) -> PythonDevice:
             state[base + core1.EDGE_CLOSED] = rnd.randint(0, 1)
             state[base + core1.EDGE_POSITION] = rnd.randint(INT32_MIN, INT32_MAX)
             state[base + core1.EDGE_TICK] = rnd.randint(1, 2**40)
+    for output in range(4):
+        state[core1.S_OUTPUTS + output] = rnd.choice([0, 1000, rnd.randint(0, 1000)])
+    state[core1.S_OUT_LAST] = rnd.choice([-1, rnd.randint(0, 2**30)])
+    out_head = rnd.randint(0, 15)
+    pending = rnd.choice([0, 0, 1, 3, 16])
+    tick = int(state[core1.S_CLOCK]) + rnd.randint(-3, 3)
+    for k in range(pending):   # in tick order, some due within a few ticks
+        tick = max(0, tick + rnd.choice([0, 0, 1, 2, rnd.randint(0, 5)]))
+        base = core1.S_OUT_QUEUE + (out_head + k) % 16 * core1.OUT_RECORD
+        state[base : base + core1.OUT_RECORD] = (rnd.randint(0, 3), rnd.randint(0, 1000), tick)
+    state[core1.S_OUT_PENDING] = pending
+    state[core1.S_OUT_HEAD] = out_head
+    state[core1.S_OUT_NEXT] = (int(state[core1.S_OUT_QUEUE + out_head * core1.OUT_RECORD + 2])
+                               if pending else core1.OUTPUT_NONE_PENDING)
     queue = np.zeros(QUEUE_CAPACITY, dtype=np.int64)
     head = rnd.randint(0, QUEUE_CAPACITY - 1)
     values = [rnd.choice([near_int32(actual, 50), rnd.randint(-20000, 20000), INT32_MIN,
@@ -1320,6 +1376,9 @@ def tick_events(before: np.ndarray, after: np.ndarray, params: np.ndarray,
         events.add("queue value taken")
     if queued[1] < queued[0]:
         events.add("keyframe reached")
+    if after[core1.S_OUT_PENDING] < before[core1.S_OUT_PENDING]:
+        events.add("output change applied" if after[core1.S_FAULT] == before[core1.S_FAULT]
+                   else "outputs off at a fault")
     if before[core1.S_START] >= 0 > after[core1.S_START]:
         events.add("start reached")
     if after[core1.S_STATS_SUM_SQ] == core1.STATS_SUM_CAP > before[core1.S_STATS_SUM_SQ]:
@@ -1401,7 +1460,7 @@ def test_servo_tick_scenarios_reach_every_case(lib: ctypes.CDLL) -> None:
         "queue value taken", "keyframe reached", "start reached", "statistics saturate",
         "timer at its cap", "integral clamped", "output saturated",
         "shaft near its speed bound", "hard stop", "counter wraps", "several motor steps",
-        "curve moves",
+        "curve moves", "output change applied", "outputs off at a fault",
     }
 
 
@@ -1509,6 +1568,11 @@ def test_state_comparison_sees_one_count_in_any_field(lib: ctypes.CDLL) -> None:
         ("edges[1].edges", lambda d: setattr(c.state.edges[1], "edges",
                                              c.state.edges[1].edges + d)),
         ("edges[0].tick", lambda d: setattr(c.state.edges[0], "tick", c.state.edges[0].tick + d)),
+        ("outputs.next", lambda d: setattr(c.state.outputs, "next", c.state.outputs.next + d)),
+        ("outputs.values[2]", lambda d: c.state.outputs.values.__setitem__(
+            2, c.state.outputs.values[2] + d)),
+        ("outputs.queue[15].tick", lambda d: setattr(c.state.outputs.queue[15], "tick",
+                                                     c.state.outputs.queue[15].tick + d)),
         ("curve.elapsed_us", lambda d: setattr(c.state.curve, "elapsed_us",
                                                c.state.curve.elapsed_us + d)),
         ("curve.start_tangent", lambda d: setattr(c.state.curve, "start_tangent",
@@ -1595,6 +1659,13 @@ MUTANTS = [
            "edge->tick = s->clock + 2;", _check_ticks),
     Mutant("peak not restarted after a line", "servo.c", "            s->diag_peak = 0;\n",
            "", _check_ticks),
+    Mutant("output change one tick late", "servo.c",
+           "if (s->clock >= s->outputs.next) {", "if (s->clock > s->outputs.next) {",
+           _check_ticks),
+    Mutant("a later change due at once", "servo.c", "if (tick > q->last) {",
+           "if (tick >= q->last) {", _check_ticks),
+    Mutant("outputs left on at a fault", "servo.c", "        outputs_off(s);\n",
+           "        (void)outputs_off;\n", _check_ticks),
     Mutant("peak unsigned", "servo.c", "s->diag_peak = (int32_t)following;",
            "s->diag_peak = (int32_t)size;", _check_ticks),
 ]

@@ -102,6 +102,7 @@ _MOTION = st.sampled_from([
     (b"7 3", b"3 1", b"25 200 400 0 0", b"25 100 -100 512 -512"),
     (b"23 2147483600", b"3 1", b"0 -2147483546"),
     (b"40 1 -100", b"3 1", b"0 -300"),
+    (b"42 2 500 0", b"42 0 1000 40", b"42 3 75 41", b"29 30", b"3 1", b"0 2000"),
 ])
 """Short scripts that make the device move, so silences exercise the servo and faults."""
 

@@ -22,7 +22,8 @@
 // and its two limit switches (closed, low, at or beyond their positions; open, high through
 // the pull-up, otherwise), optionally bouncing; and a probe touching a surface (closed, low,
 // while the shaft is at or beyond it on its side). EncoderSweep drives the encoder pins alone
-// at a set rate, for the decoder's own tests.
+// at a set rate, for the decoder's own tests. outputLevels reads the outputs of call 42 off
+// their pins: the digital ones' levels and the PWM ones' duties.
 
 const IO_BANK0_KEY = 0x40014;
 const PADS_BANK0_KEY = 0x4001c;
@@ -33,6 +34,9 @@ const PWM_CHANNEL_BYTES = 0x14;
 const PWM_CC = 0x0c;
 const PWM_TOP = 0x10;
 const PWM_CSR_EN = 1;
+const IO_GPIO_CTRL = 0x04; // + 8 per GPIO
+const IO_FUNCSEL_MASK = 0x1f;
+const FUNCSEL_PWM = 4;
 /** (B, A) of each count modulo 4, forward: A rises, B rises, A falls, B falls. */
 const GRAY = [0b00, 0b01, 0b11, 0b10];
 /** Steps a machine must run since its last input change before it may be fast-forwarded. */
@@ -224,6 +228,36 @@ const MOTOR_KEYS = new Set([
 export const PIN_MAP = {
   encoderA: 2, encoderB: 3, in1: 6, in2: 7, enable: 8, lower: 10, upper: 11, probe: 12,
 };
+
+/** The outputs of call 42 (pins.h): 0 and 1 digital, 2 and 3 PWM (slice 0, A and B). */
+export const OUTPUT_PINS = [13, 14, 16, 17];
+
+/**
+ * The outputs as their pins show them now, per mille: a digital output's level (1000 while
+ * the pin drives high, 0 otherwise), a PWM output's duty (its compare level over the slice's
+ * period, 0 while the slice is off or the pin is not the PWM's).
+ */
+export function outputLevels(mcu) {
+  return OUTPUT_PINS.map((pin, output) => {
+    if (output < 2) {
+      const gpio = mcu.gpio[pin];
+      return gpio.outputEnable && gpio.outputValue ? 1000 : 0;
+    }
+    const io = mcu.peripherals[IO_BANK0_KEY];
+    if ((io.readUint32(IO_GPIO_CTRL + 8 * pin) & IO_FUNCSEL_MASK) !== FUNCSEL_PWM) {
+      return 0;
+    }
+    const pwm = mcu.pwm;
+    const base = ((pin >> 1) & 7) * PWM_CHANNEL_BYTES;
+    if (!(pwm.readUint32(base) & PWM_CSR_EN)) {
+      return 0;
+    }
+    const cc = pwm.readUint32(base + PWM_CC);
+    const full = pwm.readUint32(base + PWM_TOP) + 1;
+    const level = pin & 1 ? cc >>> 16 : cc & 0xffff;
+    return (Math.min(level, full) * 1000) / full;
+  });
+}
 
 export class MotorWorld {
   /**

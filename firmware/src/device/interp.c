@@ -12,6 +12,8 @@
 _Static_assert(TABLE_QUEUE_CAPACITY == MOTION_QUEUE_CAPACITY, "one queue capacity");
 _Static_assert(TABLE_CURVE_BUFFER_CAPACITY == CURVE_BUFFER_CAPACITY, "one keyframe capacity");
 _Static_assert(TABLE_MAX_PARAMS >= 4, "call 25 has four inputs");
+_Static_assert(TABLE_OUTPUT_COUNT == OUTPUT_COUNT, "one output count");
+_Static_assert(TABLE_OUTPUT_QUEUE_CAPACITY == OUTPUT_QUEUE_CAPACITY, "one output queue");
 
 #define DEBUG_FLAG_CALLS 64u /* call 8 sets a flag for any call 0..63, defined or not */
 #define HUGE_VALUE 1000000000000000000LL /* 10^18: HugeInteger's value */
@@ -887,6 +889,7 @@ static void call_clock(const call_t *call) {
     int64_t clock = servo_state.clock;
     if (!call->is_query) {
         servo_state.clock = 0;
+        servo_drop_pending_outputs(&servo_state);   /* their ticks were on the old clock */
     }
     platform_servo_unlock();
     if (call->is_query) {
@@ -1077,6 +1080,82 @@ static void call_probe(const call_t *call) {
                                   NUMBER(edge.position), NUMBER(edge.tick)});
 }
 
+static void call_set_output_at(const call_t *call) {
+    int64_t output = call->args[0];
+    int64_t value = call->args[1];
+    int64_t tick = call->args[2];
+    message_t m = {.length = 0};
+    platform_servo_lock();
+    int32_t fault = servo_state.fault;
+    uint32_t pending = servo_state.outputs.pending;
+    uint32_t slot = (servo_state.outputs.head + pending) % OUTPUT_QUEUE_CAPACITY;
+    int64_t last_tick =
+        pending > 0
+            ? servo_state.outputs.queue[(slot + OUTPUT_QUEUE_CAPACITY - 1u) % OUTPUT_QUEUE_CAPACITY].tick
+            : 0;
+    if (fault != FAULT_NONE) {
+        platform_servo_unlock();
+        message_text(&m, "fault ");
+        message_int(&m, fault);
+        message_text(&m, " (");
+        message_text(&m, fault_names[fault]);
+        message_text(&m, ") is latched; clear it with call 30 before setting an output");
+        print_err_call(CALL_SET_OUTPUT_AT, m.text);
+        return;
+    }
+    if (output < (int64_t)TABLE_DIGITAL_OUTPUTS && value != 0 && value != TABLE_OUTPUT_FULL) {
+        platform_servo_unlock();
+        message_text(&m, "output ");
+        message_int(&m, output);
+        message_text(&m, " is digital: value ");
+        message_int(&m, value);
+        message_text(&m, " must be 0 or ");
+        message_int(&m, TABLE_OUTPUT_FULL);
+        print_err_call(CALL_SET_OUTPUT_AT, m.text);
+        return;
+    }
+    if (pending > 0 && tick < last_tick) {
+        platform_servo_unlock();
+        message_text(&m, "tick ");
+        message_int(&m, tick);
+        message_text(&m, " is before the last pending change's tick ");
+        message_int(&m, last_tick);
+        print_err_call(CALL_SET_OUTPUT_AT, m.text);
+        return;
+    }
+    if (pending >= OUTPUT_QUEUE_CAPACITY) {
+        platform_servo_unlock();
+        print_plain(call_table[CALL_SET_OUTPUT_AT].refusal);
+        return;
+    }
+    servo_state.outputs.queue[slot] =
+        (output_change_t){.tick = tick, .output = (int32_t)output, .value = (int32_t)value};
+    if (pending == 0) {
+        servo_state.outputs.next = tick;
+    }
+    servo_state.outputs.pending = pending + 1u;
+    platform_servo_unlock();
+    debug_line(CALL_SET_OUTPUT_AT,
+               (field_t[]){NUMBER(output), NUMBER(value), NUMBER(tick),
+                           NUMBER(OUTPUT_QUEUE_CAPACITY - pending - 1u)});
+}
+
+static void call_outputs(const call_t *call) {
+    platform_servo_lock();
+    if (call->args[0] == 1) {
+        servo_drop_pending_outputs(&servo_state);
+    }
+    int32_t values[OUTPUT_COUNT];
+    for (uint32_t output = 0; output < OUTPUT_COUNT; output++) {
+        values[output] = servo_state.outputs.values[output];
+    }
+    uint32_t pending = servo_state.outputs.pending;
+    int64_t last = servo_state.outputs.last;
+    platform_servo_unlock();
+    reply(CALL_OUTPUTS, (field_t[]){NUMBER(values[0]), NUMBER(values[1]), NUMBER(values[2]),
+                                    NUMBER(values[3]), NUMBER(pending), NUMBER(last)});
+}
+
 static int64_t ceil_div(int64_t numerator, int64_t denominator) {
     return numerator >= 0 ? (numerator + denominator - 1) / denominator
                           : -((-numerator) / denominator);
@@ -1195,6 +1274,7 @@ void device_power_up(void) {
         platform_motor_pins_start();
         platform_motor_pins_sample(&pins);
     }
+    platform_outputs_start();
     derive();
     platform_servo_lock();
     servo_state_init(&servo_state, flash.default_control_mode);

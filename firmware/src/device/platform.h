@@ -59,4 +59,11 @@ void platform_motor_pins_sample(motor_pins_sample_t *sample);  /* core1 */
 void platform_motor_pins_drive(int32_t level, bool enable);
 int32_t platform_motor_pins_full(void);
 
+/* The outputs of call 42 (0 and 1 digital, 2 and 3 PWM), on either motor. Started once by
+ * core0 at power-up, every output at 0; set by core1 on the tick a change applies (and to 0
+ * on the tick a fault latches): `value` per mille of full duty, a digital output on for
+ * 1000. A platform without them (the native build) keeps nothing. */
+void platform_outputs_start(void);                               /* core0 */
+void platform_output_set(uint32_t output, int32_t value);        /* core1 */
+
 #endif

@@ -78,6 +78,50 @@ void servo_state_init(servo_state_t *state, int32_t mode) {
     state->mode = mode;
     state->start = -1;
     state->last_take = -1;
+    state->outputs.next = OUTPUT_NONE_PENDING;
+    state->outputs.last = -1;
+}
+
+void servo_drop_pending_outputs(servo_state_t *state) {
+    state->outputs.pending = 0;
+    state->outputs.head = 0;
+    state->outputs.next = OUTPUT_NONE_PENDING;
+}
+
+/* core1.apply_outputs: every pending change due at this tick's clock, in the order given.
+ * Called when the clock reached `next`, the oldest pending change's tick: that one is due,
+ * so only the ticks of the ones after it are compared. Out of line: the tick that calls it
+ * pays for it, no other does. */
+static void __attribute__((noinline)) apply_outputs(output_queue_t *q, int64_t clock) {
+    uint32_t head = q->head;
+    uint32_t pending = q->pending;
+    q->last = clock;
+    for (;;) {
+        const output_change_t *change = &q->queue[head];
+        q->values[change->output] = change->value;
+        platform_output_set((uint32_t)change->output, change->value);
+        head = (head + 1u) % OUTPUT_QUEUE_CAPACITY;
+        if (--pending == 0) {
+            q->next = OUTPUT_NONE_PENDING;
+            break;
+        }
+        int64_t tick = q->queue[head].tick;
+        if (tick > q->last) {   /* the clock, read back: nothing held across the call */
+            q->next = tick;
+            break;
+        }
+    }
+    q->pending = pending;
+    q->head = head;
+}
+
+/* core1.outputs_off: a fault latched. */
+static void outputs_off(servo_state_t *s) {
+    for (uint32_t output = 0; output < OUTPUT_COUNT; output++) {
+        s->outputs.values[output] = 0;
+        platform_output_set(output, 0);
+    }
+    servo_drop_pending_outputs(s);
 }
 
 int32_t servo_switches(const servo_state_t *state, const servo_params_t *params) {
@@ -274,8 +318,12 @@ static inline int32_t travel_switches(int64_t count, const servo_params_t *p) {
     return limits;
 }
 
-/* 1-2: the motion update and the PID (0 V while disabled); returns whether it ran enabled */
+/* 0-2: the outputs due, the motion update and the PID (0 V while disabled); returns whether
+ * it ran enabled */
 static inline bool tick_start(servo_state_t *s, const servo_params_t *p) {
+    if (s->clock >= s->outputs.next) {
+        apply_outputs(&s->outputs, s->clock);
+    }
     bool enabled = s->enable == 1;
     if (enabled) {
         motion_update(s, p);
@@ -342,6 +390,7 @@ static inline void tick_finish(servo_state_t *s, const servo_params_t *p, record
         s->enable = 0;
         s->out.c = 0;
         s->out.e = 0;
+        outputs_off(s);
     }
     if (p->diag_n > 0) {
         s->diag_left -= 1;

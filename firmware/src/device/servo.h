@@ -30,6 +30,9 @@
 #define TIMER_CAP_US (1LL << 62)
 #define STATS_SUM_CAP (1LL << 62)
 #define MICRO 1000000LL
+#define OUTPUT_COUNT 4
+#define OUTPUT_QUEUE_CAPACITY 16u
+#define OUTPUT_NONE_PENDING (1LL << 62)   /* `next` with no change pending: beyond every clock */
 
 /* One Hermite keyframe as call 25 carries it (hermite.Keyframe). */
 typedef struct {
@@ -97,6 +100,26 @@ typedef struct {
     int64_t tick;      /* the clock after that tick; 0: no edge yet */
 } switch_edge_t;
 
+/* One pending output change (call 42). */
+typedef struct {
+    int64_t tick;      /* the clock at the start of the tick it applies on */
+    int32_t output;    /* 0..OUTPUT_COUNT-1 */
+    int32_t value;     /* 0..1000, per mille */
+} output_change_t;
+
+/* The outputs and the changes pending for them (core1.py S_OUT*), together so that the tick
+ * that applies a change reaches them from one pointer. */
+typedef struct {
+    int64_t next;              /* the oldest pending change's tick, or OUTPUT_NONE_PENDING:
+                                * what a tick compares its clock with */
+    int64_t last;              /* the clock at the start of the tick that applied the last
+                                * change; -1: none yet */
+    uint32_t pending;          /* changes queued by call 42, still to come */
+    uint32_t head;             /* the oldest one's slot in queue */
+    int32_t values[OUTPUT_COUNT];   /* the outputs now (call 43), per mille */
+    output_change_t queue[OUTPUT_QUEUE_CAPACITY];
+} output_queue_t;
+
 /* What core1 changes (core1.py S_*). */
 typedef struct {
     int64_t clock;
@@ -134,6 +157,7 @@ typedef struct {
     switch_edge_t edges[2];    /* lower, upper */
     switch_edge_t probe_edge;  /* the probe input's last edge (call 41) */
     int32_t probe;             /* the probe input now: 1 closed (touching) */
+    output_queue_t outputs;    /* call 42's changes and the outputs they set */
     curve_player_t curve;
     /* Not in core1.py: the motor on the pins (servo_tick_pins). A tick there reads the
      * encoder and the switches as it starts, which completes the tick before it (its
@@ -261,6 +285,9 @@ int32_t servo_switches(const servo_state_t *state, const servo_params_t *params)
 
 /* The simulated probe input the shaft position gives (core0._probe). */
 int32_t servo_probe(const servo_state_t *state, const servo_params_t *params);
+
+/* Calls 22 and 43: forget the pending output changes; the outputs stay as they are. */
+void servo_drop_pending_outputs(servo_state_t *state);
 
 /* Calls 23 and 37: move the counter's coordinates by `shift` (core0._shift_position, without
  * the queue and curve clearing, which the caller does). */

@@ -13,9 +13,13 @@
 #define TABLE_QUEUE_CAPACITY 1000u
 #define TABLE_CURVE_BUFFER_CAPACITY 8u
 #define TABLE_DEVICE_NAME_MAX 25u
+#define TABLE_OUTPUT_COUNT 4u
+#define TABLE_DIGITAL_OUTPUTS 2u
+#define TABLE_OUTPUT_FULL 1000
+#define TABLE_OUTPUT_QUEUE_CAPACITY 16u
 #define TABLE_DEFAULT_DEVICE_NAME "GENERIC USB MOTION DEVICE"
 #define TABLE_HUGE_DIGITS 18u
-#define TABLE_CALLS 42u
+#define TABLE_CALLS 44u
 #define TABLE_MAX_PARAMS 4u
 #define TABLE_MAX_DEBUG_FLAG 2u
 #define TABLE_FAULTS 5u
@@ -82,6 +86,8 @@
 #define CALL_SET_MOTOR 39
 #define CALL_SET_SIM_PROBE 40
 #define CALL_PROBE 41
+#define CALL_SET_OUTPUT_AT 42
+#define CALL_OUTPUTS 43
 
 /* Every call as X(NAME, name), in number order: the firmware builds its handler table
  * from this list (a handler call_<name> for each CALL_<NAME>), so none is left out. */
@@ -127,7 +133,9 @@
     X(REPLACE_FROM, replace_from) \
     X(SET_MOTOR, set_motor) \
     X(SET_SIM_PROBE, set_sim_probe) \
-    X(PROBE, probe)
+    X(PROBE, probe) \
+    X(SET_OUTPUT_AT, set_output_at) \
+    X(OUTPUTS, outputs)
 
 /* One supporting input: its name and inclusive range (Param). */
 typedef struct {

@@ -398,6 +398,22 @@ const call_spec_t call_table[TABLE_CALLS] = {
         .query = {-1},
         .query_reply = {"PROBE {closed} {edges} {edge_closed} {position} {tick}", 5, 0x0},
     },
+    [42] = {
+        .name = "SET_OUTPUT_AT",
+        .param_count = 3,
+        .params = {{"output", 0, 3}, {"value", 0, 1000}, {"tick", 0, 2147483647}},
+        .debug = {[1] = {"OUTPUT {output} TO {value} AT {tick} FREE {free}", 4, 0x0}},
+        .refusal = "E42",
+    },
+    [43] = {
+        .name = "OUTPUTS",
+        .param_count = 1,
+        .params = {{"clear", 0, 1}},
+        .query_count = 1,
+        .query_any = 0x1,
+        .query = {0},
+        .query_reply = {"OUTPUTS {out0} {out1} {out2} {out3} {pending} {last_change_tick}", 6, 0x0},
+    },
 };
 
 const char *const fault_names[TABLE_FAULTS] = {"none", "watchdog", "following error", "limit switch", "internal error"};

@@ -1,6 +1,6 @@
 /* The pin map of the motor on the pins (call 39), for a Raspberry Pi Pico: a brushed DC motor
  * through a two-input H-bridge (DRV8871: IN1, IN2), its two-channel quadrature encoder, two
- * limit switches and a probe input. Every pin the firmware drives or reads is named here and only here;
+ * limit switches and a probe input; and the outputs of call 42. Every pin the firmware drives or reads is named here and only here;
  * firmware/README.md draws the wiring. GP numbers are the RP2040's GPIOs (the Pico's pin
  * numbers are in the README). */
 #ifndef USBMOTION_PINS_H
@@ -27,6 +27,21 @@
 /* Probe input (call 41), between its pin and GND like the switches, with the chip's pull-up:
  * a touch probe or a plate's contact closes it, and it reads low. */
 #define PIN_PROBE 12u
+
+/* The outputs of call 42, on either motor (simulated or on the pins): 0 and 1 digital, high
+ * while on (1000); 2 and 3 PWM, high for value per mille of each period. GP16 and GP17 are
+ * PWM slice 0's outputs A and B (one counter, one frequency), apart from the bridge's slice
+ * 3. A coolant relay's driver, a laser's enable and its power (PWM) input, at 3.3 V. */
+#define PIN_OUTPUT_0 13u
+#define PIN_OUTPUT_1 14u
+#define PIN_OUTPUT_2 16u
+#define PIN_OUTPUT_3 17u
+
+/* The outputs' PWM frequency, Hz: the system clock over it must be a multiple of 1000, so
+ * that a per mille value is an exact compare level (5 kHz: 25,000 steps, 25 a per mille). */
+#ifndef USBMOTION_OUTPUT_PWM_HZ
+#define USBMOTION_OUTPUT_PWM_HZ 5000u
+#endif
 
 /* The PIO block and state machine of the quadrature decoder. */
 #define QUADRATURE_PIO pio0

@@ -61,8 +61,12 @@ from usbmotion.protocol.table import (
     ALARM,
     BY_NUMBER,
     DIAGNOSTICS,
+    DIGITAL_OUTPUTS,
     ERR,
     MAX_LINE_BYTES,
+    OUTPUT_COUNT,
+    OUTPUT_FULL,
+    OUTPUT_QUEUE_CAPACITY,
     QUEUE_CAPACITY,
 )
 from usbmotion.scimath import SciNumber, sci_to_int
@@ -401,8 +405,8 @@ class Device:
 
         ``run(n)`` with ``n`` below the answer prints nothing and changes no variable a
         query reports except the clock, the motion of the servo and the queue being drawn
-        down. Counted: the next diagnostics line, the watchdog expiring, an armed start
-        being reached, the motion queue running dry, a keyframe being reached (its slot
+        down. Counted: the next diagnostics line, a pending output change coming due (call
+        42), the watchdog expiring, an armed start being reached, the motion queue running dry, a keyframe being reached (its slot
         frees), the velocity-mode counter reset. Faults that the motion itself causes
         (following error, a limit switch closing) are not predicted. With ``diagnostics``
         False the diagnostics lines are not counted: ``run`` goes through them in one block
@@ -628,6 +632,7 @@ class Device:
         state[core1.S_ENABLE] = 0
         state[core1.S_OUT_C] = 0
         state[core1.S_OUT_E] = 0
+        core1.outputs_off(state)
         detail = " ".join(f"{type(error).__name__}: {error}".split())[:200]
         reason = f"internal error{' ' + where if where else ''} ({detail}); fault 4 latched"
         self._print(ERR.format(call, reason))
@@ -1003,6 +1008,7 @@ class Device:
             return
         self._clock_base += self.clock
         self._state[core1.S_CLOCK] = 0
+        core1.drop_pending_outputs(self._state)  # their ticks were on the old clock
         self._debug_line(22)
 
     def _call_35(self, call: Call) -> None:
@@ -1133,6 +1139,43 @@ class Device:
         base = core1.S_PROBE_EDGE
         edge = state[base : base + core1.EDGE_FIELDS].tolist()
         self._reply(41, int(state[core1.S_PROBE]), *edge)
+
+    def _call_42(self, call: Call) -> None:
+        state = self._state
+        output, value, tick = call.args
+        fault = int(state[core1.S_FAULT])
+        if fault != FaultCode.NONE:
+            raise _RefusedError(
+                f"fault {fault} ({fault_words(fault)}) is latched;"
+                " clear it with call 30 before setting an output"
+            )
+        if output < DIGITAL_OUTPUTS and value not in (0, OUTPUT_FULL):
+            raise _RefusedError(
+                f"output {output} is digital: value {value} must be 0 or {OUTPUT_FULL}")
+        pending = int(state[core1.S_OUT_PENDING])
+        head = int(state[core1.S_OUT_HEAD])
+        if pending > 0:
+            last = (head + pending - 1) % OUTPUT_QUEUE_CAPACITY
+            last_tick = int(state[core1.S_OUT_QUEUE + last * core1.OUT_RECORD + 2])
+            if tick < last_tick:
+                raise _RefusedError(
+                    f"tick {tick} is before the last pending change's tick {last_tick}")
+        if pending >= OUTPUT_QUEUE_CAPACITY:
+            self._print("E42")
+            return
+        base = core1.S_OUT_QUEUE + (head + pending) % OUTPUT_QUEUE_CAPACITY * core1.OUT_RECORD
+        state[base : base + core1.OUT_RECORD] = (output, value, tick)
+        if pending == 0:
+            state[core1.S_OUT_NEXT] = tick
+        state[core1.S_OUT_PENDING] = pending + 1
+        self._debug_line(42, output, value, tick, OUTPUT_QUEUE_CAPACITY - pending - 1)
+
+    def _call_43(self, call: Call) -> None:
+        state = self._state
+        if call.args[0] == 1:
+            core1.drop_pending_outputs(state)
+        values = state[core1.S_OUTPUTS : core1.S_OUTPUTS + OUTPUT_COUNT].tolist()
+        self._reply(43, *values, int(state[core1.S_OUT_PENDING]), int(state[core1.S_OUT_LAST]))
 
 
 __all__ = [

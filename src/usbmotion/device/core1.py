@@ -11,6 +11,9 @@ explicitly.
 
 One servo tick, in order:
 
+0. outputs (call 42): on the tick that begins with the clock at or past the next pending
+   change's tick, every pending change due applies, in the order given; with none pending
+   this is one comparison.
 1. motion update (servo enabled only): an armed start tick holds everything until the clock
    reaches it; then every ``scalar`` ticks, starting with the first, the next queue value
    becomes the desired position (mode 1) or velocity (mode 2). An empty queue holds the
@@ -27,7 +30,8 @@ One servo tick, in order:
    mode (latched edge positions move with it).
 5. faults (servo enabled): limit switch closing in mode 1 or 3, following error in mode 1
    or 3, then watchdog; a fault disables the servo and cuts its output to 0 V (as call
-   ``3 0`` does), so no line reports a drive the servo no longer applies.
+   ``3 0`` does), so no line reports a drive the servo no longer applies; it also sets
+   every output (call 43) to 0 and drops the pending changes.
 6. clock + 1; the motion statistics (call 35) count the tick, and so does the peak of the
    next diagnostics line; diagnostics countdown: a diagnostics tick writes a record of the
    line into ``state`` for core0 to print (the block goes on until core0's room for records
@@ -41,7 +45,7 @@ import numpy.typing as npt
 
 from usbmotion.device.motor import DIGITS, MICRO, motor_step
 from usbmotion.protocol.names import ControlMode, FaultCode
-from usbmotion.protocol.table import QUEUE_CAPACITY
+from usbmotion.protocol.table import OUTPUT_COUNT, OUTPUT_QUEUE_CAPACITY, QUEUE_CAPACITY
 from usbmotion.scimath import sci_add, sci_compare, sci_from_int, sci_mul
 
 IntArray = npt.NDArray[np.int64]
@@ -144,12 +148,29 @@ S_PROBE_EDGE = S_EDGES + 2 * EDGE_FIELDS
 """The probe input's edge latch (call 41): ``EDGE_FIELDS`` entries as a switch's."""
 S_PROBE = S_PROBE_EDGE + EDGE_FIELDS
 """The probe input now: 1 closed (touching), 0 open."""
+S_OUTPUTS = S_PROBE + 1
+"""The outputs' values now (call 43): ``OUTPUT_COUNT`` entries, 0 .. ``OUTPUT_FULL``."""
+S_OUT_PENDING = S_OUTPUTS + OUTPUT_COUNT
+"""Pending output changes (call 42), at most ``OUTPUT_QUEUE_CAPACITY``."""
+S_OUT_HEAD = S_OUT_PENDING + 1
+"""Slot of the oldest pending change in the ring at :data:`S_OUT_QUEUE`."""
+S_OUT_NEXT = S_OUT_HEAD + 1
+"""The oldest pending change's tick, or :data:`OUTPUT_NONE_PENDING`: the one number a tick
+compares the clock with."""
+S_OUT_LAST = S_OUT_NEXT + 1
+"""The clock at the start of the tick that applied the last change (-1: none yet)."""
+S_OUT_QUEUE = S_OUT_LAST + 1
+"""The pending changes: a ring of ``OUTPUT_QUEUE_CAPACITY`` records of ``OUT_RECORD``
+entries (output, value, tick), in the order given."""
+OUT_RECORD = 3
+OUTPUT_NONE_PENDING = 1 << 62
+"""``S_OUT_NEXT`` with no change pending: beyond every clock."""
 DIAG_SLOTS = 64
 """Diagnostics records ``state`` holds."""
 DIAG_RECORD = 8
 """Entries of one record: clock, desired (velocity in mode 2), actual, velocity, output
 (coefficient, exponent), queued values, peak following error."""
-S_DIAG = S_PROBE + 1
+S_DIAG = S_OUT_QUEUE + OUTPUT_QUEUE_CAPACITY * OUT_RECORD
 """First entry of the ``DIAG_SLOTS`` records."""
 STATE_SIZE = S_DIAG + DIAG_SLOTS * DIAG_RECORD
 STATS_SUM_CAP = 1 << 62
@@ -233,6 +254,8 @@ def new_state() -> IntArray:
     state[S_START] = -1
     state[S_MODE] = MODE_POSITION
     state[S_LAST_TAKE] = -1
+    state[S_OUT_NEXT] = OUTPUT_NONE_PENDING
+    state[S_OUT_LAST] = -1
     return state
 
 
@@ -263,6 +286,48 @@ def shift_edges(state: IntArray, shift: int) -> None:
     for base in (S_EDGES, S_EDGES + EDGE_FIELDS, S_PROBE_EDGE):
         if state[base + EDGE_TICK] != 0:
             state[base + EDGE_POSITION] = wrap_int32(int(state[base + EDGE_POSITION]) + shift)
+
+
+def apply_outputs(state: IntArray, clock: int) -> int:
+    """Apply every pending output change whose tick is at or before ``clock`` (the clock at
+    the start of this tick), in order; returns the next pending change's tick, or
+    :data:`OUTPUT_NONE_PENDING`."""
+    pending = int(state[S_OUT_PENDING])
+    head = int(state[S_OUT_HEAD])
+    applied = 0
+    while pending > 0:
+        base = S_OUT_QUEUE + head * OUT_RECORD
+        if int(state[base + 2]) > clock:
+            break
+        state[S_OUTPUTS + int(state[base])] = state[base + 1]
+        head += 1
+        if head == OUTPUT_QUEUE_CAPACITY:
+            head = 0
+        pending -= 1
+        applied += 1
+    if applied > 0:
+        state[S_OUT_LAST] = clock
+    state[S_OUT_PENDING] = pending
+    state[S_OUT_HEAD] = head
+    following = OUTPUT_NONE_PENDING
+    if pending > 0:
+        following = int(state[S_OUT_QUEUE + head * OUT_RECORD + 2])
+    state[S_OUT_NEXT] = following
+    return following
+
+
+def drop_pending_outputs(state: IntArray) -> None:
+    """Forget every pending output change (call 43's clear, call 22); the outputs stay."""
+    state[S_OUT_PENDING] = 0
+    state[S_OUT_HEAD] = 0
+    state[S_OUT_NEXT] = OUTPUT_NONE_PENDING
+
+
+def outputs_off(state: IntArray) -> None:
+    """A fault latched: every output to 0 and the pending changes dropped."""
+    for output in range(OUTPUT_COUNT):
+        state[S_OUTPUTS + output] = 0
+    drop_pending_outputs(state)
 
 
 def trunc_div(numerator: int, denominator: int) -> int:
@@ -361,11 +426,16 @@ def servo_block(
     last_take = int(state[S_LAST_TAKE])
     diag_count = int(state[S_DIAG_COUNT])
     diag_peak = int(state[S_DIAG_PEAK])
+    out_next = int(state[S_OUT_NEXT])
 
     curve_len = len(curve)
     events = 0
     executed = 0
     while executed < n_ticks:
+        # 0. outputs
+        if clock >= out_next:
+            out_next = apply_outputs(state, clock)
+
         # 1. motion update
         if enable == 1:
             if start >= 0 and clock >= start:
@@ -545,6 +615,8 @@ def servo_block(
             enable = 0
             out_c = 0
             out_e = 0
+            outputs_off(state)
+            out_next = OUTPUT_NONE_PENDING
             events |= EVENT_FAULT
         if diag_n > 0:
             diag_left -= 1
@@ -602,6 +674,7 @@ def servo_block(
     state[S_LAST_TAKE] = last_take
     state[S_DIAG_COUNT] = diag_count
     state[S_DIAG_PEAK] = diag_peak
+    state[S_OUT_NEXT] = out_next
     return executed
 
 
@@ -619,7 +692,8 @@ def ticks_to_scheduled_event(
     """Ticks until the next event of the clocks and countdowns alone, 1-based, or None.
 
     Counts a diagnostics line (unless ``diagnostics`` is False: a block records those
-    lines and runs on), the watchdog expiring, an armed start being reached, the
+    lines and runs on), a pending output change coming due, the watchdog expiring, an
+    armed start being reached, the
     queue running dry (its last value taken, or a velocity-mode motion update that finds
     it empty while a non-zero velocity is desired) and the velocity-mode counter reset.
     Faults that the motion itself causes (following error, limit switch) are not
@@ -650,6 +724,9 @@ def ticks_to_scheduled_event(
     if mode == MODE_VELOCITY:
         left_us = VELOCITY_RESET_US - head[S_VELOCITY_MODE_US]
         candidates.append(max(1, -(-left_us // tick_us)))
+    out_next = int(state[S_OUT_NEXT])
+    if out_next != OUTPUT_NONE_PENDING:
+        candidates.append(max(1, out_next - clock + 1))
     return min(candidates) if candidates else None
 
 

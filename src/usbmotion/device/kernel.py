@@ -182,6 +182,9 @@ def compile_kernel() -> BlockFunction:
                 core1.trunc_div,
                 core1.shift_edges,
                 core1.probe_closed,
+                core1.apply_outputs,
+                core1.drop_pending_outputs,
+                core1.outputs_off,
                 motor._trunc_div,
                 motor.motor_step,
             ):

@@ -36,6 +36,7 @@ from usbmotion.protocol import (
     ControlMode,
     Diagnostics,
     MotionStats,
+    Outputs,
     ProbeState,
     Replaced,
     Reply,
@@ -719,6 +720,32 @@ class DeviceClient:
         """Call 41: the probe input now and its last edge."""
         return ProbeState.from_values(self.query(C.PROBE, -1).values)
 
+    def set_output_at(self, output: int, value: int, tick: int) -> Outputs:
+        """Call 42: output ``output`` (0, 1 digital; 2, 3 PWM) takes ``value`` (per mille of
+        full duty: 0 or 1000 for a digital output) on device clock tick ``tick`` (one at or
+        before the clock: the next tick). Confirmed with call 43 behind it in the same
+        write.
+
+        Returns the outputs after the change was queued (``free``: the changes still
+        queueable).
+
+        Raises:
+            OutOfRangeError: ``output``, ``value`` or ``tick`` outside the call's range.
+            QueueFullError: the device answered ``E42`` (16 changes pending; nothing
+                changed).
+            ErrReplyError: the device refused it (a digital output given another value
+                than 0 or 1000, a tick before the last pending change's, a fault latched).
+        """
+        self._realign()
+        self.transport.write(encode_call(C.SET_OUTPUT_AT, output, value, tick)
+                             + encode_call(C.OUTPUTS, 0))
+        return Outputs.from_values(self._await_answer(C.OUTPUTS, after_error=True).values)
+
+    def outputs(self, *, clear: bool = False) -> Outputs:
+        """Call 43: the outputs now, the pending changes and the tick of the last one
+        applied; with ``clear`` the pending changes are dropped first (the outputs stay)."""
+        return Outputs.from_values(self.query(C.OUTPUTS, _flag(clear, "clear")).values)
+
     def set_homed_marker(self, value: int) -> None:
         """Mark the device as homed since its power-up (the flag of :data:`HOMED_MARKER_CALL`,
         1..255; 0 clears the mark)."""
@@ -862,6 +889,7 @@ __all__ = [
     "DeviceClient",
     "Diagnostics",
     "MotionStats",
+    "Outputs",
     "ProbeState",
     "Replaced",
     "Status",

@@ -55,6 +55,8 @@ class CallNumber(IntEnum):
     SET_MOTOR = 39
     SET_SIM_PROBE = 40
     PROBE = 41
+    SET_OUTPUT_AT = 42
+    OUTPUTS = 43
 
 
 class ControlMode(IntEnum):

@@ -13,7 +13,14 @@ from dataclasses import dataclass
 
 from usbmotion.errors import UnexpectedReplyError
 from usbmotion.protocol.names import CallNumber, ControlMode, fault_words
-from usbmotion.protocol.table import ALARM, BY_NUMBER, DIAGNOSTICS, Template
+from usbmotion.protocol.table import (
+    ALARM,
+    BY_NUMBER,
+    DIAGNOSTICS,
+    OUTPUT_COUNT,
+    OUTPUT_QUEUE_CAPACITY,
+    Template,
+)
 
 
 def _reply_template(number: CallNumber) -> Template:
@@ -49,6 +56,9 @@ _SWITCH_EDGE = _checked(_reply_template(CallNumber.SWITCH_EDGE), "switch", "edge
                         "position", "tick")
 _PROBE = _checked(_reply_template(CallNumber.PROBE), "closed", "edges", "edge_closed",
                   "position", "tick")
+_OUTPUT_FIELDS = tuple(f"out{output}" for output in range(OUTPUT_COUNT))
+_OUTPUTS = _checked(_reply_template(CallNumber.OUTPUTS), *_OUTPUT_FIELDS, "pending",
+                    "last_change_tick")
 _MOTION_STATS = _checked(_reply_template(CallNumber.MOTION_STATS), "ticks", "max_error",
                          "max_error_tick", "sum_sq_error", "last_take_tick")
 REPLACED = _checked(_debug_template(CallNumber.REPLACE_FROM, 1), "kept", "skipped", "added",
@@ -199,6 +209,33 @@ class ProbeState:
         v = _read(_PROBE, values)
         return cls(closed=v["closed"] == 1, edges=v["edges"], edge_closed=v["edge_closed"] == 1,
                    position_counts=v["position"], tick=v["tick"])
+
+
+@dataclass(frozen=True, slots=True)
+class Outputs:
+    """Call 43: the outputs now and the changes call 42 queued that are still to come.
+
+    ``values`` holds each output's value (0 .. 1000, per mille of full duty; outputs 0 and
+    1 are digital: 0 or 1000), ``pending`` the changes still queued, ``last_change_tick``
+    the device clock at the start of the tick that applied the last change (-1: none since
+    power-up).
+    """
+
+    values: tuple[int, ...]
+    pending: int
+    last_change_tick: int
+
+    @classmethod
+    def from_values(cls, values: Sequence[int]) -> Outputs:
+        """The state from the values of an ``OUTPUTS`` line."""
+        v = _read(_OUTPUTS, values)
+        return cls(values=tuple(v[name] for name in _OUTPUT_FIELDS), pending=v["pending"],
+                   last_change_tick=v["last_change_tick"])
+
+    @property
+    def free(self) -> int:
+        """Changes call 42 can still queue."""
+        return OUTPUT_QUEUE_CAPACITY - self.pending
 
 
 @dataclass(frozen=True, slots=True)

@@ -27,6 +27,14 @@ CURVE_BUFFER_CAPACITY = 8
 DEVICE_NAME_MAX = 25
 """Longest device name, in characters (seed 000)."""
 DEFAULT_DEVICE_NAME = "GENERIC USB MOTION DEVICE"
+OUTPUT_COUNT = 4
+"""Outputs of call 42: 0 and 1 digital, 2 and 3 PWM."""
+DIGITAL_OUTPUTS = 2
+"""Outputs 0 .. DIGITAL_OUTPUTS - 1 are digital: only 0 or :data:`OUTPUT_FULL`."""
+OUTPUT_FULL = 1000
+"""An output's full value: per mille of full duty (a digital output's on)."""
+OUTPUT_QUEUE_CAPACITY = 16
+"""Pending output changes the device keeps (call 42)."""
 
 _FIELD = re.compile(r"\{(\w+)\}")
 REST_FIELDS = frozenset({"text", "values"})
@@ -600,6 +608,52 @@ CALLS: tuple[CallSpec, ...] = (
         " clock after it. Before the first edge: `0 0 0 0`. A probing move stops when the host"
         " sees the edge; the contact position is the latched one, exact to the count however"
         " late the host looks.",
+    ),
+    CallSpec(
+        C.SET_OUTPUT_AT,
+        "Set an output (digital or PWM) to a value on a device clock tick: queued, exact to"
+        " the tick.",
+        (
+            _p("output", 0, OUTPUT_COUNT - 1, "0 and 1 digital, 2 and 3 PWM"),
+            _p("value", 0, OUTPUT_FULL, "per mille of full duty; a digital output takes 0"
+               " or 1000"),
+            _p("tick", 0, INT32_MAX, "device clock tick the output takes the value on"),
+        ),
+        debug={1: _t("OUTPUT {output} TO {value} AT {tick} FREE {free}")},
+        refusal="E42",
+        notes="The change is kept in a queue of 16 pending changes, in the order given, and"
+        " applied by core1 at the start of the servo tick that begins with the clock (calls"
+        " 20 and 22) at `tick`: the tick `31 tick` would start the motion on. A tick at or"
+        " before the clock applies on the next servo tick. Changes for the same tick apply"
+        " in the order given (the last one for an output wins). Outputs are on the clock,"
+        " whatever the servo does: enabled or not, in any mode. A full queue refuses the"
+        " change with `E42` and keeps what it holds. Refused with `ERR 42 ...`, nothing"
+        " changed: a digital output (0, 1) given a value other than 0 or 1000; a tick before"
+        " the last pending change's (the queue is in tick order); any change while a fault is"
+        " latched (clear it with call 30 first). Debug flag 1 acknowledges a queued change"
+        " with the free slots left. Every output is 0 at power-up; when a fault latches (any"
+        " fault of the list above, an internal error included) every output goes to 0 on"
+        " that tick and the pending changes are dropped, as a grbl alarm turns the spindle"
+        " and coolant off. Zeroing the clock (call 22) drops the pending changes (their ticks"
+        " were on the old clock) and leaves the outputs as they are. Calls 23 and 37 (a"
+        " change of coordinates) change nothing here: outputs are on the clock, not the"
+        " position. On the RP2040 (either motor) output 0 is GP13, 1 GP14 (high while 1000),"
+        " 2 GP16 and 3 GP17 (PWM, high for `value` per mille of each period:"
+        " firmware/README.md); the Python device keeps the values only.",
+    ),
+    CallSpec(
+        C.OUTPUTS,
+        "The outputs now, the pending changes and the tick of the last one applied; 1 also"
+        " drops every pending change.",
+        (_p("clear", 0, 1, "0 only queries, 1 drops every pending change first"),),
+        query=(None,),
+        query_reply=_t("OUTPUTS {out0} {out1} {out2} {out3} {pending} {last_change_tick}"),
+        notes="Always answers. `out0` .. `out3` are the values the outputs hold now (0 .. 1000),"
+        " `pending` the changes call 42 queued that are still to come, `last_change_tick` the"
+        " clock at the start of the tick that applied the last change (its `tick`, or later"
+        " when it was queued late; -1: none since power-up; a fault's zeroing is no change)."
+        " `43 1` drops the pending changes and leaves the outputs as they are, as a host's"
+        " feed hold or stop needs; the answer is then the state after the drop.",
     ),
 )
 BY_NUMBER: Mapping[int, CallSpec] = {spec.number: spec for spec in CALLS}

@@ -579,6 +579,12 @@ class EmulatedDevice:
         """
         return MotorState.from_reply(self._request({"cmd": "world"})["world"])
 
+    def output_levels(self) -> tuple[float, ...]:
+        """The outputs of call 42 as the chip's pins show them now, per mille: outputs 0 and
+        1 the levels of GP13 and GP14 (1000 driven high, else 0), outputs 2 and 3 the PWM
+        duties of GP16 and GP17 (0 while their slice is off or the pin is not the PWM's)."""
+        return tuple(float(level) for level in self._request({"cmd": "outputs"})["levels"])
+
     def start_profile(self) -> None:
         """Count the cycles of every instruction from now on, per core (emulation slows)."""
         self._request({"cmd": "profile", "on": True})
