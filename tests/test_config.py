@@ -434,7 +434,8 @@ SIM_KEYS = ("counts_per_revolution, inertia_kg_m2, load_torque_mnm, probe_above_
         ("servo_interval_dms = 10", "servo_interval_ms = 10", "servo_interval_ms",
          "unknown key 'servo_interval_ms'; did you mean 'servo_interval_dms'? allowed keys here:"
          " arc_tolerance_mm, axes, dialect, homing_order, joints, junction_deviation_mm,"
-         " motion_scalar, name, parameter_file, ports, reply_timeout_s, servo_interval_dms,"
+         " motion_scalar, name, outputs, parameter_file, ports, reply_timeout_s,"
+         " servo_interval_dms,"
          " spindle, tool_table, watchdog_ms"),
         ("max_accel_mm_s2 = 500", "max_acel_mm_s2 = 500", "axes.X.max_acel_mm_s2",
          "unknown key 'max_acel_mm_s2'; did you mean 'max_accel_mm_s2'? allowed keys here: "
@@ -460,7 +461,8 @@ SIM_KEYS = ("counts_per_revolution, inertia_kg_m2, load_torque_mnm, probe_above_
          " velocity_mm_s"),
         ("servo_interval_dms = 10", "servo_interval_dms = 10\ncolour = 'red'", "colour",
          "unknown key 'colour'; allowed keys here: arc_tolerance_mm, axes, dialect,"
-         " homing_order, joints, junction_deviation_mm, motion_scalar, name, parameter_file, ports,"
+         " homing_order, joints, junction_deviation_mm, motion_scalar, name, outputs,"
+         " parameter_file, ports,"
          " reply_timeout_s, servo_interval_dms, spindle, tool_table, watchdog_ms"),
     ],
 )

@@ -110,6 +110,9 @@ class MachineStatus:
     """The spindle's speed as its encoder measures it (0: stopped, or no spindle)."""
     probe: bool = False
     """The probe input reads closed (grbl's ``Pn:P``)."""
+    accessories: str = ""
+    """grbl's ``A:`` field: ``S`` spindle (or laser) on clockwise, ``C`` counter-clockwise,
+    ``F`` flood, ``M`` mist ("" none on)."""
 
 
 @dataclass(frozen=True, slots=True)

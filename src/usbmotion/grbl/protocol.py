@@ -404,6 +404,8 @@ class GrblProtocol:
             self._ovr_counter = (OVR_REFRESH_BUSY if busy else OVR_REFRESH_IDLE) - 1
             fields.append(f"Ov:{self._feed_override},{self._rapid_override},"
                           f"{self._spindle_override}")
+        if status.accessories:
+            fields.append(f"A:{status.accessories}")
         if status.following_error_mm:
             fields.append("FE:" + coordinates(status.following_error_mm, inches=inches,
                                                axes=letters))

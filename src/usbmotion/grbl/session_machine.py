@@ -42,6 +42,7 @@ from usbmotion.grbl.interface import (
     WorkOffsets,
 )
 from usbmotion.grbl.reports import machine_setting_values
+from usbmotion.host.config import MachineConfig
 from usbmotion.host.config_file import Key, Value, changed_config
 from usbmotion.motion.dialects import Dialect
 from usbmotion.motion.gcode import GCodeStream
@@ -175,9 +176,14 @@ class SessionMachine:
         limits = frozenset(name for name, axis in now.axes.items() if axis.limit)
         moving = self.operator.busy and not now.at_rest
         spindle = now.spindle.measured_rpm if now.spindle is not None else 0.0
+        turning = now.spindle.commanded_rpm if now.spindle is not None else float(
+            now.outputs.get("laser", 0))
+        accessories = ("S" if turning > 0 else "C" if turning < 0 else "") + (
+            "F" if now.outputs.get("flood") else "") + ("M" if now.outputs.get("mist") else "")
         return MachineStatus(where, self._work_offset(now), now.feed_mm_min if moving else 0.0,
                              now.line or None if self.operator.busy else None, error, limits,
-                             self._fault, spindle_rpm=spindle, probe=now.probe)
+                             self._fault, spindle_rpm=spindle, probe=now.probe,
+                             accessories=accessories)
 
     def _work_offset(self, now: LiveSnapshot) -> tuple[float, ...]:
         return tuple(now.work_offset_mm.get(axis, 0.0) for axis in self._axes)
@@ -320,7 +326,7 @@ class SessionMachine:
                                homing_feed_mm_min=first.homing.slow_speed_mm_s * 60.0,
                                homing_seek_mm_min=first.homing.speed_mm_s * 60.0,
                                homing_pull_off_mm=first.homing.pull_off_mm,
-                               extra={30: config.spindle.max_rpm} if config.spindle else {})
+                               extra=_spindle_settings(config))
 
     def set_setting(self, number: int, value: float) -> Rejected | Taken | None:
         current = self._setting_values().get(number)
@@ -446,6 +452,16 @@ class SessionMachine:
             feed_rate_mode="G93" if modes.inverse_time else "G94",
             feed=modes.feed_mm_min / (25.4 if modes.inches and not modes.inverse_time
                                       else 1.0))
+
+
+def _spindle_settings(config: MachineConfig) -> dict[int, float]:
+    """``$30`` (the spindle's max_rpm, or the laser's S of full power) and ``$32`` (laser
+    mode: 1 on a machine with a laser output)."""
+    if config.spindle is not None:
+        return {30: config.spindle.max_rpm}
+    if config.outputs is not None and "laser" in config.outputs.pins:
+        return {30: config.outputs.laser_max_s, 32: 1.0}
+    return {}
 
 
 __all__ = ["SessionMachine"]

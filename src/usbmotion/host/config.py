@@ -486,6 +486,30 @@ per revolution)."""
 
 
 @dataclass(frozen=True, slots=True)
+class OutputPin:
+    """Where an output of the machine is: the device of axis ``axis``, its output
+    ``output`` (call 42: 0 and 1 digital, 2 and 3 PWM)."""
+
+    axis: str
+    output: int
+
+
+@dataclass(frozen=True, slots=True)
+class OutputsConfig:
+    """The machine's outputs (``[outputs]``): flood and mist coolant (``M8``, ``M7``,
+    ``M9``) on digital outputs, a laser (``M3``/``M4``/``M5`` with ``S`` as its power) on a
+    PWM output, each changed on the device tick its move starts on.
+
+    Fields:
+        pins: output name (``flood``, ``mist``, ``laser``) -> :class:`OutputPin`.
+        laser_max_s: the ``S`` of the laser's full power (grbl's ``$30``).
+    """
+
+    pins: Mapping[str, OutputPin]
+    laser_max_s: float = 1000.0
+
+
+@dataclass(frozen=True, slots=True)
 class MachineConfig:
     """A machine: several axes, each a device, with settings they share.
 
@@ -516,6 +540,8 @@ class MachineConfig:
         joints: the robot joints the file names (``[joints.<name>]``), in file order.
         spindle: the spindle device (``[spindle]``), or ``None``: ``M3``-``M5`` and ``S``
             are then listed as ignored words.
+        outputs: the coolant and laser outputs (``[outputs]``), or ``None``: ``M7``-``M9``
+            (and, without a spindle, ``M3``-``M5``, ``S``) are listed as ignored words.
     """
 
     path: Path
@@ -534,6 +560,7 @@ class MachineConfig:
     parameter_file: Path | None = None
     joints: tuple[JointConfig, ...] = ()
     spindle: SpindleConfig | None = None
+    outputs: OutputsConfig | None = None
 
     @property
     def parameter_path(self) -> Path:
@@ -830,7 +857,7 @@ def _unknown_key(name: str, known: tuple[str, ...]) -> str:
 _MACHINE_KEYS = (
     "name", "servo_interval_dms", "motion_scalar", "junction_deviation_mm", "arc_tolerance_mm",
     "watchdog_ms", "reply_timeout_s", "ports", "homing_order", "axes", "dialect",
-    "tool_table", "parameter_file", "joints", "spindle",
+    "tool_table", "parameter_file", "joints", "spindle", "outputs",
 )
 _SPINDLE_KEYS = ("device", "url", "counts_per_revolution", "max_rpm", "accel_rpm_s",
                  "at_speed_tolerance", "stall_tolerance", "spin_up_timeout_s", "velocity_gains",
@@ -923,13 +950,19 @@ def _machine(top: _Reader) -> MachineConfig:
     spindle_table = top.table("spindle", allowed="a table: the spindle's device in velocity"
                               " mode (device or url, counts_per_revolution, max_rpm, ...)")
     spindle = None if spindle_table is None else _spindle(spindle_table, servo_interval_dms)
+    outputs_table = top.table("outputs", allowed="a table: flood, mist, laser (each { axis,"
+                              " output }), laser_max_s")
+    outputs = None if outputs_table is None else _outputs(outputs_table, axes)
+    if outputs_table is not None and spindle is not None and "laser" in outputs_table.data:
+        outputs_table.fail("laser", "M3, M4, M5 and S drive the spindle of [spindle] or the"
+                           " laser, not both; allowed: a laser output or a [spindle]")
     top.finish()
     return MachineConfig(
         path=path, name=name, axes=axes, servo_interval_dms=servo_interval_dms,
         motion_scalar=motion_scalar, junction_deviation_mm=junction_deviation_mm,
         arc_tolerance_mm=arc_tolerance_mm, homing_order=order, watchdog_ms=watchdog_ms,
         reply_timeout_s=reply_timeout_s, ports=ports, dialect=dialect, tool_table=tool_table,
-        parameter_file=parameter_file, joints=joints, spindle=spindle,
+        parameter_file=parameter_file, joints=joints, spindle=spindle, outputs=outputs,
     )
 
 
@@ -1384,6 +1417,39 @@ def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
         update_interval_dms=interval, counts_per_revolution=counts_per_rev, start_mm=start,
         probe_side=probe_side, probe_mm=probe_mm, **values,
     )
+
+
+def _outputs(reader: _Reader, axes: tuple[AxisConfig, ...]) -> OutputsConfig:
+    reader.expect(("flood", "mist", "laser", "laser_max_s"))
+    letters = [axis.name for axis in axes]
+    pins: dict[str, OutputPin] = {}
+    used: dict[tuple[str, int], str] = {}
+    for name, kinds, allowed in (("flood", (0, 1), "0 or 1 (a digital output)"),
+                                 ("mist", (0, 1), "0 or 1 (a digital output)"),
+                                 ("laser", (2, 3), "2 or 3 (a PWM output)")):
+        table = reader.table(name, allowed=f"a table: axis (whose device has the output),"
+                             f" output {allowed}")
+        if table is None:
+            continue
+        table.expect(("axis", "output"))
+        axis = table.string("axis", allowed=f"an axis of the machine: {', '.join(letters)}")
+        if axis not in letters:
+            table.fail("axis", f"{axis!r} is not an axis of the machine; allowed:"
+                       f" {', '.join(letters)}")
+        output = table.integer("output", minimum=0, maximum=3,
+                               unit="the device's output: 0, 1 digital; 2, 3 PWM")
+        if output not in kinds:
+            table.fail("output", f"{output} cannot carry {name}; allowed: {allowed}")
+        if (axis, output) in used:
+            table.fail("output", f"axis {axis}'s output {output} already carries"
+                       f" {used[axis, output]}")
+        used[axis, output] = name
+        table.finish()
+        pins[name] = OutputPin(axis, output)
+    laser_max_s = reader.number("laser_max_s", default=1000.0, above=0, maximum=1e6,
+                                unit="the S of the laser's full power (grbl's $30)")
+    reader.finish()
+    return OutputsConfig(pins=pins, laser_max_s=laser_max_s)
 
 
 def _spindle(reader: _Reader, servo_interval_dms: int) -> SpindleConfig:

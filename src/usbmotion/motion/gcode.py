@@ -313,8 +313,8 @@ _GM_SPINDLE_MODE = ModalGroup.SPINDLE_MODE
 _GM_TOOL_LENGTH_OFFSET = ModalGroup.TOOL_LENGTH_OFFSET
 _M_0, _M_1, _M_6, _M_61 = MCode.M_0, MCode.M_1, MCode.M_6, MCode.M_61
 _MG_OVERRIDES, _MG_STOPPING, _MG_TOOL_CHANGE = MGroup.OVERRIDES, MGroup.STOPPING, MGroup.TOOL_CHANGE
-_MG_SPINDLE = MGroup.SPINDLE
-_M_3, _M_4 = MCode.M_3, MCode.M_4
+_MG_SPINDLE, _MG_COOLANT = MGroup.SPINDLE, MGroup.COOLANT
+_M_3, _M_4, _M_7, _M_8 = MCode.M_3, MCode.M_4, MCode.M_7, MCode.M_8
 _PAUSE_CODES = (_M_0, _M_1)
 
 _LETTERS_UNSUPPORTED = {
@@ -444,6 +444,25 @@ class Pause:
 
 
 @dataclass(frozen=True, slots=True)
+class OutputChange:
+    """An output the program changes at ``line``: ``"flood"`` (M8, M9), ``"mist"`` (M7,
+    M9) or ``"laser"`` (M3, M4, M5 and S on a laser machine), to ``value`` per mille of full
+    (coolant 0 or 1000; the laser's S over the machine's ``laser_max_s``). It applies from
+    the first move at or after ``line`` on (LinuxCNC's order: before the line's motion).
+    ``dynamic``: the laser's power follows the speed the axes move at (grbl's M4), else it
+    is constant while a feed move cuts (M3); a laser is off during rapids either way."""
+
+    line: int
+    output: str
+    value: int
+    dynamic: bool = False
+
+
+OUTPUT_NAMES = ("flood", "mist", "laser")
+"""The outputs a program switches: flood and mist coolant, the laser's power."""
+
+
+@dataclass(frozen=True, slots=True)
 class GCodeProgram:
     """An interpreted G-code program.
 
@@ -460,7 +479,8 @@ class GCodeProgram:
     ``frames`` say which offset from machine to program coordinates (G5x + G92 + tool, mm
     per axis; an XY rotation aside) each move was made in: ``(index, offset)`` pairs in
     order, the first ``(0, the offset at the start)``, each in effect from move ``index``
-    on (for a check in the program's own coordinates: a rapid below work Z0).
+    on (for a check in the program's own coordinates: a rapid below work Z0). ``outputs``
+    are the changes of the coolant and laser outputs the machine has, in order.
     """
 
     moves: tuple[Move, ...]
@@ -474,6 +494,7 @@ class GCodeProgram:
     tool_changes: tuple[ToolChange, ...] = ()
     pauses: tuple[Pause, ...] = ()
     frames: tuple[tuple[int, Point], ...] = ()
+    outputs: tuple[OutputChange, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -494,6 +515,10 @@ class MachineAxes:
             ``M4``, ``M5``, a change of ``S`` while it turns and the program's end bring the
             machine to rest at a spindle :class:`Pause` that waits until the spindle is at
             its new speed (LinuxCNC's spindle-at-speed), then goes on by itself.
+        outputs: the outputs it has of :data:`OUTPUT_NAMES`: ``M7``/``M8``/``M9`` switch the
+            coolant ones (:class:`OutputChange`), and with ``"laser"`` ``M3``/``M4``/``M5``
+            and ``S`` set the laser's power, ``laser_max_s`` the ``S`` of full power (grbl's
+            ``$30``); words for outputs it lacks are listed as ignored.
 
     Raises:
         ValueError: the axes are not a non-empty subsequence of ``"XYZABCUVW"``, the home
@@ -506,6 +531,8 @@ class MachineAxes:
     homing_order: tuple[str, ...] = ()
     wrapped: str = ""
     spindle_max_rpm: float = 0.0
+    outputs: tuple[str, ...] = ()
+    laser_max_s: float = 1000.0
 
     def __post_init__(self) -> None:
         axes = self.axes
@@ -686,7 +713,7 @@ class GCodeStream:
             raise GCodeError("one line at a time: this text holds a line break",
                              file=state.file, line=number)
         marks = (len(state.moves), len(state.pauses), len(state.ignored),
-                 len(state.tool_changes), len(state.frames))
+                 len(state.tool_changes), len(state.frames), len(state.outputs))
         modes = {name: copy.deepcopy(getattr(state, name)) for name in _MODAL_STATE}
         rules = state.rules
         try:
@@ -699,9 +726,9 @@ class GCodeStream:
         except Exception as error:
             if isinstance(error, GCodeError):
                 error.line = number
-            moves, pauses, ignored, changes, frames = marks
+            moves, pauses, ignored, changes, frames, outputs = marks
             del state.moves[moves:], state.pauses[pauses:], state.ignored[ignored:]
-            del state.tool_changes[changes:], state.frames[frames:]
+            del state.tool_changes[changes:], state.frames[frames:], state.outputs[outputs:]
             for name, value in modes.items():
                 setattr(state, name, value)
             raise
@@ -728,6 +755,7 @@ class GCodeStream:
         state = self._interpreter
         state.start_at(start)
         del state.moves[:], state.pauses[:], state.ignored[:], state.tool_changes[:]
+        del state.outputs[:]
         state.frames[:] = [(0, _point(state.offset))]
         state.ended_by = ""
         state.end_line = 0
@@ -759,7 +787,8 @@ class GCodeStream:
         if not program.ended_by:
             return GCodeProgram(program.moves, program.ignored, program.file, self.lines,
                                 "", program.axes, program.dialect, program.offsets,
-                                program.tool_changes, program.pauses, program.frames)
+                                program.tool_changes, program.pauses, program.frames,
+                                program.outputs)
         return program
 
 
@@ -894,11 +923,15 @@ class _Interpreter:
         "ignored_letters",
         "incremental",
         "inverse_time",
+        "laser_mode",
+        "laser_power",
         "m_codes",
         "machine",
         "motion",
         "moves",
         "offset",
+        "output_values",
+        "outputs",
         "pause_rule",
         "pauses",
         "plane",
@@ -925,6 +958,10 @@ class _Interpreter:
         self.spindle_speed = 0.0  # S, rpm
         self.spindle_turn = 0  # M3 1, M4 -1, M5 0
         self.spindle_rpm = 0.0  # the speed the spindle was last told, signed
+        self.outputs: list[OutputChange] = []
+        self.output_values = dict.fromkeys(OUTPUT_NAMES, 0)  # as last changed
+        self.laser_power = 0  # S as per mille of laser_max_s
+        self.laser_mode = 0  # M3 1 (constant), M4 2 (dynamic), M5 0
         self.machine = machine
         self.rules = rules
         axes = machine.axes
@@ -968,6 +1005,7 @@ class _Interpreter:
             tool_changes=tuple(self.tool_changes),
             pauses=tuple(self.pauses),
             frames=tuple(self.frames),
+            outputs=tuple(self.outputs),
         )
 
     def start_at(self, start: Point | None) -> None:
@@ -995,6 +1033,10 @@ class _Interpreter:
         offset suspended as G92.2 does (cleared where it is volatile: grbl, Marlin)."""
         self.ended_by = ended_by
         self.end_line = line
+        for name in self.machine.outputs:  # and switch the coolant and the laser off
+            if name == "laser":
+                self.laser_mode = 0
+            self.set_output(line, name, 0)
         if self.machine.spindle_max_rpm:  # M2 and M30 stop the spindle (LinuxCNC, grbl)
             self.spindle_turn = 0
             self.spindle_rpm = 0.0
@@ -1183,6 +1225,9 @@ class _Interpreter:
             self.feed_mm_min = params["F"] * (1.0 if self.inverse_time else self.scale)
         if "T" in params or _MG_TOOL_CHANGE in m_codes:
             self.change_tool(block, params, where, m_codes, m_where)
+        if self.machine.outputs:
+            acted = self.output_words(block, params, where, m_codes, m_where)
+            ignored = [(i, meaning) for i, meaning in ignored if i not in acted]
         if self.machine.spindle_max_rpm:
             self.spindle_words(block, params, where, m_codes)
             spindle_words = {where["S"]} if "S" in where else set()
@@ -1224,6 +1269,57 @@ class _Interpreter:
         a spindle pause, for the spindle to reach ``spindle_rpm``)."""
         self.pauses.append(Pause(line, code, message, len(self.moves), spindle_rpm))
         self.moves.append(Dwell(line, _point(self.position), 0.0))
+
+    def output_words(self, block: Block, params: dict[str, float], where: dict[str, int],
+                     m_codes: dict[int, int], m_where: dict[int, int]) -> set[int]:
+        """``M7``/``M8``/``M9`` on a machine with coolant outputs, and ``M3``/``M4``/``M5``
+        with ``S`` on one with a laser: the changes they make (:class:`OutputChange`), from
+        the line's motion on; the indices of the words acted on."""
+        has = self.machine.outputs
+        acted: set[int] = set()
+        coolant = m_codes.get(_MG_COOLANT)
+        if coolant is not None:
+            wanted = ({"mist": 1000} if coolant == _M_7 else {"flood": 1000}
+                      if coolant == _M_8 else {"mist": 0, "flood": 0})
+            if any(name in has for name in wanted):
+                acted.add(m_where[_MG_COOLANT])
+            for name, value in wanted.items():
+                if name in has:
+                    self.set_output(block.line, name, value)
+        if "laser" in has:
+            top = self.machine.laser_max_s
+            power = params.get("S")
+            if power is not None:
+                if power > top:
+                    raise self.error(block, where["S"], f"S{power:g} is beyond the laser's"
+                                     f" laser_max_s {top:g} (full power); allowed: 0..{top:g}")
+                self.laser_power = round(power / top * 1000)
+                acted.add(where["S"])
+            code = m_codes.get(_MG_SPINDLE)
+            if code is not None:
+                self.laser_mode = 1 if code == _M_3 else 2 if code == _M_4 else 0
+                acted.add(m_where[_MG_SPINDLE])
+            value = self.laser_power if self.laser_mode else 0
+            dynamic = self.laser_mode == 2
+            last = self.outputs_last("laser")
+            if last is None or (last.value, last.dynamic) != (value, dynamic):
+                if last is not None or value:
+                    self.outputs.append(OutputChange(block.line, "laser", value, dynamic))
+                self.output_values["laser"] = value
+        return acted
+
+    def set_output(self, line: int, name: str, value: int) -> None:
+        """Output ``name`` to ``value`` from ``line`` on (nothing when it is so already)."""
+        if self.output_values.get(name) != value:
+            self.output_values[name] = value
+            self.outputs.append(OutputChange(line, name, value))
+
+    def outputs_last(self, name: str) -> OutputChange | None:
+        """The last change of output ``name``, if any."""
+        for change in reversed(self.outputs):
+            if change.output == name:
+                return change
+        return None
 
     def spindle_words(self, block: Block, params: dict[str, float], where: dict[str, int],
                       m_codes: dict[int, int]) -> None:

@@ -91,6 +91,8 @@ class LiveSnapshot:
         spindle: the spindle as its encoder last said (None: the machine has none).
         probe: the probe input read closed (any device's: the probe line is one), as last
             read at rest.
+        outputs: each coolant and laser output's value (``flood``, ``mist``, ``laser``; per
+            mille of full), on the devices' last tick.
         sequence: counts the snapshots published; ``updated_s`` when (monotonic wall time).
     """
 
@@ -118,6 +120,7 @@ class LiveSnapshot:
     tool_changes: tuple[str, ...] = ()
     spindle: SpindleNow | None = None
     probe: bool = False
+    outputs: Mapping[str, int] = field(default_factory=dict)
     sequence: int = 0
     updated_s: float = 0.0
 

@@ -240,20 +240,22 @@ class Operator:
         return True
 
     def _keep_modes(self) -> None:
-        """A line of modes alone (``G55``, ``G10 L20 P1 X0``, ``G92 Z0``) taken while nothing
-        runs: the offsets and coordinate system it leaves kept in the parameter file, as a
-        run that ends keeps them, and shown in the live model at once."""
+        """A line of modes alone (``G55``, ``G10 L20 P1 X0``, ``G92 Z0``, ``M8``) taken while
+        nothing runs: the offsets and coordinate system it leaves kept in the parameter
+        file, as a run that ends keeps them, and shown in the live model at once; the
+        coolant switched at once."""
         with self._lock:
             feed = self.feed
             if feed is None or feed.has_moves or self._run_queued:
                 return
-            offsets = feed.program().offsets
+            program = feed.program()
         session = self.session
         try:
-            if offsets != session.work_offsets():
-                session.save_work_offsets(offsets)
+            if program.offsets != session.work_offsets():
+                session.save_work_offsets(program.offsets)
         except OSError as error:
             self.on_message(f"the work offsets could not be kept: {error}")
+        session.coolant_now(program.outputs)
 
     def _queue_run(self) -> None:
         """The feed's run queued for the worker, unless it is, or a hold latched while idle

@@ -89,7 +89,9 @@ def machine_axes(config: MachineConfig) -> MachineAxes:
                        home_mm=tuple(home_position_mm(config.axis(a)) for a in axes),
                        homing_order=order,
                        wrapped="".join(a for a in axes if config.axis(a).wrapped),
-                       spindle_max_rpm=config.spindle.max_rpm if config.spindle else 0.0)
+                       spindle_max_rpm=config.spindle.max_rpm if config.spindle else 0.0,
+                       outputs=tuple(config.outputs.pins) if config.outputs else (),
+                       laser_max_s=config.outputs.laser_max_s if config.outputs else 1000.0)
 
 
 def machine_dialect(config: MachineConfig, dialect: Dialect | None = None) -> Dialect:

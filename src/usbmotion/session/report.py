@@ -113,6 +113,18 @@ class ToolChangeRecord:
 
 
 @dataclass(frozen=True, slots=True)
+class OutputRecord:
+    """What the run did with one output (``flood``, ``mist``, ``laser``): how many
+    changes its device was told, the largest value and the value it was left at (per
+    mille of full)."""
+
+    name: str
+    changes: int
+    max_value: int
+    last_value: int
+
+
+@dataclass(frozen=True, slots=True)
 class SpindleRecord:
     """A spindle pause of the run: its line, the speed asked (rpm, signed: - for M4), how
     long the program waited at rest for the spindle to reach it (s), and the speed its
@@ -166,6 +178,7 @@ class RunReport:
     tool_changes: tuple[ToolChangeRecord, ...] = ()
     line_peaks: tuple[LinePeak, ...] = ()
     spindle: tuple[SpindleRecord, ...] = ()
+    outputs: tuple[OutputRecord, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         """The report as plain JSON-ready data."""

@@ -54,6 +54,10 @@ def describe(report: RunReport) -> str:
         pocket = f" (pocket {change.pocket})" if change.pocket else ""
         what = "put in the spindle (M6)" if change.manual else "said to be in the spindle (M61)"
         lines.append(f"tool change    line {change.line}: tool {change.tool}{pocket} {what}")
+    for output in (output for output in report.outputs if output.changes):
+        lines.append(f"output         {output.name}: {output.changes} change"
+                     f"{'' if output.changes == 1 else 's'}, up to {output.max_value / 10:g} %,"
+                     f" left at {output.last_value / 10:g} %")
     for wait in report.spindle:
         turn = " counter-clockwise" if wait.rpm < 0 else ""
         lines.append(f"spindle        line {wait.line}: {abs(wait.rpm):g} rpm{turn}, at speed"

@@ -15,6 +15,7 @@ speed from a device tick just ahead, without a change of state.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import replace
@@ -29,6 +30,7 @@ from usbmotion.session.ending import Ending, Stops, internal_error, link_lost, r
 from usbmotion.session.feed import ProgramFeed
 from usbmotion.session.feeding import Feeding
 from usbmotion.session.legs import Legs
+from usbmotion.session.outputs import RunOutputs, laser_names
 from usbmotion.session.planning import Prepared, planner_inputs
 from usbmotion.session.progress import RunProgress
 from usbmotion.session.report import RunReport, SpindleRecord, Trace
@@ -85,6 +87,11 @@ class Run:
                                     prepared.program, fields=context.live_fields)
         self.watch = Watch(self.machine, self.trace, self.live,
                            line_at_tick=self.progress.line_at_tick)
+        outputs = config.outputs
+        self.outputs = None if outputs is None or not outputs.pins else RunOutputs(
+            outputs, {name: axis.client for name, axis in self.machine.axes.items()},
+            prepared.program.outputs, period_s=config.motion_period_s,
+            counts_per_mm=[config.axis(n).counts_per_mm for n in self.axes])
         self.check_s = REQUEST_CHECK_S if context.live_control else FAULT_CHECK_S
         self.notes: list[str] = [] if prepared.homed else [
             "the machine is not homed: the program ran in the devices' own counts and soft"
@@ -164,6 +171,7 @@ class Run:
         self.resting = False
         self.streams.released = 0
         self.streams.open(self.legs.rows, self.feeding.release_limit(executed=0))
+        self._outputs_from(0)
         self.feeding.dry = False
         self.watch.start(self.clock.now(), check_s=self.check_s)
 
@@ -202,6 +210,11 @@ class Run:
         spindle = self.machine.spindle
         if spindle is not None and spindle.running:
             faulted = self._check_spindle(spindle) or faulted
+        if self.outputs is not None and self.streams.sync is not None:
+            now_tick = self.streams.device_tick()
+            self.outputs.service(now_tick, tick_s=self.streams.tick_s)
+            if self.feeding.dry:  # at rest after every row: a change with no move after it
+                self.outputs.finish(self.legs.plan, tick=math.ceil(now_tick))
         fed = self.feeding.feed is not None
         self.publish(force=fed)
         if fed:  # a fed program's window follows what the live model shows
@@ -263,6 +276,8 @@ class Run:
             if done:
                 self.streams.settle()
         if done:
+            if self.outputs is not None:
+                self.outputs.finish(self.legs.plan, tick=math.ceil(self.streams.device_tick()))
             self.states.fire(Event.DONE)
             self.publish(force=True)
             return Ending(StopReason.COMPLETED.value)
@@ -273,7 +288,25 @@ class Run:
         return None
 
     def _take_feed(self, *, streaming: bool = True) -> None:
+        count = self.legs.count
         self.feeding.take(streaming=streaming, restart=self._restart, drain=self._drain)
+        feed = self.feeding.feed
+        if self.outputs is not None and feed is not None:
+            changes = feed.program().outputs
+            if changes != self.outputs.changes:
+                self.outputs.changes = changes
+                count = -1
+        if self.outputs is not None and self.legs.count != count and self.streams.sync:
+            self._outputs_from(self.streams.seam()[0])
+
+    def _outputs_from(self, row: int) -> None:
+        """The output changes queued again from row ``row`` of the rows now (a start, a
+        seam, more lines), and those due sent."""
+        if self.outputs is None:
+            return
+        self.outputs.rebuild(self.legs, start_tick=self.streams.start_tick,
+                             scalar=self.streams.scalar, from_row=row)
+        self.outputs.service(self.streams.device_tick(), tick_s=self.streams.tick_s)
 
     def _drain(self) -> None:
         self.streams.drain(lambda: bool(self._look() and self.requests.taken.stop_reason),
@@ -293,11 +326,16 @@ class Run:
                               " program's end")
         else:
             self.seams.append((taken.override_at_s, tick))
+            self._outputs_from(max(0, -(-(tick - self.streams.start_tick)
+                                       // self.streams.scalar)))
 
     # --- Hold, Paused, Stopping ------------------------------------------------------------------
 
     def _decelerate(self, *, asked_s: float) -> None:
         """Every axis to rest along the path (:func:`decelerate`), its figures kept."""
+        if self.outputs is not None:  # grbl's laser mode: the laser off on a hold or stop
+            self.outputs.off_now(laser_names(self.config.outputs),
+                                 tick=math.ceil(self.streams.device_tick()))
         stopped = decelerate(self.legs, self.streams, self.machine,
                              accel_mm_s2=self.accel_mm_s2, stop_now=self._stop_now)
         if stopped.note:
@@ -429,6 +467,8 @@ class Run:
             if not self.feeding.complete:
                 self.feeding.rest_at(point)
                 return None
+            if self.outputs is not None and self.streams.sync is not None:
+                self.outputs.finish(self.legs.plan, tick=math.ceil(self.streams.device_tick()))
             self.states.fire(Event.DONE)
             return Ending(StopReason.COMPLETED.value)
         self.legs.start(leg)
@@ -443,6 +483,9 @@ class Run:
         asked_s = taken.stop_at_s if taken.stop_reason else self.clock.now()
         self._decelerate(asked_s=asked_s)
         self._spindle_off()
+        if self.outputs is not None:  # a stop or an alarm: coolant and laser off
+            self.outputs.off_now(tuple(self.outputs.config.pins),
+                                 tick=math.ceil(self.streams.device_tick()))
         if faulted:
             return Ending(f"fault: {self.watch.words()}")
         self.states.fire(Event.AT_REST)
@@ -480,7 +523,8 @@ class Run:
                            segments_at_ticks=self.progress.segments_at_ticks)
         report = replace(report, spindle=tuple(
             SpindleRecord(line, rpm, waited_s, measured)
-            for line, rpm, waited_s, measured in self.spindle_waits))
+            for line, rpm, waited_s, measured in self.spindle_waits),
+            outputs=() if self.outputs is None else self.outputs.records())
         self.faulted_axes = [name for name, status in statuses.items()
                              if status.fault != FaultCode.NONE]
         self.faulted = bool(self.watch.faults or ending.link_error or self.faulted_axes)

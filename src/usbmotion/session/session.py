@@ -52,7 +52,7 @@ from usbmotion.host.config import MachineConfig
 from usbmotion.host.device import ControlMode
 from usbmotion.host.machine import Machine
 from usbmotion.motion.dialects import Dialect
-from usbmotion.motion.gcode import GCodeProgram, Pause, Pauses, read_gcode_text
+from usbmotion.motion.gcode import GCodeProgram, OutputChange, Pause, Pauses, read_gcode_text
 from usbmotion.motion.moves import AXIS_ORDER, Point
 from usbmotion.motion.offsets import WorkOffsets, read_parameter_file, write_parameter_file
 from usbmotion.motion.tools import NO_TOOLS, ToolTable, load_tool_table
@@ -312,7 +312,7 @@ class MachineSession:
             spindle.read()
         probe = any(axis.client.probe().closed for axis in self.machine.axes.values())
         self._live_read_s = self.clock.now()
-        return self.publish_live(probe=probe)
+        return self.publish_live(probe=probe, outputs=self.outputs_now())
 
     def publish_live(self, **fields: object) -> LiveSnapshot:
         """Publish the live model with what the session knows (state, homed, overrides,
@@ -345,6 +345,10 @@ class MachineSession:
         axes = program_axes(self.config)
         spindle = self.machine.spindle
         shown: dict[str, object] = {} if spindle is None else {"spindle": spindle.now}
+        run = self.last_run
+        if run is not None and run.outputs is not None and self.states.moving:
+            ticks = [axis.tick for axis in self.live.read().axes.values()]
+            shown["outputs"] = run.outputs.values_at(min(ticks, default=0))
         feed = self._feed
         if feed is not None:
             modes = feed.modes()
@@ -930,6 +934,36 @@ class MachineSession:
         machine.clear_faults()
 
     # --- waiting ------------------------------------------------------------------------------
+
+    def outputs_now(self) -> dict[str, int]:
+        """Each coolant and laser output's value as its device says (call 43)."""
+        outputs = self.config.outputs
+        if outputs is None:
+            return {}
+        read: dict[str, tuple[int, ...]] = {}
+        shown = {}
+        for name, pin in outputs.pins.items():
+            if pin.axis not in read:
+                read[pin.axis] = self.machine.axis(pin.axis).client.outputs().values
+            shown[name] = read[pin.axis][pin.output]
+        return shown
+
+    def coolant_now(self, changes: Sequence[OutputChange]) -> None:
+        """The coolant outputs as ``changes`` leave them, at once (an ``M8`` or ``M9`` of a
+        line without motion while the machine stands; a laser fires only while it cuts)."""
+        outputs = self.config.outputs
+        if outputs is None:
+            return
+        for name, pin in outputs.pins.items():
+            if name == "laser":
+                continue
+            told = [change.value for change in changes if change.output == name]
+            if not told:
+                continue
+            client = self.machine.axis(pin.axis).client
+            value = 1000 if told[-1] else 0
+            if client.outputs().values[pin.output] != value:
+                client.set_output_at(pin.output, value, 0)
 
     def keep_alive_period_s(self) -> float:
         """How often a front waiting for its operator must call :meth:`keep_alive` so that

@@ -333,6 +333,8 @@ class Dashboard:
                 "commanded_rpm": now.spindle.commanded_rpm,
                 "measured_rpm": now.spindle.measured_rpm,
                 "at_speed": now.spindle.at_speed},
+            "outputs": dict(now.outputs),
+            "probe": now.probe,
             "pause": now.pause,
             "alarm": alarm,
             "alarm_help": self._alarm_help(now) if alarm or now.state is MachineState.ALARM

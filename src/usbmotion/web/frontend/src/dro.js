@@ -22,6 +22,8 @@ export class Readout {
     this.tool = byId('tool');
     this.spindleFact = byId('spindle-fact');
     this.spindle = byId('spindle');
+    this.outputsFact = byId('outputs-fact');
+    this.outputs = byId('outputs');
     this.system = byId('coordinate-system');
     this.offsets = byId('work-offsets');
     this.cells = new Map();
@@ -93,6 +95,16 @@ export class Readout {
     setText(this.overrides, `${state.feed_override} %, rapid ${state.rapid_override} %`);
     const length = state.tool_length_mm ? ` (length ${mm(state.tool_length_mm)} mm)` : '';
     setText(this.tool, `T${state.tool}${length}`);
+    // The coolant and laser outputs as the devices have them; the probe when it touches.
+    const outputs = state.outputs || {};
+    const names = Object.keys(outputs);
+    this.outputsFact.hidden = names.length === 0 && !state.probe;
+    const shown = names.map((name) => (name === 'laser'
+      ? `laser ${(outputs[name] / 10).toFixed(0)} %` : `${name} ${outputs[name] ? 'on' : 'off'}`));
+    if (state.probe) {
+      shown.push('probe touching');
+    }
+    setText(this.outputs, shown.join(', '));
     // The spindle's speed as its encoder measures it, and the speed asked when it differs.
     const spindle = state.spindle;
     this.spindleFact.hidden = !spindle;
