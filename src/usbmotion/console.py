@@ -67,6 +67,8 @@ $r        reset: stop every axis, clear any alarm, then home
 $d N      load demo program N (1 rounded square, 2 star, 3 spiral)
 $l FILE   load a G-code file
 $z [AXES] zero: the work origin (G54) where the machine stands, for the named axes (default all)
+$tls [N]  measure tool N (default: the one in the spindle) on the tool setter; its length
+          goes into the tool table, where G43 reads it
 G10 ...   set offsets at the machine's position: G10 L20 P1 X0 Y0, G10 L2 P1 Z-5, G28.1
 ?         status: state, line, positions (machine and work), overrides, faults
 $h        this help
@@ -129,6 +131,12 @@ class Console:
             machine = partial(self._zero, value)
         elif command == "$j":
             machine = self._jog_action(value)
+        elif command == "$tls":
+            if value and not value.isdigit():
+                self.write(f"error: $tls {value}: a tool number ($tls 3), or nothing for the"
+                           " tool in the spindle")
+                return True
+            machine = partial(self._measure_tool, int(value) if value else None)
         elif _SETTING.match(text):
             machine = partial(self._set_offsets, text)
         elif text[:1].upper() in _GCODE_LETTERS:
@@ -214,6 +222,9 @@ class Console:
                + ("" if now.spindle.at_speed
                   else f" (to {abs(now.spindle.commanded_rpm):.0f} rpm)")
                if now.spindle is not None else ""))
+
+    def _measure_tool(self, tool: int | None) -> None:
+        self.write(self.session.measure_tool(tool).describe())
 
     def _override(self, value: str) -> None:
         kind, number = value[:1].upper(), value[1:].strip()

@@ -510,6 +510,30 @@ class OutputsConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class ToolSetterConfig:
+    """A fixed tool-length setter (``[tool_setter]``): a probe button at a known place that
+    each tool is lowered onto, its contact height against the reference tool's giving the
+    tool's length.
+
+    Fields:
+        position_mm: the button's X and Y, machine mm.
+        start_z_mm: machine Z the measuring descends to at rapid speed, above the button
+            with the longest tool.
+        lowest_z_mm: the lowest machine Z probing may reach (no contact by then: an error).
+        feed_mm_min: the probing feed.
+        reference_z_mm: where the reference tool (length 0: the gauge line of the tool
+            table's lengths) touches, machine mm; None: not measured yet (a measurement
+            then says the contact to write here).
+    """
+
+    position_mm: tuple[float, float]
+    start_z_mm: float
+    lowest_z_mm: float
+    feed_mm_min: float
+    reference_z_mm: float | None
+
+
+@dataclass(frozen=True, slots=True)
 class MachineConfig:
     """A machine: several axes, each a device, with settings they share.
 
@@ -542,6 +566,7 @@ class MachineConfig:
             are then listed as ignored words.
         outputs: the coolant and laser outputs (``[outputs]``), or ``None``: ``M7``-``M9``
             (and, without a spindle, ``M3``-``M5``, ``S``) are listed as ignored words.
+        tool_setter: the tool-length setter (``[tool_setter]``), or ``None``.
     """
 
     path: Path
@@ -561,6 +586,7 @@ class MachineConfig:
     joints: tuple[JointConfig, ...] = ()
     spindle: SpindleConfig | None = None
     outputs: OutputsConfig | None = None
+    tool_setter: ToolSetterConfig | None = None
 
     @property
     def parameter_path(self) -> Path:
@@ -857,7 +883,7 @@ def _unknown_key(name: str, known: tuple[str, ...]) -> str:
 _MACHINE_KEYS = (
     "name", "servo_interval_dms", "motion_scalar", "junction_deviation_mm", "arc_tolerance_mm",
     "watchdog_ms", "reply_timeout_s", "ports", "homing_order", "axes", "dialect",
-    "tool_table", "parameter_file", "joints", "spindle", "outputs",
+    "tool_table", "parameter_file", "joints", "spindle", "outputs", "tool_setter",
 )
 _SPINDLE_KEYS = ("device", "url", "counts_per_revolution", "max_rpm", "accel_rpm_s",
                  "at_speed_tolerance", "stall_tolerance", "spin_up_timeout_s", "velocity_gains",
@@ -953,6 +979,9 @@ def _machine(top: _Reader) -> MachineConfig:
     outputs_table = top.table("outputs", allowed="a table: flood, mist, laser (each { axis,"
                               " output }), laser_max_s")
     outputs = None if outputs_table is None else _outputs(outputs_table, axes)
+    setter_table = top.table("tool_setter", allowed="a table: position_mm, start_z_mm,"
+                             " lowest_z_mm, feed_mm_min, reference_z_mm")
+    tool_setter = None if setter_table is None else _tool_setter(setter_table, axes)
     if outputs_table is not None and spindle is not None and "laser" in outputs_table.data:
         outputs_table.fail("laser", "M3, M4, M5 and S drive the spindle of [spindle] or the"
                            " laser, not both; allowed: a laser output or a [spindle]")
@@ -963,6 +992,7 @@ def _machine(top: _Reader) -> MachineConfig:
         arc_tolerance_mm=arc_tolerance_mm, homing_order=order, watchdog_ms=watchdog_ms,
         reply_timeout_s=reply_timeout_s, ports=ports, dialect=dialect, tool_table=tool_table,
         parameter_file=parameter_file, joints=joints, spindle=spindle, outputs=outputs,
+        tool_setter=tool_setter,
     )
 
 
@@ -1417,6 +1447,40 @@ def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
         update_interval_dms=interval, counts_per_revolution=counts_per_rev, start_mm=start,
         probe_side=probe_side, probe_mm=probe_mm, **values,
     )
+
+
+def _tool_setter(reader: _Reader, axes: tuple[AxisConfig, ...]) -> ToolSetterConfig:
+    reader.expect(("position_mm", "start_z_mm", "lowest_z_mm", "feed_mm_min",
+                   "reference_z_mm"))
+    by_name = {axis.name: axis for axis in axes}
+    missing = [name for name in "XYZ" if name not in by_name]
+    if missing:
+        reader.fail(None, f"a tool setter needs axes X, Y and Z; the machine has no"
+                    f" {', '.join(missing)}")
+    allowed = "[X, Y]: the setter's button, machine mm within X's and Y's travel_mm"
+    position = reader.raw("position_mm", allowed=allowed)
+    if (not isinstance(position, list) or len(position) != 2
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                       for v in position)):
+        reader.fail("position_mm", f"{_show(position)} is not two numbers; allowed: {allowed}")
+    for value, name in zip(position, "XY", strict=True):
+        low, high = by_name[name].travel_mm
+        if not low <= float(value) <= high:
+            reader.fail("position_mm", f"{name} {value!r} is outside axis {name}'s travel_mm"
+                        f" [{low:g}, {high:g}]; allowed: {allowed}")
+    low, high = by_name["Z"].travel_mm
+    travel = f"machine mm within Z's travel_mm [{low:g}, {high:g}]"
+    start = reader.number("start_z_mm", minimum=low, maximum=high, unit=travel)
+    lowest = reader.number("lowest_z_mm", minimum=low, maximum=start,
+                           unit=f"{travel}, below start_z_mm")
+    feed = reader.number("feed_mm_min", default=100.0, above=0,
+                         maximum=by_name["Z"].max_velocity_mm_s * 60, unit="mm/min")
+    reference = (reader.number("reference_z_mm", minimum=low, maximum=high, unit=travel)
+                 if reader.has("reference_z_mm") else None)
+    reader.finish()
+    return ToolSetterConfig(position_mm=(float(position[0]), float(position[1])),
+                            start_z_mm=start, lowest_z_mm=lowest, feed_mm_min=feed,
+                            reference_z_mm=reference)
 
 
 def _outputs(reader: _Reader, axes: tuple[AxisConfig, ...]) -> OutputsConfig:

@@ -180,3 +180,28 @@ def load_tool_table(path: str | os.PathLike[str], *, mm_per_unit: float = 1.0) -
         raise ConfigError(f"{file}: cannot read the tool table: {error}", path=str(file),
                           key="tool_table") from error
     return parse_tool_table(text, path=str(file), mm_per_unit=mm_per_unit)
+
+
+def with_tool_length(text: str, tool: int, length_mm: float, *, comment: str) -> str:
+    """A tool table's text with tool ``tool``'s length (its Z offset) set to ``length_mm``:
+    its line's Z word replaced (or added after its other words), every other line and word
+    as it was; a tool the table lacks gets a line of its own (``T3 P3 Z12.345 ;comment``)
+    at the end. LinuxCNC's touch-off writes its table the same way.
+
+    Raises:
+        ConfigError: the text is not a tool table (:func:`parse_tool_table`).
+    """
+    table = parse_tool_table(text)
+    written = f"Z{length_mm:.4f}"
+    lines = text.splitlines()
+    entry = table.tools.get(tool)
+    if entry is None:
+        if lines and not lines[-1].strip():
+            lines.pop()
+        lines.append(f"T{tool} P{tool} {written} ;{comment}")
+        return "\n".join(lines) + "\n"
+    code, semicolon, rest = lines[entry.line - 1].partition(";")
+    replaced, count = re.subn(r"(?i)\bZ\s*[-+]?(\d+\.?\d*|\.\d+)", written, code)
+    code = replaced if count else code.rstrip() + f" {written}" + (" " if semicolon else "")
+    lines[entry.line - 1] = code + semicolon + rest
+    return "\n".join(lines) + ("\n" if text.endswith("\n") or not text else "")

@@ -84,6 +84,7 @@ from usbmotion.session.requests import (
 from usbmotion.session.rest import STOP_LEAD_S, wait_for_rest
 from usbmotion.session.run import Run
 from usbmotion.session.state import Event, MachineState, StateMachine, StopReason
+from usbmotion.session.tool_setter import ToolMeasurement, measure_tool
 
 LIVE_IDLE_S = 0.1
 """How often the live model of an idle machine may be refreshed from the devices."""
@@ -550,6 +551,15 @@ class MachineSession:
                 f"{mode.code}: the move ended without the probe"
                 f" {'touching' if mode.toward else 'clearing'}", at_start=False)
         return result
+
+    def measure_tool(self, tool: int | None = None) -> ToolMeasurement:
+        """Measure tool ``tool`` (default: the one in the spindle) on the machine's tool
+        setter and write its length into the tool table
+        (:func:`usbmotion.session.tool_setter.measure_tool`, whose errors it raises)."""
+        number = self.live.read().tool if tool is None else tool
+        measured = measure_tool(self, number)
+        self.publish_live()
+        return measured
 
     def request_jog_cancel(self) -> None:
         """Cancel a jog (grbl's 0x85): every axis to rest along its deceleration, the rest

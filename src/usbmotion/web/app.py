@@ -247,6 +247,10 @@ def create_app(dashboard: Dashboard, *, token: str) -> ASGIApp:
         return await work(lambda: dashboard.tune(body.get("axis"),
                                                  step_mm=body.get("step_mm", 1.0)))
 
+    async def measure_tool(request: Request) -> Any:
+        body = await _body(request)
+        return await work(lambda: dashboard.measure_tool(body.get("tool")))
+
     async def tune_auto(request: Request) -> Any:
         body = await _body(request)
         return await work(lambda: dashboard.tune_auto(
@@ -301,6 +305,7 @@ def create_app(dashboard: Dashboard, *, token: str) -> ASGIApp:
         Route("/api/devices/{axis}/parameters", _api(set_parameter), methods=["POST"]),
         Route("/api/tune", _api(tune), methods=["POST"]),
         Route("/api/tune/auto", _api(tune_auto), methods=["POST"]),
+        Route("/api/tool/measure", _api(measure_tool), methods=["POST"]),
         WebSocketRoute("/api/live", live),
         Mount("/", StaticFiles(directory=static_folder(), html=True, check_dir=False)),
     ]

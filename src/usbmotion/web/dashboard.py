@@ -831,6 +831,26 @@ class Dashboard:
                      + "  ".join(f"{n} {v:.3f}" for n, v in origin.items()) + " mm (machine)")
         return origin
 
+    def measure_tool(self, tool: object = None) -> dict[str, Any]:
+        """Measure tool ``tool`` (None: the one in the spindle) on the tool setter, its
+        length written to the tool table (:meth:`MachineSession.measure_tool`).
+
+        Raises:
+            RefusedError: a bad tool number (400); busy, not homed, no setter, no contact
+                (409).
+        """
+        if tool is not None and (not isinstance(tool, int) or isinstance(tool, bool)
+                                 or tool < 1):
+            raise _bad(f"tool {tool!r}: allowed a tool number >= 1, or none for the tool in"
+                       " the spindle")
+        self._idle_or_refuse("measure a tool")
+        if not self.session.is_homed:
+            raise _not_now("the machine is not homed: home it first")
+        measured = self._call(lambda: self.session.measure_tool(tool))
+        self.message(measured.describe())
+        return {"tool": measured.tool, "contact_z_mm": measured.contact_z_mm,
+                "length_mm": measured.length_mm, "table": measured.table}
+
     # --- devices ----------------------------------------------------------------------------
 
     def devices(self) -> dict[str, Any]:
