@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from usbmotion.console import Console
 from usbmotion.errors import ConfigError, GCodeError
 from usbmotion.grbl.session_machine import SessionMachine
 from usbmotion.host.config import load_config
@@ -253,3 +254,20 @@ def test_a_grbl_sender_switches_the_coolant_and_the_laser(tmp_path: Path) -> Non
         operator.close()
         session.shutdown()
         session.close()
+
+
+def test_the_console_shows_the_outputs(tmp_path: Path) -> None:
+    said: list[str] = []
+    with connect_session(load_config(_laser(tmp_path))) as session:
+        console = Console(session, said.append)
+        try:
+            for line in ("$r", "M8"):
+                console.handle(line)
+                assert console.operator.wait_idle(60)
+            session.machine.clock.sleep(0.002)  # the change applies on the next servo tick
+            console.handle("?")
+            assert console.operator.wait_idle(60)
+        finally:
+            console.close()
+            session.shutdown()
+    assert "outputs: flood on, mist off, laser 0 %" in said, said[-4:]

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import re
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from functools import partial
 from pathlib import Path
 
@@ -221,7 +221,8 @@ class Console:
                + (" counter-clockwise" if now.spindle.commanded_rpm < 0 else "")
                + ("" if now.spindle.at_speed
                   else f" (to {abs(now.spindle.commanded_rpm):.0f} rpm)")
-               if now.spindle is not None else ""))
+               if now.spindle is not None else "")
+            + _outputs_text(now.outputs))
 
     def _measure_tool(self, tool: int | None) -> None:
         self.write(self.session.measure_tool(tool).describe())
@@ -414,6 +415,10 @@ class Console:
                 f"  queued {status.queued}  limits {'L' if status.lower_limit else '-'}"
                 f"{'U' if status.upper_limit else '-'}  fault {status.fault_name}"
             )
+        live = session.read_live()
+        if live.outputs or live.probe:
+            self.write(("outputs:" + _outputs_text(live.outputs)[1:] if live.outputs
+                        else "outputs: none") + ("; probe touching" if live.probe else ""))
         spindle = session.machine.spindle
         if spindle is not None:
             now = spindle.read()
@@ -421,3 +426,12 @@ class Console:
             self.write(f"spindle: {abs(now.measured_rpm):.0f} rpm{turn} measured,"
                        f" {abs(now.commanded_rpm):.0f} rpm commanded"
                        + ("" if now.at_speed else " (ramping)"))
+
+
+def _outputs_text(outputs: Mapping[str, int]) -> str:
+    """``; flood on, mist off, laser 80 %`` ("" without outputs)."""
+    if not outputs:
+        return ""
+    return "; " + ", ".join(f"laser {value / 10:g} %" if name == "laser"
+                            else f"{name} {'on' if value else 'off'}"
+                            for name, value in outputs.items())
