@@ -436,7 +436,7 @@ SIM_KEYS = ("counts_per_revolution, inertia_kg_m2, load_torque_mnm, probe_above_
          " arc_tolerance_mm, axes, dialect, homing_order, joints, junction_deviation_mm,"
          " motion_scalar, name, outputs, parameter_file, ports, reply_timeout_s,"
          " servo_interval_dms,"
-         " spindle, tool_table, watchdog_ms"),
+         " spindle, tool_setter, tool_table, watchdog_ms"),
         ("max_accel_mm_s2 = 500", "max_acel_mm_s2 = 500", "axes.X.max_acel_mm_s2",
          "unknown key 'max_acel_mm_s2'; did you mean 'max_accel_mm_s2'? allowed keys here: "
          + AXIS_KEYS),
@@ -463,7 +463,7 @@ SIM_KEYS = ("counts_per_revolution, inertia_kg_m2, load_torque_mnm, probe_above_
          "unknown key 'colour'; allowed keys here: arc_tolerance_mm, axes, dialect,"
          " homing_order, joints, junction_deviation_mm, motion_scalar, name, outputs,"
          " parameter_file, ports,"
-         " reply_timeout_s, servo_interval_dms, spindle, tool_table, watchdog_ms"),
+         " reply_timeout_s, servo_interval_dms, spindle, tool_setter, tool_table, watchdog_ms"),
     ],
 )
 def test_a_misspelt_key_is_named_as_unknown_with_the_closest_key(
