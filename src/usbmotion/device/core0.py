@@ -406,8 +406,8 @@ class Device:
         ``run(n)`` with ``n`` below the answer prints nothing and changes no variable a
         query reports except the clock, the motion of the servo and the queue being drawn
         down. Counted: the next diagnostics line, a pending output change coming due (call
-        42), the watchdog expiring, an armed start being reached, the motion queue running dry, a keyframe being reached (its slot
-        frees), the velocity-mode counter reset. Faults that the motion itself causes
+        42), the watchdog expiring, an armed start being reached, the motion queue running
+        dry, a keyframe being reached (its slot frees), the velocity-mode counter reset. Faults that the motion itself causes
         (following error, a limit switch closing) are not predicted. With ``diagnostics``
         False the diagnostics lines are not counted: ``run`` goes through them in one block
         and stamps each line with its tick (see :meth:`take_timed_output`).
