@@ -407,10 +407,11 @@ class Device:
         query reports except the clock, the motion of the servo and the queue being drawn
         down. Counted: the next diagnostics line, a pending output change coming due (call
         42), the watchdog expiring, an armed start being reached, the motion queue running
-        dry, a keyframe being reached (its slot frees), the velocity-mode counter reset. Faults that the motion itself causes
-        (following error, a limit switch closing) are not predicted. With ``diagnostics``
-        False the diagnostics lines are not counted: ``run`` goes through them in one block
-        and stamps each line with its tick (see :meth:`take_timed_output`).
+        dry, a keyframe being reached (its slot frees), the velocity-mode counter reset.
+        Faults that the motion itself causes (following error, a limit switch closing) are
+        not predicted. With ``diagnostics`` False the diagnostics lines are not counted:
+        ``run`` goes through them in one block and stamps each line with its tick (see
+        :meth:`take_timed_output`).
         """
         event = ticks_to_scheduled_event(self._state, self._params, diagnostics=diagnostics)
         if self._state[core1.S_MODE] == MODE_CURVE and self._state[core1.S_ENABLE] == 1:
