@@ -12,17 +12,33 @@ the grbl front's ``$TLS`` and the dashboard's ``POST /api/tool/measure`` call it
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from usbmotion.errors import ConfigError, MachineStateError
+from usbmotion.host.config import MachineConfig
 from usbmotion.motion.tools import with_tool_length
 from usbmotion.session.homing import home_position_mm
-from usbmotion.session.probing import MODES
+from usbmotion.session.probing import MODES, ProbeMode, ProbeResult
+from usbmotion.session.state import MachineState
 
-if TYPE_CHECKING:
-    from usbmotion.session.session import MachineSession
+
+class Moves(Protocol):
+    """What measuring needs of a machine session: its configuration, its state, a jog and
+    a probing move (:class:`~usbmotion.session.MachineSession`'s)."""
+
+    config: MachineConfig
+
+    @property
+    def state(self) -> MachineState: ...
+
+    def jog(self, moves: Mapping[str, float], *, feed_mm_min: float,
+            absolute: bool = False) -> object: ...
+
+    def probe(self, target_mm: Mapping[str, float], *, feed_mm_min: float,
+              mode: ProbeMode) -> ProbeResult: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,7 +68,7 @@ class ToolMeasurement:
                 f" length {self.length_mm:.4f} mm, written to {self.table}")
 
 
-def measure_tool(session: MachineSession, tool: int) -> ToolMeasurement:
+def measure_tool(session: Moves, tool: int) -> ToolMeasurement:
     """Measure tool ``tool`` (in the spindle now) on the setter; its length written to the
     tool table (see the module docstring).
 
