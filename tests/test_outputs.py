@@ -148,7 +148,8 @@ def test_a_laser_is_on_while_it_cuts_and_off_on_rapids(tmp_path: Path) -> None:
 
 def test_m4_power_follows_the_speed_through_a_corner(tmp_path: Path) -> None:
     """Into a right-angle corner the axes slow down and the dynamic laser's power with
-    them: at every change the power is the told speed over the feed, within a step."""
+    them: at every change the power is the speed the rows tell the axes over the feed,
+    within a step and the counts' quantisation."""
     program = "G21 G90\nG0 X10 Y10\nM4 S1000\nG1 X40 F1500\nG1 Y40\nM5\n"
     session, run = _run(_laser(tmp_path), program)
     try:
@@ -163,7 +164,9 @@ def test_m4_power_follows_the_speed_through_a_corner(tmp_path: Path) -> None:
             ahead, behind = min(change.row + 5, len(rows) - 1), change.row - 5
             speed = np.linalg.norm(rows[ahead] - rows[behind]) / ((ahead - behind) * 0.001)
             told = min(1.0, speed / 20.0) * 1000
-            assert told - 10 - 1e-6 <= change.value <= told + 1e-6, (change, told)
+            # Within a step (10) below, and the counts' quantisation over 10 ms either way
+            # (a count in 10 ms is 0.42 mm/s, 21 per mille of 20 mm/s).
+            assert told - 10 - 25 <= change.value <= told + 25, (change, told)
         powers = [c.value for c in laser]
         corner = powers.index(min(powers[2:-2]))
         assert 0 < powers[corner] < 500 < max(powers), "the power dips through the corner"
