@@ -95,17 +95,14 @@ class RunOutputs:
         clients: axis -> its device's client.
         changes: the program's output changes.
         period_s: the motion period, s.
-        counts_per_mm: each program axis's scale (a dynamic laser's speed).
     """
 
     def __init__(self, config: OutputsConfig, clients: Mapping[str, DeviceClient],
-                 changes: tuple[OutputChange, ...], *, period_s: float,
-                 counts_per_mm: list[float]) -> None:
+                 changes: tuple[OutputChange, ...], *, period_s: float) -> None:
         self.config = config
         self.clients = {name: clients[pin.axis] for name, pin in config.pins.items()}
         self.changes = changes
         self.period_s = period_s
-        self.counts_per_mm = np.asarray(counts_per_mm, dtype=np.float64)
         self.queued: list[QueuedChange] = []
         """The changes of the rows since the last start, in tick order."""
         self.sent = 0

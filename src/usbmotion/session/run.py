@@ -90,8 +90,7 @@ class Run:
         outputs = config.outputs
         self.outputs = None if outputs is None or not outputs.pins else RunOutputs(
             outputs, {name: axis.client for name, axis in self.machine.axes.items()},
-            prepared.program.outputs, period_s=config.motion_period_s,
-            counts_per_mm=[config.axis(n).counts_per_mm for n in self.axes])
+            prepared.program.outputs, period_s=config.motion_period_s)
         self.check_s = REQUEST_CHECK_S if context.live_control else FAULT_CHECK_S
         self.notes: list[str] = [] if prepared.homed else [
             "the machine is not homed: the program ran in the devices' own counts and soft"
