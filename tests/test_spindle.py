@@ -143,11 +143,10 @@ def test_grbl_shows_the_measured_speed_and_its_override_turns_the_spindle(
         tmp_path: Path) -> None:
     config = load_config(_router(tmp_path))
     with connect_session(config) as session:
+        session.home()  # before the front: one thread talks to the devices at a time
         operator = Operator(session, file="<grbl>")
         front = SessionMachine(operator)
         try:
-            front.start()
-            session.home()
             assert front.submit("M3S12000", None).name == "ACCEPTED"
             assert front.submit("G1X10F600", None).name == "ACCEPTED"
             assert operator.wait_idle(60)
