@@ -170,9 +170,11 @@ class Machine:
             raise
         try:
             for axis_open in opened:
-                _take_over(axis_open)
+                _take_over(axis_open.client, f"axis {axis_open.name}",
+                           axis_open.config.device, axis_open.config.url)
             if spindle is not None:
-                _take_over_spindle(spindle)
+                _take_over(spindle.client, "spindle", spindle.config.device,
+                           spindle.config.url)
         except BaseException:
             machine.close()
             raise
@@ -453,34 +455,21 @@ class Machine:
         self.close()
 
 
-def _take_over(axis: Axis) -> None:
-    """Diagnostics off and the link resynchronised; then the name checked, if one is set.
+def _take_over(client: DeviceClient, label: str, device: str | None,
+               url: str | None) -> None:
+    """Diagnostics off and the link resynchronised; then the name checked, if one is set
+    (``label``: ``axis X``, ``spindle``).
 
     Raises:
         DeviceNotFoundError: the port answers to another name than the configured one.
     """
-    client, settings = axis.client, axis.config
     client.resynchronise(stop_diagnostics=True)
-    if settings.device is not None and settings.url is not None:
+    if device is not None and url is not None:
         answered = client.device_name()
-        if answered != settings.device:
+        if answered != device:
             raise DeviceNotFoundError(
-                f"axis {axis.name}: {settings.url} answers to {answered!r}, not to the"
-                f" configured device {settings.device!r}",
-                name=settings.device, searched=(settings.url,),
-            )
-
-
-def _take_over_spindle(spindle: Spindle) -> None:
-    """As :func:`_take_over`, for the spindle's device."""
-    client, settings = spindle.client, spindle.config
-    client.resynchronise(stop_diagnostics=True)
-    if settings.device is not None and settings.url is not None:
-        answered = client.device_name()
-        if answered != settings.device:
-            raise DeviceNotFoundError(
-                f"spindle: {settings.url} answers to {answered!r}, not to the configured"
-                f" device {settings.device!r}", name=settings.device, searched=(settings.url,))
+                f"{label}: {url} answers to {answered!r}, not to the configured device"
+                f" {device!r}", name=device, searched=(url,))
 
 
 def _set_mode(client: DeviceClient, axis: AxisConfig, mode: ControlMode) -> None:
