@@ -6,6 +6,7 @@ up by the extra length shows."""
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import pytest
@@ -159,4 +160,31 @@ def test_the_dashboard_measures_a_tool(tmp_path: Path) -> None:
             assert answer["table"] == str(tmp_path / "tool.tbl")
         finally:
             operator.close()
+            session.shutdown()
+
+
+def test_the_console_refuses_to_measure_at_a_program_pause(tmp_path: Path) -> None:
+    """A program waits at its M6 pause: $tls says what to do instead of queueing behind
+    the paused run."""
+    config = load_config(_machine(tmp_path))
+    program = tmp_path / "change.ngc"
+    program.write_text("G21 G90\nG0 X10\nT1 M6\nG0 X20\nM2\n")
+    said: list[str] = []
+    with connect_session(config) as session:
+        console = Console(session, said.append)
+        try:
+            for line in ("$r", f"$l {program}"):
+                console.handle(line)
+                assert console.operator.wait_idle(120)
+            console.handle("$c")
+            deadline = time.monotonic() + 60
+            while not session.held:
+                assert time.monotonic() < deadline, said[-3:]
+                time.sleep(0.01)
+            console.handle("$tls")
+            assert said[-1].startswith("error: $tls measures while the machine is idle"), said
+            console.handle("$x")
+            assert console.operator.wait_idle(120)
+        finally:
+            console.close()
             session.shutdown()

@@ -136,6 +136,11 @@ class Console:
                 self.write(f"error: $tls {value}: a tool number ($tls 3), or nothing for the"
                            " tool in the spindle")
                 return True
+            if self.session.held:
+                self.write("error: $tls measures while the machine is idle; it waits at a"
+                           " program pause (or a hold) now: stop the program ($x), measure,"
+                           " then $c N runs it on from the line after the tool change")
+                return True
             machine = partial(self._measure_tool, int(value) if value else None)
         elif _SETTING.match(text):
             machine = partial(self._set_offsets, text)
