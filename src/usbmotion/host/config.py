@@ -1399,30 +1399,43 @@ _SIM_UNITS = {"source_voltage_v": "volts", "torque_constant_mnm_per_a": "mNm per
               "load_torque_mnm": "mNm, 0 for none"}
 
 
-def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
-         servo_interval_dms: int, *, simulated: bool) -> SimMotorConfig | None:
-    table = reader.table("sim", allowed="a table describing the simulated motor")
+def _sim_motor(reader: _Reader, servo_interval_dms: int, *, simulated: bool,
+               keys: tuple[str, ...], defaults: Mapping[str, float], what: str
+               ) -> tuple[_Reader, int, dict[str, float]] | None:
+    """A ``sim`` table's motor (an axis's or the spindle's): the table (for its other keys),
+    its update interval and the values of :data:`SIM_MOTOR_CALLS`, each checked to the 4
+    digits its call carries; None when there is none and the device is not simulated."""
+    table = reader.table("sim", allowed=f"a table describing {what}")
     if table is None:
         if not simulated:
             return None
         table = _Reader(reader.source, {}, reader.key("sim"))
-    table.expect(_SIM_KEYS)
-    d = SIM_MOTOR_DEFAULTS
+    table.expect(keys)
     interval = table.integer(
-        "update_interval_dms", default=min(int(d["update_interval_dms"]), servo_interval_dms),
-        minimum=1,
+        "update_interval_dms",
+        default=min(int(defaults["update_interval_dms"]), servo_interval_dms), minimum=1,
         maximum=servo_interval_dms, unit="tenths of a millisecond, at most servo_interval_dms",
     )
     values: dict[str, float] = {}
-    units = _SIM_UNITS
     for key, call in SIM_MOTOR_CALLS:
-        unit = units[key]
-        zero = key == "load_torque_mnm"
-        if zero:
-            values[key] = table.number(key, default=d[key], minimum=0, unit=unit)
+        if key == "load_torque_mnm":
+            values[key] = table.number(key, default=defaults[key], minimum=0,
+                                       unit=_SIM_UNITS[key])
         else:
-            values[key] = table.number(key, default=d[key], above=0, unit=unit)
+            values[key] = table.number(key, default=defaults[key], above=0,
+                                       unit=_SIM_UNITS[key])
         _sci(table, key, values[key], call=call, digits=4)
+    return table, interval, values
+
+
+def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
+         servo_interval_dms: int, *, simulated: bool) -> SimMotorConfig | None:
+    motor = _sim_motor(reader, servo_interval_dms, simulated=simulated, keys=_SIM_KEYS,
+                       defaults=SIM_MOTOR_DEFAULTS, what="the simulated motor")
+    if motor is None:
+        return None
+    table, interval, values = motor
+    d = SIM_MOTOR_DEFAULTS
     counts_per_rev = table.integer(
         "counts_per_revolution", default=int(d["counts_per_revolution"]), minimum=1,
         maximum=BY_NUMBER[CallNumber.SET_SIM_COUNTS_PER_REVOLUTION].params[0].maximum,
@@ -1561,24 +1574,12 @@ def _spindle(reader: _Reader, servo_interval_dms: int) -> SpindleConfig:
 
 def _spindle_sim(reader: _Reader, servo_interval_dms: int, *,
                  simulated: bool) -> SimMotorConfig | None:
-    table = reader.table("sim", allowed="a table describing the simulated spindle motor")
-    if table is None:
-        if not simulated:
-            return None
-        table = _Reader(reader.source, {}, reader.key("sim"))
-    table.expect(_SPINDLE_SIM_KEYS)
     d = SPINDLE_SIM_DEFAULTS
-    interval = table.integer(
-        "update_interval_dms", default=min(int(d["update_interval_dms"]), servo_interval_dms),
-        minimum=1, maximum=servo_interval_dms,
-        unit="tenths of a millisecond, at most servo_interval_dms")
-    values: dict[str, float] = {}
-    for key, call in SIM_MOTOR_CALLS:
-        if key == "load_torque_mnm":
-            values[key] = table.number(key, default=d[key], minimum=0, unit="mNm, 0 for none")
-        else:
-            values[key] = table.number(key, default=d[key], above=0, unit=_SIM_UNITS[key])
-        _sci(table, key, values[key], call=call, digits=4)
+    motor = _sim_motor(reader, servo_interval_dms, simulated=simulated, keys=_SPINDLE_SIM_KEYS,
+                       defaults=d, what="the simulated spindle motor")
+    if motor is None:
+        return None
+    table, interval, values = motor
     table.finish()
     return SimMotorConfig(
         update_interval_dms=interval, counts_per_revolution=int(d["counts_per_revolution"]),
