@@ -239,7 +239,7 @@ class Run:
         stalled = spindle.stalled()
         if stalled is None:
             return False
-        self.watch.record_words("spindle", stalled, elapsed_s=self._elapsed_s(),
+        self.watch.record_words("spindle", stalled, tick=self._device_tick(),
                                 line=self.live.read().line)
         return True
 
@@ -400,7 +400,7 @@ class Run:
                     self.watch.record_words(
                         "spindle", f"spindle not at speed: {measured:.0f} rpm measured"
                         f" {now - began:.1f} s after line {pause.line} asked {rpm:g} rpm",
-                        elapsed_s=self._elapsed_s(), line=pause.line)
+                        tick=self._device_tick(), line=pause.line)
                     self.states.fire(Event.FAULT)
                     return self._stop()
                 if keep_alive_s and now - pinged >= keep_alive_s:
@@ -413,11 +413,10 @@ class Run:
             self.publish(force=True, at_rest=True)
         return self._resume()
 
-    def _elapsed_s(self) -> float:
-        """How far into the run the devices are, by the live model's last device tick."""
+    def _device_tick(self) -> int:
+        """The program axes' last device tick the live model has."""
         ticks = [axis.tick for axis in self.live.read().axes.values()]
-        start = self.streams.start_tick
-        return max(0, max(ticks, default=start) - start) * self.config.servo_period_s
+        return max(ticks, default=self.streams.start_tick)
 
     def _spindle_off(self) -> None:
         """The spindle to rest along its ramp (a stop, an alarm: grbl's and LinuxCNC's

@@ -108,18 +108,18 @@ class Watch:
     def record(self, axis: str, code: int, tick: int) -> None:
         """Fault ``code`` of ``axis`` latched at device tick ``tick`` (the first of each
         axis)."""
-        if any(f.axis == axis for f in self.faults):
-            return
-        elapsed = (tick - self.trace.start_tick) * self.trace.tick_s
-        self.faults.append(FaultRecord(axis, fault_words(code), elapsed,
-                                       self.line_at_tick(tick), int(code)))
+        self.record_words(axis, fault_words(code), tick=tick, line=self.line_at_tick(tick),
+                          code=int(code))
 
-    def record_words(self, axis: str, words: str, *, elapsed_s: float, line: int) -> None:
-        """A fault the host found (a stalled spindle), ``elapsed_s`` into the run at program
-        line ``line`` (the first of each device)."""
+    def record_words(self, axis: str, words: str, *, tick: int, line: int,
+                     code: int = 0) -> None:
+        """A fault in ``words`` (one the host found, a stalled spindle: ``code`` 0) seen at
+        device tick ``tick`` of the program axes' clocks, at program line ``line`` (the
+        first of each device)."""
         if any(f.axis == axis for f in self.faults):
             return
-        self.faults.append(FaultRecord(axis, words, elapsed_s, line, 0))
+        elapsed = max(0, tick - self.trace.start_tick) * self.trace.tick_s
+        self.faults.append(FaultRecord(axis, words, elapsed, line, code))
 
     def begin(self, axes: Sequence[str], duration_s: float, *, live: bool) -> None:
         """A run's first start (the clocks just zeroed): each program axis's statistics
