@@ -353,11 +353,14 @@ class Machine:
         """Ask every device its queue state (call 2); any command resets its watchdog.
 
         A loop that leaves enabled axes alone for longer than ``watchdog_ms`` (homing one
-        axis while the others wait, say) calls this to keep them enabled.
+        axis while the others wait, say) calls this to keep them enabled; the spindle's
+        device is asked too.
 
         Returns:
             axis letter -> (values queued, free slots).
         """
+        if self.spindle is not None:
+            self.spindle.client.queue_status()
         return {name: axis.client.queue_status() for name, axis in self.axes.items()}
 
     def clear_queues(self) -> None:

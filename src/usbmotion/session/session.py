@@ -982,13 +982,12 @@ class MachineSession:
         return watchdog_ms / 1000.0 / 4 if watchdog_ms > 0 else 0.0
 
     def keep_alive(self) -> None:
-        """Feed every device's watchdog (a queue query each: any command does), the
-        spindle's queue too."""
+        """Feed every device's watchdog (a queue query each: any command does), and the
+        spindle's queue."""
         self.machine.ping()
         spindle = self.machine.spindle
         if spindle is not None:
             spindle.service()
-            spindle.client.queue_status()
 
     # --- leaving ------------------------------------------------------------------------------
 
