@@ -101,6 +101,8 @@ class RunOutputs:
                  changes: tuple[OutputChange, ...], *, period_s: float) -> None:
         self.config = config
         self.clients = {name: clients[pin.axis] for name, pin in config.pins.items()}
+        self.devices = list({id(c): c for c in self.clients.values()}.values())
+        """Each device carrying an output, once."""
         self.changes = changes
         self.period_s = period_s
         self.queued: list[QueuedChange] = []
@@ -117,7 +119,7 @@ class RunOutputs:
         """The changes from row ``from_row`` on, from the rows since the last start: the
         pending ones dropped on the devices first."""
         now: dict[int, tuple[int, ...]] = {}
-        for client in {id(c): c for c in self.clients.values()}.values():
+        for client in self.devices:
             now[id(client)] = client.outputs(clear=True).values
         self._free.clear()
         if not self.applied:
@@ -256,7 +258,7 @@ class RunOutputs:
     def off_now(self, names: tuple[str, ...], *, tick: int) -> None:
         """Outputs ``names`` off from device tick ``tick`` (a hold, a stop), the pending
         changes dropped."""
-        for client in {id(c): c for c in self.clients.values()}.values():
+        for client in self.devices:
             client.outputs(clear=True)
         self._free.clear()
         self._forget_after(tick)
