@@ -68,7 +68,8 @@ $d N      load demo program N (1 rounded square, 2 star, 3 spiral)
 $l FILE   load a G-code file
 $z [AXES] zero: the work origin (G54) where the machine stands, for the named axes (default all)
 $tls [N]  measure tool N (default: the one in the spindle) on the tool setter; its length
-          goes into the tool table, where G43 reads it
+          goes into the tool table, where G43 reads it; at a program's M6 pause, $tls
+          measures the new tool, then the program goes on from the next line
 G10 ...   set offsets at the machine's position: G10 L20 P1 X0 Y0, G10 L2 P1 Z-5, G28.1
 ?         status: state, line, positions (machine and work), overrides, faults
 $h        this help
@@ -137,9 +138,7 @@ class Console:
                            " tool in the spindle")
                 return True
             if self.session.held:
-                self.write("error: $tls measures while the machine is idle; it waits at a"
-                           " program pause (or a hold) now: stop the program ($x), measure,"
-                           " then $c N runs it on from the line after the tool change")
+                self._measure_at_pause(value)
                 return True
             machine = partial(self._measure_tool, int(value) if value else None)
         elif _SETTING.match(text):
@@ -229,8 +228,28 @@ class Console:
                if now.spindle is not None else "")
             + _outputs_text(now.outputs))
 
+    def _measure_at_pause(self, value: str) -> None:
+        """``$tls`` while a program waits at rest: at its M6 pause, the run ends there and
+        :meth:`_cycle_start` measures the new tool and runs the program on."""
+        session = self.session
+        pause = session.paused
+        if value or pause is None or pause.code != "M6":
+            self.write("error: $tls measures while the machine is idle, or the new tool at"
+                       " a program's M6 pause (as $tls alone); it waits at "
+                       + (f"an {pause.code} pause" if pause is not None else "a hold")
+                       + " now: ~ resumes, $x stops")
+            return
+        try:
+            asked = session.request_tool_measure()
+        except UsbMotionError as error:
+            self.write(f"error: {error}")
+            return
+        self.write(f"measuring T{asked.tool} on the tool setter; the program then goes on"
+                   f" from line {asked.from_line}")
+
     def _measure_tool(self, tool: int | None) -> None:
         self.write(self.session.measure_tool(tool).describe())
+        self.operator.measured_tool()
 
     def _override(self, value: str) -> None:
         kind, number = value[:1].upper(), value[1:].strip()
@@ -357,10 +376,31 @@ class Console:
 
         report, _ = session.run(prepared, homing_s=homing_s)
         self.last_result = report.stop_reason
+        asked = session.measure_asked(report)
+        if asked is not None:
+            try:
+                self._measure_tool(asked.tool)
+            except UsbMotionError as error:
+                self.write(f"error: measuring T{asked.tool}: {error}")
+                self.write(f"the program stopped at its tool change (line {asked.line}):"
+                           f" $tls measures the tool, then $c {asked.from_line} runs the"
+                           " program on")
+                return
+            self._go_on_after_change(asked.from_line)
+            return
         for line in describe(report).splitlines():
             self.write(line)
         self.write("done" if report.completed else f"stopped ({report.stop_reason}):"
                    " $r resets and homes")
+
+    def _go_on_after_change(self, from_line: int) -> None:
+        """The program on from the line after a tool change whose tool was measured."""
+        try:
+            self._cycle_start(from_line)
+        except ArgumentError as error:
+            if error.reason != "from_line":
+                raise
+            self.write(f"done: nothing of the program moves after the tool change ({error})")
 
     def _zero(self, value: str) -> None:
         session = self.session

@@ -406,6 +406,13 @@ class FakeMachine:
         return Rejected(int(GrblErrorCode.INVALID_STATEMENT),
                         f"${number} is read from the machine file; edit it there")
 
+    def measure_tool(self) -> Rejected | None:
+        self.calls.append("measure_tool")
+        return Rejected(int(GrblErrorCode.SETTING_DISABLED), "no tool setter")
+
+    def tool_measurement(self) -> str | Rejected:
+        return ""
+
     def work_offsets(self) -> WorkOffsets:
         zero = (0.0,) * len(self._axes)
         return WorkOffsets(coordinate_systems=tuple(self._parser.coordinate_systems),

@@ -301,6 +301,18 @@ class GrblMachine(Protocol):
         """The offsets ``$#`` prints."""
         ...
 
+    def measure_tool(self) -> Rejected | None:
+        """Start measuring the tool in the spindle on the machine's tool setter (``$TLS``,
+        from Idle): :meth:`motion_done` is false until it ends, then its length is the
+        active tool length offset (grbl's ``G43.1``), or a failure is an alarm (no contact:
+        alarm 5, as a probe's). Its refusal when it cannot start."""
+        ...
+
+    def tool_measurement(self) -> str | Rejected:
+        """What the last tool measurement found, in words ("" before any), or why it could
+        not measure (the setter's table, a tool table)."""
+        ...
+
     def modal_state(self) -> ModalState:
         """The parser state ``$G`` prints."""
         ...

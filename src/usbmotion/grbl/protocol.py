@@ -128,7 +128,12 @@ class _AwaitHoming:
     """``$H`` running."""
 
 
-_Waiting = _Resubmit | _Rejog | _AwaitMotion | _AwaitHoming
+@dataclass(frozen=True, slots=True)
+class _AwaitMeasure:
+    """``$TLS`` running."""
+
+
+_Waiting = _Resubmit | _Rejog | _AwaitMotion | _AwaitHoming | _AwaitMeasure
 
 
 @dataclass(slots=True)
@@ -453,7 +458,7 @@ class GrblProtocol:
             self._line("[MSG:Reset to continue]")
             if not isinstance(self._waiting, _AwaitHoming):
                 self._waiting = None
-        elif isinstance(self._waiting, (_Resubmit, _Rejog, _AwaitMotion)):
+        elif isinstance(self._waiting, (_Resubmit, _Rejog, _AwaitMotion, _AwaitMeasure)):
             self._waiting = None
             self._error(GrblErrorCode.SYSTEM_GC_LOCK)
 
@@ -470,6 +475,15 @@ class GrblProtocol:
             if self.machine.motion_done():
                 self._waiting = None
                 self._after_motion(waiting.effects)
+        elif isinstance(waiting, _AwaitMeasure):
+            if self.machine.motion_done():
+                self._waiting = None
+                found = self.machine.tool_measurement()
+                if isinstance(found, Rejected):
+                    self._rejected(found)
+                else:
+                    self._line(message(found))
+                    self._ok()
         elif isinstance(waiting, _AwaitHoming) and \
                 self.machine.state() is not MotionState.HOMING:
             self._waiting = None
@@ -568,6 +582,13 @@ class GrblProtocol:
             self._ok()
         elif word == "H":
             self._home()
+        elif word == "TLS":
+            rejected = self.machine.measure_tool()
+            if rejected is not None:
+                self._rejected(rejected)
+            else:
+                self._waiting = _AwaitMeasure()
+                self._resume()
         elif word.startswith("H"):
             self._error(GrblErrorCode.INVALID_STATEMENT)
         elif word == "SLP":

@@ -99,6 +99,8 @@ class SessionMachine:
         self._axes = tuple(program_axes(self.config))
         self._fault: Fault | None = None
         self._homing = False
+        self._measured: str | Rejected = ""
+        """What the last tool measurement found (``$TLS``), or why it failed."""
         self._checker: GCodeStream | None = None
         self._reading = IdleReader(operator, on_error=self._unreadable,
                                    name="usbmotion-grbl-read")
@@ -422,8 +424,12 @@ class SessionMachine:
         def pick(point: tuple[float, ...]) -> tuple[float, ...]:
             return tuple(point[AXIS_ORDER.index(a)] for a in self._axes)
 
+        tool_z = 0.0
         if feed is not None:  # the lines' G92 as it applies now (grbl keeps it volatile)
-            g92 = tuple(feed.modes().g92_mm)
+            modes = feed.modes()
+            g92 = tuple(modes.g92_mm)
+            if "Z" in self._axes and modes.tool_mm:
+                tool_z = modes.tool_mm[self._axes.index("Z")]
         else:
             g92 = pick(offsets.g92) if offsets.g92_enabled else (0.0,) * len(self._axes)
         probe = self.session.last_probe
@@ -431,7 +437,44 @@ class SessionMachine:
                  else ())
         return WorkOffsets(tuple(pick(p) for p in offsets.g5x[:6]), pick(offsets.g28),
                            pick(offsets.g30), g92, probe=found,
-                           probe_succeeded=probe is not None and probe.tripped)
+                           probe_succeeded=probe is not None and probe.tripped,
+                           tool_length_offset=tool_z)
+
+    def measure_tool(self) -> Rejected | None:
+        session = self.session
+        if self._fault is not None:
+            return Rejected(GrblErrorCode.SYSTEM_GC_LOCK, "the machine is in alarm: $X or $H")
+        if self.config.tool_setter is None:
+            return Rejected(GrblErrorCode.SETTING_DISABLED,
+                            "no [tool_setter] table in the machine file: no tool to measure on")
+        if not session.is_homed:
+            return Rejected(GrblErrorCode.SYSTEM_GC_LOCK,
+                            "$TLS needs a homed machine: $H first")
+        feed = self.operator.feed
+        tool = feed.modes().tool if feed is not None else session.live.read().tool
+        self._measured = ""
+        operator = self.operator
+
+        def go() -> None:
+            applied = ""
+            try:
+                found = session.measure_tool(
+                    tool, write=self.config.tool_table is not None and tool > 0)
+                if found.length_mm is not None:  # grblHAL's way: the active offset at once
+                    applied = f"G43.1 Z{found.length_mm:.4f}"
+                self._measured = found.describe()
+            except ProbeFailedError:
+                raise  # alarm 5, as a probe's (motion_done)
+            except UsbMotionError as error:
+                self._measured = Rejected(GrblErrorCode.INVALID_STATEMENT, str(error))
+            finally:
+                operator.measured_tool(applied)
+
+        operator.do(go)
+        return None
+
+    def tool_measurement(self) -> str | Rejected:
+        return self._measured
 
     def modal_state(self) -> ModalState:
         feed = self.operator.feed

@@ -638,6 +638,8 @@ class Modes:
     """The G92 offset as it applies now (zeros while suspended), per axis."""
     inverse_time: bool = False
     """G93 (inverse time feed: ``feed_mm_min`` is then F, per minute), not G94."""
+    tool_mm: Point = ()
+    """The tool length offset in effect (G43, G43.1; zeros after G49), per axis."""
 
 
 _MODAL_STATE = ("position", "frame", "offset", "tools", "cycle", "retract_to_r", "scale",
@@ -742,7 +744,12 @@ class GCodeStream:
                      plane=plane, inches=state.scale != 1.0, incremental=state.incremental,
                      feed_mm_min=state.feed_mm_min, tool=state.tools.spindle,
                      offset_mm=_point(state.offset), g92_mm=_point(state.frame.active_g92()),
-                     inverse_time=state.inverse_time)
+                     inverse_time=state.inverse_time, tool_mm=_point(state.frame.tool))
+
+    def use_tools(self, table: ToolTable) -> None:
+        """The tool table the next lines read (one changed on disk: a tool measured); the
+        offset a ``G43`` already applied stays until the next ``G43``, as in LinuxCNC."""
+        self._interpreter.tools.table = table
 
     def restart(self, start: Point) -> None:
         """A new program from ``start`` (where the machine stands), the modal state kept:

@@ -206,6 +206,11 @@ class ProgramFeed:
             self.error = None
             self._version += 1
 
+    def use_tools(self, tools: ToolTable) -> None:
+        """The tool table the next lines read (:meth:`GCodeStream.use_tools`)."""
+        with self._lock:
+            self._stream.use_tools(tools)
+
     def reset(self, start_mm: Point) -> None:
         """A controller reset (grbl's soft reset) with the machine at ``start_mm``: as
         :meth:`restart`, and what the dialect's reset clears is cleared (grbl and Marlin:

@@ -239,6 +239,25 @@ class Operator:
         self._put(go)
         return True
 
+    def measured_tool(self, line: str = "") -> None:
+        """A tool was measured outside the feed (the setter's moves): the lines after go on
+        from where the machine stands, reading the tool table as it is now; ``line``, a
+        line of modes alone (grbl's ``G43.1 Z...``), is taken first.
+
+        Raises:
+            GCodeError: ``line`` is not a line of modes the dialect reads.
+        """
+        tools = self.session.tool_table()
+        with self._lock:
+            feed = self.feed
+            if feed is None and line:
+                feed = self._open_feed()
+            if feed is not None:
+                feed.restart(self._where())
+                feed.use_tools(tools)
+                if line:
+                    feed.add(line)
+
     def _keep_modes(self) -> None:
         """A line of modes alone (``G55``, ``G10 L20 P1 X0``, ``G92 Z0``, ``M8``) taken while
         nothing runs: the offsets and coordinate system it leaves kept in the parameter

@@ -42,6 +42,7 @@ from pathlib import Path
 from usbmotion.automation.device_io import MachineZero, wrap_int32
 from usbmotion.errors import (
     ArgumentError,
+    ConfigError,
     DeviceError,
     MachineStateError,
     SequenceFaultError,
@@ -84,7 +85,7 @@ from usbmotion.session.requests import (
 from usbmotion.session.rest import STOP_LEAD_S, wait_for_rest
 from usbmotion.session.run import Run
 from usbmotion.session.state import Event, MachineState, StateMachine, StopReason
-from usbmotion.session.tool_setter import ToolMeasurement, measure_tool
+from usbmotion.session.tool_setter import MeasureAtChange, ToolMeasurement, measure_tool
 
 LIVE_IDLE_S = 0.1
 """How often the live model of an idle machine may be refreshed from the devices."""
@@ -142,6 +143,7 @@ class MachineSession:
         for the figures of a benchmark."""
         self.last_probe: ProbeResult | None = None
         """What the last probing move found (:meth:`probe`), None before any."""
+        self._measure_asked: MeasureAtChange | None = None
         self._jogging = False
         self._hold_asked = False
         self._feed: ProgramFeed | None = None
@@ -552,14 +554,56 @@ class MachineSession:
                 f" {'touching' if mode.toward else 'clearing'}", at_start=False)
         return result
 
-    def measure_tool(self, tool: int | None = None) -> ToolMeasurement:
+    def measure_tool(self, tool: int | None = None, *, write: bool = True) -> ToolMeasurement:
         """Measure tool ``tool`` (default: the one in the spindle) on the machine's tool
-        setter and write its length into the tool table
+        setter and write its length into the tool table (not with ``write`` false)
         (:func:`usbmotion.session.tool_setter.measure_tool`, whose errors it raises)."""
         number = self.live.read().tool if tool is None else tool
-        measured = measure_tool(self, number)
+        measured = measure_tool(self, number, write=write)
         self.publish_live()
         return measured
+
+    def request_tool_measure(self) -> MeasureAtChange:
+        """At a program's ``M6`` pause, measure the new tool (grblHAL's semi-automatic tool
+        change): the run ends where it waits (the axes are at rest: nothing moves), and the
+        thread that ran it measures the tool and runs the program on from the line after
+        the ``M6`` (:meth:`measure_asked`). Safe from another thread (it only queues a
+        stop request).
+
+        Raises:
+            MachineStateError: no program waits at an ``M6`` pause (a program streamed line
+                by line cannot be taken up again: measure once it has ended).
+            ConfigError: no ``[tool_setter]``.
+        """
+        pause, run = self.paused, self.last_run
+        state = self.state
+        if (pause is None or pause.code != "M6" or state is not MachineState.PAUSED
+                or run is None or self._feed is not None):
+            raise MachineStateError(
+                "a tool is measured at a program's M6 pause, or while the machine is idle;"
+                f" the machine is in {state.value}"
+                + (f" at an {pause.code} pause" if pause is not None else ""),
+                state=state.value)
+        if self.config.tool_setter is None:
+            raise ConfigError(f"{self.config.path}: no [tool_setter] table: where the setter"
+                              " is (position_mm, start_z_mm, lowest_z_mm) is needed to measure"
+                              " a tool", path=str(self.config.path), key="tool_setter")
+        tool = next((change.tool for change in run.prepared.program.tool_changes
+                     if change.line == pause.line), self.live.read().tool)
+        asked = self._measure_asked = MeasureAtChange(tool, pause.line)
+        self.request_stop(StopReason.TOOL_MEASURE.value)
+        return asked
+
+    def measure_asked(self, report: RunReport) -> MeasureAtChange | None:
+        """After :meth:`run`: the measurement :meth:`request_tool_measure` asked, when the
+        run ended for it at an ``M6`` pause (None after any other ending). The caller then
+        measures the tool (:meth:`measure_tool`) and runs the program on from
+        :attr:`MeasureAtChange.from_line`, prepared again so its ``G43`` reads the length."""
+        asked, self._measure_asked = self._measure_asked, None
+        if asked is None or report.stop_reason != StopReason.TOOL_MEASURE.value:
+            return None
+        self.clear_stop_request()
+        return asked
 
     def request_jog_cancel(self) -> None:
         """Cancel a jog (grbl's 0x85): every axis to rest along its deceleration, the rest
@@ -870,6 +914,7 @@ class MachineSession:
             MachineStateError: not Idle, or the machine moved since the program was prepared.
         """
         self.requests.take()
+        self._measure_asked = None
         state = self.state.value
         if self.state is not MachineState.IDLE:
             raise MachineStateError(f"the machine is in {state}; a program runs from Idle",

@@ -291,3 +291,4 @@ class StopReason(Enum):
     JOG_CANCELLED = "jog cancelled"
     LINK = "link lost"
     OPERATOR = "stopped by the operator"
+    TOOL_MEASURE = "stopped at the tool change to measure the new tool"

@@ -65,12 +65,30 @@ class ToolMeasurement:
                     " no tool_setter.reference_z_mm in the machine file: write this contact"
                     f" there to make T{self.tool} the reference (length 0)")
         return (f"T{self.tool} touched the setter at machine Z {self.contact_z_mm:.4f} mm:"
-                f" length {self.length_mm:.4f} mm, written to {self.table}")
+                f" length {self.length_mm:.4f} mm"
+                + (f", written to {self.table}" if self.table else ""))
 
 
-def measure_tool(session: Moves, tool: int) -> ToolMeasurement:
+@dataclass(frozen=True, slots=True)
+class MeasureAtChange:
+    """A measurement asked at a program's ``M6`` pause (grblHAL's semi-automatic tool
+    change): the run ends there, at rest; tool ``tool``, put in the spindle at ``line``, is
+    measured on the setter, and the program goes on from the line after (``from_line``),
+    interpreted again so that its ``G43`` reads the new length."""
+
+    tool: int
+    line: int
+
+    @property
+    def from_line(self) -> int:
+        """The line the program goes on from."""
+        return self.line + 1
+
+
+def measure_tool(session: Moves, tool: int, *, write: bool = True) -> ToolMeasurement:
     """Measure tool ``tool`` (in the spindle now) on the setter; its length written to the
-    tool table (see the module docstring).
+    tool table (see the module docstring), unless ``write`` is false (grbl's way: the
+    length is applied as ``G43.1``, and the tool's number may be 0, none).
 
     Raises:
         ConfigError: no ``[tool_setter]``, or a length to write and no ``tool_table``.
@@ -84,10 +102,10 @@ def measure_tool(session: Moves, tool: int) -> ToolMeasurement:
         raise ConfigError(f"{config.path}: no [tool_setter] table: where the setter is"
                           " (position_mm, start_z_mm, lowest_z_mm) is needed to measure a tool",
                           path=str(config.path), key="tool_setter")
-    if tool < 1:
+    if tool < (1 if write else 0):
         raise MachineStateError(f"no tool to measure (T{tool}): put one in the spindle (M6 T1,"
                                 " M61 Q1) or name it: $tls 1", state=session.state.value)
-    if setter.reference_z_mm is not None and config.tool_table is None:
+    if write and setter.reference_z_mm is not None and config.tool_table is None:
         raise ConfigError(f"{config.path}: no tool_table to write T{tool}'s length into;"
                           " allowed: tool_table = \"tool.tbl\" (LinuxCNC's format)",
                           path=str(config.path), key="tool_table")
@@ -108,6 +126,8 @@ def measure_tool(session: Moves, tool: int) -> ToolMeasurement:
         return ToolMeasurement(tool, contact, None, "")
     length = contact - setter.reference_z_mm
     table = config.tool_table
+    if not write:
+        return ToolMeasurement(tool, contact, length, "")
     assert table is not None
     path = Path(table)
     text = path.read_text(encoding="utf-8") if path.exists() else ""

@@ -60,6 +60,7 @@ from usbmotion.session.planning import Prepared, machine_axes, machine_dialect, 
 from usbmotion.session.report import RunReport
 from usbmotion.session.report_text import describe, lines_over
 from usbmotion.session.state import MachineState
+from usbmotion.session.tool_setter import ToolMeasurement
 from usbmotion.tuning import StepResponse, step_response
 
 UPLOAD_LIMIT_BYTES = 8 * 1024 * 1024
@@ -336,6 +337,8 @@ class Dashboard:
             "outputs": dict(now.outputs),
             "probe": now.probe,
             "pause": now.pause,
+            "tool_change": self._at_tool_change(),
+            "tool_setter": self.config.tool_setter is not None,
             "alarm": alarm,
             "alarm_help": self._alarm_help(now) if alarm or now.state is MachineState.ALARM
             else "",
@@ -363,6 +366,11 @@ class Dashboard:
                     " machine, which moves it off the switch")
         return ("Reset stops every axis, clears the alarm and homes the machine; find why it"
                 " faulted first (the message log has the axis, the reason and the line)")
+
+    def _at_tool_change(self) -> bool:
+        """A program waits at its M6 pause (the new tool can be measured there)."""
+        pause = self.session.paused
+        return pause is not None and pause.code == "M6" and self.session.held
 
     def program_view(self) -> dict[str, Any]:
         """The open program (``GET /api/program``).
@@ -541,23 +549,43 @@ class Dashboard:
             if not session.is_homed:
                 self.message("homing first: the machine is not homed")
                 homing_s = session.home()
-            try:
-                prepared = session.prepare(program.name, text=program.text,
-                                           pauses=session.pause_rule(), from_line=from_line)
-            except PlanningError as error:
-                if from_line is None:
-                    self._planned(program, None, str(error))
-                raise
-            joined = ""
-            if from_line is None:
-                self._planned(program, prepared, "")
-            else:
-                joined = f" from line {from_line}"
-            self.message(f"cycle start: {program.name}{joined},"
-                         f" {prepared.plan.duration_s:.2f} s")
-            report, _ = session.run(prepared, homing_s=homing_s)
+            start = from_line
+            while True:
+                try:
+                    prepared = session.prepare(program.name, text=program.text,
+                                               pauses=session.pause_rule(), from_line=start)
+                except PlanningError as error:
+                    if start is None:
+                        self._planned(program, None, str(error))
+                    raise
+                except ArgumentError as error:
+                    if start == from_line or error.reason != "from_line":
+                        raise
+                    self.message("done: nothing of the program moves after the tool change")
+                    return
+                joined = ""
+                if start is None:
+                    self._planned(program, prepared, "")
+                else:
+                    joined = f" from line {start}"
+                self.message(f"cycle start: {program.name}{joined},"
+                             f" {prepared.plan.duration_s:.2f} s")
+                report, _ = session.run(prepared, homing_s=homing_s)
+                asked = session.measure_asked(report)
+                if asked is None:
+                    break
+                try:
+                    self.message(session.measure_tool(asked.tool).describe())
+                    self.operator.measured_tool()
+                except UsbMotionError as error:
+                    self.message(f"measuring T{asked.tool}: {error}; the program stopped at"
+                                 f" its tool change (line {asked.line}): measure the tool, then"
+                                 f" run from line {asked.from_line}", level="error")
+                    self.operator.last_report = report
+                    return
+                start, homing_s = asked.from_line, 0.0
             kept = self.prediction
-            if kept is not None and kept.text == program.text and kept.from_line == from_line:
+            if kept is not None and kept.text == program.text and kept.from_line == start:
                 self._run_prediction = (report, kept)
             self.operator.last_report = report
             for line in describe(report).splitlines():
@@ -843,10 +871,27 @@ class Dashboard:
                                  or tool < 1):
             raise _bad(f"tool {tool!r}: allowed a tool number >= 1, or none for the tool in"
                        " the spindle")
+        if self._at_tool_change():
+            if tool is not None:
+                raise _bad(f"tool {tool!r}: at a tool change the new tool is measured (give"
+                           " no tool)")
+            try:
+                asked = self.session.request_tool_measure()
+            except (MachineStateError, ConfigError) as error:
+                raise _not_now(str(error)) from error
+            self.message(f"measuring T{asked.tool} on the tool setter; the program then goes"
+                         f" on from line {asked.from_line}")
+            return {"tool": asked.tool, "at_tool_change": asked.line,
+                    "from_line": asked.from_line}
         self._idle_or_refuse("measure a tool")
         if not self.session.is_homed:
             raise _not_now("the machine is not homed: home it first")
-        measured = self._call(lambda: self.session.measure_tool(tool))
+        def go() -> ToolMeasurement:
+            done = self.session.measure_tool(tool)
+            self.operator.measured_tool()
+            return done
+
+        measured = self._call(go)
         self.message(measured.describe())
         return {"tool": measured.tool, "contact_z_mm": measured.contact_z_mm,
                 "length_mm": measured.length_mm, "table": measured.table}

@@ -33,7 +33,7 @@ export class Controls {
       run: byId('run'), hold: byId('hold'), resume: byId('resume'), stop: byId('stop'),
       reset: byId('reset'), alarmReset: byId('alarm-reset'), homeAll: byId('home-all'),
       zeroAll: byId('zero-all'), jogCancel: byId('jog-cancel'), mdiSend: byId('mdi-send'),
-      open: byId('program-open'),
+      open: byId('program-open'), measureTool: byId('measure-tool'),
     };
     this.homeButtons = [];
     this.zeroButtons = [];
@@ -109,6 +109,7 @@ export class Controls {
     buttons.homeAll.addEventListener('click', () => this.send('home', {}, 'Home'));
     buttons.zeroAll.addEventListener('click', () => this.zero(null));
     buttons.jogCancel.addEventListener('click', () => this.send('jog/cancel', undefined, 'Cancel jog'));
+    buttons.measureTool.addEventListener('click', () => this.send('tool/measure', {}, 'Measure tool'));
 
     this.feedOverride.addEventListener('input', () => this.feedOverrideChanged());
     this.feedOverride.addEventListener('change', () => this.feedOverrideChanged());
@@ -192,6 +193,11 @@ export class Controls {
       button.disabled = !canJog && !(continuous && this.heldJog && this.heldJog.button === button);
     }
     buttons.jogCancel.disabled = !(this.connected && name === 'Jog');
+    // The tool in the spindle from Idle; at a program's M6 pause the new one, the program
+    // then going on by itself.
+    buttons.measureTool.hidden = !state.tool_setter;
+    buttons.measureTool.disabled = !((idle && !alarm && state.homed)
+      || (this.connected && state.tool_change));
     buttons.mdiSend.disabled = !this.connected || alarm || !state.homed;
     buttons.open.disabled = !idle || this.programChoice.options.length === 0;
     this.upload.disabled = !idle;
