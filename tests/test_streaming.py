@@ -237,13 +237,18 @@ def test_m0_pauses_until_cycle_start_on_the_same_path(config: MachineConfig,
         if session.paused is not None and not seen:
             seen.append((session.state, session.paused.code))
             at[0] = tick
+        if at[0] and tick == at[0] + 400:
+            now = session.live.read()
+            shown.append((now.line, now.lines_done))
         if at[0] and tick == at[0] + 800:
             session.request_resume()
 
     at = [0]
+    shown: list[tuple[int, int]] = []
     go = _fed(iter(paused_text.splitlines()))
     session, positions, report = _record(config, go, act)
     assert seen == [(MachineState.PAUSED, "M0")]
+    assert shown == [(5, 4)], "the live model's line at the pause is the M0's"
     assert report.completed and session.paused is None
     assert session.last_run is not None and [p.line for p in session.last_run.paused] == [5]
     spans = at_rest_spans(positions, 700)

@@ -40,8 +40,11 @@ class RunProgress:
         self.progress_ticks = max(1, round(PROGRESS_S / live.tick_s))
 
     def row_at_tick(self, tick: int) -> float:
-        """The row of the setpoints due at device tick ``tick``."""
-        return (tick - self.streams.start_tick) / self.streams.scalar
+        """The row of the setpoints due at device tick ``tick``: no further than the last
+        row the devices were given (at a pause they wait on it while the clock runs on)."""
+        row = (tick - self.streams.start_tick) / self.streams.scalar
+        released = self.streams.released
+        return min(row, released - 1) if released > 0 else row
 
     def line_at_tick(self, tick: int) -> int:
         """The program line the devices execute at device tick ``tick``."""
@@ -58,10 +61,11 @@ class RunProgress:
         return segments
 
     def publish(self, state: MachineState, *, force: bool, at_rest: bool, hold_pending: bool,
-                pause: str) -> None:
+                pause: str, line: int = 0) -> None:
         """Publish the live model (at most every :data:`~usbmotion.session.live.PUBLISH_S`
         of wall time, and with a listener every :data:`PROGRESS_S` of device time, unless
-        ``force``)."""
+        ``force``); ``line``: the line executing, when the run knows it better than the rows
+        do (a pause's: its zero-second dwell ends where the next line begins)."""
         live = self.live
         if not (force or live.on_publish or live.due()):
             return
@@ -78,9 +82,10 @@ class RunProgress:
         # The lines before the one executing are done; all of them once the devices have
         # executed the plan's last setpoint.
         finished = legs.count > 0 and place.program_time_s >= total_s
+        line = line or place.line
         live.publish(
             state=state, at_rest=at_rest, hold_pending=hold_pending, program=self.program.file,
-            line=place.line, lines_done=lines_total if finished else max(0, place.line - 1),
+            line=line, lines_done=lines_total if finished else max(0, line - 1),
             lines_total=lines_total,
             done_s=min(place.program_time_s, total_s), total_s=total_s,
             eta_s=0.0 if at_rest else legs.left_s(row),

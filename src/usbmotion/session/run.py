@@ -108,6 +108,8 @@ class Run:
         self.skew_s = 0.0
         self.resting = False
         """Every axis came to rest (a stop, a hold, a pause) and nothing started since."""
+        self.pause_line = 0
+        """The line of the pause the machine waits at (0: none): the line it executes."""
         self.faulted_axes: list[str] = []
         self.faulted = False
         """True when the run ended on a fault or a lost link (the machine is in Alarm)."""
@@ -360,6 +362,7 @@ class Run:
         return self._wait_at_rest()
 
     def _enter_pause(self, pause: Pause) -> Ending | None:
+        self.pause_line = pause.line
         if pause.spindle_rpm is not None:
             self.hold_point = self.feeding.pass_pause()
             return self._spindle_pause(pause, pause.spindle_rpm)
@@ -457,6 +460,7 @@ class Run:
     def _resume(self) -> Ending | None:
         """The rest of the path planned from rest where the axes stand, every axis
         started on one device tick."""
+        self.pause_line = 0
         self._take_feed(streaming=False)
         self.legs.overrides = self._overrides()
         point = self.hold_point
@@ -499,7 +503,8 @@ class Run:
         self.progress.publish(
             state, force=force, hold_pending=self.requests.taken.hold,
             at_rest=self.resting or self.feeding.dry or state is MachineState.IDLE,
-            pause=self.paused[-1].message if state is MachineState.PAUSED else "")
+            pause=self.paused[-1].message if state is MachineState.PAUSED else "",
+            line=self.pause_line)
 
     # --- the end ------------------------------------------------------------------------------
 
