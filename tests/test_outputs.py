@@ -20,7 +20,7 @@ from usbmotion.motion.gcode import MachineAxes, OutputChange, parse_gcode
 from usbmotion.session import MachineSession
 from usbmotion.session.live import LiveSnapshot
 from usbmotion.session.operator import Operator
-from usbmotion.session.outputs import RunOutputs
+from usbmotion.session.outputs import RunOutputs, segment_values
 from usbmotion.session.run import Run
 from usbmotion.session.state import MachineState
 from usbmotion.sim.machine import connect_session
@@ -272,3 +272,25 @@ def test_the_console_shows_the_outputs(tmp_path: Path) -> None:
             console.close()
             session.shutdown()
     assert "outputs: flood on, mist off, laser 0 %" in said, said[-4:]
+
+
+def test_a_run_from_a_line_switches_on_the_coolant_the_lines_before_switched_on(
+        tmp_path: Path) -> None:
+    """``M8`` at line 3, the run from line 5: the flood goes on with the re-entry's first
+    move (its first tick), as the uninterrupted program has it on there."""
+    config = load_config(_laser(tmp_path))
+    with connect_session(config) as session:
+        session.home()
+        text = "G21 G90\nG0 X10\nM8\nG1 X20 F600\nG1 X30\nG0 X40\nM9\nM2\n"
+        prepared = session.prepare("p.ngc", text=text, from_line=5)
+        values, _ = segment_values(prepared.plan, prepared.program.outputs, "flood")
+        assert values[0] == 1000 and values[len(prepared.plan)] == 0, values
+        assert set(prepared.plan.line[:2]) == {5}, "the re-entry's moves are line 5's"
+        report, _ = session.run(prepared)
+        assert report.completed
+        outputs = session.last_run.outputs if session.last_run is not None else None
+        assert isinstance(outputs, RunOutputs)
+        flood = [(c.value, c.tick) for c in outputs.applied if c.name == "flood"]
+        assert flood[0] == (1000, session.last_run.streams.tick_of(0)), flood
+        assert flood[-1][0] == 0
+        session.shutdown()

@@ -20,6 +20,7 @@ from usbmotion.grbl.session_machine import SessionMachine
 from usbmotion.host.config import load_config
 from usbmotion.host.spindle import SpindleNow
 from usbmotion.motion.gcode import MachineAxes, parse_gcode
+from usbmotion.motion.moves import Dwell
 from usbmotion.session.live import LiveSnapshot
 from usbmotion.session.operator import Operator
 from usbmotion.session.planning import prepare_program
@@ -220,3 +221,38 @@ def test_the_console_shows_the_spindle_it_spins(tmp_path: Path) -> None:
         finally:
             console.close()
             session.shutdown()
+
+
+def test_a_run_from_a_line_starts_the_spindle_the_lines_before_left_turning(
+        tmp_path: Path) -> None:
+    """LinuxCNC's run from a line restores the spindle: examples/router.ngc from line 9
+    (after ``M3 S12000`` at line 6) spins up to 12,000 rpm before the re-entry goes over and
+    down, from line 14 (after ``S9000``) to 9,000 rpm; from line 19 (after ``M5``) it stays
+    still. Standing low, the retract straight up comes first."""
+    text = (ROUTER.parent / "router.ngc").read_text()
+    config = load_config(_router(tmp_path))
+    with connect_session(config) as session:
+        session.home()
+        session.jog({"X": 50.0, "Y": 40.0, "Z": -3.0}, feed_mm_min=3000.0, absolute=True)
+        prepared = session.prepare("router.ngc", text=text, from_line=9)
+        first = prepared.program.pauses[0]
+        assert (first.line, first.code, first.spindle_rpm) == (9, "M3", 12000.0)
+        retract = prepared.program.moves[0]
+        assert not isinstance(retract, Dwell) and retract.end[2] == 0.0 and retract.end[:2] \
+            == (50.0, 40.0), "the retract straight up before the spindle starts"
+        assert isinstance(prepared.program.moves[first.move], Dwell)
+        report, trace = session.run(prepared)
+        assert report.completed, report.stop_reason
+        up = report.spindle[0]
+        assert (up.line, up.rpm) == (9, 12000.0)
+        assert up.measured_rpm == pytest.approx(12000, rel=0.01)
+        # Nothing moves over or down before the spindle is at speed.
+        clocks = trace.column(trace.clock, "X")
+        desired = trace.column(trace.desired, "X")
+        moving = clocks[np.flatnonzero(desired != desired[0])[0]]
+        assert (moving - trace.start_tick) * trace.tick_s >= up.waited_s - 0.011
+        slower = session.prepare("router.ngc", text=text, from_line=14).program.pauses[0]
+        assert (slower.line, slower.spindle_rpm) == (14, 9000.0)
+        still = session.prepare("router.ngc", text=text, from_line=19).program.pauses
+        assert [(pause.line, pause.spindle_rpm) for pause in still] == [(20, 0.0)], still
+        session.shutdown()

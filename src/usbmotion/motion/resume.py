@@ -24,8 +24,8 @@ import math
 from dataclasses import replace
 
 from usbmotion.errors import ArgumentError
-from usbmotion.motion.gcode import GCodeProgram
-from usbmotion.motion.moves import Arc, Linear, Move, Point, Rapid, start_of
+from usbmotion.motion.gcode import GCodeProgram, Pause
+from usbmotion.motion.moves import Arc, Dwell, Linear, Move, Point, Rapid, start_of
 
 
 def first_move_from(program: GCodeProgram, line: int) -> int:
@@ -99,6 +99,23 @@ def resume_from_line(program: GCodeProgram, line: int, *, here: Point,
                 descent_feed_mm_min)
     entry = reentry_moves(here, start_of(rest[0]), line=line, axes=program.axes,
                           safe_z_mm=safe_z_mm, feed_mm_min=feed)
+    # The spindle as the lines before leave it, started before the re-entry goes over and
+    # down (LinuxCNC's run from a line restores it): after the retract straight up.
+    spun = [pause for pause in program.pauses
+            if pause.move < first and pause.spindle_rpm is not None]
+    spindle: list[Pause] = []
+    if spun and spun[-1].spindle_rpm:
+        z = program.axes.find("Z")
+        retract = entry[0] if entry else None
+        up = (z >= 0 and isinstance(retract, Rapid) and retract.end[z] > here[z]
+              and retract.end == _with(here, z, retract.end[z]))
+        at = 1 if up else 0
+        where = start_of(entry[at]) if at < len(entry) else start_of(rest[0])
+        entry.insert(at, Dwell(line, where, 0.0))
+        rpm = spun[-1].spindle_rpm
+        spindle.append(Pause(line, spun[-1].code, f"spindle to {abs(rpm):g} rpm"
+                             + (" counter-clockwise" if rpm < 0 else "")
+                             + f" (as line {spun[-1].line} left it)", at, rpm))
     shift = len(entry) - first
     frames: list[tuple[int, Point]] = []
     for index, offset in program.frames:
@@ -109,8 +126,8 @@ def resume_from_line(program: GCodeProgram, line: int, *, here: Point,
     return replace(
         program,
         moves=(*entry, *rest),
-        pauses=tuple(replace(pause, move=pause.move + shift)
-                     for pause in program.pauses if pause.move >= first),
+        pauses=(*spindle, *(replace(pause, move=pause.move + shift)
+                            for pause in program.pauses if pause.move >= first)),
         tool_changes=tuple(change for change in program.tool_changes if change.line >= line),
         ignored=tuple(word for word in program.ignored if word.line >= line),
         frames=tuple(frames),
