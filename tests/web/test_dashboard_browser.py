@@ -47,10 +47,12 @@ PAGE_TIMEOUT_S = 300.0
 
 
 @contextmanager
-def served_page(folder: Path) -> Iterator[tuple[str, Dashboard, Operator]]:
-    """``usbmotion web``'s application on the default simulated machine (homing fast) in
-    real time, served by uvicorn on a free port of 127.0.0.1; its address with the token."""
-    config = load_config(fast_homing_machine(folder))
+def served_page(folder: Path, machine: Path | None = None
+                ) -> Iterator[tuple[str, Dashboard, Operator]]:
+    """``usbmotion web``'s application on the default simulated machine (homing fast; or
+    ``machine``) in real time, served by uvicorn on a free port of 127.0.0.1; its address
+    with the token."""
+    config = load_config(machine if machine is not None else fast_homing_machine(folder))
     world = SimWorld(realtime=True)
     with connect_session(config, world=world) as session:
         operator = Operator(session, file="<web>")
