@@ -172,20 +172,10 @@ def test_the_console_refuses_to_measure_at_a_pause_that_is_no_tool_change(
     """A program waits at an M0: $tls says what it measures instead of queueing behind the
     paused run."""
     config = load_config(_machine(tmp_path))
-    program = tmp_path / "pause.ngc"
-    program.write_text("G21 G90\nG0 X10\nM0\nG0 X20\nM2\n")
     said: list[str] = []
     with connect_session(config) as session:
-        console = Console(session, said.append)
+        console = _paused_console(session, tmp_path, said, "G21 G90\nG0 X10\nM0\nG0 X20\nM2\n")
         try:
-            for line in ("$r", f"$l {program}"):
-                console.handle(line)
-                assert console.operator.wait_idle(120)
-            console.handle("$c")
-            deadline = time.monotonic() + 60
-            while not session.held:
-                assert time.monotonic() < deadline, said[-3:]
-                time.sleep(0.01)
             console.handle("$tls")
             assert said[-1] == ("error: $tls measures while the machine is idle, or the new"
                                 " tool at a program's M6 pause (as $tls alone); it waits at"
@@ -195,7 +185,6 @@ def test_the_console_refuses_to_measure_at_a_pause_that_is_no_tool_change(
         finally:
             console.close()
             session.shutdown()
-
 
 TOOL_CHANGE = "G21 G90\nG0 X10 Y10 Z-5\nT1 M6\nG43 H1\nG0 X20 Z-20\nM2\n"
 """A tool change at line 3 and the G43 that takes the new tool's length at line 4: the
@@ -209,23 +198,35 @@ def _wait_paused(session: MachineSession, said: list[str]) -> None:
         time.sleep(0.01)
 
 
+def _paused_console(session: MachineSession, folder: Path, said: list[str],
+                    text: str) -> Console:
+    """A console on ``session`` that homed, loaded ``text`` and started it: the program
+    waits at its first pause (the console closed if it never gets there)."""
+    program = folder / "program.ngc"
+    program.write_text(text)
+    console = Console(session, said.append)
+    try:
+        for line in ("$r", f"$l {program}"):
+            console.handle(line)
+            assert console.operator.wait_idle(120)
+        console.handle("$c")
+        _wait_paused(session, said)
+    except BaseException:
+        console.close()
+        raise
+    return console
+
+
 def test_the_console_measures_the_new_tool_at_a_tool_change_and_goes_on(
         tmp_path: Path) -> None:
     """grblHAL's semi-automatic tool change: at the M6 pause, $tls ends the run there,
     measures the new tool on the setter and runs the program on from the next line,
     interpreted again, so its G43 takes the measured length."""
     config = load_config(_machine(tmp_path))
-    program = tmp_path / "change.ngc"
-    program.write_text(TOOL_CHANGE)
     said: list[str] = []
     with connect_session(config) as session:
-        console = Console(session, said.append)
+        console = _paused_console(session, tmp_path, said, TOOL_CHANGE)
         try:
-            for line in ("$r", f"$l {program}"):
-                console.handle(line)
-                assert console.operator.wait_idle(120)
-            console.handle("$c")
-            _wait_paused(session, said)
             assert session.paused is not None and session.paused.line == 3
             console.handle("$tls 3")
             assert said[-1].startswith("error: $tls measures while the machine is idle, or"
@@ -252,17 +253,10 @@ def test_the_console_measures_the_new_tool_at_a_tool_change_and_goes_on(
 def test_a_failed_measurement_at_a_tool_change_says_how_to_go_on(tmp_path: Path) -> None:
     config = load_config(_machine(tmp_path, SETTER.replace("lowest_z_mm = -40.0",
                                                            "lowest_z_mm = -15.0")))
-    program = tmp_path / "change.ngc"
-    program.write_text(TOOL_CHANGE)
     said: list[str] = []
     with connect_session(config) as session:
-        console = Console(session, said.append)
+        console = _paused_console(session, tmp_path, said, TOOL_CHANGE)
         try:
-            for line in ("$r", f"$l {program}"):
-                console.handle(line)
-                assert console.operator.wait_idle(120)
-            console.handle("$c")
-            _wait_paused(session, said)
             console.handle("$tls")
             assert console.operator.wait_idle(120)
             assert session.live.read().machine_mm()["Z"] == pytest.approx(0.0, abs=0.01)
