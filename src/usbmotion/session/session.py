@@ -42,7 +42,6 @@ from pathlib import Path
 from usbmotion.automation.device_io import MachineZero, wrap_int32
 from usbmotion.errors import (
     ArgumentError,
-    ConfigError,
     DeviceError,
     MachineStateError,
     SequenceFaultError,
@@ -85,7 +84,12 @@ from usbmotion.session.requests import (
 from usbmotion.session.rest import STOP_LEAD_S, wait_for_rest
 from usbmotion.session.run import Run
 from usbmotion.session.state import Event, MachineState, StateMachine, StopReason
-from usbmotion.session.tool_setter import MeasureAtChange, ToolMeasurement, measure_tool
+from usbmotion.session.tool_setter import (
+    MeasureAtChange,
+    ToolMeasurement,
+    measure_tool,
+    setter_of,
+)
 
 LIVE_IDLE_S = 0.1
 """How often the live model of an idle machine may be refreshed from the devices."""
@@ -584,10 +588,7 @@ class MachineSession:
                 f" the machine is in {state.value}"
                 + (f" at an {pause.code} pause" if pause is not None else ""),
                 state=state.value)
-        if self.config.tool_setter is None:
-            raise ConfigError(f"{self.config.path}: no [tool_setter] table: where the setter"
-                              " is (position_mm, start_z_mm, lowest_z_mm) is needed to measure"
-                              " a tool", path=str(self.config.path), key="tool_setter")
+        setter_of(self.config)
         tool = next((change.tool for change in run.prepared.program.tool_changes
                      if change.line == pause.line), self.live.read().tool)
         asked = self._measure_asked = MeasureAtChange(tool, pause.line)

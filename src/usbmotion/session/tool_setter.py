@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Protocol
 
 from usbmotion.errors import ConfigError, MachineStateError
-from usbmotion.host.config import MachineConfig
+from usbmotion.host.config import MachineConfig, ToolSetterConfig
 from usbmotion.motion.tools import with_tool_length
 from usbmotion.session.homing import home_position_mm
 from usbmotion.session.probing import MODES, ProbeMode, ProbeResult
@@ -85,6 +85,19 @@ class MeasureAtChange:
         return self.line + 1
 
 
+def setter_of(config: MachineConfig) -> ToolSetterConfig:
+    """The machine's ``[tool_setter]``.
+
+    Raises:
+        ConfigError: it has none.
+    """
+    if config.tool_setter is None:
+        raise ConfigError(f"{config.path}: no [tool_setter] table: where the setter is"
+                          " (position_mm, start_z_mm, lowest_z_mm) is needed to measure a tool",
+                          path=str(config.path), key="tool_setter")
+    return config.tool_setter
+
+
 def measure_tool(session: Moves, tool: int, *, write: bool = True) -> ToolMeasurement:
     """Measure tool ``tool`` (in the spindle now) on the setter; its length written to the
     tool table (see the module docstring), unless ``write`` is false (grbl's way: the
@@ -97,11 +110,7 @@ def measure_tool(session: Moves, tool: int, *, write: bool = True) -> ToolMeasur
             touched.
     """
     config = session.config
-    setter = config.tool_setter
-    if setter is None:
-        raise ConfigError(f"{config.path}: no [tool_setter] table: where the setter is"
-                          " (position_mm, start_z_mm, lowest_z_mm) is needed to measure a tool",
-                          path=str(config.path), key="tool_setter")
+    setter = setter_of(config)
     if tool < (1 if write else 0):
         raise MachineStateError(f"no tool to measure (T{tool}): put one in the spindle (M6 T1,"
                                 " M61 Q1) or name it: $tls 1", state=session.state.value)
