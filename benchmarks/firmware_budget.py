@@ -16,7 +16,8 @@ reads flash as fast as RAM: the build runs from RAM, copy_to_ram, so the chip do
   the period; the goal is at most 30 %; each mode again with the motor on the pins (call
   39, the default motor outside the chip: the encoder read from the PIO decoder, the
   switches sampled, the bridge's PWM set); and position and curve start again with an
-  output change (call 42) applied on every tick, a digital pin or a PWM level set;
+  output change (call 42) applied on every tick, a digital pin or a PWM level set, and
+  again with all four outputs changed on every tick;
 - core0 cycles per setpoint received: call-1 batches of 600 setpoints with the CRC
   acknowledgement (``8 1 2``) and a queue query behind each, as the host streams; and the
   share of core0 a device at 10 kHz taking 10,000 setpoints/s keeps busy (goal: under half),
@@ -65,11 +66,14 @@ for _mode in ("position", "velocity", "curve", "curve start"):
     MODES[f"{_mode}, pins"] = MODES[_mode]
 for _mode in ("position", "curve start"):
     MODES[f"{_mode}, outputs"] = MODES[_mode]
+    MODES[f"{_mode}, four outputs"] = MODES[_mode]
 """Each mode's set-up after ``5 1`` (10 kHz): a diagnostics line every tick, the servo
 enabled, motion to follow (and again: _refeed). The statistics count in position and curve
-mode. A mode ", outputs" has an output change due on every tick (_refeed)."""
+mode. A mode ", outputs" has an output change due on every tick, a mode ", four outputs"
+all four outputs changed on every tick (_refeed)."""
 OUTPUT_BATCH = 16
-"""Output changes queued at once (the device's whole queue), one for each of the next ticks."""
+"""Output changes queued at once (the device's whole queue): one for each of the next 16
+ticks, or in a mode ", four outputs" one for each output on each of the next 4 ticks."""
 _CURVE_AGAIN = ("25 20 400 0 0", "25 10 -100 512 -512", "25 30 2000 100 -100",
                 "25 25 -3000 0 0")
 
@@ -84,13 +88,20 @@ def _refeed(device: EmulatedDevice, mode: str, index: int) -> None:
     segments are prepared a phase a tick ahead); in "curve start" a new curve 30 ticks after
     the last one ended, the motor still settling (its first segment is prepared as it
     starts: the costliest ticks of curve mode)."""
-    if mode.endswith(", outputs") and index % OUTPUT_BATCH == 0:
+    if mode.endswith(", four outputs"):
+        if index % (OUTPUT_BATCH // 4) == 0:
+            # the clock is ``index`` here: each of the next 4 ticks changes every output, the
+            # two digital ones toggled, the two PWM levels stepped
+            device.feed(_lines(*(
+                f"42 {k % 4} {1000 * ((index + k // 4) % 2) if k % 4 < 2 else 60 * k}"
+                f" {index + k // 4}" for k in range(OUTPUT_BATCH))))
+    elif mode.endswith(", outputs") and index % OUTPUT_BATCH == 0:
         # the clock is ``index`` here: one change for each of the next 16 ticks, the two
         # digital outputs toggled and the two PWM levels stepped in turn
         device.feed(_lines(*(
             f"42 {k % 4} {1000 * ((index + k) // 4 % 2) if k % 4 < 2 else 60 * k} {index + k}"
             for k in range(OUTPUT_BATCH))))
-    kind = mode.removesuffix(", outputs").removesuffix(", pins")
+    kind = mode.removesuffix(", four outputs").removesuffix(", outputs").removesuffix(", pins")
     again = ((kind == "curve" and index % 800 == 799)
              or (kind == "curve start" and index % 900 == 879))
     if again:
@@ -271,7 +282,7 @@ def report(figures: dict[str, Any]) -> str:
     out.append(f"core1 per servo tick at 10 kHz ({TICK_BUDGET} cycles), D every tick:")
     for mode, m in figures["tick"].items():
         out.append(
-            f"  {mode:<21} median {m['median_cycles']:>7.0f}"
+            f"  {mode:<25} median {m['median_cycles']:>7.0f}"
             f" ({m['median_cycles'] / TICK_BUDGET:6.1%})"
             f"  p99 {m['p99_cycles']:>7}  max {m['max_cycles']:>7}"
             f" ({m['max_cycles'] / TICK_BUDGET:6.1%}, tick {m['max_tick']})"

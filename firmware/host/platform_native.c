@@ -215,7 +215,11 @@ int32_t platform_motor_pins_full(void) {
 /* The outputs: the native build has no pins for them; core1's state holds their values. */
 void platform_outputs_start(void) {}
 
-void platform_output_set(uint32_t output, int32_t value) {
-    (void)output;
-    (void)value;
+void platform_outputs_form(const int16_t values[PLATFORM_OUTPUT_COUNT], output_pins_t *pins) {
+    (void)values;
+    *pins = (output_pins_t){{0, 0}};
+}
+
+void platform_outputs_write(const output_pins_t *pins) {
+    (void)pins;
 }

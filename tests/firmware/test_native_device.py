@@ -367,19 +367,24 @@ def test_the_probe_edge_in_velocity_mode_and_its_counter_reset(driver: Driver) -
 
 def test_outputs_on_their_ticks(driver: Driver) -> None:
     """Calls 42 and 43: changes applied on their ticks (read on the tick before and the tick
-    of each), two on one tick, one already past, the queue's 16 and the 17th refused, bad
-    values, a decreasing tick, the debug line, clearing, call 22 dropping the pending and
-    calls 23/37 changing nothing, a fault turning everything off and refusing changes until
-    cleared, and a power cycle."""
+    of each), two on one tick, one already past, three past ones for two ticks applied
+    together, the queue's 16 and the 17th refused (on 16 ticks, and on one), bad values, a
+    decreasing tick, the debug line, clearing, call 22 dropping the pending and calls 23/37
+    changing nothing, a fault turning everything off and refusing changes until cleared,
+    and a power cycle."""
     fill = [f"42 3 {10 * k} {200 + k}" for k in range(16)]
+    one_tick = [f"42 {k % 4} {1000 * (k // 4 % 2) if k % 4 < 2 else 10 * k} 280"
+                for k in range(16)]
     assert_same(driver, [
         lines("43 0", "8 42 1", "42 0 1000 5", "42 2 500 5", "42 3 250 9", "43 0"), Run(5),
         lines("43 0"), Run(1), lines("43 0"), Run(3), lines("43 0"), Run(1), lines("43 0"),
         lines("42 1 7 3", "42 0 500 20", "42 4 0 0", "42 2 1001 0", "42 2 0 -1", "43 2",
               "42 1 1000 30", "42 2 0 29", "42 2 0 30", "8 42 0", "43 0"), Run(25),
         lines("43 0", "42 3 1000 3", "43 0"), Run(1), lines("43 0"),
+        lines("42 0 1000 4", "42 1 1000 5", "42 2 7 5", "43 0"), Run(1), lines("43 0"),
         lines(*fill, "42 3 999 300", "43 0"), Run(195), lines("43 0"), Run(2),
         lines("43 0", "43 1"), Run(30), lines("43 0"),
+        lines(*one_tick, "42 1 0 290", "43 0"), Run(16), lines("43 0"), Run(1), lines("43 0"),
         lines("42 0 0 400", "23 77", "37 -5", "43 0", "22 0", "43 0", "22 -1"), Run(500),
         lines("43 0", "42 0 1000 0", "42 2 640 1", "42 3 1 1000"), Run(3),
         lines("43 0", "29 5", "3 1", "0 3000"), Run(40),

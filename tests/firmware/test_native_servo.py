@@ -93,14 +93,24 @@ class SwitchEdgeC(ctypes.Structure):
     ]
 
 
-class OutputChangeC(ctypes.Structure):
-    _fields_ = [("tick", c_i64), ("output", c_i32), ("value", c_i32)]
+class OutputValuesC(ctypes.Union):
+    _fields_ = [("per_mille", c_i16 * 4), ("words", c_u32 * 2)]
+
+
+class OutputPinsC(ctypes.Structure):
+    _fields_ = [("words", c_u32 * 2)]
+
+
+class OutputRecordC(ctypes.Structure):
+    _fields_ = [
+        ("tick", c_i64), ("values", OutputValuesC), ("pins", OutputPinsC), ("changes", c_u32),
+    ]
 
 
 class OutputQueueC(ctypes.Structure):
     _fields_ = [
-        ("next", c_i64), ("last", c_i64), ("pending", c_u32), ("head", c_u32),
-        ("values", c_i32 * 4), ("queue", OutputChangeC * 16),
+        ("next", c_i64), ("last", c_i64), ("records", c_u32), ("head", c_u32),
+        ("values", OutputValuesC), ("queue", OutputRecordC * 16),
     ]
 
 
@@ -176,7 +186,8 @@ class MotorConstantsC(ctypes.Structure):
 STRUCTS: dict[str, type[ctypes.Structure]] = {
     "sci_t": Sci, "keyframe_t": KeyframeC, "curve_coefficients_t": CoefficientsC,
     "curve_player_t": CurvePlayerC,
-    "switch_edge_t": SwitchEdgeC, "output_change_t": OutputChangeC,
+    "switch_edge_t": SwitchEdgeC, "output_values_t": OutputValuesC,
+    "output_pins_t": OutputPinsC, "output_record_t": OutputRecordC,
     "output_queue_t": OutputQueueC,
     "servo_state_t": ServoState, "servo_params_t": ServoParams,
     "device_vars_t": DeviceVars, "record_t": RecordC, "record_ring_t": RecordRing,
@@ -239,9 +250,13 @@ def _shim_source() -> str:
         "int32_t platform_motor_pins_full(void) { return 6250; }",
         "/* the outputs: core1's state holds them */",
         "void platform_outputs_start(void) {}",
-        "void platform_output_set(uint32_t output, int32_t value) {",
-        "    (void)output;",
-        "    (void)value;",
+        "void platform_outputs_form(const int16_t values[PLATFORM_OUTPUT_COUNT],",
+        "                           output_pins_t *pins) {",
+        "    (void)values;",
+        "    *pins = (output_pins_t){{0, 0}};",
+        "}",
+        "void platform_outputs_write(const output_pins_t *pins) {",
+        "    (void)pins;",
         "}",
         f"const size_t test_layout[] = {{{', '.join(layout)}}};",
         "const size_t test_layout_count = sizeof test_layout / sizeof test_layout[0];",
@@ -1091,12 +1106,13 @@ SCALAR_STATE = [
     (core1.S_STATS_SUM_SQ, "stats_sum_sq"), (core1.S_LAST_TAKE, "last_take"),
     (core1.S_DIAG_PEAK, "diag_peak"),
 ]
-OUTPUT_STATE = [(core1.S_OUT_PENDING, "pending"), (core1.S_OUT_HEAD, "head"),
+OUTPUT_STATE = [(core1.S_OUT_RECORDS, "records"), (core1.S_OUT_HEAD, "head"),
                 (core1.S_OUT_NEXT, "next"), (core1.S_OUT_LAST, "last")]
 """The outputs' scalars: the Python's entries and the fields of servo_state_t's outputs."""
-OUTPUT_CHANGE_FIELDS = [(2, "tick"), (0, "output"), (1, "value")]
-"""The entries of one pending change in the Python's ring (``core1.OUT_RECORD``), by the C
-field they are."""
+OUTPUT_RECORD_FIELDS = [(core1.OUT_TICK, "tick"), (core1.OUT_CHANGES, "changes")]
+"""The entries of one pending record in the Python's ring (``core1.OUT_RECORD``) other than
+the outputs' values, by the C field they are (the platform's form, ``pins``, is not the
+Python's: the test's platform writes nothing)."""
 EDGE_FIELDS = [(core1.EDGE_COUNT, "edges"), (core1.EDGE_CLOSED, "closed"),
                (core1.EDGE_POSITION, "position"), (core1.EDGE_TICK, "tick")]
 HISTORY = core1.HISTORY_SLOTS
@@ -1164,11 +1180,14 @@ class CDevice:
         for index, name in OUTPUT_STATE:
             setattr(c.outputs, name, int(s[index]))
         for output in range(4):
-            c.outputs.values[output] = int(s[core1.S_OUTPUTS + output])
+            c.outputs.values.per_mille[output] = int(s[core1.S_OUTPUTS + output])
         for slot in range(16):
             base = core1.S_OUT_QUEUE + slot * core1.OUT_RECORD
-            for offset, name in OUTPUT_CHANGE_FIELDS:
-                setattr(c.outputs.queue[slot], name, int(s[base + offset]))
+            record = c.outputs.queue[slot]
+            for offset, name in OUTPUT_RECORD_FIELDS:
+                setattr(record, name, int(s[base + offset]))
+            for output in range(4):
+                record.values.per_mille[output] = int(s[base + core1.OUT_VALUES + output])
         set_player(c.curve, python.player, head)
         lib.mq_clear()
         for value in python.queue_values():
@@ -1210,11 +1229,14 @@ def state_mismatches(python: PythonDevice, c: CDevice) -> list[str]:
     found += [f"outputs.{name}" for index, name in OUTPUT_STATE
               if getattr(cs.outputs, name) != int(s[index])]
     found += [f"outputs.values[{i}]" for i in range(4)
-              if cs.outputs.values[i] != int(s[core1.S_OUTPUTS + i])]
+              if cs.outputs.values.per_mille[i] != int(s[core1.S_OUTPUTS + i])]
     for slot in range(16):
         base = core1.S_OUT_QUEUE + slot * core1.OUT_RECORD
-        found += [f"outputs.queue[{slot}].{name}" for offset, name in OUTPUT_CHANGE_FIELDS
-                  if getattr(cs.outputs.queue[slot], name) != int(s[base + offset])]
+        record = cs.outputs.queue[slot]
+        found += [f"outputs.queue[{slot}].{name}" for offset, name in OUTPUT_RECORD_FIELDS
+                  if getattr(record, name) != int(s[base + offset])]
+        found += [f"outputs.queue[{slot}].values[{i}]" for i in range(4)
+                  if record.values.per_mille[i] != int(s[base + core1.OUT_VALUES + i])]
     if c.queue_values() != python.queue_values():
         found.append("queue")
     found += player_mismatches(cs.curve, python.player)
@@ -1320,16 +1342,26 @@ def random_device(rnd: random.Random, setting: Setting) -> PythonDevice:
         state[core1.S_OUTPUTS + output] = rnd.choice([0, 1000, rnd.randint(0, 1000)])
     state[core1.S_OUT_LAST] = rnd.choice([-1, rnd.randint(0, 2**30)])
     out_head = rnd.randint(0, 15)
-    pending = rnd.choice([0, 0, 1, 3, 16])
-    tick = int(state[core1.S_CLOCK]) + rnd.randint(-3, 3)
-    for k in range(pending):   # in tick order, some due within a few ticks
-        tick = max(0, tick + rnd.choice([0, 0, 1, 2, rnd.randint(0, 5)]))
+    records = rnd.choice([0, 0, 1, 2, 3, 16])
+    changes = [1] * records
+    for _ in range(16 - records if records else 0):   # up to 16 changes in all
+        if rnd.random() < 0.3:
+            changes[rnd.randrange(records)] += 1
+    tick = int(state[core1.S_CLOCK]) + rnd.randint(-4, 2)
+    values = [int(v) for v in state[core1.S_OUTPUTS : core1.S_OUTPUTS + 4]]
+    for k in range(records):   # in tick order, one record a tick, some due within a few
+        tick = max(0, tick + rnd.choice([1, 1, 1, 2, rnd.randint(1, 5)])) if k else max(0, tick)
+        for _ in range(changes[k]):
+            values[rnd.randint(0, 3)] = rnd.choice([0, 1000, rnd.randint(0, 1000)])
         base = core1.S_OUT_QUEUE + (out_head + k) % 16 * core1.OUT_RECORD
-        state[base : base + core1.OUT_RECORD] = (rnd.randint(0, 3), rnd.randint(0, 1000), tick)
-    state[core1.S_OUT_PENDING] = pending
+        state[base + core1.OUT_TICK] = tick
+        state[base + core1.OUT_CHANGES] = changes[k]
+        state[base + core1.OUT_VALUES : base + core1.OUT_RECORD] = values
+    state[core1.S_OUT_RECORDS] = records
     state[core1.S_OUT_HEAD] = out_head
-    state[core1.S_OUT_NEXT] = (int(state[core1.S_OUT_QUEUE + out_head * core1.OUT_RECORD + 2])
-                               if pending else core1.OUTPUT_NONE_PENDING)
+    state[core1.S_OUT_NEXT] = (
+        int(state[core1.S_OUT_QUEUE + out_head * core1.OUT_RECORD + core1.OUT_TICK])
+        if records else core1.OUTPUT_NONE_PENDING)
     queue = np.zeros(QUEUE_CAPACITY, dtype=np.int64)
     head = rnd.randint(0, QUEUE_CAPACITY - 1)
     values = [rnd.choice([near_int32(actual, 50), rnd.randint(-20000, 20000), INT32_MIN,
@@ -1376,9 +1408,13 @@ def tick_events(before: np.ndarray, after: np.ndarray, params: np.ndarray,
         events.add("queue value taken")
     if queued[1] < queued[0]:
         events.add("keyframe reached")
-    if after[core1.S_OUT_PENDING] < before[core1.S_OUT_PENDING]:
-        events.add("output change applied" if after[core1.S_FAULT] == before[core1.S_FAULT]
-                   else "outputs off at a fault")
+    if after[core1.S_OUT_RECORDS] < before[core1.S_OUT_RECORDS]:
+        if after[core1.S_FAULT] != before[core1.S_FAULT]:
+            events.add("outputs off at a fault")
+        elif before[core1.S_OUT_RECORDS] - after[core1.S_OUT_RECORDS] > 1:
+            events.add("output records applied together")
+        else:
+            events.add("output change applied")
     if before[core1.S_START] >= 0 > after[core1.S_START]:
         events.add("start reached")
     if after[core1.S_STATS_SUM_SQ] == core1.STATS_SUM_CAP > before[core1.S_STATS_SUM_SQ]:
@@ -1460,7 +1496,8 @@ def test_servo_tick_scenarios_reach_every_case(lib: ctypes.CDLL) -> None:
         "queue value taken", "keyframe reached", "start reached", "statistics saturate",
         "timer at its cap", "integral clamped", "output saturated",
         "shaft near its speed bound", "hard stop", "counter wraps", "several motor steps",
-        "curve moves", "output change applied", "outputs off at a fault",
+        "curve moves", "output change applied", "output records applied together",
+        "outputs off at a fault",
     }
 
 
@@ -1569,8 +1606,12 @@ def test_state_comparison_sees_one_count_in_any_field(lib: ctypes.CDLL) -> None:
                                              c.state.edges[1].edges + d)),
         ("edges[0].tick", lambda d: setattr(c.state.edges[0], "tick", c.state.edges[0].tick + d)),
         ("outputs.next", lambda d: setattr(c.state.outputs, "next", c.state.outputs.next + d)),
-        ("outputs.values[2]", lambda d: c.state.outputs.values.__setitem__(
-            2, c.state.outputs.values[2] + d)),
+        ("outputs.values[2]", lambda d: c.state.outputs.values.per_mille.__setitem__(
+            2, c.state.outputs.values.per_mille[2] + d)),
+        ("outputs.queue[4].changes", lambda d: setattr(
+            c.state.outputs.queue[4], "changes", c.state.outputs.queue[4].changes + d)),
+        ("outputs.queue[7].values[3]", lambda d: c.state.outputs.queue[7].values.per_mille
+         .__setitem__(3, c.state.outputs.queue[7].values.per_mille[3] + d)),
         ("outputs.queue[15].tick", lambda d: setattr(c.state.outputs.queue[15], "tick",
                                                      c.state.outputs.queue[15].tick + d)),
         ("curve.elapsed_us", lambda d: setattr(c.state.curve, "elapsed_us",
@@ -1662,8 +1703,13 @@ MUTANTS = [
     Mutant("output change one tick late", "servo.c",
            "if (s->clock >= s->outputs.next) {", "if (s->clock > s->outputs.next) {",
            _check_ticks),
-    Mutant("a later change due at once", "servo.c", "if (tick > q->last) {",
-           "if (tick >= q->last) {", _check_ticks),
+    Mutant("a later record due a tick early", "servo.c", "if (clock >= q->next) {",
+           "if (clock + 1 >= q->next) {", _check_ticks),
+    Mutant("a later record due a tick late", "servo.c", "if (clock >= q->next) {",
+           "if (clock > q->next) {", _check_ticks),
+    Mutant("the first of the due records' outputs", "servo.c",
+           "        due = output_pop_late(q);\n", "        (void)output_pop_late(q);\n",
+           _check_ticks),
     Mutant("outputs left on at a fault", "servo.c", "        outputs_off(s);\n",
            "        (void)outputs_off;\n", _check_ticks),
     Mutant("peak unsigned", "servo.c", "s->diag_peak = (int32_t)following;",

@@ -373,16 +373,26 @@ static int64_t segment_c3(const segment_t *s) {
     return times_duration(s->duration_ms, s->m0 + s->m1) - (int64_t)((uint64_t)dp * 2048u);
 }
 
-static void segment_coefficients(const segment_t *s, coefficients_t *c) {
+/* The coefficients in two halves (two phases when prepared ahead): k2's and m0's, then
+ * c3 and d's. */
+static inline void coefficients_k2(const segment_t *s, coefficients_t *c) {
     int64_t k2 = segment_k2(s);
-    c->d = s->duration_ms * 1000u;
-    c->d2[0] = mul_32x32(c->d, c->d, &c->d2[1]);
     c->m0 = s->m0;
     c->dm0 = s->duration_ms * (uint32_t)(s->m0 < 0 ? -s->m0 : s->m0);
     c->m0_negative = s->m0 < 0;
     c->k2_magnitude = (uint64_t)(k2 < 0 ? -k2 : k2);
     c->k2_negative = k2 < 0;
+}
+
+static inline void coefficients_c3(const segment_t *s, coefficients_t *c) {
+    c->d = s->duration_ms * 1000u;
+    c->d2[0] = mul_32x32(c->d, c->d, &c->d2[1]);
     c->c3 = segment_c3(s);
+}
+
+static void segment_coefficients(const segment_t *s, coefficients_t *c) {
+    coefficients_k2(s, c);
+    coefficients_c3(s, c);
 }
 
 /* The forward differences of the numerator at e0 = 0 for steps of h < 2^16: with
@@ -578,10 +588,10 @@ static inline int64_t floor_divide64(int64_t x, int64_t divisor, int64_t *rest) 
  * then delta1 = a1 + a2 + a3, delta2 = 2 a2 + 6 a3, delta3 = 6 a3. In phases (the player
  * runs them a tick at a time for the next segment), each one 128-bit addition or product
  * or so, about 150 cycles, so that no tick of a curve costs much more than another. */
-#define PREPARE_PHASES 14u
+#define PREPARE_PHASES 16u
 
-/* The arguments every phase takes: the coefficients (set by the first phase), den (set by
- * the second), the slots, and a scratch slot. */
+/* The arguments every phase takes: the coefficients (set by the first two phases), den
+ * (set by the third), the slots, and a scratch slot. */
 typedef struct {
     const segment_t *s;
     coefficients_t *c;
@@ -597,15 +607,18 @@ typedef struct {
 #define PHASE static inline __attribute__((always_inline))
 
 PHASE void phase_coefficients(const phase_t *p) {
-    segment_coefficients(p->s, p->c);
+    coefficients_k2(p->s, p->c);
+}
+
+PHASE void phase_c3(const phase_t *p) {
+    coefficients_c3(p->s, p->c);
 }
 
 PHASE void phase_den(const phase_t *p) {
     segment_den(p->c->d, p->den);
 }
 
-/* slot 1 = a1: the quotient, and the remainder's factor r1 D (in the scratch) times the
- * low word of d^2 */
+/* slot 1 = a1: the quotient, and the remainder's factor r1 D (in the scratch) */
 PHASE void phase_a1(const phase_t *p) {
     const coefficients_t *c = p->c;
     if (c->m0 == 0) {   /* a curve's first segment */
@@ -623,8 +636,15 @@ PHASE void phase_a1(const phase_t *p) {
     p->quotient[1] = q1;
     uint32_t *factor = p->scratch;
     factor[0] = mul_32x32((uint32_t)r1, p->s->duration_ms, &factor[1]);   /* r1 D < 2^36 */
+}
+
+/* ... the remainder: the factor times the low word of d^2 */
+PHASE void phase_a1_low(const phase_t *p) {
+    if (p->c->m0 == 0) {
+        return;
+    }
     uint32_t low[WORDS + 1];
-    words_mul(low, factor, 2, c->d2[0]);
+    words_mul(low, p->scratch, 2, p->c->d2[0]);
     low[3] = 0;
     words_copy(p->remainder[1], low);
 }
@@ -683,11 +703,22 @@ PHASE void phase_a3(const phase_t *p) {
 PHASE void phase_a3_divide(const phase_t *p) {
     uint32_t a3[WORDS];
     words_copy(a3, p->remainder[3]);
-    if (!words_negative(a3) && words_less(a3, p->den)) {
-        p->quotient[3] = 0;   /* the usual case: the cubic term is below one count a tick */
+    /* the usual cases: the cubic term is within one count a tick */
+    if (!words_negative(a3)) {
+        if (words_less(a3, p->den)) {
+            p->quotient[3] = 0;
+            return;
+        }
     } else {
-        (void)words_floor_divide(a3, p->den, &p->quotient[3], p->remainder[3]);
+        uint32_t above[WORDS];
+        words_add(above, a3, p->den);
+        if (!words_negative(above)) {
+            p->quotient[3] = -1;
+            words_copy(p->remainder[3], above);
+            return;
+        }
     }
+    (void)words_floor_divide(a3, p->den, &p->quotient[3], p->remainder[3]);
 }
 
 /* slot 1 = a1 + a2 */
@@ -732,10 +763,9 @@ PHASE void phase_delta2(const phase_t *p) {
                             p->den, p->remainder[2]);
 }
 
-/* The phases after a1 up to delta1, and those after delta1 (a preparation on one tick runs
- * a1 and both; a warming segment one group a tick). */
+/* The phases after a1's up to delta1, and those after delta1 (a preparation on one tick
+ * runs a1's and both; a warming segment one group a tick). */
 PHASE void phases_to_delta1(const phase_t *p) {
-    phase_a1_high(p);
     phase_a2(p);
     phase_a3(p);
     phase_a3_divide(p);
@@ -752,14 +782,17 @@ PHASE void phases_after_delta1(const phase_t *p) {
 }
 
 static void (*const PHASES[PREPARE_PHASES])(const phase_t *) = {
-    phase_coefficients, phase_den, phase_a1, phase_a1_high, phase_a2, phase_a3,
-    phase_a3_divide, phase_a1_plus_a2, phase_delta1, phase_two_a3, phase_four_a3,
+    phase_coefficients, phase_c3, phase_den, phase_a1, phase_a1_low, phase_a1_high, phase_a2,
+    phase_a3, phase_a3_divide, phase_a1_plus_a2, phase_delta1, phase_two_a3, phase_four_a3,
     phase_delta3, phase_two_a2, phase_delta2,
 };
 
-/* The ticks of a warming segment's start (curve_warm_step), the first included; segments
- * of this many ticks or fewer are prepared on their first. */
+/* Segments of more than WARM_TICKS ticks start warming (curve_prepare_start); those of
+ * this many or fewer are prepared on their first. The ticks after the first that a warming
+ * segment takes to stand where a stepping one would (curve_warm_step): WARM_STEPS, of
+ * which the last may be past the segment's end (it is then never run). */
 #define WARM_TICKS 4
+#define WARM_STEPS 5
 
 /* The phases' arguments for the head segment's own slots (its segment set by the caller). */
 static inline phase_t curve_warm_phase(curve_player_t *curve) {
@@ -874,6 +907,8 @@ static void curve_prepare(curve_player_t *curve, uint32_t e0, int64_t tick_us) {
         phase_t p = {&s, &c, (uint32_t)tick_us, curve->den, curve->quotient, curve->remainder,
                      &scratch_quotient, scratch};
         phase_a1(&p);   /* den is set */
+        phase_a1_low(&p);
+        phase_a1_high(&p);
         phases_to_delta1(&p);
         phases_after_delta1(&p);
         curve->stepping = true;
@@ -907,8 +942,11 @@ static void curve_prepare_start(curve_player_t *curve, int64_t tick_us) {
         segment_t s = curve_segment(curve);
         p.s = &s;
         phase_coefficients(&p);
+        phase_c3(&p);
         phase_a1(&p);
-        curve->warming = WARM_TICKS - 1;
+        phase_a1_low(&p);
+        phase_a1_high(&p);
+        curve->warming = WARM_STEPS;
         return;
     }
     curve_prepare(curve, 0, tick_us);
@@ -940,32 +978,55 @@ static inline void slot_add(curve_player_t *curve, unsigned k, unsigned j) {
                                 curve->remainder[j], curve->den, curve->remainder[k]);
 }
 
-/* The first ticks of a warming segment, e = h, 2h, 3h (N the numerator, D1 to D3 its
- * differences, _i at tick i): each finds the value with only what it needs prepared.
- * Tick 1: D1_0 = a1 + a2 + a3, N_1 = N_0 + D1_0. Tick 2: D3 = 6 a3, D2_0 = 2 a2 + 6 a3,
- * D1_1 = D1_0 + D2_0, N_2 = N_1 + D1_1. Tick 3: D2_1 = D2_0 + D3, D1_2 = D1_1 + D2_1,
- * D2_2 = D2_1 + D3 (where stepping would stand after tick 2), then the step. */
+/* The ticks of a warming segment after its first, e = h to 5h (N the numerator, D1 to D3
+ * its differences, _i at tick i): each finds the value with only what it needs prepared,
+ * and the differences catch up with the step an addition a tick, so that no tick takes
+ * more than about six additions' worth.
+ * Tick 1: D1_0 = a1 + a2 + a3, N_1 = N_0 + D1_0. Tick 2: T = 3 a3 (the scratch),
+ * D2_0 = 2 (a2 + T) = 2 a2 + 6 a3, D1_1 = D1_0 + D2_0, N_2 = N_1 + D1_1. Tick 3: D3 = 2 T,
+ * D2_1 = D2_0 + D3, D1_2 = D1_1 + D2_1, N_3 = N_2 + D1_2, D2_2 = D2_1 + D3. Tick 4:
+ * D1_3 = D1_2 + D2_2, N_4 = N_3 + D1_3, D2_3 = D2_2 + D3, D1_4 = D1_3 + D2_3. Tick 5:
+ * D2_4 = D2_3 + D3 (where stepping stands after tick 4), then the step. */
 static int64_t curve_warm_step(curve_player_t *curve) {
-    phase_t p = curve_warm_phase(curve);
-    segment_t s = curve_segment(curve);
-    p.s = &s;
+    int64_t *q = curve->quotient;
+    uint32_t(*r)[WORDS] = curve->remainder;
+    const uint32_t *den = curve->den;
     switch (curve->warming--) {
-    case 3:
+    case 5: {
+        phase_t p = curve_warm_phase(curve);   /* the phases after a1's read no segment */
         phases_to_delta1(&p);
         slot_add(curve, 0, 1);
-        return numerator_value(curve);
-    case 2:
-        phases_after_delta1(&p);
+        break;
+    }
+    case 4:
+        curve->warm_quotient = qr_add(q[3], r[3], q[3], r[3], den, curve->warm_remainder);
+        curve->warm_quotient = qr_add(curve->warm_quotient, curve->warm_remainder, q[3], r[3],
+                                      den, curve->warm_remainder);
+        q[2] = qr_add(q[2], r[2], curve->warm_quotient, curve->warm_remainder, den, r[2]);
+        slot_add(curve, 2, 2);
         slot_add(curve, 1, 2);
         slot_add(curve, 0, 1);
-        return numerator_value(curve);
-    default:
+        break;
+    case 3:
+        q[3] = qr_add(curve->warm_quotient, curve->warm_remainder, curve->warm_quotient,
+                      curve->warm_remainder, den, r[3]);
         slot_add(curve, 2, 3);
         slot_add(curve, 1, 2);
+        slot_add(curve, 0, 1);
+        slot_add(curve, 2, 3);
+        break;
+    case 2:
+        slot_add(curve, 1, 2);
+        slot_add(curve, 0, 1);
+        slot_add(curve, 2, 3);
+        slot_add(curve, 1, 2);
+        break;
+    default:
         slot_add(curve, 2, 3);
         curve->stepping = true;
         return curve_step(curve);
     }
+    return numerator_value(curve);
 }
 
 int64_t curve_next_position(curve_player_t *curve, int32_t current_desired, int64_t tick_us) {

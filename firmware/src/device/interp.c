@@ -1085,14 +1085,15 @@ static void call_set_output_at(const call_t *call) {
     int64_t value = call->args[1];
     int64_t tick = call->args[2];
     message_t m = {.length = 0};
+    output_queue_t *q = &servo_state.outputs;
     platform_servo_lock();
     int32_t fault = servo_state.fault;
-    uint32_t pending = servo_state.outputs.pending;
-    uint32_t slot = (servo_state.outputs.head + pending) % OUTPUT_QUEUE_CAPACITY;
-    int64_t last_tick =
-        pending > 0
-            ? servo_state.outputs.queue[(slot + OUTPUT_QUEUE_CAPACITY - 1u) % OUTPUT_QUEUE_CAPACITY].tick
+    uint32_t pending = servo_pending_outputs(&servo_state);
+    output_record_t *last =
+        q->records > 0
+            ? &q->queue[(q->head + q->records - 1u) % OUTPUT_QUEUE_CAPACITY]
             : 0;
+    int64_t last_tick = last ? last->tick : 0;
     if (fault != FAULT_NONE) {
         platform_servo_unlock();
         message_text(&m, "fault ");
@@ -1114,7 +1115,7 @@ static void call_set_output_at(const call_t *call) {
         print_err_call(CALL_SET_OUTPUT_AT, m.text);
         return;
     }
-    if (pending > 0 && tick < last_tick) {
+    if (last && tick < last_tick) {
         platform_servo_unlock();
         message_text(&m, "tick ");
         message_int(&m, tick);
@@ -1128,12 +1129,21 @@ static void call_set_output_at(const call_t *call) {
         print_plain(call_table[CALL_SET_OUTPUT_AT].refusal);
         return;
     }
-    servo_state.outputs.queue[slot] =
-        (output_change_t){.tick = tick, .output = (int32_t)output, .value = (int32_t)value};
-    if (pending == 0) {
-        servo_state.outputs.next = tick;
+    /* the outputs once every pending change applied, with this one */
+    output_record_t *record = last;
+    if (!last || tick != last_tick) {
+        record = &q->queue[(q->head + q->records) % OUTPUT_QUEUE_CAPACITY];
+        record->values = last ? last->values : q->values;
+        record->tick = tick;
+        record->changes = 0;
+        if (q->records == 0) {
+            q->next = tick;
+        }
+        q->records += 1u;
     }
-    servo_state.outputs.pending = pending + 1u;
+    record->values.per_mille[output] = (int16_t)value;
+    record->changes += 1u;
+    platform_outputs_form(record->values.per_mille, &record->pins);
     platform_servo_unlock();
     debug_line(CALL_SET_OUTPUT_AT,
                (field_t[]){NUMBER(output), NUMBER(value), NUMBER(tick),
@@ -1147,9 +1157,9 @@ static void call_outputs(const call_t *call) {
     }
     int32_t values[OUTPUT_COUNT];
     for (uint32_t output = 0; output < OUTPUT_COUNT; output++) {
-        values[output] = servo_state.outputs.values[output];
+        values[output] = servo_state.outputs.values.per_mille[output];
     }
-    uint32_t pending = servo_state.outputs.pending;
+    uint32_t pending = servo_pending_outputs(&servo_state);
     int64_t last = servo_state.outputs.last;
     platform_servo_unlock();
     reply(CALL_OUTPUTS, (field_t[]){NUMBER(values[0]), NUMBER(values[1]), NUMBER(values[2]),

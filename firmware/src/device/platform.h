@@ -60,10 +60,19 @@ void platform_motor_pins_drive(int32_t level, bool enable);
 int32_t platform_motor_pins_full(void);
 
 /* The outputs of call 42 (0 and 1 digital, 2 and 3 PWM), on either motor. Started once by
- * core0 at power-up, every output at 0; set by core1 on the tick a change applies (and to 0
- * on the tick a fault latches): `value` per mille of full duty, a digital output on for
- * 1000. A platform without them (the native build) keeps nothing. */
-void platform_outputs_start(void);                               /* core0 */
-void platform_output_set(uint32_t output, int32_t value);        /* core1 */
+ * core0 at power-up, every output at 0. core0 puts the outputs' values (per mille of full
+ * duty, a digital output on for 1000) in the form the platform writes them when it queues a
+ * change (platform_outputs_form); core1 writes that form on the tick the change applies
+ * (platform_outputs_write), every output at once, and the form of every output at 0 (all
+ * zero words) on the tick a fault latches. A platform without them (the native build) keeps
+ * nothing. */
+#define PLATFORM_OUTPUT_COUNT 4u
+typedef struct {
+    uint32_t words[2];
+} output_pins_t;
+void platform_outputs_start(void);                                   /* core0 */
+void platform_outputs_form(const int16_t values[PLATFORM_OUTPUT_COUNT],
+                           output_pins_t *pins);                     /* core0 */
+void platform_outputs_write(const output_pins_t *pins);              /* core1 */
 
 #endif

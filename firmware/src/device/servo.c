@@ -83,44 +83,61 @@ void servo_state_init(servo_state_t *state, int32_t mode) {
 }
 
 void servo_drop_pending_outputs(servo_state_t *state) {
-    state->outputs.pending = 0;
+    state->outputs.records = 0;
     state->outputs.head = 0;
     state->outputs.next = OUTPUT_NONE_PENDING;
 }
 
-/* core1.apply_outputs: every pending change due at this tick's clock, in the order given.
- * Called when the clock reached `next`, the oldest pending change's tick: that one is due,
- * so only the ticks of the ones after it are compared. Out of line: the tick that calls it
- * pays for it, no other does. */
-static void __attribute__((noinline)) apply_outputs(output_queue_t *q, int64_t clock) {
-    uint32_t head = q->head;
-    uint32_t pending = q->pending;
-    q->last = clock;
-    for (;;) {
-        const output_change_t *change = &q->queue[head];
-        q->values[change->output] = change->value;
-        platform_output_set((uint32_t)change->output, change->value);
-        head = (head + 1u) % OUTPUT_QUEUE_CAPACITY;
-        if (--pending == 0) {
-            q->next = OUTPUT_NONE_PENDING;
-            break;
-        }
-        int64_t tick = q->queue[head].tick;
-        if (tick > q->last) {   /* the clock, read back: nothing held across the call */
-            q->next = tick;
-            break;
-        }
+uint32_t servo_pending_outputs(const servo_state_t *state) {
+    const output_queue_t *q = &state->outputs;
+    uint32_t changes = 0;
+    for (uint32_t k = 0; k < q->records; k++) {
+        changes += q->queue[(q->head + k) % OUTPUT_QUEUE_CAPACITY].changes;
     }
-    q->pending = pending;
+    return changes;
+}
+
+/* The oldest pending record, taken off the queue; `next` the tick of the one after it. */
+static inline const output_record_t *output_pop(output_queue_t *q) {
+    uint32_t head = q->head;
+    const output_record_t *record = &q->queue[head];
+    head = (head + 1u) % OUTPUT_QUEUE_CAPACITY;
     q->head = head;
+    uint32_t records = q->records - 1u;
+    q->records = records;
+    q->next = records != 0 ? q->queue[head].tick : OUTPUT_NONE_PENDING;
+    return record;
+}
+
+/* The records after the first that are due on the same tick (queued late); the last. */
+static const output_record_t *__attribute__((noinline)) output_pop_late(output_queue_t *q) {
+    const output_record_t *record;
+    do {
+        record = output_pop(q);
+    } while (q->last >= q->next);
+    return record;
+}
+
+/* core1.apply_outputs: every pending record due at this tick's clock; the outputs as the
+ * last of them leaves them, written at once. Called when the clock reached `next`, the
+ * oldest pending record's tick. Out of line: the tick that calls it pays for it, no other
+ * does. */
+static void __attribute__((noinline)) apply_outputs(output_queue_t *q, int64_t clock) {
+    q->last = clock;
+    const output_record_t *due = output_pop(q);
+    if (clock >= q->next) {
+        due = output_pop_late(q);
+    }
+    q->values.words[0] = due->values.words[0];   /* two moves, not a call of memcpy */
+    q->values.words[1] = due->values.words[1];
+    platform_outputs_write(&due->pins);
 }
 
 /* core1.outputs_off: a fault latched. */
 static void outputs_off(servo_state_t *s) {
-    for (uint32_t output = 0; output < OUTPUT_COUNT; output++) {
-        s->outputs.values[output] = 0;
-        platform_output_set(output, 0);
-    }
+    static const output_pins_t off = {{0, 0}};
+    s->outputs.values = (output_values_t){{0}};
+    platform_outputs_write(&off);
     servo_drop_pending_outputs(s);
 }
 

@@ -31,6 +31,7 @@
 #define STATS_SUM_CAP (1LL << 62)
 #define MICRO 1000000LL
 #define OUTPUT_COUNT 4
+_Static_assert(OUTPUT_COUNT == PLATFORM_OUTPUT_COUNT, "the platform's outputs are call 42's");
 #define OUTPUT_QUEUE_CAPACITY 16u
 #define OUTPUT_NONE_PENDING (1LL << 62)   /* `next` with no change pending: beyond every clock */
 
@@ -100,24 +101,33 @@ typedef struct {
     int64_t tick;      /* the clock after that tick; 0: no edge yet */
 } switch_edge_t;
 
-/* One pending output change (call 42). */
+/* The outputs' values, per mille (0..1000, call 43's); `words` copies them in two moves. */
+typedef union {
+    int16_t per_mille[OUTPUT_COUNT];
+    uint32_t words[OUTPUT_COUNT / 2];
+} output_values_t;
+
+/* The pending changes of call 42 for one tick, as the outputs stand once they applied
+ * (core1.py OUT_RECORD): core0 queues a change into the last record when it is for that
+ * record's tick, else into a new one. */
 typedef struct {
-    int64_t tick;      /* the clock at the start of the tick it applies on */
-    int32_t output;    /* 0..OUTPUT_COUNT-1 */
-    int32_t value;     /* 0..1000, per mille */
-} output_change_t;
+    int64_t tick;                   /* the clock at the start of the tick they apply on */
+    output_values_t values;         /* every output once they applied */
+    output_pins_t pins;             /* Not in core1.py: the values in the platform's form */
+    uint32_t changes;               /* the changes it holds, 1..OUTPUT_QUEUE_CAPACITY */
+} output_record_t;
 
 /* The outputs and the changes pending for them (core1.py S_OUT*), together so that the tick
  * that applies a change reaches them from one pointer. */
 typedef struct {
-    int64_t next;              /* the oldest pending change's tick, or OUTPUT_NONE_PENDING:
+    int64_t next;              /* the oldest pending record's tick, or OUTPUT_NONE_PENDING:
                                 * what a tick compares its clock with */
     int64_t last;              /* the clock at the start of the tick that applied the last
                                 * change; -1: none yet */
-    uint32_t pending;          /* changes queued by call 42, still to come */
+    uint32_t records;          /* records pending (one per tick with changes) */
     uint32_t head;             /* the oldest one's slot in queue */
-    int32_t values[OUTPUT_COUNT];   /* the outputs now (call 43), per mille */
-    output_change_t queue[OUTPUT_QUEUE_CAPACITY];
+    output_values_t values;    /* the outputs now (call 43) */
+    output_record_t queue[OUTPUT_QUEUE_CAPACITY];
 } output_queue_t;
 
 /* What core1 changes (core1.py S_*). */
@@ -288,6 +298,9 @@ int32_t servo_probe(const servo_state_t *state, const servo_params_t *params);
 
 /* Calls 22 and 43: forget the pending output changes; the outputs stay as they are. */
 void servo_drop_pending_outputs(servo_state_t *state);
+
+/* Calls 42 and 43: the output changes pending (the records' changes). */
+uint32_t servo_pending_outputs(const servo_state_t *state);
 
 /* Calls 23 and 37: move the counter's coordinates by `shift` (core0._shift_position, without
  * the queue and curve clearing, which the caller does). */

@@ -21,9 +21,6 @@ _Static_assert(PIN_OUTPUT_3 == PIN_OUTPUT_2 + 1u && PIN_OUTPUT_2 % 2u == 0,
 
 #define OUTPUT_PWM_SLICE ((PIN_OUTPUT_2 >> 1u) & 7u)   /* pwm_gpio_to_slice_num */
 
-/* The PWM outputs' compare levels (A, B), written to the slice's CC register together. */
-static uint32_t pwm_levels[2];
-
 void platform_outputs_start(void) {
     static const uint32_t digital[2] = {PIN_OUTPUT_0, PIN_OUTPUT_1};
     for (unsigned i = 0; i < 2u; i++) {
@@ -35,7 +32,6 @@ void platform_outputs_start(void) {
     pwm_config_set_clkdiv_int(&config, 1);
     pwm_config_set_wrap(&config, (uint16_t)(OUTPUT_PWM_FULL - 1u));
     pwm_init(OUTPUT_PWM_SLICE, &config, false);
-    pwm_levels[0] = pwm_levels[1] = 0;
     pwm_set_both_levels(OUTPUT_PWM_SLICE, 0, 0);
     gpio_set_function(PIN_OUTPUT_2, GPIO_FUNC_PWM);
     gpio_set_function(PIN_OUTPUT_3, GPIO_FUNC_PWM);
@@ -43,15 +39,21 @@ void platform_outputs_start(void) {
 }
 
 /* The digital outputs' pins as SIO masks. */
-static const uint32_t digital_masks[2] = {1u << PIN_OUTPUT_0, 1u << PIN_OUTPUT_1};
+#define OUTPUT_0_MASK (1u << PIN_OUTPUT_0)
+#define OUTPUT_1_MASK (1u << PIN_OUTPUT_1)
 
-void __not_in_flash_func(platform_output_set)(uint32_t output, int32_t value) {
-    if (output >= 2u) {
-        pwm_levels[output - 2u] = (uint32_t)value * OUTPUT_PWM_PER_MILLE;
-        pwm_hw->slice[OUTPUT_PWM_SLICE].cc = pwm_levels[0] | pwm_levels[1] << PWM_CH0_CC_B_LSB;
-    } else if (value != 0) {
-        sio_hw->gpio_set = digital_masks[output];
-    } else {
-        sio_hw->gpio_clr = digital_masks[output];
-    }
+/* The form (platform.h): word 0 the digital outputs' pins that are high, an SIO mask; word 1
+ * the PWM slice's compare register, output 2's level in its A half and output 3's in its B
+ * half. Every output at 0 is both words 0. */
+void platform_outputs_form(const int16_t values[PLATFORM_OUTPUT_COUNT], output_pins_t *pins) {
+    pins->words[0] = (values[0] != 0 ? OUTPUT_0_MASK : 0u) | (values[1] != 0 ? OUTPUT_1_MASK : 0u);
+    pins->words[1] = (uint32_t)values[2] * OUTPUT_PWM_PER_MILLE |
+                     (uint32_t)values[3] * OUTPUT_PWM_PER_MILLE << PWM_CH0_CC_B_LSB;
+}
+
+void __not_in_flash_func(platform_outputs_write)(const output_pins_t *pins) {
+    uint32_t high = pins->words[0];
+    sio_hw->gpio_set = high;
+    sio_hw->gpio_clr = high ^ (OUTPUT_0_MASK | OUTPUT_1_MASK);
+    pwm_hw->slice[OUTPUT_PWM_SLICE].cc = pins->words[1];
 }

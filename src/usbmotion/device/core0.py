@@ -1153,22 +1153,36 @@ class Device:
         if output < DIGITAL_OUTPUTS and value not in (0, OUTPUT_FULL):
             raise _RefusedError(
                 f"output {output} is digital: value {value} must be 0 or {OUTPUT_FULL}")
-        pending = int(state[core1.S_OUT_PENDING])
+        records = int(state[core1.S_OUT_RECORDS])
         head = int(state[core1.S_OUT_HEAD])
-        if pending > 0:
-            last = (head + pending - 1) % OUTPUT_QUEUE_CAPACITY
-            last_tick = int(state[core1.S_OUT_QUEUE + last * core1.OUT_RECORD + 2])
+        last = -1
+        last_tick = 0
+        if records > 0:
+            last = core1.S_OUT_QUEUE + (head + records - 1) % OUTPUT_QUEUE_CAPACITY * (
+                core1.OUT_RECORD)
+            last_tick = int(state[last + core1.OUT_TICK])
             if tick < last_tick:
                 raise _RefusedError(
                     f"tick {tick} is before the last pending change's tick {last_tick}")
+        pending = core1.pending_outputs(state)
         if pending >= OUTPUT_QUEUE_CAPACITY:
             self._print("E42")
             return
-        base = core1.S_OUT_QUEUE + (head + pending) % OUTPUT_QUEUE_CAPACITY * core1.OUT_RECORD
-        state[base : base + core1.OUT_RECORD] = (output, value, tick)
-        if pending == 0:
-            state[core1.S_OUT_NEXT] = tick
-        state[core1.S_OUT_PENDING] = pending + 1
+        if last < 0 or tick != last_tick:
+            # a new record: the outputs as the last record leaves them (or as they are now)
+            base = core1.S_OUT_QUEUE + (head + records) % OUTPUT_QUEUE_CAPACITY * (
+                core1.OUT_RECORD)
+            before = core1.S_OUTPUTS if last < 0 else last + core1.OUT_VALUES
+            state[base + core1.OUT_VALUES : base + core1.OUT_RECORD] = (
+                state[before : before + OUTPUT_COUNT])
+            state[base + core1.OUT_TICK] = tick
+            state[base + core1.OUT_CHANGES] = 0
+            if records == 0:
+                state[core1.S_OUT_NEXT] = tick
+            state[core1.S_OUT_RECORDS] = records + 1
+            last = base
+        state[last + core1.OUT_VALUES + output] = value
+        state[last + core1.OUT_CHANGES] += 1
         self._debug_line(42, output, value, tick, OUTPUT_QUEUE_CAPACITY - pending - 1)
 
     def _call_43(self, call: Call) -> None:
@@ -1176,7 +1190,7 @@ class Device:
         if call.args[0] == 1:
             core1.drop_pending_outputs(state)
         values = state[core1.S_OUTPUTS : core1.S_OUTPUTS + OUTPUT_COUNT].tolist()
-        self._reply(43, *values, int(state[core1.S_OUT_PENDING]), int(state[core1.S_OUT_LAST]))
+        self._reply(43, *values, core1.pending_outputs(state), int(state[core1.S_OUT_LAST]))
 
 
 __all__ = [

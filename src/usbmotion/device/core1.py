@@ -12,8 +12,9 @@ explicitly.
 One servo tick, in order:
 
 0. outputs (call 42): on the tick that begins with the clock at or past the next pending
-   change's tick, every pending change due applies, in the order given; with none pending
-   this is one comparison.
+   record's tick, every pending record due applies: the outputs become those the last of
+   them holds (each record holds the outputs as its changes, in the order given, leave
+   them); with none pending this is one comparison.
 1. motion update (servo enabled only): an armed start tick holds everything until the clock
    reaches it; then every ``scalar`` ticks, starting with the first, the next queue value
    becomes the desired position (mode 1) or velocity (mode 2). An empty queue holds the
@@ -150,19 +151,29 @@ S_PROBE = S_PROBE_EDGE + EDGE_FIELDS
 """The probe input now: 1 closed (touching), 0 open."""
 S_OUTPUTS = S_PROBE + 1
 """The outputs' values now (call 43): ``OUTPUT_COUNT`` entries, 0 .. ``OUTPUT_FULL``."""
-S_OUT_PENDING = S_OUTPUTS + OUTPUT_COUNT
-"""Pending output changes (call 42), at most ``OUTPUT_QUEUE_CAPACITY``."""
-S_OUT_HEAD = S_OUT_PENDING + 1
-"""Slot of the oldest pending change in the ring at :data:`S_OUT_QUEUE`."""
+S_OUT_RECORDS = S_OUTPUTS + OUTPUT_COUNT
+"""Pending records of output changes (call 42), one per tick they apply on, at most
+``OUTPUT_QUEUE_CAPACITY``."""
+S_OUT_HEAD = S_OUT_RECORDS + 1
+"""Slot of the oldest pending record in the ring at :data:`S_OUT_QUEUE`."""
 S_OUT_NEXT = S_OUT_HEAD + 1
-"""The oldest pending change's tick, or :data:`OUTPUT_NONE_PENDING`: the one number a tick
+"""The oldest pending record's tick, or :data:`OUTPUT_NONE_PENDING`: the one number a tick
 compares the clock with."""
 S_OUT_LAST = S_OUT_NEXT + 1
 """The clock at the start of the tick that applied the last change (-1: none yet)."""
 S_OUT_QUEUE = S_OUT_LAST + 1
-"""The pending changes: a ring of ``OUTPUT_QUEUE_CAPACITY`` records of ``OUT_RECORD``
-entries (output, value, tick), in the order given."""
-OUT_RECORD = 3
+"""The pending records: a ring of ``OUTPUT_QUEUE_CAPACITY`` records of ``OUT_RECORD``
+entries, in tick order. A record holds the changes call 42 queued for one tick (in the
+order given) as the outputs stand once they applied: core0 queues a change into the last
+record when it is for that record's tick, else into a new record holding the outputs as
+the last record (or, with none pending, the outputs now) leaves them, with the change."""
+OUT_TICK = 0
+"""A record's entry: the clock at the start of the tick its changes apply on."""
+OUT_CHANGES = 1
+"""A record's entry: the changes of call 42 it holds (1 .. ``OUTPUT_QUEUE_CAPACITY``)."""
+OUT_VALUES = 2
+"""A record's first of ``OUTPUT_COUNT`` entries: every output once its changes applied."""
+OUT_RECORD = OUT_VALUES + OUTPUT_COUNT
 OUTPUT_NONE_PENDING = 1 << 62
 """``S_OUT_NEXT`` with no change pending: beyond every clock."""
 DIAG_SLOTS = 64
@@ -289,36 +300,47 @@ def shift_edges(state: IntArray, shift: int) -> None:
 
 
 def apply_outputs(state: IntArray, clock: int) -> int:
-    """Apply every pending output change whose tick is at or before ``clock`` (the clock at
-    the start of this tick), in order; returns the next pending change's tick, or
-    :data:`OUTPUT_NONE_PENDING`."""
-    pending = int(state[S_OUT_PENDING])
+    """Apply every pending output record whose tick is at or before ``clock`` (the clock at
+    the start of this tick): the outputs as the last of them leaves them; returns the next
+    pending record's tick, or :data:`OUTPUT_NONE_PENDING`."""
+    records = int(state[S_OUT_RECORDS])
     head = int(state[S_OUT_HEAD])
-    applied = 0
-    while pending > 0:
+    due = -1
+    while records > 0:
         base = S_OUT_QUEUE + head * OUT_RECORD
-        if int(state[base + 2]) > clock:
+        if int(state[base + OUT_TICK]) > clock:
             break
-        state[S_OUTPUTS + int(state[base])] = state[base + 1]
+        due = base
         head += 1
         if head == OUTPUT_QUEUE_CAPACITY:
             head = 0
-        pending -= 1
-        applied += 1
-    if applied > 0:
+        records -= 1
+    if due >= 0:
+        for output in range(OUTPUT_COUNT):
+            state[S_OUTPUTS + output] = state[due + OUT_VALUES + output]
         state[S_OUT_LAST] = clock
-    state[S_OUT_PENDING] = pending
+    state[S_OUT_RECORDS] = records
     state[S_OUT_HEAD] = head
     following = OUTPUT_NONE_PENDING
-    if pending > 0:
-        following = int(state[S_OUT_QUEUE + head * OUT_RECORD + 2])
+    if records > 0:
+        following = int(state[S_OUT_QUEUE + head * OUT_RECORD + OUT_TICK])
     state[S_OUT_NEXT] = following
     return following
 
 
+def pending_outputs(state: IntArray) -> int:
+    """The output changes pending (call 43): the changes the pending records hold."""
+    changes = 0
+    head = int(state[S_OUT_HEAD])
+    for k in range(int(state[S_OUT_RECORDS])):
+        slot = (head + k) % OUTPUT_QUEUE_CAPACITY
+        changes += int(state[S_OUT_QUEUE + slot * OUT_RECORD + OUT_CHANGES])
+    return changes
+
+
 def drop_pending_outputs(state: IntArray) -> None:
     """Forget every pending output change (call 43's clear, call 22); the outputs stay."""
-    state[S_OUT_PENDING] = 0
+    state[S_OUT_RECORDS] = 0
     state[S_OUT_HEAD] = 0
     state[S_OUT_NEXT] = OUTPUT_NONE_PENDING
 
