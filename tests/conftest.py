@@ -151,3 +151,16 @@ def default_world() -> Iterator[str]:
     dropped afterwards: the next test starts without its devices."""
     yield "default"
     drop_world("default")
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _child_processes_compile_once(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Python processes the tests start keep the modules they compile in a folder of this
+    run (``PYTHONPYCACHEPREFIX``), even where ``PYTHONDONTWRITEBYTECODE`` is set: each
+    ``usbmotion`` command started would otherwise compile the package's sources anew
+    (a fifth of its start-up), and nothing is written beside the sources."""
+    patch = pytest.MonkeyPatch()
+    patch.setenv("PYTHONPYCACHEPREFIX", str(tmp_path_factory.mktemp("pycache")))
+    patch.delenv("PYTHONDONTWRITEBYTECODE", raising=False)
+    yield
+    patch.undo()

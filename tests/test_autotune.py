@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from tests.test_layering import layering_violations
+from typer.testing import CliRunner
 
 import usbmotion.autotune
 from usbmotion.autotune.identify import MAX_DURATION_S, excitation, identify_axis
@@ -32,6 +33,7 @@ from usbmotion.autotune.model import (
     simulated_model,
 )
 from usbmotion.autotune.verify import check_on_axis, place_loop, step_and_move
+from usbmotion.cli.main import app
 from usbmotion.cli.run import default_machine
 from usbmotion.device import core0
 from usbmotion.device.motor import MotorConstants
@@ -253,6 +255,16 @@ def _usbmotion(*args: str) -> subprocess.CompletedProcess[str]:
                           text=True, timeout=240, check=False)
 
 
+def invoke(*args: str) -> tuple[int, str, str]:
+    """``usbmotion ARGS`` in this process: exit status, stdout, stderr (an exception other
+    than the exit fails the test). For command lines refused before anything runs (the
+    same code as in a process of its own, which ``_usbmotion`` starts for the runs)."""
+    result = CliRunner().invoke(app, list(args))
+    assert not isinstance(result.exception, Exception) or isinstance(
+        result.exception, SystemExit), result.exception
+    return result.exit_code, result.stdout, result.stderr
+
+
 def test_the_command_prints_json_and_writes_the_machine_file(tmp_path: Path) -> None:
     machine_file = tmp_path / "machine.toml"
     shutil.copy(default_machine(), machine_file)
@@ -287,7 +299,7 @@ def test_the_command_prints_json_and_writes_the_machine_file(tmp_path: Path) -> 
     (("--auto", "--travel", "10", "--write"), "is the built-in machine's file"),
 ])
 def test_bad_auto_command_lines_are_clear(args: tuple[str, ...], message: str) -> None:
-    done = _usbmotion("tune", "-a", "X", *args)
-    assert done.returncode == 2
-    assert message in done.stderr
-    assert "Traceback" not in done.stderr
+    code, _, err = invoke("tune", "-a", "X", *args)
+    assert code == 2
+    assert message in err
+    assert "Traceback" not in err

@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
+from usbmotion.cli.main import app
 from usbmotion.errors import ConfigError, GCodeError, UnsupportedGCodeError
 from usbmotion.host.config import DIALECTS, load_config, parse_config
 from usbmotion.motion.dialects import Dialect, dialect_named
@@ -315,12 +315,14 @@ def test_a_machine_of_u_v_w_axes_plans_them(tmp_path: Path) -> None:
 
 
 def _run(tmp_path: Path, program: Path, *options: str) -> tuple[dict[str, object], str]:
+    """``usbmotion run PROGRAM`` with a report and a plot, in this process (the command as
+    a process of its own: test_job's test_usbmotion_run_a_demo_as_a_user_does)."""
     report = tmp_path / "report.json"
-    done = subprocess.run(
-        [sys.executable, "-m", "usbmotion", "run", str(program), "--report", str(report),
-         "-q", "--plot", str(tmp_path / "plot.png"), *options],
-        capture_output=True, text=True, timeout=600, check=False)
-    assert done.returncode == 0, done.stdout + done.stderr
+    done = CliRunner().invoke(app, [
+        "run", str(program), "--report", str(report), "-q", "--plot",
+        str(tmp_path / "plot.png"), *options])
+    assert done.exit_code == 0 and done.exception is None, (
+        done.stdout + done.stderr + repr(done.exception))
     assert (tmp_path / "plot.png").stat().st_size > 0
     return json.loads(report.read_text()), done.stdout
 

@@ -36,6 +36,16 @@ def _usbmotion(*args: str, timeout: float = 240) -> subprocess.CompletedProcess[
                           text=True, timeout=timeout, check=False)
 
 
+def invoke(*args: str) -> tuple[int, str, str]:
+    """``usbmotion ARGS`` in this process: exit status, stdout, stderr (an exception other
+    than the exit fails the test). For command lines refused before anything runs (the
+    same code as in a process of its own, which ``_usbmotion`` starts for the runs)."""
+    result = CliRunner().invoke(app, list(args))
+    assert not isinstance(result.exception, Exception) or isinstance(
+        result.exception, SystemExit), result.exception
+    return result.exit_code, result.stdout, result.stderr
+
+
 def test_full_home_zeroes_every_axis_on_its_latched_switch_edge() -> None:
     config = load_config(default_machine())
     with connect_session(config) as session:
@@ -267,10 +277,10 @@ def test_tune_command_prints_the_figures_and_writes_a_plot(tmp_path: Path) -> No
     (("run", "missing.ngc", "-q"), "cannot read"),
 ])
 def test_bad_command_lines_are_clear(args: tuple[str, ...], message: str) -> None:
-    done = _usbmotion(*args)
-    assert done.returncode == 2
-    assert message in done.stderr
-    assert "Traceback" not in done.stderr
+    code, _, err = invoke(*args)
+    assert code == 2
+    assert message in err
+    assert "Traceback" not in err
 
 
 def test_end_points_are_measured_against_the_whole_path() -> None:

@@ -24,6 +24,7 @@ from tests.executed import (
     check_limits,
     check_same_path,
     distance_to_path,
+    near_the_switches,
     record,
 )
 
@@ -40,7 +41,7 @@ DEMO = Path(usbmotion.__file__).parent / "data" / "demos" / "1-rounded-square.ng
 
 @pytest.fixture(scope="module")
 def config() -> MachineConfig:
-    return load_config(default_machine())
+    return near_the_switches(load_config(default_machine()))
 
 
 def _run(config: MachineConfig,

@@ -19,6 +19,7 @@ from tests.executed import (
     check_limits,
     check_same_path,
     distance_to_path,
+    near_the_switches,
     record,
 )
 from tests.programs.engraving import engraving
@@ -49,7 +50,7 @@ G0 Z0
 
 @pytest.fixture(scope="module")
 def config() -> MachineConfig:
-    return load_config(default_machine())
+    return near_the_switches(load_config(default_machine()))
 
 
 def _record(config: MachineConfig, go: Callable[[MachineSession], RunReport],

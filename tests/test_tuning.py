@@ -11,7 +11,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
+from usbmotion.cli.main import app
 from usbmotion.cli.run import default_machine
 from usbmotion.clock import WALL_CLOCK
 from usbmotion.device import Device, MemoryFlash
@@ -196,6 +198,16 @@ def _usbmotion(*args: str) -> subprocess.CompletedProcess[str]:
                           text=True, timeout=120, check=False)
 
 
+def invoke(*args: str) -> tuple[int, str, str]:
+    """``usbmotion ARGS`` in this process: exit status, stdout, stderr (an exception other
+    than the exit fails the test). For command lines refused before anything runs (the
+    same code as in a process of its own, which ``_usbmotion`` starts for the runs)."""
+    result = CliRunner().invoke(app, list(args))
+    assert not isinstance(result.exception, Exception) or isinstance(
+        result.exception, SystemExit), result.exception
+    return result.exit_code, result.stdout, result.stderr
+
+
 def test_tune_reach_prints_the_figures_and_the_line_for_the_machine_file() -> None:
     done = _usbmotion("tune", "--axis", "x", "--reach")
     assert done.returncode == 0, done.stderr
@@ -223,10 +235,10 @@ def test_tune_reach_prints_the_figures_and_the_line_for_the_machine_file() -> No
     ],
 )
 def test_tune_reach_refuses_what_does_not_apply(args: tuple[str, ...], message: str) -> None:
-    done = _usbmotion("tune", "--axis", "X", *args)
-    assert done.returncode == 2
-    assert message in done.stderr
-    assert "Traceback" not in done.stderr
+    code, _, err = invoke("tune", "--axis", "X", *args)
+    assert code == 2
+    assert message in err
+    assert "Traceback" not in err
 
 
 @pytest.mark.parametrize(("args", "message"), [
@@ -242,8 +254,7 @@ def test_tune_reach_refuses_what_does_not_apply(args: tuple[str, ...], message: 
 ])
 def test_tune_refuses_a_test_beyond_the_travel_before_anything_moves(
         args: tuple[str, ...], message: str) -> None:
-    done = _usbmotion("tune", *args)
-    assert (done.returncode, done.stdout, done.stderr) == (2, "", message)
+    assert invoke("tune", *args) == (2, "", message)
 
 
 def test_a_step_is_checked_from_where_the_axis_stands() -> None:

@@ -33,5 +33,10 @@ def positions(device: Device, ticks: int) -> list[int]:
 
 
 def desired_positions(device: Device, ticks: int) -> list[int]:
-    """Run ``ticks`` ticks one at a time and return the desired position after each."""
-    return [state.desired for state in states(device, ticks)]
+    """Run ``ticks`` ticks one at a time and return the desired position after each (read
+    from the snapshot, and checked against :attr:`Device.desired`, what a recorder reads)."""
+    desired = []
+    for state in states(device, ticks):
+        assert device.desired == state.desired
+        desired.append(state.desired)
+    return desired

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import fields
 
 import pytest
@@ -109,12 +110,28 @@ def _check_line(device: Device, line: bytes) -> None:
 _SPECS = st.sampled_from(CALLS)
 
 
+@functools.cache
+def _any_integers(count: int) -> st.SearchStrategy[list[int]]:
+    return st.lists(st.integers(-(2**40), 2**40), min_size=count, max_size=count)
+
+
+@functools.cache
+def _argument(minimum: int, maximum: int) -> st.SearchStrategy[int]:
+    """A value within a parameter's range (two times in three) or at or just past an end.
+
+    Built once per range: a strategy made afresh at each draw is validated afresh, which
+    cost more than the rest of the example."""
+    inside = st.integers(minimum, maximum)
+    near = st.sampled_from([minimum, maximum, minimum - 1, maximum + 1, 0, 1])
+    return st.one_of(inside, inside, near)
+
+
 @st.composite
 def _integer_lines(draw: st.DrawFn) -> bytes:
     if draw(st.integers(0, 9)) == 0:
         number = draw(st.integers(-3, 70))
         count = draw(st.integers(0, 5))
-        args = draw(st.lists(st.integers(-(2**40), 2**40), min_size=count, max_size=count))
+        args = draw(_any_integers(count))
     else:
         spec = draw(_SPECS)
         number = spec.number
@@ -128,11 +145,7 @@ def _integer_lines(draw: st.DrawFn) -> bytes:
         else:
             args = []
             for param in params:
-                near = st.sampled_from(
-                    [param.minimum, param.maximum, param.minimum - 1, param.maximum + 1, 0, 1]
-                )
-                inside = st.integers(param.minimum, param.maximum)
-                args.append(draw(st.one_of(inside, inside, near)))
+                args.append(draw(_argument(param.minimum, param.maximum)))
             if spec.counted and args:
                 if draw(st.integers(0, 3)) == 0:
                     args[lead] = draw(st.integers(-1, 30))

@@ -63,28 +63,39 @@ def lines(*texts: str | bytes) -> Feed:
                          for t in texts))
 
 
+class PythonReplay:
+    """The Python device playing a session one step at a time, keeping every line it
+    printed with its tick (``printed``)."""
+
+    def __init__(self) -> None:
+        self.device = Device()
+        self.now = 0
+        self.printed: Printed = []
+
+    def _take(self) -> None:
+        for ago, chunk in self.device.take_timed_output():
+            assert chunk.endswith(b"\n")
+            self.printed.extend((self.now - ago, line) for line in chunk[:-1].split(b"\n"))
+
+    def play(self, step: Step) -> None:
+        """Play one step."""
+        if isinstance(step, Feed):
+            self.device.feed(step.data)
+        elif isinstance(step, Run):
+            self.device.run(step.ticks)
+            self.now += step.ticks
+        else:
+            self._take()
+            self.device.restart()
+        self._take()
+
+
 def python_replay(steps: Iterable[Step]) -> Printed:
     """The session on the Python device."""
-    device = Device()
-    now = 0
-    printed: Printed = []
-
-    def take() -> None:
-        for ago, chunk in device.take_timed_output():
-            assert chunk.endswith(b"\n")
-            printed.extend((now - ago, line) for line in chunk[:-1].split(b"\n"))
-
+    replay = PythonReplay()
     for step in steps:
-        if isinstance(step, Feed):
-            device.feed(step.data)
-        elif isinstance(step, Run):
-            device.run(step.ticks)
-            now += step.ticks
-        else:
-            take()
-            device.restart()
-        take()
-    return printed
+        replay.play(step)
+    return replay.printed
 
 
 def first_difference(expected: Printed, actual: Printed) -> str:
@@ -128,15 +139,19 @@ def simulated_motor_only(line: bytes) -> bytes:
 
 def fuzz_steps(steps: Sequence[Lines | Silence | PowerCycle], *,
                motor_steps: int = MOTOR_STEPS_PER_EXAMPLE,
-               max_ticks: int | None = None) -> list[Step]:
+               max_ticks: int | None = None,
+               replay: PythonReplay | None = None) -> list[Step]:
     """A fuzz session as the replay's steps, its silences cut to a budget.
 
     ``motor_steps`` is the fuzz test's budget of simulated motor steps (measured on a Python
     device, so both replays run the same ticks); ``max_ticks``, when given, also bounds the
     servo ticks of the whole session (an emulated chip costs per tick, whatever the motor).
-    A silence cut short runs in one piece.
+    A silence cut short runs in one piece. The budget is measured by playing each step on
+    ``replay`` (a fresh one when not given): given, it holds the Python's side of the
+    comparison afterwards (what :func:`python_replay` of the steps returns).
     """
-    device = Device()
+    if replay is None:
+        replay = PythonReplay()
     budget = motor_steps
     ticks_left = max_ticks
     out: list[Step] = []
@@ -146,10 +161,10 @@ def fuzz_steps(steps: Sequence[Lines | Silence | PowerCycle], *,
             position = 0
             for cut in (*step.cuts, len(data)):
                 out.append(Feed(data[position:cut]))
-                device.feed(data[position:cut])
+                replay.play(out[-1])
                 position = cut
         elif isinstance(step, Silence):
-            cost = max(1, device.motor_constants.steps)
+            cost = max(1, replay.device.motor_constants.steps)
             ticks = min(step.ticks, budget // cost)
             if ticks_left is not None:
                 ticks = min(ticks, ticks_left)
@@ -158,11 +173,10 @@ def fuzz_steps(steps: Sequence[Lines | Silence | PowerCycle], *,
             pieces = step.pieces if ticks == step.ticks else (ticks,)
             for piece in pieces:
                 out.append(Run(piece))
-                device.run(piece)
+                replay.play(out[-1])
         else:
             out.append(Power())
-            device.restart()
-        device.take_output()
+            replay.play(out[-1])
     return out
 
 

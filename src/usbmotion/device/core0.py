@@ -295,6 +295,12 @@ class Device:
         return int(self._state[core1.S_CLOCK])
 
     @property
+    def desired(self) -> int:
+        """The desired position now, counts (:attr:`state`'s ``desired``, without the
+        whole snapshot: a recorder reads it after every tick)."""
+        return int(self._state[core1.S_DESIRED])
+
+    @property
     def tick_us(self) -> int:
         """The servo period (``servo_update_interval_us``), microseconds."""
         return self._interval_dms * 100

@@ -48,11 +48,11 @@ class ExecutedRecorder:
         def step(ticks: int) -> None:
             for _ in range(ticks):
                 run(device, 1)
-                state = device.state
-                clocks.append(state.clock)
-                desired.append(state.desired)
+                clock = device.clock
+                clocks.append(clock)
+                desired.append(device.desired)
                 if on_tick is not None:
-                    on_tick(state.clock)
+                    on_tick(clock)
         return step
 
     def positions(self) -> npt.NDArray[np.int64]:
