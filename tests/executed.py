@@ -10,6 +10,7 @@ from collections.abc import Callable
 
 import numpy as np
 import numpy.typing as npt
+import tomlkit
 
 from usbmotion.host.config import MachineConfig
 from usbmotion.session import MachineSession
@@ -36,6 +37,19 @@ def near_the_switches(config: MachineConfig, mm: float = 5.0) -> MachineConfig:
         axes.append(axis if axis.sim is None else dataclasses.replace(
             axis, sim=dataclasses.replace(axis.sim, start_mm=start_mm)))
     return dataclasses.replace(config, axes=tuple(axes))
+
+
+def near_the_switches_text(text: str, mm: float = 5.0) -> str:
+    """A machine file's ``text`` with its simulated carriages powering up as
+    :func:`near_the_switches` has them (for tests that hand the command a file)."""
+    document = tomlkit.parse(text)
+    for table in document["axes"].values():  # type: ignore[union-attr]
+        sim = table.get("sim")
+        if sim is None or "start_mm" not in sim:
+            continue
+        low, high = table["travel_mm"]
+        sim["start_mm"] = low + mm if table["homing"]["direction"] < 0 else high - mm
+    return tomlkit.dumps(document)
 
 
 def record(config: MachineConfig, go: Callable[[MachineSession], RunReport],

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tests.executed import near_the_switches_text
 
 from usbmotion.console import Console
 from usbmotion.errors import ConfigError, GCodeError
@@ -29,8 +30,10 @@ LASER = Path(__file__).resolve().parents[1] / "examples" / "laser.toml"
 
 
 def _laser(folder: Path, text: str | None = None) -> Path:
+    """examples/laser.toml (or ``text``), its carriages powering up near their switches
+    (these tests home only to begin)."""
     path = folder / "laser.toml"
-    path.write_text(text if text is not None else LASER.read_text())
+    path.write_text(near_the_switches_text(text if text is not None else LASER.read_text()))
     return path
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tests.executed import near_the_switches
 
 from usbmotion.automation import device_io
 from usbmotion.cli.run import default_machine
@@ -44,6 +45,13 @@ LINE = "G21 G90\nG1 X150 F1200\nM2\n"
 @pytest.fixture(scope="module")
 def config() -> MachineConfig:
     return load_config(default_machine())
+
+
+@pytest.fixture(scope="module")
+def near(config: MachineConfig) -> MachineConfig:
+    """The machine, its carriages powering up near their switches: for the tests that home
+    only to begin (a third of the homing's time); those about homing take ``config``."""
+    return near_the_switches(config)
 
 
 def _devices(session: MachineSession) -> dict[str, Device]:
@@ -101,14 +109,14 @@ def test_each_state_decides_its_next_state_within_its_transitions() -> None:
 
 
 def test_a_program_starts_where_the_machine_stands_and_can_run_twice(
-        config: MachineConfig) -> None:
-    with connect_session(config) as session:
+        near: MachineConfig) -> None:
+    with connect_session(near) as session:
         assert session.state is MachineState.IDLE and not session.is_homed
         session.home()
         assert session.is_homed
         step = "G21 G91\nG1 X10 Y5 F600\nM2\n"
         first = session.prepare("step.ngc", text=step)
-        assert first.start_mm == tuple(home_position_mm(config.axis(n)) for n in "XYZ")
+        assert first.start_mm == tuple(home_position_mm(near.axis(n)) for n in "XYZ")
         report, _ = session.run(first)
         assert report.completed and report.stop_reason == "completed"
         second = session.prepare("step.ngc", text=step)
@@ -120,12 +128,12 @@ def test_a_program_starts_where_the_machine_stands_and_can_run_twice(
             session.run(first)
 
 
-def test_moves_to_zero_after_homing_touch_no_switch(config: MachineConfig) -> None:
+def test_moves_to_zero_after_homing_touch_no_switch(near: MachineConfig) -> None:
     """The switch is outside the travel: G0 X0 and the CAM retracts to the top of Z
     (G28 G91 Z0, G53 G0 Z0) are moves, not faults."""
     program = ("G21 G90\nG0 X50 Y40 Z-20\nG0 X0 Y0\nG28 G91 Z0\nG90 G0 Z-30\n"
                "G53 G0 Z0\nG90 G0 X0 Y0 Z0\nM2\n")
-    with connect_session(config) as session:
+    with connect_session(near) as session:
         session.home()
         report, _ = session.run(session.prepare("zero.ngc", text=program))
         assert report.completed and report.faults == ()
@@ -141,9 +149,9 @@ def test_moves_to_zero_after_homing_touch_no_switch(config: MachineConfig) -> No
     ("G21 G90\nG0 Z-50\nG1 Z-100.5 F100\nM2\n", 3, "Z", -100.5, -100.0),
 ])
 def test_a_program_that_leaves_the_travel_is_refused_before_anything_moves(
-        config: MachineConfig, program: str, line: int, axis: str, coordinate: float | None,
+        near: MachineConfig, program: str, line: int, axis: str, coordinate: float | None,
         limit: float) -> None:
-    with connect_session(config) as session:
+    with connect_session(near) as session:
         session.home()
         devices = _devices(session)
         before = {name: (d.state.desired, d.state.queued, d.settings) for name, d in
@@ -161,7 +169,7 @@ def test_a_program_that_leaves_the_travel_is_refused_before_anything_moves(
         assert after == before, "no setpoint was sent"
 
 
-def test_two_runs_in_a_row_ending_at_the_top_of_z_both_complete(config: MachineConfig) -> None:
+def test_two_runs_in_a_row_ending_at_the_top_of_z_both_complete(near: MachineConfig) -> None:
     """``usbmotion run`` twice on the same devices, each a take-over, a program ending with
     the CAM retract G53 G0 Z0 and the servos disabled at its end. The run ends with Z on its
     last setpoint, the top of its travel; a servo that holds a count past it (friction) is
@@ -169,16 +177,16 @@ def test_two_runs_in_a_row_ending_at_the_top_of_z_both_complete(config: MachineC
     from there; a move farther out is still refused."""
     program = "G21 G90\nG0 X10 Y10 Z-20\nG53 G0 Z0\nM2\n"
     world = SimWorld()
-    with connect_session(config, world=world) as first:
+    with connect_session(near, world=world) as first:
         first.home()
         report, _ = first.run(first.prepare("retract.ngc", text=program))
         assert report.completed, report.stop_reason
         assert report.end_position_mm["Z"] == 0.0, "the run ends on its last setpoint"
         first.shutdown()
     top = -1 / 240  # one count below where Z stands
-    shorter = replace(config, axes=tuple(
+    shorter = replace(near, axes=tuple(
         replace(axis, travel_mm=(axis.travel_mm[0], top)) if axis.name == "Z" else axis
-        for axis in config.axes))
+        for axis in near.axes))
     with connect_session(shorter, world=world) as second:
         assert second.is_homed
         start_z = second.positions_mm()["Z"]
@@ -211,16 +219,16 @@ def test_two_runs_in_a_row_ending_at_the_top_of_z_both_complete(config: MachineC
         assert report.completed
 
 
-def test_a_run_from_beyond_the_band_must_come_back_first(config: MachineConfig) -> None:
+def test_a_run_from_beyond_the_band_must_come_back_first(near: MachineConfig) -> None:
     """After a travel made shorter (as after a limit fault or a push by hand) the machine
     stands well outside: a program that moves X first is refused naming Z and its limit,
     a jog of Z back inside is taken."""
-    with connect_session(config) as session:
+    with connect_session(near) as session:
         session.home()
-        shorter = replace(config, axes=tuple(
+        shorter = replace(near, axes=tuple(
             replace(axis, travel_mm=(-100.0, -0.5),
                     homing=replace(axis.homing, pull_off_mm=1.5)) if axis.name == "Z"
-            else axis for axis in config.axes))
+            else axis for axis in near.axes))
         session.reconfigure(shorter)
         assert session.is_homed and session.positions_mm()["Z"] == 0.0
         with pytest.raises(SoftLimitError, match="must bring an axis that stands outside back"
@@ -232,11 +240,11 @@ def test_a_run_from_beyond_the_band_must_come_back_first(config: MachineConfig) 
 
 
 def test_a_rapid_into_the_stock_is_reported_before_and_after_the_run(
-        config: MachineConfig) -> None:
+        near: MachineConfig) -> None:
     """A report, not a refusal: the warning is in the prepared program and heads the
     report's notes; the run goes."""
     program = "G21 G90\nG0 X2 Y2\nG1 Z-3 F300\nG1 X20 F900\nG1 Y20\nG0 X10 Y10\nG0 Z0\nM2\n"
-    with connect_session(config) as session:
+    with connect_session(near) as session:
         session.home()
         prepared = session.prepare("plunge.ngc", text=program)
         assert len(prepared.warnings) == 1
@@ -276,8 +284,8 @@ def _stop_mid_run(session: MachineSession, at_s: float, *, twice: bool = False) 
 
 
 def test_a_stop_mid_run_decelerates_along_the_path_within_v2_over_2a(
-        config: MachineConfig) -> None:
-    with connect_session(config) as session:
+        near: MachineConfig) -> None:
+    with connect_session(near) as session:
         session.home()
         devices = _devices(session)
         _stop_mid_run(session, 3.0)
@@ -303,8 +311,8 @@ def test_a_stop_mid_run_decelerates_along_the_path_within_v2_over_2a(
                    for d in devices.values()), "servos off, no fault latched"
 
 
-def test_a_second_stop_request_stops_at_once(config: MachineConfig) -> None:
-    with connect_session(config) as session:
+def test_a_second_stop_request_stops_at_once(near: MachineConfig) -> None:
+    with connect_session(near) as session:
         session.home()
         _stop_mid_run(session, 2.0, twice=True)
         report, _ = session.last  # type: ignore[attr-defined]
@@ -374,13 +382,13 @@ def test_a_second_host_finds_the_machine_homed_where_the_first_left_it(
 
 
 def test_a_run_that_cannot_start_ends_in_alarm_never_left_running(
-        config: MachineConfig) -> None:
+        near: MachineConfig) -> None:
     """A device refusing to enable (a fault latched since the last command: here its
     watchdog, run out while nobody fed it): the run ends at once in Alarm, the report
     says why; the next program is refused until the machine is reset, not taken as
     started."""
     world = SimWorld()
-    with connect_session(config, world=world) as session:
+    with connect_session(near, world=world) as session:
         session.home()
         prepared = session.prepare("line.ngc", text=LINE)
         client = session.machine.axis("Y").client
@@ -412,9 +420,9 @@ def test_a_fault_an_earlier_host_left_is_reported_cleared_and_needs_homing(
 
 
 def test_motion_an_earlier_host_left_running_is_stopped_along_its_deceleration(
-        config: MachineConfig) -> None:
+        near: MachineConfig) -> None:
     world = SimWorld()
-    with connect_session(config, world=world) as first:
+    with connect_session(near, world=world) as first:
         first.home()
         client = first.machine.axis("X").client
         ramp = [round(4.8 * k * k / 400) if k < 200 else round(4.8 * (k - 100))
@@ -425,7 +433,7 @@ def test_motion_an_earlier_host_left_running_is_stopped_along_its_deceleration(
     assert isinstance(device, Device)
     moving_at = device.state.actual
     assert device.state.queued > 0 and device.state.velocity > 3000, "still running"
-    with connect_session(config, world=world) as second:
+    with connect_session(near, world=world) as second:
         assert any("still running what an earlier host queued" in n for n in second.notices)
         state = device.state
         assert state.queued == 0 and state.velocity == 0
@@ -502,9 +510,9 @@ def test_homing_leaves_alarm_as_grbl_s_dollar_h_does(config: MachineConfig,
         assert session.live.read().state is MachineState.IDLE
 
 
-def test_a_jog_runs_at_its_own_feed_whatever_the_feed_override(config: MachineConfig) -> None:
+def test_a_jog_runs_at_its_own_feed_whatever_the_feed_override(near: MachineConfig) -> None:
     """grbl 1.1: the feed override does not apply to jogs (the next program gets it)."""
-    with connect_session(config) as session:
+    with connect_session(near) as session:
         session.home()
         plain = session.jog({"X": 30.0}, feed_mm_min=600.0)
         session.set_feed_override(50)

@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 import pytest
+from tests.executed import near_the_switches_text
 from typer.testing import CliRunner
 
 from usbmotion.cli.main import app
@@ -32,8 +33,9 @@ PROGRAMS = Path(__file__).parent / "programs"
 
 
 def _machine_file(tmp_path: Path, extra: str = "") -> Path:
-    """The default machine, with its parameter file (and ``extra`` top-level keys) in tmp."""
-    text = default_machine().read_text()
+    """The default machine, with its parameter file (and ``extra`` top-level keys) in tmp,
+    its carriages powering up near their switches (these tests home only to begin)."""
+    text = near_the_switches_text(default_machine().read_text())
     head, sep, rest = text.partition("\n[axes.X]")
     path = tmp_path / "mill.toml"
     path.write_text(head + "\n" + extra + sep + rest)

@@ -172,16 +172,11 @@ def _integer_lines(draw: st.DrawFn) -> bytes:
     return text.encode("ascii")
 
 
-_FAST = settings(
-    max_examples=1500,
-    deadline=None,
-    suppress_health_check=[HealthCheck.too_slow],
-)
-
-
-@_FAST
+@settings(max_examples=500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(_integer_lines(), min_size=1, max_size=4))
 def test_random_integer_lines_follow_the_model(lines: list[bytes]) -> None:
+    """On a device just powered up. The fuzz sessions check the same lines against the same
+    model on devices in every state (tests/fuzz/test_device_fuzz.py)."""
     device = Device()
     for line in lines:
         _check_line(device, line)

@@ -454,7 +454,7 @@ def test_fuzz_sessions(driver: Driver, steps: list[Lines | Silence | PowerCycle]
         assert_fuzz_same(driver, steps)
 
 
-@fuzz_settings()
+@fuzz_settings(quick=100)
 @given(st.lists(st.one_of(_STEP, LOUD), min_size=1, max_size=10))
 def test_fuzz_sessions_with_diagnostics(driver: Driver,
                                         steps: list[Lines | Silence | PowerCycle]) -> None:

@@ -18,15 +18,15 @@ HANG_S = 10.0
 """One example running longer than this is a hang: the example fails."""
 
 
-def examples() -> int:
-    """Examples per property, from ``USBMOTION_FUZZ_EXAMPLES`` (default 300).
+def examples(quick: int = DEFAULT_EXAMPLES) -> int:
+    """Examples per property, from ``USBMOTION_FUZZ_EXAMPLES``; ``quick`` when it is not set.
 
     Raises:
         ValueError: the variable is set but is not a whole number >= 1.
     """
     text = os.environ.get(ENV, "").strip()
     if not text:
-        return DEFAULT_EXAMPLES
+        return quick
     try:
         count = int(text.replace("_", ""))
     except ValueError:
@@ -36,14 +36,16 @@ def examples() -> int:
     return count
 
 
-def fuzz_settings() -> settings:
+def fuzz_settings(*, quick: int = DEFAULT_EXAMPLES) -> settings:
     """Hypothesis settings of a fuzz property: the example budget, no deadline.
 
-    A hang is caught by :func:`hang_guard` instead of a deadline, so a slow shared
-    machine does not make a property flaky.
+    ``quick``: the examples of the quick run (the variable not set), for a property whose
+    examples cost several times the others'; the long run gives every property the
+    variable's budget. A hang is caught by :func:`hang_guard` instead of a deadline, so a
+    slow shared machine does not make a property flaky.
     """
     return settings(
-        max_examples=examples(),
+        max_examples=examples(quick),
         deadline=None,
         suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
     )
