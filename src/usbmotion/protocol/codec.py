@@ -439,6 +439,28 @@ def parse_diagnostics(line: bytes) -> tuple[int, ...] | None:
     return None if found is None else tuple(map(int, found.groups()))
 
 
+_DIAGNOSTICS_LINES = re.compile(
+    b"(?:" + re.escape(DIAGNOSTICS.text.split(" ", 1)[0].encode("ascii"))
+    + b"(?: -?[0-9]{1,%d}){%d}\n)*" % (HUGE_DIGITS, len(DIAGNOSTICS.fields)))
+"""Whole diagnostics lines, each ended by a newline: a single space before every value, no
+sign but ``-``, no value beyond what an int64 holds."""
+
+
+def parse_diagnostics_lines(lines: Sequence[bytes]) -> npt.NDArray[np.int64] | None:
+    """The values of diagnostics lines, one row per line in order, converted by numpy in one
+    pass; None unless every line is a diagnostics line written exactly as a device prints
+    it (anything else, :func:`parse_diagnostics` and :func:`parse_reply` take one line
+    at a time)."""
+    fields = len(DIAGNOSTICS.fields)
+    if not lines:
+        return np.zeros((0, fields), dtype=np.int64)
+    text = b"\n".join(lines) + b"\n"
+    if _DIAGNOSTICS_LINES.fullmatch(text) is None:
+        return None
+    values = np.fromstring(text.replace(b"D", b" "), dtype=np.int64, sep=" ")
+    return values.reshape(len(lines), fields)
+
+
 def parse_reply(line: bytes | str) -> Reply:
     """Parse one line from the device.
 
