@@ -188,6 +188,13 @@ class Checkpoint:
     fed: int
 
 
+def _frozen(array: IntArray) -> IntArray:
+    """A read-only copy of ``array``, made through its bytes: ``array.copy()`` of more than
+    500 values lets go of the interpreter's lock, and a device run beside another thread
+    (``usbmotion.sim.world``) then waits to take it back."""
+    return np.frombuffer(array.tobytes(), dtype=array.dtype)
+
+
 class _RefusedError(Exception):
     """A call the table accepts but the device state refuses: answered ``ERR <call> ...``."""
 
@@ -355,7 +362,7 @@ class Device:
         """Everything :meth:`run` changes, now: :meth:`rewind` returns to it. A simulation
         that runs a device ahead of its host's clock keeps one, to take the device back
         when input arrives for a tick it already ran (``usbmotion.sim.world``)."""
-        return Checkpoint(self._state.copy(), self._params.copy(), self._settle_left,
+        return Checkpoint(_frozen(self._state), _frozen(self._params), self._settle_left,
                           self._curve.snapshot(), bytes(self._output), tuple(self._stamps),
                           self._fed)
 
