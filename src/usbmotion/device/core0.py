@@ -37,7 +37,7 @@ from usbmotion.device.core1 import (
 )
 from usbmotion.device.curve import CurvePlayer
 from usbmotion.device.flash import Flash, FlashContents, MemoryFlash
-from usbmotion.device.kernel import BlockFunction, compile_kernel, use_kernel
+from usbmotion.device.kernel import BlockFunction, compile_kernel, use_kernel, warm_up
 from usbmotion.device.motor import (
     DIGITS,
     MICRO,
@@ -209,7 +209,7 @@ class Device:
         fast: run core1 as the compiled kernel (True), as the reference Python (False),
             or (None) as :func:`usbmotion.device.kernel.use_kernel` decides: the kernel
             when numba is installed, unless ``USBMOTION_KERNEL=0``. Both are bit-for-bit
-            equal.
+            equal. The kernel is loaded (or compiled) when the device is made.
 
     Raises:
         DeviceParameterError: a parameter of the wrong type, or ``fast=True`` without
@@ -234,6 +234,8 @@ class Device:
         if gains is not None and not isinstance(gains, Gains):
             raise DeviceParameterError(f"gains {gains!r} is not a Gains")
         self._fast = use_kernel(fast)
+        if self._fast:
+            warm_up()
         self._flash: Flash = flash if flash is not None else MemoryFlash()
         self._power_up_motor = motor if motor is not None else MotorParams()
         self._power_up_gains = gains if gains is not None else Gains()
