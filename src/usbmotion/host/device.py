@@ -69,6 +69,8 @@ HELD_LINES = 4096
 """The most diagnostics lines a client holds for a block listener
 (:attr:`DeviceClient.on_diagnostics_block`) before it hands them over by itself."""
 _DIAGNOSTICS_HEAD = DIAGNOSTICS.head.encode("ascii") + b" "
+_QUEUE_QUERY = encode_call(C.MOTION_QUEUE, -1)
+"""Call 2's query, the line behind every setter and batch."""
 _INT64 = range(-(1 << 63), 1 << 63)
 
 _MARKERS = random.Random()
@@ -226,15 +228,19 @@ class DeviceClient:
     def send_with_status(self, number: int, *args: int) -> None:
         """Send one call and a queue-status query behind it in the same write, without
         waiting: the status answer (:meth:`next_reply`) says the call has executed."""
-        self.transport.write(encode_call(number, *args) + encode_call(C.MOTION_QUEUE, -1))
+        self.transport.write(encode_call(number, *args) + _QUEUE_QUERY)
 
     def send_counted_with_status(self, number: int, lead: Sequence[int],
                                  items: Sequence[int] | npt.NDArray[np.integer]) -> None:
         """As :meth:`send_with_status` for a counted call (``number``, ``lead``, the count
         and the ``items``: a batch of setpoints), its items checked and written as one
         array (:func:`~usbmotion.protocol.codec.encode_counted`)."""
-        self.transport.write(encode_counted(number, lead, items)
-                             + encode_call(C.MOTION_QUEUE, -1))
+        self.transport.write(encode_counted(number, lead, items) + _QUEUE_QUERY)
+
+    def send_queue_query(self) -> None:
+        """Call 2's query (the queue's level and room), without waiting: its answer is read
+        by :meth:`next_reply`."""
+        self.transport.write(_QUEUE_QUERY)
 
     def take_debug_lines(self, number: int) -> list[Reply]:
         """The debug lines of call ``number`` read so far (oldest first), no longer kept."""
@@ -462,7 +468,7 @@ class DeviceClient:
         ``ERR`` or a refusal the line caused is raised here, once the link is in step again.
         """
         self._realign()
-        self.transport.write(line + encode_call(C.MOTION_QUEUE, -1))
+        self.transport.write(line + _QUEUE_QUERY)
         return self._await_answer(C.MOTION_QUEUE, after_error=True)
 
     def sync(self) -> tuple[int, int]:

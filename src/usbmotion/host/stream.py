@@ -347,7 +347,7 @@ class SetpointStream:
     def _status(self) -> tuple[int, int]:
         """Queue status, asked again (after draining the link) when garbled or lost."""
         for _ in range(RESYNC_ATTEMPTS):
-            self.client.send(C.MOTION_QUEUE, -1)
+            self.client.send_queue_query()
             self.status_queries += 1
             answer = self._exchange()
             if answer is not None:

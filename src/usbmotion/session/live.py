@@ -275,8 +275,10 @@ class LiveModel:
         kept = min(count, PEAK_LINES)
         with self._lock:
             taken = self._counts[axis]
-            first = taken + count - kept
-            state.peaks[np.arange(first, first + kept) % PEAK_LINES] = peak[count - kept:]
+            first = (taken + count - kept) % PEAK_LINES
+            end = min(first + kept, PEAK_LINES)  # the ring's end, and its start after it
+            state.peaks[first:end] = peak[count - kept:count - kept + end - first]
+            state.peaks[:kept - (end - first)] = peak[count - kept + end - first:]
             self._counts[axis] = taken + count
 
     def take_status(self, axis: str, *, clock: int, desired: int, actual: int,

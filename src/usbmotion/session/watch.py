@@ -105,6 +105,10 @@ class Watch:
             self.live.take_lines(axis, lines.clock, lines.desired, lines.actual_counts, peaks)
             count, keep = len(lines), self.keep
             magnitude = np.abs(peaks)
+            if keep == 1 and not peak[0]:  # every line kept, each with its own peak
+                taken[0] += count
+                self.trace.extend(axis, lines, magnitude)
+                return
             first = (keep - (taken[0] + 1) % keep) % keep  # the first line kept
             taken[0] += count
             if first >= count:
