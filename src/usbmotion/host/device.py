@@ -282,7 +282,8 @@ class DeviceClient:
         Raises:
             LinkLostError: the port is gone.
         """
-        held = self._held if self.on_diagnostics_block is not None else None
+        held = (self._held if self.on_diagnostics is None
+                and self.on_diagnostics_block is not None else None)
         for line in self.transport.poll_lines():
             if held is not None and line[:2] == _DIAGNOSTICS_HEAD:
                 held.append(line)
