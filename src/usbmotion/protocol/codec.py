@@ -110,10 +110,7 @@ def encode_call(number: int, *args: int) -> bytes:
         args = tuple(int(a) if type(a) is CallNumber else a for a in args)
         types = set(map(type, args))
     if type(number) is int and types <= {int}:
-        check_call(number, args)
-        if args:
-            return f"{number} {_format(len(args)) % args}\n".encode("ascii")
-        return f"{number}\n".encode("ascii")
+        return _encoded(number, args)
     for position, value in enumerate((number, *args)):
         if type(value) is not int:
             raise NonIntegerTokenError(
@@ -122,6 +119,16 @@ def encode_call(number: int, *args: int) -> bytes:
                 reason="not an integer",
             )
     raise AssertionError("unreachable: a non-int input was found above")
+
+
+@functools.lru_cache(maxsize=256)
+def _encoded(number: int, args: tuple[int, ...]) -> bytes:
+    """A valid call as a line, remembered: a host sends the same few calls again and again
+    (the queue and status queries)."""
+    check_call(number, args)
+    if args:
+        return f"{number} {_format(len(args)) % args}\n".encode("ascii")
+    return f"{number}\n".encode("ascii")
 
 
 @functools.lru_cache(maxsize=64)
@@ -211,6 +218,19 @@ def parse_call(line: bytes | str) -> Call:
         NonIntegerTokenError: a token is not a decimal integer (names it).
         UnknownCallError, WrongCountError, OutOfRangeError: see :func:`check_call`.
     """
+    if type(line) is bytes and len(line) <= BULK_BYTES:
+        return _short_call(line)
+    return _parse_call(line)
+
+
+@functools.lru_cache(maxsize=256)
+def _short_call(line: bytes) -> Call:
+    """:func:`parse_call` of a short line, remembered (a line that raises is not): a device
+    reads the same few lines again and again (the queue and status queries)."""
+    return _parse_call(line)
+
+
+def _parse_call(line: bytes | str) -> Call:
     if isinstance(line, bytes):
         if len(line) <= MAX_LINE_BYTES and not line.translate(None, _NUMERIC):
             if len(line) > BULK_BYTES:
