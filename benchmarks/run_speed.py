@@ -155,10 +155,10 @@ def anatomy(
     how the diagnostics lines bound the speed); None keeps the job's own.
     """
     from usbmotion.device import core0, core1, kernel  # noqa: PLC0415
-    from usbmotion.host import device as device_module  # noqa: PLC0415
     from usbmotion.host.config import load_config  # noqa: PLC0415
     from usbmotion.host.device import DeviceClient  # noqa: PLC0415
     from usbmotion.session import watch as job  # noqa: PLC0415 - the job in-process
+    from usbmotion.session.live import LiveModel  # noqa: PLC0415
     from usbmotion.sim.machine import connect_session  # noqa: PLC0415
     from usbmotion.sim.world import SimWorld  # noqa: PLC0415
 
@@ -179,17 +179,15 @@ def anatomy(
     original_interpret = core0.Device._interpret
 
     def take_aside(self: DeviceClient, reply: Any) -> bool:
-        counts["diagnostics_lines"] += reply.kind.name == "DIAGNOSTICS"
         counts["alarm_lines"] += reply.kind.name == "ALARM"
         return original_aside(self, reply)
 
-    original_parse = device_module.parse_diagnostics
+    original_take_lines = LiveModel.take_lines
 
-    def parse_diagnostics(line: bytes) -> Any:
-        """The quick path of the lines read between exchanges (most diagnostics lines)."""
-        values = original_parse(line)
-        counts["diagnostics_lines"] += values is not None
-        return values
+    def take_lines(self: LiveModel, axis: str, clock: Any, *columns: Any) -> None:
+        """Every diagnostics line the job hears reaches the live model, in blocks."""
+        counts["diagnostics_lines"] += len(clock)
+        original_take_lines(self, axis, clock, *columns)
 
     def interpret(self: core0.Device, line: bytes) -> None:
         counts["lines_in"] += 1
@@ -198,7 +196,7 @@ def anatomy(
     shipped_period_s, shipped_points = job.DIAGNOSTICS_PERIOD_S, job.TRACE_POINTS
     core0.compile_kernel = lambda: counting  # type: ignore[attr-defined]
     DeviceClient.take_aside = take_aside  # type: ignore[method-assign]
-    device_module.parse_diagnostics = parse_diagnostics  # type: ignore[assignment]
+    LiveModel.take_lines = take_lines  # type: ignore[method-assign]
     core0.Device._interpret = interpret  # type: ignore[method-assign]
     if diagnostics_period_s is not None:
         job.DIAGNOSTICS_PERIOD_S = diagnostics_period_s
@@ -216,7 +214,7 @@ def anatomy(
         job.DIAGNOSTICS_PERIOD_S, job.TRACE_POINTS = shipped_period_s, shipped_points
         core0.compile_kernel = original_kernel  # type: ignore[attr-defined]
         DeviceClient.take_aside = original_aside  # type: ignore[method-assign]
-        device_module.parse_diagnostics = original_parse  # type: ignore[assignment]
+        LiveModel.take_lines = original_take_lines  # type: ignore[method-assign]
         core0.Device._interpret = original_interpret  # type: ignore[method-assign]
     machine_s = report.homing_time_s + report.planned_time_s
     return {

@@ -37,7 +37,7 @@ from usbmotion.device.core1 import (
 )
 from usbmotion.device.curve import CurvePlayer
 from usbmotion.device.flash import Flash, FlashContents, MemoryFlash
-from usbmotion.device.kernel import BlockFunction, compile_kernel, use_kernel
+from usbmotion.device.kernel import BlockFunction, compile_kernel, use_kernel, warm_up
 from usbmotion.device.motor import (
     DIGITS,
     MICRO,
@@ -188,6 +188,13 @@ class Checkpoint:
     fed: int
 
 
+def _frozen(array: IntArray) -> IntArray:
+    """A read-only copy of ``array``, made through its bytes: ``array.copy()`` of more than
+    500 values lets go of the interpreter's lock, and a device run beside another thread
+    (``usbmotion.sim.world``) then waits to take it back."""
+    return np.frombuffer(array.tobytes(), dtype=array.dtype)
+
+
 class _RefusedError(Exception):
     """A call the table accepts but the device state refuses: answered ``ERR <call> ...``."""
 
@@ -202,7 +209,7 @@ class Device:
         fast: run core1 as the compiled kernel (True), as the reference Python (False),
             or (None) as :func:`usbmotion.device.kernel.use_kernel` decides: the kernel
             when numba is installed, unless ``USBMOTION_KERNEL=0``. Both are bit-for-bit
-            equal.
+            equal. The kernel is loaded (or compiled) when the device is made.
 
     Raises:
         DeviceParameterError: a parameter of the wrong type, or ``fast=True`` without
@@ -227,6 +234,8 @@ class Device:
         if gains is not None and not isinstance(gains, Gains):
             raise DeviceParameterError(f"gains {gains!r} is not a Gains")
         self._fast = use_kernel(fast)
+        if self._fast:
+            warm_up()
         self._flash: Flash = flash if flash is not None else MemoryFlash()
         self._power_up_motor = motor if motor is not None else MotorParams()
         self._power_up_gains = gains if gains is not None else Gains()
@@ -361,7 +370,7 @@ class Device:
         """Everything :meth:`run` changes, now: :meth:`rewind` returns to it. A simulation
         that runs a device ahead of its host's clock keeps one, to take the device back
         when input arrives for a tick it already ran (``usbmotion.sim.world``)."""
-        return Checkpoint(self._state.copy(), self._params.copy(), self._settle_left,
+        return Checkpoint(_frozen(self._state), _frozen(self._params), self._settle_left,
                           self._curve.snapshot(), bytes(self._output), tuple(self._stamps),
                           self._fed)
 

@@ -35,6 +35,7 @@ from usbmotion.protocol import (
     Alarm,
     ControlMode,
     Diagnostics,
+    DiagnosticsBlock,
     MotionStats,
     Outputs,
     ProbeState,
@@ -47,12 +48,13 @@ from usbmotion.protocol import (
     encode_counted,
     encode_device_name,
     parse_diagnostics,
+    parse_diagnostics_lines,
     parse_reply,
     values_crc32,
 )
 from usbmotion.protocol import CallNumber as C
 from usbmotion.protocol.replies import read_replaced
-from usbmotion.protocol.table import HOMED_MARKER_CALL, RESYNC_CALL
+from usbmotion.protocol.table import DIAGNOSTICS, HOMED_MARKER_CALL, RESYNC_CALL
 
 GAIN_CALLS = (C.SET_PROPORTIONAL_GAIN, C.SET_INTEGRAL_GAIN, C.SET_DERIVATIVE_GAIN)
 """The PID's gain calls: kp, ki, kd."""
@@ -62,6 +64,14 @@ SIM_SCIENTIFIC_CALLS = (
     C.SET_SIM_INERTIA, C.SET_SIM_VISCOUS_FRICTION, C.SET_SIM_LOAD_TORQUE,
 )
 """The simulated motor's calls that take a value as 4 significant digits."""
+
+HELD_LINES = 4096
+"""The most diagnostics lines a client holds for a block listener
+(:attr:`DeviceClient.on_diagnostics_block`) before it hands them over by itself."""
+_DIAGNOSTICS_HEAD = DIAGNOSTICS.head.encode("ascii") + b" "
+_QUEUE_QUERY = encode_call(C.MOTION_QUEUE, -1)
+"""Call 2's query, the line behind every setter and batch."""
+_INT64 = range(-(1 << 63), 1 << 63)
 
 _MARKERS = random.Random()
 """Draws the marker values: its own generator, seeded from the operating system, so a
@@ -148,6 +158,10 @@ class DeviceClient:
         """Every ``ALARM`` line read so far, oldest first."""
         self.on_alarm: Callable[[Alarm], None] | None = None
         """Called with each ``ALARM`` line as it is read."""
+        self.on_diagnostics_block: Callable[[DiagnosticsBlock], None] | None = None
+        """While set (and :attr:`on_diagnostics` is not), diagnostics lines are held as they
+        are read and handed to it in blocks by :meth:`deliver_diagnostics`."""
+        self._held: list[bytes] = []
         self.stray_lines = 0
         """Lines :meth:`read_pending` found that no call was waiting for (dropped)."""
         self._replace_acknowledged = False
@@ -168,22 +182,37 @@ class DeviceClient:
         *,
         diagnostics: Callable[[Diagnostics], None] | None = None,
         alarms: Callable[[Alarm], None] | None = None,
+        diagnostics_block: Callable[[DiagnosticsBlock], None] | None = None,
     ) -> Iterator[DeviceClient]:
         """Hand diagnostics lines and ``ALARM`` lines to these callbacks while the block runs.
 
         The callbacks given replace the ones in place for the block only; on leaving it,
         however it is left, the previous ones are back. ``None`` leaves that kind of line
-        to the callback already in place.
+        to the callback already in place. ``diagnostics_block`` takes the diagnostics lines
+        in blocks instead of one by one: they are held as they are read and handed over
+        by :meth:`deliver_diagnostics` (those still held when the block ends, then).
+
+        Raises:
+            ArgumentError: both ``diagnostics`` and ``diagnostics_block`` were given.
         """
-        previous = (self.on_diagnostics, self.on_alarm)
+        if diagnostics is not None and diagnostics_block is not None:
+            raise ArgumentError("listening takes diagnostics or diagnostics_block, not both",
+                                reason="diagnostics")
+        self.deliver_diagnostics()
+        previous = (self.on_diagnostics, self.on_diagnostics_block, self.on_alarm)
         if diagnostics is not None:
-            self.on_diagnostics = diagnostics
+            self.on_diagnostics, self.on_diagnostics_block = diagnostics, None
+        if diagnostics_block is not None:
+            self.on_diagnostics, self.on_diagnostics_block = None, diagnostics_block
         if alarms is not None:
             self.on_alarm = alarms
         try:
             yield self
         finally:
-            self.on_diagnostics, self.on_alarm = previous
+            try:
+                self.deliver_diagnostics()
+            finally:
+                self.on_diagnostics, self.on_diagnostics_block, self.on_alarm = previous
 
     # --- plumbing ------------------------------------------------------------------------
 
@@ -199,15 +228,19 @@ class DeviceClient:
     def send_with_status(self, number: int, *args: int) -> None:
         """Send one call and a queue-status query behind it in the same write, without
         waiting: the status answer (:meth:`next_reply`) says the call has executed."""
-        self.transport.write(encode_call(number, *args) + encode_call(C.MOTION_QUEUE, -1))
+        self.transport.write(encode_call(number, *args) + _QUEUE_QUERY)
 
     def send_counted_with_status(self, number: int, lead: Sequence[int],
                                  items: Sequence[int] | npt.NDArray[np.integer]) -> None:
         """As :meth:`send_with_status` for a counted call (``number``, ``lead``, the count
         and the ``items``: a batch of setpoints), its items checked and written as one
         array (:func:`~usbmotion.protocol.codec.encode_counted`)."""
-        self.transport.write(encode_counted(number, lead, items)
-                             + encode_call(C.MOTION_QUEUE, -1))
+        self.transport.write(encode_counted(number, lead, items) + _QUEUE_QUERY)
+
+    def send_queue_query(self) -> None:
+        """Call 2's query (the queue's level and room), without waiting: its answer is read
+        by :meth:`next_reply`."""
+        self.transport.write(_QUEUE_QUERY)
 
     def take_debug_lines(self, number: int) -> list[Reply]:
         """The debug lines of call ``number`` read so far (oldest first), no longer kept."""
@@ -224,6 +257,8 @@ class DeviceClient:
         if reply.kind is ReplyKind.DIAGNOSTICS:
             if self.on_diagnostics is not None:
                 self.on_diagnostics(Diagnostics.from_values(reply.values))
+            elif self.on_diagnostics_block is not None:
+                self._held.append(reply.line.encode("ascii"))
             return True
         if reply.kind is ReplyKind.DEBUG:
             self.debug_lines.append(reply)
@@ -247,7 +282,12 @@ class DeviceClient:
         Raises:
             LinkLostError: the port is gone.
         """
+        held = (self._held if self.on_diagnostics is None
+                and self.on_diagnostics_block is not None else None)
         for line in self.transport.poll_lines():
+            if held is not None and line[:2] == _DIAGNOSTICS_HEAD:
+                held.append(line)
+                continue
             values = parse_diagnostics(line)
             if values is not None:
                 if self.on_diagnostics is not None:
@@ -260,6 +300,44 @@ class DeviceClient:
                 continue
             if not self.take_aside(reply):
                 self.stray_lines += 1
+        if held is not None and len(held) >= HELD_LINES:
+            self.deliver_diagnostics()
+
+    def deliver_diagnostics(self) -> None:
+        """Hand the diagnostics lines held for :attr:`on_diagnostics_block` to it, in one
+        block, oldest first (nothing when none are held). A held line that is no diagnostics
+        line after all is counted in :attr:`stray_lines` and dropped, as
+        :meth:`read_pending` drops it."""
+        lines = self._held
+        if not lines:
+            return
+        self._held = []
+        rows = parse_diagnostics_lines(lines)
+        if rows is None:
+            rows = self._diagnostics_rows(lines)
+        listener = self.on_diagnostics_block
+        if listener is not None and rows.shape[0]:
+            listener(DiagnosticsBlock(rows))
+
+    def _diagnostics_rows(self, lines: list[bytes]) -> npt.NDArray[np.int64]:
+        """The values of ``lines`` read one by one (the stray ones counted and left out)."""
+        kept: list[tuple[int, ...]] = []
+        for line in lines:
+            values = parse_diagnostics(line)
+            if values is None:
+                try:
+                    reply = parse_reply(line)
+                except UnexpectedReplyError:
+                    reply = None
+                if reply is None or reply.kind is not ReplyKind.DIAGNOSTICS:
+                    self.stray_lines += 1
+                    continue
+                values = reply.values
+            if all(value in _INT64 for value in values):
+                kept.append(values)
+            else:
+                self.stray_lines += 1
+        return np.array(kept, dtype=np.int64).reshape(len(kept), len(DIAGNOSTICS.fields))
 
     def next_reply(self, timeout_s: float | None = None) -> Reply:
         """The next line that is not a diagnostics, debug or alarm line (those are taken
@@ -391,7 +469,7 @@ class DeviceClient:
         ``ERR`` or a refusal the line caused is raised here, once the link is in step again.
         """
         self._realign()
-        self.transport.write(line + encode_call(C.MOTION_QUEUE, -1))
+        self.transport.write(line + _QUEUE_QUERY)
         return self._await_answer(C.MOTION_QUEUE, after_error=True)
 
     def sync(self) -> tuple[int, int]:
@@ -880,6 +958,7 @@ def _mode(value: ControlMode | int, label: str) -> ControlMode:
 
 __all__ = [
     "GAIN_CALLS",
+    "HELD_LINES",
     "HOMED_MARKER_CALL",
     "RESYNC_CALL",
     "SIM_SCIENTIFIC_CALLS",
@@ -888,6 +967,7 @@ __all__ = [
     "ControlMode",
     "DeviceClient",
     "Diagnostics",
+    "DiagnosticsBlock",
     "MotionStats",
     "Outputs",
     "ProbeState",

@@ -152,6 +152,7 @@ class SetpointStream:
                                   reason="values")
         self.client = client
         self._values = array.astype(np.int64)
+        self._total = int(self._values.size)
         self.period_s = period_s
         self.low_water = low_water
         self.high_water = high_water
@@ -182,12 +183,12 @@ class SetpointStream:
     @property
     def total(self) -> int:
         """Number of setpoints in the stream."""
-        return int(self._values.size)
+        return self._total
 
     @property
     def done_sending(self) -> bool:
         """True once every value is confirmed queued on the device."""
-        return self.sent >= self.total
+        return self.sent >= self._total
 
     @property
     def consumed_estimate(self) -> int:
@@ -267,6 +268,7 @@ class SetpointStream:
             raise ArgumentError(f"replace_future index {index!r} (of {self.total}) or sent"
                                 f" {sent!r} (of {array.size}) out of range", reason="index")
         self._values = np.concatenate((self._values[:index], array))
+        self._total = int(self._values.size)
         self.sent = index + sent
         if queued is not None:
             self._observe(queued)
@@ -283,6 +285,7 @@ class SetpointStream:
             raise ArgumentError(f"revise index {index!r}: within {self.sent} .. {self.total}"
                                 " (values not sent yet)", reason="index")
         self._values = self._values[:index]
+        self._total = index
         self.extend(values)
 
     def extend(self, values: Sequence[int] | npt.NDArray[np.integer]) -> None:
@@ -298,6 +301,7 @@ class SetpointStream:
                 f"a setpoint is outside int32 ({int(array.min())}..{int(array.max())})",
                 reason="values")
         self._values = np.concatenate((self._values, array))
+        self._total = int(self._values.size)
         if array.size:
             self._finished = None
 
@@ -343,7 +347,7 @@ class SetpointStream:
     def _status(self) -> tuple[int, int]:
         """Queue status, asked again (after draining the link) when garbled or lost."""
         for _ in range(RESYNC_ATTEMPTS):
-            self.client.send(C.MOTION_QUEUE, -1)
+            self.client.send_queue_query()
             self.status_queries += 1
             answer = self._exchange()
             if answer is not None:
@@ -608,15 +612,15 @@ def run_streams(
     while True:
         if should_stop is not None and should_stop():
             return
-        pending = [s for s in streams if not s.done_sending]
-        if not pending:
+        wakes = [(stream.wake_time(), stream) for stream in streams if not stream.done_sending]
+        if not wakes:
             return
         now = clock.now()
-        due = [s for s in pending if s.wake_time() <= now]
+        due = [stream for wake, stream in wakes if wake <= now]
         for stream in due:
             stream.service()
         if not due:
-            wake = min(s.wake_time() for s in pending)
+            wake = min(wake for wake, _ in wakes)
             if should_stop is None:
                 clock.sleep(wake - now)
                 continue

@@ -14,6 +14,7 @@ from usbmotion.protocol.codec import (
     format_err,
     parse_call,
     parse_diagnostics,
+    parse_diagnostics_lines,
     parse_reply,
     values_crc32,
 )
@@ -21,6 +22,7 @@ from usbmotion.protocol.names import CallNumber, ControlMode, FaultCode, fault_w
 from usbmotion.protocol.replies import (
     Alarm,
     Diagnostics,
+    DiagnosticsBlock,
     MotionStats,
     Outputs,
     ProbeState,
@@ -57,6 +59,7 @@ __all__ = [
     "CallSpec",
     "ControlMode",
     "Diagnostics",
+    "DiagnosticsBlock",
     "FaultCode",
     "LineSplitter",
     "MotionStats",
@@ -79,6 +82,7 @@ __all__ = [
     "format_err",
     "parse_call",
     "parse_diagnostics",
+    "parse_diagnostics_lines",
     "parse_reply",
     "values_crc32",
 ]

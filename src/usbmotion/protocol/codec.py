@@ -110,10 +110,7 @@ def encode_call(number: int, *args: int) -> bytes:
         args = tuple(int(a) if type(a) is CallNumber else a for a in args)
         types = set(map(type, args))
     if type(number) is int and types <= {int}:
-        check_call(number, args)
-        if args:
-            return f"{number} {_format(len(args)) % args}\n".encode("ascii")
-        return f"{number}\n".encode("ascii")
+        return _encoded(number, args)
     for position, value in enumerate((number, *args)):
         if type(value) is not int:
             raise NonIntegerTokenError(
@@ -122,6 +119,16 @@ def encode_call(number: int, *args: int) -> bytes:
                 reason="not an integer",
             )
     raise AssertionError("unreachable: a non-int input was found above")
+
+
+@functools.lru_cache(maxsize=256)
+def _encoded(number: int, args: tuple[int, ...]) -> bytes:
+    """A valid call as a line, remembered: a host sends the same few calls again and again
+    (the queue and status queries)."""
+    check_call(number, args)
+    if args:
+        return f"{number} {_format(len(args)) % args}\n".encode("ascii")
+    return f"{number}\n".encode("ascii")
 
 
 @functools.lru_cache(maxsize=64)
@@ -211,6 +218,19 @@ def parse_call(line: bytes | str) -> Call:
         NonIntegerTokenError: a token is not a decimal integer (names it).
         UnknownCallError, WrongCountError, OutOfRangeError: see :func:`check_call`.
     """
+    if type(line) is bytes and len(line) <= BULK_BYTES:
+        return _short_call(line)
+    return _parse_call(line)
+
+
+@functools.lru_cache(maxsize=256)
+def _short_call(line: bytes) -> Call:
+    """:func:`parse_call` of a short line, remembered (a line that raises is not): a device
+    reads the same few lines again and again (the queue and status queries)."""
+    return _parse_call(line)
+
+
+def _parse_call(line: bytes | str) -> Call:
     if isinstance(line, bytes):
         if len(line) <= MAX_LINE_BYTES and not line.translate(None, _NUMERIC):
             if len(line) > BULK_BYTES:
@@ -437,6 +457,28 @@ def parse_diagnostics(line: bytes) -> tuple[int, ...] | None:
         return None
     found = _DIAGNOSTICS.match(line)
     return None if found is None else tuple(map(int, found.groups()))
+
+
+_DIAGNOSTICS_LINES = re.compile(
+    b"(?:" + re.escape(DIAGNOSTICS.text.split(" ", 1)[0].encode("ascii"))
+    + b"(?: -?[0-9]{1,%d}){%d}\n)*" % (HUGE_DIGITS, len(DIAGNOSTICS.fields)))
+"""Whole diagnostics lines, each ended by a newline: a single space before every value, no
+sign but ``-``, no value beyond what an int64 holds."""
+
+
+def parse_diagnostics_lines(lines: Sequence[bytes]) -> npt.NDArray[np.int64] | None:
+    """The values of diagnostics lines, one row per line in order, converted by numpy in one
+    pass; None unless every line is a diagnostics line written exactly as a device prints
+    it (anything else, :func:`parse_diagnostics` and :func:`parse_reply` take one line
+    at a time)."""
+    fields = len(DIAGNOSTICS.fields)
+    if not lines:
+        return np.zeros((0, fields), dtype=np.int64)
+    text = b"\n".join(lines) + b"\n"
+    if _DIAGNOSTICS_LINES.fullmatch(text) is None:
+        return None
+    values = np.fromstring(text.replace(b"D", b" "), dtype=np.int64, sep=" ")
+    return values.reshape(len(lines), fields)
 
 
 def parse_reply(line: bytes | str) -> Reply:

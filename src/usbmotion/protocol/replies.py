@@ -11,6 +11,9 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+import numpy as np
+import numpy.typing as npt
+
 from usbmotion.errors import UnexpectedReplyError
 from usbmotion.protocol.names import CallNumber, ControlMode, fault_words
 from usbmotion.protocol.table import (
@@ -51,6 +54,8 @@ if tuple(_DIAGNOSTICS.fields) != _DIAGNOSTICS_ORDER:
                          f" {_DIAGNOSTICS_ORDER} that Diagnostics declares them")
 _DIAGNOSTICS_FIELDS = len(_DIAGNOSTICS_ORDER)
 """A ``D`` line's fields are :class:`Diagnostics`'s, in its order."""
+_CLOCK, _DESIRED, _ACTUAL, _QUEUED, _PEAK = (
+    _DIAGNOSTICS_ORDER.index(name) for name in ("clock", "desired", "actual", "queued", "peak"))
 _ALARM = _checked(ALARM, "fault", "tick")
 _SWITCH_EDGE = _checked(_reply_template(CallNumber.SWITCH_EDGE), "switch", "edges", "closed",
                         "position", "tick")
@@ -143,6 +148,49 @@ class Diagnostics:
         return cls(clock=v["clock"], desired=v["desired"], actual_counts=v["actual"],
                    velocity_counts_s=v["velocity"], output_mv=v["output_mv"],
                    queued=v["queued"], peak_error_counts=v["peak"])
+
+
+@dataclass(frozen=True, slots=True)
+class DiagnosticsBlock:
+    """Diagnostics lines of one device, oldest first, as columns: each field of
+    :class:`Diagnostics` an array with one value per line (views of ``rows``).
+
+    ``rows`` holds one row per line, the line's fields in :class:`Diagnostics`'s order.
+    """
+
+    rows: npt.NDArray[np.int64]
+
+    def __len__(self) -> int:
+        return int(self.rows.shape[0])
+
+    @property
+    def clock(self) -> npt.NDArray[np.int64]:
+        """Each line's device clock, ticks."""
+        return self.rows[:, _CLOCK]
+
+    @property
+    def desired(self) -> npt.NDArray[np.int64]:
+        """Each line's desired position, counts (counts/s in mode 2)."""
+        return self.rows[:, _DESIRED]
+
+    @property
+    def actual_counts(self) -> npt.NDArray[np.int64]:
+        """Each line's measured position, counts."""
+        return self.rows[:, _ACTUAL]
+
+    @property
+    def queued(self) -> npt.NDArray[np.int64]:
+        """Each line's queue level (keyframes buffered in mode 3)."""
+        return self.rows[:, _QUEUED]
+
+    @property
+    def peak_error_counts(self) -> npt.NDArray[np.int64]:
+        """Each line's signed peak following error since the line before, counts."""
+        return self.rows[:, _PEAK]
+
+    def line(self, index: int) -> Diagnostics:
+        """Line ``index`` as a :class:`Diagnostics`."""
+        return Diagnostics(*(int(value) for value in self.rows[index]))
 
 
 @dataclass(frozen=True, slots=True)

@@ -246,6 +246,41 @@ class LiveModel:
             state.peaks[count % PEAK_LINES] = peak
             self._counts[axis] = count + 1
 
+    def take_lines(self, axis: str, clock: npt.NDArray[np.int64],
+                   desired: npt.NDArray[np.int64], actual: npt.NDArray[np.int64],
+                   peak: npt.NDArray[np.int64]) -> None:
+        """Diagnostics lines of ``axis``, oldest first, one value per line in each array:
+        what :meth:`take_line` on each line in turn leaves."""
+        count = int(clock.size)
+        if not count:
+            return
+        state = self._axes[axis]
+        before = np.empty(count, dtype=np.int64)
+        before[0] = state.clock
+        before[1:] = clock[:-1]
+        moved = np.flatnonzero((before >= 0) & (clock > before))
+        if moved.size:  # the velocities of the last line that came after the one before it
+            last = int(moved[-1])
+            span_s = (int(clock[last]) - int(before[last])) * self.tick_s
+            was_desired = int(desired[last - 1]) if last else state.desired
+            was_actual = int(actual[last - 1]) if last else state.actual
+            state.v_desired = (int(desired[last]) - was_desired) / span_s
+            state.v_actual = (int(actual[last]) - was_actual) / span_s
+        state.clock, state.desired = int(clock[-1]), int(desired[-1])
+        state.actual, state.peak = int(actual[-1]), int(peak[-1])
+        magnitude = np.abs(peak)
+        top = int(np.argmax(magnitude))
+        if int(magnitude[top]) > abs(state.run_peak):
+            state.run_peak, state.run_peak_clock = int(peak[top]), int(clock[top])
+        kept = min(count, PEAK_LINES)
+        with self._lock:
+            taken = self._counts[axis]
+            first = (taken + count - kept) % PEAK_LINES
+            end = min(first + kept, PEAK_LINES)  # the ring's end, and its start after it
+            state.peaks[first:end] = peak[count - kept:count - kept + end - first]
+            state.peaks[:kept - (end - first)] = peak[count - kept + end - first:]
+            self._counts[axis] = taken + count
+
     def take_status(self, axis: str, *, clock: int, desired: int, actual: int,
                     limit: bool = False, fault: int = 0, moving: bool = False) -> None:
         """An axis's status as read (homing's polls, reads at rest); at rest its velocity

@@ -61,7 +61,8 @@ def program_axes(config: MachineConfig) -> str:
         ConfigError: the machine has no linear axis (a program needs one: X, Y, Z, U, V or
             W).
     """
-    axes = "".join(letter for letter in AXIS_ORDER if letter in config.axis_names)
+    names = config.axis_names
+    axes = "".join(letter for letter in AXIS_ORDER if letter in names)
     if not any(letter not in ROTARY_AXES for letter in axes):
         raise ConfigError(
             f"{config.path}: G-code programs move a linear axis (X, Y, Z, U, V or W) besides"

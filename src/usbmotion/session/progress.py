@@ -28,13 +28,17 @@ class RunProgress:
         live: the model; ``legs``, ``streams``, ``feeding`` the run's parts.
         program: the program run (a fed program's total lines grow as they come).
         fields: what the live model shows of the session besides (offsets, tool).
+        hear: brings the lines the devices sent so far into the live model (before a
+            publication reads it).
     """
 
     def __init__(self, live: LiveModel, legs: Legs, streams: RunStreams, feeding: Feeding,
-                 program: GCodeProgram, *, fields: Callable[[], dict[str, object]]) -> None:
+                 program: GCodeProgram, *, fields: Callable[[], dict[str, object]],
+                 hear: Callable[[], None]) -> None:
         self.live, self.legs, self.streams, self.feeding = live, legs, streams, feeding
         self.program = program
         self.fields = fields
+        self.hear = hear
         self.axes = streams.axes
         self.published_tick = 0
         self.progress_ticks = max(1, round(PROGRESS_S / live.tick_s))
@@ -69,6 +73,7 @@ class RunProgress:
         live = self.live
         if not (force or live.on_publish or live.due()):
             return
+        self.hear()
         ticks = live.ticks(self.axes)
         tick = min(ticks) if ticks else 0
         if not (force or live.due() or tick - self.published_tick >= self.progress_ticks):

@@ -84,7 +84,8 @@ class Run:
                            counts_per_mm={n: self.machine.axis(n).config.counts_per_mm
                                           for n in self.machine.axes})
         self.progress = RunProgress(self.live, self.legs, self.streams, self.feeding,
-                                    prepared.program, fields=context.live_fields)
+                                    prepared.program, fields=context.live_fields,
+                                    hear=lambda: self.watch.hear())  # noqa: PLW0108 - made below
         self.watch = Watch(self.machine, self.trace, self.live,
                            line_at_tick=self.progress.line_at_tick)
         outputs = config.outputs
@@ -518,6 +519,7 @@ class Run:
         if self.watch.faults and not ending.reason.startswith("fault"):
             ending.reason = f"fault: {self.watch.words()}"
         statuses, stats = read_ends(self.machine, self.axes, self.notes)
+        self.watch.hear()
         self.notes.extend(self.feeding.notes)
         report = report_of(self.prepared, self.machine, self.legs, self.streams, self.watch,
                            self.live, self.trace, ending, self.stops, homing_s=self.homing_s,

@@ -93,6 +93,8 @@ from usbmotion.session.tool_setter import (
 
 LIVE_IDLE_S = 0.1
 """How often the live model of an idle machine may be refreshed from the devices."""
+_NO_PARAMETER_FILE = (0, 0, -1)
+"""What :meth:`MachineSession.work_offsets` keys the offsets of a missing parameter file by."""
 
 
 class MachineSession:
@@ -639,6 +641,8 @@ class MachineSession:
         try:
             stat = path.stat()
             key: tuple[int, int, int] | None = (stat.st_ino, stat.st_mtime_ns, stat.st_size)
+        except FileNotFoundError:
+            key = _NO_PARAMETER_FILE  # every parameter at 0, until a file appears
         except OSError:
             key = None
         if self._offsets_read is None or key is None or self._offsets_read[0] != key:

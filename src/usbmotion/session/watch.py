@@ -10,7 +10,9 @@ from collections.abc import Callable, Sequence
 from contextlib import ExitStack
 from functools import partial
 
-from usbmotion.host.device import Alarm, Diagnostics
+import numpy as np
+
+from usbmotion.host.device import Alarm, DiagnosticsBlock
 from usbmotion.host.machine import Machine
 from usbmotion.protocol import FaultCode, fault_words
 from usbmotion.session.live import LiveModel
@@ -77,30 +79,50 @@ class Watch:
 
     def listen_diagnostics(self, stack: ExitStack) -> None:
         """Every axis's diagnostics lines to the live model and the trace while ``stack``
-        is open."""
+        is open: held as they are read, and taken in by :meth:`hear`."""
         for name, axis in self.machine.axes.items():
-            stack.enter_context(axis.client.listening(diagnostics=self._on_line(name)))
+            stack.enter_context(axis.client.listening(diagnostics_block=self._on_lines(name)))
+
+    def hear(self) -> None:
+        """The diagnostics lines every device sent so far into the live model and the trace
+        (before they are read: a publication, the report)."""
+        for axis in self.machine.axes.values():
+            axis.client.deliver_diagnostics()
 
     def listen_alarms(self, stack: ExitStack) -> None:
         """Every axis's alarm lines to the run's faults while ``stack`` is open."""
         for name, axis in self.machine.axes.items():
             stack.enter_context(axis.client.listening(alarms=partial(self._on_alarm, name)))
 
-    def _on_line(self, axis: str) -> Callable[[Diagnostics], None]:
-        keep_line = self.trace.record(axis)
-        take = self.live.take_line
-        count = [0]
-        peak = [0]  # of the lines since the one kept before
+    def _on_lines(self, axis: str) -> Callable[[DiagnosticsBlock], None]:
+        taken = [0]  # lines so far
+        peak = [0]  # the largest magnitude of the lines since the one kept before
 
-        def on_line(line: Diagnostics) -> None:
-            take(axis, line.clock, line.desired, line.actual_counts, line.peak_error_counts)
-            peak[0] = max(peak[0], abs(line.peak_error_counts))
-            count[0] += 1
-            if count[0] % self.keep == 0:
-                keep_line(line, peak[0])
-                peak[0] = 0
+        def on_lines(lines: DiagnosticsBlock) -> None:
+            if not len(lines):
+                return
+            peaks = lines.peak_error_counts
+            self.live.take_lines(axis, lines.clock, lines.desired, lines.actual_counts, peaks)
+            count, keep = len(lines), self.keep
+            magnitude = np.abs(peaks)
+            if keep == 1 and not peak[0]:  # every line kept, each with its own peak
+                taken[0] += count
+                self.trace.extend(axis, lines, magnitude)
+                return
+            first = (keep - (taken[0] + 1) % keep) % keep  # the first line kept
+            taken[0] += count
+            if first >= count:
+                peak[0] = max(peak[0], int(magnitude.max()))
+                return
+            kept = np.arange(first, count, keep)
+            starts = np.concatenate(([0], kept[:-1] + 1))
+            kept_peaks = np.maximum.reduceat(magnitude[:kept[-1] + 1], starts)
+            kept_peaks[0] = max(int(kept_peaks[0]), peak[0])
+            rest = magnitude[kept[-1] + 1:]
+            peak[0] = int(rest.max()) if rest.size else 0
+            self.trace.extend(axis, DiagnosticsBlock(lines.rows[kept]), kept_peaks)
 
-        return on_line
+        return on_lines
 
     def _on_alarm(self, axis: str, alarm: Alarm) -> None:
         self.record(axis, alarm.fault, alarm.tick)
@@ -125,6 +147,7 @@ class Watch:
         """A run's first start (the clocks just zeroed): each program axis's statistics
         reset and its diagnostics lines at the trace's period (or the live one, the trace
         keeping every so many)."""
+        self.hear()
         self.live.new_clocks()
         ticks, self.keep = diagnostics_ticks(duration_s, self.trace.tick_s, live=live)
         for name in axes:

@@ -87,7 +87,7 @@ class Serial(SerialBase):  # type: ignore[misc]
     def read(self, size: int = 1) -> bytes:
         """Read up to ``size`` bytes, advancing virtual time up to the timeout."""
         link = self._link()
-        if not link.available() and self._timeout != 0:
+        if self._timeout != 0 and not link.available():
             timeout_us = (_FOREVER_US if self._timeout is None
                           else max(1, math.ceil(self._timeout * 1e6)))
             link.world.wait_for(link, timeout_us)
