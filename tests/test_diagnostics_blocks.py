@@ -154,7 +154,7 @@ def test_held_lines_come_in_one_block_in_order_and_stray_ones_are_counted() -> N
         assert client.stray_lines == 1
         transport.write(b"D 5 2 3 4 5 6 7\n")
         client.read_pending()
-    assert blocks[-1].line(0) == Diagnostics(5, 2, 3, 4, 5, 6, 7)  # handed over on leaving
+    assert blocks[-1].lines() == [Diagnostics(5, 2, 3, 4, 5, 6, 7)]  # handed over on leaving
     assert client.on_diagnostics_block is None
     with (pytest.raises(ArgumentError),
           client.listening(diagnostics=print, diagnostics_block=blocks.append)):

@@ -32,6 +32,7 @@ from usbmotion.hermite import Keyframe
 from usbmotion.host.transport import LineTransport
 from usbmotion.protocol import (
     BY_NUMBER,
+    FEW_DIAGNOSTICS,
     Alarm,
     ControlMode,
     Diagnostics,
@@ -71,7 +72,7 @@ HELD_LINES = 4096
 _DIAGNOSTICS_HEAD = DIAGNOSTICS.head.encode("ascii") + b" "
 _QUEUE_QUERY = encode_call(C.MOTION_QUEUE, -1)
 """Call 2's query, the line behind every setter and batch."""
-_INT64 = range(-(1 << 63), 1 << 63)
+_INT64_MIN, _INT64_MAX = -(1 << 63), (1 << 63) - 1
 
 _MARKERS = random.Random()
 """Draws the marker values: its own generator, seeded from the operating system, so a
@@ -312,14 +313,14 @@ class DeviceClient:
         if not lines:
             return
         self._held = []
-        rows = parse_diagnostics_lines(lines)
-        if rows is None:
-            rows = self._diagnostics_rows(lines)
+        rows = parse_diagnostics_lines(lines) if len(lines) >= FEW_DIAGNOSTICS else None
+        block = (DiagnosticsBlock(rows) if rows is not None
+                 else DiagnosticsBlock(values=self._diagnostics_values(lines)))
         listener = self.on_diagnostics_block
-        if listener is not None and rows.shape[0]:
-            listener(DiagnosticsBlock(rows))
+        if listener is not None and len(block):
+            listener(block)
 
-    def _diagnostics_rows(self, lines: list[bytes]) -> npt.NDArray[np.int64]:
+    def _diagnostics_values(self, lines: list[bytes]) -> list[tuple[int, ...]]:
         """The values of ``lines`` read one by one (the stray ones counted and left out)."""
         kept: list[tuple[int, ...]] = []
         for line in lines:
@@ -333,11 +334,11 @@ class DeviceClient:
                     self.stray_lines += 1
                     continue
                 values = reply.values
-            if all(value in _INT64 for value in values):
+            if min(values) >= _INT64_MIN and max(values) <= _INT64_MAX:
                 kept.append(values)
             else:
                 self.stray_lines += 1
-        return np.array(kept, dtype=np.int64).reshape(len(kept), len(DIAGNOSTICS.fields))
+        return kept
 
     def next_reply(self, timeout_s: float | None = None) -> Reply:
         """The next line that is not a diagnostics, debug or alarm line (those are taken

@@ -20,6 +20,7 @@ from usbmotion.protocol.codec import (
 )
 from usbmotion.protocol.names import CallNumber, ControlMode, FaultCode, fault_words
 from usbmotion.protocol.replies import (
+    FEW_DIAGNOSTICS,
     Alarm,
     Diagnostics,
     DiagnosticsBlock,
@@ -51,6 +52,7 @@ __all__ = [
     "CURVE_BUFFER_CAPACITY",
     "DEFAULT_DEVICE_NAME",
     "DEVICE_NAME_MAX",
+    "FEW_DIAGNOSTICS",
     "MAX_LINE_BYTES",
     "QUEUE_CAPACITY",
     "Alarm",

@@ -150,18 +150,39 @@ class Diagnostics:
                    queued=v["queued"], peak_error_counts=v["peak"])
 
 
-@dataclass(frozen=True, slots=True)
-class DiagnosticsBlock:
-    """Diagnostics lines of one device, oldest first, as columns: each field of
-    :class:`Diagnostics` an array with one value per line (views of ``rows``).
+FEW_DIAGNOSTICS = 8
+"""Fewer diagnostics lines than this are read and taken one by one rather than as arrays:
+numpy's cost per call is more than a few lines' in Python."""
 
-    ``rows`` holds one row per line, the line's fields in :class:`Diagnostics`'s order.
+
+class DiagnosticsBlock:
+    """Diagnostics lines of one device, oldest first: one row per line of the line's fields
+    in :class:`Diagnostics`'s order (converted by numpy in one pass), or the lines' values
+    as read one by one (a few lines: :data:`FEW_DIAGNOSTICS`); each field also as an array
+    with one value per line.
+
+    Parameters:
+        rows: the rows, as an array (n, 7).
+        values: instead, the values of each line.
     """
 
-    rows: npt.NDArray[np.int64]
+    __slots__ = ("_rows", "_values")
+
+    def __init__(self, rows: npt.NDArray[np.int64] | None = None, *,
+                 values: Sequence[tuple[int, ...]] = ()) -> None:
+        self._rows = rows
+        self._values = values
 
     def __len__(self) -> int:
-        return int(self.rows.shape[0])
+        return len(self._values) if self._rows is None else int(self._rows.shape[0])
+
+    @property
+    def rows(self) -> npt.NDArray[np.int64]:
+        """One row per line, the line's fields in :class:`Diagnostics`'s order."""
+        if self._rows is None:
+            self._rows = np.array(self._values, dtype=np.int64).reshape(
+                len(self._values), _DIAGNOSTICS_FIELDS)
+        return self._rows
 
     @property
     def clock(self) -> npt.NDArray[np.int64]:
@@ -188,9 +209,10 @@ class DiagnosticsBlock:
         """Each line's signed peak following error since the line before, counts."""
         return self.rows[:, _PEAK]
 
-    def line(self, index: int) -> Diagnostics:
-        """Line ``index`` as a :class:`Diagnostics`."""
-        return Diagnostics(*(int(value) for value in self.rows[index]))
+    def lines(self) -> list[Diagnostics]:
+        """Each line as a :class:`Diagnostics`, oldest first."""
+        values = self._values if self._rows is None else self._rows.tolist()
+        return [Diagnostics(*line) for line in values]
 
 
 @dataclass(frozen=True, slots=True)

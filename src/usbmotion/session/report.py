@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from usbmotion.host.device import DiagnosticsBlock, MotionStats, Status
+from usbmotion.host.device import Diagnostics, DiagnosticsBlock, MotionStats, Status
 from usbmotion.host.machine import Machine
 from usbmotion.motion.gcode import GCodeProgram, IgnoredWord, distinct_ignored
 from usbmotion.motion.planner import Plan
@@ -208,6 +208,23 @@ class Trace:
     """The magnitude of the largest following error of the ticks since the line kept before
     (the devices' own peak, over every tick their statistics counted), counts."""
     counts_per_mm: dict[str, float] = field(default_factory=dict)
+
+    def record(self, axis: str) -> Callable[[Diagnostics, int], None]:
+        """A callback that appends one diagnostics line of ``axis`` to this trace, with the
+        largest following error magnitude since the line kept before."""
+        stores = (self.clock, self.desired, self.actual, self.queued, self.peak)
+        for store in stores:
+            store.setdefault(axis, array("q"))
+        clock, desired, actual, queued, peak = (store[axis] for store in stores)
+
+        def on_line(line: Diagnostics, peak_counts: int) -> None:
+            clock.append(line.clock)
+            desired.append(line.desired)
+            actual.append(line.actual_counts)
+            queued.append(line.queued)
+            peak.append(peak_counts)
+
+        return on_line
 
     def extend(self, axis: str, lines: DiagnosticsBlock, peak: npt.NDArray[np.int64]) -> None:
         """Append diagnostics lines of ``axis`` to this trace, with the largest following

@@ -14,7 +14,7 @@ import numpy as np
 
 from usbmotion.host.device import Alarm, DiagnosticsBlock
 from usbmotion.host.machine import Machine
-from usbmotion.protocol import FaultCode, fault_words
+from usbmotion.protocol import FEW_DIAGNOSTICS, FaultCode, fault_words
 from usbmotion.session.live import LiveModel
 from usbmotion.session.report import FaultRecord, Trace
 
@@ -97,9 +97,18 @@ class Watch:
     def _on_lines(self, axis: str) -> Callable[[DiagnosticsBlock], None]:
         taken = [0]  # lines so far
         peak = [0]  # the largest magnitude of the lines since the one kept before
+        take_line, keep_line = self.live.take_line, self.trace.record(axis)
 
         def on_lines(lines: DiagnosticsBlock) -> None:
-            if not len(lines):
+            if len(lines) < FEW_DIAGNOSTICS:  # a front following the live model: every look
+                for line in lines.lines():
+                    take_line(axis, line.clock, line.desired, line.actual_counts,
+                              line.peak_error_counts)
+                    peak[0] = max(peak[0], abs(line.peak_error_counts))
+                    taken[0] += 1
+                    if taken[0] % self.keep == 0:
+                        keep_line(line, peak[0])
+                        peak[0] = 0
                 return
             peaks = lines.peak_error_counts
             self.live.take_lines(axis, lines.clock, lines.desired, lines.actual_counts, peaks)
