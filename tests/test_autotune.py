@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tests.commands import invoke
 from tests.test_layering import layering_violations
-from typer.testing import CliRunner
 
 import usbmotion.autotune
 from usbmotion.autotune.identify import MAX_DURATION_S, excitation, identify_axis
@@ -33,7 +33,6 @@ from usbmotion.autotune.model import (
     simulated_model,
 )
 from usbmotion.autotune.verify import check_on_axis, place_loop, step_and_move
-from usbmotion.cli.main import app
 from usbmotion.cli.run import default_machine
 from usbmotion.device import core0
 from usbmotion.device.motor import MotorConstants
@@ -253,16 +252,6 @@ def test_writing_keeps_the_comments_and_replaces_the_old_block() -> None:
 def _usbmotion(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "usbmotion", *args], capture_output=True,
                           text=True, timeout=240, check=False)
-
-
-def invoke(*args: str) -> tuple[int, str, str]:
-    """``usbmotion ARGS`` in this process: exit status, stdout, stderr (an exception other
-    than the exit fails the test). For command lines refused before anything runs (the
-    same code as in a process of its own, which ``_usbmotion`` starts for the runs)."""
-    result = CliRunner().invoke(app, list(args))
-    assert not isinstance(result.exception, Exception) or isinstance(
-        result.exception, SystemExit), result.exception
-    return result.exit_code, result.stdout, result.stderr
 
 
 def test_the_command_prints_json_and_writes_the_machine_file(tmp_path: Path) -> None:

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
+from tests.commands import invoke
 from typer.testing import CliRunner
 
 from usbmotion.cli.main import app
@@ -34,16 +35,6 @@ ENDPOINT_TOLERANCE_MM = 0.05
 def _usbmotion(*args: str, timeout: float = 240) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "usbmotion", *args], capture_output=True,
                           text=True, timeout=timeout, check=False)
-
-
-def invoke(*args: str) -> tuple[int, str, str]:
-    """``usbmotion ARGS`` in this process: exit status, stdout, stderr (an exception other
-    than the exit fails the test). For command lines refused before anything runs (the
-    same code as in a process of its own, which ``_usbmotion`` starts for the runs)."""
-    result = CliRunner().invoke(app, list(args))
-    assert not isinstance(result.exception, Exception) or isinstance(
-        result.exception, SystemExit), result.exception
-    return result.exit_code, result.stdout, result.stderr
 
 
 def test_full_home_zeroes_every_axis_on_its_latched_switch_edge() -> None:

@@ -11,9 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
+from tests.commands import invoke
 
-from usbmotion.cli.main import app
 from usbmotion.cli.run import default_machine
 from usbmotion.clock import WALL_CLOCK
 from usbmotion.device import Device, MemoryFlash
@@ -196,16 +195,6 @@ def test_the_measured_reach_in_the_machine_file_holds_its_limits(tmp_path: Path)
 def _usbmotion(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "usbmotion", *args], capture_output=True,
                           text=True, timeout=120, check=False)
-
-
-def invoke(*args: str) -> tuple[int, str, str]:
-    """``usbmotion ARGS`` in this process: exit status, stdout, stderr (an exception other
-    than the exit fails the test). For command lines refused before anything runs (the
-    same code as in a process of its own, which ``_usbmotion`` starts for the runs)."""
-    result = CliRunner().invoke(app, list(args))
-    assert not isinstance(result.exception, Exception) or isinstance(
-        result.exception, SystemExit), result.exception
-    return result.exit_code, result.stdout, result.stderr
 
 
 def test_tune_reach_prints_the_figures_and_the_line_for_the_machine_file() -> None:
