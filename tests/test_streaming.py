@@ -31,7 +31,7 @@ from usbmotion.errors import GCodeError, MachineStateError, SoftLimitError
 from usbmotion.host.config import MachineConfig, load_config
 from usbmotion.session import MachineSession, MachineState
 from usbmotion.session.feed import ProgramFeed
-from usbmotion.session.operator import Operator
+from usbmotion.session.operator import IdleReader, Operator
 from usbmotion.session.planning import plan_gcode
 from usbmotion.session.report import RunReport
 from usbmotion.sim.machine import connect_session
@@ -211,6 +211,42 @@ def test_the_operator_is_busy_from_queueing_an_action_to_its_end(config: Machine
         finally:
             release.set()
             operator.close()
+
+
+def test_a_front_thread_never_talks_to_a_device(config: MachineConfig) -> None:
+    """Only the worker and the idle keep-alive exchange lines with the devices: a front that
+    submits lines (opening a feed, restarting a closed one) while an idle reader reads the
+    devices on a thread of its own never shares a link with it (two threads on one link
+    take each other's answers)."""
+    with connect_session(config) as session:
+        session.home()
+        with Operator(session) as operator:
+            callers: set[str] = set()
+            for axis in session.machine.axes.values():
+                query = axis.client.query
+
+                def recorded(*args: object, _query: Callable[..., object] = query) -> object:
+                    callers.add(threading.current_thread().name)
+                    return _query(*args)
+
+                axis.client.query = recorded  # type: ignore[method-assign]
+            reader = IdleReader(operator, on_error=lambda error: None, name="reader",
+                                period_s=0.002)
+            reader.start()
+            try:
+                for line in ("G21 G90", "G0 X2", "G0 X3"):
+                    while not operator.submit(line):
+                        time.sleep(0.001)
+                    assert operator.wait_idle(60)
+                    time.sleep(0.02)
+                operator.feed = None  # a new feed, from where the machine stands
+                assert operator.submit("G0 X4") and operator.wait_idle(60)
+            finally:
+                reader.close()
+            assert operator.status().machine_mm()["X"] == pytest.approx(4.0, abs=0.01)
+        assert callers == {"usbmotion-operator", "reader"}, \
+            f"the devices were read on {sorted(callers)}"
+        session.shutdown()
 
 
 def test_a_source_line_that_fails_ends_the_run_there(config: MachineConfig) -> None:

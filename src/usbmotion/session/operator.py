@@ -190,11 +190,16 @@ class Operator:
 
     def _open_feed(self) -> ProgramFeed:
         """A new feed for the lines from where the machine stands (under :attr:`_lock`):
-        unhomed only when the operator unlocked a machine that is not homed."""
+        unhomed only when the operator unlocked a machine that is not homed. Called on a
+        front's thread while the machine is idle, it reads where the machine stands from
+        the live model (refreshed after every action and by :meth:`keep_alive`): only the
+        worker and the keep-alive talk to the devices."""
         session = self.session
+        unhomed = self.unlocked and not session.is_homed
+        start = self._where() if session.is_homed or unhomed else None
         feed = self.feed = session.open_feed(
-            file=self.file, unhomed=self.unlocked and not session.is_homed,
-            window=self.window, horizon_s=self.horizon_s, dialect=self.dialect)
+            file=self.file, unhomed=unhomed, window=self.window, horizon_s=self.horizon_s,
+            dialect=self.dialect, start_mm=start)
         feed.more_coming = self._more_coming
         return feed
 

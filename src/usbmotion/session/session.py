@@ -429,10 +429,12 @@ class MachineSession:
 
     def open_feed(self, *, file: str = "<stream>", source: Iterator[str] | None = None,
                   dialect: Dialect | None = None, unhomed: bool = False,
-                  window: int = WINDOW_MOVES, horizon_s: float | None = None) -> ProgramFeed:
+                  window: int = WINDOW_MOVES, horizon_s: float | None = None,
+                  start_mm: Point | None = None) -> ProgramFeed:
         """A program to be written line by line (:class:`ProgramFeed`) from where the
-        machine stands, with the machine's tool table, work offsets and pause rule; run it
-        with :meth:`run_feed` while lines are added (or read from ``source``).
+        machine stands (read from the devices, or ``start_mm``: the caller knows it), with
+        the machine's tool table, work offsets and pause rule; run it with
+        :meth:`run_feed` while lines are added (or read from ``source``).
 
         Raises:
             MachineStateError: the machine is not homed (and ``unhomed`` is not given).
@@ -441,7 +443,10 @@ class MachineSession:
         if not self.is_homed and not unhomed:
             raise MachineStateError("the machine is not homed: home it first",
                                     state=self.state.value)
-        start_mm, homed = self.start_position_mm(unhomed=unhomed)
+        if start_mm is None:
+            start_mm, homed = self.start_position_mm(unhomed=unhomed)
+        else:
+            homed = self.is_homed
         return ProgramFeed(self.config, start_mm=start_mm, homed=homed, file=file,
                            source=source, dialect=dialect, tools=self.tool_table(),
                            offsets=self.work_offsets(), pauses=self.pause_rule(),
