@@ -18,7 +18,7 @@ from usbmotion.protocol.codec import (
     parse_reply,
     values_crc32,
 )
-from usbmotion.protocol.names import CallNumber, ControlMode, FaultCode, fault_words
+from usbmotion.protocol.names import CallNumber, ControlMode, Drive, FaultCode, fault_words
 from usbmotion.protocol.replies import (
     FEW_DIAGNOSTICS,
     Alarm,
@@ -62,6 +62,7 @@ __all__ = [
     "ControlMode",
     "Diagnostics",
     "DiagnosticsBlock",
+    "Drive",
     "FaultCode",
     "LineSplitter",
     "MotionStats",
