@@ -68,7 +68,19 @@ def configurations(draw: st.DrawFn) -> list[str]:
     steps = draw(st.integers(1, 6), label="motor steps per tick")
     sim_dms = max(1, interval_dms // steps)
     mode = draw(st.sampled_from([1, 2, 3]), label="mode")
-    lines = [f"5 {interval_dms}", f"12 {sim_dms}", f"7 {mode}"]
+    drive = draw(st.sampled_from([0, 0, 1, 2]), label="drive")
+    lines = [f"44 {drive}", f"5 {interval_dms}", f"12 {sim_dms}", f"7 {mode}"]
+    if drive != 0:
+        if draw(st.booleans(), label="set 45"):
+            full = draw(st.sampled_from([200, 400, 1]), label="full steps")
+            lines.append(f"45 {full} {draw(st.sampled_from([1, 8, 16, 256]), label='micro')}")
+        if draw(st.booleans(), label="set 46"):
+            pulse = draw(st.sampled_from([100, 1000, 2000, 20_000]), label="pulse ns")
+            lines.append(f"46 {pulse} {draw(st.sampled_from([0, 20, 1000]), label='setup')}")
+        if draw(st.booleans(), label="set 47"):
+            holding = draw(st.integers(1, 5000), label="holding")
+            detent = draw(st.integers(0, holding), label="detent")
+            lines.append(f"47 {holding} {detent} {draw(st.integers(1, 5000), label='corner')}")
     for call in (9, 10, 11):
         lines.append(_sci_line(call, draw(_gain, label=f"gain {call}")))
     motor_sci = st.one_of(_realistic_sci, _realistic_sci, _any_sci)

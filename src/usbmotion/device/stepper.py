@@ -36,7 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from usbmotion.protocol.table import STEP_CLOCK_HZ
-from usbmotion.scimath import SciNumber, sci_from_int, sci_mul, sci_to_int
+from usbmotion.scimath import SciNumber, sci_compare, sci_from_int, sci_mul, sci_to_int
 
 DIGITS = 4
 MICRO = 1_000_000
@@ -50,8 +50,12 @@ SINE: npt.NDArray[np.int64] = np.array(
     dtype=np.int64)
 """``round(16384 sin(2 pi i / 1024))``: the same integers in every implementation (the
 firmware's table is generated from this one)."""
-STEPPER_OMEGA_MAX = 10**13
-"""Speed bound of the model, micro-microsteps/s (10**7 microsteps/s)."""
+STEPPER_OMEGA_MAX = 10**12
+"""Speed bound of the model, micro-microsteps/s (10**6 microsteps/s, 18,750 rpm at 16
+microsteps): keeps every product in int64 (a 1 s sub-step included)."""
+_CHANGE_MAX_C, _CHANGE_MAX_E = 2000, 9
+"""A sub-step's speed change is bounded at twice the speed bound before it becomes an
+integer (an extreme inertia or friction would overflow it)."""
 CYCLES_PER_US = STEP_CLOCK_HZ // 1_000_000
 """Step clock periods per microsecond."""
 _TWO_PI = SciNumber(6283, -3)
@@ -206,9 +210,17 @@ def stepper_step(
     else:
         o_c, o_e = sci_from_int(omega, DIGITS)
         v_c, v_e = sci_mul(o_c, o_e, viscous_c, viscous_e, DIGITS)
+        if sci_compare(v_c, v_e, _CHANGE_MAX_C, _CHANGE_MAX_E) > 0:
+            v_c, v_e = _CHANGE_MAX_C, _CHANGE_MAX_E
+        elif sci_compare(v_c, v_e, -_CHANGE_MAX_C, _CHANGE_MAX_E) < 0:
+            v_c, v_e = -_CHANGE_MAX_C, _CHANGE_MAX_E
         net = torque - sci_to_int(v_c, v_e) - (load if omega > 0 else -load)
     n_c, n_e = sci_from_int(net, DIGITS)
     a_c, a_e = sci_mul(n_c, n_e, accel_c, accel_e, DIGITS)
+    if sci_compare(a_c, a_e, _CHANGE_MAX_C, _CHANGE_MAX_E) > 0:
+        a_c, a_e = _CHANGE_MAX_C, _CHANGE_MAX_E
+    elif sci_compare(a_c, a_e, -_CHANGE_MAX_C, _CHANGE_MAX_E) < 0:
+        a_c, a_e = -_CHANGE_MAX_C, _CHANGE_MAX_E
     new_omega = omega + sci_to_int(a_c, a_e)
     if (omega > 0 and new_omega < 0) or (omega < 0 and new_omega > 0):
         new_omega = 0
