@@ -37,34 +37,44 @@ run: $(STAMP)
 	@mkdir -p out
 	$(BIN)/usbmotion run $(DEMO) --plot out/demo-1.png --report out/demo-1.json
 
-# The Python suite and, beside it, the firmware's (firmware-test: its build and the emulated
-# chip's tests) and the real-time ones of the G-code senders and of reliability
-# (tests/senders, tests/reliability, tests/web: mostly waiting on the machine's clock); their output is
-# printed when they end; then lint and types. A machine
-# without the firmware's toolchain fails only firmware-test, after saying what to install;
-# the Python suite still runs. The real-time tests run while both cores are busy with the
-# rest: they must pass on a loaded machine. The Python suite (virtual time only) runs at a
-# lower priority (nice) than the real-time lanes: its load still takes every core they
-# leave, but it does not starve the simulated devices they serve in real time (a device
-# served by a process that gets no core stands still, and a wall-clock figure such as a
-# stop's latency then measures the simulation, not the product). The G-code senders the grbl front is tested
-# with are installed first (senders); where they cannot be, their tests skip (fail under
-# CI=true) and the rest still runs.
+# Three lanes at once, their output printed when they end, then lint and types:
+# - the Python suite in virtual time (PYTHON_SUITE without its `realtime` tests), at a lower
+#   priority (nice) than the others: its load takes every core they leave, but it does not
+#   starve the simulated devices they serve in real time (a device served by a process that
+#   gets no core stands still, and a wall-clock figure such as a stop's latency then
+#   measures the simulation, not the product);
+# - the real-time tests of the G-code senders, of reliability and of the dashboard
+#   (tests/senders, tests/reliability, tests/web: mostly waiting on the machine's clock);
+# - firmware-test (the firmware's build and the emulated chip's tests), then the Python
+#   suite's `realtime` tests (devices on pseudo-terminals and sockets: waiting, mostly),
+#   which the other two lanes' load surrounds.
+# The real-time tests run while both cores are busy with the rest: they must pass on a
+# loaded machine. A machine without the firmware's toolchain fails only firmware-test,
+# after saying what to install; the rest still runs. The G-code senders the grbl front is
+# tested with are installed first (senders); where they cannot be, their tests skip (fail
+# under CI=true) and the rest still runs.
+PYTHON_SUITE = $(EMULATED_IGNORE) --ignore=tests/senders --ignore=tests/reliability \
+	--ignore=tests/web
 test: $(STAMP)
 	@mkdir -p build; status=0; \
 	bash tests/senders/install.sh || status=1; \
 	$(MAKE) --no-print-directory web || status=1; \
 	( $(MAKE) --no-print-directory firmware-test > build/firmware-test.log 2>&1; \
-	  echo $$? > build/firmware-test.status ) & \
+	  echo $$? > build/firmware-test.status; \
+	  $(BIN)/python -m pytest -q -x -p no:cacheprovider --basetemp=build/realtime-tmp \
+	  -m realtime $(PYTHON_SUITE) > build/realtime-test.log 2>&1; \
+	  echo $$? > build/realtime-test.status ) & \
 	( $(BIN)/python -m pytest -q -x -p no:cacheprovider --basetemp=build/senders-tmp \
 	  tests/senders tests/reliability tests/web > build/senders-test.log 2>&1; \
 	  echo $$? > build/senders-test.status ) & \
-	nice -n 10 $(BIN)/python -m pytest -q -x -p no:cacheprovider $(EMULATED_IGNORE) \
-	  --ignore=tests/senders --ignore=tests/reliability --ignore=tests/web || status=1; \
+	nice -n 10 $(BIN)/python -m pytest -q -x -p no:cacheprovider -m "not realtime" \
+	  $(PYTHON_SUITE) || status=1; \
 	wait; echo "--- the senders', reliability and dashboard tests:"; cat build/senders-test.log; \
 	[ "$$(cat build/senders-test.status)" = 0 ] || status=1; \
 	echo "--- make firmware-test:"; cat build/firmware-test.log; \
 	[ "$$(cat build/firmware-test.status)" = 0 ] || status=1; \
+	echo "--- the Python suite's real-time tests (devices on terminals and sockets):"; \
+	cat build/realtime-test.log; [ "$$(cat build/realtime-test.status)" = 0 ] || status=1; \
 	$(BIN)/ruff check src tests benchmarks || status=1; \
 	$(BIN)/mypy || status=1; \
 	exit $$status
