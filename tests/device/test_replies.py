@@ -90,6 +90,7 @@ POWER_UP_QUERIES = {
     "46 -1 0": "STEP_TIMING 2000 1000",
     "47 -1 0 0": "SIM_STEPPER 590 20 760",
     "48 -1": "STEPS 0 0 249",
+    "49 -1 0": "ENCODER 0 0",
 }
 
 
@@ -144,6 +145,8 @@ SET_THEN_QUERY = [
     ("45 400 8", "45 -1 0", "STEPPER 400 8"),
     ("46 100 20", "48 -1", "STEPS 0 0 4807"),
     ("47 450 15 900", "47 -1 0 0", "SIM_STEPPER 450 15 900"),
+    ("49 1 2000", "20 -1", "STATUS 0 80 80 0 0 0 1 0 0"),  # 2000 counts of a 1920 turn
+    ("49 0 7", "49 -1 0", "ENCODER 0 7"),
 ]
 
 
@@ -197,6 +200,7 @@ DEBUG_LINES = [
     ([], "45 400 8", "STEPPER MODIFIED TO 400 8"),
     ([], "46 100 20", "STEP TIMING MODIFIED TO 100 20"),
     ([], "47 450 15 900", "SIM STEPPER MODIFIED TO 450 15 900"),
+    ([], "49 1 100", "ENCODER MODIFIED TO 1 100"),
 ]
 
 

@@ -58,6 +58,7 @@ _MAY_CHANGE: dict[int, set[str]] = {
     45: {"stepper", "queue", "keyframes"},
     46: {"stepper"},
     47: {"stepper"},
+    49: {"encoder", "queue", "keyframes", "actual", "desired"},
 }
 _SETTINGS = [f.name for f in fields(DeviceSettings)]
 

@@ -167,6 +167,8 @@ class DeviceSettings:
     motor: MotorParams
     drive: int
     """Call 44: what the device drives."""
+    encoder: tuple[int, int]
+    """Call 49: the encoder's kind and the simulated magnet's angle."""
     stepper: StepperParams
     """Calls 45-47: the stepper, its driver's timing and the simulated stepper."""
     diagnostics_interval: int
@@ -275,6 +277,7 @@ class Device:
         self._motor = self._power_up_motor
         self._drive = int(Drive.DC)
         self._stepper = StepperParams()
+        self._encoder = (0, 0)
         self._diag_n = 0
         self._watchdog_ms = 0
         self._fe_limit = 0
@@ -481,6 +484,7 @@ class Device:
             gains=self._gains,
             motor=self._motor,
             drive=self._drive,
+            encoder=self._encoder,
             stepper=self._stepper,
             diagnostics_interval=self._diag_n,
             watchdog_ms=self._watchdog_ms,
@@ -1260,6 +1264,26 @@ class Device:
                                 corner_rpm=corner)
         self._copy_in()
         self._debug_line(47, holding, detent, corner)
+
+    def _call_49(self, call: Call) -> None:
+        state = self._state
+        if call.is_query:
+            self._reply(49, *self._encoder)
+            return
+        if state[core1.S_ENABLE] == 1:
+            raise _RefusedError("the servo is enabled: disable it (call 3 0) before changing"
+                                " its encoder")
+        kind, angle = call.args
+        if kind == 1 and self._drive == Drive.STEP_OPEN:
+            raise _RefusedError("an open-loop stepper (drive 1) counts its steps: it has no"
+                                " encoder to read")
+        self._encoder = (kind, angle)
+        if kind == 1:
+            turn = (self._stepper.microsteps_per_revolution if self._drive == Drive.STEP_CLOSED
+                    else self._motor.counts_per_revolution)
+            source = wrap_int32(int(state[core1.S_ACTUAL]) - int(state[core1.S_OFFSET]))
+            self._shift_position((source + angle) % turn - int(state[core1.S_ACTUAL]))
+        self._debug_line(49, kind, angle)
 
     def _call_48(self, call: Call) -> None:
         state = self._state

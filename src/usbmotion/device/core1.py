@@ -603,13 +603,8 @@ def servo_block(
                 if drive == DRIVE_STEP_OPEN:
                     issue = wrap_int32(desired - actual)
                 else:
-                    target = wrap_int32(desired + sci_to_int(out_c, out_e))
                     rotor = wrap_int32(actual + trunc_div(velocity * tick_us, MICRO))
-                    reach = full // MICRO
-                    if wrap_int32(target - rotor) > reach:
-                        target = wrap_int32(rotor + reach)
-                    elif wrap_int32(target - rotor) < -reach:
-                        target = wrap_int32(rotor - reach)
+                    target = wrap_int32(rotor + sci_to_int(out_c, out_e))
                     issue = wrap_int32(target - wrap_int32(phase + offset))
                 if issue > max_steps:
                     issue = max_steps

@@ -62,6 +62,7 @@ class CallNumber(IntEnum):
     SET_STEP_TIMING = 46
     SET_SIM_STEPPER = 47
     STEPS = 48
+    SET_ENCODER = 49
 
 
 class ControlMode(IntEnum):

@@ -678,12 +678,12 @@ CALLS: tuple[CallSpec, ...] = (
         " (call 46). Open loop (1) the counter is the steps issued and the command is the"
         " desired position: the following error is what the step rate could not follow."
         " Closed loop (2) the counter is the encoder's (call 16's counts per revolution"
-        " converted to microsteps, call 45) and the command is the counter plus the PID's"
-        " output in microsteps, saturated at one full step: the driver's field never leads"
-        " the rotor by more than the angle of its greatest torque, so a load beyond the"
-        " motor's torque stalls the shaft rather than slipping it; the axis catches up once"
-        " the load falls, and a following error beyond call 29's limit is fault 2, as on a"
-        " DC axis. In velocity mode (2) a stepper integrates the desired velocity into the"
+        " converted to microsteps, call 45) and the PID's output, in microsteps saturated at"
+        " one full step, is the lead of the driver's field over the rotor: a torque command"
+        " that never leads by more than the angle of the greatest torque, so a load beyond"
+        " the motor's torque stalls the shaft rather than slipping it; the axis catches up"
+        " once the load falls, and a following error beyond call 29's limit is fault 2, as"
+        " on a DC axis. In velocity mode (2) a stepper integrates the desired velocity into the"
         " desired position every running tick (the same position loop follows it). The"
         " diagnostics line's `output` is the steps issued on its tick.",
     ),
@@ -748,6 +748,33 @@ CALLS: tuple[CallSpec, ...] = (
         " `pulses_sent` summed; `last` the signed steps of the last servo tick; `max_per_tick`"
         " what call 46's timing lets one tick issue at the current servo period. With the DC"
         " drive: 0 0 and the same `max_per_tick`.",
+    ),
+    CallSpec(
+        C.SET_ENCODER,
+        "The encoder: incremental (0, counting from power-up) or absolute within a turn (1,"
+        " an AS5161-style magnetic encoder's PWM angle), and the simulated magnet's angle.",
+        (
+            _p("kind", 0, 1, "0 incremental (quadrature), 1 absolute within a turn (PWM)"),
+            _p("angle", 0, 1_000_000, "simulated: the angle the encoder reads, in counts of"
+               " the counter, when the simulated shaft is at 0"),
+        ),
+        query=(-1, 0),
+        query_reply=_t("ENCODER {kind} {angle}"),
+        debug={1: _t("ENCODER MODIFIED TO {kind} {angle}")},
+        notes="Power-up: 0 0. Refused while the servo is enabled, and kind 1 on an open-loop"
+        " stepper (drive 1: its counter is the steps issued, no encoder). An incremental"
+        " encoder counts from 0 at power-up: where the axis stands is unknown until it"
+        " homes. Kind 1 makes the counter, at once, the absolute angle within a turn (0 to"
+        " a turn less one count: call 16's counts per revolution, or a closed-loop"
+        " stepper's microsteps per revolution), and from then on it counts on across turns"
+        " (the turns counted by the angle's overflow), as any counter: calls 23 and 37"
+        " shift it. The queue and the keyframes are cleared. So a device with one knows"
+        " where its axis stands within a turn before it moves; homing tells which turn"
+        " (the host zeroes the axis at the turn boundary nearest the switch's edge, which"
+        " repeats to the encoder's count however the switch repeats). The simulated magnet"
+        " reads `angle` with the simulated shaft at 0 (where it happens to be mounted). On"
+        " the RP2040 with the motor on the pins the encoder input is the PWM output of the"
+        " encoder on the encoder's channel A pin.",
     ),
 )
 BY_NUMBER: Mapping[int, CallSpec] = {spec.number: spec for spec in CALLS}
