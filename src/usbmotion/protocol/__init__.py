@@ -29,6 +29,7 @@ from usbmotion.protocol.replies import (
     ProbeState,
     Replaced,
     Status,
+    Steps,
     SwitchEdge,
 )
 from usbmotion.protocol.table import (
@@ -74,6 +75,7 @@ __all__ = [
     "Reply",
     "ReplyKind",
     "Status",
+    "Steps",
     "SwitchEdge",
     "Template",
     "check_call",
