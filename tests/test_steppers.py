@@ -172,9 +172,9 @@ def test_connecting_sets_the_drive_the_stepper_and_its_simulated_motor(tmp_path:
             assert client.drive() is drive
             assert client.stepper() == (200, 16)
             assert client.step_timing() == (100, 20)
-            assert client.steps().max_per_tick == 4807
+            assert client.steps().max_per_tick == 480
             assert client.sim_stepper() == (590, 20, 760)
-            assert client.gains() == pytest.approx((0.2, 0.0, 0.0) if name == "Z"
+            assert client.gains() == pytest.approx((0.5, 1.0, 0.005) if name == "Z"
                                                    else (0.0, 0.0, 0.0))
             assert client.following_error_limit() == 400
         assert machine.axis("Z").client.query(16, -1).values == (4000,)
@@ -241,7 +241,8 @@ def test_programs_run_to_the_end_on_the_stepper_machine(tmp_path: Path, program:
     assert 0 < peaks["Z"] <= 20, "closed loop: the encoder's error, microsteps"
     assert report.max_endpoint_miss_mm < 0.05
     assert any("open loop: its position is the steps issued" in n for n in report.notes)
-    assert all(abs(steps) < 2 for steps in slipped.values()), f"no step lost: {slipped}"
+    assert abs(slipped["X"]) < 2 and abs(slipped["Y"]) < 2, f"no step lost: {slipped}"
+    assert abs(slipped["Z"]) < 32, f"Z's rotor never slipped a cycle (64): {slipped}"
     print(f"{program.name} on {EXAMPLE.name}: {report.executed_time_s:.3f} s (planned"
           f" {report.planned_time_s:.3f} s), following error peaks {peaks} microsteps, Z rms"
           f" {report.axes[2].rms_error_counts:.2f}; shafts vs steps issued {slipped}")
@@ -309,8 +310,10 @@ def test_closed_loop_beyond_its_holding_torque_stops_every_axis(tmp_path: Path) 
     assert 0 < x_mm < 120 and x_mm / y_mm == pytest.approx(120 / 90, rel=1e-3), (
         "X and Y came to rest on the line's path")
     limit_mm = config.axis("Z").following_error_limit_mm
+    seen_mm = 20.0 * 0.015  # the feed (F1200) over the host's 15 ms to see the fault
     assert 0 < report.stop_planned_mm <= report.stop_distance_mm <= (
-        report.stop_planned_mm + limit_mm + 0.05), "the planned stop, and Z's lag at the fault"
+        report.stop_planned_mm + limit_mm + seen_mm + 0.05), (
+        "the planned stop, Z's lag at the fault and the path until the host saw it")
     print(f"Z closed loop, {run.load_mnm:g} mNm from {run.on_s:.2f} s: {fault.fault} at"
           f" {fault.time_s:.3f} s, line {fault.line}; X and Y stopped on the path at"
           f" X {x_mm:.3f} Y {y_mm:.3f} (the stop {report.stop_distance_mm:.3f} mm from the"
@@ -350,7 +353,7 @@ def test_tune_reach_on_a_stepper_says_what_limits_it(tmp_path: Path) -> None:
     stepper_machine(tmp_path)
     code, out, err = invoke("tune", "-a", "X", "--reach", "-m", str(path))
     assert code == 0, err
-    assert "4807 steps a 1000 us tick (call 48)" in out
+    assert "480 steps a 100 us tick (call 48)" in out
     assert "torque     not measured: open loop the device counts the steps it issues" in out
     assert "keeping 60% of it" in out and "no reach line" in out
     code, out, err = invoke("tune", "-a", "Z", "--reach", "-m", str(path))

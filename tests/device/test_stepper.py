@@ -164,3 +164,19 @@ def test_the_sine_table_and_the_floored_angles() -> None:
     assert encoder_microsteps(-1, 4000, 3200) == -2  # floored twice
     assert encoder_microsteps(3199, 4000, 3200) == 3198  # count 3998 is 3198.4 microsteps
     assert encoder_microsteps(4, 1000, 3200) == 3  # a 1000-count encoder: 3.2 microsteps
+
+
+def test_after_a_fault_the_driver_holds_its_field_until_the_fault_is_cleared() -> None:
+    """The stall that faulted left the field a full step ahead of the rotor: held, the rotor
+    is pulled onto the field once the load goes; the steps have stopped."""
+    device = _stepper(2, "29 400")
+    _move(device, load_at=(300, 1400), load="1 3")
+    assert device.state.fault == 2
+    send(device, "33 5 1")
+    device.run(2000)
+    issued = int(send(device, "48 -1")[0].split()[1])
+    shaft = device.state.shaft_micro_counts // 1_000_000
+    assert abs(shaft - issued) <= 2, "the rotor sits on the field it is held by"
+    send(device, "30 0")
+    device.run(100)
+    assert send(device, "48 -1")[0].split()[1:3] == [str(issued), "0"]

@@ -633,13 +633,16 @@ def servo_block(
                     stop_high,
                 )
         else:
+            # The driver holds its field while the servo runs, and after a fault (a fault
+            # stops the steps; it does not drop a vertical axis): only call 3 0 releases it.
+            powered = 1 if enable == 1 or fault != FAULT_NONE else 0
             for step in range(steps):
                 field = (phase + trunc_div(issue * (step + 1), steps)) * MICRO
                 theta, omega = stepper_step(
                     theta,
                     omega,
                     field,
-                    enable,
+                    powered,
                     cycle,
                     full,
                     holding,

@@ -13,8 +13,8 @@ power-up, ``omega``: micro-microsteps per second)::
 An electrical cycle is 4 full steps (two phases, each reversed): the field pulls the rotor
 toward the step count with a torque that peaks a full step away and reverses beyond two,
 so a rotor that falls more than two full steps behind slips to the next cycle and loses
-its 4 full steps, as a real one does. Unpowered (servo disabled: the driver's enable is
-low) only the detent holds it.
+its 4 full steps, as a real one does. Unpowered (the driver's enable off: the servo
+disabled with no fault latched) only the detent holds it.
 
 Integer arithmetic throughout, as the firmware computes it: the sine is a table of
 :data:`SINE_SIZE` entries scaled by :data:`SINE_ONE` (the firmware's copy is generated
