@@ -189,6 +189,7 @@ def compile_kernel() -> BlockFunction:
                 motor.motor_step,
                 stepper.trunc_div,
                 stepper.sine_at,
+                stepper.bounded_int,
                 stepper.encoder_microsteps,
                 stepper.stepper_step,
             ):

@@ -162,6 +162,16 @@ def encoder_microsteps(shaft: int, counts_per_revolution: int, per_revolution: i
     return (count * per_revolution) // counts_per_revolution
 
 
+def bounded_int(c: int, e: int) -> int:
+    """``c * 10**e`` as an integer, bounded at +-2 * 10**12 first (a speed change or a
+    friction torque of an extreme inertia or friction would overflow int64)."""
+    if sci_compare(c, e, _CHANGE_MAX_C, _CHANGE_MAX_E) > 0:
+        return sci_to_int(_CHANGE_MAX_C, _CHANGE_MAX_E)
+    if sci_compare(c, e, -_CHANGE_MAX_C, _CHANGE_MAX_E) < 0:
+        return sci_to_int(-_CHANGE_MAX_C, _CHANGE_MAX_E)
+    return sci_to_int(c, e)
+
+
 def stepper_step(
     theta: int,
     omega: int,
@@ -210,18 +220,10 @@ def stepper_step(
     else:
         o_c, o_e = sci_from_int(omega, DIGITS)
         v_c, v_e = sci_mul(o_c, o_e, viscous_c, viscous_e, DIGITS)
-        if sci_compare(v_c, v_e, _CHANGE_MAX_C, _CHANGE_MAX_E) > 0:
-            v_c, v_e = _CHANGE_MAX_C, _CHANGE_MAX_E
-        elif sci_compare(v_c, v_e, -_CHANGE_MAX_C, _CHANGE_MAX_E) < 0:
-            v_c, v_e = -_CHANGE_MAX_C, _CHANGE_MAX_E
-        net = torque - sci_to_int(v_c, v_e) - (load if omega > 0 else -load)
+        net = torque - bounded_int(v_c, v_e) - (load if omega > 0 else -load)
     n_c, n_e = sci_from_int(net, DIGITS)
     a_c, a_e = sci_mul(n_c, n_e, accel_c, accel_e, DIGITS)
-    if sci_compare(a_c, a_e, _CHANGE_MAX_C, _CHANGE_MAX_E) > 0:
-        a_c, a_e = _CHANGE_MAX_C, _CHANGE_MAX_E
-    elif sci_compare(a_c, a_e, -_CHANGE_MAX_C, _CHANGE_MAX_E) < 0:
-        a_c, a_e = -_CHANGE_MAX_C, _CHANGE_MAX_E
-    new_omega = omega + sci_to_int(a_c, a_e)
+    new_omega = omega + bounded_int(a_c, a_e)
     if (omega > 0 and new_omega < 0) or (omega < 0 and new_omega > 0):
         new_omega = 0
     if new_omega > STEPPER_OMEGA_MAX:
@@ -237,5 +239,5 @@ def stepper_step(
 
 
 __all__ = ["MICRO", "SINE", "SINE_ONE", "SINE_SIZE", "StepperConstants", "StepperParams",
-           "cycles", "derive_stepper", "encoder_microsteps", "max_steps_per_tick",
+           "bounded_int", "cycles", "derive_stepper", "encoder_microsteps", "max_steps_per_tick",
            "sine_at", "stepper_step", "trunc_div"]
