@@ -5,7 +5,7 @@
 #include <stdbool.h>
 #include <stdint.h>
 
-#include "pico/platform.h"
+#include "pico.h"
 
 #include "platform.h"
 
