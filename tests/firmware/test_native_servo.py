@@ -154,6 +154,7 @@ class ServoParams(ctypes.Structure):
         ("encoder_cpr", c_i32), ("per_rev", c_i32), ("motor_pins", c_i32),
         ("pins_level_per_volt", Sci), ("travel_num", c_i64), ("travel_den", c_i64),
         ("velocity_num", c_i64), ("velocity_den", c_i64), ("reach", c_i32),
+        ("sine_k", c_i32), ("full_mask", c_u32), ("cycle_mask", c_u32),
         ("holding_corner", c_i64),
     ]
 
