@@ -490,7 +490,7 @@ static int64_t step_drive(servo_state_t *s, const servo_params_t *p, int64_t *co
      * steps */
     uint32_t steps = (uint32_t)p->steps;
     uint32_t magnitude = issue < 0 ? 0u - (uint32_t)issue : (uint32_t)issue;
-    uint32_t whole = sci_udiv(magnitude, steps);
+    uint32_t whole = steps == 1u ? magnitude : sci_udiv(magnitude, steps);
     uint32_t rest = magnitude - whole * steps;
     uint32_t moved = 0;
     uint32_t remainder = 0;
