@@ -188,8 +188,9 @@ def compile_kernel() -> BlockFunction:
                 motor._trunc_div,
                 motor.motor_step,
                 stepper.trunc_div,
+                stepper.travel,
+                stepper.speed_change,
                 stepper.sine_at,
-                stepper.bounded_int,
                 stepper.encoder_microsteps,
                 stepper.stepper_step,
             ):

@@ -36,7 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from usbmotion.protocol.table import STEP_CLOCK_HZ
-from usbmotion.scimath import SciNumber, sci_compare, sci_from_int, sci_mul, sci_to_int
+from usbmotion.scimath import SciNumber, sci_from_int, sci_mul, sci_to_int
 
 DIGITS = 4
 MICRO = 1_000_000
@@ -50,12 +50,8 @@ SINE: npt.NDArray[np.int64] = np.array(
     dtype=np.int64)
 """``round(16384 sin(2 pi i / 1024))``: the same integers in every implementation (the
 firmware's table is generated from this one)."""
-STEPPER_OMEGA_MAX = 10**12
-"""Speed bound of the model, micro-microsteps/s (10**6 microsteps/s, 18,750 rpm at 16
-microsteps): keeps every product in int64 (a 1 s sub-step included)."""
-_CHANGE_MAX_C, _CHANGE_MAX_E = 2000, 9
-"""A sub-step's speed change is bounded at twice the speed bound before it becomes an
-integer (an extreme inertia or friction would overflow it)."""
+STEPPER_OMEGA_MAX = 10**13
+"""Speed bound of the model, micro-microsteps/s (10**7 microsteps/s)."""
 CYCLES_PER_US = STEP_CLOCK_HZ // 1_000_000
 """Step clock periods per microsecond."""
 _TWO_PI = SciNumber(6283, -3)
@@ -148,6 +144,33 @@ def trunc_div(numerator: int, denominator: int) -> int:
     return -((-numerator) // denominator)
 
 
+def travel(omega: int, num: int, den: int) -> int:
+    """``omega * num / den`` truncated toward zero, for ``|omega| <= STEPPER_OMEGA_MAX``,
+    ``0 < num <= 10**6`` and ``10**6 <= den <= 10**10`` (the travel of a sub-step), without
+    an int64 overflow: ``10**13 * 10**6`` does not fit an int64, so the kernel could not form
+    the product. With ``|omega| = q den + r``: ``q num + (r num) // den``, exactly."""
+    magnitude = omega if omega >= 0 else -omega
+    whole = magnitude // den
+    moved = whole * num + (magnitude - whole * den) * num // den
+    return moved if omega >= 0 else -moved
+
+
+SPEED_CHANGE_CAP = 10**15
+"""A speed change taken as this (with its sign) when it is larger: any change beyond
+``2 * STEPPER_OMEGA_MAX`` takes the speed past the bound, or through 0 (a reversal, which
+stops it), so the result is the same as with the exact change; ``10**15`` is such a change
+and stays within an int64 where the exact one (up to ``10**34`` with call 17's smallest
+inertia) does not."""
+
+
+def speed_change(coefficient: int, exponent: int) -> int:
+    """``sci_to_int(coefficient, exponent)`` of a normalised speed change, capped at
+    :data:`SPEED_CHANGE_CAP` in magnitude (micro-microsteps/s)."""
+    if exponent > 11:   # at least 1000e12
+        return -SPEED_CHANGE_CAP if coefficient < 0 else SPEED_CHANGE_CAP
+    return sci_to_int(coefficient, exponent)
+
+
 def sine_at(angle: int, period: int) -> int:
     """``SINE_ONE * sin(2 pi angle / period)`` from the table (``period > 0``; the angle
     taken modulo the period, never negative)."""
@@ -160,16 +183,6 @@ def encoder_microsteps(shaft: int, counts_per_revolution: int, per_revolution: i
     (floored)."""
     count = (shaft * counts_per_revolution) // per_revolution
     return (count * per_revolution) // counts_per_revolution
-
-
-def bounded_int(c: int, e: int) -> int:
-    """``c * 10**e`` as an integer, bounded at +-2 * 10**12 first (a speed change or a
-    friction torque of an extreme inertia or friction would overflow int64)."""
-    if sci_compare(c, e, _CHANGE_MAX_C, _CHANGE_MAX_E) > 0:
-        return sci_to_int(_CHANGE_MAX_C, _CHANGE_MAX_E)
-    if sci_compare(c, e, -_CHANGE_MAX_C, _CHANGE_MAX_E) < 0:
-        return sci_to_int(-_CHANGE_MAX_C, _CHANGE_MAX_E)
-    return sci_to_int(c, e)
 
 
 def stepper_step(
@@ -220,17 +233,17 @@ def stepper_step(
     else:
         o_c, o_e = sci_from_int(omega, DIGITS)
         v_c, v_e = sci_mul(o_c, o_e, viscous_c, viscous_e, DIGITS)
-        net = torque - bounded_int(v_c, v_e) - (load if omega > 0 else -load)
+        net = torque - sci_to_int(v_c, v_e) - (load if omega > 0 else -load)
     n_c, n_e = sci_from_int(net, DIGITS)
     a_c, a_e = sci_mul(n_c, n_e, accel_c, accel_e, DIGITS)
-    new_omega = omega + bounded_int(a_c, a_e)
+    new_omega = omega + speed_change(a_c, a_e)
     if (omega > 0 and new_omega < 0) or (omega < 0 and new_omega > 0):
         new_omega = 0
     if new_omega > STEPPER_OMEGA_MAX:
         new_omega = STEPPER_OMEGA_MAX
     elif new_omega < -STEPPER_OMEGA_MAX:
         new_omega = -STEPPER_OMEGA_MAX
-    theta += trunc_div(new_omega * step_num_us, step_den * MICRO)
+    theta += travel(new_omega, step_num_us, step_den * MICRO)
     if theta < stop_low:
         return stop_low, 0
     if theta > stop_high:
@@ -239,5 +252,5 @@ def stepper_step(
 
 
 __all__ = ["MICRO", "SINE", "SINE_ONE", "SINE_SIZE", "StepperConstants", "StepperParams",
-           "bounded_int", "cycles", "derive_stepper", "encoder_microsteps", "max_steps_per_tick",
-           "sine_at", "stepper_step", "trunc_div"]
+           "cycles", "derive_stepper", "encoder_microsteps", "max_steps_per_tick",
+           "sine_at", "speed_change", "stepper_step", "travel", "trunc_div"]
