@@ -96,14 +96,15 @@ int64_t stepper_encoder_microsteps(int64_t shaft, int32_t cpr, int32_t per_rev) 
     return floor_div(count < 0 ? -steps : steps, (uint32_t)cpr);
 }
 
-/* trunc_div(torque * sine, SINE_ONE) for 0 <= torque < 2^32 and |sine| <= SINE_ONE. */
-static inline int64_t scaled_by_sine(int64_t torque, int32_t sine) {
-    uint32_t high;
-    uint32_t low = sci_mul_32x32((uint32_t)torque, sine < 0 ? 0u - (uint32_t)sine
-                                                             : (uint32_t)sine, &high);
-    int64_t magnitude = (int64_t)((((uint64_t)high << 32) | low) >> 14);
+/* trunc_div(torque * sine, SINE_ONE) for 0 <= torque < 2^27 (10^8 uNm, call 47's largest)
+ * and |sine| <= SINE_ONE = 2^14, in 32 bits: with torque = high 2^14 + low, the quotient of
+ * the magnitude is high |sine| + (low |sine|) >> 14, each product below 2^28. */
+static inline int32_t scaled_by_sine(int64_t torque, int32_t sine) {
     _Static_assert(TABLE_SINE_ONE == 1 << 14, "SINE_ONE is 2^14");
-    return sine < 0 ? -magnitude : magnitude;
+    uint32_t magnitude = sine < 0 ? 0u - (uint32_t)sine : (uint32_t)sine;
+    uint32_t value = (uint32_t)torque;
+    uint32_t scaled = (value >> 14) * magnitude + (((value & 0x3fffu) * magnitude) >> 14);
+    return sine < 0 ? -(int32_t)scaled : (int32_t)scaled;
 }
 
 /* Python's x % d for 0 < d < 2^16; `mask` is d - 1 when d is a power of two (the low bits
@@ -171,7 +172,7 @@ void stepper_step(int64_t *theta_io, int64_t *omega_io, int64_t field, int32_t p
     uint32_t sine_k = (uint32_t)p->sine_k;
     /* |omega| // 10^6 (microsteps/s, below 2^24) */
     uint32_t speed = (uint32_t)sci_div_u64_small(sci_magnitude64(omega) >> 6, 15625u);
-    int64_t pull = 0;
+    int32_t pull = 0;   /* |pull|, |torque| <= 2 x 10^8 */
     if (powered == 1) {
         int64_t available = speed <= p->corner ? p->holding : torque_above_corner(p, speed);
         /* field * 10^6 - theta = (field - count - 1) * 10^6 + (10^6 - fraction) */
@@ -184,7 +185,7 @@ void stepper_step(int64_t *theta_io, int64_t *omega_io, int64_t field, int32_t p
     }
     uint32_t detent_rest =
         floor_mod(count, microsteps, p->full_mask) * (uint32_t)STEPPER_MICRO + fraction;
-    int64_t torque = pull - scaled_by_sine(p->detent,
+    int32_t torque = pull - scaled_by_sine(p->detent,
                                            table_sine[sci_udiv(detent_rest << 4, sine_k)]);
     int64_t load = p->load_unm;
     int64_t net;

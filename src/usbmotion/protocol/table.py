@@ -685,7 +685,8 @@ CALLS: tuple[CallSpec, ...] = (
         " once the load falls, and a following error beyond call 29's limit is fault 2, as"
         " on a DC axis. In velocity mode (2) a stepper integrates the desired velocity into the"
         " desired position every running tick (the same position loop follows it). The"
-        " diagnostics line's `output` is the steps issued on its tick.",
+        " diagnostics line's `output` is the steps issued on its tick, in thousandths (the"
+        " field a DC drive fills with millivolts).",
     ),
     CallSpec(
         C.SET_STEPPER,
