@@ -197,6 +197,18 @@ const commands = {
     d.settle();
     return { ...span(), start_ns: startNanos, end_ns: endNanos };
   },
+  capture(request) {
+    const d = requireDevice();
+    const { pins } = request;
+    const taken = d.pins.takeCapture();
+    if (pins !== undefined) {
+      if (!Array.isArray(pins) || !pins.every((pin) => Number.isInteger(pin) && pin >= 0 && pin < 30)) {
+        throw new DeviceError(`capture "pins" must list GPIO numbers 0-29, not ${JSON.stringify(pins)}`);
+      }
+      d.pins.startCapture(pins);
+    }
+    return { edges: taken.edges, flags: taken.flags };
+  },
   quit() {
     return {};
   },

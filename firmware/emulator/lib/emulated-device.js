@@ -127,7 +127,8 @@ export class EmulatedDevice {
     this.clock = mcu.clock;
     this.sram = mcu.sramView;
     this.cycleNanos = 1e9 / mcu.clkSys;
-    this.pins = new PioClock(mcu, () => this.nowNanos());
+    this.pins = new PioClock(mcu, () => this.nowNanos(), (nanos) => this.timerNanosAt(nanos));
+    this.pins.ticksNow = () => this.ticksDone();
     if (this.worldOptions) {
       const where = this.world ? this.world.theta : this.worldOptions.startCount ?? 0;
       this.world = new MotorWorld(this.pins, mcu, { ...this.worldOptions, startCount: where });
@@ -200,6 +201,11 @@ export class EmulatedDevice {
         alarm.clockAlarm.schedule(remaining * 1000);
       }
     });
+  }
+
+  /** The timer's time when the clock reads `nanos` (now, or later in this slice), ns. */
+  timerNanosAt(nanos) {
+    return this.heldAt >= 0 ? this.heldAt : nanos - this.timerLagNs;
   }
 
   /** The RP2040 timer's time, ns: emulated time less the time it was held. */

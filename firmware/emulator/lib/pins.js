@@ -24,6 +24,17 @@
 // while the shaft is at or beyond it on its side). EncoderSweep drives the encoder pins alone
 // at a set rate, for the decoder's own tests. outputLevels reads the outputs of call 42 off
 // their pins: the digital ones' levels and the PWM ones' duties.
+//
+// The step generator's block (STEP_PIO, firmware/src/rp2040/step_dir.pio) runs on the timer's
+// time instead of the clock's: on the chip its tick clock and the servo's alarms come from
+// one crystal and keep in step, and the harness's held timer (the deterministic mode's
+// pause, in which no device time passes) holds it too, as it holds the motor world. Its
+// machines interact (one raises the PIO flag the other waits on), so they are stepped
+// together, cycle by cycle, skipping ahead over the cycles in which every one of them is
+// stalled (on a flag, or on an empty TX FIFO) or counting down a one-instruction delay loop
+// (`jmp x--`/`jmp y--` to itself); rp2040js's FIFO join (SHIFTCTRL FJOIN_TX: an 8-deep TX
+// FIFO), which it lacks, is added. Every change of that block's pins and every PIO flag it
+// raises can be recorded with its time (capture).
 
 const IO_BANK0_KEY = 0x40014;
 const PADS_BANK0_KEY = 0x4001c;
@@ -39,6 +50,15 @@ const IO_FUNCSEL_MASK = 0x1f;
 const FUNCSEL_PWM = 4;
 /** (B, A) of each count modulo 4, forward: A rises, B rises, A falls, B falls. */
 const GRAY = [0b00, 0b01, 0b11, 0b10];
+/** The step generator's PIO block (firmware/src/rp2040/pins.h STEP_PIO). */
+export const STEP_PIO = 1;
+/** A state machine's SHIFTCTRL, as an offset from its CLKDIV. */
+const SM_SHIFTCTRL = 0x08;
+/** JMP conditions X-- and Y--; rp2040js's wait types IRQ and TX FIFO (a blocking pull). */
+const JMP_X_DEC = 0b010;
+const JMP_Y_DEC = 0b100;
+const WAIT_TX_FIFO = 3;
+const WAIT_IRQ = 4;
 /** Steps a machine must run since its last input change before it may be fast-forwarded. */
 const SETTLE_STEPS = 64;
 
@@ -48,16 +68,26 @@ export class PioClock {
    * @param {object} mcu the DualRP2040
    * @param {() => number} now the emulated time of the instruction executing, ns
    */
-  constructor(mcu, now) {
+  constructor(mcu, now, timerAt = (nanos) => nanos) {
     this.mcu = mcu;
     this.now = now;
+    this.timerAt = timerAt;
     this.cycleNanos = 1e9 / mcu.clkSys;
-    this.nanos = 0; // every machine has run up to here
+    this.nanos = 0; // every clocked machine has run up to here
+    this.timedNanos = 0; // the step generator's block has run up to here, timer time
+    this.timed = mcu.pio[STEP_PIO];
+    this.loops = new Map(); // the step block's machine -> the pc of its last instruction
+    this.capture = null; // {pins, edges: [[pin, level, ns]], flags: [[flag, ns, ticks]]}
+    this.ticksNow = () => 0;
+    this.edgeListeners = []; // (pin, level, timerNanos) for the step block's pins
     this.events = []; // [{nanos, pin, value}] in time order
     this.marks = new Map(); // machine -> its state at the start of a pass, for fast-forward
     this.positions = new Map(); // machine -> the steps it has run
     this.sinceInput = 0; // steps since the last input change
     for (const pio of mcu.pio) {
+      for (const machine of pio.machines) {
+        joinFifos(machine);
+      }
       pio.run = () => {}; // stepped here, not on the host's event loop
       const read = pio.readUint32.bind(pio);
       const write = pio.writeUint32.bind(pio);
@@ -79,6 +109,22 @@ export class PioClock {
     io.writeUint32 = (offset, value) => ioWrite(shared(offset), value);
     // an input nothing outside drives reads what its pad's pull resistor gives it
     this.driven = new Set();
+    const timed = this.timed;
+    const irqUpdated = timed.irqUpdated.bind(timed);
+    let flags = timed.irq;
+    timed.irqUpdated = () => {
+      const raised = timed.irq & ~flags;
+      if (raised && this.capture) {
+        for (let flag = 0; flag < 8; flag++) {
+          if (raised & (1 << flag)) {
+            this.capture.flags.push([flag, this.timedCursor, this.ticksNow()]);
+          }
+        }
+      }
+      irqUpdated();
+      flags = timed.irq;
+    };
+    this.timedCursor = 0;
     const pads = mcu.peripherals[PADS_BANK0_KEY];
     const padsWrite = pads.writeUint32.bind(pads);
     pads.writeUint32 = (offset, value) => {
@@ -128,6 +174,7 @@ export class PioClock {
       this.marks.clear();
     }
     this.stepTo(nanos);
+    this.stepTimedTo(this.timerAt(nanos));
   }
 
   stepTo(nanos) {
@@ -137,7 +184,7 @@ export class PioClock {
     }
     this.nanos += steps * this.cycleNanos;
     for (const pio of this.mcu.pio) {
-      if (pio.stopped) {
+      if (pio.stopped || pio === this.timed) {
         continue;
       }
       for (const machine of pio.machines) {
@@ -148,6 +195,123 @@ export class PioClock {
       pio.checkChangedPins();
     }
     this.sinceInput += steps;
+  }
+
+  /** Runs the step generator's block up to `nanos` of timer time, its machines in lockstep. */
+  stepTimedTo(nanos) {
+    const steps = Math.floor((nanos - this.timedNanos) / this.cycleNanos);
+    if (steps <= 0) {
+      return;
+    }
+    const pio = this.timed;
+    const start = this.timedNanos;
+    this.timedNanos += steps * this.cycleNanos;
+    if (pio.stopped) {
+      return;
+    }
+    const machines = pio.machines.filter((machine) => machine.enabled);
+    const loops = this.loops;
+    let left = steps;
+    let done = 0;
+    while (left > 0) {
+      let skip = left;
+      for (const machine of machines) {
+        skip = Math.min(skip, this.idleSteps(pio, machine));
+        if (skip === 0) {
+          break;
+        }
+      }
+      if (skip > 0) {
+        for (const machine of machines) {
+          if (!machine.waiting) {
+            // a delay loop: `jmp x-- self` or `jmp y-- self`, taken `skip` more times
+            if (((pio.instructions[machine.pc] >> 5) & 7) === JMP_X_DEC) {
+              machine.x -= skip;
+            } else {
+              machine.y -= skip;
+            }
+          }
+        }
+        left -= skip;
+        done += skip;
+        continue;
+      }
+      this.timedCursor = start + done * this.cycleNanos;
+      const values = pio.pinValues;
+      for (const machine of machines) {
+        const pc = machine.pc;
+        machine.step();
+        loops.set(machine, machine.waiting ? -1 : pc);
+      }
+      const changed = pio.pinValues ^ values;
+      if (changed) {
+        this.pinsChanged(changed, pio.pinValues, this.timedCursor);
+      }
+      left--;
+      done++;
+    }
+    pio.checkChangedPins();
+  }
+
+  /**
+   * The cycles from now on in which `machine` certainly does nothing observable but count a
+   * delay loop down or stay stalled: 0 when it may act at its next step.
+   */
+  idleSteps(pio, machine) {
+    if (machine.waiting) {
+      if (machine.waitType === WAIT_IRQ) {
+        return ((pio.irq >> machine.waitIndex) & 1) === Number(machine.waitPolarity) ? 0 : Infinity;
+      }
+      if (machine.waitType === WAIT_TX_FIFO) {
+        return machine.txFIFO.empty ? Infinity : 0;
+      }
+      return 0;
+    }
+    const instruction = pio.instructions[machine.pc];
+    const condition = (instruction >> 5) & 7;
+    const delayMask = (1 << (5 - machine.sidesetCount)) - 1;
+    if (instruction >> 13 !== 0 || (instruction & 0x1f) !== machine.pc
+        || ((instruction >> 8) & delayMask) !== 0 || this.loops.get(machine) !== machine.pc) {
+      return 0;
+    }
+    if (condition === JMP_X_DEC) {
+      return machine.x >>> 0;
+    }
+    if (condition === JMP_Y_DEC) {
+      return machine.y >>> 0;
+    }
+    return 0;
+  }
+
+  pinsChanged(changed, values, nanos) {
+    for (let pin = 0; pin < 30; pin++) {
+      if (changed & (1 << pin)) {
+        const level = (values >> pin) & 1;
+        if (this.capture && this.capture.pins.has(pin)) {
+          this.capture.edges.push([pin, level, nanos]);
+        }
+        for (const listener of this.edgeListeners) {
+          listener(pin, level, nanos);
+        }
+      }
+    }
+  }
+
+  /** Records the step block's pin changes (of `pins`) and flags from now on. */
+  startCapture(pins) {
+    this.capture = { pins: new Set(pins), edges: [], flags: [] };
+  }
+
+  /** What was recorded since the last call (or startCapture); recording goes on. */
+  takeCapture() {
+    const capture = this.capture;
+    if (!capture) {
+      return { edges: [], flags: [] };
+    }
+    const taken = { edges: capture.edges, flags: capture.flags };
+    capture.edges = [];
+    capture.flags = [];
+    return taken;
   }
 
   run(machine, steps) {
@@ -179,6 +343,24 @@ export class PioClock {
     }
     this.positions.set(machine, position);
   }
+}
+
+/** rp2040js's FIFO join: SHIFTCTRL's FJOIN_TX gives the machine one 8-deep TX FIFO (and no
+ * RX FIFO), FJOIN_RX one 8-deep RX FIFO; the FIFOs are emptied, as the chip does. */
+function joinFifos(machine) {
+  const write = machine.writeUint32.bind(machine);
+  let join = 0;
+  machine.writeUint32 = (offset, value) => {
+    write(offset, value);
+    if (offset === SM_SHIFTCTRL && value >>> 30 !== join) {
+      join = value >>> 30;
+      const joinTx = join & 1;
+      const joinRx = join >> 1;
+      const FifoClass = machine.txFIFO.constructor;
+      machine.txFIFO = new FifoClass(joinTx ? 8 : joinRx ? 0 : 4);
+      machine.rxFIFO = new FifoClass(joinRx ? 8 : joinTx ? 0 : 4);
+    }
+  };
 }
 
 function snapshot(machine, position) {

@@ -20,6 +20,10 @@ void servo_core1_main(void);
 /* core1, before its first tick: the switches' interrupt, when the motor is on the pins */
 void motor_pins_core1_init(void);
 
+/* core1, first thing in every servo tick (before the device's tick): the step generator takes
+ * a timing core0 changed, and restarts its tick clock at this instant when the period did */
+void step_pins_tick(void);
+
 /* core0: bring up USB and run the main loop; never returns */
 void usb_cdc_run(void);
 

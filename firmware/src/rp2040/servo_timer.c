@@ -70,6 +70,7 @@ static void __not_in_flash_func(servo_alarm_irq)(void) {
     spin_unlock(schedule_lock, saved);
     bool armed;
     do {
+        step_pins_tick();
         device_servo_tick();
         usbmotion_ticks_done = usbmotion_ticks_done + 1;
         __sev(); /* core0 prints what the tick recorded */

@@ -1,0 +1,167 @@
+/* The step/direction outputs of call 44's drives 1 and 2 (platform.h): STEP and DIR from a
+ * PIO step generator, and the driver's enable (pins.h has the pins), on either motor.
+ *
+ * step_dir.pio (assembled by the SDK's pioasm at build time) has the two state machines and
+ * how their cycles add up: step_clock raises a PIO flag at the start of every tick's frame,
+ * step_dir plays a frame per tick from its TX FIFO. A tick with N steps is one frame: DIR,
+ * then the set-up, then N pulses of `pulse` cycles high, rise k at setup + k x spacing with
+ * spacing = (T - setup) / N (rounded down, so every period of the tick is the same whole
+ * number of step-clock periods, and the last pulse ends at least a pulse before the next
+ * tick's first rise).
+ *
+ * The tick's start: step_clock is (re)started first thing in a servo tick (step_pins_tick,
+ * from the alarm's interrupt, before the device's tick), with the servo period; its flag
+ * then rises 36 cycles after that instant and every period after it. core1 pushes the
+ * tick's frame from platform_steps_issue, later in the same tick: the frame plays from the
+ * next tick's start on, whatever the tick's own computation takes (up to a whole period).
+ * A frame that finds the FIFO full (only after two late ticks in a row: the FIFO holds two
+ * frames) is not dropped: its steps are carried into the next tick's frame. */
+#include <stdbool.h>
+#include <stdint.h>
+
+#include "hardware/gpio.h"
+#include "hardware/pio.h"
+#include "hardware/structs/sio.h"
+#include "hardware/sync.h"
+#include "pico/platform.h"
+
+#include "pins.h"
+#include "platform.h"
+#include "rp2040_platform.h"
+#include "step_dir.pio.h"
+
+#define FRAME_WORDS 4u
+#define FIFO_WORDS 8u                /* the TX FIFO joined with the RX one */
+#define STEP_ENABLE_MASK (1u << PIN_STEP_ENABLE)
+#define MIN_PULSE_CYCLES 13u         /* 100 ns: call 46's least pulse */
+#define MIN_SETUP_CYCLES 2u          /* what step_dir needs between DIR and the first rise */
+
+/* The timing of calls 5 and 46, from core0 to core1: core0 writes it between two increments
+ * of `sequence` (odd while it writes); core1 copies it at the start of a tick when the
+ * sequence is even and has changed, and keeps it when the sequence did not move meanwhile. */
+typedef struct {
+    uint32_t pulse;    /* step-clock periods high */
+    uint32_t setup;    /* periods from DIR to the first rise */
+    uint32_t tick;     /* periods per servo tick */
+} step_timing_t;
+
+static step_timing_t staged;
+static volatile uint32_t staged_sequence;
+
+/* core1's own: the timing in force and what it gives a frame. */
+typedef struct {
+    uint32_t sequence;     /* the staged timing this is */
+    uint32_t tick;         /* the period step_clock runs at, 0 before it first runs */
+    uint32_t room;         /* T - setup: the periods a tick's steps are spread over */
+    uint32_t most;         /* the most steps a frame takes: room / (2 x pulse) */
+    uint32_t pulse_word;   /* frame word 1 */
+    uint32_t setup_word;   /* frame word 2 */
+    uint32_t low_base;     /* pulse + 4: frame word 3's spacing less this, shifted up by 1 */
+    int32_t carry;         /* steps a full FIFO held back, for the next frame */
+} step_frames_t;
+
+static step_frames_t frames;
+static bool started;
+
+void platform_steps_start(void) {
+    PIO pio = STEP_PIO;
+    gpio_init(PIN_STEP_ENABLE);
+    gpio_put(PIN_STEP_ENABLE, true); /* active low: the driver off */
+    gpio_set_dir(PIN_STEP_ENABLE, GPIO_OUT);
+
+    uint clock_offset = pio_add_program(pio, &step_clock_program);
+    pio_sm_config clock = step_clock_program_get_default_config(clock_offset);
+    sm_config_set_out_shift(&clock, true, false, 32);
+    sm_config_set_clkdiv_int_frac(&clock, 1, 0);
+    pio_sm_init(pio, STEP_CLOCK_SM, clock_offset + step_clock_offset_start, &clock);
+
+    uint dir_offset = pio_add_program(pio, &step_dir_program);
+    pio_sm_config dir = step_dir_program_get_default_config(dir_offset);
+    sm_config_set_sideset_pins(&dir, PIN_STEP);
+    sm_config_set_out_pins(&dir, PIN_DIR, 1);
+    sm_config_set_out_shift(&dir, true, false, 32); /* right: `out pins, 1` takes bit 0 */
+    sm_config_set_fifo_join(&dir, PIO_FIFO_JOIN_TX);
+    sm_config_set_clkdiv_int_frac(&dir, 1, 0);
+    pio_sm_set_pins_with_mask(pio, STEP_DIR_SM, 0u, (1u << PIN_STEP) | (1u << PIN_DIR));
+    pio_sm_set_pindirs_with_mask(pio, STEP_DIR_SM, (1u << PIN_STEP) | (1u << PIN_DIR),
+                                 (1u << PIN_STEP) | (1u << PIN_DIR));
+    pio_gpio_init(pio, PIN_STEP);
+    pio_gpio_init(pio, PIN_DIR);
+    pio_sm_init(pio, STEP_DIR_SM, dir_offset + step_dir_offset_start, &dir);
+    pio_sm_set_enabled(pio, STEP_DIR_SM, true); /* waits for its first frame */
+    started = true;
+}
+
+void platform_steps_timing(uint32_t pulse_cycles, uint32_t setup_cycles, uint32_t tick_cycles) {
+    uint32_t sequence = staged_sequence;
+    staged_sequence = sequence + 1u;
+    __dmb();
+    staged.pulse = pulse_cycles;
+    staged.setup = setup_cycles;
+    staged.tick = tick_cycles;
+    __dmb();
+    staged_sequence = sequence + 2u;
+}
+
+/* core1: the staged timing in force from this tick on; step_clock restarted now when the
+ * period changed (or it never ran), so its frames start at this tick's offset. */
+static void __not_in_flash_func(take_timing)(uint32_t sequence) {
+    step_timing_t timing = staged;
+    __dmb();
+    if (staged_sequence != sequence || timing.pulse < MIN_PULSE_CYCLES ||
+        timing.tick <= timing.setup) {
+        return; /* written meanwhile (taken next tick), or not a timing a frame can play */
+    }
+    frames.sequence = sequence;
+    uint32_t setup = timing.setup < MIN_SETUP_CYCLES ? MIN_SETUP_CYCLES : timing.setup;
+    frames.room = timing.tick - timing.setup;
+    frames.most = frames.room / (2u * timing.pulse);
+    frames.pulse_word = timing.pulse - 2u;
+    frames.setup_word = setup - 2u;
+    frames.low_base = timing.pulse + 4u;
+    if (timing.tick != frames.tick) {
+        PIO pio = STEP_PIO;
+        pio_sm_set_enabled(pio, STEP_CLOCK_SM, false);
+        pio_sm_clear_fifos(pio, STEP_CLOCK_SM);
+        pio_sm_restart(pio, STEP_CLOCK_SM);
+        pio_sm_exec(pio, STEP_CLOCK_SM, pio_encode_jmp(step_clock_offset_start));
+        pio_sm_put(pio, STEP_CLOCK_SM, timing.tick - 3u);
+        pio_sm_set_enabled(pio, STEP_CLOCK_SM, true);
+        frames.tick = timing.tick;
+    }
+}
+
+void __not_in_flash_func(step_pins_tick)(void) {
+    uint32_t sequence = staged_sequence;
+    if (sequence != frames.sequence && (sequence & 1u) == 0 && started) {
+        take_timing(sequence);
+    }
+}
+
+void __not_in_flash_func(platform_steps_issue)(int32_t steps, bool enable) {
+    if (enable) {
+        sio_hw->gpio_clr = STEP_ENABLE_MASK; /* active low: the driver on */
+    } else {
+        sio_hw->gpio_set = STEP_ENABLE_MASK;
+    }
+    int32_t total = steps + frames.carry;
+    if (total == 0) {
+        frames.carry = 0;
+        return;
+    }
+    uint32_t count = total < 0 ? 0u - (uint32_t)total : (uint32_t)total;
+    if (count > frames.most) {
+        count = frames.most; /* only when the timing just changed or steps were carried */
+    }
+    PIO pio = STEP_PIO;
+    if (count == 0 || pio_sm_get_tx_fifo_level(pio, STEP_DIR_SM) > FIFO_WORDS - FRAME_WORDS) {
+        frames.carry = total;
+        return;
+    }
+    frames.carry = total < 0 ? total + (int32_t)count : total - (int32_t)count;
+    uint32_t spacing = frames.room / count;
+    pio->txf[STEP_DIR_SM] = count - 1u;
+    pio->txf[STEP_DIR_SM] = frames.pulse_word;
+    pio->txf[STEP_DIR_SM] = frames.setup_word;
+    pio->txf[STEP_DIR_SM] = (spacing - frames.low_base) << 1 | (total > 0 ? 1u : 0u);
+}
