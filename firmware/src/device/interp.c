@@ -8,6 +8,7 @@
 #include "flashvars.h"
 #include "platform.h"
 #include "servo.h"
+#include "stepper.h"
 
 _Static_assert(TABLE_QUEUE_CAPACITY == MOTION_QUEUE_CAPACITY, "one queue capacity");
 _Static_assert(TABLE_CURVE_BUFFER_CAPACITY == CURVE_BUFFER_CAPACITY, "one keyframe capacity");
@@ -553,6 +554,7 @@ static void reset_controller_locked(void) {
     servo_state.motion_left = 0;
     servo_state.desired = servo_state.actual;
     servo_state.desired_vel = 0;
+    servo_state.vel_acc = 0;
     curve_interrupt(&servo_state.curve);
 }
 
@@ -580,6 +582,32 @@ static bool refused_in_curve_mode(uint32_t number) {
 static int64_t output_mv(sci_t out) {
     out.e += 3;
     return sci_to_int(out);
+}
+
+/* The step generator's timing (calls 5 and 46, and power-up): in step-clock periods. */
+static void steps_timing(void) {
+    platform_steps_timing((uint32_t)stepper_cycles(vars.pulse_ns),
+                          (uint32_t)stepper_cycles(vars.setup_ns),
+                          device_tick_us() * STEPPER_CYCLES_PER_US);
+}
+
+/* _no_step_fits: true (with the ERR line printed) when a tick of tick_us fits no step pulse
+ * of this timing. */
+static bool refused_for_no_step(uint32_t number, int64_t tick_us, int64_t pulse_ns,
+                                int64_t setup_ns) {
+    if (stepper_max_steps_per_tick(tick_us, pulse_ns, setup_ns) >= 1) {
+        return false;
+    }
+    message_t m = {.length = 0};
+    message_text(&m, "a ");
+    message_int(&m, tick_us);
+    message_text(&m, " us tick fits no step pulse of ");
+    message_int(&m, pulse_ns);
+    message_text(&m, " ns after a ");
+    message_int(&m, setup_ns);
+    message_text(&m, " ns set-up (call 46)");
+    print_err_call(number, m.text);
+    return true;
 }
 
 /* --- the calls --------------------------------------------------------------------------- */
@@ -684,6 +712,11 @@ static void call_set_servo_update_interval(const call_t *call) {
         reply(CALL_SET_SERVO_UPDATE_INTERVAL, (field_t[]){NUMBER(device_tick_us())});
         return;
     }
+    if (vars.drive != DRIVE_DC && refused_for_no_step(CALL_SET_SERVO_UPDATE_INTERVAL,
+                                                      call->args[0] * 100, vars.pulse_ns,
+                                                      vars.setup_ns)) {
+        return;
+    }
     vars.interval_dms = (int32_t)call->args[0];
     derive();
     platform_servo_lock();
@@ -697,6 +730,7 @@ static void call_set_servo_update_interval(const call_t *call) {
     copy_in_locked();
     platform_servo_unlock();
     platform_servo_period_changed(device_tick_us());
+    steps_timing();
     debug_line(CALL_SET_SERVO_UPDATE_INTERVAL, (field_t[]){NUMBER(device_tick_us())});
 }
 
@@ -1166,6 +1200,129 @@ static void call_outputs(const call_t *call) {
                                     NUMBER(values[3]), NUMBER(pending), NUMBER(last)});
 }
 
+static void call_set_drive(const call_t *call) {
+    if (call->is_query) {
+        reply(CALL_SET_DRIVE, (field_t[]){NUMBER(vars.drive)});
+        return;
+    }
+    platform_servo_lock();
+    int32_t enable = servo_state.enable;
+    platform_servo_unlock();
+    if (enable == 1) {
+        print_err_call(CALL_SET_DRIVE, "the servo is enabled: disable it (call 3 0) before"
+                                       " changing what it drives");
+        return;
+    }
+    int32_t drive = (int32_t)call->args[0];
+    if (drive != DRIVE_DC && refused_for_no_step(CALL_SET_DRIVE, device_tick_us(),
+                                                 vars.pulse_ns, vars.setup_ns)) {
+        return;
+    }
+    vars.drive = drive;
+    derive();
+    motor_pins_sample_t pins = {0};
+    bool on_pins = vars.motor_pins && drive == DRIVE_DC;
+    if (on_pins) {
+        platform_motor_pins_sample(&pins);
+    }
+    platform_servo_lock();
+    /* a change of motor: the shaft at 0 at rest, the counters at 0, the PID afresh */
+    servo_state_t *s = &servo_state;
+    s->theta = 0;
+    s->omega = 0;
+    s->offset = 0;
+    s->actual = 0;
+    s->velocity = 0;
+    s->phase = 0;
+    s->last_steps = 0;
+    s->desired = 0;
+    for (unsigned slot = 0; slot < SERVO_HISTORY_SLOTS; slot++) {
+        s->counts[slot] = 0;
+    }
+    s->counts_pos = 0;
+    clear_queue_locked();
+    clear_curve_locked();
+    reset_controller_locked();
+    copy_in_locked();
+    if (on_pins) {
+        servo_pins_power_up(s, &pins);   /* the counter at 0 where the motor on the pins is */
+    } else {
+        s->limits = servo_switches(s, &servo_params);
+        s->probe = servo_probe(s, &servo_params);
+    }
+    platform_servo_unlock();
+    debug_line(CALL_SET_DRIVE, (field_t[]){NUMBER(drive)});
+}
+
+static void call_set_stepper(const call_t *call) {
+    if (call->is_query) {
+        reply(CALL_SET_STEPPER, (field_t[]){NUMBER(vars.full_steps), NUMBER(vars.microsteps)});
+        return;
+    }
+    vars.full_steps = (int32_t)call->args[0];
+    vars.microsteps = (int32_t)call->args[1];
+    derive();
+    platform_servo_lock();
+    clear_queue_locked();
+    clear_curve_locked();
+    copy_in_locked();
+    platform_servo_unlock();
+    debug_line(CALL_SET_STEPPER, (field_t[]){NUMBER(call->args[0]), NUMBER(call->args[1])});
+}
+
+static void call_set_step_timing(const call_t *call) {
+    if (call->is_query) {
+        reply(CALL_SET_STEP_TIMING, (field_t[]){NUMBER(vars.pulse_ns), NUMBER(vars.setup_ns)});
+        return;
+    }
+    if (refused_for_no_step(CALL_SET_STEP_TIMING, device_tick_us(), call->args[0],
+                            call->args[1])) {
+        return;
+    }
+    vars.pulse_ns = (int32_t)call->args[0];
+    vars.setup_ns = (int32_t)call->args[1];
+    set_and_copy_in();
+    steps_timing();
+    debug_line(CALL_SET_STEP_TIMING, (field_t[]){NUMBER(call->args[0]), NUMBER(call->args[1])});
+}
+
+static void call_set_sim_stepper(const call_t *call) {
+    if (call->is_query) {
+        reply(CALL_SET_SIM_STEPPER, (field_t[]){NUMBER(vars.holding_mnm), NUMBER(vars.detent_mnm),
+                                                NUMBER(vars.corner_rpm)});
+        return;
+    }
+    int64_t holding = call->args[0];
+    int64_t detent = call->args[1];
+    if (detent > holding) {
+        message_t m = {.length = 0};
+        message_text(&m, "detent torque ");
+        message_int(&m, detent);
+        message_text(&m, " mNm is more than the holding torque ");
+        message_int(&m, holding);
+        message_text(&m, " mNm");
+        print_err_call(CALL_SET_SIM_STEPPER, m.text);
+        return;
+    }
+    vars.holding_mnm = (int32_t)holding;
+    vars.detent_mnm = (int32_t)detent;
+    vars.corner_rpm = (int32_t)call->args[2];
+    set_and_copy_in();
+    debug_line(CALL_SET_SIM_STEPPER,
+               (field_t[]){NUMBER(holding), NUMBER(detent), NUMBER(call->args[2])});
+}
+
+static void call_steps(const call_t *call) {
+    (void)call;
+    platform_servo_lock();
+    int32_t issued = wrap_int32(servo_state.phase);
+    int32_t last = servo_state.last_steps;
+    platform_servo_unlock();
+    reply(CALL_STEPS, (field_t[]){NUMBER(issued), NUMBER(last),
+                                  NUMBER(stepper_max_steps_per_tick(device_tick_us(), vars.pulse_ns,
+                                                                    vars.setup_ns))});
+}
+
 static int64_t ceil_div(int64_t numerator, int64_t denominator) {
     return numerator >= 0 ? (numerator + denominator - 1) / denominator
                           : -((-numerator) / denominator);
@@ -1270,6 +1427,14 @@ static void ram_defaults(void) {
     vars.diag_n = 0;
     vars.watchdog_ms = 0;
     vars.fe_limit = 0;
+    vars.drive = POWER_UP_DRIVE;
+    vars.full_steps = POWER_UP_FULL_STEPS;
+    vars.microsteps = POWER_UP_MICROSTEPS;
+    vars.pulse_ns = POWER_UP_PULSE_NS;
+    vars.setup_ns = POWER_UP_SETUP_NS;
+    vars.holding_mnm = POWER_UP_HOLDING_MNM;
+    vars.detent_mnm = POWER_UP_DETENT_MNM;
+    vars.corner_rpm = POWER_UP_CORNER_RPM;
 }
 
 void device_power_up(void) {
@@ -1285,6 +1450,8 @@ void device_power_up(void) {
         platform_motor_pins_sample(&pins);
     }
     platform_outputs_start();
+    platform_steps_start();
+    steps_timing();
     derive();
     platform_servo_lock();
     servo_state_init(&servo_state, flash.default_control_mode);

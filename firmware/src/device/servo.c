@@ -14,14 +14,9 @@
 #include "motor.h"
 #include "platform.h"
 #include "servo.h"
+#include "stepper.h"
 
 #define EDGE_TICK_NONE 0
-
-/* core1.wrap_int32: the int32 the hardware counter holds (two's complement wrap). */
-static inline int32_t wrap_int32(int64_t value) {
-    uint32_t bits = (uint32_t)value;
-    return bits < 0x80000000u ? (int32_t)bits : -(int32_t)(~bits) - 1;
-}
 
 /* theta // 10^6 (floor), as floor(floor(|theta| / 2^6) / 15625) on the magnitude (below
  * 2^52): a 14-bit divisor, two 32-bit divisions. */
@@ -31,6 +26,12 @@ static inline int64_t floor_micro(int64_t theta) {
     }
     uint64_t magnitude = 0u - (uint64_t)theta;
     return -(int64_t)sci_div_u64_small((magnitude + (MOTOR_MICRO - 1)) >> 6, 15625u);
+}
+
+/* trunc_div(value, 10^6) for |value| < 2^54, as floor_micro on the magnitude. */
+static inline int64_t trunc_micro(int64_t value) {
+    uint64_t magnitude = sci_div_u64_small(sci_magnitude64(value) >> 6, 15625u);
+    return value < 0 ? -(int64_t)magnitude : (int64_t)magnitude;
 }
 
 static inline void shift_edge(switch_edge_t *edge, int64_t shift) {
@@ -195,12 +196,19 @@ static void motion_update(servo_state_t *s, const servo_params_t *p) {
         s->motion_left = p->scalar;
     }
     s->motion_left -= 1;
+    if (p->drive_kind != DRIVE_DC && s->mode == MODE_VELOCITY) {
+        /* a stepper follows the desired velocity's position: |vel_acc| < 10^6 + 2^31 * 10^6 */
+        s->vel_acc += (int64_t)s->desired_vel * p->tick_us;
+        int64_t move = trunc_micro(s->vel_acc);
+        s->vel_acc -= move * STEPPER_MICRO;
+        s->desired = wrap_int32((int64_t)s->desired + move);
+    }
 }
 
 /* 2. PID (servo enabled): the output in volts, saturated, with conditional integration */
 static void pid(servo_state_t *s, const servo_params_t *p) {
     int64_t error;
-    if (s->mode == MODE_VELOCITY) {
+    if (s->mode == MODE_VELOCITY && p->drive_kind == DRIVE_DC) {
         error = (int64_t)s->desired_vel - s->velocity;
     } else {
         error = wrap_int32((int64_t)s->desired - s->actual);
@@ -250,12 +258,13 @@ static void pid(servo_state_t *s, const servo_params_t *p) {
 }
 
 /* 4. encoder, switches, the edge latch, the probe and its edge latch, and the velocity-mode
- * counter reset; returns the switches that closed on this tick. `count` is the shaft's
- * count, `limits` the switches, `probe` the probe input; `pins` the edges the switches' pins
- * latched (NULL: the simulated travel's, latched here). */
-static inline int32_t encoder(servo_state_t *s, const servo_params_t *p, int64_t count,
+ * counter reset; returns the switches that closed on this tick. `source` is what the counter
+ * counts (core1.py's: the shaft's count, a stepper's steps issued or its encoder in
+ * microsteps), `limits` the switches, `probe` the probe input; `pins` the edges the
+ * switches' pins latched (NULL: the simulated travel's, latched here). */
+static inline int32_t encoder(servo_state_t *s, const servo_params_t *p, int64_t source,
                               int32_t limits, int32_t probe, const motor_pins_sample_t *pins) {
-    s->actual = wrap_int32(count + s->offset);
+    s->actual = wrap_int32(source + s->offset);
     int32_t then = s->counts[s->counts_pos];
     /* wrap32(actual - then) * 10^6 / (window * tick_us) truncated toward zero (trunc_div),
      * as the reduced fraction: velocity_num <= 10^6, velocity_den <= 10^4 */
@@ -312,11 +321,14 @@ static inline int32_t encoder(servo_state_t *s, const servo_params_t *p, int64_t
         s->velocity_mode_us += p->tick_us;
         if (s->velocity_mode_us >= VELOCITY_RESET_US) {
             s->velocity_mode_us -= VELOCITY_RESET_US;
-            s->offset = wrap_int32(-count);
+            s->offset = wrap_int32(-source);
             for (int32_t slot = 0; slot < p->window; slot++) {
                 s->counts[slot] = wrap_int32((int64_t)s->counts[slot] - s->actual);
             }
             shift_edges(s, -(int64_t)s->actual);
+            if (p->drive_kind != DRIVE_DC) {
+                s->desired = wrap_int32((int64_t)s->desired - s->actual);
+            }
             s->actual = 0;
         }
     }
@@ -344,7 +356,12 @@ static inline bool tick_start(servo_state_t *s, const servo_params_t *p) {
     bool enabled = s->enable == 1;
     if (enabled) {
         motion_update(s, p);
-        pid(s, p);
+        if (p->drive_kind != DRIVE_STEP_OPEN) {
+            pid(s, p);
+        } else {
+            s->out.c = 0;
+            s->out.e = 0;
+        }
     } else {
         s->out.c = 0;
         s->out.e = 0;
@@ -449,18 +466,88 @@ static inline void tick_finish(servo_state_t *s, const servo_params_t *p, record
     }
 }
 
+/* 2-3 of a step drive: the steps this tick issues (the open loop's to the desired position,
+ * the closed loop's to the PID's target held within a full step of where the rotor is going),
+ * handed to the platform's step generator, and the simulated stepper over the tick with the
+ * steps reaching its field spread evenly over the sub-steps. Returns what the counter
+ * counts: the steps issued (open loop) or the encoder in microsteps (closed loop). */
+static int64_t step_drive(servo_state_t *s, const servo_params_t *p) {
+    int32_t issue = 0;
+    if (s->enable == 1) {
+        if (p->drive_kind == DRIVE_STEP_OPEN) {
+            issue = wrap_int32((int64_t)s->desired - s->actual);
+        } else {
+            int32_t target = wrap_int32((int64_t)s->desired + sci_to_int(s->out));
+            /* trunc_div(velocity * tick_us, 10^6): |velocity| * tick_us <= 2^31 * 10^6 */
+            uint64_t ahead = sci_div_u64_small(
+                sci_mul_32x64((uint32_t)p->tick_us, sci_magnitude64(s->velocity)) >> 6, 15625u);
+            int32_t rotor = wrap_int32((int64_t)s->actual + (s->velocity < 0 ? -(int64_t)ahead
+                                                                              : (int64_t)ahead));
+            int32_t lead = wrap_int32((int64_t)target - rotor);
+            if (lead > p->reach) {
+                target = wrap_int32((int64_t)rotor + p->reach);
+            } else if (lead < -p->reach) {
+                target = wrap_int32((int64_t)rotor - p->reach);
+            }
+            issue = wrap_int32((int64_t)target - wrap_int32(s->phase + s->offset));
+        }
+        if (issue > p->max_steps) {
+            issue = p->max_steps;
+        } else if (issue < -p->max_steps) {
+            issue = -p->max_steps;
+        }
+    }
+    s->out = sci_from_int(issue);
+    platform_steps_issue(issue, s->enable == 1);
+
+    /* the field after sub-step k is phase + trunc_div(issue * k, steps): the quotient and
+     * remainder of |issue| / steps added up, a carry when the remainder reaches steps */
+    uint32_t steps = (uint32_t)p->steps;
+    uint32_t magnitude = issue < 0 ? 0u - (uint32_t)issue : (uint32_t)issue;
+    uint32_t whole = sci_udiv(magnitude, steps);
+    uint32_t rest = magnitude - whole * steps;
+    uint32_t moved = 0;
+    uint32_t remainder = 0;
+    int64_t base = s->phase * STEPPER_MICRO;
+    for (uint32_t step = 0; step < steps; step++) {
+        moved += whole;
+        remainder += rest;
+        if (remainder >= steps) {
+            remainder -= steps;
+            moved += 1u;
+        }
+        uint32_t high;
+        uint32_t low = sci_mul_32x32(moved, STEPPER_MICRO, &high);
+        int64_t field_moved = (int64_t)(((uint64_t)high << 32) | low);
+        int64_t field = issue < 0 ? base - field_moved : base + field_moved;
+        stepper_step(&s->theta, &s->omega, field, s->enable, p);
+    }
+    s->phase += issue;
+    s->last_steps = issue;
+    if (p->drive_kind == DRIVE_STEP_OPEN) {
+        return s->phase;
+    }
+    return stepper_encoder_microsteps(floor_micro(s->theta), p->encoder_cpr, p->per_rev);
+}
+
 void servo_tick(servo_state_t *s, const servo_params_t *p, record_ring_t *ring) {
     bool enabled = tick_start(s, p);
 
     /* 3. motor */
-    sci_t drive = sci_mul(s->out, p->drive);
-    for (int32_t step = 0; step < p->steps; step++) {
-        motor_step(&s->theta, &s->omega, drive, p);
+    int64_t source;
+    if (p->drive_kind == DRIVE_DC) {
+        sci_t drive = sci_mul(s->out, p->drive);
+        for (int32_t step = 0; step < p->steps; step++) {
+            motor_step(&s->theta, &s->omega, drive, p);
+        }
+        source = floor_micro(s->theta);
+    } else {
+        source = step_drive(s, p);
     }
 
     int64_t count = floor_micro(s->theta);
     int32_t closing =
-        encoder(s, p, count, travel_switches(count, p), probe_closed(count, p), NULL);
+        encoder(s, p, source, travel_switches(count, p), probe_closed(count, p), NULL);
     tick_finish(s, p, ring, enabled, closing);
 }
 

@@ -188,6 +188,7 @@ def compile_kernel() -> BlockFunction:
                 motor._trunc_div,
                 motor.motor_step,
                 stepper.trunc_div,
+                stepper.travel,
                 stepper.sine_at,
                 stepper.encoder_microsteps,
                 stepper.stepper_step,

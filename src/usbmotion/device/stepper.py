@@ -144,6 +144,17 @@ def trunc_div(numerator: int, denominator: int) -> int:
     return -((-numerator) // denominator)
 
 
+def travel(omega: int, num: int, den: int) -> int:
+    """``omega * num / den`` truncated toward zero, for ``|omega| <= STEPPER_OMEGA_MAX``,
+    ``0 < num <= 10**6`` and ``10**6 <= den <= 10**10`` (the travel of a sub-step), without
+    an int64 overflow: ``10**13 * 10**6`` does not fit an int64, so the kernel could not form
+    the product. With ``|omega| = q den + r``: ``q num + (r num) // den``, exactly."""
+    magnitude = omega if omega >= 0 else -omega
+    whole = magnitude // den
+    moved = whole * num + (magnitude - whole * den) * num // den
+    return moved if omega >= 0 else -moved
+
+
 def sine_at(angle: int, period: int) -> int:
     """``SINE_ONE * sin(2 pi angle / period)`` from the table (``period > 0``; the angle
     taken modulo the period, never negative)."""
@@ -216,7 +227,7 @@ def stepper_step(
         new_omega = STEPPER_OMEGA_MAX
     elif new_omega < -STEPPER_OMEGA_MAX:
         new_omega = -STEPPER_OMEGA_MAX
-    theta += trunc_div(new_omega * step_num_us, step_den * MICRO)
+    theta += travel(new_omega, step_num_us, step_den * MICRO)
     if theta < stop_low:
         return stop_low, 0
     if theta > stop_high:
@@ -226,4 +237,4 @@ def stepper_step(
 
 __all__ = ["MICRO", "SINE", "SINE_ONE", "SINE_SIZE", "StepperConstants", "StepperParams",
            "cycles", "derive_stepper", "encoder_microsteps", "max_steps_per_tick",
-           "sine_at", "stepper_step", "trunc_div"]
+           "sine_at", "stepper_step", "travel", "trunc_div"]

@@ -1,0 +1,174 @@
+/* The simulated stepper (stepper.h): stepper.py's functions, the same operations in the same
+ * order. Python's // and % floor where C's / and % truncate: every division of a value that
+ * may be negative goes through floor_div or the sign-aware code below.
+ *
+ * Ranges (why 64 bits suffice where the Python's ints are unbounded): the shaft stays within
+ * the hard stops, |theta| < (2^31 + 201) * 10^6 < 2^52; |omega| <= 10^13; the field is the
+ * driver's step count in micro-microsteps (steps issued x 10^6); the torques are at most
+ * 10^8 uNm (holding, detent) and 10^13 uNm (the load, call 33's 9999e6 mNm); the viscous
+ * torque at most 10^13 x 6.3e4 (call 32's largest over one microstep a turn). */
+#include "stepper.h"
+
+static sci_t sci_value(sci_t pair) {
+    return sci_normalize(pair.c, pair.e);
+}
+
+/* floor(n / d) of a magnitude: the hardware divider when n fits 32 bits. */
+static inline uint64_t div_u64(uint64_t n, uint32_t d) {
+    if ((n >> 32) == 0u) {
+        return sci_udiv((uint32_t)n, d);
+    }
+    if (d < 0x10000u) {
+        return sci_div_u64_small(n, d);
+    }
+    return n / d;
+}
+
+/* Python's n // d for d > 0. */
+static inline int64_t floor_div(int64_t n, uint32_t d) {
+    if (n >= 0) {
+        return (int64_t)div_u64((uint64_t)n, d);
+    }
+    uint64_t magnitude = 0u - (uint64_t)n;
+    return -(int64_t)div_u64(magnitude + d - 1u, d);
+}
+
+/* floor(m / 10^6) for m < 2^54: floor(floor(m / 2^6) / 15625), two 32-bit divisions. */
+static inline uint64_t div_micro(uint64_t m) {
+    return sci_div_u64_small(m >> 6, 15625u);
+}
+
+int64_t stepper_cycles(int64_t ns) {
+    return (ns * (int64_t)STEPPER_CYCLES_PER_US + 999) / 1000;   /* ns >= 0 */
+}
+
+int32_t stepper_max_steps_per_tick(int64_t tick_us, int64_t pulse_ns, int64_t setup_ns) {
+    int64_t room = tick_us * (int64_t)STEPPER_CYCLES_PER_US - stepper_cycles(setup_ns);
+    if (room <= 0) {
+        return 0;   /* max(0, room // ...): a negative room floors below 0 */
+    }
+    return (int32_t)(room / (2 * stepper_cycles(pulse_ns)));
+}
+
+void stepper_derive(const device_vars_t *vars, int64_t tick_us, int32_t substeps,
+                    stepper_constants_t *out) {
+    int64_t microsteps_per_revolution = (int64_t)vars->full_steps * vars->microsteps;
+    const sci_t two_pi = sci_normalize(6283, -3);
+    sci_t per_rev = sci_from_int(microsteps_per_revolution);
+    sci_t micro = sci_normalize(1, 6);
+    sci_t step_s = sci_div(sci_mul(sci_from_int(tick_us), sci_normalize(1, -6)),
+                           sci_from_int(substeps));
+    sci_t accel = sci_mul(sci_div(sci_mul(sci_div(sci_mul(per_rev, micro), two_pi),
+                                          sci_normalize(1, -6)),
+                                  sci_value(vars->inertia_kg_m2)),
+                          step_s);
+    sci_t viscous = sci_div(sci_div(sci_mul(sci_value(vars->viscous_friction_unm_per_rad_s),
+                                            two_pi),
+                                    per_rev),
+                            micro);
+    out->max_steps = stepper_max_steps_per_tick(tick_us, vars->pulse_ns, vars->setup_ns);
+    out->cycle = 4 * (int64_t)vars->microsteps * STEPPER_MICRO;
+    out->full = (int64_t)vars->microsteps * STEPPER_MICRO;
+    out->holding_unm = (int64_t)vars->holding_mnm * 1000;
+    out->detent_unm = (int64_t)vars->detent_mnm * 1000;
+    out->corner = (int64_t)vars->corner_rpm * microsteps_per_revolution / 60;
+    out->load_unm = sci_to_int(sci_mul(sci_value(vars->load_torque_mnm), sci_normalize(1, 3)));
+    out->viscous = viscous;
+    out->accel = accel;
+}
+
+int32_t stepper_sine_at(int64_t angle, int64_t period) {
+    uint32_t p = (uint32_t)period;
+    uint64_t magnitude = angle < 0 ? 0u - (uint64_t)angle : (uint64_t)angle;
+    uint32_t rest;
+    if ((magnitude >> 32) == 0u) {
+        uint32_t low = (uint32_t)magnitude;
+        rest = low - sci_udiv(low, p) * p;
+    } else {
+        rest = (uint32_t)(magnitude % p);
+    }
+    if (angle < 0 && rest != 0u) {
+        rest = p - rest;
+    }
+    return table_sine[((uint64_t)rest * TABLE_SINE_SIZE) / p];
+}
+
+int64_t stepper_encoder_microsteps(int64_t shaft, int32_t cpr, int32_t per_rev) {
+    int64_t count = floor_div(shaft * cpr, (uint32_t)per_rev);
+    return floor_div(count * per_rev, (uint32_t)cpr);
+}
+
+/* trunc_div(torque * sine, SINE_ONE) for 0 <= torque < 2^32 and |sine| <= SINE_ONE. */
+static inline int64_t scaled_by_sine(int64_t torque, int32_t sine) {
+    uint32_t high;
+    uint32_t low = sci_mul_32x32((uint32_t)torque, sine < 0 ? 0u - (uint32_t)sine
+                                                             : (uint32_t)sine, &high);
+    int64_t magnitude = (int64_t)((((uint64_t)high << 32) | low) >> 14);
+    _Static_assert(TABLE_SINE_ONE == 1 << 14, "SINE_ONE is 2^14");
+    return sine < 0 ? -magnitude : magnitude;
+}
+
+/* sci_to_int of the speed change, saturated: a change beyond 2 x 10^13 takes any speed
+ * (|omega| <= 10^13) past the bound, to the bound or through 0 (a reversal, which stops
+ * it), as the Python's unbounded change does; 10^15 is such a change and fits. */
+static inline int64_t speed_change(sci_t change) {
+    if (change.e > 11) {
+        return change.c < 0 ? -1000000000000000LL : 1000000000000000LL;
+    }
+    return sci_to_int(change);
+}
+
+void stepper_step(int64_t *theta_io, int64_t *omega_io, int64_t field, int32_t powered,
+                  const servo_params_t *p) {
+    int64_t theta = *theta_io;
+    int64_t omega = *omega_io;
+    int64_t pull = 0;
+    if (powered == 1) {
+        int64_t speed = (int64_t)div_micro(sci_magnitude64(omega));
+        int64_t available = p->holding;
+        if (speed > p->corner) {
+            available = (int64_t)((uint64_t)p->holding_corner / (uint64_t)speed);
+        }
+        pull = scaled_by_sine(available, stepper_sine_at(field - theta, p->cycle));
+    }
+    int64_t torque = pull - scaled_by_sine(p->detent, stepper_sine_at(theta, p->full));
+    int64_t load = p->load_unm;
+    int64_t net;
+    if (omega == 0) {
+        if (-load <= torque && torque <= load) {
+            *omega_io = 0;
+            return;
+        }
+        net = torque > 0 ? torque - load : torque + load;
+    } else {
+        int64_t viscous = sci_to_int(sci_mul(sci_from_int(omega), p->viscous));
+        net = torque - viscous - (omega > 0 ? load : -load);
+    }
+    int64_t new_omega = omega + speed_change(sci_mul(sci_from_int(net), p->accel));
+    if ((omega > 0 && new_omega < 0) || (omega < 0 && new_omega > 0)) {
+        new_omega = 0;
+    }
+    if (new_omega > STEPPER_OMEGA_MAX) {
+        new_omega = STEPPER_OMEGA_MAX;
+    } else if (new_omega < -STEPPER_OMEGA_MAX) {
+        new_omega = -STEPPER_OMEGA_MAX;
+    }
+    /* stepper.travel: new_omega * tick_us / (steps * 10^6) truncated toward zero, as the
+     * reduced fraction: |new_omega| * travel_num <= 10^13 * 10^6 < 2^64 */
+    uint64_t moved = sci_mul_32x64((uint32_t)p->travel_num, sci_magnitude64(new_omega));
+    if (p->travel_den != 1) {
+        moved = p->travel_den < 0x10000 ? sci_div_u64_small(moved, (uint32_t)p->travel_den)
+                                        : moved / (uint64_t)p->travel_den;
+    }
+    theta += new_omega < 0 ? -(int64_t)moved : (int64_t)moved;
+    if (theta < p->stop_low) {
+        *theta_io = p->stop_low;
+        *omega_io = 0;
+    } else if (theta > p->stop_high) {
+        *theta_io = p->stop_high;
+        *omega_io = 0;
+    } else {
+        *theta_io = theta;
+        *omega_io = new_omega;
+    }
+}
