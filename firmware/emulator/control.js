@@ -159,6 +159,35 @@ const commands = {
     }
     return { address: symbol.address, hex: Buffer.from(bytes).toString('hex') };
   },
+  write(request) {
+    const d = requireDevice();
+    const symbol = d.symbols.get(request.symbol);
+    if (!symbol) {
+      throw new DeviceError(`no symbol ${JSON.stringify(request.symbol)} in the ELF`);
+    }
+    const offset = request.offset ?? 0;
+    const bytes = Buffer.from(request.hex ?? '', 'hex');
+    if (!Number.isInteger(offset) || offset < 0 || offset + bytes.length > symbol.size) {
+      throw new DeviceError(`write of ${bytes.length} bytes at ${JSON.stringify(offset)} is outside`
+        + ` ${request.symbol} (${symbol.size} bytes)`);
+    }
+    for (let i = 0; i < bytes.length; i++) {
+      d.mcu.writeUint8(symbol.address + offset + i, bytes[i]);
+    }
+    return { address: symbol.address };
+  },
+  levels(request) {
+    const d = requireDevice();
+    const { pins } = request;
+    if (!Array.isArray(pins) || !pins.every((pin) => Number.isInteger(pin) && pin >= 0 && pin < 30)) {
+      throw new DeviceError(`levels "pins" must list GPIO numbers 0-29, not ${JSON.stringify(pins)}`);
+    }
+    d.pins.catchUp(d.nanos);
+    return { levels: pins.map((pin) => {
+      const gpio = d.mcu.gpio[pin];
+      return gpio.outputEnable ? Number(gpio.outputValue) : null;
+    }) };
+  },
   motor(request) {
     const d = requireDevice();
     const world = d.attachMotor(request.options ?? {});

@@ -57,6 +57,8 @@ const SM_SHIFTCTRL = 0x08;
 /** JMP conditions X-- and Y--; rp2040js's wait types IRQ and TX FIFO (a blocking pull). */
 const JMP_X_DEC = 0b010;
 const JMP_Y_DEC = 0b100;
+const OP_IRQ = 0b110;
+const IRQ_CLEAR_OR_WAIT = 0x60;
 const WAIT_TX_FIFO = 3;
 const WAIT_IRQ = 4;
 /** Steps a machine must run since its last input change before it may be fast-forwarded. */
@@ -109,22 +111,6 @@ export class PioClock {
     io.writeUint32 = (offset, value) => ioWrite(shared(offset), value);
     // an input nothing outside drives reads what its pad's pull resistor gives it
     this.driven = new Set();
-    const timed = this.timed;
-    const irqUpdated = timed.irqUpdated.bind(timed);
-    let flags = timed.irq;
-    timed.irqUpdated = () => {
-      const raised = timed.irq & ~flags;
-      if (raised && this.capture) {
-        for (let flag = 0; flag < 8; flag++) {
-          if (raised & (1 << flag)) {
-            this.capture.flags.push([flag, this.timedCursor, this.ticksNow()]);
-          }
-        }
-      }
-      irqUpdated();
-      flags = timed.irq;
-    };
-    this.timedCursor = 0;
     const pads = mcu.peripherals[PADS_BANK0_KEY];
     const padsWrite = pads.writeUint32.bind(pads);
     pads.writeUint32 = (offset, value) => {
@@ -236,16 +222,23 @@ export class PioClock {
         done += skip;
         continue;
       }
-      this.timedCursor = start + done * this.cycleNanos;
+      const nanos = start + done * this.cycleNanos;
       const values = pio.pinValues;
       for (const machine of machines) {
         const pc = machine.pc;
+        const instruction = machine.waiting ? -1 : pio.instructions[pc];
         machine.step();
         loops.set(machine, machine.waiting ? -1 : pc);
+        if (instruction >> 13 === OP_IRQ && (instruction & IRQ_CLEAR_OR_WAIT) === 0 && this.capture) {
+          // every flag raised, even one still up from before (a start no frame waited on)
+          const index = instruction & 0x1f;
+          const flag = index & 0x10 ? (index & 4) | (((index & 3) + machine.index) & 3) : index & 7;
+          this.capture.flags.push([flag, nanos, this.ticksNow()]);
+        }
       }
       const changed = pio.pinValues ^ values;
       if (changed) {
-        this.pinsChanged(changed, pio.pinValues, this.timedCursor);
+        this.pinsChanged(changed, pio.pinValues, nanos);
       }
       left--;
       done++;

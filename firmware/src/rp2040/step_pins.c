@@ -62,6 +62,7 @@ typedef struct {
 
 static step_frames_t frames;
 static bool started;
+static uint clock_start; /* where step_clock starts in the PIO's instruction memory */
 
 void platform_steps_start(void) {
     PIO pio = STEP_PIO;
@@ -73,7 +74,8 @@ void platform_steps_start(void) {
     pio_sm_config clock = step_clock_program_get_default_config(clock_offset);
     sm_config_set_out_shift(&clock, true, false, 32);
     sm_config_set_clkdiv_int_frac(&clock, 1, 0);
-    pio_sm_init(pio, STEP_CLOCK_SM, clock_offset + step_clock_offset_start, &clock);
+    clock_start = clock_offset + step_clock_offset_start;
+    pio_sm_init(pio, STEP_CLOCK_SM, clock_start, &clock);
 
     uint dir_offset = pio_add_program(pio, &step_dir_program);
     pio_sm_config dir = step_dir_program_get_default_config(dir_offset);
@@ -124,7 +126,7 @@ static void __not_in_flash_func(take_timing)(uint32_t sequence) {
         pio_sm_set_enabled(pio, STEP_CLOCK_SM, false);
         pio_sm_clear_fifos(pio, STEP_CLOCK_SM);
         pio_sm_restart(pio, STEP_CLOCK_SM);
-        pio_sm_exec(pio, STEP_CLOCK_SM, pio_encode_jmp(step_clock_offset_start));
+        pio_sm_exec(pio, STEP_CLOCK_SM, pio_encode_jmp(clock_start));
         pio_sm_put(pio, STEP_CLOCK_SM, timing.tick - 3u);
         pio_sm_set_enabled(pio, STEP_CLOCK_SM, true);
         frames.tick = timing.tick;

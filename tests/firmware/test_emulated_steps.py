@@ -1,0 +1,229 @@
+"""The step/direction drives (call 44) on the emulated chip's pins: STEP, DIR and EN.
+
+A move in each step drive (open loop, and closed loop on the on-chip simulated stepper),
+with the TMC2209's timing (call 46 100 20) and the power-up one (2000 1000), at 10 kHz and
+at 1 kHz, on either motor (call 39 0 or 1): every tick's rising edges of STEP are the steps
+the Python device issued on that tick (its diagnostics line), in number and direction; every
+pulse is high for the pulse and low at least as long; a rise comes at least the set-up after
+DIR changed; a tick's pulses end before the next tick starts; every rise lands on its ideal
+time (the tick's start + set-up + k x spacing, ``tests/firmware/steps.py``). The driver's
+enable (active low) is low only while the servo runs enabled.
+
+The test of the test: the same check catches one pulse missing from every tick, and, on the
+chip itself, a set-up and a pulse made a period too short (the step generator's words changed
+in core1's memory while the drive runs).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+
+import pytest
+
+from .emulated import require_emulator
+from .pins import PinsChip
+from .sessions import Feed, Run, Step, lines, python_replay
+from .steps import (
+    CYCLE_NS,
+    DIR_PIN,
+    ENABLE_PIN,
+    STEP_PIN,
+    PulseReport,
+    StepTiming,
+    capture,
+    check_pulses,
+    frames_of,
+    issued_by_tick,
+)
+
+
+@dataclass(frozen=True, slots=True)
+class Case:
+    drive: int
+    pulse_ns: int
+    setup_ns: int
+    interval_dms: int
+    motor: int
+    ticks: int
+
+
+def _wave(ticks: int, peak: int) -> list[int]:
+    """Positions of a move out and back: the velocity a sine of ``peak`` steps a tick (above
+    the most a tick issues, so the drive saturates), the second half reversed."""
+    position = 0.0
+    out: list[int] = []
+    for k in range(1, ticks + 1):
+        position += peak * math.sin(2 * math.pi * k / ticks)
+        out.append(round(position))
+    return out
+
+
+def session(case: Case) -> list[Step]:
+    """The move: the timing and the drive set, a diagnostics line every tick, the positions
+    queued (one a tick), the servo enabled for the move and a few ticks more, disabled."""
+    timing = StepTiming.of(case.pulse_ns, case.setup_ns, case.interval_dms * 100)
+    # open loop: beyond what a tick can issue; closed loop: within what the simulated stepper
+    # follows (its corner speed, 760 rpm: 40,533 microsteps/s)
+    peak = timing.max_per_tick * 5 // 4 if case.drive == 1 else 3 * case.interval_dms
+    positions = _wave(case.ticks, peak)
+    steps: list[Step] = [lines(f"5 {case.interval_dms}", f"46 {case.pulse_ns} {case.setup_ns}",
+                               f"44 {case.drive}", "21 1")]
+    for start in range(0, len(positions), 500):
+        batch = positions[start : start + 500]
+        steps.append(lines(f"1 {len(batch)} {' '.join(map(str, batch))}"))
+        if start == 0:
+            steps.append(lines("3 1"))
+        steps.append(Run(len(batch)))
+    steps += [Run(40), lines("3 0"), Run(3), lines("48 -1")]
+    return steps
+
+
+def play(chip: PinsChip, steps: Sequence[Step]) -> list[tuple[int, str]]:
+    printed: list[tuple[int, str]] = []
+    for step in steps:
+        if isinstance(step, Feed):
+            reply = chip.request(cmd="feed", data=step.data.decode("latin-1"))
+        else:
+            assert isinstance(step, Run)
+            reply = chip.request(cmd="run", ticks=step.ticks)
+        printed += PinsChip.lines(reply)
+    return printed
+
+
+def _python(steps: Sequence[Step]) -> list[tuple[int, str]]:
+    return [(tick, line.decode("ascii")) for tick, line in python_replay(steps)]
+
+
+@pytest.fixture(scope="module")
+def chips() -> Iterator[dict[int, PinsChip]]:
+    """A chip on each motor (call 39 0 and 1), blank flash but for that."""
+    require_emulator()
+    with PinsChip(pins=False) as simulated, PinsChip(pins=True) as pins:
+        yield {0: simulated, 1: pins}
+
+
+def run_case(chips: dict[int, PinsChip], case: Case) -> tuple[PulseReport, list[str]]:
+    """The move on a fresh chip (of ``case.motor``) and on the Python device: the check's
+    report and the chip's lines."""
+    chip = chips[case.motor]
+    chip.request(cmd="power_cycle", erase_flash=case.motor == 0)
+    chip.request(cmd="capture", pins=[STEP_PIN, DIR_PIN])
+    steps = session(case)
+    printed = play(chip, steps)
+    edges, flags = capture(chip.request(cmd="capture"))
+    python = _python(steps)
+    diagnostics = [entry for entry in printed if entry[1].startswith("D ")]
+    assert diagnostics == [entry for entry in python if entry[1].startswith("D ")], (
+        "the chip's diagnostics lines differ from the Python device's")
+    issued = issued_by_tick(python)
+    timing = StepTiming.of(case.pulse_ns, case.setup_ns, case.interval_dms * 100)
+    report = check_pulses(edges, flags, issued, timing)
+    (last,) = [line for _, line in printed if line.startswith("STEPS ")]
+    assert report.net_steps == int(last.split()[1]), (last, report)
+    assert report.steps == sum(abs(steps) for steps in issued.values())
+    return report, [line for _, line in printed]
+
+
+CASES = {
+    "open loop, TMC2209 timing, 10 kHz": Case(1, 100, 20, 1, 0, 400),
+    "open loop, power-up timing, 10 kHz": Case(1, 2000, 1000, 1, 0, 300),
+    "open loop, power-up timing, 1 kHz": Case(1, 2000, 1000, 10, 0, 120),
+    "closed loop, TMC2209 timing, 10 kHz": Case(2, 100, 20, 1, 0, 400),
+    "closed loop, power-up timing, 1 kHz": Case(2, 2000, 1000, 10, 0, 150),
+    "open loop, TMC2209 timing, 10 kHz, motor on the pins": Case(1, 100, 20, 1, 1, 200),
+}
+PINS_MOTOR_ISSUES_NO_STEPS = pytest.mark.xfail(
+    strict=True, reason="the device's tick with the motor on the pins (servo_tick_pins, "
+    "src/device/servo.c) drives the bridge only: it issues no steps yet, so its diagnostics "
+    "lines differ from the Python device's; the step generator itself runs on either motor")
+
+
+@pytest.mark.parametrize("name", [
+    pytest.param(name, marks=PINS_MOTOR_ISSUES_NO_STEPS) if case.motor == 1 else name
+    for name, case in CASES.items()])
+def test_every_ticks_steps_come_out_on_the_pins_in_time(chips: dict[int, PinsChip],
+                                                        name: str) -> None:
+    case = CASES[name]
+    report, _ = run_case(chips, case)
+    timing = StepTiming.of(case.pulse_ns, case.setup_ns, case.interval_dms * 100)
+    assert report.direction_changes >= 1
+    assert report.min_high_ns == timing.pulse * CYCLE_NS
+    if case.drive == 1:
+        assert report.busiest == timing.max_per_tick, "the move saturates the drive"
+    assert report.max_jitter_ns == 0
+
+
+def test_the_drivers_enable_is_low_only_while_the_servo_runs(chips: dict[int, PinsChip]) -> None:
+    chip = chips[0]
+    chip.request(cmd="power_cycle", erase_flash=True)
+
+    def enable_level() -> int:
+        (level,) = chip.request(cmd="levels", pins=[ENABLE_PIN])["levels"]
+        return int(level)
+
+    assert enable_level() == 1, "EN high (the driver off) from power-up"
+    chip.feed("44 1\n")
+    chip.run(2)
+    assert enable_level() == 1
+    chip.feed("3 1\n")
+    chip.run(2)
+    assert enable_level() == 0, "EN low while the servo runs enabled"
+    chip.feed("3 0\n")
+    chip.run(2)
+    assert enable_level() == 1
+
+
+def test_the_check_catches_a_dropped_pulse(chips: dict[int, PinsChip]) -> None:
+    case = Case(1, 100, 20, 1, 0, 60)
+    chip = chips[0]
+    chip.request(cmd="power_cycle", erase_flash=True)
+    chip.request(cmd="capture", pins=[STEP_PIN, DIR_PIN])
+    steps = session(case)
+    play(chip, steps)
+    edges, flags = capture(chip.request(cmd="capture"))
+    issued = issued_by_tick(_python(steps))
+    timing = StepTiming.of(case.pulse_ns, case.setup_ns, case.interval_dms * 100)
+    check_pulses(edges, flags, issued, timing)
+    # the last pulse of every tick taken away
+    dropped: set[int] = set()
+    for frame in frames_of(edges, flags):
+        if frame.rises:
+            dropped.add(frame.rises[-1])
+    last_rise = 0
+    kept = []
+    for edge in sorted(edges, key=lambda e: e[2]):
+        if edge[0] == STEP_PIN and edge[1] == 1:
+            last_rise = edge[2]
+        if edge[0] == STEP_PIN and last_rise in dropped:
+            continue
+        kept.append(edge)
+    with pytest.raises(AssertionError, match="rising edges of STEP for the"):
+        check_pulses(kept, flags, issued, timing)
+
+
+@pytest.mark.parametrize(("word", "rule"), [(2, "after DIR changed, under the set-up"),
+                                             (1, "a STEP pulse high for")])
+def test_the_check_catches_a_short_set_up_or_pulse_on_the_chip(chips: dict[int, PinsChip],
+                                                              word: int, rule: str) -> None:
+    """core1's frame words for the set-up (word 2) and the pulse (word 1) made one period
+    shorter on the running chip: the PIO then puts that on the pins, and the check says so."""
+    case = Case(1, 100, 80, 1, 0, 60)
+    chip = chips[0]
+    chip.request(cmd="power_cycle", erase_flash=True)
+    chip.request(cmd="capture", pins=[STEP_PIN, DIR_PIN])
+    steps = session(case)
+    play(chip, steps[:1])   # the timing and the drive: the words are computed on the next tick
+    chip.run(1)
+    offset = 12 + 4 * word  # step_frames_t: sequence, tick, room, most, pulse_word, setup_word
+    value = int.from_bytes(bytes.fromhex(chip.request(cmd="read", symbol="frames")["hex"])
+                           [offset : offset + 4], "little")
+    chip.request(cmd="write", symbol="frames", offset=offset,
+                 hex=(value - 1).to_bytes(4, "little").hex())
+    play(chip, steps[1:])
+    edges, flags = capture(chip.request(cmd="capture"))
+    issued = {tick + 1: steps for tick, steps in issued_by_tick(_python(steps)).items()}
+    timing = StepTiming.of(case.pulse_ns, case.setup_ns, case.interval_dms * 100)
+    with pytest.raises(AssertionError, match=rule):
+        check_pulses(edges, flags, issued, timing)
