@@ -14,6 +14,7 @@ tick, and their spacing against the ideal times.
 from __future__ import annotations
 
 import bisect
+import itertools
 from dataclasses import dataclass
 from typing import Any
 
@@ -137,7 +138,7 @@ def check_pulses(edges: list[Edge], flags: list[Flag], issued: dict[int, int],
     assert frames, "the tick clock raised no flag: no tick's start was seen"
     starts = [frame.start_ns for frame in frames]
     period_ns = timing.tick * CYCLE_NS
-    for before, after in zip(starts[1:], starts[2:], strict=False):
+    for before, after in itertools.pairwise(starts[1:]):
         # the first start may follow a restart of the tick clock (a new period)
         assert after - before == period_ns, (
             f"ticks started {after - before} ns apart at {after} ns, not the period {period_ns} ns")
@@ -156,28 +157,28 @@ def check_pulses(edges: list[Edge], flags: list[Flag], issued: dict[int, int],
                 f"tick {frame.tick}: {len(frame.rises)} rising edges where no step was issued")
 
     step_edges = sorted((ns, level) for pin, level, ns in edges if pin == STEP_PIN)
-    highs = [b[0] - a[0] for a, b in zip(step_edges, step_edges[1:], strict=False)
+    highs = [b[0] - a[0] for a, b in itertools.pairwise(step_edges)
              if a[1] == 1 and b[1] == 0]
-    lows = [b[0] - a[0] for a, b in zip(step_edges, step_edges[1:], strict=False)
+    lows = [b[0] - a[0] for a, b in itertools.pairwise(step_edges)
             if a[1] == 0 and b[1] == 1]
-    for index, (a, b) in enumerate(zip(step_edges, step_edges[1:], strict=False)):
+    for index, (a, b) in enumerate(itertools.pairwise(step_edges)):
         assert a[1] != b[1], f"STEP edge {index + 1}: two {b[1]} levels in a row"
     min_high = min(highs, default=pulse_ns)
     min_low = min(lows, default=pulse_ns)
     assert min_high >= pulse_ns, f"a STEP pulse high for {min_high} ns, under {pulse_ns} ns"
     assert min_low >= pulse_ns, f"STEP low for {min_low} ns between pulses, under {pulse_ns} ns"
 
-    rises = [ns for ns, level in step_edges if level == 1]
+    all_rises = [ns for ns, level in step_edges if level == 1]
     falls = [ns for ns, level in step_edges if level == 0]
     changes = sorted(ns for pin, _, ns in edges if pin == DIR_PIN)
     setups: list[int] = []
     for change in changes:
-        after = bisect.bisect_left(rises, change)
-        if after < len(rises):
-            setups.append(rises[after] - change)
+        after = bisect.bisect_left(all_rises, change)
+        if after < len(all_rises):
+            setups.append(all_rises[after] - change)
         if after > 0 and after - 1 < len(falls):
             assert falls[after - 1] <= change, (
-                f"DIR changed at {change} ns while STEP was high (since {rises[after - 1]} ns)")
+                f"DIR changed at {change} ns while STEP was high (since {all_rises[after - 1]} ns)")
     min_setup = min(setups) if setups else None
     assert min_setup is None or min_setup >= timing.setup * CYCLE_NS, (
         f"a rise {min_setup} ns after DIR changed, under the set-up {timing.setup * CYCLE_NS} ns")
@@ -185,7 +186,7 @@ def check_pulses(edges: list[Edge], flags: list[Flag], issued: dict[int, int],
     jitter = 0.0
     drift = 0.0
     end_gaps: list[int] = []
-    fall_after = {r: f for r, f in zip(rises, falls, strict=False)}
+    fall_after = dict(zip(all_rises, falls, strict=False))
     for frame in frames:
         count = len(frame.rises)
         if count == 0:
@@ -206,7 +207,7 @@ def check_pulses(edges: list[Edge], flags: list[Flag], issued: dict[int, int],
     assert jitter < CYCLE_NS, f"a rise {jitter} ns off its ideal time"
     return PulseReport(
         ticks=len(frames),
-        steps=len(rises),
+        steps=len(all_rises),
         net_steps=sum(1 if level else -1 for frame in frames for level in frame.directions),
         busiest=max((len(frame.rises) for frame in frames), default=0),
         min_high_ns=min_high,
