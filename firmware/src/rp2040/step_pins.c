@@ -161,7 +161,12 @@ void __not_in_flash_func(platform_steps_issue)(int32_t steps, bool enable) {
         return;
     }
     frames.carry = total < 0 ? total + (int32_t)count : total - (int32_t)count;
-    uint32_t spacing = frames.room / count;
+    /* the core's divider in place (as sci_udiv): the tick interrupts only core1's idle loop */
+    sio_hw->div_udividend = frames.room;
+    sio_hw->div_udivisor = count;
+    while ((sio_hw->div_csr & SIO_DIV_CSR_READY_BITS) == 0) {
+    }
+    uint32_t spacing = sio_hw->div_quotient;
     pio->txf[STEP_DIR_SM] = count - 1u;
     pio->txf[STEP_DIR_SM] = frames.pulse_word;
     pio->txf[STEP_DIR_SM] = frames.setup_word;
