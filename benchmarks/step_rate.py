@@ -15,10 +15,11 @@ against the Python device's steps and call 46's rules (``tests/firmware/steps.py
   docs/Benchmarks.md, "RPxxxx step rate benchmark": 3 ticks of its 12 MHz scheduling timer
   a step for 1 stepper, 4,000K steps per second, the core at 200 MHz, no pulse width asked),
   and their ratio;
-- the timing: every rise against its ideal time (the tick's start + set-up + k x spacing,
-  the spacing the tick's room over its steps in whole periods): the jitter; and against the
-  exactly even time (k x room / steps, fractions of a period): the drift the whole-period
-  spacing leaves, and the pulse's high and low times;
+- the timing: every rise against its ideal time in whole periods (the generator's schedule,
+  ``ideal_rises``: the tick's room over its steps, s or s + 1 periods apart): the jitter;
+  the rise-to-rise periods seen; the farthest rise from its exactly even time (the tick's
+  start + set-up + k x room / steps, in fractions of a period); the pulse's high and low
+  times;
 - core1's cost: the cycles of the step hook (``platform_steps_issue`` and
   ``step_pins_tick``, by the emulator's per-function profile) per tick, and the whole
   tick's (the alarm interrupt, the device's tick, its diagnostics line) as a share of the
@@ -29,6 +30,7 @@ The emulator is deterministic: every run gives the same figures.
 
 from __future__ import annotations
 
+import itertools
 import statistics
 import sys
 from pathlib import Path
@@ -90,8 +92,12 @@ def measure(uf2: Path, *, ticks: int) -> dict[str, Any]:
     assert chip_lines == [entry for entry in python if entry[1].startswith("D ")], (
         "the chip's diagnostics lines differ from the Python device's")
     timing = StepTiming.of(PULSE_NS, SETUP_NS, INTERVAL_DMS * 100)
-    # the last tick's frame plays after it, once the timer runs again: not captured
-    issued = {tick: steps for tick, steps in issued_by_tick(python).items() if tick < ticks}
+    # a tick's frame plays from just after its start to just after the next tick's: the last
+    # two ticks' are not whole in the capture
+    end_ns = min(ns for flag, ns, tick in flags if tick == ticks - 1)
+    edges = [edge for edge in edges if edge[2] < end_ns]
+    flags = [flag for flag in flags if flag[1] < end_ns]
+    issued = {tick: steps for tick, steps in issued_by_tick(python).items() if tick < ticks - 1}
     report = check_pulses(edges, flags, issued, timing)
     frames = [frame for frame in frames_of(edges, flags) if frame.rises]
     # whole ticks at full rate: from the start of the first to the start of the last
@@ -103,7 +109,9 @@ def measure(uf2: Path, *, ticks: int) -> dict[str, Any]:
     for entry in functions:
         if entry["name"] in hook:
             hook[entry["name"]] += entry["cycles"]
-    spacing = (timing.tick - timing.setup) // timing.max_per_tick
+    rises = sorted(ns for pin, level, ns in edges if pin == STEP_PIN and level == 1
+                   and full[0].start_ns <= ns < full[-1].start_ns)
+    periods = [later - earlier for earlier, later in itertools.pairwise(rises)]
     return {
         "pulse_cycles": timing.pulse,
         "setup_cycles": timing.setup,
@@ -114,8 +122,8 @@ def measure(uf2: Path, *, ticks: int) -> dict[str, Any]:
         "steps_per_s": rate,
         "klipper_steps_per_s": KLIPPER_RP2040_STEPS_S,
         "ratio_to_klipper": rate / KLIPPER_RP2040_STEPS_S,
-        "spacing_ns": spacing * CYCLE_NS,
-        "tick_boundary_gap_ns": (timing.tick - (timing.max_per_tick - 1) * spacing) * CYCLE_NS,
+        "periods_ns": sorted(set(periods)),
+        "even_period_ns": (timing.tick - timing.setup) * CYCLE_NS / timing.max_per_tick,
         "jitter_ns": report.max_jitter_ns,
         "drift_from_even_ns": report.max_drift_ns,
         "min_high_ns": report.min_high_ns,
@@ -136,11 +144,12 @@ def report(figures: dict[str, Any]) -> str:
     out.append(f"  step rate        {f['steps_per_s'] / 1e3:,.0f}K steps/s   Klipper (rp2040, 1 "
                f"stepper) {f['klipper_steps_per_s'] / 1e3:,.0f}K steps/s   ratio "
                f"{f['ratio_to_klipper']:.2f}")
-    out.append(f"  edges            every rise on its ideal time: jitter {f['jitter_ns']:.0f} ns;"
-               f" spacing {f['spacing_ns']} ns, the gap across a tick's start "
-               f"{f['tick_boundary_gap_ns']} ns; drift from exactly even "
-               f"{f['drift_from_even_ns']:.0f} ns at most; high {f['min_high_ns']} ns, low "
-               f"{f['min_low_ns']} ns at least ({f['steps_checked']:,} steps checked)")
+    periods = ", ".join(str(period) for period in f["periods_ns"])
+    out.append(f"  edges            {f['steps_checked']:,} steps checked: every rise on the "
+               f"generator's schedule (jitter {f['jitter_ns']:.0f} ns); rise to rise {periods} "
+               f"ns (exactly even: {f['even_period_ns']:.1f} ns), the farthest rise "
+               f"{f['drift_from_even_ns']:.0f} ns from its exactly even time; high "
+               f"{f['min_high_ns']} ns, low {f['min_low_ns']} ns at least")
     hook = ", ".join(f"{name} {cycles:.0f}" for name, cycles in
                      f["hook_cycles_per_tick"].items())
     out.append(f"  core1            the step hook {f['hook_cycles_per_tick_total']:.0f} cycles a "

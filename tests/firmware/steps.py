@@ -28,6 +28,9 @@ CYCLE_NS = 8
 """One period of the 125 MHz step clock."""
 MIN_SETUP_CYCLES = 2
 """The least set-up the step generator gives (a shorter call-46 set-up is made this long)."""
+RUN_SWITCH_CYCLES = 5
+"""What the step generator's switch from a tick's first run of steps to its second takes
+beyond the second's spacing (firmware/src/rp2040/step_dir.pio)."""
 
 Edge = tuple[int, int, int]
 """(pin, level, ns)"""
@@ -82,13 +85,28 @@ class PulseReport:
     """From a change of DIR to the next rise (None: DIR never changed before a rise)."""
     direction_changes: int
     max_jitter_ns: float
-    """The farthest rise from its ideal time: the tick's start + set-up + k x spacing, the
-    spacing (tick - set-up) / steps rounded down to whole periods (the generator's)."""
+    """The farthest rise from its ideal time in whole periods (:func:`ideal_rises`)."""
     max_drift_ns: float
     """The farthest rise from the exactly even time: the tick's start + set-up + k x (tick -
-    set-up) / steps (what rounding the spacing down costs: under a period a step)."""
+    set-up) / steps, in fractions of a period (what whole periods cost)."""
     min_end_gap_ns: int | None
     """From a tick's last fall to the next tick's start (its pulses end within the tick)."""
+
+
+def ideal_rises(steps: int, timing: StepTiming) -> list[int]:
+    """The step generator's rises for a tick of ``steps`` steps, periods from the tick's
+    start: the room (tick - set-up) over the steps is s periods and r left over; the first
+    r - 4 steps are s + 1 apart, the rest s, the switch between the two runs s + 5 (r under
+    5: all s apart); the first rise after the set-up (at least 2 periods)."""
+    room = timing.tick - timing.setup
+    spacing, rest = divmod(room, steps)
+    first = max(timing.setup, MIN_SETUP_CYCLES)
+    if rest < RUN_SWITCH_CYCLES:
+        return [first + k * spacing for k in range(steps)]
+    longer = rest - (RUN_SWITCH_CYCLES - 1)
+    rises = [first + k * (spacing + 1) for k in range(longer)]
+    switch = rises[-1] + spacing + RUN_SWITCH_CYCLES
+    return rises + [switch + k * spacing for k in range(steps - longer)]
 
 
 def frames_of(edges: list[Edge], flags: list[Flag], *, end_ns: int | None = None) -> list[Frame]:
@@ -130,7 +148,7 @@ def check_pulses(edges: list[Edge], flags: list[Flag], issued: dict[int, int],
     rises differ in number or direction from its steps; a pulse high or low for less than
     the pulse; a rise less than the set-up after a change of DIR, or DIR changing while STEP
     is high; a tick's pulses not ending before the next tick starts; a rise off its ideal
-    time (the tick's start + set-up + k x spacing) by a period or more.
+    time (:func:`ideal_rises`) by a period or more.
     """
     pulse_ns = timing.pulse * CYCLE_NS
     setup_ns = max(timing.setup, MIN_SETUP_CYCLES) * CYCLE_NS
@@ -192,11 +210,11 @@ def check_pulses(edges: list[Edge], flags: list[Flag], issued: dict[int, int],
         if count == 0:
             continue
         room = timing.tick - timing.setup
-        spacing = room // count
-        for k, rise in enumerate(frame.rises):
-            ideal = frame.start_ns + setup_ns + k * spacing * CYCLE_NS
+        for k, (rise, ideal) in enumerate(zip(frame.rises, ideal_rises(count, timing),
+                                              strict=True)):
+            ideal_ns = frame.start_ns + ideal * CYCLE_NS
             even = frame.start_ns + setup_ns + k * room * CYCLE_NS / count
-            jitter = max(jitter, abs(rise - ideal))
+            jitter = max(jitter, abs(rise - ideal_ns))
             drift = max(drift, abs(rise - even))
         last_fall = fall_after.get(frame.rises[-1])
         if frame is not frames[-1]:

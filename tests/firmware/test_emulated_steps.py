@@ -203,12 +203,13 @@ def test_the_check_catches_a_dropped_pulse(chips: dict[int, PinsChip]) -> None:
         check_pulses(kept, flags, issued, timing)
 
 
-@pytest.mark.parametrize(("word", "rule"), [(2, "after DIR changed, under the set-up"),
-                                             (1, "a STEP pulse high for")])
+@pytest.mark.parametrize(("change", "rule"), [(1 << 16, "after DIR changed, under the set-up"),
+                                               (1, "a STEP pulse high for")])
 def test_the_check_catches_a_short_set_up_or_pulse_on_the_chip(chips: dict[int, PinsChip],
-                                                              word: int, rule: str) -> None:
-    """core1's frame words for the set-up (word 2) and the pulse (word 1) made one period
-    shorter on the running chip: the PIO then puts that on the pins, and the check says so."""
+                                                              change: int, rule: str) -> None:
+    """core1's frame word of the pulse and the set-up ((pulse - 2) | (setup - 2) << 16)
+    changed on the running chip, the set-up or the pulse a period shorter: the PIO then puts
+    that on the pins, and the check says so."""
     case = Case(1, 100, 80, 1, 0, 60)
     chip = chips[0]
     chip.request(cmd="power_cycle", erase_flash=True)
@@ -216,11 +217,12 @@ def test_the_check_catches_a_short_set_up_or_pulse_on_the_chip(chips: dict[int, 
     steps = session(case)
     play(chip, steps[:1])   # the timing and the drive: the words are computed on the next tick
     chip.run(1)
-    offset = 12 + 4 * word  # step_frames_t: sequence, tick, room, most, pulse_word, setup_word
-    value = int.from_bytes(bytes.fromhex(chip.request(cmd="read", symbol="frames")["hex"])
-                           [offset : offset + 4], "little")
+    offset = 20  # step_frames_t: sequence, tick, room, most, head, timing_words[0]
+    word = bytes.fromhex(chip.request(cmd="read", symbol="frames")["hex"])[offset : offset + 4]
+    value = int.from_bytes(word, "little")
+    assert value == (13 - 2) | (10 - 2) << 16, hex(value)
     chip.request(cmd="write", symbol="frames", offset=offset,
-                 hex=(value - 1).to_bytes(4, "little").hex())
+                 hex=(value - change).to_bytes(4, "little").hex())
     play(chip, steps[1:])
     edges, flags = capture(chip.request(cmd="capture"))
     issued = {tick + 1: steps for tick, steps in issued_by_tick(_python(steps)).items()}

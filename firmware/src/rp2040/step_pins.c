@@ -4,18 +4,18 @@
  * step_dir.pio (assembled by the SDK's pioasm at build time) has the two state machines and
  * how their cycles add up: step_clock raises a PIO flag at the start of every tick's frame,
  * step_dir plays a frame per tick from its TX FIFO. A tick with N steps is one frame: DIR,
- * then the set-up, then N pulses of `pulse` cycles high, rise k at setup + k x spacing with
- * spacing = (T - setup) / N (rounded down, so every period of the tick is the same whole
- * number of step-clock periods, and the last pulse ends at least a pulse before the next
- * tick's first rise).
+ * then the set-up, then N pulses of `pulse` cycles high, spread over the tick's room
+ * (T - setup) in whole step-clock periods: with s = room / N rounded down and the rest r,
+ * the first r - 4 steps s + 1 apart and the others s apart (r under 5: all s apart), the
+ * last pulse ending at least a pulse before the next tick's first rise.
  *
  * The tick's start: step_clock is (re)started first thing in a servo tick (step_pins_tick,
- * from the alarm's interrupt, before the device's tick), with the servo period; its flag
- * then rises 36 cycles after that instant and every period after it. core1 pushes the
+ * from the alarm's interrupt, before the device's tick) when the period changes; its flag
+ * then rises 33 cycles after that instant and every period after it. core1 pushes the
  * tick's frame from platform_steps_issue, later in the same tick: the frame plays from the
  * next tick's start on, whatever the tick's own computation takes (up to a whole period).
- * A frame that finds the FIFO full (only after two late ticks in a row: the FIFO holds two
- * frames) is not dropped: its steps are carried into the next tick's frame. */
+ * A frame that finds no room in the FIFO (only after two late ticks in a row) is not
+ * dropped: its steps are carried into the next tick's frame. */
 #include <stdbool.h>
 #include <stdint.h>
 
@@ -30,8 +30,10 @@
 #include "rp2040_platform.h"
 #include "step_dir.pio.h"
 
-#define FRAME_WORDS 4u
 #define FIFO_WORDS 8u                /* the TX FIFO joined with the RX one */
+#define FRAME_MOST_WORDS 6u          /* a wide tick's four and run 2's two */
+#define RUN_SWITCH_CYCLES 5u         /* what run 2's first gap takes beyond its spacing */
+#define NARROW_MAX 65537u            /* pulse and set-up packed in one word up to this */
 #define STEP_ENABLE_MASK (1u << PIN_STEP_ENABLE)
 #define MIN_PULSE_CYCLES 13u         /* 100 ns: call 46's least pulse */
 #define MIN_SETUP_CYCLES 2u          /* what step_dir needs between DIR and the first rise */
@@ -54,15 +56,17 @@ typedef struct {
     uint32_t tick;         /* the period step_clock runs at, 0 before it first runs */
     uint32_t room;         /* T - setup: the periods a tick's steps are spread over */
     uint32_t most;         /* the most steps a frame takes: room / (2 x pulse) */
-    uint32_t pulse_word;   /* frame word 1 */
-    uint32_t setup_word;   /* frame word 2 */
-    uint32_t low_base;     /* pulse + 4: frame word 3's spacing less this, shifted up by 1 */
+    uint32_t head;         /* the first word's address part: tick_narrow or tick_wide */
+    uint32_t timing_words[2];  /* narrow: the packed pulse and set-up (one); wide: both */
+    uint32_t timing_count;
+    uint32_t low_base;     /* pulse + 4: a run's spacing less this is its low loop's count */
     int32_t carry;         /* steps a full FIFO held back, for the next frame */
 } step_frames_t;
 
 static step_frames_t frames;
 static bool started;
-static uint clock_start; /* where step_clock starts in the PIO's instruction memory */
+static uint clock_offset;  /* where the programs sit in the PIO's instruction memory */
+static uint dir_offset;
 
 void platform_steps_start(void) {
     PIO pio = STEP_PIO;
@@ -70,14 +74,13 @@ void platform_steps_start(void) {
     gpio_put(PIN_STEP_ENABLE, true); /* active low: the driver off */
     gpio_set_dir(PIN_STEP_ENABLE, GPIO_OUT);
 
-    uint clock_offset = pio_add_program(pio, &step_clock_program);
+    clock_offset = pio_add_program(pio, &step_clock_program);
     pio_sm_config clock = step_clock_program_get_default_config(clock_offset);
     sm_config_set_out_shift(&clock, true, false, 32);
     sm_config_set_clkdiv_int_frac(&clock, 1, 0);
-    clock_start = clock_offset + step_clock_offset_start;
-    pio_sm_init(pio, STEP_CLOCK_SM, clock_start, &clock);
+    pio_sm_init(pio, STEP_CLOCK_SM, clock_offset + step_clock_offset_count, &clock);
 
-    uint dir_offset = pio_add_program(pio, &step_dir_program);
+    dir_offset = pio_add_program(pio, &step_dir_program);
     pio_sm_config dir = step_dir_program_get_default_config(dir_offset);
     sm_config_set_sideset_pins(&dir, PIN_STEP);
     sm_config_set_out_pins(&dir, PIN_DIR, 1);
@@ -89,7 +92,7 @@ void platform_steps_start(void) {
                                  (1u << PIN_STEP) | (1u << PIN_DIR));
     pio_gpio_init(pio, PIN_STEP);
     pio_gpio_init(pio, PIN_DIR);
-    pio_sm_init(pio, STEP_DIR_SM, dir_offset + step_dir_offset_start, &dir);
+    pio_sm_init(pio, STEP_DIR_SM, dir_offset + step_dir_offset_frame, &dir);
     pio_sm_set_enabled(pio, STEP_DIR_SM, true); /* waits for its first frame */
     started = true;
 }
@@ -118,16 +121,28 @@ static void __not_in_flash_func(take_timing)(uint32_t sequence) {
     uint32_t setup = timing.setup < MIN_SETUP_CYCLES ? MIN_SETUP_CYCLES : timing.setup;
     frames.room = timing.tick - timing.setup;
     frames.most = frames.room / (2u * timing.pulse);
-    frames.pulse_word = timing.pulse - 2u;
-    frames.setup_word = setup - 2u;
+    if (timing.pulse <= NARROW_MAX && setup <= NARROW_MAX) {
+        frames.head = dir_offset + step_dir_offset_tick_narrow;
+        frames.timing_words[0] = (timing.pulse - 2u) | (setup - 2u) << 16;
+        frames.timing_count = 1;
+    } else {
+        frames.head = dir_offset + step_dir_offset_tick_wide;
+        frames.timing_words[0] = timing.pulse - 2u;
+        frames.timing_words[1] = setup - 2u;
+        frames.timing_count = 2;
+    }
     frames.low_base = timing.pulse + 4u;
     if (timing.tick != frames.tick) {
+        /* step_clock from its loop: X = T - 3, its first flag 33 cycles after this */
         PIO pio = STEP_PIO;
         pio_sm_set_enabled(pio, STEP_CLOCK_SM, false);
         pio_sm_clear_fifos(pio, STEP_CLOCK_SM);
         pio_sm_restart(pio, STEP_CLOCK_SM);
-        pio_sm_exec(pio, STEP_CLOCK_SM, pio_encode_jmp(clock_start));
         pio_sm_put(pio, STEP_CLOCK_SM, timing.tick - 3u);
+        pio_sm_exec(pio, STEP_CLOCK_SM, pio_encode_pull(false, true));
+        pio_sm_exec(pio, STEP_CLOCK_SM, pio_encode_mov(pio_x, pio_osr));
+        pio_sm_exec(pio, STEP_CLOCK_SM, pio_encode_set(pio_y, 31));
+        pio_sm_exec(pio, STEP_CLOCK_SM, pio_encode_jmp(clock_offset + step_clock_offset_count));
         pio_sm_set_enabled(pio, STEP_CLOCK_SM, true);
         frames.tick = timing.tick;
     }
@@ -156,7 +171,7 @@ void __not_in_flash_func(platform_steps_issue)(int32_t steps, bool enable) {
         count = frames.most; /* only when the timing just changed or steps were carried */
     }
     PIO pio = STEP_PIO;
-    if (count == 0 || pio_sm_get_tx_fifo_level(pio, STEP_DIR_SM) > FIFO_WORDS - FRAME_WORDS) {
+    if (count == 0 || pio_sm_get_tx_fifo_level(pio, STEP_DIR_SM) > FIFO_WORDS - FRAME_MOST_WORDS) {
         frames.carry = total;
         return;
     }
@@ -167,8 +182,23 @@ void __not_in_flash_func(platform_steps_issue)(int32_t steps, bool enable) {
     while ((sio_hw->div_csr & SIO_DIV_CSR_READY_BITS) == 0) {
     }
     uint32_t spacing = sio_hw->div_quotient;
-    pio->txf[STEP_DIR_SM] = count - 1u;
-    pio->txf[STEP_DIR_SM] = frames.pulse_word;
-    pio->txf[STEP_DIR_SM] = frames.setup_word;
-    pio->txf[STEP_DIR_SM] = (spacing - frames.low_base) << 1 | (total > 0 ? 1u : 0u);
+    uint32_t rest = sio_hw->div_remainder;
+    /* run 1: the steps s + 1 apart, r - 4 of them (the switch to run 2 takes the other 4 and
+     * run 2's first gap s); or all of them s apart */
+    uint32_t longer = rest >= RUN_SWITCH_CYCLES ? rest - (RUN_SWITCH_CYCLES - 1u) : 0u;
+    uint32_t first = longer != 0 ? longer : count;
+    uint32_t low = spacing - frames.low_base;
+    io_wo_32 *fifo = &pio->txf[STEP_DIR_SM];
+    *fifo = frames.head | (first - 1u) << 5;
+    *fifo = frames.timing_words[0];
+    if (frames.timing_count == 2) {
+        *fifo = frames.timing_words[1];
+    }
+    if (longer == 0) {
+        *fifo = low << 1 | (total > 0 ? 1u : 0u);
+        return;
+    }
+    *fifo = (low + 1u) << 1 | (total > 0 ? 1u : 0u);
+    *fifo = (dir_offset + step_dir_offset_run) | (count - longer) << 5;
+    *fifo = low;
 }
