@@ -44,7 +44,6 @@ from usbmotion.device.stepper import (
     derive_stepper,
     encoder_microsteps,
     max_steps_per_tick,
-    sine_at,
     stepper_step,
 )
 from usbmotion.hermite import Keyframe, hermite_position
@@ -315,7 +314,6 @@ def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
                               ctypes.POINTER(ServoParams)]),
         "stepper_cycles": (c_i64, [c_i64]),
         "stepper_max_steps_per_tick": (c_i32, [c_i64, c_i64, c_i64]),
-        "stepper_sine_at": (c_i32, [c_i64, c_i64]),
         "stepper_encoder_microsteps": (c_i64, [c_i64, c_i32, c_i32]),
         "stepper_step": (None, [ctypes.POINTER(c_i64), ctypes.POINTER(c_i64), c_i64, c_i32,
                                 ctypes.POINTER(ServoParams)]),
@@ -925,37 +923,11 @@ def test_motor_step_on_derived_constants(lib: ctypes.CDLL) -> None:
 # --- the stepper: its sine, encoder, step timing and integration step ---------------------
 
 
-def random_angle(rnd: random.Random, period: int) -> int:
-    """Angles on and beside whole periods and table entries, both signs, up to the field of
-    a driver that has issued 2^42 steps."""
-    roll = rnd.random()
-    if roll < 0.3:
-        return rnd.randint(-3, 3) * period + rnd.choice([0, 1, -1, period // 2, period - 1])
-    if roll < 0.5:   # on a table entry's boundary: (r * SINE_SIZE) // period changes there
-        entry = rnd.randrange(SINE_SIZE)
-        edge = -(-entry * period // SINE_SIZE)
-        return rnd.randint(-5, 5) * period + edge + rnd.choice([-1, 0, 1])
-    if roll < 0.7:
-        return rnd.randint(-(2**31), 2**31)
-    if roll < 0.85:
-        return rnd.randint(-(2**52), 2**52)
-    return rnd.choice([-1, 1]) * rnd.randint(2**32 - 3, 2**32 + 3) + rnd.randint(-period, period)
-
-
-def stepper_periods(rnd: random.Random) -> tuple[int, int]:
-    microsteps = rnd.choice([1, 2, 3, 16, 255, 256, rnd.randint(1, 256)])
-    return 4 * microsteps * 10**6, microsteps * 10**6
-
-
-def test_stepper_sine_is_the_pythons(lib: ctypes.CDLL) -> None:
-    rnd = random.Random(103)
-    bad = []
-    for _ in range(cases(40)):
-        period = rnd.choice(stepper_periods(rnd))
-        angle = random_angle(rnd, period)
-        if lib.stepper_sine_at(angle, period) != sine_at(angle, period):
-            bad.append((angle, period))
-    assert bad == []
+def entry_edge(rnd: random.Random, period: int) -> int:
+    """An angle on or beside the boundary of a sine table entry (where
+    ``(angle % period) * SINE_SIZE // period`` changes), some periods either way."""
+    entry = rnd.randrange(SINE_SIZE)
+    return rnd.randint(-5, 5) * period - (-entry * period // SINE_SIZE) + rnd.choice([-1, 0, 1])
 
 
 def test_stepper_encoder_and_step_timing(lib: ctypes.CDLL) -> None:
@@ -1000,21 +972,35 @@ def stepper_case_params(rnd: random.Random) -> tuple[ServoParams, tuple[int, ...
 
 
 def stepper_step_mismatches(lib: ctypes.CDLL, rnd: random.Random, count: int) -> list[object]:
-    """Random shafts under random fields through a few sub-steps each, C against Python."""
+    """Random shafts under random fields through a few sub-steps each, C against Python: the
+    field (whole microsteps: the steps issued) and the shaft anywhere, near each other, or
+    placed so that the field's angle or the detent's falls on or beside the edge of a sine
+    table entry, both signs."""
     bad: list[object] = []
+    micro = 10**6
     for _ in range(count):
         c, constants = stepper_case_params(rnd)
         lib.servo_params_finish(ctypes.byref(c))
-        full, stop_low, stop_high = constants[1], constants[-2], constants[-1]
+        cycle, full, stop_low, stop_high = constants[0], constants[1], constants[-2], constants[-1]
         theta = rnd.choice([0, stop_low, stop_high, rnd.randint(-(10**12), 10**12),
-                            rnd.randint(stop_low, stop_high)])
+                            rnd.randint(stop_low, stop_high), entry_edge(rnd, full)])
         omega = rnd.choice([0, 0, rnd.randint(-(10**10), 10**10), 10**13, -(10**13),
                             rnd.randint(-(10**13), 10**13)])
         for _ in range(6):
-            field = theta + rnd.choice([0, rnd.randint(-4 * full, 4 * full),
-                                        rnd.randint(-(10**15), 10**15)])
+            count = theta // micro
+            roll = rnd.random()
+            if roll < 0.3:   # the field's angle on a table entry's edge
+                field = count + rnd.randint(-3, 3)
+                theta = min(max(field * micro - entry_edge(rnd, cycle), stop_low), stop_high)
+            elif roll < 0.5:   # the detent's
+                theta = min(max(theta - theta % full + entry_edge(rnd, full), stop_low),
+                            stop_high)
+                field = theta // micro + rnd.randint(-3 * full // micro, 3 * full // micro)
+            else:
+                field = count + rnd.choice([0, rnd.randint(-4 * full // micro, 4 * full // micro),
+                                            rnd.randint(-(10**9), 10**9)])
             powered = rnd.choice([1, 1, 0])
-            want = stepper_step(theta, omega, field, powered, *constants)
+            want = stepper_step(theta, omega, field * micro, powered, *constants)
             c_theta, c_omega = c_i64(theta), c_i64(omega)
             lib.stepper_step(ctypes.byref(c_theta), ctypes.byref(c_omega), field, powered,
                              ctypes.byref(c))
@@ -1026,7 +1012,7 @@ def stepper_step_mismatches(lib: ctypes.CDLL, rnd: random.Random, count: int) ->
 
 
 def test_stepper_step(lib: ctypes.CDLL) -> None:
-    assert stepper_step_mismatches(lib, random.Random(109), cases(6)) == []
+    assert stepper_step_mismatches(lib, random.Random(109), cases(12)) == []
 
 
 # --- curve mode: the Hermite position and the player --------------------------------------
@@ -1941,14 +1927,10 @@ def _check_ticks(lib: ctypes.CDLL) -> list[object]:
 
 
 def _check_stepper(lib: ctypes.CDLL) -> list[object]:
-    """The sine on and beside its entries and periods, the encoder and the step."""
+    """The encoder, and the step with its sines on and beside their entries."""
     rnd = random.Random(113)
     found: list[object] = []
     for _ in range(400):
-        period = rnd.choice(stepper_periods(rnd))
-        angle = random_angle(rnd, period)
-        if lib.stepper_sine_at(angle, period) != sine_at(angle, period):
-            found.append(("sine", angle, period))
         shaft = rnd.randint(-10**6, 10**6)
         if lib.stepper_encoder_microsteps(shaft, 4000, 3200) != encoder_microsteps(shaft, 4000,
                                                                                     3200):
@@ -2006,13 +1988,15 @@ MUTANTS = [
            "        (void)outputs_off;\n", _check_ticks),
     Mutant("peak unsigned", "servo.c", "s->diag_peak = (int32_t)following;",
            "s->diag_peak = (int32_t)size;", _check_ticks),
-    Mutant("sine index one entry on", "stepper.c",
-           "return table_sine[((uint64_t)rest * TABLE_SINE_SIZE) / p];",
-           "return table_sine[(((uint64_t)rest * TABLE_SINE_SIZE) / p + 1u) % TABLE_SINE_SIZE];",
+    Mutant("the field's sine one entry on", "stepper.c",
+           "table_sine[sci_udiv(rest << 2, sine_k)]",
+           "table_sine[(sci_udiv(rest << 2, sine_k) + 1u) % TABLE_SINE_SIZE]", _check_stepper),
+    Mutant("the detent's sine one entry on", "stepper.c",
+           "table_sine[sci_udiv(detent_rest << 4, sine_k)]",
+           "table_sine[(sci_udiv(detent_rest << 4, sine_k) + 1u) % TABLE_SINE_SIZE]",
            _check_stepper),
-    Mutant("C's truncating remainder for the sine", "stepper.c",
-           "if (angle < 0 && rest != 0u) {", "if (angle < 0 && rest != 0u && false) {",
-           _check_stepper),
+    Mutant("C's remainder (of the magnitude) for the sines' angles", "stepper.c",
+           "return x < 0 && rest != 0u ? d - rest : rest;", "return rest;", _check_stepper),
     Mutant("encoder count truncated, not floored", "stepper.c",
            "return -(int64_t)div_u64(magnitude + d - 1u, d);",
            "return -(int64_t)div_u64(magnitude, d);", _check_stepper),

@@ -60,6 +60,7 @@ void servo_params_finish(servo_params_t *params) {
         params->velocity_den = 1;
     }
     params->reach = (int32_t)(params->full / STEPPER_MICRO);
+    params->sine_k = (int32_t)(params->full / 64);
     params->holding_corner = params->holding * params->corner;
 }
 

@@ -18,22 +18,6 @@
 
 #define EDGE_TICK_NONE 0
 
-/* theta // 10^6 (floor), as floor(floor(|theta| / 2^6) / 15625) on the magnitude (below
- * 2^52): a 14-bit divisor, two 32-bit divisions. */
-static inline int64_t floor_micro(int64_t theta) {
-    if (theta >= 0) {
-        return (int64_t)sci_div_u64_small((uint64_t)theta >> 6, 15625u);
-    }
-    uint64_t magnitude = 0u - (uint64_t)theta;
-    return -(int64_t)sci_div_u64_small((magnitude + (MOTOR_MICRO - 1)) >> 6, 15625u);
-}
-
-/* trunc_div(value, 10^6) for |value| < 2^54, as floor_micro on the magnitude. */
-static inline int64_t trunc_micro(int64_t value) {
-    uint64_t magnitude = sci_div_u64_small(sci_magnitude64(value) >> 6, 15625u);
-    return value < 0 ? -(int64_t)magnitude : (int64_t)magnitude;
-}
-
 static inline void shift_edge(switch_edge_t *edge, int64_t shift) {
     if (edge->tick != EDGE_TICK_NONE) {
         edge->position = wrap_int32((int64_t)edge->position + shift);
@@ -500,15 +484,15 @@ static int64_t step_drive(servo_state_t *s, const servo_params_t *p) {
     s->out = sci_from_int(issue);
     platform_steps_issue(issue, s->enable == 1);
 
-    /* the field after sub-step k is phase + trunc_div(issue * k, steps): the quotient and
-     * remainder of |issue| / steps added up, a carry when the remainder reaches steps */
+    /* the field after sub-step k is phase + trunc_div(issue * k, steps) microsteps: the
+     * quotient and remainder of |issue| / steps added up, a carry when the remainder reaches
+     * steps */
     uint32_t steps = (uint32_t)p->steps;
     uint32_t magnitude = issue < 0 ? 0u - (uint32_t)issue : (uint32_t)issue;
     uint32_t whole = sci_udiv(magnitude, steps);
     uint32_t rest = magnitude - whole * steps;
     uint32_t moved = 0;
     uint32_t remainder = 0;
-    int64_t base = s->phase * STEPPER_MICRO;
     for (uint32_t step = 0; step < steps; step++) {
         moved += whole;
         remainder += rest;
@@ -516,10 +500,7 @@ static int64_t step_drive(servo_state_t *s, const servo_params_t *p) {
             remainder -= steps;
             moved += 1u;
         }
-        uint32_t high;
-        uint32_t low = sci_mul_32x32(moved, STEPPER_MICRO, &high);
-        int64_t field_moved = (int64_t)(((uint64_t)high << 32) | low);
-        int64_t field = issue < 0 ? base - field_moved : base + field_moved;
+        int64_t field = issue < 0 ? s->phase - moved : s->phase + moved;
         stepper_step(&s->theta, &s->omega, field, s->enable, p);
     }
     s->phase += issue;

@@ -236,6 +236,7 @@ typedef struct {
     int64_t velocity_den;
     /* Not in core1.py: from full, holding and corner (servo_params_finish). */
     int32_t reach;             /* full / 10^6: a full step, microsteps (the closed loop's lead) */
+    int32_t sine_k;            /* full / 64: the sines' table index divides by it (stepper.c) */
     int64_t holding_corner;    /* holding * corner, the torque above the corner times the speed */
 } servo_params_t;
 
@@ -299,6 +300,22 @@ typedef struct {
 static inline int32_t wrap_int32(int64_t value) {
     uint32_t bits = (uint32_t)value;
     return bits < 0x80000000u ? (int32_t)bits : -(int32_t)(~bits) - 1;
+}
+
+/* theta // 10^6 (floor), as floor(floor(|theta| / 2^6) / 15625) on the magnitude (below
+ * 2^52): a 14-bit divisor, two 32-bit divisions. */
+static inline int64_t floor_micro(int64_t theta) {
+    if (theta >= 0) {
+        return (int64_t)sci_div_u64_small((uint64_t)theta >> 6, 15625u);
+    }
+    uint64_t magnitude = 0u - (uint64_t)theta;
+    return -(int64_t)sci_div_u64_small((magnitude + (MICRO - 1)) >> 6, 15625u);
+}
+
+/* trunc_div(value, 10^6) for |value| < 2^54, as floor_micro on the magnitude. */
+static inline int64_t trunc_micro(int64_t value) {
+    uint64_t magnitude = sci_div_u64_small(sci_magnitude64(value) >> 6, 15625u);
+    return value < 0 ? -(int64_t)magnitude : (int64_t)magnitude;
 }
 
 /* Power-up state (core1.new_state): zeroes, start -1, mode from flash, last_take -1. */

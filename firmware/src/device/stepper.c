@@ -33,11 +33,6 @@ static inline int64_t floor_div(int64_t n, uint32_t d) {
     return -(int64_t)div_u64(magnitude + d - 1u, d);
 }
 
-/* floor(m / 10^6) for m < 2^54: floor(floor(m / 2^6) / 15625), two 32-bit divisions. */
-static inline uint64_t div_micro(uint64_t m) {
-    return sci_div_u64_small(m >> 6, 15625u);
-}
-
 int64_t stepper_cycles(int64_t ns) {
     return (ns * (int64_t)STEPPER_CYCLES_PER_US + 999) / 1000;   /* ns >= 0 */
 }
@@ -77,22 +72,6 @@ void stepper_derive(const device_vars_t *vars, int64_t tick_us, int32_t substeps
     out->accel = accel;
 }
 
-int32_t stepper_sine_at(int64_t angle, int64_t period) {
-    uint32_t p = (uint32_t)period;
-    uint64_t magnitude = angle < 0 ? 0u - (uint64_t)angle : (uint64_t)angle;
-    uint32_t rest;
-    if ((magnitude >> 32) == 0u) {
-        uint32_t low = (uint32_t)magnitude;
-        rest = low - sci_udiv(low, p) * p;
-    } else {
-        rest = (uint32_t)(magnitude % p);
-    }
-    if (angle < 0 && rest != 0u) {
-        rest = p - rest;
-    }
-    return table_sine[((uint64_t)rest * TABLE_SINE_SIZE) / p];
-}
-
 int64_t stepper_encoder_microsteps(int64_t shaft, int32_t cpr, int32_t per_rev) {
     int64_t count = floor_div(shaft * cpr, (uint32_t)per_rev);
     return floor_div(count * per_rev, (uint32_t)cpr);
@@ -108,9 +87,32 @@ static inline int64_t scaled_by_sine(int64_t torque, int32_t sine) {
     return sine < 0 ? -magnitude : magnitude;
 }
 
-/* sci_to_int of the speed change, saturated: a change beyond 2 x 10^13 takes any speed
- * (|omega| <= 10^13) past the bound, to the bound or through 0 (a reversal, which stops
- * it), as the Python's unbounded change does; 10^15 is such a change and fits. */
+/* Python's x % d for 0 < d < 2^16. */
+static inline uint32_t floor_mod(int64_t x, uint32_t d) {
+    uint64_t magnitude = sci_magnitude64(x);
+    uint32_t rest;
+    if ((magnitude >> 32) == 0u) {
+        uint32_t low = (uint32_t)magnitude;
+        rest = low - sci_udiv(low, d) * d;
+    } else {
+        rest = (uint32_t)(magnitude - sci_div_u64_small(magnitude, d) * d);
+    }
+    return x < 0 && rest != 0u ? d - rest : rest;
+}
+
+/* scimath.sci_from_int(omega, 4) for |omega| <= 10^13: at or above 2^32 (10 digits or more)
+ * the 4 digits kept are those of floor(|omega| / 10^6) with the exponent 6 more (a floor of
+ * a floor), which fits 32 bits: no 64-bit division. */
+static inline sci_t speed_sci(int64_t omega) {
+    uint64_t magnitude = sci_magnitude64(omega);
+    if ((magnitude >> 32) == 0u) {
+        return sci_normalize_u32((uint32_t)magnitude, 0, omega < 0);
+    }
+    return sci_normalize_u32((uint32_t)sci_div_u64_small(magnitude >> 6, 15625u), 6, omega < 0);
+}
+
+/* stepper.speed_change: sci_to_int of a speed change, capped at 10^15 in magnitude (any
+ * change beyond 2 x 10^13 takes the speed past its bound or through 0 alike). */
 static inline int64_t speed_change(sci_t change) {
     if (change.e > 11) {
         return change.c < 0 ? -1000000000000000LL : 1000000000000000LL;
@@ -118,20 +120,45 @@ static inline int64_t speed_change(sci_t change) {
     return sci_to_int(change);
 }
 
+/* holding * corner // speed for speed > corner >= 0 (a nonnegative product below 2^57). */
+static inline int64_t torque_above_corner(const servo_params_t *p, int64_t speed) {
+    uint64_t product = (uint64_t)p->holding_corner;
+    if ((product >> 32) == 0u) {
+        return sci_udiv((uint32_t)product, (uint32_t)speed);
+    }
+    if (speed < 0x10000) {
+        return (int64_t)sci_div_u64_small(product, (uint32_t)speed);
+    }
+    return (int64_t)(product / (uint64_t)speed);
+}
+
 void stepper_step(int64_t *theta_io, int64_t *omega_io, int64_t field, int32_t powered,
                   const servo_params_t *p) {
     int64_t theta = *theta_io;
     int64_t omega = *omega_io;
+    /* the shaft at count + fraction / 10^6 microsteps, 0 <= fraction < 10^6; the sines'
+     * angles taken modulo their periods (sine_at) through the whole microsteps, their table
+     * index floor(rest * SINE_SIZE / period) with period = 4 u 10^6 (the cycle) or u 10^6
+     * (a full step) as rest * 4 or rest * 16 over u * 15625 (sine_k): below 2^32 */
+    _Static_assert(TABLE_SINE_SIZE == 1024u, "the index's scaling is for 1024 entries");
+    int64_t count = floor_micro(theta);
+    uint32_t fraction = (uint32_t)theta - (uint32_t)count * (uint32_t)STEPPER_MICRO;
+    uint32_t microsteps = (uint32_t)p->reach;
+    uint32_t sine_k = (uint32_t)p->sine_k;
     int64_t pull = 0;
     if (powered == 1) {
-        int64_t speed = (int64_t)div_micro(sci_magnitude64(omega));
-        int64_t available = p->holding;
-        if (speed > p->corner) {
-            available = (int64_t)((uint64_t)p->holding_corner / (uint64_t)speed);
-        }
-        pull = scaled_by_sine(available, stepper_sine_at(field - theta, p->cycle));
+        int64_t speed = (int64_t)sci_div_u64_small(sci_magnitude64(omega) >> 6, 15625u);
+        int64_t available = speed <= p->corner ? p->holding : torque_above_corner(p, speed);
+        /* field * 10^6 - theta = (field - count - 1) * 10^6 + (10^6 - fraction) */
+        uint32_t rest = fraction != 0u
+            ? floor_mod(field - count - 1, 4u * microsteps) * (uint32_t)STEPPER_MICRO +
+              ((uint32_t)STEPPER_MICRO - fraction)
+            : floor_mod(field - count, 4u * microsteps) * (uint32_t)STEPPER_MICRO;
+        pull = scaled_by_sine(available, table_sine[sci_udiv(rest << 2, sine_k)]);
     }
-    int64_t torque = pull - scaled_by_sine(p->detent, stepper_sine_at(theta, p->full));
+    uint32_t detent_rest = floor_mod(count, microsteps) * (uint32_t)STEPPER_MICRO + fraction;
+    int64_t torque = pull - scaled_by_sine(p->detent,
+                                           table_sine[sci_udiv(detent_rest << 4, sine_k)]);
     int64_t load = p->load_unm;
     int64_t net;
     if (omega == 0) {
@@ -141,7 +168,7 @@ void stepper_step(int64_t *theta_io, int64_t *omega_io, int64_t field, int32_t p
         }
         net = torque > 0 ? torque - load : torque + load;
     } else {
-        int64_t viscous = sci_to_int(sci_mul(sci_from_int(omega), p->viscous));
+        int64_t viscous = sci_to_int(sci_mul(speed_sci(omega), p->viscous));
         net = torque - viscous - (omega > 0 ? load : -load);
     }
     int64_t new_omega = omega + speed_change(sci_mul(sci_from_int(net), p->accel));

@@ -44,18 +44,15 @@ int32_t stepper_max_steps_per_tick(int64_t tick_us, int64_t pulse_ns, int64_t se
 void stepper_derive(const device_vars_t *vars, int64_t tick_us, int32_t substeps,
                     stepper_constants_t *out);
 
-/* stepper.sine_at: SINE_ONE sin(2 pi angle / period) from the table, the angle taken
- * modulo the period, never negative (Python's floor modulo). 0 < period < 2^31. */
-int32_t stepper_sine_at(int64_t angle, int64_t period);
-
 /* stepper.encoder_microsteps: an encoder of cpr counts a turn on a shaft at `shaft` whole
  * microsteps (of per_rev a turn): its count floored, in microsteps floored. */
 int64_t stepper_encoder_microsteps(int64_t shaft, int32_t cpr, int32_t per_rev);
 
 /* stepper.stepper_step: one integration sub-step of the shaft (theta, omega) under the
- * driver's step count `field` (micro-microsteps), the field pulling while `powered`, with
- * the constants, the sub-step's length (params->travel_num / travel_den seconds per
- * micro-microstep/s) and the hard stops of `params`. */
+ * driver's step count `field`, the field pulling while `powered`, with the constants, the
+ * sub-step's length (params->travel_num / travel_den) and the hard stops of `params`
+ * (servo_params_finish run on them). The field is in whole microsteps here (the tick's
+ * field always is: the steps issued): the Python's field is field * 10^6. */
 void stepper_step(int64_t *theta, int64_t *omega, int64_t field, int32_t powered,
                   const servo_params_t *params);
 

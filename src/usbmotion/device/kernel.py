@@ -189,6 +189,7 @@ def compile_kernel() -> BlockFunction:
                 motor.motor_step,
                 stepper.trunc_div,
                 stepper.travel,
+                stepper.speed_change,
                 stepper.sine_at,
                 stepper.encoder_microsteps,
                 stepper.stepper_step,

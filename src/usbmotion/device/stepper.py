@@ -155,6 +155,22 @@ def travel(omega: int, num: int, den: int) -> int:
     return moved if omega >= 0 else -moved
 
 
+SPEED_CHANGE_CAP = 10**15
+"""A speed change taken as this (with its sign) when it is larger: any change beyond
+``2 * STEPPER_OMEGA_MAX`` takes the speed past the bound, or through 0 (a reversal, which
+stops it), so the result is the same as with the exact change; ``10**15`` is such a change
+and stays within an int64 where the exact one (up to ``10**34`` with call 17's smallest
+inertia) does not."""
+
+
+def speed_change(coefficient: int, exponent: int) -> int:
+    """``sci_to_int(coefficient, exponent)`` of a normalised speed change, capped at
+    :data:`SPEED_CHANGE_CAP` in magnitude (micro-microsteps/s)."""
+    if exponent > 11:   # at least 1000e12
+        return -SPEED_CHANGE_CAP if coefficient < 0 else SPEED_CHANGE_CAP
+    return sci_to_int(coefficient, exponent)
+
+
 def sine_at(angle: int, period: int) -> int:
     """``SINE_ONE * sin(2 pi angle / period)`` from the table (``period > 0``; the angle
     taken modulo the period, never negative)."""
@@ -220,7 +236,7 @@ def stepper_step(
         net = torque - sci_to_int(v_c, v_e) - (load if omega > 0 else -load)
     n_c, n_e = sci_from_int(net, DIGITS)
     a_c, a_e = sci_mul(n_c, n_e, accel_c, accel_e, DIGITS)
-    new_omega = omega + sci_to_int(a_c, a_e)
+    new_omega = omega + speed_change(a_c, a_e)
     if (omega > 0 and new_omega < 0) or (omega < 0 and new_omega > 0):
         new_omega = 0
     if new_omega > STEPPER_OMEGA_MAX:
@@ -237,4 +253,4 @@ def stepper_step(
 
 __all__ = ["MICRO", "SINE", "SINE_ONE", "SINE_SIZE", "StepperConstants", "StepperParams",
            "cycles", "derive_stepper", "encoder_microsteps", "max_steps_per_tick",
-           "sine_at", "stepper_step", "travel", "trunc_div"]
+           "sine_at", "speed_change", "stepper_step", "travel", "trunc_div"]
