@@ -193,6 +193,11 @@ const commands = {
     const world = d.attachMotor(request.options ?? {});
     return { world: world.state };
   },
+  stepper(request) {
+    const d = requireDevice();
+    const world = d.attachStepper(request.options ?? {});
+    return { world: world.state };
+  },
   world() {
     const d = requireDevice();
     if (!d.world) {

@@ -229,3 +229,29 @@ def test_the_check_catches_a_short_set_up_or_pulse_on_the_chip(chips: dict[int, 
     timing = StepTiming.of(case.pulse_ns, case.setup_ns, case.interval_dms * 100)
     with pytest.raises(AssertionError, match=rule):
         check_pulses(edges, flags, issued, timing)
+
+
+def test_a_stepper_outside_the_chip_follows_the_step_pins(chips: dict[int, PinsChip]) -> None:
+    """The harness's stepper world (lib/pins.js StepperWorld: a NEMA 17 on a step/direction
+    driver, its rotor integrated from the STEP and DIR edges while EN is low, its encoder on
+    the decoder's pins) after an open-loop move out and back: its driver took every step the
+    chip issued, and the rotor stands within a full step of them, its encoder's count the
+    rotor's."""
+    chip = chips[0]
+    chip.request(cmd="power_cycle", erase_flash=True)
+    start = chip.request(cmd="stepper", options={"countsPerRevolution": 4000})["world"]
+    assert start["powered"] is False, "EN high from power-up: the driver off"
+    chip.feed("5 1\n46 100 20\n17 1 -5\n44 1\n")
+    positions = _wave(600, 12)   # up to 12 microsteps a tick: 120,000 microsteps/s
+    chip.feed(f"1 {len(positions)} {' '.join(map(str, positions))}\n")
+    chip.feed("3 1\n")
+    chip.run(len(positions) // 2)
+    halfway = chip.request(cmd="world")["world"]
+    assert halfway["powered"] is True
+    chip.run(len(positions) // 2 + 200)
+    (line,) = chip.feed("48 -1\n")
+    issued = int(line.split()[1])
+    world = chip.request(cmd="world")["world"]
+    assert world["field"] == issued and world["steps"] >= 2 * halfway["field"] > 0, (world, line)
+    assert abs(world["theta"] - issued) < 16, world
+    assert world["count"] == math.floor(world["theta"] * 4000 / 3200), world

@@ -667,3 +667,168 @@ export function sweepEncoder(clock, { startNanos, counts, countsPerS, startCount
   }
   return startNanos + Math.abs(counts) * spacing;
 }
+
+/** The step/direction pins (firmware/src/rp2040/pins.h): STEP and DIR from the step
+ * generator's PIO block, the driver's enable (active low) from SIO. */
+export const STEPPER_PINS = { step: 18, dir: 19, enable: 20 };
+
+/** The Python device's simulated stepper at power-up (calls 45 and 47: a NEMA 17, 2 A,
+ * 0.59 N m, at 16 microsteps) with a NEMA 17 rotor's inertia and a 1000-line encoder. */
+export const DEFAULT_STEPPER = {
+  fullSteps: 200,
+  microsteps: 16,
+  holdingNm: 0.59,
+  detentNm: 0.02,
+  cornerRpm: 760,
+  inertiaKgM2: 1e-5,
+  viscousNmPerRadS: 0,
+  loadNm: 0,
+  countsPerRevolution: 4000,
+  stepNanos: 1000,
+};
+
+/**
+ * A hybrid stepper on a step/direction driver, outside the chip: the field follows the STEP
+ * pin's rising edges (a microstep each, up with DIR high), at the time each came, while the
+ * driver's enable is low; the rotor (the model of usbmotion.device.stepper, in binary64:
+ * the field's pull T_a sin(2 pi (field - theta) / 4u), its torque falling as 1/speed above
+ * the corner speed, the detent -T_d sin(2 pi theta / u), viscous and Coulomb friction, a
+ * velocity that would reverse within an integration step stopping there) integrated by
+ * semi-implicit Euler in steps of `stepNanos`; its quadrature encoder's A/B pins driven at
+ * each count it crosses (the decoder's pins, as MotorWorld drives them). It runs on the
+ * timer's time (the step edges' clock), standing still while the timer is held.
+ */
+export class StepperWorld {
+  /**
+   * @param {PioClock} clock
+   * @param {object} mcu
+   * @param {object} options DEFAULT_STEPPER's keys, and `startCount` (the encoder's count
+   *   at power-up, 0)
+   */
+  constructor(clock, mcu, options = {}) {
+    for (const key of Object.keys(options)) {
+      if (!(key in DEFAULT_STEPPER) && key !== 'startCount') {
+        throw new Error(`stepper option ${JSON.stringify(key)} is unknown; known: `
+          + `${[...Object.keys(DEFAULT_STEPPER), 'startCount'].join(', ')}`);
+      }
+    }
+    const m = { ...DEFAULT_STEPPER, ...options };
+    for (const key of ['fullSteps', 'microsteps', 'holdingNm', 'cornerRpm', 'inertiaKgM2',
+      'countsPerRevolution', 'stepNanos']) {
+      if (!(typeof m[key] === 'number' && m[key] > 0)) {
+        throw new Error(`stepper ${key} ${JSON.stringify(m[key])} must be a number above 0`);
+      }
+    }
+    this.clock = clock;
+    this.mcu = mcu;
+    this.m = m;
+    this.perRevolution = m.fullSteps * m.microsteps;
+    this.radPerMicrostep = (2 * Math.PI) / this.perRevolution;
+    this.cornerPerS = (m.cornerRpm * this.perRevolution) / 60;
+    this.theta = 0; // microsteps
+    this.omega = 0; // microsteps/s
+    this.field = 0; // the steps the driver took
+    this.steps = 0; // rising edges seen
+    this.pending = []; // [timerNanos, +1 | -1]
+    this.direction = 1;
+    this.time = null; // timer ns integrated up to
+    this.count = (options.startCount ?? 0);
+    this.countBase = this.count;
+    this.edgesEmitted = 0;
+    clock.drive(PIN_MAP.encoderA, PIN_MAP.encoderB);
+    const state = GRAY[((this.count % 4) + 4) % 4];
+    mcu.gpio[PIN_MAP.encoderA].setInputValue((state & 1) !== 0);
+    mcu.gpio[PIN_MAP.encoderB].setInputValue((state & 2) !== 0);
+    clock.edgeListeners.push((pin, level, nanos) => {
+      if (pin === STEPPER_PINS.dir) {
+        this.direction = level ? 1 : -1;
+      } else if (pin === STEPPER_PINS.step && level === 1) {
+        this.steps++;
+        this.pending.push([nanos, this.direction]);
+      }
+    });
+  }
+
+  /** The driver's enable pin low (active): the field pulls. */
+  get powered() {
+    const pin = this.mcu.gpio[STEPPER_PINS.enable];
+    return pin.outputEnable && !pin.outputValue;
+  }
+
+  /** Integrates the rotor over [fromNanos, toNanos) of clock time (the timer's, less its
+   * lag: `timerFrom` .. `timerTo`), and schedules the encoder's pins. */
+  advance(fromNanos, toNanos, timerFrom, timerTo) {
+    if (this.time === null || this.time < timerFrom) {
+      this.time = timerFrom;
+    }
+    const m = this.m;
+    const h = m.stepNanos;
+    const powered = this.powered;
+    while (this.time < timerTo) {
+      const until = Math.min(this.time + h, timerTo);
+      // steps up to the end of this step (those that came late, at its start)
+      while (this.pending.length > 0 && this.pending[0][0] < until) {
+        this.field += this.pending.shift()[1];
+      }
+      const dt = (until - this.time) / 1e9;
+      const speed = Math.abs(this.omega);
+      const available = speed <= this.cornerPerS ? m.holdingNm : (m.holdingNm * this.cornerPerS) / speed;
+      const pull = powered
+        ? available * Math.sin((2 * Math.PI * (this.field - this.theta)) / (4 * m.microsteps)) : 0;
+      const torque = pull - m.detentNm * Math.sin((2 * Math.PI * this.theta) / m.microsteps);
+      let net;
+      if (this.omega === 0) {
+        net = Math.abs(torque) <= m.loadNm ? 0 : torque - Math.sign(torque) * m.loadNm;
+      } else {
+        net = torque - m.viscousNmPerRadS * this.omega * this.radPerMicrostep
+          - Math.sign(this.omega) * m.loadNm;
+      }
+      let omega = this.omega + (net / m.inertiaKgM2 / this.radPerMicrostep) * dt;
+      if ((this.omega > 0 && omega < 0) || (this.omega < 0 && omega > 0)) {
+        omega = 0;
+      }
+      const before = this.theta;
+      this.theta += omega * dt;
+      this.omega = omega;
+      this.emitCounts(before, this.theta, this.time, until, fromNanos - timerFrom);
+      this.time = until;
+    }
+  }
+
+  /** The encoder's count at `theta` microsteps: floor(theta x counts per revolution / per
+   * revolution). */
+  countAt(theta) {
+    return this.countBase + Math.floor((theta * this.m.countsPerRevolution) / this.perRevolution);
+  }
+
+  emitCounts(from, to, timerFrom, timerTo, lag) {
+    const target = this.countAt(to);
+    while (this.count !== target) {
+      const next = target > this.count ? this.count + 1 : this.count - 1;
+      const boundary = ((target > this.count ? next : this.count) - this.countBase)
+        * this.perRevolution / this.m.countsPerRevolution;
+      const fraction = to === from ? 0 : Math.min(Math.max((boundary - from) / (to - from), 0), 1);
+      const at = timerFrom + fraction * (timerTo - timerFrom) + lag;
+      const before = GRAY[((this.count % 4) + 4) % 4];
+      const after = GRAY[((next % 4) + 4) % 4];
+      const changed = before ^ after;
+      const pin = changed & 1 ? PIN_MAP.encoderA : PIN_MAP.encoderB;
+      this.clock.schedule(at, pin, ((changed & 1 ? after : after >> 1) & 1) !== 0);
+      this.edgesEmitted++;
+      this.count = next;
+    }
+  }
+
+  /** What the world holds, for the tests. */
+  get state() {
+    return {
+      theta: this.theta,
+      omega: this.omega,
+      field: this.field,
+      steps: this.steps,
+      count: this.count,
+      powered: this.powered,
+      edges: this.edgesEmitted,
+    };
+  }
+}
