@@ -15,7 +15,8 @@
  * tick's frame from platform_steps_issue, later in the same tick: the frame plays from the
  * next tick's start on, whatever the tick's own computation takes (up to a whole period).
  * A frame that finds no room in the FIFO (only after two late ticks in a row) is not
- * dropped: its steps are carried into the next tick's frame. */
+ * dropped: its steps are carried into the next tick's frame (while the driver is enabled:
+ * one that is off takes none). */
 #include <stdbool.h>
 #include <stdint.h>
 
@@ -111,6 +112,7 @@ void platform_steps_timing(uint32_t pulse_cycles, uint32_t setup_cycles, uint32_
 /* core1: the staged timing in force from this tick on; step_clock restarted now when the
  * period changed (or it never ran), so its frames start at this tick's offset. */
 static void __not_in_flash_func(take_timing)(uint32_t sequence) {
+    __dmb();
     step_timing_t timing = staged;
     __dmb();
     if (staged_sequence != sequence || timing.pulse < MIN_PULSE_CYCLES ||
@@ -161,6 +163,9 @@ void __not_in_flash_func(platform_steps_issue)(int32_t steps, bool enable) {
     } else {
         sio_hw->gpio_set = STEP_ENABLE_MASK;
     }
+    if (!enable) {
+        frames.carry = 0; /* a driver that is off takes no steps */
+    }
     int32_t total = steps + frames.carry;
     if (total == 0) {
         frames.carry = 0;
@@ -181,8 +186,8 @@ void __not_in_flash_func(platform_steps_issue)(int32_t steps, bool enable) {
     sio_hw->div_udivisor = count;
     while ((sio_hw->div_csr & SIO_DIV_CSR_READY_BITS) == 0) {
     }
-    uint32_t spacing = sio_hw->div_quotient;
     uint32_t rest = sio_hw->div_remainder;
+    uint32_t spacing = sio_hw->div_quotient;
     /* run 1: the steps s + 1 apart, r - 4 of them (the switch to run 2 takes the other 4 and
      * run 2's first gap s); or all of them s apart */
     uint32_t longer = rest >= RUN_SWITCH_CYCLES ? rest - (RUN_SWITCH_CYCLES - 1u) : 0u;
