@@ -413,6 +413,17 @@ def ramp(start: int, end: int, count: int) -> str:
     return f"1 {count} " + " ".join(map(str, values))
 
 
+def shaft_scan(low: int, high: int, step: int) -> tuple[str, ...]:
+    """Lines that read where the shaft is, which an open loop's counter does not say: the
+    probe's surface (call 40) moved to each position from ``low`` to ``high`` by ``step`` and
+    the probe read there (call 41: closed while the shaft is at or above it; a moved surface
+    takes its state without an edge), then the surface removed."""
+    scan: list[str] = []
+    for position in range(low, high + 1, step):
+        scan += [f"40 2 {position}", "41 -1"]
+    return (*scan, "40 0 0")
+
+
 def replay_both(driver: Driver, steps: Sequence[Step]) -> tuple[Printed, PythonReplay]:
     """:func:`assert_same`, keeping the Python's device (its shaft, for what the lines cannot
     show: the steps an open loop lost)."""
@@ -438,13 +449,16 @@ def replies(printed: Printed, word: str) -> list[list[int]]:
 def test_step_drives_follow_moves_in_every_mode(driver: Driver, drive: int) -> None:
     """A turn in position mode, velocities held for 100 ticks, keyframes in curve mode, then
     a power cycle back to the DC motor: diagnostics every 20 ticks (their output the tick's
-    steps), call 48 after each."""
+    steps), call 48 after each. The probe's surface at the turn's end shows the shaft, which
+    the open loop's counter does not: its edges count the shaft's swings about the turn."""
     printed, _ = replay_both(driver, [
-        lines(*STEPPER, "8 44 1", f"44 {drive}", "21 20", "3 1", ramp(0, 3200, 160)), Run(220),
-        lines("20 -1", "48 -1", "35 -1"),
-        lines("7 2", "6 100", "3 1", "1 3 12000 -12000 0"), Run(350), lines("20 -1", "48 -1"),
+        lines(*STEPPER, "8 44 1", f"44 {drive}", "40 2 3200", "21 20", "3 1",
+              ramp(0, 3200, 160)), Run(220),
+        lines("20 -1", "48 -1", "35 -1", "41 -1", *shaft_scan(3180, 3220, 1), "40 2 3200"),
+        lines("7 2", "6 100", "3 1", "1 3 12000 -12000 0"), Run(350),
+        lines("20 -1", "48 -1", "41 -1", *shaft_scan(2000, 5000, 16)),
         lines("7 3", "3 1", "25 200 1600 0 0", "25 100 -800 5000 -5000", "25 150 0 0 0"),
-        Run(500), lines("20 -1", "48 -1", "27 -1", "35 -1"),
+        Run(500), lines("20 -1", "48 -1", "27 -1", "35 -1", *shaft_scan(-64, 64, 1)),
         Power(), lines("44 -1", "48 -1", "20 -1"),
     ])
     status = replies(printed, "STATUS")
@@ -453,6 +467,8 @@ def test_step_drives_follow_moves_in_every_mode(driver: Driver, drive: int) -> N
     assert steps[0][0] != 0 and steps[-1] == [0, 0, 249]
     assert replies(printed, "DRIVE") == [[0]]
     assert any(line[4] not in (0, 249_000) for line in replies(printed, "D"))
+    assert replies(printed, "PROBE")[0][1] >= 1   # the shaft reached the turn
+    assert {probe[0] for probe in replies(printed, "PROBE")} == {0, 1}   # scans read it
 
 
 def test_a_load_beyond_the_pull_out_torque_loses_steps_open_loop(driver: Driver) -> None:
@@ -464,7 +480,7 @@ def test_a_load_beyond_the_pull_out_torque_loses_steps_open_loop(driver: Driver)
         lines(*STEPPER, "44 1", "40 2 5000", "21 50", "3 1", ramp(0, 3200, 160)), Run(200),
         lines("33 700 0", ramp(3200, 6400, 160)), Run(300),
         lines("20 -1", "48 -1", "41 -1", "33 20 0", ramp(6400, 9600, 160)), Run(300),
-        lines("20 -1", "48 -1", "41 -1"),
+        lines("20 -1", "48 -1", "41 -1", *shaft_scan(6300, 6500, 2)),
     ])
     status = replies(printed, "STATUS")
     probe = replies(printed, "PROBE")
@@ -492,6 +508,21 @@ def test_a_load_beyond_the_pull_out_torque_stalls_the_closed_loop(driver: Driver
     assert replies(printed, "PROBE")[1][:3] == [1, 1, 1]
     fault = replies(printed, "FAULT")[0]
     assert fault[0] == 2 and [2, fault[1]] in replies(printed, "ALARM")
+
+
+def test_an_open_loop_beyond_its_pull_out_speed_loses_steps(driver: Driver) -> None:
+    """Velocity mode ramped to 300,000 microsteps/s (5600 rpm, far above the 760 rpm corner
+    where the torque starts to fall): the rotor falls behind, slips cycle after cycle and
+    ends well short of the steps issued (the scans read it)."""
+    printed, replay = replay_both(driver, [
+        lines(*STEPPER, "44 1", "7 2", "21 40", "3 1",
+              "1 400 " + " ".join(str(750 * k) for k in range(1, 401))), Run(420),
+        lines("20 -1", "48 -1", *shaft_scan(0, 64_000, 512)),
+    ])
+    issued = replies(printed, "STEPS")[0][0]
+    shaft = replay.device.state.shaft_micro_counts // 10**6
+    assert issued > 50_000 and shaft < issued - 3200   # more than a turn lost
+    assert {probe[0] for probe in replies(printed, "PROBE")} == {0, 1}
 
 
 @pytest.mark.parametrize("drive", [1, 2])

@@ -154,6 +154,7 @@ class ServoParams(ctypes.Structure):
         ("encoder_cpr", c_i32), ("per_rev", c_i32), ("motor_pins", c_i32),
         ("pins_level_per_volt", Sci), ("travel_num", c_i64), ("travel_den", c_i64),
         ("velocity_num", c_i64), ("velocity_den", c_i64), ("reach", c_i32),
+        ("sine_k", c_i32), ("full_mask", c_u32), ("cycle_mask", c_u32),
         ("holding_corner", c_i64),
     ]
 
@@ -1997,6 +1998,9 @@ MUTANTS = [
            _check_stepper),
     Mutant("C's remainder (of the magnitude) for the sines' angles", "stepper.c",
            "return x < 0 && rest != 0u ? d - rest : rest;", "return rest;", _check_stepper),
+    Mutant("C's remainder (of the magnitude) for power-of-two microsteps", "stepper.c",
+           "        return (uint32_t)x & mask;",
+           "        return (uint32_t)sci_magnitude64(x) & mask;", _check_stepper_ticks),
     Mutant("encoder count truncated, not floored", "stepper.c",
            "return -(int64_t)div_u64(magnitude + d - 1u, d);",
            "return -(int64_t)div_u64(magnitude, d);", _check_stepper),

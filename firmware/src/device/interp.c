@@ -565,6 +565,12 @@ static void shift_position_locked(int64_t shift) {
     clear_curve_locked();
 }
 
+/* The tick runs the simulated motor: no motor on the pins (call 39), or a step drive (the
+ * motor on the pins is the DC bridge's; a step drive runs the simulated stepper). */
+static bool simulated_motor(void) {
+    return !servo_params.motor_pins || servo_params.drive_kind != DRIVE_DC;
+}
+
 /* true (with the ERR line printed) when the device is in curve mode: calls 0 and 1. */
 static bool refused_in_curve_mode(uint32_t number) {
     platform_servo_lock();
@@ -1096,7 +1102,7 @@ static void call_set_sim_probe(const call_t *call) {
     derive();
     platform_servo_lock();
     copy_in_locked();
-    if (!servo_params.motor_pins) {
+    if (simulated_motor()) {
         servo_state.probe = servo_probe(&servo_state, &servo_params);   /* no edge */
     }
     platform_servo_unlock();
@@ -1505,7 +1511,7 @@ void device_poll(void) {
 
 void device_servo_tick(void) {
     platform_servo_lock();
-    if (servo_params.motor_pins) {
+    if (!simulated_motor()) {
         servo_tick_pins(&servo_state, &servo_params, &records);
     } else {
         servo_tick(&servo_state, &servo_params, &records);

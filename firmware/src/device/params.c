@@ -61,6 +61,10 @@ void servo_params_finish(servo_params_t *params) {
     }
     params->reach = (int32_t)(params->full / STEPPER_MICRO);
     params->sine_k = (int32_t)(params->full / 64);
+    uint32_t microsteps = (uint32_t)params->reach;
+    bool power_of_two = microsteps != 0u && (microsteps & (microsteps - 1u)) == 0u;
+    params->full_mask = power_of_two ? microsteps - 1u : 0u;
+    params->cycle_mask = power_of_two ? 4u * microsteps - 1u : 0u;
     params->holding_corner = params->holding * params->corner;
 }
 

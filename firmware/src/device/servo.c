@@ -454,8 +454,9 @@ static inline void tick_finish(servo_state_t *s, const servo_params_t *p, record
  * the closed loop's to the PID's target held within a full step of where the rotor is going),
  * handed to the platform's step generator, and the simulated stepper over the tick with the
  * steps reaching its field spread evenly over the sub-steps. Returns what the counter
- * counts: the steps issued (open loop) or the encoder in microsteps (closed loop). */
-static int64_t step_drive(servo_state_t *s, const servo_params_t *p) {
+ * counts: the steps issued (open loop) or the encoder in microsteps (closed loop); *count
+ * is the shaft's whole microsteps after the tick. */
+static int64_t step_drive(servo_state_t *s, const servo_params_t *p, int64_t *count) {
     int32_t issue = 0;
     if (s->enable == 1) {
         if (p->drive_kind == DRIVE_STEP_OPEN) {
@@ -489,7 +490,7 @@ static int64_t step_drive(servo_state_t *s, const servo_params_t *p) {
      * steps */
     uint32_t steps = (uint32_t)p->steps;
     uint32_t magnitude = issue < 0 ? 0u - (uint32_t)issue : (uint32_t)issue;
-    uint32_t whole = sci_udiv(magnitude, steps);
+    uint32_t whole = steps == 1u ? magnitude : sci_udiv(magnitude, steps);
     uint32_t rest = magnitude - whole * steps;
     uint32_t moved = 0;
     uint32_t remainder = 0;
@@ -505,28 +506,30 @@ static int64_t step_drive(servo_state_t *s, const servo_params_t *p) {
     }
     s->phase += issue;
     s->last_steps = issue;
+    *count = floor_micro(s->theta);
     if (p->drive_kind == DRIVE_STEP_OPEN) {
         return s->phase;
     }
-    return stepper_encoder_microsteps(floor_micro(s->theta), p->encoder_cpr, p->per_rev);
+    return stepper_encoder_microsteps(*count, p->encoder_cpr, p->per_rev);
 }
 
 void servo_tick(servo_state_t *s, const servo_params_t *p, record_ring_t *ring) {
     bool enabled = tick_start(s, p);
 
     /* 3. motor */
+    int64_t count;
     int64_t source;
     if (p->drive_kind == DRIVE_DC) {
         sci_t drive = sci_mul(s->out, p->drive);
         for (int32_t step = 0; step < p->steps; step++) {
             motor_step(&s->theta, &s->omega, drive, p);
         }
-        source = floor_micro(s->theta);
+        count = floor_micro(s->theta);
+        source = count;
     } else {
-        source = step_drive(s, p);
+        source = step_drive(s, p, &count);
     }
 
-    int64_t count = floor_micro(s->theta);
     int32_t closing =
         encoder(s, p, source, travel_switches(count, p), probe_closed(count, p), NULL);
     tick_finish(s, p, ring, enabled, closing);

@@ -237,6 +237,8 @@ typedef struct {
     /* Not in core1.py: from full, holding and corner (servo_params_finish). */
     int32_t reach;             /* full / 10^6: a full step, microsteps (the closed loop's lead) */
     int32_t sine_k;            /* full / 64: the sines' table index divides by it (stepper.c) */
+    uint32_t full_mask;        /* microsteps - 1 when a power of two, else 0 (stepper.c) */
+    uint32_t cycle_mask;       /* 4 microsteps - 1 likewise */
     int64_t holding_corner;    /* holding * corner, the torque above the corner times the speed */
 } servo_params_t;
 

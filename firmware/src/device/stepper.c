@@ -73,22 +73,46 @@ void stepper_derive(const device_vars_t *vars, int64_t tick_us, int32_t substeps
 }
 
 int64_t stepper_encoder_microsteps(int64_t shaft, int32_t cpr, int32_t per_rev) {
-    int64_t count = floor_div(shaft * cpr, (uint32_t)per_rev);
-    return floor_div(count * per_rev, (uint32_t)cpr);
-}
-
-/* trunc_div(torque * sine, SINE_ONE) for 0 <= torque < 2^32 and |sine| <= SINE_ONE. */
-static inline int64_t scaled_by_sine(int64_t torque, int32_t sine) {
+    /* |shaft| < 2^32 (within the hard stops), so |shaft| * cpr is one 32 x 32-bit product,
+     * and |count| * per_rev <= |shaft| * cpr + per_rev; below 2^32 both divide in 32 bits */
+    uint32_t m = (uint32_t)sci_magnitude64(shaft);
     uint32_t high;
-    uint32_t low = sci_mul_32x32((uint32_t)torque, sine < 0 ? 0u - (uint32_t)sine
-                                                             : (uint32_t)sine, &high);
-    int64_t magnitude = (int64_t)((((uint64_t)high << 32) | low) >> 14);
-    _Static_assert(TABLE_SINE_ONE == 1 << 14, "SINE_ONE is 2^14");
-    return sine < 0 ? -magnitude : magnitude;
+    uint32_t low = sci_mul_32x32(m, (uint32_t)cpr, &high);
+    if (high == 0u && low < 0x80000000u) {
+        uint32_t q = sci_udiv(low, (uint32_t)per_rev);
+        if (shaft < 0 && q * (uint32_t)per_rev != low) {
+            q += 1u;   /* the floor of a negative quotient */
+        }
+        uint32_t steps = q * (uint32_t)per_rev;   /* <= low + per_rev < 2^32 */
+        uint32_t r = sci_udiv(steps, (uint32_t)cpr);
+        if (shaft >= 0) {
+            return r;
+        }
+        return -(int64_t)r - (r * (uint32_t)cpr != steps);
+    }
+    int64_t counts = (int64_t)(((uint64_t)high << 32) | low);
+    int64_t count = floor_div(shaft < 0 ? -counts : counts, (uint32_t)per_rev);
+    int64_t steps = (int64_t)sci_mul_32x64((uint32_t)per_rev, sci_magnitude64(count));
+    return floor_div(count < 0 ? -steps : steps, (uint32_t)cpr);
 }
 
-/* Python's x % d for 0 < d < 2^16. */
-static inline uint32_t floor_mod(int64_t x, uint32_t d) {
+/* trunc_div(torque * sine, SINE_ONE) for 0 <= torque < 2^27 (10^8 uNm, call 47's largest)
+ * and |sine| <= SINE_ONE = 2^14, in 32 bits: with torque = high 2^14 + low, the quotient of
+ * the magnitude is high |sine| + (low |sine|) >> 14, each product below 2^28. */
+static inline int32_t scaled_by_sine(int64_t torque, int32_t sine) {
+    _Static_assert(TABLE_SINE_ONE == 1 << 14, "SINE_ONE is 2^14");
+    uint32_t magnitude = sine < 0 ? 0u - (uint32_t)sine : (uint32_t)sine;
+    uint32_t value = (uint32_t)torque;
+    uint32_t scaled = (value >> 14) * magnitude + (((value & 0x3fffu) * magnitude) >> 14);
+    return sine < 0 ? -(int32_t)scaled : (int32_t)scaled;
+}
+
+/* Python's x % d for 0 < d < 2^16; `mask` is d - 1 when d is a power of two (the low bits
+ * of x in two's complement are its floor modulo then), else 0. */
+static inline uint32_t floor_mod(int64_t x, uint32_t d, uint32_t mask) {
+    if (mask != 0u || d == 1u) {
+        return (uint32_t)x & mask;
+    }
     uint64_t magnitude = sci_magnitude64(x);
     uint32_t rest;
     if ((magnitude >> 32) == 0u) {
@@ -100,36 +124,37 @@ static inline uint32_t floor_mod(int64_t x, uint32_t d) {
     return x < 0 && rest != 0u ? d - rest : rest;
 }
 
-/* scimath.sci_from_int(omega, 4) for |omega| <= 10^13: at or above 2^32 (10 digits or more)
- * the 4 digits kept are those of floor(|omega| / 10^6) with the exponent 6 more (a floor of
- * a floor), which fits 32 bits: no 64-bit division. */
-static inline sci_t speed_sci(int64_t omega) {
+/* scimath.sci_from_int(omega, 4) for |omega| <= 10^13, given speed = |omega| // 10^6: at or
+ * above 2^32 (10 digits or more) the 4 digits kept are those of the speed with the exponent
+ * 6 more (a floor of a floor), which fits 32 bits: no 64-bit division. */
+static inline sci_t speed_sci(int64_t omega, uint32_t speed) {
     uint64_t magnitude = sci_magnitude64(omega);
     if ((magnitude >> 32) == 0u) {
         return sci_normalize_u32((uint32_t)magnitude, 0, omega < 0);
     }
-    return sci_normalize_u32((uint32_t)sci_div_u64_small(magnitude >> 6, 15625u), 6, omega < 0);
+    return sci_normalize_u32(speed, 6, omega < 0);
 }
 
 /* stepper.speed_change: sci_to_int of a speed change, capped at 10^15 in magnitude (any
- * change beyond 2 x 10^13 takes the speed past its bound or through 0 alike). */
+ * change beyond 2 x 10^13 takes the speed past its bound or through 0 alike). Up to 10^5
+ * a 4-digit coefficient's product stays within 32 bits. */
 static inline int64_t speed_change(sci_t change) {
     if (change.e > 11) {
         return change.c < 0 ? -1000000000000000LL : 1000000000000000LL;
+    }
+    if (change.e >= 0 && change.e <= 5) {
+        return (int64_t)(change.c * (int32_t)sci_pow10_u32[change.e]);
     }
     return sci_to_int(change);
 }
 
 /* holding * corner // speed for speed > corner >= 0 (a nonnegative product below 2^57). */
-static inline int64_t torque_above_corner(const servo_params_t *p, int64_t speed) {
+static inline int64_t torque_above_corner(const servo_params_t *p, uint32_t speed) {
     uint64_t product = (uint64_t)p->holding_corner;
-    if ((product >> 32) == 0u) {
-        return sci_udiv((uint32_t)product, (uint32_t)speed);
+    if (speed < 0x10000u) {
+        return (int64_t)sci_div_u64_small(product, speed);
     }
-    if (speed < 0x10000) {
-        return (int64_t)sci_div_u64_small(product, (uint32_t)speed);
-    }
-    return (int64_t)(product / (uint64_t)speed);
+    return (int64_t)(product / speed);
 }
 
 void stepper_step(int64_t *theta_io, int64_t *omega_io, int64_t field, int32_t powered,
@@ -145,19 +170,22 @@ void stepper_step(int64_t *theta_io, int64_t *omega_io, int64_t field, int32_t p
     uint32_t fraction = (uint32_t)theta - (uint32_t)count * (uint32_t)STEPPER_MICRO;
     uint32_t microsteps = (uint32_t)p->reach;
     uint32_t sine_k = (uint32_t)p->sine_k;
-    int64_t pull = 0;
+    /* |omega| // 10^6 (microsteps/s, below 2^24) */
+    uint32_t speed = (uint32_t)sci_div_u64_small(sci_magnitude64(omega) >> 6, 15625u);
+    int32_t pull = 0;   /* |pull|, |torque| <= 2 x 10^8 */
     if (powered == 1) {
-        int64_t speed = (int64_t)sci_div_u64_small(sci_magnitude64(omega) >> 6, 15625u);
         int64_t available = speed <= p->corner ? p->holding : torque_above_corner(p, speed);
         /* field * 10^6 - theta = (field - count - 1) * 10^6 + (10^6 - fraction) */
         uint32_t rest = fraction != 0u
-            ? floor_mod(field - count - 1, 4u * microsteps) * (uint32_t)STEPPER_MICRO +
-              ((uint32_t)STEPPER_MICRO - fraction)
-            : floor_mod(field - count, 4u * microsteps) * (uint32_t)STEPPER_MICRO;
+            ? floor_mod(field - count - 1, 4u * microsteps, p->cycle_mask) *
+                      (uint32_t)STEPPER_MICRO + ((uint32_t)STEPPER_MICRO - fraction)
+            : floor_mod(field - count, 4u * microsteps, p->cycle_mask) *
+                      (uint32_t)STEPPER_MICRO;
         pull = scaled_by_sine(available, table_sine[sci_udiv(rest << 2, sine_k)]);
     }
-    uint32_t detent_rest = floor_mod(count, microsteps) * (uint32_t)STEPPER_MICRO + fraction;
-    int64_t torque = pull - scaled_by_sine(p->detent,
+    uint32_t detent_rest =
+        floor_mod(count, microsteps, p->full_mask) * (uint32_t)STEPPER_MICRO + fraction;
+    int32_t torque = pull - scaled_by_sine(p->detent,
                                            table_sine[sci_udiv(detent_rest << 4, sine_k)]);
     int64_t load = p->load_unm;
     int64_t net;
@@ -168,7 +196,7 @@ void stepper_step(int64_t *theta_io, int64_t *omega_io, int64_t field, int32_t p
         }
         net = torque > 0 ? torque - load : torque + load;
     } else {
-        int64_t viscous = sci_to_int(sci_mul(speed_sci(omega), p->viscous));
+        int64_t viscous = sci_to_int(sci_mul(speed_sci(omega, speed), p->viscous));
         net = torque - viscous - (omega > 0 ? load : -load);
     }
     int64_t new_omega = omega + speed_change(sci_mul(sci_from_int(net), p->accel));
@@ -182,7 +210,10 @@ void stepper_step(int64_t *theta_io, int64_t *omega_io, int64_t field, int32_t p
     }
     /* stepper.travel: new_omega * tick_us / (steps * 10^6) truncated toward zero, as the
      * reduced fraction: |new_omega| * travel_num <= 10^13 * 10^6 < 2^64 */
-    uint64_t moved = sci_mul_32x64((uint32_t)p->travel_num, sci_magnitude64(new_omega));
+    uint64_t moved = sci_magnitude64(new_omega);
+    if (p->travel_num != 1) {
+        moved = sci_mul_32x64((uint32_t)p->travel_num, moved);
+    }
     if (p->travel_den != 1) {
         moved = p->travel_den < 0x10000 ? sci_div_u64_small(moved, (uint32_t)p->travel_den)
                                         : moved / (uint64_t)p->travel_den;
