@@ -20,8 +20,9 @@ against the Python device's steps and call 46's rules (``tests/firmware/steps.py
   the rise-to-rise periods seen; the farthest rise from its exactly even time (the tick's
   start + set-up + k x room / steps, in fractions of a period); the pulse's high and low
   times;
-- core1's cost: the cycles of the step hook (``platform_steps_issue`` and
-  ``step_pins_tick``, by the emulator's per-function profile) per tick, and the whole
+- core1's cost: the cycles of the step hook (``platform_steps_issue``, and
+  ``step_pins_take_timing`` when the timing changed, by the emulator's per-function profile;
+  beside them a comparison in the alarm's interrupt) per tick, and the whole
   tick's (the alarm interrupt, the device's tick, its diagnostics line) as a share of the
   12,500-cycle period, whose goal is at most 30 % (``benchmarks/firmware_budget.py``).
 
@@ -60,7 +61,9 @@ SETUP_NS = 20
 INTERVAL_DMS = 1
 TICK_BUDGET = 12_500
 TICK_GOAL = 0.30
-HOOK = ("platform_steps_issue", "step_pins_tick")
+HOOK = ("platform_steps_issue", "step_pins_take_timing")
+"""The step hook's functions; besides them every tick compares two words in the alarm's
+interrupt (step_pins_tick, inline in servo_alarm_irq)."""
 
 
 def _setup(ticks: int) -> list[str]:

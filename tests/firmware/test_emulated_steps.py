@@ -214,7 +214,7 @@ def test_the_check_catches_a_short_set_up_or_pulse_on_the_chip(chips: dict[int, 
     steps = session(case)
     play(chip, steps[:1])   # the timing and the drive: the words are computed on the next tick
     chip.run(1)
-    offset = 20  # step_frames_t: sequence, tick, room, most, head, timing_words[0]
+    offset = 16  # step_frames_t: tick, room, most, head, timing_words[0]
     word = bytes.fromhex(chip.request(cmd="read", symbol="frames")["hex"])[offset : offset + 4]
     value = int.from_bytes(word, "little")
     assert value == (13 - 2) | (10 - 2) << 16, hex(value)

@@ -21,8 +21,16 @@ void servo_core1_main(void);
 void motor_pins_core1_init(void);
 
 /* core1, first thing in every servo tick (before the device's tick): the step generator takes
- * a timing core0 changed, and restarts its tick clock at this instant when the period did */
-void step_pins_tick(void);
+ * a timing core0 changed, and restarts its tick clock at this instant when the period did
+ * (step_pins.c; inline: one comparison on a tick with nothing new) */
+extern volatile uint32_t step_timing_staged;
+extern uint32_t step_timing_taken;
+void step_pins_take_timing(void);
+static inline void step_pins_tick(void) {
+    if (step_timing_staged != step_timing_taken) {
+        step_pins_take_timing();
+    }
+}
 
 /* core0: bring up USB and run the main loop; never returns */
 void usb_cdc_run(void);

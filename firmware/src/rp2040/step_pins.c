@@ -40,8 +40,9 @@
 #define MIN_SETUP_CYCLES 2u          /* what step_dir needs between DIR and the first rise */
 
 /* The timing of calls 5 and 46, from core0 to core1: core0 writes it between two increments
- * of `sequence` (odd while it writes); core1 copies it at the start of a tick when the
- * sequence is even and has changed, and keeps it when the sequence did not move meanwhile. */
+ * of its sequence (odd while it writes); core1 copies it at the start of a tick when the
+ * sequence is even and has changed (step_pins_tick), and keeps it when the sequence did not
+ * move meanwhile. */
 typedef struct {
     uint32_t pulse;    /* step-clock periods high */
     uint32_t setup;    /* periods from DIR to the first rise */
@@ -49,11 +50,11 @@ typedef struct {
 } step_timing_t;
 
 static step_timing_t staged;
-static volatile uint32_t staged_sequence;
+volatile uint32_t step_timing_staged; /* the sequence */
+uint32_t step_timing_taken;           /* the sequence core1 took (rp2040_platform.h) */
 
 /* core1's own: the timing in force and what it gives a frame. */
 typedef struct {
-    uint32_t sequence;     /* the staged timing this is */
     uint32_t tick;         /* the period step_clock runs at, 0 before it first runs */
     uint32_t room;         /* T - setup: the periods a tick's steps are spread over */
     uint32_t most;         /* the most steps a frame takes: room / (2 x pulse) */
@@ -99,27 +100,31 @@ void platform_steps_start(void) {
 }
 
 void platform_steps_timing(uint32_t pulse_cycles, uint32_t setup_cycles, uint32_t tick_cycles) {
-    uint32_t sequence = staged_sequence;
-    staged_sequence = sequence + 1u;
+    uint32_t sequence = step_timing_staged;
+    step_timing_staged = sequence + 1u;
     __dmb();
     staged.pulse = pulse_cycles;
     staged.setup = setup_cycles;
     staged.tick = tick_cycles;
     __dmb();
-    staged_sequence = sequence + 2u;
+    step_timing_staged = sequence + 2u;
 }
 
 /* core1: the staged timing in force from this tick on; step_clock restarted now when the
  * period changed (or it never ran), so its frames start at this tick's offset. */
-static void __not_in_flash_func(take_timing)(uint32_t sequence) {
+void __not_in_flash_func(step_pins_take_timing)(void) {
+    uint32_t sequence = step_timing_staged;
+    if ((sequence & 1u) != 0 || !started) {
+        return; /* being written: taken next tick */
+    }
     __dmb();
     step_timing_t timing = staged;
     __dmb();
-    if (staged_sequence != sequence || timing.pulse < MIN_PULSE_CYCLES ||
+    if (step_timing_staged != sequence || timing.pulse < MIN_PULSE_CYCLES ||
         timing.tick <= timing.setup) {
         return; /* written meanwhile (taken next tick), or not a timing a frame can play */
     }
-    frames.sequence = sequence;
+    step_timing_taken = sequence;
     uint32_t setup = timing.setup < MIN_SETUP_CYCLES ? MIN_SETUP_CYCLES : timing.setup;
     frames.room = timing.tick - timing.setup;
     frames.most = frames.room / (2u * timing.pulse);
@@ -147,13 +152,6 @@ static void __not_in_flash_func(take_timing)(uint32_t sequence) {
         pio_sm_exec(pio, STEP_CLOCK_SM, pio_encode_jmp(clock_offset + step_clock_offset_count));
         pio_sm_set_enabled(pio, STEP_CLOCK_SM, true);
         frames.tick = timing.tick;
-    }
-}
-
-void __not_in_flash_func(step_pins_tick)(void) {
-    uint32_t sequence = staged_sequence;
-    if (sequence != frames.sequence && (sequence & 1u) == 0 && started) {
-        take_timing(sequence);
     }
 }
 
