@@ -9,8 +9,8 @@
  * the first r - 4 steps s + 1 apart and the others s apart (r under 5: all s apart), the
  * last pulse ending at least a pulse before the next tick's first rise.
  *
- * The tick's start: step_clock is (re)started first thing in a servo tick (step_pins_tick,
- * from the alarm's interrupt, before the device's tick) when the period changes; its flag
+ * The tick's start: step_clock is (re)started first thing in the servo alarm's interrupt
+ * (step_pins_tick, before the device's tick) when the period changes; its flag
  * then rises 33 cycles after that instant and every period after it. core1 pushes the
  * tick's frame from platform_steps_issue, later in the same tick: the frame plays from the
  * next tick's start on, whatever the tick's own computation takes (up to a whole period).
