@@ -14,13 +14,13 @@ from typing import Any
 
 import pytest
 
+from stepper_loads import stepper_machine
 from usbmotion.device import Device, MemoryFlash
 from usbmotion.motion.dialects import dialect_named
 from usbmotion.sim.firmware import FirmwareSimDevice, default_uf2
 from usbmotion.sim.machine import connect_session
 from usbmotion.sim.world import SimWorld
 
-from stepper_loads import stepper_machine
 from .emulated import require_emulator
 from .jobs import differences
 

@@ -400,9 +400,11 @@ def test_outputs_on_their_ticks(driver: Driver) -> None:
 
 # --- the step drives (calls 44-48) --------------------------------------------------------
 
-STEPPER = ("17 1 -5", "33 20 0", "16 4000", "12 1")
+STEPPER = ("17 1 -5", "33 20 0", "16 4000", "12 1", "9 1 -1", "10 1 0", "11 2 -3")
 """A NEMA 17 stepper's rotor with a small load (1e-5 kg m^2, 20 mNm), a 1000-line encoder on
-it (4000 counts a turn) and 100 us integration steps: ten sub-steps a tick at 1 kHz. The
+it (4000 counts a turn), 100 us integration steps (ten sub-steps a tick at 1 kHz) and the
+closed loop's gains (the host's defaults: 0.1 microstep of lead per microstep of error, 1
+per microstep-second, 2e-3 per microstep/s; an open loop runs no PID). The
 stepper's own defaults (call 47): 590 mNm holding, 20 detent, corner 760 rpm; 200 full steps
 of 16 microsteps (call 45): 3200 microsteps a turn."""
 
@@ -453,7 +455,7 @@ def test_step_drives_follow_moves_in_every_mode(driver: Driver, drive: int) -> N
     the open loop's counter does not: its edges count the shaft's swings about the turn."""
     printed, _ = replay_both(driver, [
         lines(*STEPPER, "8 44 1", f"44 {drive}", "40 2 3200", "21 20", "3 1",
-              ramp(0, 3200, 160)), Run(220),
+              ramp(0, 3200, 160)), Run(600),
         lines("20 -1", "48 -1", "35 -1", "41 -1", *shaft_scan(3180, 3220, 1), "40 2 3200"),
         lines("7 2", "6 100", "3 1", "1 3 12000 -12000 0"), Run(350),
         lines("20 -1", "48 -1", "41 -1", *shaft_scan(2000, 5000, 16)),
@@ -463,7 +465,7 @@ def test_step_drives_follow_moves_in_every_mode(driver: Driver, drive: int) -> N
     ])
     status = replies(printed, "STATUS")
     steps = replies(printed, "STEPS")
-    assert abs(status[0][1] - 3200) <= (0 if drive == 1 else 40)   # the turn, followed
+    assert abs(status[0][1] - 3200) <= (0 if drive == 1 else 63)   # the turn, no cycle lost
     assert steps[0][0] != 0 and steps[-1] == [0, 0, 249]
     assert replies(printed, "DRIVE") == [[0]]
     assert any(line[4] not in (0, 249_000) for line in replies(printed, "D"))
@@ -530,16 +532,17 @@ def test_calls_23_and_37_shift_a_step_drive(driver: Driver, drive: int) -> None:
     """The counter's coordinates move; the driver's step counter (call 48) does not, and the
     steps that follow take the shaft where the new coordinates say."""
     printed, _ = replay_both(driver, [
-        lines(*STEPPER, f"44 {drive}", "21 30", "3 1", ramp(0, 800, 80)), Run(100),
-        lines("23 10000", "20 -1", "48 -1", "8 37 1", ramp(10000, 10400, 40)), Run(150),
-        lines("37 -2500", "20 -1", "48 -1", ramp(7900, 7000, 60)), Run(200),
+        lines(*STEPPER, f"44 {drive}", "21 30", "3 1", ramp(0, 800, 80)), Run(400),
+        lines("23 10000", "20 -1", "48 -1", "8 37 1", ramp(10000, 10400, 40)), Run(400),
+        lines("37 -2500", "20 -1", "48 -1", ramp(7900, 7000, 60)), Run(400),
         lines("20 -1", "48 -1", "36 1", "41 -1"),
     ])
     status = replies(printed, "STATUS")
     steps = replies(printed, "STEPS")
-    assert status[0][1] == 10000 and abs(steps[0][0] - 800) <= 20
-    assert abs(steps[1][0] - steps[0][0] - 400) <= 20 and abs(status[1][1] - 7900) <= 20
-    assert abs(status[2][1] - 7000) <= 20 and abs(steps[2][0] - steps[1][0] + 900) <= 40
+    near = 20 if drive == 1 else 63  # closed loop: the rotor behind, within a cycle
+    assert status[0][1] == 10000 and abs(steps[0][0] - 800) <= near
+    assert abs(steps[1][0] - steps[0][0] - 400) <= near and abs(status[1][1] - 7900) <= near
+    assert abs(status[2][1] - 7000) <= near and abs(steps[2][0] - steps[1][0] + 900) <= 2 * near
 
 
 @pytest.mark.parametrize("drive", [1, 2])
@@ -549,7 +552,7 @@ def test_the_60_s_reset_of_velocity_mode_in_a_step_drive(driver: Driver, drive: 
     so the stepper runs on without a jump."""
     printed, _ = replay_both(driver, [
         lines("5 1000", "12 100", "17 1 -2", "33 20 0", "16 4000", f"44 {drive}", "7 2",
-              "6 700", "21 100", "3 1", "0 300"), Run(590),
+              "6 700", "21 100", "9 1 -1", "10 0 0", "11 0 0", "3 1", "0 300"), Run(590),
         lines("20 -1", "48 -1"), Run(20), lines("20 -1", "48 -1"), Run(60), lines("20 -1"),
     ])
     status = replies(printed, "STATUS")

@@ -134,7 +134,8 @@ class ServoState(ctypes.Structure):
         ("stats_max", c_i64), ("stats_max_tick", c_i64), ("stats_sum_sq", c_i64),
         ("last_take", c_i64), ("diag_peak", c_i32), ("edges", SwitchEdgeC * 2),
         ("probe_edge", SwitchEdgeC), ("probe", c_i32), ("phase", c_i64),
-        ("last_steps", c_i32), ("vel_acc", c_i64), ("outputs", OutputQueueC),
+        ("last_steps", c_i32), ("vel_acc", c_i64), ("desired_prev", c_i32),
+        ("outputs", OutputQueueC),
         ("curve", CurvePlayerC),
         ("pins_started", ctypes.c_bool), ("pins_enabled", ctypes.c_bool),
         ("pins_edges", c_u32 * 2),
@@ -172,6 +173,7 @@ class DeviceVars(ctypes.Structure):
         ("probe_position", c_i32), ("drive", c_i32), ("full_steps", c_i32),
         ("microsteps", c_i32), ("pulse_ns", c_i32), ("setup_ns", c_i32),
         ("holding_mnm", c_i32), ("detent_mnm", c_i32), ("corner_rpm", c_i32),
+        ("encoder_kind", c_i32), ("encoder_angle", c_i32),
     ]
 
 
@@ -1279,6 +1281,7 @@ SCALAR_STATE = [
     (core1.S_STATS_SUM_SQ, "stats_sum_sq"), (core1.S_LAST_TAKE, "last_take"),
     (core1.S_DIAG_PEAK, "diag_peak"), (core1.S_PHASE, "phase"),
     (core1.S_LAST_STEPS, "last_steps"), (core1.S_VEL_ACC, "vel_acc"),
+    (core1.S_DESIRED_PREV, "desired_prev"),
 ]
 OUTPUT_STATE = [(core1.S_OUT_RECORDS, "records"), (core1.S_OUT_HEAD, "head"),
                 (core1.S_OUT_NEXT, "next"), (core1.S_OUT_LAST, "last")]
@@ -2004,8 +2007,16 @@ MUTANTS = [
     Mutant("encoder count truncated, not floored", "stepper.c",
            "return -(int64_t)div_u64(magnitude + d - 1u, d);",
            "return -(int64_t)div_u64(magnitude, d);", _check_stepper),
-    Mutant("closed loop leads a microstep more", "servo.c", "if (lead > p->reach) {",
-           "if (lead > p->reach + 1) {", _check_stepper_ticks),
+    Mutant("closed loop leads a microstep more", "servo.c",
+           "int32_t target = wrap_int32((int64_t)s->actual + ahead + sci_to_int(s->out));",
+           "int32_t target = wrap_int32((int64_t)s->actual + ahead + sci_to_int(s->out) + 1);",
+           _check_stepper_ticks),
+    Mutant("the rotor's move taken as measured, beyond the command's", "servo.c",
+           "ahead = moved < 0 ? 0 : (moved > wanted ? wanted : moved);",
+           "ahead = moved < 0 ? 0 : moved;", _check_stepper_ticks),
+    Mutant("a fault releases the stepper's driver", "servo.c",
+           "int32_t powered = (s->enable == 1 || s->fault != FAULT_NONE) ? 1 : 0;",
+           "int32_t powered = s->enable == 1 ? 1 : 0;", _check_stepper_ticks),
     Mutant("steps spread late over the sub-steps", "servo.c", "if (remainder >= steps) {",
            "if (remainder > steps) {", _check_stepper_ticks),
     Mutant("velocity reset leaves a stepper's desired position", "servo.c",

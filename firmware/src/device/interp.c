@@ -555,6 +555,7 @@ static void reset_controller_locked(void) {
     servo_state.desired = servo_state.actual;
     servo_state.desired_vel = 0;
     servo_state.vel_acc = 0;
+    servo_state.desired_prev = servo_state.actual;
     curve_interrupt(&servo_state.curve);
 }
 
@@ -1329,6 +1330,46 @@ static void call_steps(const call_t *call) {
                                                                     vars.setup_ns))});
 }
 
+static void call_set_encoder(const call_t *call) {
+    if (call->is_query) {
+        reply(CALL_SET_ENCODER,
+              (field_t[]){NUMBER(vars.encoder_kind), NUMBER(vars.encoder_angle)});
+        return;
+    }
+    platform_servo_lock();
+    int32_t enable = servo_state.enable;
+    platform_servo_unlock();
+    if (enable == 1) {
+        print_err_call(CALL_SET_ENCODER, "the servo is enabled: disable it (call 3 0) before"
+                                         " changing its encoder");
+        return;
+    }
+    int32_t kind = (int32_t)call->args[0];
+    int32_t angle = (int32_t)call->args[1];
+    if (kind == 1 && vars.drive == DRIVE_STEP_OPEN) {
+        print_err_call(CALL_SET_ENCODER, "an open-loop stepper (drive 1) counts its steps: it"
+                                         " has no encoder to read");
+        return;
+    }
+    vars.encoder_kind = kind;
+    vars.encoder_angle = angle;
+    if (kind == 1) {
+        /* the counter becomes the angle within a turn: (source + angle) floored modulo it */
+        int64_t turn = vars.drive == DRIVE_STEP_CLOSED
+                           ? (int64_t)vars.full_steps * vars.microsteps
+                           : (int64_t)vars.counts_per_revolution;
+        platform_servo_lock();
+        int64_t source = wrap_int32((int64_t)servo_state.actual - servo_state.offset);
+        int64_t within = (source + angle) % turn;
+        if (within < 0) {
+            within += turn;
+        }
+        shift_position_locked(within - servo_state.actual);
+        platform_servo_unlock();
+    }
+    debug_line(CALL_SET_ENCODER, (field_t[]){NUMBER(kind), NUMBER(angle)});
+}
+
 static int64_t ceil_div(int64_t numerator, int64_t denominator) {
     return numerator >= 0 ? (numerator + denominator - 1) / denominator
                           : -((-numerator) / denominator);
@@ -1438,6 +1479,8 @@ static void ram_defaults(void) {
     vars.microsteps = POWER_UP_MICROSTEPS;
     vars.pulse_ns = POWER_UP_PULSE_NS;
     vars.setup_ns = POWER_UP_SETUP_NS;
+    vars.encoder_kind = 0;
+    vars.encoder_angle = 0;
     vars.holding_mnm = POWER_UP_HOLDING_MNM;
     vars.detent_mnm = POWER_UP_DETENT_MNM;
     vars.corner_rpm = POWER_UP_CORNER_RPM;

@@ -146,6 +146,7 @@ void servo_shift_position(servo_state_t *state, int64_t shift) {
     state->offset = wrap_int32((int64_t)state->offset + shift);
     state->actual = wrap_int32((int64_t)state->actual + shift);
     state->desired = wrap_int32((int64_t)state->desired + shift);
+    state->desired_prev = wrap_int32((int64_t)state->desired_prev + shift);
     for (unsigned slot = 0; slot < SERVO_HISTORY_SLOTS; slot++) {
         state->counts[slot] = wrap_int32((int64_t)state->counts[slot] + shift);
     }
@@ -312,6 +313,7 @@ static inline int32_t encoder(servo_state_t *s, const servo_params_t *p, int64_t
             shift_edges(s, -(int64_t)s->actual);
             if (p->drive_kind != DRIVE_DC) {
                 s->desired = wrap_int32((int64_t)s->desired - s->actual);
+                s->desired_prev = wrap_int32((int64_t)s->desired_prev - s->actual);
             }
             s->actual = 0;
         }
@@ -451,7 +453,7 @@ static inline void tick_finish(servo_state_t *s, const servo_params_t *p, record
 }
 
 /* 2-3 of a step drive: the steps this tick issues (the open loop's to the desired position,
- * the closed loop's to the PID's target held within a full step of where the rotor is going),
+ * the closed loop's to where the rotor is going plus the PID's output, its field's lead),
  * handed to the platform's step generator, and the simulated stepper over the tick with the
  * steps reaching its field spread evenly over the sub-steps. Returns what the counter
  * counts: the steps issued (open loop) or the encoder in microsteps (closed loop); *count
@@ -462,18 +464,20 @@ static int64_t step_drive(servo_state_t *s, const servo_params_t *p, int64_t *co
         if (p->drive_kind == DRIVE_STEP_OPEN) {
             issue = wrap_int32((int64_t)s->desired - s->actual);
         } else {
-            int32_t target = wrap_int32((int64_t)s->desired + sci_to_int(s->out));
             /* trunc_div(velocity * tick_us, 10^6): |velocity| * tick_us <= 2^31 * 10^6 */
-            uint64_t ahead = sci_div_u64_small(
+            uint64_t magnitude = sci_div_u64_small(
                 sci_mul_32x64((uint32_t)p->tick_us, sci_magnitude64(s->velocity)) >> 6, 15625u);
-            int32_t rotor = wrap_int32((int64_t)s->actual + (s->velocity < 0 ? -(int64_t)ahead
-                                                                              : (int64_t)ahead));
-            int32_t lead = wrap_int32((int64_t)target - rotor);
-            if (lead > p->reach) {
-                target = wrap_int32((int64_t)rotor + p->reach);
-            } else if (lead < -p->reach) {
-                target = wrap_int32((int64_t)rotor - p->reach);
+            int64_t moved = s->velocity < 0 ? -(int64_t)magnitude : (int64_t)magnitude;
+            /* where the rotor goes this tick: as measured, never beyond the command's move */
+            int64_t wanted = wrap_int32((int64_t)s->desired - s->desired_prev);
+            int64_t ahead;
+            if (wanted >= 0) {
+                ahead = moved < 0 ? 0 : (moved > wanted ? wanted : moved);
+            } else {
+                ahead = moved > 0 ? 0 : (moved < wanted ? wanted : moved);
             }
+            /* the PID's output (saturated at a full step) is the field's lead over the rotor */
+            int32_t target = wrap_int32((int64_t)s->actual + ahead + sci_to_int(s->out));
             issue = wrap_int32((int64_t)target - wrap_int32(s->phase + s->offset));
         }
         if (issue > p->max_steps) {
@@ -483,7 +487,10 @@ static int64_t step_drive(servo_state_t *s, const servo_params_t *p, int64_t *co
         }
     }
     s->out = sci_from_int(issue);
-    platform_steps_issue(issue, s->enable == 1);
+    /* the driver holds its field while the servo runs and after a fault, until it is
+     * cleared (a fault stops the steps; it does not drop a vertical axis) */
+    int32_t powered = (s->enable == 1 || s->fault != FAULT_NONE) ? 1 : 0;
+    platform_steps_issue(issue, powered == 1);
 
     /* the field after sub-step k is phase + trunc_div(issue * k, steps) microsteps: the
      * quotient and remainder of |issue| / steps added up, a carry when the remainder reaches
@@ -502,7 +509,7 @@ static int64_t step_drive(servo_state_t *s, const servo_params_t *p, int64_t *co
             moved += 1u;
         }
         int64_t field = issue < 0 ? s->phase - moved : s->phase + moved;
-        stepper_step(&s->theta, &s->omega, field, s->enable, p);
+        stepper_step(&s->theta, &s->omega, field, powered, p);
     }
     s->phase += issue;
     s->last_steps = issue;
@@ -529,6 +536,7 @@ void servo_tick(servo_state_t *s, const servo_params_t *p, record_ring_t *ring) 
     } else {
         source = step_drive(s, p, &count);
     }
+    s->desired_prev = s->desired;
 
     int32_t closing =
         encoder(s, p, source, travel_switches(count, p), probe_closed(count, p), NULL);
@@ -549,6 +557,7 @@ void servo_tick_pins(servo_state_t *s, const servo_params_t *p, record_ring_t *r
     }
     s->pins_started = true;
     s->pins_enabled = tick_start(s, p);
+    s->desired_prev = s->desired;
     platform_motor_pins_drive(pins_level(s->out, p), s->enable == 1);
 }
 

@@ -176,6 +176,7 @@ typedef struct {
     int32_t last_steps;        /* step drives: the steps the last tick issued */
     int64_t vel_acc;           /* step drives in velocity mode: the desired velocity's travel
                                 * not yet a whole microstep, microsteps x 10^6 */
+    int32_t desired_prev;      /* the desired position of the tick before */
     output_queue_t outputs;    /* call 42's changes and the outputs they set */
     curve_player_t curve;
     /* Not in core1.py: the motor on the pins (servo_tick_pins). A tick there reads the
@@ -273,6 +274,8 @@ typedef struct {
     int32_t holding_mnm;                /* call 47 */
     int32_t detent_mnm;
     int32_t corner_rpm;
+    int32_t encoder_kind;               /* call 49 */
+    int32_t encoder_angle;
 } device_vars_t;
 
 /* The records core1 writes for core0 to print, in order: a diagnostics line (call 21) or an

@@ -463,6 +463,16 @@ const call_spec_t call_table[TABLE_CALLS] = {
         .query = {-1},
         .query_reply = {"STEPS {issued} {last} {max_per_tick}", 3, 0x0},
     },
+    [49] = {
+        .name = "SET_ENCODER",
+        .param_count = 2,
+        .params = {{"kind", 0, 1}, {"angle", 0, 1000000}},
+        .query_count = 2,
+        .query_any = 0x0,
+        .query = {-1, 0},
+        .query_reply = {"ENCODER {kind} {angle}", 2, 0x0},
+        .debug = {[1] = {"ENCODER MODIFIED TO {kind} {angle}", 2, 0x0}},
+    },
 };
 
 const char *const fault_names[TABLE_FAULTS] = {"none", "watchdog", "following error", "limit switch", "internal error"};

@@ -782,6 +782,7 @@ class Device:
         state[core1.S_FRESH] = 1
         state[core1.S_MOTION_LEFT] = 0
         state[core1.S_DESIRED] = state[core1.S_ACTUAL]
+        state[core1.S_DESIRED_PREV] = state[core1.S_ACTUAL]
         state[core1.S_DESIRED_VEL] = 0
         state[core1.S_VEL_ACC] = 0
         self._curve.interrupt(int(state[core1.S_ACTUAL]))
@@ -1089,6 +1090,7 @@ class Device:
         state[core1.S_OFFSET] = wrap_int32(int(state[core1.S_OFFSET]) + shift)
         state[core1.S_ACTUAL] = wrap_int32(int(state[core1.S_ACTUAL]) + shift)
         state[core1.S_DESIRED] = wrap_int32(int(state[core1.S_DESIRED]) + shift)
+        state[core1.S_DESIRED_PREV] = wrap_int32(int(state[core1.S_DESIRED_PREV]) + shift)
         for slot in range(core1.S_COUNTS, core1.S_COUNTS + core1.HISTORY_SLOTS):
             state[slot] = wrap_int32(int(state[slot]) + shift)
         core1.shift_edges(state, shift)

@@ -192,7 +192,10 @@ S_LAST_STEPS = S_PHASE + 1
 S_VEL_ACC = S_LAST_STEPS + 1
 """Step drives in velocity mode: the desired velocity's travel not yet a whole microstep,
 microsteps x 10**6."""
-STATE_SIZE = S_VEL_ACC + 1
+S_DESIRED_PREV = S_VEL_ACC + 1
+"""The desired position of the tick before (the closed-loop stepper's command moved by the
+difference)."""
+STATE_SIZE = S_DESIRED_PREV + 1
 STATS_SUM_CAP = 1 << 62
 """The sum of squared following errors stops here instead of overflowing."""
 
@@ -293,6 +296,7 @@ _DYNAMIC = (
     S_PHASE,
     S_LAST_STEPS,
     S_VEL_ACC,
+    S_DESIRED_PREV,
     *range(S_HISTORY, S_HISTORY + 2 * HISTORY_SLOTS),
 )
 DYNAMIC_FIELDS: tuple[int, ...] = _DYNAMIC
@@ -508,6 +512,7 @@ def servo_block(
     phase = int(state[S_PHASE])
     last_steps = int(state[S_LAST_STEPS])
     vel_acc = int(state[S_VEL_ACC])
+    desired_prev = int(state[S_DESIRED_PREV])
 
     curve_len = len(curve)
     events = 0
@@ -603,14 +608,23 @@ def servo_block(
                 if drive == DRIVE_STEP_OPEN:
                     issue = wrap_int32(desired - actual)
                 else:
-                    rotor = wrap_int32(actual + trunc_div(velocity * tick_us, MICRO))
-                    target = wrap_int32(rotor + sci_to_int(out_c, out_e))
+                    # where the rotor goes this tick: as measured, but never beyond the
+                    # command's own move (a stalled rotor is not extrapolated, and one that
+                    # ran ahead does not run on by its own measurement)
+                    moved = trunc_div(velocity * tick_us, MICRO)
+                    wanted = wrap_int32(desired - desired_prev)
+                    if wanted >= 0:
+                        ahead = min(max(moved, 0), wanted)
+                    else:
+                        ahead = max(min(moved, 0), wanted)
+                    target = wrap_int32(actual + ahead + sci_to_int(out_c, out_e))
                     issue = wrap_int32(target - wrap_int32(phase + offset))
                 if issue > max_steps:
                     issue = max_steps
                 elif issue < -max_steps:
                     issue = -max_steps
             out_c, out_e = sci_from_int(issue, DIGITS)
+        desired_prev = desired
 
         # 3. motor
         if drive == DRIVE_DC:
@@ -713,6 +727,7 @@ def servo_block(
                 shift_edges(state, -actual)
                 if drive != DRIVE_DC:
                     desired = wrap_int32(desired - actual)
+                    desired_prev = wrap_int32(desired_prev - actual)
                 actual = 0
 
         # 5. faults
@@ -815,6 +830,7 @@ def servo_block(
     state[S_PHASE] = phase
     state[S_LAST_STEPS] = last_steps
     state[S_VEL_ACC] = vel_acc
+    state[S_DESIRED_PREV] = desired_prev
     return executed
 
 
