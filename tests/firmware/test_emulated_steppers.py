@@ -1,10 +1,11 @@
 """Demo 1 and the CAM corner program on a stepper machine of emulated RP2040s.
 
-``examples/stepper.toml`` (X and Y open-loop steppers, Z a closed-loop one) with its axes on
-three emulated chips in virtual time: the host homes it and runs each program as on the
-Python devices, and the two reports are equal in every field, while every line each chip
-printed was compared on the way with a Python device given the same bytes. The figures are
-printed (``-s``).
+``examples/stepper.toml`` (X and Y open-loop steppers, Z a closed-loop one) at a 1 kHz servo
+period (a tenth of the example's ticks to emulate; Z with gains for that period),
+its axes on three emulated chips in virtual time: the host homes it and runs each program
+as on the Python devices, and the two reports are equal in every field, while every line
+each chip printed was compared on the way with a Python device given the same bytes. The
+figures are printed (``-s``).
 """
 
 from __future__ import annotations
@@ -14,11 +15,12 @@ from typing import Any
 
 import pytest
 
-from stepper_loads import stepper_machine
+from stepper_loads import EXAMPLE
 from usbmotion.device import Device, MemoryFlash
+from usbmotion.host.config import MachineConfig
 from usbmotion.motion.dialects import dialect_named
 from usbmotion.sim.firmware import FirmwareSimDevice, default_uf2
-from usbmotion.sim.machine import connect_session
+from usbmotion.sim.machine import connect_session, load_machine_file
 from usbmotion.sim.world import SimWorld
 
 from .emulated import require_emulator
@@ -33,12 +35,26 @@ PROGRAMS = {
 }
 
 
+def _machine(folder: Path) -> MachineConfig:
+    """examples/stepper.toml at 1 kHz, Z with gains for it."""
+    text = EXAMPLE.read_text()
+    for old, new in (("servo_interval_dms = 1 ", "servo_interval_dms = 10 "),
+                     ("gains = { kp = 0.5, ki = 1.0, kd = 0.005 }",
+                      "gains = { kp = 0.2, ki = 1.0, kd = 0.001 }")):
+        assert text.count(old) == 1, f"examples/stepper.toml no longer says {old!r}"
+        text = text.replace(old, new)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "stepper.toml"
+    path.write_text(text)
+    return load_machine_file(path)
+
+
 def _report(folder: Path, program: str, firmware: Path | None) -> tuple[
         dict[str, Any], dict[str, int]]:
     """Home examples/stepper.toml and run ``program`` on emulated chips (``firmware``) or
     Python devices; the report and, per emulated axis, the lines compared."""
     path, dialect, origin = PROGRAMS[program]
-    config = stepper_machine(folder)
+    config = _machine(folder)
     world = SimWorld()
     emulated: dict[str, FirmwareSimDevice] = {}
     try:

@@ -262,11 +262,12 @@ stepper on a step/direction driver (call 44)."""
 STEPPER_LOOPS = ("open", "closed")
 """A stepper axis's loop: ``open`` (the position is the steps issued) or ``closed`` (an
 encoder on the shaft, the PID's output leading it by at most one full step)."""
-STEPPER_GAINS_DEFAULT = PidGains(kp=0.1, ki=1.0, kd=0.002)
+STEPPER_GAINS_DEFAULT = PidGains(kp=0.2, ki=1.0, kd=0.001)
 """A closed-loop stepper's gains when its file gives none: the field's lead over the rotor
 (microsteps, saturated at a full step) per microstep of error, per microstep-second, per
-microstep/s. Measured on the simulated NEMA 17 (tests/device/test_stepper.py): they hold
-and follow at 1 kHz and at 10 kHz; at 10 kHz higher gains follow closer (docs/setup.md)."""
+microstep/s. On the simulated NEMA 17 of ``examples/stepper.toml``'s Z they rest on the
+count and follow at 1 kHz and at 10 kHz (at 10 kHz higher gains follow closer:
+docs/setup.md); demo 1 on emulated chips at 1 kHz peaks at 11 microsteps."""
 OPEN_LOOP_MARGIN = 0.6
 """The share of a simulated open-loop stepper's torque its limits leave unused (a closed
 loop leaves :data:`REACH_MARGIN`). An open-loop rotor rings on the field like a lightly
