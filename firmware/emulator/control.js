@@ -159,9 +159,43 @@ const commands = {
     }
     return { address: symbol.address, hex: Buffer.from(bytes).toString('hex') };
   },
+  write(request) {
+    const d = requireDevice();
+    const symbol = d.symbols.get(request.symbol);
+    if (!symbol) {
+      throw new DeviceError(`no symbol ${JSON.stringify(request.symbol)} in the ELF`);
+    }
+    const offset = request.offset ?? 0;
+    const bytes = Buffer.from(request.hex ?? '', 'hex');
+    if (!Number.isInteger(offset) || offset < 0 || offset + bytes.length > symbol.size) {
+      throw new DeviceError(`write of ${bytes.length} bytes at ${JSON.stringify(offset)} is outside`
+        + ` ${request.symbol} (${symbol.size} bytes)`);
+    }
+    for (let i = 0; i < bytes.length; i++) {
+      d.mcu.writeUint8(symbol.address + offset + i, bytes[i]);
+    }
+    return { address: symbol.address };
+  },
+  levels(request) {
+    const d = requireDevice();
+    const { pins } = request;
+    if (!Array.isArray(pins) || !pins.every((pin) => Number.isInteger(pin) && pin >= 0 && pin < 30)) {
+      throw new DeviceError(`levels "pins" must list GPIO numbers 0-29, not ${JSON.stringify(pins)}`);
+    }
+    d.pins.catchUp(d.nanos);
+    return { levels: pins.map((pin) => {
+      const gpio = d.mcu.gpio[pin];
+      return gpio.outputEnable ? Number(gpio.outputValue) : null;
+    }) };
+  },
   motor(request) {
     const d = requireDevice();
     const world = d.attachMotor(request.options ?? {});
+    return { world: world.state };
+  },
+  stepper(request) {
+    const d = requireDevice();
+    const world = d.attachStepper(request.options ?? {});
     return { world: world.state };
   },
   world() {
@@ -196,6 +230,18 @@ const commands = {
     d.advance(endNanos + 2e3);
     d.settle();
     return { ...span(), start_ns: startNanos, end_ns: endNanos };
+  },
+  capture(request) {
+    const d = requireDevice();
+    const { pins } = request;
+    const taken = d.pins.takeCapture();
+    if (pins !== undefined) {
+      if (!Array.isArray(pins) || !pins.every((pin) => Number.isInteger(pin) && pin >= 0 && pin < 30)) {
+        throw new DeviceError(`capture "pins" must list GPIO numbers 0-29, not ${JSON.stringify(pins)}`);
+      }
+      d.pins.startCapture(pins);
+    }
+    return { edges: taken.edges, flags: taken.flags };
   },
   quit() {
     return {};

@@ -223,3 +223,18 @@ void platform_outputs_form(const int16_t values[PLATFORM_OUTPUT_COUNT], output_p
 void platform_outputs_write(const output_pins_t *pins) {
     (void)pins;
 }
+
+/* The step/direction outputs: the native build has no pins for them; the portable code's
+ * simulated stepper counts the steps. */
+void platform_steps_start(void) {}
+
+void platform_steps_timing(uint32_t pulse_cycles, uint32_t setup_cycles, uint32_t tick_cycles) {
+    (void)pulse_cycles;
+    (void)setup_cycles;
+    (void)tick_cycles;
+}
+
+void platform_steps_issue(int32_t steps, bool enable) {
+    (void)steps;
+    (void)enable;
+}

@@ -4,7 +4,9 @@ Writes ``firmware/src/device/table.h`` and ``firmware/src/device/table_gen.c`` f
 :mod:`usbmotion.protocol.table` (and the integer limits of :mod:`usbmotion.protocol.codec`):
 every call's number, name, inputs with their ranges, query form, reply and debug templates
 and refusal, the fault names, and the diagnostics, alarm and error templates. The firmware
-answers from this table as the Python device answers from the Python one.
+answers from this table as the Python device answers from the Python one. Beside them, the
+simulated stepper's sine table (``usbmotion.device.stepper.SINE``, the same integers) and
+its power-up values (``StepperParams()``), which the firmware's stepper takes from here.
 
     .venv/bin/python firmware/tools/gen_table.py            # write both files
     .venv/bin/python firmware/tools/gen_table.py --check    # exit 1 if either is stale
@@ -19,8 +21,9 @@ from pathlib import Path
 
 from usbmotion.device.core0 import DEFAULT_INTERVAL_DMS, DEFAULT_SCALAR, Gains
 from usbmotion.device.motor import MotorParams
+from usbmotion.device.stepper import SINE, SINE_ONE, SINE_SIZE, StepperParams
 from usbmotion.protocol.codec import HUGE_DIGITS
-from usbmotion.protocol.names import FaultCode
+from usbmotion.protocol.names import Drive, FaultCode
 from usbmotion.protocol.table import (
     ALARM,
     CALLS,
@@ -38,6 +41,7 @@ from usbmotion.protocol.table import (
     OUTPUT_QUEUE_CAPACITY,
     QUEUE_CAPACITY,
     REST_FIELDS,
+    STEP_CLOCK_HZ,
     CallSpec,
     Param,
     Template,
@@ -146,6 +150,11 @@ def _power_up() -> list[str]:
         "winding_resistance_ohm", "counts_per_revolution", "inertia_kg_m2",
         "viscous_friction_unm_per_rad_s", "load_torque_mnm", "travel_lower_counts",
         "travel_upper_counts", "overtravel_counts")]
+    stepper = StepperParams()
+    values.append(("DRIVE", int(Drive.DC)))
+    values += [(name.upper(), getattr(stepper, name)) for name in (
+        "full_steps", "microsteps", "pulse_ns", "setup_ns", "holding_mnm", "detent_mnm",
+        "corner_rpm")]
     lines = []
     for name, value in values:
         if isinstance(value, tuple):
@@ -182,6 +191,7 @@ def header() -> str:
         f"#define TABLE_MAX_PARAMS {_max_params()}u",
         f"#define TABLE_MAX_DEBUG_FLAG {_max_flag()}u",
         f"#define TABLE_FAULTS {len(FaultCode)}u",
+        f"#define TABLE_STEP_CLOCK_HZ {STEP_CLOCK_HZ}u",
         "",
         "/* core0's RAM variables at power-up (usbmotion.device.core0 and .motor defaults);",
         " * a (coefficient, exponent) pair as the calls carry it. */",
@@ -238,6 +248,12 @@ def header() -> str:
         "extern const template_t template_alarm;",
         "extern const template_t template_err;",
         "",
+        "/* The simulated stepper's sine (usbmotion.device.stepper.SINE): entry i is",
+        " * round(SINE_ONE sin(2 pi i / SINE_SIZE)). */",
+        f"#define TABLE_SINE_SIZE {SINE_SIZE}u",
+        f"#define TABLE_SINE_ONE {SINE_ONE}",
+        "extern const int16_t table_sine[TABLE_SINE_SIZE];",
+        "",
         "#endif",
         "",
     ]
@@ -259,8 +275,21 @@ def source() -> str:
         f"const template_t template_alarm = {_template(ALARM)};",
         f"const template_t template_err = {_template(ERR)};",
         "",
+        *_sine(),
     ]
     return "\n".join(lines)
+
+
+def _sine() -> list[str]:
+    """The sine table as C, 16 entries a line."""
+    values = [int(v) for v in SINE]
+    if len(values) != SINE_SIZE or any(not -(2**15) <= v < 2**15 for v in values):
+        raise ValueError("the sine table does not fit int16_t[SINE_SIZE]")
+    lines = ["const int16_t table_sine[TABLE_SINE_SIZE] = {"]
+    for start in range(0, SINE_SIZE, 16):
+        lines.append("    " + ", ".join(str(v) for v in values[start : start + 16]) + ",")
+    lines += ["};", ""]
+    return lines
 
 
 def generated() -> dict[Path, str]:

@@ -68,7 +68,19 @@ def configurations(draw: st.DrawFn) -> list[str]:
     steps = draw(st.integers(1, 6), label="motor steps per tick")
     sim_dms = max(1, interval_dms // steps)
     mode = draw(st.sampled_from([1, 2, 3]), label="mode")
-    lines = [f"5 {interval_dms}", f"12 {sim_dms}", f"7 {mode}"]
+    drive = draw(st.sampled_from([0, 0, 1, 2]), label="drive")
+    lines = [f"44 {drive}", f"5 {interval_dms}", f"12 {sim_dms}", f"7 {mode}"]
+    if drive != 0:
+        if draw(st.booleans(), label="set 45"):
+            full = draw(st.sampled_from([200, 400, 1]), label="full steps")
+            lines.append(f"45 {full} {draw(st.sampled_from([1, 8, 16, 256]), label='micro')}")
+        if draw(st.booleans(), label="set 46"):
+            pulse = draw(st.sampled_from([100, 1000, 2000, 20_000]), label="pulse ns")
+            lines.append(f"46 {pulse} {draw(st.sampled_from([0, 20, 1000]), label='setup')}")
+        if draw(st.booleans(), label="set 47"):
+            holding = draw(st.integers(1, 5000), label="holding")
+            detent = draw(st.integers(0, holding), label="detent")
+            lines.append(f"47 {holding} {detent} {draw(st.integers(1, 5000), label='corner')}")
     for call in (9, 10, 11):
         lines.append(_sci_line(call, draw(_gain, label=f"gain {call}")))
     motor_sci = st.one_of(_realistic_sci, _realistic_sci, _any_sci)
@@ -222,6 +234,38 @@ def test_a_kernel_device_equals_a_reference_device_after_every_run(
         assert fast.state == reference.state
     assert fast.settings == reference.settings
     assert fast._state.tolist() == reference._state.tolist()
+
+
+def test_the_stepper_near_its_speed_bound_in_one_second_steps() -> None:
+    """A 1 s tick in one 1 s integration step, the fastest pulses and a tiny rotor: the
+    shaft reaches the model's speed bound (10^13 micro-microsteps/s), whose travel over the
+    step (10^19 micro-microsteps x 10^-6) does not fit an int64; the kernel computes it as
+    the reference does (stepper.travel)."""
+    script = ["44 1", "5 10000", "12 10000", "17 1 -12", "33 0 0", "32 0 0", "46 100 0",
+              "3 1", "0 2000000000"]
+    devices = [Device(fast=False)] + ([Device(fast=True)] if kernel.numba_available() else [])
+    for device in devices:
+        send(device, *script)
+        device.run(3)
+    reference = devices[0].state
+    assert reference.shaft_micro_counts == 2 * 10**13
+    assert all(device.state == reference for device in devices)
+
+
+def test_the_stepper_under_the_largest_speed_change() -> None:
+    """Call 17's smallest inertia and the full holding torque: a speed change of about
+    2e19 micro-microsteps/s in one step, beyond an int64; the kernel caps it
+    (stepper.speed_change) and ends where the reference's exact change does."""
+    script = [*(f"{call} 1 -12" for call in (9, 10, 11, 13, 14, 15, 17, 32, 33)), "16 1",
+              "44 2", "46 100 0", "45 1000 256", "21 1", "3 1", "1 3 -2147483648 2147483647 0"]
+    devices = [Device(fast=False)] + ([Device(fast=True)] if kernel.numba_available() else [])
+    outputs = []
+    for device in devices:
+        send(device, *script)
+        device.run(40)
+        outputs.append(take(device))
+    assert all(output == outputs[0] for output in outputs)
+    assert all(device.state == devices[0].state for device in devices)
 
 
 # --- the whole chain in virtual time ------------------------------------------------------

@@ -85,6 +85,12 @@ POWER_UP_QUERIES = {
     "40 -1 0": "SIM_PROBE 0 0",
     "41 -1": "PROBE 0 0 0 0 0",
     "43 0": "OUTPUTS 0 0 0 0 0 -1",
+    "44 -1": "DRIVE 0",
+    "45 -1 0": "STEPPER 200 16",
+    "46 -1 0": "STEP_TIMING 2000 1000",
+    "47 -1 0 0": "SIM_STEPPER 590 20 760",
+    "48 -1": "STEPS 0 0 249",
+    "49 -1 0": "ENCODER 0 0",
 }
 
 
@@ -135,6 +141,12 @@ SET_THEN_QUERY = [
     ("42 1 1000 0", "43 1", "OUTPUTS 0 0 0 0 0 -1"),  # cleared before it applied
     ("0 42", "2 -1", "MOTION_QUEUE 1 999"),
     ("37 -12", "20 -1", "STATUS 0 -12 -12 0 0 0 1 0 0"),
+    ("44 1", "44 -1", "DRIVE 1"),
+    ("45 400 8", "45 -1 0", "STEPPER 400 8"),
+    ("46 100 20", "48 -1", "STEPS 0 0 4807"),
+    ("47 450 15 900", "47 -1 0 0", "SIM_STEPPER 450 15 900"),
+    ("49 1 2000", "20 -1", "STATUS 0 80 80 0 0 0 1 0 0"),  # 2000 counts of a 1920 turn
+    ("49 0 7", "49 -1 0", "ENCODER 0 7"),
 ]
 
 
@@ -184,6 +196,11 @@ DEBUG_LINES = [
     ([], "39 1", "MOTOR MODIFIED TO 1"),
     ([], "40 2 -250", "SIM PROBE MODIFIED TO 2 -250"),
     (["43 1"], "42 0 1000 7", "OUTPUT 0 TO 1000 AT 7 FREE 15"),
+    ([], "44 2", "DRIVE MODIFIED TO 2"),
+    ([], "45 400 8", "STEPPER MODIFIED TO 400 8"),
+    ([], "46 100 20", "STEP TIMING MODIFIED TO 100 20"),
+    ([], "47 450 15 900", "SIM STEPPER MODIFIED TO 450 15 900"),
+    ([], "49 1 100", "ENCODER MODIFIED TO 1 100"),
 ]
 
 

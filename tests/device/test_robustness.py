@@ -54,6 +54,11 @@ _MAY_CHANGE: dict[int, set[str]] = {
     34: {"motor"},
     37: {"queue", "keyframes", "actual", "desired"},
     38: {"queue"},
+    44: {"drive", "queue", "keyframes", "actual", "desired"},
+    45: {"stepper", "queue", "keyframes"},
+    46: {"stepper"},
+    47: {"stepper"},
+    49: {"encoder", "queue", "keyframes", "actual", "desired"},
 }
 _SETTINGS = [f.name for f in fields(DeviceSettings)]
 

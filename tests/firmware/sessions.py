@@ -182,7 +182,8 @@ def fuzz_steps(steps: Sequence[Lines | Silence | PowerCycle], *,
 
 LOUD = st.builds(
     lambda diag, call, flag: Lines((b"21 %d" % diag, b"8 %d %d" % (call, flag)), ()),
-    st.integers(1, 40), st.sampled_from([0, 1, 3, 7, 23, 25, 37, 38, 40, 42]), st.integers(0, 2))
+    st.integers(1, 40), st.sampled_from([0, 1, 3, 7, 23, 25, 37, 38, 40, 42, 44, 45, 46, 47]),
+    st.integers(0, 2))
 """A diagnostics interval and a debug flag: the fuzz strategy's sessions made talkative."""
 
 
@@ -194,18 +195,22 @@ EXTREME_PARAMETERS = (
     st.sampled_from([1, 1920, 1_000_000]),
     st.sampled_from([1, 2]),
     st.sampled_from([-(2**31), -1, 5000, 2**31 - 1]),
+    st.sampled_from([0, 1, 2]),
 )
 """Strategies of :func:`extreme_session`'s arguments."""
 
 
 def extreme_session(sci: list[tuple[int, int]], interval_dms: int, sim_dms: int, counts: int,
-                    mode: int, target: int) -> list[Step]:
+                    mode: int, target: int, drive: int = 0) -> list[Step]:
     """test_robustness's extreme motors and gains, every value at its int64 edge, run tick
-    by tick with a diagnostics line every tick."""
+    by tick with a diagnostics line every tick; in the DC drive or a step drive (call 44:
+    the stepper's fastest step timing, its speed bound within reach)."""
     calls = [9, 10, 11, 13, 14, 15, 17, 32, 33]
     setup = [f"{call} {min(c, 999) if call < 12 else c} {e}"
              for call, (c, e) in zip(calls, sci, strict=True)]
-    setup += [f"5 {interval_dms}", f"12 {sim_dms}", f"16 {counts}", f"7 {mode}", "21 1", "3 1",
-              f"1 3 {target} {-target - 1} {target}"]
+    setup += [f"5 {interval_dms}", f"12 {sim_dms}", f"16 {counts}", f"7 {mode}"]
+    if drive:
+        setup += [f"44 {drive}", "46 100 0", "45 1000 256"]
+    setup += ["21 1", "3 1", f"1 3 {target} {-target - 1} {target}"]
     ticks = 1 if interval_dms > 100 else 25
     return [lines(*setup), *[Run(1)] * (6 * ticks), lines("20 -1", "35 -1")]

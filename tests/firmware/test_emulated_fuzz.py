@@ -122,9 +122,10 @@ def test_random_integer_lines(driver: EmulatedFirmware, lines_: list[bytes]) -> 
 @given(*EXTREME_PARAMETERS)
 def test_extreme_parameters(driver: EmulatedFirmware, sci: list[tuple[int, int]],
                             interval_dms: int, sim_dms: int, counts: int, mode: int,
-                            target: int) -> None:
+                            target: int, drive: int) -> None:
     with hang_guard(HANG_S):
-        assert_same(driver, extreme_session(sci, interval_dms, sim_dms, counts, mode, target))
+        assert_same(driver, extreme_session(sci, interval_dms, sim_dms, counts, mode, target,
+                                            drive))
 
 
 # --- the test of the test ----------------------------------------------------------------

@@ -398,6 +398,183 @@ def test_outputs_on_their_ticks(driver: Driver) -> None:
     ])
 
 
+# --- the step drives (calls 44-48) --------------------------------------------------------
+
+STEPPER = ("17 1 -5", "33 20 0", "16 4000", "12 1", "9 1 -1", "10 1 0", "11 2 -3")
+"""A NEMA 17 stepper's rotor with a small load (1e-5 kg m^2, 20 mNm), a 1000-line encoder on
+it (4000 counts a turn), 100 us integration steps (ten sub-steps a tick at 1 kHz) and the
+closed loop's gains (the host's defaults: 0.1 microstep of lead per microstep of error, 1
+per microstep-second, 2e-3 per microstep/s; an open loop runs no PID). The
+stepper's own defaults (call 47): 590 mNm holding, 20 detent, corner 760 rpm; 200 full steps
+of 16 microsteps (call 45): 3200 microsteps a turn."""
+
+
+def ramp(start: int, end: int, count: int) -> str:
+    """Call 1 of ``count`` positions from ``start`` (excluded) to ``end``, evenly."""
+    values = [start + (end - start) * k // count for k in range(1, count + 1)]
+    return f"1 {count} " + " ".join(map(str, values))
+
+
+def shaft_scan(low: int, high: int, step: int) -> tuple[str, ...]:
+    """Lines that read where the shaft is, which an open loop's counter does not say: the
+    probe's surface (call 40) moved to each position from ``low`` to ``high`` by ``step`` and
+    the probe read there (call 41: closed while the shaft is at or above it; a moved surface
+    takes its state without an edge), then the surface removed."""
+    scan: list[str] = []
+    for position in range(low, high + 1, step):
+        scan += [f"40 2 {position}", "41 -1"]
+    return (*scan, "40 0 0")
+
+
+def replay_both(driver: Driver, steps: Sequence[Step]) -> tuple[Printed, PythonReplay]:
+    """:func:`assert_same`, keeping the Python's device (its shaft, for what the lines cannot
+    show: the steps an open loop lost)."""
+    replay = PythonReplay()
+    for step in steps:
+        replay.play(step)
+    assert_same(driver, steps, expected=replay.printed)
+    return replay.printed, replay
+
+
+def replies(printed: Printed, word: str) -> list[list[int]]:
+    """The values of every reply that starts with ``word``, in order (not its debug lines:
+    ``DRIVE MODIFIED TO 1``)."""
+    found = []
+    for _, text in printed:
+        head, *values = text.split()
+        if head == word.encode() and all(v.lstrip(b"-").isdigit() for v in values):
+            found.append([int(v) for v in values])
+    return found
+
+
+@pytest.mark.parametrize("drive", [1, 2])
+def test_step_drives_follow_moves_in_every_mode(driver: Driver, drive: int) -> None:
+    """A turn in position mode, velocities held for 100 ticks, keyframes in curve mode, then
+    a power cycle back to the DC motor: diagnostics every 20 ticks (their output the tick's
+    steps), call 48 after each. The probe's surface at the turn's end shows the shaft, which
+    the open loop's counter does not: its edges count the shaft's swings about the turn."""
+    printed, _ = replay_both(driver, [
+        lines(*STEPPER, "8 44 1", f"44 {drive}", "40 2 3200", "21 20", "3 1",
+              ramp(0, 3200, 160)), Run(600),
+        lines("20 -1", "48 -1", "35 -1", "41 -1", *shaft_scan(3180, 3220, 1), "40 2 3200"),
+        lines("7 2", "6 100", "3 1", "1 3 12000 -12000 0"), Run(350),
+        lines("20 -1", "48 -1", "41 -1", *shaft_scan(2000, 5000, 16)),
+        lines("7 3", "3 1", "25 200 1600 0 0", "25 100 -800 5000 -5000", "25 150 0 0 0"),
+        Run(500), lines("20 -1", "48 -1", "27 -1", "35 -1", *shaft_scan(-64, 64, 1)),
+        Power(), lines("44 -1", "48 -1", "20 -1"),
+    ])
+    status = replies(printed, "STATUS")
+    steps = replies(printed, "STEPS")
+    assert abs(status[0][1] - 3200) <= (0 if drive == 1 else 63)   # the turn, no cycle lost
+    assert steps[0][0] != 0 and steps[-1] == [0, 0, 249]
+    assert replies(printed, "DRIVE") == [[0]]
+    assert any(line[4] not in (0, 249_000) for line in replies(printed, "D"))
+    assert replies(printed, "PROBE")[0][1] >= 1   # the shaft reached the turn
+    assert {probe[0] for probe in replies(printed, "PROBE")} == {0, 1}   # scans read it
+
+
+def test_a_load_beyond_the_pull_out_torque_loses_steps_open_loop(driver: Driver) -> None:
+    """700 mNm of load on a 590 mNm stepper: the open loop's counter (the steps issued) goes
+    on to 6400 while the shaft stays at a turn (the probe surface at 5000 microsteps does
+    not close); with the load light again the shaft follows the next turn from where it
+    stopped, a turn short of the counter, and closes the probe there."""
+    printed, replay = replay_both(driver, [
+        lines(*STEPPER, "44 1", "40 2 5000", "21 50", "3 1", ramp(0, 3200, 160)), Run(200),
+        lines("33 700 0", ramp(3200, 6400, 160)), Run(300),
+        lines("20 -1", "48 -1", "41 -1", "33 20 0", ramp(6400, 9600, 160)), Run(300),
+        lines("20 -1", "48 -1", "41 -1", *shaft_scan(6300, 6500, 2)),
+    ])
+    status = replies(printed, "STATUS")
+    probe = replies(printed, "PROBE")
+    assert status[0][1] == 6400 and probe[0][0] == 0   # counted, not moved: steps lost
+    assert status[1][1] == 9600 and probe[1][:3] == [1, 1, 1]
+    assert probe[1][3] > 5000 + 3000   # the counter where the shaft crossed 5000
+    shaft = replay.device.state.shaft_micro_counts // 10**6
+    assert abs(shaft - (9600 - 3200)) <= 8
+
+
+def test_a_load_beyond_the_pull_out_torque_stalls_the_closed_loop(driver: Driver) -> None:
+    """The same load on the closed loop: the shaft stalls where the load caught it (the field
+    never leads it by more than a full step, so it does not slip), catches up once the load
+    is light again, and with a following-error limit (call 29) the stall is fault 2."""
+    printed, _ = replay_both(driver, [
+        lines(*STEPPER, "44 2", "40 2 5000", "21 50", "3 1", ramp(0, 3200, 160)), Run(200),
+        lines("33 700 0", ramp(3200, 6400, 160)), Run(300),
+        lines("20 -1", "48 -1", "41 -1", "33 20 0"), Run(700), lines("20 -1", "48 -1", "41 -1"),
+        lines("29 200", "33 700 0", ramp(6400, 9600, 160)), Run(300),
+        lines("30 -1", "20 -1", "48 -1", "24 -1"),
+    ])
+    status = replies(printed, "STATUS")
+    assert 3000 <= status[0][1] <= 3300 and status[0][2] == 6400   # stalled a turn behind
+    assert abs(status[1][1] - 6400) <= 40   # caught up
+    assert replies(printed, "PROBE")[1][:3] == [1, 1, 1]
+    fault = replies(printed, "FAULT")[0]
+    assert fault[0] == 2 and [2, fault[1]] in replies(printed, "ALARM")
+
+
+def test_an_open_loop_beyond_its_pull_out_speed_loses_steps(driver: Driver) -> None:
+    """Velocity mode ramped to 300,000 microsteps/s (5600 rpm, far above the 760 rpm corner
+    where the torque starts to fall): the rotor falls behind, slips cycle after cycle and
+    ends well short of the steps issued (the scans read it)."""
+    printed, replay = replay_both(driver, [
+        lines(*STEPPER, "44 1", "7 2", "21 40", "3 1",
+              "1 400 " + " ".join(str(750 * k) for k in range(1, 401))), Run(420),
+        lines("20 -1", "48 -1", *shaft_scan(0, 64_000, 512)),
+    ])
+    issued = replies(printed, "STEPS")[0][0]
+    shaft = replay.device.state.shaft_micro_counts // 10**6
+    assert issued > 50_000 and shaft < issued - 3200   # more than a turn lost
+    assert {probe[0] for probe in replies(printed, "PROBE")} == {0, 1}
+
+
+@pytest.mark.parametrize("drive", [1, 2])
+def test_calls_23_and_37_shift_a_step_drive(driver: Driver, drive: int) -> None:
+    """The counter's coordinates move; the driver's step counter (call 48) does not, and the
+    steps that follow take the shaft where the new coordinates say."""
+    printed, _ = replay_both(driver, [
+        lines(*STEPPER, f"44 {drive}", "21 30", "3 1", ramp(0, 800, 80)), Run(400),
+        lines("23 10000", "20 -1", "48 -1", "8 37 1", ramp(10000, 10400, 40)), Run(400),
+        lines("37 -2500", "20 -1", "48 -1", ramp(7900, 7000, 60)), Run(400),
+        lines("20 -1", "48 -1", "36 1", "41 -1"),
+    ])
+    status = replies(printed, "STATUS")
+    steps = replies(printed, "STEPS")
+    near = 20 if drive == 1 else 63  # closed loop: the rotor behind, within a cycle
+    assert status[0][1] == 10000 and abs(steps[0][0] - 800) <= near
+    assert abs(steps[1][0] - steps[0][0] - 400) <= near and abs(status[1][1] - 7900) <= near
+    assert abs(status[2][1] - 7000) <= near and abs(steps[2][0] - steps[1][0] + 900) <= 2 * near
+
+
+@pytest.mark.parametrize("drive", [1, 2])
+def test_the_60_s_reset_of_velocity_mode_in_a_step_drive(driver: Driver, drive: int) -> None:
+    """100 ms ticks (600 to the reset) in 10 ms integration steps, a heavy load: the
+    counter goes to 0 after 60 s in velocity mode and the desired position moves with it,
+    so the stepper runs on without a jump."""
+    printed, _ = replay_both(driver, [
+        lines("5 1000", "12 100", "17 1 -2", "33 20 0", "16 4000", f"44 {drive}", "7 2",
+              "6 700", "21 100", "9 1 -1", "10 0 0", "11 0 0", "3 1", "0 300"), Run(590),
+        lines("20 -1", "48 -1"), Run(20), lines("20 -1", "48 -1"), Run(60), lines("20 -1"),
+    ])
+    status = replies(printed, "STATUS")
+    assert status[0][1] > 17_000 and abs(status[1][1]) < 1000   # reset between them
+    assert status[2][1] > status[1][1]   # and on at the same speed
+
+
+def test_the_step_drive_calls_refuse_and_answer(driver: Driver) -> None:
+    """Call 44 refused while the servo is enabled and when no step fits the tick, call 46
+    when no step would fit, call 47 with more detent than holding torque, call 5 to a
+    period that fits no step in a step drive (and taken in the DC drive); the debug lines,
+    the queries, and a power cycle back to the defaults."""
+    replay_both(driver, [
+        lines("3 1", "44 1", "3 0", "8 44 1", "8 45 1", "8 46 1", "8 47 1", "46 1000000 0",
+              "46 100000 0", "44 1", "48 -1", "5 1", "5 -1", "47 100 200", "47 100 100 1",
+              "47 -1 0 0", "45 0 5", "44 3", "45 400 8", "45 -1 0", "44 -1", "44 0", "5 1",
+              "44 2", "46 -1 0", "46 2000 1000", "44 2", "48 -1", "3 1", "44 1", "3 0",
+              "20 -1"),
+        Power(), lines("44 -1", "45 -1 0", "46 -1 0", "47 -1 0 0", "48 -1"),
+    ])
+
+
 @pytest.mark.parametrize("scalar", [1, 3])
 def test_replacing_the_queue_future(driver: Driver, scalar: int) -> None:
     ramp = " ".join(str(3 * k) for k in range(1, 401))
@@ -419,10 +596,11 @@ def test_replacing_the_queue_future(driver: Driver, scalar: int) -> None:
 @settings(max_examples=60, deadline=None)
 @given(*EXTREME_PARAMETERS)
 def test_extreme_parameters(driver: Driver, sci: list[tuple[int, int]], interval_dms: int,
-                            sim_dms: int, counts: int, mode: int, target: int) -> None:
+                            sim_dms: int, counts: int, mode: int, target: int, drive: int) -> None:
     """test_robustness's extreme motors and gains, every value at its int64 edge."""
     with hang_guard(30.0):  # tick by tick: see test_a_stale_derivative_history_after_rest
-        assert_same(driver, extreme_session(sci, interval_dms, sim_dms, counts, mode, target))
+        assert_same(driver, extreme_session(sci, interval_dms, sim_dms, counts, mode, target,
+                                            drive))
 
 
 _STALE_HISTORY = ["9 1 -12", "10 999 6", "11 999 6", "13 9999 3", "14 1 -12", "15 1 -12",

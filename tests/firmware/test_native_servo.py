@@ -23,7 +23,7 @@ import random
 import struct
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from fractions import Fraction
 from pathlib import Path
 
@@ -38,12 +38,20 @@ from usbmotion.device import Device, core1
 from usbmotion.device.core0 import Gains
 from usbmotion.device.curve import CurvePlayer
 from usbmotion.device.motor import MotorParams, derive_constants, motor_step
+from usbmotion.device.stepper import (
+    SINE_SIZE,
+    StepperParams,
+    derive_stepper,
+    encoder_microsteps,
+    max_steps_per_tick,
+    stepper_step,
+)
 from usbmotion.hermite import Keyframe, hermite_position
 from usbmotion.protocol import QUEUE_CAPACITY
 
 from .native import CACHE, DEVICE_SOURCES, load
 
-SOURCES = ("sci.c", "motor.c", "curve.c", "params.c", "servo.c")
+SOURCES = ("sci.c", "motor.c", "stepper.c", "curve.c", "params.c", "servo.c", "table_gen.c")
 INT32_MIN = -(2**31)
 INT32_MAX = 2**31 - 1
 INT64_MIN = -(2**63)
@@ -125,7 +133,9 @@ class ServoState(ctypes.Structure):
         ("history", c_i64 * 10), ("counts", c_i32 * 10), ("stats_ticks", c_i64),
         ("stats_max", c_i64), ("stats_max_tick", c_i64), ("stats_sum_sq", c_i64),
         ("last_take", c_i64), ("diag_peak", c_i32), ("edges", SwitchEdgeC * 2),
-        ("probe_edge", SwitchEdgeC), ("probe", c_i32), ("outputs", OutputQueueC),
+        ("probe_edge", SwitchEdgeC), ("probe", c_i32), ("phase", c_i64),
+        ("last_steps", c_i32), ("vel_acc", c_i64), ("desired_prev", c_i32),
+        ("outputs", OutputQueueC),
         ("curve", CurvePlayerC),
         ("pins_started", ctypes.c_bool), ("pins_enabled", ctypes.c_bool),
         ("pins_edges", c_u32 * 2),
@@ -139,9 +149,14 @@ class ServoParams(ctypes.Structure):
         ("diag_n", c_i64), ("steps", c_i32), ("drive", Sci), ("friction", Sci), ("decay", Sci),
         ("lag", Sci), ("lower", c_i32), ("upper", c_i32), ("stop_low", c_i64),
         ("stop_high", c_i64), ("window", c_i32), ("probe_side", c_i32),
-        ("probe_position", c_i32), ("motor_pins", c_i32),
+        ("probe_position", c_i32), ("drive_kind", c_i32), ("max_steps", c_i32),
+        ("cycle", c_i64), ("full", c_i64), ("holding", c_i64), ("detent", c_i64),
+        ("corner", c_i64), ("load_unm", c_i64), ("viscous", Sci), ("accel", Sci),
+        ("encoder_cpr", c_i32), ("per_rev", c_i32), ("motor_pins", c_i32),
         ("pins_level_per_volt", Sci), ("travel_num", c_i64), ("travel_den", c_i64),
-        ("velocity_num", c_i64), ("velocity_den", c_i64),
+        ("velocity_num", c_i64), ("velocity_den", c_i64), ("reach", c_i32),
+        ("sine_k", c_i32), ("full_mask", c_u32), ("cycle_mask", c_u32),
+        ("holding_corner", c_i64),
     ]
 
 
@@ -155,7 +170,10 @@ class DeviceVars(ctypes.Structure):
         ("travel_lower_counts", c_i32), ("travel_upper_counts", c_i32),
         ("overtravel_counts", c_i32), ("diag_n", c_i32), ("watchdog_ms", c_i32),
         ("fe_limit", c_i32), ("motor_pins", c_i32), ("probe_side", c_i32),
-        ("probe_position", c_i32),
+        ("probe_position", c_i32), ("drive", c_i32), ("full_steps", c_i32),
+        ("microsteps", c_i32), ("pulse_ns", c_i32), ("setup_ns", c_i32),
+        ("holding_mnm", c_i32), ("detent_mnm", c_i32), ("corner_rpm", c_i32),
+        ("encoder_kind", c_i32), ("encoder_angle", c_i32),
     ]
 
 
@@ -258,6 +276,19 @@ def _shim_source() -> str:
         "void platform_outputs_write(const output_pins_t *pins) {",
         "    (void)pins;",
         "}",
+        "/* the step outputs: the test keeps the steps of the last tick */",
+        "int32_t test_steps_issued;",
+        "bool test_steps_enabled;",
+        "void platform_steps_start(void) {}",
+        "void platform_steps_timing(uint32_t pulse, uint32_t setup, uint32_t tick) {",
+        "    (void)pulse;",
+        "    (void)setup;",
+        "    (void)tick;",
+        "}",
+        "void platform_steps_issue(int32_t steps, bool enable) {",
+        "    test_steps_issued = steps;",
+        "    test_steps_enabled = enable;",
+        "}",
         f"const size_t test_layout[] = {{{', '.join(layout)}}};",
         "const size_t test_layout_count = sizeof test_layout / sizeof test_layout[0];",
         "",
@@ -284,6 +315,11 @@ def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
                                           ctypes.POINTER(MotorConstantsC)]),
         "motor_step": (None, [ctypes.POINTER(c_i64), ctypes.POINTER(c_i64), Sci,
                               ctypes.POINTER(ServoParams)]),
+        "stepper_cycles": (c_i64, [c_i64]),
+        "stepper_max_steps_per_tick": (c_i32, [c_i64, c_i64, c_i64]),
+        "stepper_encoder_microsteps": (c_i64, [c_i64, c_i32, c_i32]),
+        "stepper_step": (None, [ctypes.POINTER(c_i64), ctypes.POINTER(c_i64), c_i64, c_i32,
+                                ctypes.POINTER(ServoParams)]),
         "curve_hermite_position": (c_i64, [c_i32, c_i32, c_i32, c_i32, c_u32, c_u32]),
         "curve_next_position": (c_i64, [ctypes.POINTER(CurvePlayerC), c_i32, c_i64]),
         "curve_append": (ctypes.c_bool, [ctypes.POINTER(CurvePlayerC), KeyframeC]),
@@ -615,7 +651,9 @@ def random_interval_dms(rnd: random.Random) -> int:
 
 
 def device_vars(motor: MotorParams, gains: Gains, *, interval_dms: int = 10, scalar: int = 1,
-                diag_n: int = 0, watchdog_ms: int = 0, fe_limit: int = 0) -> DeviceVars:
+                diag_n: int = 0, watchdog_ms: int = 0, fe_limit: int = 0, drive: int = 0,
+                stepper: StepperParams | None = None) -> DeviceVars:
+    stepper = stepper if stepper is not None else StepperParams()
     return DeviceVars(
         interval_dms=interval_dms, scalar=scalar, kp=sci(gains.kp), ki=sci(gains.ki),
         kd=sci(gains.kd), sim_update_interval_dms=motor.sim_update_interval_dms,
@@ -629,7 +667,10 @@ def device_vars(motor: MotorParams, gains: Gains, *, interval_dms: int = 10, sca
         travel_lower_counts=motor.travel_lower_counts,
         travel_upper_counts=motor.travel_upper_counts,
         overtravel_counts=motor.overtravel_counts, diag_n=diag_n, watchdog_ms=watchdog_ms,
-        fe_limit=fe_limit,
+        fe_limit=fe_limit, drive=drive, full_steps=stepper.full_steps,
+        microsteps=stepper.microsteps, pulse_ns=stepper.pulse_ns, setup_ns=stepper.setup_ns,
+        holding_mnm=stepper.holding_mnm, detent_mnm=stepper.detent_mnm,
+        corner_rpm=stepper.corner_rpm,
     )
 
 
@@ -674,6 +715,8 @@ class Setting:
     diag_n: int
     watchdog_ms: int
     fe_limit: int
+    drive: int = 0
+    stepper: StepperParams = field(default_factory=StepperParams)
 
     def python_params(self) -> np.ndarray:
         device = Device(motor=self.motor, gains=self.gains, fast=False)
@@ -682,23 +725,51 @@ class Setting:
         device._diag_n = self.diag_n
         device._watchdog_ms = self.watchdog_ms
         device._fe_limit = self.fe_limit
+        device._drive = self.drive
+        device._stepper = self.stepper
         device._copy_in()
         return device._params.copy()
 
     def c_vars(self) -> DeviceVars:
         return device_vars(self.motor, self.gains, interval_dms=self.interval_dms,
                            scalar=self.scalar, diag_n=self.diag_n,
-                           watchdog_ms=self.watchdog_ms, fe_limit=self.fe_limit)
+                           watchdog_ms=self.watchdog_ms, fe_limit=self.fe_limit,
+                           drive=self.drive, stepper=self.stepper)
 
 
-def random_setting(rnd: random.Random) -> Setting:
-    return Setting(
+def random_stepper(rnd: random.Random) -> StepperParams:
+    """A stepper within calls 45-47's ranges: mostly the default, sometimes anywhere."""
+    if rnd.random() < 0.4:
+        return StepperParams()
+    holding = rnd.choice([1, 590, 100_000, rnd.randint(1, 100_000)])
+    return StepperParams(
+        full_steps=rnd.choice([1, 200, 400, 1000, rnd.randint(1, 1000)]),
+        microsteps=rnd.choice([1, 16, 256, rnd.randint(1, 256)]),
+        pulse_ns=rnd.choice([100, 2000, 1_000_000, rnd.randint(100, 1_000_000)]),
+        setup_ns=rnd.choice([0, 1000, 1_000_000, rnd.randint(0, 1_000_000)]),
+        holding_mnm=holding, detent_mnm=rnd.choice([0, holding, rnd.randint(0, holding)]),
+        corner_rpm=rnd.choice([1, 760, 100_000, rnd.randint(1, 100_000)]),
+    )
+
+
+def random_setting(rnd: random.Random, *, drives: bool = True) -> Setting:
+    """Random RAM variables; with ``drives``, a step drive one time in two and a random
+    stepper (drawn after the rest, so that ``drives=False`` gives the settings of before)."""
+    setting = Setting(
         motor=random_motor(rnd), gains=random_gains(rnd), interval_dms=random_interval_dms(rnd),
         scalar=rnd.choice([1, 1, 2, 3, 65535, rnd.randint(1, 65535)]),
         diag_n=rnd.choice([0, 0, 1, 2, 7, 1_000_000]),
         watchdog_ms=rnd.choice([0, 0, 1, 5, 600_000]),
         fe_limit=rnd.choice([0, 0, 1, 3, 50, INT32_MAX]),
     )
+    if not drives:
+        return setting
+    stepper = random_stepper(rnd)
+    drive = rnd.choice([0, 0, 1, 2])
+    if drive and max_steps_per_tick(setting.interval_dms * 100, stepper.pulse_ns,
+                                    stepper.setup_ns) < 1:
+        stepper = StepperParams()   # calls 5, 44 and 46 refuse a step drive with no step a tick
+    return replace(setting, drive=drive, stepper=stepper)
 
 
 PARAM_FIELDS = [
@@ -708,11 +779,16 @@ PARAM_FIELDS = [
     (core1.P_LOWER, "lower"), (core1.P_UPPER, "upper"), (core1.P_STOP_LOW, "stop_low"),
     (core1.P_STOP_HIGH, "stop_high"), (core1.P_WINDOW, "window"),
     (core1.P_PROBE_SIDE, "probe_side"), (core1.P_PROBE_POSITION, "probe_position"),
+    (core1.P_DRIVE, "drive_kind"), (core1.P_MAX_STEPS, "max_steps"), (core1.P_CYCLE, "cycle"),
+    (core1.P_FULL, "full"), (core1.P_HOLDING, "holding"), (core1.P_DETENT, "detent"),
+    (core1.P_CORNER, "corner"), (core1.P_LOAD_UNM, "load_unm"),
+    (core1.P_ENCODER_CPR, "encoder_cpr"), (core1.P_PER_REV, "per_rev"),
 ]
 PARAM_SCI_FIELDS = [
     (core1.P_KP_C, "kp"), (core1.P_KI_C, "ki_dt"), (core1.P_KD_C, "kd_dt"),
     (core1.P_VS_C, "vs"), (core1.P_DRIVE_C, "drive"), (core1.P_FRICTION_C, "friction"),
-    (core1.P_DECAY_C, "decay"), (core1.P_LAG_C, "lag"),
+    (core1.P_DECAY_C, "decay"), (core1.P_LAG_C, "lag"), (core1.P_VISCOUS_C, "viscous"),
+    (core1.P_ACCEL_C, "accel"),
 ]
 
 
@@ -737,6 +813,10 @@ def params_mismatches(params: np.ndarray, c: ServoParams) -> list[str]:
     velocity = Fraction(10**6, int(params[core1.P_WINDOW]) * int(params[core1.P_TICK_US]))
     if (c.velocity_num, c.velocity_den) != (velocity.numerator, velocity.denominator):
         found.append("velocity")
+    if c.reach != int(params[core1.P_FULL]) // 10**6:
+        found.append("reach")
+    if c.holding_corner != int(params[core1.P_HOLDING]) * int(params[core1.P_CORNER]):
+        found.append("holding_corner")
     return found
 
 
@@ -841,6 +921,101 @@ def test_motor_step_on_derived_constants(lib: ctypes.CDLL) -> None:
             step_cases.append(case)
             theta, omega = motor_step(*case)
     assert motor_step_mismatches(lib, step_cases) == []
+
+
+# --- the stepper: its sine, encoder, step timing and integration step ---------------------
+
+
+def entry_edge(rnd: random.Random, period: int) -> int:
+    """An angle on or beside the boundary of a sine table entry (where
+    ``(angle % period) * SINE_SIZE // period`` changes), some periods either way."""
+    entry = rnd.randrange(SINE_SIZE)
+    return rnd.randint(-5, 5) * period - (-entry * period // SINE_SIZE) + rnd.choice([-1, 0, 1])
+
+
+def test_stepper_encoder_and_step_timing(lib: ctypes.CDLL) -> None:
+    rnd = random.Random(107)
+    bad: list[object] = []
+    for _ in range(cases(20)):
+        cpr = rnd.choice([1, 1920, 4000, 1_000_000, rnd.randint(1, 1_000_000)])
+        per_rev = rnd.choice([1, 3200, 256_000, rnd.randint(1, 256_000)])
+        shaft = rnd.choice([0, -1, 1, rnd.randint(-10**5, 10**5),
+                            rnd.randint(-(2**31) - 201, 2**31 + 201)])
+        if lib.stepper_encoder_microsteps(shaft, cpr, per_rev) != encoder_microsteps(
+                shaft, cpr, per_rev):
+            bad.append((shaft, cpr, per_rev))
+        tick_us = random_interval_dms(rnd) * 100
+        pulse = rnd.choice([100, 101, 104, 2000, 1_000_000, rnd.randint(100, 1_000_000)])
+        setup = rnd.choice([0, 1, 8, 9, 1000, 1_000_000, rnd.randint(0, 1_000_000)])
+        if lib.stepper_max_steps_per_tick(tick_us, pulse, setup) != max_steps_per_tick(
+                tick_us, pulse, setup):
+            bad.append((tick_us, pulse, setup))
+    assert bad == []
+
+
+def stepper_case_params(rnd: random.Random) -> tuple[ServoParams, tuple[int, ...]]:
+    """Constants of a random stepper, motor and period, derived as core0 derives them: the
+    C params and the Python's arguments after theta, omega, field and powered."""
+    setting = random_setting(rnd)
+    motor, stepper = setting.motor, setting.stepper
+    tick_us = setting.interval_dms * 100
+    k = derive_constants(motor, tick_us=tick_us)
+    s = derive_stepper(stepper, tick_us=tick_us, substeps=k.steps,
+                       inertia=scimath.SciNumber(*motor.inertia_kg_m2),
+                       viscous_unm=scimath.SciNumber(*motor.viscous_friction_unm_per_rad_s),
+                       load_mnm=scimath.SciNumber(*motor.load_torque_mnm))
+    c = ServoParams()
+    c.tick_us, c.steps, c.window = tick_us, k.steps, 1
+    c.cycle, c.full, c.holding, c.detent = s.cycle, s.full, s.holding_unm, s.detent_unm
+    c.corner, c.load_unm = s.corner, s.load_unm
+    c.viscous, c.accel = Sci(*s.viscous), Sci(*s.accel)
+    c.stop_low, c.stop_high = k.stop_low_micro, k.stop_high_micro
+    return c, (s.cycle, s.full, s.holding_unm, s.detent_unm, s.corner, s.load_unm, *s.viscous,
+               *s.accel, tick_us, k.steps, k.stop_low_micro, k.stop_high_micro)
+
+
+def stepper_step_mismatches(lib: ctypes.CDLL, rnd: random.Random, count: int) -> list[object]:
+    """Random shafts under random fields through a few sub-steps each, C against Python: the
+    field (whole microsteps: the steps issued) and the shaft anywhere, near each other, or
+    placed so that the field's angle or the detent's falls on or beside the edge of a sine
+    table entry, both signs."""
+    bad: list[object] = []
+    micro = 10**6
+    for _ in range(count):
+        c, constants = stepper_case_params(rnd)
+        lib.servo_params_finish(ctypes.byref(c))
+        cycle, full, stop_low, stop_high = constants[0], constants[1], constants[-2], constants[-1]
+        theta = rnd.choice([0, stop_low, stop_high, rnd.randint(-(10**12), 10**12),
+                            rnd.randint(stop_low, stop_high), entry_edge(rnd, full)])
+        omega = rnd.choice([0, 0, rnd.randint(-(10**10), 10**10), 10**13, -(10**13),
+                            rnd.randint(-(10**13), 10**13)])
+        for _ in range(6):
+            count = theta // micro
+            roll = rnd.random()
+            if roll < 0.3:   # the field's angle on a table entry's edge
+                field = count + rnd.randint(-3, 3)
+                theta = min(max(field * micro - entry_edge(rnd, cycle), stop_low), stop_high)
+            elif roll < 0.5:   # the detent's
+                theta = min(max(theta - theta % full + entry_edge(rnd, full), stop_low),
+                            stop_high)
+                field = theta // micro + rnd.randint(-3 * full // micro, 3 * full // micro)
+            else:
+                field = count + rnd.choice([0, rnd.randint(-4 * full // micro, 4 * full // micro),
+                                            rnd.randint(-(10**9), 10**9)])
+            powered = rnd.choice([1, 1, 0])
+            want = stepper_step(theta, omega, field * micro, powered, *constants)
+            c_theta, c_omega = c_i64(theta), c_i64(omega)
+            lib.stepper_step(ctypes.byref(c_theta), ctypes.byref(c_omega), field, powered,
+                             ctypes.byref(c))
+            if (c_theta.value, c_omega.value) != want:
+                bad.append((theta, omega, field, powered, constants, want))
+                break
+            theta, omega = want
+    return bad
+
+
+def test_stepper_step(lib: ctypes.CDLL) -> None:
+    assert stepper_step_mismatches(lib, random.Random(109), cases(12)) == []
 
 
 # --- curve mode: the Hermite position and the player --------------------------------------
@@ -1104,7 +1279,9 @@ SCALAR_STATE = [
     (core1.S_LIMITS, "limits"), (core1.S_STATS_TICKS, "stats_ticks"),
     (core1.S_STATS_MAX, "stats_max"), (core1.S_STATS_MAX_TICK, "stats_max_tick"),
     (core1.S_STATS_SUM_SQ, "stats_sum_sq"), (core1.S_LAST_TAKE, "last_take"),
-    (core1.S_DIAG_PEAK, "diag_peak"),
+    (core1.S_DIAG_PEAK, "diag_peak"), (core1.S_PHASE, "phase"),
+    (core1.S_LAST_STEPS, "last_steps"), (core1.S_VEL_ACC, "vel_acc"),
+    (core1.S_DESIRED_PREV, "desired_prev"),
 ]
 OUTPUT_STATE = [(core1.S_OUT_RECORDS, "records"), (core1.S_OUT_HEAD, "head"),
                 (core1.S_OUT_NEXT, "next"), (core1.S_OUT_LAST, "last")]
@@ -1317,6 +1494,24 @@ def random_device(rnd: random.Random, setting: Setting) -> PythonDevice:
                                        INT32_MIN, INT32_MAX,
                                        rnd.randint(INT32_MIN, INT32_MAX)]),
     }
+    if setting.drive:
+        # a stepper: the driver's step counter near the shaft (or slipped cycles away, or
+        # anywhere), its speed up to the model's bound, the velocity mode's remainder
+        micro = 10**6
+        full = int(params[core1.P_FULL]) // micro
+        steps_near = count + rnd.choice([0, rnd.randint(-2 * full, 2 * full),
+                                         rnd.randint(-40 * full, 40 * full)])
+        fields[core1.S_PHASE] = rnd.choice([steps_near, steps_near,
+                                            rnd.randint(-(2**40), 2**40)])
+        fields[core1.S_LAST_STEPS] = rnd.randint(-int(params[core1.P_MAX_STEPS]),
+                                                 int(params[core1.P_MAX_STEPS]))
+        fields[core1.S_VEL_ACC] = rnd.randint(-micro + 1, micro - 1)
+        fields[core1.S_OMEGA] = rnd.choice([0, 0, rnd.randint(-(10**9), 10**9),
+                                            rnd.randint(-(10**13), 10**13), 10**13, -(10**13),
+                                            rnd.randint(-(10**11), 10**11)])
+        if setting.drive == core1.DRIVE_STEP_OPEN and rnd.random() < 0.7:
+            actual = core1.wrap_int32(int(fields[core1.S_PHASE]) + offset)
+            fields[core1.S_ACTUAL] = actual
     for index, value in fields.items():
         state[index] = value
     if state[core1.S_START] >= 0:
@@ -1439,13 +1634,35 @@ def tick_events(before: np.ndarray, after: np.ndarray, params: np.ndarray,
     if after[core1.S_MODE] == core1.MODE_CURVE and after[core1.S_DESIRED] != before[
             core1.S_DESIRED]:
         events.add("curve moves")
+    drive = int(params[core1.P_DRIVE])
+    if drive:
+        name = "open" if drive == core1.DRIVE_STEP_OPEN else "closed"
+        steps = int(after[core1.S_LAST_STEPS])
+        if steps:
+            events.add(f"{name} loop issues steps")
+        if steps and abs(steps) == int(params[core1.P_MAX_STEPS]):
+            events.add(f"{name} loop at its most steps a tick")
+        if abs(int(after[core1.S_OMEGA])) // 10**6 > int(params[core1.P_CORNER]):
+            events.add("stepper above its corner speed")
+        if after[core1.S_OMEGA] == 0 != before[core1.S_OMEGA]:
+            events.add("stepper stops")
+        if after[core1.S_MODE] == core1.MODE_VELOCITY and after[core1.S_ENABLE] == 1 and (
+                after[core1.S_VEL_ACC] != before[core1.S_VEL_ACC]):
+            events.add("stepper integrates the desired velocity")
+        if after[core1.S_VELOCITY_MODE_US] < before[core1.S_VELOCITY_MODE_US]:
+            events.add(f"{name} loop counter reset")
     return events
 
 
 def run_scenario(lib: ctypes.CDLL, rnd: random.Random, ticks: int,
                  events: set[str] | None = None) -> list[str]:
     """One random device, ticked on both sides; the first differences found, or none."""
-    setting = random_setting(rnd)
+    return run_scenario_of(lib, rnd, random_setting(rnd), ticks, events)
+
+
+def run_scenario_of(lib: ctypes.CDLL, rnd: random.Random, setting: Setting, ticks: int,
+                    events: set[str] | None = None) -> list[str]:
+    """A random device of ``setting``, ticked on both sides; the first differences found."""
     python = random_device(rnd, setting)
     c = CDevice(lib, python, head=rnd.randint(0, 7))
     found = state_mismatches(python, c)
@@ -1497,23 +1714,47 @@ def test_servo_tick_scenarios_reach_every_case(lib: ctypes.CDLL) -> None:
         "timer at its cap", "integral clamped", "output saturated",
         "shaft near its speed bound", "hard stop", "counter wraps", "several motor steps",
         "curve moves", "output change applied", "output records applied together",
-        "outputs off at a fault",
+        "outputs off at a fault", "open loop issues steps", "closed loop issues steps",
+        "open loop at its most steps a tick", "closed loop at its most steps a tick",
+        "stepper above its corner speed", "stepper stops",
+        "stepper integrates the desired velocity", "open loop counter reset",
+        "closed loop counter reset",
     }
 
 
+STEPPER_MOTOR = replace(MotorParams(), inertia_kg_m2=(1, -5), load_torque_mnm=(20, 0),
+                        counts_per_revolution=4000)
+"""A NEMA 17 stepper's shaft with a small load, a 1000-line encoder on it (4000 counts)."""
+
+
 def long_runs() -> Iterator[tuple[str, Setting, int]]:
-    """Realistic runs: the default motor following moves in each mode at 1 and 10 kHz."""
+    """Realistic runs: the default motor following moves in each mode at 1 and 10 kHz, and
+    a stepper in both step drives (its integration step 100 us: ten sub-steps at 1 kHz)."""
     for interval_dms in (10, 1, 3):
         for mode in (1, 2, 3):
             gains = Gains(kp=(7, -3), ki=(1, 0), kd=(0, 0)) if mode == 2 else Gains()
             setting = Setting(MotorParams(), gains, interval_dms, 1, 1, 0, 0)
             yield f"mode {mode} at {interval_dms}", setting, mode
+    for drive in (1, 2):
+        for interval_dms in (10, 1):
+            for mode in (1, 2, 3):
+                setting = Setting(replace(STEPPER_MOTOR, sim_update_interval_dms=1), Gains(),
+                                  interval_dms, 1, 1, 0, 0, drive=drive)
+                yield f"drive {drive} mode {mode} at {interval_dms}", setting, mode
 
 
 @pytest.mark.parametrize(("name", "setting", "mode"), list(long_runs()),
                          ids=[name for name, _, _ in long_runs()])
 def test_servo_tick_long_runs(lib: ctypes.CDLL, name: str, setting: Setting, mode: int) -> None:
     """A few thousand ticks of an axis moving, with diagnostics and statistics on."""
+    found = axis_run(lib, setting, mode, 1500)
+    assert found == []
+
+
+def axis_run(lib: ctypes.CDLL, setting: Setting, mode: int, ticks: int) -> list[object]:
+    """``ticks`` ticks of an axis of ``setting`` moving in ``mode`` on both sides (a ramp of
+    targets, velocities or keyframes), diagnostics and statistics on, the velocity mode's
+    60 s reset 30 ticks in; the first difference, or none."""
     python = PythonDevice(core1.new_state(), setting.python_params(),
                           np.zeros(QUEUE_CAPACITY, dtype=np.int64), CurvePlayer())
     state = python.state
@@ -1526,8 +1767,11 @@ def test_servo_tick_long_runs(lib: ctypes.CDLL, name: str, setting: Setting, mod
         for _ in range(8):
             python.player.append(Keyframe(rnd.randint(20, 200), rnd.randint(-3000, 3000),
                                           rnd.randint(-5000, 5000), rnd.randint(-5000, 5000)))
+    if mode == 2:
+        state[core1.S_VELOCITY_MODE_US] = core1.VELOCITY_RESET_US - 30 * int(
+            python.params[core1.P_TICK_US])
     c = CDevice(lib, python)
-    for tick in range(1500):
+    for tick in range(ticks):
         if mode != 3 and tick % 2 == 0 and python.state[core1.S_QUEUE_COUNT] < 50:
             value = (rnd.randint(-3000, 3000) if mode == 1 else rnd.randint(-8000, 8000))
             python_push(python, value)
@@ -1539,9 +1783,13 @@ def test_servo_tick_long_runs(lib: ctypes.CDLL, name: str, setting: Setting, mod
             lib.curve_append(ctypes.byref(c.state.curve), keyframe_c(keyframe))
         want = python.tick()
         got = c.tick()
-        assert (tick, got) == (tick, want)
-        assert (tick, state_mismatches(python, c)) == (tick, [])
+        if got != want:
+            return [f"{setting} tick {tick}: records {got} != {want}"]
+        found = state_mismatches(python, c)
+        if found:
+            return [f"{setting} tick {tick}: {found}"]
     assert python.state[core1.S_STATS_TICKS] > 0 or mode == 2
+    return []
 
 
 # --- core0's changes of core1's state -----------------------------------------------------
@@ -1678,7 +1926,37 @@ def _check_ticks(lib: ctypes.CDLL) -> list[object]:
     rnd = random.Random(83)
     found: list[object] = []
     for _ in range(60):
-        found += run_scenario(lib, rnd, 12)
+        found += run_scenario_of(lib, rnd, random_setting(rnd, drives=False), 12)
+    return found
+
+
+def _check_stepper(lib: ctypes.CDLL) -> list[object]:
+    """The encoder, and the step with its sines on and beside their entries."""
+    rnd = random.Random(113)
+    found: list[object] = []
+    for _ in range(400):
+        shaft = rnd.randint(-10**6, 10**6)
+        if lib.stepper_encoder_microsteps(shaft, 4000, 3200) != encoder_microsteps(shaft, 4000,
+                                                                                    3200):
+            found.append(("encoder", shaft))
+    return found + stepper_step_mismatches(lib, rnd, 30)
+
+
+def _check_stepper_ticks(lib: ctypes.CDLL) -> list[object]:
+    """Step drives ticked from random states, then a stepper following moves in each step
+    drive and mode with the 60 s reset of velocity mode within reach."""
+    rnd = random.Random(127)
+    found: list[object] = []
+    for _ in range(60):
+        setting = random_setting(rnd)
+        if not setting.drive:
+            setting = replace(setting, drive=rnd.choice([1, 2]), stepper=StepperParams())
+        found += run_scenario_of(lib, rnd, setting, 12)
+    for drive in (1, 2):
+        for mode in (1, 2, 3):
+            setting = Setting(replace(STEPPER_MOTOR, sim_update_interval_dms=1), Gains(), 10, 1,
+                              1, 0, 0, drive=drive)
+            found += axis_run(lib, setting, mode, 300)
     return found
 
 
@@ -1714,6 +1992,36 @@ MUTANTS = [
            "        (void)outputs_off;\n", _check_ticks),
     Mutant("peak unsigned", "servo.c", "s->diag_peak = (int32_t)following;",
            "s->diag_peak = (int32_t)size;", _check_ticks),
+    Mutant("the field's sine one entry on", "stepper.c",
+           "table_sine[sci_udiv(rest << 2, sine_k)]",
+           "table_sine[(sci_udiv(rest << 2, sine_k) + 1u) % TABLE_SINE_SIZE]", _check_stepper),
+    Mutant("the detent's sine one entry on", "stepper.c",
+           "table_sine[sci_udiv(detent_rest << 4, sine_k)]",
+           "table_sine[(sci_udiv(detent_rest << 4, sine_k) + 1u) % TABLE_SINE_SIZE]",
+           _check_stepper),
+    Mutant("C's remainder (of the magnitude) for the sines' angles", "stepper.c",
+           "return x < 0 && rest != 0u ? d - rest : rest;", "return rest;", _check_stepper),
+    Mutant("C's remainder (of the magnitude) for power-of-two microsteps", "stepper.c",
+           "        return (uint32_t)x & mask;",
+           "        return (uint32_t)sci_magnitude64(x) & mask;", _check_stepper_ticks),
+    Mutant("encoder count truncated, not floored", "stepper.c",
+           "return -(int64_t)div_u64(magnitude + d - 1u, d);",
+           "return -(int64_t)div_u64(magnitude, d);", _check_stepper),
+    Mutant("closed loop leads a microstep more", "servo.c",
+           "int32_t target = wrap_int32((int64_t)s->actual + ahead + sci_to_int(s->out));",
+           "int32_t target = wrap_int32((int64_t)s->actual + ahead + sci_to_int(s->out) + 1);",
+           _check_stepper_ticks),
+    Mutant("the rotor's move taken as measured, beyond the command's", "servo.c",
+           "ahead = moved < 0 ? 0 : (moved > wanted ? wanted : moved);",
+           "ahead = moved < 0 ? 0 : moved;", _check_stepper_ticks),
+    Mutant("a fault releases the stepper's driver", "servo.c",
+           "int32_t powered = (s->enable == 1 || s->fault != FAULT_NONE) ? 1 : 0;",
+           "int32_t powered = s->enable == 1 ? 1 : 0;", _check_stepper_ticks),
+    Mutant("steps spread late over the sub-steps", "servo.c", "if (remainder >= steps) {",
+           "if (remainder > steps) {", _check_stepper_ticks),
+    Mutant("velocity reset leaves a stepper's desired position", "servo.c",
+           "                s->desired = wrap_int32((int64_t)s->desired - s->actual);\n",
+           "", _check_stepper_ticks),
 ]
 
 

@@ -18,7 +18,8 @@ After every step the invariants a machine relies on are checked:
 - the watchdog: a servo still enabled after a silence has heard a command within its
   timeout;
 - the following-error limit: a servo still enabled in modes 1 and 3 is within its limit;
-- the limit switches read what the shaft position says.
+- the limit switches read what the shaft position says;
+- a step drive issues at most call 48's steps a tick (its diagnostics output, steps x 1000).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from device.test_robustness import _check_line, _integer_lines
 from usbmotion.device import Device
 from usbmotion.device.core1 import wrap_int32
 from usbmotion.device.motor import MICRO, sci_value
+from usbmotion.device.stepper import max_steps_per_tick
 from usbmotion.errors import ProtocolError
 from usbmotion.protocol import (
     CALLS,
@@ -103,8 +105,18 @@ _MOTION = st.sampled_from([
     (b"23 2147483600", b"3 1", b"0 -2147483546"),
     (b"40 1 -100", b"3 1", b"0 -300"),
     (b"42 2 500 0", b"42 0 1000 40", b"42 3 75 41", b"29 30", b"3 1", b"0 2000"),
+    (b"44 1", b"3 1", b"0 500"),
+    (b"44 2", b"3 1", b"1 3 -200 0 200"),
+    (b"44 1", b"17 1 -5", b"12 1", b"7 2", b"3 1", b"1 2 4000 -4000"),
+    (b"44 2", b"17 1 -5", b"16 4000", b"12 1", b"3 1", b"0 3200"),
+    (b"44 2", b"17 1 -5", b"33 700 0", b"29 60", b"3 1", b"0 800"),
+    (b"44 1", b"17 1 -5", b"34 -50 50", b"3 1", b"0 80"),
+    (b"44 2", b"7 3", b"3 1", b"25 200 400 0 0", b"25 100 -100 512 -512"),
+    (b"45 400 8", b"46 100 0", b"47 300 300 100"),
 ])
-"""Short scripts that make the device move, so silences exercise the servo and faults."""
+"""Short scripts that make the device move, so silences exercise the servo and faults: the
+DC motor's, and a stepper's in both step drives (call 44 when the servo is off; 17 1 -5 is
+a NEMA 17 rotor's inertia, 12 1 integrates it in 100 us steps)."""
 
 _TICKS = st.one_of(
     st.integers(0, 30),
@@ -192,7 +204,12 @@ def _check_after_silence(device: Device, since_command_us: int) -> None:
     """Checks that hold once at least one tick has run since the last line."""
     state = device.state
     settings = device.settings
-    ceiling_mv = float(sci_value(settings.motor.source_voltage_v)) * 1000
+    if settings.drive:   # a step drive's output is the tick's steps (x 1000 in millis)
+        stepper = settings.stepper
+        ceiling_mv = 1000.0 * max_steps_per_tick(device.tick_us, stepper.pulse_ns,
+                                                 stepper.setup_ns)
+    else:
+        ceiling_mv = float(sci_value(settings.motor.source_voltage_v)) * 1000
     assert abs(state.output_mv) <= ceiling_mv + 1
     watchdog_us = settings.watchdog_ms * 1000
     if state.enable == 1 and watchdog_us > 0:

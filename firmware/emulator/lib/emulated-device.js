@@ -14,7 +14,7 @@ import { CdcHost } from './cdc-host.js';
 import { DualRP2040 } from './dual-core.js';
 import { STT_FUNC, readElfSymbols } from './elf.js';
 import { FLASH_BREAKPOINTS, FlashImage, answerFlashBreakpoint } from './flash.js';
-import { MotorWorld, PioClock } from './pins.js';
+import { MotorWorld, PioClock, StepperWorld } from './pins.js';
 import { parseUf2 } from './uf2.js';
 
 const SRAM_BASE = 0x20000000;
@@ -78,6 +78,7 @@ export class EmulatedDevice {
     this.onOutput = null; // (bytes) => void, else output is kept for takeOutput()
     this.fault = null;
     this.worldOptions = null; // the motor outside the chip (attachMotor), kept across power cycles
+    this.worldKind = null; // MotorWorld or StepperWorld
     this.world = null;
     this.turnCore = null;
   }
@@ -89,7 +90,19 @@ export class EmulatedDevice {
    */
   attachMotor(options = {}) {
     this.worldOptions = options;
+    this.worldKind = MotorWorld;
     this.world = new MotorWorld(this.pins, this.mcu, options);
+    return this.world;
+  }
+
+  /**
+   * Wires a stepper on a step/direction driver, and its encoder, to the chip's pins (lib/pins.js
+   * StepperWorld; options as its constructor's): from now on and on every later power-up.
+   */
+  attachStepper(options = {}) {
+    this.worldOptions = options;
+    this.worldKind = StepperWorld;
+    this.world = new StepperWorld(this.pins, this.mcu, options);
     return this.world;
   }
 
@@ -127,10 +140,15 @@ export class EmulatedDevice {
     this.clock = mcu.clock;
     this.sram = mcu.sramView;
     this.cycleNanos = 1e9 / mcu.clkSys;
-    this.pins = new PioClock(mcu, () => this.nowNanos());
-    if (this.worldOptions) {
+    this.pins = new PioClock(mcu, () => this.nowNanos(), (nanos) => this.timerNanosAt(nanos));
+    this.pins.ticksNow = () => this.ticksDone();
+    if (this.worldOptions && this.worldKind === MotorWorld) {
       const where = this.world ? this.world.theta : this.worldOptions.startCount ?? 0;
       this.world = new MotorWorld(this.pins, mcu, { ...this.worldOptions, startCount: where });
+    } else if (this.worldOptions) {
+      // the stepper's shaft starts again at its count (a power cycle de-energises the driver)
+      const where = this.world ? this.world.count : this.worldOptions.startCount ?? 0;
+      this.world = new StepperWorld(this.pins, mcu, { ...this.worldOptions, startCount: where });
     }
     for (const stack of this.stacks) {
       if (stack) {
@@ -200,6 +218,11 @@ export class EmulatedDevice {
         alarm.clockAlarm.schedule(remaining * 1000);
       }
     });
+  }
+
+  /** The timer's time when the clock reads `nanos` (now, or later in this slice), ns. */
+  timerNanosAt(nanos) {
+    return this.heldAt >= 0 ? this.heldAt : nanos - this.timerLagNs;
   }
 
   /** The RP2040 timer's time, ns: emulated time less the time it was held. */
@@ -420,7 +443,7 @@ export class EmulatedDevice {
         }
         if (world) {
           slice = Math.min(slice, WORLD_SLICE_NS);
-          world.advance(now, now + slice);
+          world.advance(now, now + slice, now - this.timerLagNs, now + slice - this.timerLagNs);
         }
         this.pins.catchUp(now + slice);
         clock.tick(slice);
@@ -432,7 +455,7 @@ export class EmulatedDevice {
       }
       if (world) {
         slice = Math.min(slice, WORLD_SLICE_NS);
-        world.advance(now, now + slice);
+        world.advance(now, now + slice, now - this.timerLagNs, now + slice - this.timerLagNs);
       }
       if (slice > 0) {
         const budget = slice / cycleNanos;

@@ -24,6 +24,17 @@
 // while the shaft is at or beyond it on its side). EncoderSweep drives the encoder pins alone
 // at a set rate, for the decoder's own tests. outputLevels reads the outputs of call 42 off
 // their pins: the digital ones' levels and the PWM ones' duties.
+//
+// The step generator's block (STEP_PIO, firmware/src/rp2040/step_dir.pio) runs on the timer's
+// time instead of the clock's: on the chip its tick clock and the servo's alarms come from
+// one crystal and keep in step, and the harness's held timer (the deterministic mode's
+// pause, in which no device time passes) holds it too, as it holds the motor world. Its
+// machines interact (one raises the PIO flag the other waits on), so they are stepped
+// together, cycle by cycle, skipping ahead over the cycles in which every one of them is
+// stalled (on a flag, or on an empty TX FIFO) or counting down a one-instruction delay loop
+// (`jmp x--`/`jmp y--` to itself); rp2040js's FIFO join (SHIFTCTRL FJOIN_TX: an 8-deep TX
+// FIFO), which it lacks, is added. Every change of that block's pins and every PIO flag it
+// raises can be recorded with its time (capture).
 
 const IO_BANK0_KEY = 0x40014;
 const PADS_BANK0_KEY = 0x4001c;
@@ -39,6 +50,17 @@ const IO_FUNCSEL_MASK = 0x1f;
 const FUNCSEL_PWM = 4;
 /** (B, A) of each count modulo 4, forward: A rises, B rises, A falls, B falls. */
 const GRAY = [0b00, 0b01, 0b11, 0b10];
+/** The step generator's PIO block (firmware/src/rp2040/pins.h STEP_PIO). */
+export const STEP_PIO = 1;
+/** A state machine's SHIFTCTRL, as an offset from its CLKDIV. */
+const SM_SHIFTCTRL = 0x08;
+/** JMP conditions X-- and Y--; rp2040js's wait types IRQ and TX FIFO (a blocking pull). */
+const JMP_X_DEC = 0b010;
+const JMP_Y_DEC = 0b100;
+const OP_IRQ = 0b110;
+const IRQ_CLEAR_OR_WAIT = 0x60;
+const WAIT_TX_FIFO = 3;
+const WAIT_IRQ = 4;
 /** Steps a machine must run since its last input change before it may be fast-forwarded. */
 const SETTLE_STEPS = 64;
 
@@ -48,16 +70,26 @@ export class PioClock {
    * @param {object} mcu the DualRP2040
    * @param {() => number} now the emulated time of the instruction executing, ns
    */
-  constructor(mcu, now) {
+  constructor(mcu, now, timerAt = (nanos) => nanos) {
     this.mcu = mcu;
     this.now = now;
+    this.timerAt = timerAt;
     this.cycleNanos = 1e9 / mcu.clkSys;
-    this.nanos = 0; // every machine has run up to here
+    this.nanos = 0; // every clocked machine has run up to here
+    this.timedNanos = 0; // the step generator's block has run up to here, timer time
+    this.timed = mcu.pio[STEP_PIO];
+    this.loops = new Map(); // the step block's machine -> the pc of its last instruction
+    this.capture = null; // {pins, edges: [[pin, level, ns]], flags: [[flag, ns, ticks]]}
+    this.ticksNow = () => 0;
+    this.edgeListeners = []; // (pin, level, timerNanos) for the step block's pins
     this.events = []; // [{nanos, pin, value}] in time order
     this.marks = new Map(); // machine -> its state at the start of a pass, for fast-forward
     this.positions = new Map(); // machine -> the steps it has run
     this.sinceInput = 0; // steps since the last input change
     for (const pio of mcu.pio) {
+      for (const machine of pio.machines) {
+        joinFifos(machine);
+      }
       pio.run = () => {}; // stepped here, not on the host's event loop
       const read = pio.readUint32.bind(pio);
       const write = pio.writeUint32.bind(pio);
@@ -128,6 +160,7 @@ export class PioClock {
       this.marks.clear();
     }
     this.stepTo(nanos);
+    this.stepTimedTo(this.timerAt(nanos));
   }
 
   stepTo(nanos) {
@@ -137,7 +170,7 @@ export class PioClock {
     }
     this.nanos += steps * this.cycleNanos;
     for (const pio of this.mcu.pio) {
-      if (pio.stopped) {
+      if (pio.stopped || pio === this.timed) {
         continue;
       }
       for (const machine of pio.machines) {
@@ -148,6 +181,130 @@ export class PioClock {
       pio.checkChangedPins();
     }
     this.sinceInput += steps;
+  }
+
+  /** Runs the step generator's block up to `nanos` of timer time, its machines in lockstep. */
+  stepTimedTo(nanos) {
+    const steps = Math.floor((nanos - this.timedNanos) / this.cycleNanos);
+    if (steps <= 0) {
+      return;
+    }
+    const pio = this.timed;
+    const start = this.timedNanos;
+    this.timedNanos += steps * this.cycleNanos;
+    if (pio.stopped) {
+      return;
+    }
+    const machines = pio.machines.filter((machine) => machine.enabled);
+    const loops = this.loops;
+    let left = steps;
+    let done = 0;
+    while (left > 0) {
+      let skip = left;
+      for (const machine of machines) {
+        skip = Math.min(skip, this.idleSteps(pio, machine));
+        if (skip === 0) {
+          break;
+        }
+      }
+      if (skip > 0) {
+        for (const machine of machines) {
+          if (!machine.waiting) {
+            // a delay loop: `jmp x-- self` or `jmp y-- self`, taken `skip` more times
+            if (((pio.instructions[machine.pc] >> 5) & 7) === JMP_X_DEC) {
+              machine.x -= skip;
+            } else {
+              machine.y -= skip;
+            }
+          }
+        }
+        left -= skip;
+        done += skip;
+        continue;
+      }
+      const nanos = start + done * this.cycleNanos;
+      const values = pio.pinValues;
+      for (const machine of machines) {
+        const pc = machine.pc;
+        const instruction = machine.waiting ? -1 : pio.instructions[pc];
+        machine.step();
+        loops.set(machine, machine.waiting ? -1 : pc);
+        if (instruction >> 13 === OP_IRQ && (instruction & IRQ_CLEAR_OR_WAIT) === 0 && this.capture) {
+          // every flag raised, even one still up from before (a start no frame waited on)
+          const index = instruction & 0x1f;
+          const flag = index & 0x10 ? (index & 4) | (((index & 3) + machine.index) & 3) : index & 7;
+          this.capture.flags.push([flag, nanos, this.ticksNow()]);
+        }
+      }
+      const changed = pio.pinValues ^ values;
+      if (changed) {
+        this.pinsChanged(changed, pio.pinValues, nanos);
+      }
+      left--;
+      done++;
+    }
+    pio.checkChangedPins();
+  }
+
+  /**
+   * The cycles from now on in which `machine` certainly does nothing observable but count a
+   * delay loop down or stay stalled: 0 when it may act at its next step.
+   */
+  idleSteps(pio, machine) {
+    if (machine.waiting) {
+      if (machine.waitType === WAIT_IRQ) {
+        return ((pio.irq >> machine.waitIndex) & 1) === Number(machine.waitPolarity) ? 0 : Infinity;
+      }
+      if (machine.waitType === WAIT_TX_FIFO) {
+        return machine.txFIFO.empty ? Infinity : 0;
+      }
+      return 0;
+    }
+    const instruction = pio.instructions[machine.pc];
+    const condition = (instruction >> 5) & 7;
+    const delayMask = (1 << (5 - machine.sidesetCount)) - 1;
+    if (instruction >> 13 !== 0 || (instruction & 0x1f) !== machine.pc
+        || ((instruction >> 8) & delayMask) !== 0 || this.loops.get(machine) !== machine.pc) {
+      return 0;
+    }
+    if (condition === JMP_X_DEC) {
+      return machine.x >>> 0;
+    }
+    if (condition === JMP_Y_DEC) {
+      return machine.y >>> 0;
+    }
+    return 0;
+  }
+
+  pinsChanged(changed, values, nanos) {
+    for (let pin = 0; pin < 30; pin++) {
+      if (changed & (1 << pin)) {
+        const level = (values >> pin) & 1;
+        if (this.capture && this.capture.pins.has(pin)) {
+          this.capture.edges.push([pin, level, nanos]);
+        }
+        for (const listener of this.edgeListeners) {
+          listener(pin, level, nanos);
+        }
+      }
+    }
+  }
+
+  /** Records the step block's pin changes (of `pins`) and flags from now on. */
+  startCapture(pins) {
+    this.capture = { pins: new Set(pins), edges: [], flags: [] };
+  }
+
+  /** What was recorded since the last call (or startCapture); recording goes on. */
+  takeCapture() {
+    const capture = this.capture;
+    if (!capture) {
+      return { edges: [], flags: [] };
+    }
+    const taken = { edges: capture.edges, flags: capture.flags };
+    capture.edges = [];
+    capture.flags = [];
+    return taken;
   }
 
   run(machine, steps) {
@@ -179,6 +336,24 @@ export class PioClock {
     }
     this.positions.set(machine, position);
   }
+}
+
+/** rp2040js's FIFO join: SHIFTCTRL's FJOIN_TX gives the machine one 8-deep TX FIFO (and no
+ * RX FIFO), FJOIN_RX one 8-deep RX FIFO; the FIFOs are emptied, as the chip does. */
+function joinFifos(machine) {
+  const write = machine.writeUint32.bind(machine);
+  let join = 0;
+  machine.writeUint32 = (offset, value) => {
+    write(offset, value);
+    if (offset === SM_SHIFTCTRL && value >>> 30 !== join) {
+      join = value >>> 30;
+      const joinTx = join & 1;
+      const joinRx = join >> 1;
+      const FifoClass = machine.txFIFO.constructor;
+      machine.txFIFO = new FifoClass(joinTx ? 8 : joinRx ? 0 : 4);
+      machine.rxFIFO = new FifoClass(joinRx ? 8 : joinTx ? 0 : 4);
+    }
+  };
 }
 
 function snapshot(machine, position) {
@@ -491,4 +666,169 @@ export function sweepEncoder(clock, { startNanos, counts, countsPerS, startCount
     state = next;
   }
   return startNanos + Math.abs(counts) * spacing;
+}
+
+/** The step/direction pins (firmware/src/rp2040/pins.h): STEP and DIR from the step
+ * generator's PIO block, the driver's enable (active low) from SIO. */
+export const STEPPER_PINS = { step: 18, dir: 19, enable: 20 };
+
+/** The Python device's simulated stepper at power-up (calls 45 and 47: a NEMA 17, 2 A,
+ * 0.59 N m, at 16 microsteps) with a NEMA 17 rotor's inertia and a 1000-line encoder. */
+export const DEFAULT_STEPPER = {
+  fullSteps: 200,
+  microsteps: 16,
+  holdingNm: 0.59,
+  detentNm: 0.02,
+  cornerRpm: 760,
+  inertiaKgM2: 1e-5,
+  viscousNmPerRadS: 0,
+  loadNm: 0,
+  countsPerRevolution: 4000,
+  stepNanos: 1000,
+};
+
+/**
+ * A hybrid stepper on a step/direction driver, outside the chip: the field follows the STEP
+ * pin's rising edges (a microstep each, up with DIR high), at the time each came, while the
+ * driver's enable is low; the rotor (the model of usbmotion.device.stepper, in binary64:
+ * the field's pull T_a sin(2 pi (field - theta) / 4u), its torque falling as 1/speed above
+ * the corner speed, the detent -T_d sin(2 pi theta / u), viscous and Coulomb friction, a
+ * velocity that would reverse within an integration step stopping there) integrated by
+ * semi-implicit Euler in steps of `stepNanos`; its quadrature encoder's A/B pins driven at
+ * each count it crosses (the decoder's pins, as MotorWorld drives them). It runs on the
+ * timer's time (the step edges' clock), standing still while the timer is held.
+ */
+export class StepperWorld {
+  /**
+   * @param {PioClock} clock
+   * @param {object} mcu
+   * @param {object} options DEFAULT_STEPPER's keys, and `startCount` (the encoder's count
+   *   at power-up, 0)
+   */
+  constructor(clock, mcu, options = {}) {
+    for (const key of Object.keys(options)) {
+      if (!(key in DEFAULT_STEPPER) && key !== 'startCount') {
+        throw new Error(`stepper option ${JSON.stringify(key)} is unknown; known: `
+          + `${[...Object.keys(DEFAULT_STEPPER), 'startCount'].join(', ')}`);
+      }
+    }
+    const m = { ...DEFAULT_STEPPER, ...options };
+    for (const key of ['fullSteps', 'microsteps', 'holdingNm', 'cornerRpm', 'inertiaKgM2',
+      'countsPerRevolution', 'stepNanos']) {
+      if (!(typeof m[key] === 'number' && m[key] > 0)) {
+        throw new Error(`stepper ${key} ${JSON.stringify(m[key])} must be a number above 0`);
+      }
+    }
+    this.clock = clock;
+    this.mcu = mcu;
+    this.m = m;
+    this.perRevolution = m.fullSteps * m.microsteps;
+    this.radPerMicrostep = (2 * Math.PI) / this.perRevolution;
+    this.cornerPerS = (m.cornerRpm * this.perRevolution) / 60;
+    this.theta = 0; // microsteps
+    this.omega = 0; // microsteps/s
+    this.field = 0; // the steps the driver took
+    this.steps = 0; // rising edges seen
+    this.pending = []; // [timerNanos, +1 | -1]
+    this.direction = 1;
+    this.time = null; // timer ns integrated up to
+    this.count = (options.startCount ?? 0);
+    this.countBase = this.count;
+    this.edgesEmitted = 0;
+    clock.drive(PIN_MAP.encoderA, PIN_MAP.encoderB);
+    const state = GRAY[((this.count % 4) + 4) % 4];
+    mcu.gpio[PIN_MAP.encoderA].setInputValue((state & 1) !== 0);
+    mcu.gpio[PIN_MAP.encoderB].setInputValue((state & 2) !== 0);
+    clock.edgeListeners.push((pin, level, nanos) => {
+      if (pin === STEPPER_PINS.dir) {
+        this.direction = level ? 1 : -1;
+      } else if (pin === STEPPER_PINS.step && level === 1) {
+        this.steps++;
+        this.pending.push([nanos, this.direction]);
+      }
+    });
+  }
+
+  /** The driver's enable pin low (active): the field pulls. */
+  get powered() {
+    const pin = this.mcu.gpio[STEPPER_PINS.enable];
+    return pin.outputEnable && !pin.outputValue;
+  }
+
+  /** Integrates the rotor over [fromNanos, toNanos) of clock time (the timer's, less its
+   * lag: `timerFrom` .. `timerTo`), and schedules the encoder's pins. */
+  advance(fromNanos, toNanos, timerFrom, timerTo) {
+    if (this.time === null || this.time < timerFrom) {
+      this.time = timerFrom;
+    }
+    const m = this.m;
+    const h = m.stepNanos;
+    const powered = this.powered;
+    while (this.time < timerTo) {
+      const until = Math.min(this.time + h, timerTo);
+      // steps up to the end of this step (those that came late, at its start)
+      while (this.pending.length > 0 && this.pending[0][0] < until) {
+        this.field += this.pending.shift()[1];
+      }
+      const dt = (until - this.time) / 1e9;
+      const speed = Math.abs(this.omega);
+      const available = speed <= this.cornerPerS ? m.holdingNm : (m.holdingNm * this.cornerPerS) / speed;
+      const pull = powered
+        ? available * Math.sin((2 * Math.PI * (this.field - this.theta)) / (4 * m.microsteps)) : 0;
+      const torque = pull - m.detentNm * Math.sin((2 * Math.PI * this.theta) / m.microsteps);
+      let net;
+      if (this.omega === 0) {
+        net = Math.abs(torque) <= m.loadNm ? 0 : torque - Math.sign(torque) * m.loadNm;
+      } else {
+        net = torque - m.viscousNmPerRadS * this.omega * this.radPerMicrostep
+          - Math.sign(this.omega) * m.loadNm;
+      }
+      let omega = this.omega + (net / m.inertiaKgM2 / this.radPerMicrostep) * dt;
+      if ((this.omega > 0 && omega < 0) || (this.omega < 0 && omega > 0)) {
+        omega = 0;
+      }
+      const before = this.theta;
+      this.theta += omega * dt;
+      this.omega = omega;
+      this.emitCounts(before, this.theta, this.time, until, fromNanos - timerFrom);
+      this.time = until;
+    }
+  }
+
+  /** The encoder's count at `theta` microsteps: floor(theta x counts per revolution / per
+   * revolution). */
+  countAt(theta) {
+    return this.countBase + Math.floor((theta * this.m.countsPerRevolution) / this.perRevolution);
+  }
+
+  emitCounts(from, to, timerFrom, timerTo, lag) {
+    const target = this.countAt(to);
+    while (this.count !== target) {
+      const next = target > this.count ? this.count + 1 : this.count - 1;
+      const boundary = ((target > this.count ? next : this.count) - this.countBase)
+        * this.perRevolution / this.m.countsPerRevolution;
+      const fraction = to === from ? 0 : Math.min(Math.max((boundary - from) / (to - from), 0), 1);
+      const at = timerFrom + fraction * (timerTo - timerFrom) + lag;
+      const before = GRAY[((this.count % 4) + 4) % 4];
+      const after = GRAY[((next % 4) + 4) % 4];
+      const changed = before ^ after;
+      const pin = changed & 1 ? PIN_MAP.encoderA : PIN_MAP.encoderB;
+      this.clock.schedule(at, pin, ((changed & 1 ? after : after >> 1) & 1) !== 0);
+      this.edgesEmitted++;
+      this.count = next;
+    }
+  }
+
+  /** What the world holds, for the tests. */
+  get state() {
+    return {
+      theta: this.theta,
+      omega: this.omega,
+      field: this.field,
+      steps: this.steps,
+      count: this.count,
+      powered: this.powered,
+      edges: this.edgesEmitted,
+    };
+  }
 }

@@ -8,6 +8,7 @@
 #include "flashvars.h"
 #include "platform.h"
 #include "servo.h"
+#include "stepper.h"
 
 _Static_assert(TABLE_QUEUE_CAPACITY == MOTION_QUEUE_CAPACITY, "one queue capacity");
 _Static_assert(TABLE_CURVE_BUFFER_CAPACITY == CURVE_BUFFER_CAPACITY, "one keyframe capacity");
@@ -553,6 +554,8 @@ static void reset_controller_locked(void) {
     servo_state.motion_left = 0;
     servo_state.desired = servo_state.actual;
     servo_state.desired_vel = 0;
+    servo_state.vel_acc = 0;
+    servo_state.desired_prev = servo_state.actual;
     curve_interrupt(&servo_state.curve);
 }
 
@@ -561,6 +564,12 @@ static void shift_position_locked(int64_t shift) {
     servo_shift_position(&servo_state, shift);
     clear_queue_locked();
     clear_curve_locked();
+}
+
+/* The tick runs the simulated motor: no motor on the pins (call 39), or a step drive (the
+ * motor on the pins is the DC bridge's; a step drive runs the simulated stepper). */
+static bool simulated_motor(void) {
+    return !servo_params.motor_pins || servo_params.drive_kind != DRIVE_DC;
 }
 
 /* true (with the ERR line printed) when the device is in curve mode: calls 0 and 1. */
@@ -580,6 +589,32 @@ static bool refused_in_curve_mode(uint32_t number) {
 static int64_t output_mv(sci_t out) {
     out.e += 3;
     return sci_to_int(out);
+}
+
+/* The step generator's timing (calls 5 and 46, and power-up): in step-clock periods. */
+static void steps_timing(void) {
+    platform_steps_timing((uint32_t)stepper_cycles(vars.pulse_ns),
+                          (uint32_t)stepper_cycles(vars.setup_ns),
+                          device_tick_us() * STEPPER_CYCLES_PER_US);
+}
+
+/* _no_step_fits: true (with the ERR line printed) when a tick of tick_us fits no step pulse
+ * of this timing. */
+static bool refused_for_no_step(uint32_t number, int64_t tick_us, int64_t pulse_ns,
+                                int64_t setup_ns) {
+    if (stepper_max_steps_per_tick(tick_us, pulse_ns, setup_ns) >= 1) {
+        return false;
+    }
+    message_t m = {.length = 0};
+    message_text(&m, "a ");
+    message_int(&m, tick_us);
+    message_text(&m, " us tick fits no step pulse of ");
+    message_int(&m, pulse_ns);
+    message_text(&m, " ns after a ");
+    message_int(&m, setup_ns);
+    message_text(&m, " ns set-up (call 46)");
+    print_err_call(number, m.text);
+    return true;
 }
 
 /* --- the calls --------------------------------------------------------------------------- */
@@ -684,6 +719,11 @@ static void call_set_servo_update_interval(const call_t *call) {
         reply(CALL_SET_SERVO_UPDATE_INTERVAL, (field_t[]){NUMBER(device_tick_us())});
         return;
     }
+    if (vars.drive != DRIVE_DC && refused_for_no_step(CALL_SET_SERVO_UPDATE_INTERVAL,
+                                                      call->args[0] * 100, vars.pulse_ns,
+                                                      vars.setup_ns)) {
+        return;
+    }
     vars.interval_dms = (int32_t)call->args[0];
     derive();
     platform_servo_lock();
@@ -697,6 +737,7 @@ static void call_set_servo_update_interval(const call_t *call) {
     copy_in_locked();
     platform_servo_unlock();
     platform_servo_period_changed(device_tick_us());
+    steps_timing();
     debug_line(CALL_SET_SERVO_UPDATE_INTERVAL, (field_t[]){NUMBER(device_tick_us())});
 }
 
@@ -1062,7 +1103,7 @@ static void call_set_sim_probe(const call_t *call) {
     derive();
     platform_servo_lock();
     copy_in_locked();
-    if (!servo_params.motor_pins) {
+    if (simulated_motor()) {
         servo_state.probe = servo_probe(&servo_state, &servo_params);   /* no edge */
     }
     platform_servo_unlock();
@@ -1164,6 +1205,169 @@ static void call_outputs(const call_t *call) {
     platform_servo_unlock();
     reply(CALL_OUTPUTS, (field_t[]){NUMBER(values[0]), NUMBER(values[1]), NUMBER(values[2]),
                                     NUMBER(values[3]), NUMBER(pending), NUMBER(last)});
+}
+
+static void call_set_drive(const call_t *call) {
+    if (call->is_query) {
+        reply(CALL_SET_DRIVE, (field_t[]){NUMBER(vars.drive)});
+        return;
+    }
+    platform_servo_lock();
+    int32_t enable = servo_state.enable;
+    platform_servo_unlock();
+    if (enable == 1) {
+        print_err_call(CALL_SET_DRIVE, "the servo is enabled: disable it (call 3 0) before"
+                                       " changing what it drives");
+        return;
+    }
+    int32_t drive = (int32_t)call->args[0];
+    if (drive != DRIVE_DC && refused_for_no_step(CALL_SET_DRIVE, device_tick_us(),
+                                                 vars.pulse_ns, vars.setup_ns)) {
+        return;
+    }
+    vars.drive = drive;
+    derive();
+    motor_pins_sample_t pins = {0};
+    bool on_pins = vars.motor_pins && drive == DRIVE_DC;
+    if (on_pins) {
+        platform_motor_pins_sample(&pins);
+    }
+    platform_servo_lock();
+    /* a change of motor: the shaft at 0 at rest, the counters at 0, the PID afresh */
+    servo_state_t *s = &servo_state;
+    s->theta = 0;
+    s->omega = 0;
+    s->offset = 0;
+    s->actual = 0;
+    s->velocity = 0;
+    s->phase = 0;
+    s->last_steps = 0;
+    s->desired = 0;
+    for (unsigned slot = 0; slot < SERVO_HISTORY_SLOTS; slot++) {
+        s->counts[slot] = 0;
+    }
+    s->counts_pos = 0;
+    clear_queue_locked();
+    clear_curve_locked();
+    reset_controller_locked();
+    copy_in_locked();
+    if (on_pins) {
+        servo_pins_power_up(s, &pins);   /* the counter at 0 where the motor on the pins is */
+    } else {
+        s->limits = servo_switches(s, &servo_params);
+        s->probe = servo_probe(s, &servo_params);
+    }
+    platform_servo_unlock();
+    debug_line(CALL_SET_DRIVE, (field_t[]){NUMBER(drive)});
+}
+
+static void call_set_stepper(const call_t *call) {
+    if (call->is_query) {
+        reply(CALL_SET_STEPPER, (field_t[]){NUMBER(vars.full_steps), NUMBER(vars.microsteps)});
+        return;
+    }
+    vars.full_steps = (int32_t)call->args[0];
+    vars.microsteps = (int32_t)call->args[1];
+    derive();
+    platform_servo_lock();
+    clear_queue_locked();
+    clear_curve_locked();
+    copy_in_locked();
+    platform_servo_unlock();
+    debug_line(CALL_SET_STEPPER, (field_t[]){NUMBER(call->args[0]), NUMBER(call->args[1])});
+}
+
+static void call_set_step_timing(const call_t *call) {
+    if (call->is_query) {
+        reply(CALL_SET_STEP_TIMING, (field_t[]){NUMBER(vars.pulse_ns), NUMBER(vars.setup_ns)});
+        return;
+    }
+    if (refused_for_no_step(CALL_SET_STEP_TIMING, device_tick_us(), call->args[0],
+                            call->args[1])) {
+        return;
+    }
+    vars.pulse_ns = (int32_t)call->args[0];
+    vars.setup_ns = (int32_t)call->args[1];
+    set_and_copy_in();
+    steps_timing();
+    debug_line(CALL_SET_STEP_TIMING, (field_t[]){NUMBER(call->args[0]), NUMBER(call->args[1])});
+}
+
+static void call_set_sim_stepper(const call_t *call) {
+    if (call->is_query) {
+        reply(CALL_SET_SIM_STEPPER, (field_t[]){NUMBER(vars.holding_mnm), NUMBER(vars.detent_mnm),
+                                                NUMBER(vars.corner_rpm)});
+        return;
+    }
+    int64_t holding = call->args[0];
+    int64_t detent = call->args[1];
+    if (detent > holding) {
+        message_t m = {.length = 0};
+        message_text(&m, "detent torque ");
+        message_int(&m, detent);
+        message_text(&m, " mNm is more than the holding torque ");
+        message_int(&m, holding);
+        message_text(&m, " mNm");
+        print_err_call(CALL_SET_SIM_STEPPER, m.text);
+        return;
+    }
+    vars.holding_mnm = (int32_t)holding;
+    vars.detent_mnm = (int32_t)detent;
+    vars.corner_rpm = (int32_t)call->args[2];
+    set_and_copy_in();
+    debug_line(CALL_SET_SIM_STEPPER,
+               (field_t[]){NUMBER(holding), NUMBER(detent), NUMBER(call->args[2])});
+}
+
+static void call_steps(const call_t *call) {
+    (void)call;
+    platform_servo_lock();
+    int32_t issued = wrap_int32(servo_state.phase);
+    int32_t last = servo_state.last_steps;
+    platform_servo_unlock();
+    reply(CALL_STEPS, (field_t[]){NUMBER(issued), NUMBER(last),
+                                  NUMBER(stepper_max_steps_per_tick(device_tick_us(), vars.pulse_ns,
+                                                                    vars.setup_ns))});
+}
+
+static void call_set_encoder(const call_t *call) {
+    if (call->is_query) {
+        reply(CALL_SET_ENCODER,
+              (field_t[]){NUMBER(vars.encoder_kind), NUMBER(vars.encoder_angle)});
+        return;
+    }
+    platform_servo_lock();
+    int32_t enable = servo_state.enable;
+    platform_servo_unlock();
+    if (enable == 1) {
+        print_err_call(CALL_SET_ENCODER, "the servo is enabled: disable it (call 3 0) before"
+                                         " changing its encoder");
+        return;
+    }
+    int32_t kind = (int32_t)call->args[0];
+    int32_t angle = (int32_t)call->args[1];
+    if (kind == 1 && vars.drive == DRIVE_STEP_OPEN) {
+        print_err_call(CALL_SET_ENCODER, "an open-loop stepper (drive 1) counts its steps: it"
+                                         " has no encoder to read");
+        return;
+    }
+    vars.encoder_kind = kind;
+    vars.encoder_angle = angle;
+    if (kind == 1) {
+        /* the counter becomes the angle within a turn: (source + angle) floored modulo it */
+        int64_t turn = vars.drive == DRIVE_STEP_CLOSED
+                           ? (int64_t)vars.full_steps * vars.microsteps
+                           : (int64_t)vars.counts_per_revolution;
+        platform_servo_lock();
+        int64_t source = wrap_int32((int64_t)servo_state.actual - servo_state.offset);
+        int64_t within = (source + angle) % turn;
+        if (within < 0) {
+            within += turn;
+        }
+        shift_position_locked(within - servo_state.actual);
+        platform_servo_unlock();
+    }
+    debug_line(CALL_SET_ENCODER, (field_t[]){NUMBER(kind), NUMBER(angle)});
 }
 
 static int64_t ceil_div(int64_t numerator, int64_t denominator) {
@@ -1270,6 +1474,16 @@ static void ram_defaults(void) {
     vars.diag_n = 0;
     vars.watchdog_ms = 0;
     vars.fe_limit = 0;
+    vars.drive = POWER_UP_DRIVE;
+    vars.full_steps = POWER_UP_FULL_STEPS;
+    vars.microsteps = POWER_UP_MICROSTEPS;
+    vars.pulse_ns = POWER_UP_PULSE_NS;
+    vars.setup_ns = POWER_UP_SETUP_NS;
+    vars.encoder_kind = 0;
+    vars.encoder_angle = 0;
+    vars.holding_mnm = POWER_UP_HOLDING_MNM;
+    vars.detent_mnm = POWER_UP_DETENT_MNM;
+    vars.corner_rpm = POWER_UP_CORNER_RPM;
 }
 
 void device_power_up(void) {
@@ -1285,6 +1499,8 @@ void device_power_up(void) {
         platform_motor_pins_sample(&pins);
     }
     platform_outputs_start();
+    platform_steps_start();
+    steps_timing();
     derive();
     platform_servo_lock();
     servo_state_init(&servo_state, flash.default_control_mode);
@@ -1338,7 +1554,7 @@ void device_poll(void) {
 
 void device_servo_tick(void) {
     platform_servo_lock();
-    if (servo_params.motor_pins) {
+    if (!simulated_motor()) {
         servo_tick_pins(&servo_state, &servo_params, &records);
     } else {
         servo_tick(&servo_state, &servo_params, &records);

@@ -2,6 +2,7 @@
 #include "motor.h"
 #include "platform.h"
 #include "servo.h"
+#include "stepper.h"
 
 #define INTEGRAL_CAP ((int64_t)1 << 62)
 
@@ -58,6 +59,13 @@ void servo_params_finish(servo_params_t *params) {
         params->velocity_num = 0;
         params->velocity_den = 1;
     }
+    params->reach = (int32_t)(params->full / STEPPER_MICRO);
+    params->sine_k = (int32_t)(params->full / 64);
+    uint32_t microsteps = (uint32_t)params->reach;
+    bool power_of_two = microsteps != 0u && (microsteps & (microsteps - 1u)) == 0u;
+    params->full_mask = power_of_two ? microsteps - 1u : 0u;
+    params->cycle_mask = power_of_two ? 4u * microsteps - 1u : 0u;
+    params->holding_corner = params->holding * params->corner;
 }
 
 void servo_params_derive(const device_vars_t *vars, servo_params_t *params) {
@@ -70,9 +78,14 @@ void servo_params_derive(const device_vars_t *vars, servo_params_t *params) {
     window = window < 1 ? 1 : window > SERVO_HISTORY_SLOTS ? SERVO_HISTORY_SLOTS : window;
     sci_t kd_dt = sci_div(sci_value(vars->kd), sci_mul(dt_s, sci_from_int(window)));
     sci_t vs = sci_value(vars->source_voltage_v);
+    if (vars->drive == DRIVE_STEP_CLOSED) {
+        vs = sci_from_int(vars->microsteps);   /* one full step */
+    }
     int64_t integral_limit = ki_dt.c == 0 ? 0 : integral_limit_of(sci_div(vs, ki_dt));
     motor_constants_t constants;
     motor_derive_constants(vars, tick_us, &constants);
+    stepper_constants_t steps;
+    stepper_derive(vars, tick_us, constants.steps, &steps);
     params->tick_us = tick_us;
     params->scalar = vars->scalar;
     params->kp = kp;
@@ -98,5 +111,17 @@ void servo_params_derive(const device_vars_t *vars, servo_params_t *params) {
     params->window = (int32_t)window;
     params->probe_side = vars->probe_side;
     params->probe_position = vars->probe_position;
+    params->drive_kind = vars->drive;
+    params->max_steps = steps.max_steps;
+    params->cycle = steps.cycle;
+    params->full = steps.full;
+    params->holding = steps.holding_unm;
+    params->detent = steps.detent_unm;
+    params->corner = steps.corner;
+    params->load_unm = steps.load_unm;
+    params->viscous = steps.viscous;
+    params->accel = steps.accel;
+    params->encoder_cpr = vars->counts_per_revolution;
+    params->per_rev = vars->full_steps * vars->microsteps;
     servo_params_finish(params);
 }

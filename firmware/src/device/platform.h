@@ -75,4 +75,10 @@ void platform_outputs_form(const int16_t values[PLATFORM_OUTPUT_COUNT],
                            output_pins_t *pins);                     /* core0 */
 void platform_outputs_write(const output_pins_t *pins);              /* core1 */
 
+/* Step/direction outputs (call 44's drives 1 and 2), on either motor: STEP, DIR and the driver's enable.
+ * Timing in periods of the 125 MHz step clock (usbmotion.protocol.table.STEP_CLOCK_HZ). */
+void platform_steps_start(void);                                     /* core0, power-up */
+void platform_steps_timing(uint32_t pulse_cycles, uint32_t setup_cycles, uint32_t tick_cycles); /* core0, when calls 5/46 change it */
+void platform_steps_issue(int32_t steps, bool enable);               /* core1, every tick of a step drive, with the tick's signed steps */
+
 #endif

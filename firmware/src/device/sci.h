@@ -87,9 +87,13 @@ inline uint64_t sci_mul_32x64(uint32_t a, uint64_t b) {
     return ((uint64_t)hi << 32) | lo;
 }
 
-/* floor(n / d) for 0 < d < 2^16: two 32-bit divisions when n < 2^48 (the RP2040's hardware
- * divider; its 64-bit division takes three and more), else C's 64-bit division. */
+/* floor(n / d) for 0 < d < 2^16: one 32-bit division when n < 2^32, two when n < 2^48 (the
+ * RP2040's hardware divider; its 64-bit division takes three and more), else C's 64-bit
+ * division. */
 inline uint64_t sci_div_u64_small(uint64_t n, uint32_t d) {
+    if ((n >> 32) == 0) {
+        return sci_udiv((uint32_t)n, d);
+    }
     if ((n >> 48) != 0) {
         return n / d;
     }

@@ -14,24 +14,9 @@
 #include "motor.h"
 #include "platform.h"
 #include "servo.h"
+#include "stepper.h"
 
 #define EDGE_TICK_NONE 0
-
-/* core1.wrap_int32: the int32 the hardware counter holds (two's complement wrap). */
-static inline int32_t wrap_int32(int64_t value) {
-    uint32_t bits = (uint32_t)value;
-    return bits < 0x80000000u ? (int32_t)bits : -(int32_t)(~bits) - 1;
-}
-
-/* theta // 10^6 (floor), as floor(floor(|theta| / 2^6) / 15625) on the magnitude (below
- * 2^52): a 14-bit divisor, two 32-bit divisions. */
-static inline int64_t floor_micro(int64_t theta) {
-    if (theta >= 0) {
-        return (int64_t)sci_div_u64_small((uint64_t)theta >> 6, 15625u);
-    }
-    uint64_t magnitude = 0u - (uint64_t)theta;
-    return -(int64_t)sci_div_u64_small((magnitude + (MOTOR_MICRO - 1)) >> 6, 15625u);
-}
 
 static inline void shift_edge(switch_edge_t *edge, int64_t shift) {
     if (edge->tick != EDGE_TICK_NONE) {
@@ -161,6 +146,7 @@ void servo_shift_position(servo_state_t *state, int64_t shift) {
     state->offset = wrap_int32((int64_t)state->offset + shift);
     state->actual = wrap_int32((int64_t)state->actual + shift);
     state->desired = wrap_int32((int64_t)state->desired + shift);
+    state->desired_prev = wrap_int32((int64_t)state->desired_prev + shift);
     for (unsigned slot = 0; slot < SERVO_HISTORY_SLOTS; slot++) {
         state->counts[slot] = wrap_int32((int64_t)state->counts[slot] + shift);
     }
@@ -195,12 +181,19 @@ static void motion_update(servo_state_t *s, const servo_params_t *p) {
         s->motion_left = p->scalar;
     }
     s->motion_left -= 1;
+    if (p->drive_kind != DRIVE_DC && s->mode == MODE_VELOCITY) {
+        /* a stepper follows the desired velocity's position: |vel_acc| < 10^6 + 2^31 * 10^6 */
+        s->vel_acc += (int64_t)s->desired_vel * p->tick_us;
+        int64_t move = trunc_micro(s->vel_acc);
+        s->vel_acc -= move * STEPPER_MICRO;
+        s->desired = wrap_int32((int64_t)s->desired + move);
+    }
 }
 
 /* 2. PID (servo enabled): the output in volts, saturated, with conditional integration */
 static void pid(servo_state_t *s, const servo_params_t *p) {
     int64_t error;
-    if (s->mode == MODE_VELOCITY) {
+    if (s->mode == MODE_VELOCITY && p->drive_kind == DRIVE_DC) {
         error = (int64_t)s->desired_vel - s->velocity;
     } else {
         error = wrap_int32((int64_t)s->desired - s->actual);
@@ -250,12 +243,13 @@ static void pid(servo_state_t *s, const servo_params_t *p) {
 }
 
 /* 4. encoder, switches, the edge latch, the probe and its edge latch, and the velocity-mode
- * counter reset; returns the switches that closed on this tick. `count` is the shaft's
- * count, `limits` the switches, `probe` the probe input; `pins` the edges the switches' pins
- * latched (NULL: the simulated travel's, latched here). */
-static inline int32_t encoder(servo_state_t *s, const servo_params_t *p, int64_t count,
+ * counter reset; returns the switches that closed on this tick. `source` is what the counter
+ * counts (core1.py's: the shaft's count, a stepper's steps issued or its encoder in
+ * microsteps), `limits` the switches, `probe` the probe input; `pins` the edges the
+ * switches' pins latched (NULL: the simulated travel's, latched here). */
+static inline int32_t encoder(servo_state_t *s, const servo_params_t *p, int64_t source,
                               int32_t limits, int32_t probe, const motor_pins_sample_t *pins) {
-    s->actual = wrap_int32(count + s->offset);
+    s->actual = wrap_int32(source + s->offset);
     int32_t then = s->counts[s->counts_pos];
     /* wrap32(actual - then) * 10^6 / (window * tick_us) truncated toward zero (trunc_div),
      * as the reduced fraction: velocity_num <= 10^6, velocity_den <= 10^4 */
@@ -312,11 +306,15 @@ static inline int32_t encoder(servo_state_t *s, const servo_params_t *p, int64_t
         s->velocity_mode_us += p->tick_us;
         if (s->velocity_mode_us >= VELOCITY_RESET_US) {
             s->velocity_mode_us -= VELOCITY_RESET_US;
-            s->offset = wrap_int32(-count);
+            s->offset = wrap_int32(-source);
             for (int32_t slot = 0; slot < p->window; slot++) {
                 s->counts[slot] = wrap_int32((int64_t)s->counts[slot] - s->actual);
             }
             shift_edges(s, -(int64_t)s->actual);
+            if (p->drive_kind != DRIVE_DC) {
+                s->desired = wrap_int32((int64_t)s->desired - s->actual);
+                s->desired_prev = wrap_int32((int64_t)s->desired_prev - s->actual);
+            }
             s->actual = 0;
         }
     }
@@ -344,7 +342,12 @@ static inline bool tick_start(servo_state_t *s, const servo_params_t *p) {
     bool enabled = s->enable == 1;
     if (enabled) {
         motion_update(s, p);
-        pid(s, p);
+        if (p->drive_kind != DRIVE_STEP_OPEN) {
+            pid(s, p);
+        } else {
+            s->out.c = 0;
+            s->out.e = 0;
+        }
     } else {
         s->out.c = 0;
         s->out.e = 0;
@@ -449,18 +452,94 @@ static inline void tick_finish(servo_state_t *s, const servo_params_t *p, record
     }
 }
 
+/* 2-3 of a step drive: the steps this tick issues (the open loop's to the desired position,
+ * the closed loop's to where the rotor is going plus the PID's output, its field's lead),
+ * handed to the platform's step generator, and the simulated stepper over the tick with the
+ * steps reaching its field spread evenly over the sub-steps. Returns what the counter
+ * counts: the steps issued (open loop) or the encoder in microsteps (closed loop); *count
+ * is the shaft's whole microsteps after the tick. */
+static int64_t step_drive(servo_state_t *s, const servo_params_t *p, int64_t *count) {
+    int32_t issue = 0;
+    if (s->enable == 1) {
+        if (p->drive_kind == DRIVE_STEP_OPEN) {
+            issue = wrap_int32((int64_t)s->desired - s->actual);
+        } else {
+            /* trunc_div(velocity * tick_us, 10^6): |velocity| * tick_us <= 2^31 * 10^6 */
+            uint64_t magnitude = sci_div_u64_small(
+                sci_mul_32x64((uint32_t)p->tick_us, sci_magnitude64(s->velocity)) >> 6, 15625u);
+            int64_t moved = s->velocity < 0 ? -(int64_t)magnitude : (int64_t)magnitude;
+            /* where the rotor goes this tick: as measured, never beyond the command's move */
+            int64_t wanted = wrap_int32((int64_t)s->desired - s->desired_prev);
+            int64_t ahead;
+            if (wanted >= 0) {
+                ahead = moved < 0 ? 0 : (moved > wanted ? wanted : moved);
+            } else {
+                ahead = moved > 0 ? 0 : (moved < wanted ? wanted : moved);
+            }
+            /* the PID's output (saturated at a full step) is the field's lead over the rotor */
+            int32_t target = wrap_int32((int64_t)s->actual + ahead + sci_to_int(s->out));
+            issue = wrap_int32((int64_t)target - wrap_int32(s->phase + s->offset));
+        }
+        if (issue > p->max_steps) {
+            issue = p->max_steps;
+        } else if (issue < -p->max_steps) {
+            issue = -p->max_steps;
+        }
+    }
+    s->out = sci_from_int(issue);
+    /* the driver holds its field while the servo runs and after a fault, until it is
+     * cleared (a fault stops the steps; it does not drop a vertical axis) */
+    int32_t powered = (s->enable == 1 || s->fault != FAULT_NONE) ? 1 : 0;
+    platform_steps_issue(issue, powered == 1);
+
+    /* the field after sub-step k is phase + trunc_div(issue * k, steps) microsteps: the
+     * quotient and remainder of |issue| / steps added up, a carry when the remainder reaches
+     * steps */
+    uint32_t steps = (uint32_t)p->steps;
+    uint32_t magnitude = issue < 0 ? 0u - (uint32_t)issue : (uint32_t)issue;
+    uint32_t whole = steps == 1u ? magnitude : sci_udiv(magnitude, steps);
+    uint32_t rest = magnitude - whole * steps;
+    uint32_t moved = 0;
+    uint32_t remainder = 0;
+    for (uint32_t step = 0; step < steps; step++) {
+        moved += whole;
+        remainder += rest;
+        if (remainder >= steps) {
+            remainder -= steps;
+            moved += 1u;
+        }
+        int64_t field = issue < 0 ? s->phase - moved : s->phase + moved;
+        stepper_step(&s->theta, &s->omega, field, powered, p);
+    }
+    s->phase += issue;
+    s->last_steps = issue;
+    *count = floor_micro(s->theta);
+    if (p->drive_kind == DRIVE_STEP_OPEN) {
+        return s->phase;
+    }
+    return stepper_encoder_microsteps(*count, p->encoder_cpr, p->per_rev);
+}
+
 void servo_tick(servo_state_t *s, const servo_params_t *p, record_ring_t *ring) {
     bool enabled = tick_start(s, p);
 
     /* 3. motor */
-    sci_t drive = sci_mul(s->out, p->drive);
-    for (int32_t step = 0; step < p->steps; step++) {
-        motor_step(&s->theta, &s->omega, drive, p);
+    int64_t count;
+    int64_t source;
+    if (p->drive_kind == DRIVE_DC) {
+        sci_t drive = sci_mul(s->out, p->drive);
+        for (int32_t step = 0; step < p->steps; step++) {
+            motor_step(&s->theta, &s->omega, drive, p);
+        }
+        count = floor_micro(s->theta);
+        source = count;
+    } else {
+        source = step_drive(s, p, &count);
     }
+    s->desired_prev = s->desired;
 
-    int64_t count = floor_micro(s->theta);
     int32_t closing =
-        encoder(s, p, count, travel_switches(count, p), probe_closed(count, p), NULL);
+        encoder(s, p, source, travel_switches(count, p), probe_closed(count, p), NULL);
     tick_finish(s, p, ring, enabled, closing);
 }
 
@@ -478,6 +557,7 @@ void servo_tick_pins(servo_state_t *s, const servo_params_t *p, record_ring_t *r
     }
     s->pins_started = true;
     s->pins_enabled = tick_start(s, p);
+    s->desired_prev = s->desired;
     platform_motor_pins_drive(pins_level(s->out, p), s->enable == 1);
 }
 

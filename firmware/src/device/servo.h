@@ -14,6 +14,10 @@
 #define MODE_VELOCITY 2
 #define MODE_CURVE 3
 
+#define DRIVE_DC 0            /* call 44: a DC motor */
+#define DRIVE_STEP_OPEN 1     /* step/direction, open loop */
+#define DRIVE_STEP_CLOSED 2   /* step/direction, closed loop */
+
 #define FAULT_NONE 0
 #define FAULT_WATCHDOG 1
 #define FAULT_FOLLOWING_ERROR 2
@@ -167,6 +171,12 @@ typedef struct {
     switch_edge_t edges[2];    /* lower, upper */
     switch_edge_t probe_edge;  /* the probe input's last edge (call 41) */
     int32_t probe;             /* the probe input now: 1 closed (touching) */
+    int64_t phase;             /* step drives: the driver's step counter, the steps issued
+                                * since the drive was set (signed, not wrapped) */
+    int32_t last_steps;        /* step drives: the steps the last tick issued */
+    int64_t vel_acc;           /* step drives in velocity mode: the desired velocity's travel
+                                * not yet a whole microstep, microsteps x 10^6 */
+    int32_t desired_prev;      /* the desired position of the tick before */
     output_queue_t outputs;    /* call 42's changes and the outputs they set */
     curve_player_t curve;
     /* Not in core1.py: the motor on the pins (servo_tick_pins). A tick there reads the
@@ -202,6 +212,18 @@ typedef struct {
     int32_t window;            /* derivative window, ticks (1..SERVO_HISTORY_SLOTS) */
     int32_t probe_side;        /* the simulated probe surface (call 40): PROBE_SIDE_* */
     int32_t probe_position;    /* ... counts from power-up */
+    int32_t drive_kind;        /* call 44 (core1.py P_DRIVE): DRIVE_* */
+    int32_t max_steps;         /* step drives: the most steps one tick issues */
+    int64_t cycle;             /* the simulated stepper's electrical cycle, micro-microsteps */
+    int64_t full;              /* a full step, micro-microsteps (the detent's period) */
+    int64_t holding;           /* holding torque, uNm */
+    int64_t detent;            /* detent torque, uNm */
+    int64_t corner;            /* corner speed, microsteps/s */
+    int64_t load_unm;          /* call 33's load torque, uNm (the stepper's) */
+    sci_t viscous;             /* uNm per micro-microstep/s (the stepper's) */
+    sci_t accel;               /* micro-microsteps/s per uNm over one sub-step */
+    int32_t encoder_cpr;       /* call 16: the closed loop's encoder counts per revolution */
+    int32_t per_rev;           /* call 45: microsteps per revolution */
     /* Not in core1.py: the motor on the pins (call 39, at power-up) and the bridge's level
      * per volt of output (platform_motor_pins_full over the supply voltage). */
     int32_t motor_pins;
@@ -213,6 +235,12 @@ typedef struct {
     int64_t travel_den;
     int64_t velocity_num;      /* 10^6 / (window * tick_us) = velocity_num / velocity_den */
     int64_t velocity_den;
+    /* Not in core1.py: from full, holding and corner (servo_params_finish). */
+    int32_t reach;             /* full / 10^6: a full step, microsteps (the closed loop's lead) */
+    int32_t sine_k;            /* full / 64: the sines' table index divides by it (stepper.c) */
+    uint32_t full_mask;        /* microsteps - 1 when a power of two, else 0 (stepper.c) */
+    uint32_t cycle_mask;       /* 4 microsteps - 1 likewise */
+    int64_t holding_corner;    /* holding * corner, the torque above the corner times the speed */
 } servo_params_t;
 
 /* The RAM variables core0 owns and the calls set (core0.py Device fields). Gains and the
@@ -238,6 +266,16 @@ typedef struct {
     int32_t motor_pins;                 /* call 39 as the flash held it at power-up */
     int32_t probe_side;                 /* call 40 */
     int32_t probe_position;
+    int32_t drive;                      /* call 44 */
+    int32_t full_steps;                 /* call 45 */
+    int32_t microsteps;
+    int32_t pulse_ns;                   /* call 46 */
+    int32_t setup_ns;
+    int32_t holding_mnm;                /* call 47 */
+    int32_t detent_mnm;
+    int32_t corner_rpm;
+    int32_t encoder_kind;               /* call 49 */
+    int32_t encoder_angle;
 } device_vars_t;
 
 /* The records core1 writes for core0 to print, in order: a diagnostics line (call 21) or an
@@ -263,6 +301,28 @@ typedef struct {
     volatile uint32_t dropped; /* records core1 could not write (ring full) */
 } record_ring_t;
 
+/* core1.wrap_int32: the int32 the hardware counter holds (two's complement wrap). */
+static inline int32_t wrap_int32(int64_t value) {
+    uint32_t bits = (uint32_t)value;
+    return bits < 0x80000000u ? (int32_t)bits : -(int32_t)(~bits) - 1;
+}
+
+/* theta // 10^6 (floor), as floor(floor(|theta| / 2^6) / 15625) on the magnitude (below
+ * 2^52): a 14-bit divisor, two 32-bit divisions. */
+static inline int64_t floor_micro(int64_t theta) {
+    if (theta >= 0) {
+        return (int64_t)sci_div_u64_small((uint64_t)theta >> 6, 15625u);
+    }
+    uint64_t magnitude = 0u - (uint64_t)theta;
+    return -(int64_t)sci_div_u64_small((magnitude + (MICRO - 1)) >> 6, 15625u);
+}
+
+/* trunc_div(value, 10^6) for |value| < 2^54, as floor_micro on the magnitude. */
+static inline int64_t trunc_micro(int64_t value) {
+    uint64_t magnitude = sci_div_u64_small(sci_magnitude64(value) >> 6, 15625u);
+    return value < 0 ? -(int64_t)magnitude : (int64_t)magnitude;
+}
+
 /* Power-up state (core1.new_state): zeroes, start -1, mode from flash, last_take -1. */
 void servo_state_init(servo_state_t *state, int32_t mode);
 
@@ -270,8 +330,9 @@ void servo_state_init(servo_state_t *state, int32_t mode);
  * (the motor's exponential), never called on core1. */
 void servo_params_derive(const device_vars_t *vars, servo_params_t *params);
 
-/* The fields of servo_params_t that are not core1.py's (travel_*, velocity_*), from tick_us,
- * steps and window: whoever fills the others without servo_params_derive calls this. */
+/* The fields of servo_params_t that are not core1.py's (travel_*, velocity_*, reach,
+ * holding_corner), from tick_us, steps, window, full, holding and corner: whoever fills the
+ * others without servo_params_derive calls this. */
 void servo_params_finish(servo_params_t *params);
 
 /* One servo tick (core1.servo_block for one tick, with curve mode's player run by core1 on

@@ -19,10 +19,11 @@
 #define TABLE_OUTPUT_QUEUE_CAPACITY 16u
 #define TABLE_DEFAULT_DEVICE_NAME "GENERIC USB MOTION DEVICE"
 #define TABLE_HUGE_DIGITS 18u
-#define TABLE_CALLS 44u
+#define TABLE_CALLS 50u
 #define TABLE_MAX_PARAMS 4u
 #define TABLE_MAX_DEBUG_FLAG 2u
 #define TABLE_FAULTS 5u
+#define TABLE_STEP_CLOCK_HZ 125000000u
 
 /* core0's RAM variables at power-up (usbmotion.device.core0 and .motor defaults);
  * a (coefficient, exponent) pair as the calls carry it. */
@@ -42,6 +43,14 @@
 #define POWER_UP_TRAVEL_LOWER_COUNTS INT32_MIN
 #define POWER_UP_TRAVEL_UPPER_COUNTS 2147483647
 #define POWER_UP_OVERTRAVEL_COUNTS 200
+#define POWER_UP_DRIVE 0
+#define POWER_UP_FULL_STEPS 200
+#define POWER_UP_MICROSTEPS 16
+#define POWER_UP_PULSE_NS 2000
+#define POWER_UP_SETUP_NS 1000
+#define POWER_UP_HOLDING_MNM 590
+#define POWER_UP_DETENT_MNM 20
+#define POWER_UP_CORNER_RPM 760
 
 /* Executive call numbers, by the table's names. */
 #define CALL_ADD_SINGLE 0
@@ -88,6 +97,12 @@
 #define CALL_PROBE 41
 #define CALL_SET_OUTPUT_AT 42
 #define CALL_OUTPUTS 43
+#define CALL_SET_DRIVE 44
+#define CALL_SET_STEPPER 45
+#define CALL_SET_STEP_TIMING 46
+#define CALL_SET_SIM_STEPPER 47
+#define CALL_STEPS 48
+#define CALL_SET_ENCODER 49
 
 /* Every call as X(NAME, name), in number order: the firmware builds its handler table
  * from this list (a handler call_<name> for each CALL_<NAME>), so none is left out. */
@@ -135,7 +150,13 @@
     X(SET_SIM_PROBE, set_sim_probe) \
     X(PROBE, probe) \
     X(SET_OUTPUT_AT, set_output_at) \
-    X(OUTPUTS, outputs)
+    X(OUTPUTS, outputs) \
+    X(SET_DRIVE, set_drive) \
+    X(SET_STEPPER, set_stepper) \
+    X(SET_STEP_TIMING, set_step_timing) \
+    X(SET_SIM_STEPPER, set_sim_stepper) \
+    X(STEPS, steps) \
+    X(SET_ENCODER, set_encoder)
 
 /* One supporting input: its name and inclusive range (Param). */
 typedef struct {
@@ -176,5 +197,11 @@ extern const char *const fault_names[TABLE_FAULTS];
 extern const template_t template_diagnostics;
 extern const template_t template_alarm;
 extern const template_t template_err;
+
+/* The simulated stepper's sine (usbmotion.device.stepper.SINE): entry i is
+ * round(SINE_ONE sin(2 pi i / SINE_SIZE)). */
+#define TABLE_SINE_SIZE 1024u
+#define TABLE_SINE_ONE 16384
+extern const int16_t table_sine[TABLE_SINE_SIZE];
 
 #endif

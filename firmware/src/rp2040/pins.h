@@ -43,9 +43,23 @@
 #define USBMOTION_OUTPUT_PWM_HZ 5000u
 #endif
 
+/* A stepper driver's inputs (call 44's drives 1 and 2: an A4988, a DRV8825, a TMC2209 in its
+ * step/direction mode), on either motor: STEP (a pulse a step), DIR (high: the steps count
+ * up) and EN, which is active low: low while the servo runs enabled on a step drive, high
+ * otherwise (the driver's outputs off). */
+#define PIN_STEP 18u
+#define PIN_DIR 19u
+#define PIN_STEP_ENABLE 20u
+
 /* The PIO block and state machine of the quadrature decoder. */
 #define QUADRATURE_PIO pio0
 #define QUADRATURE_SM 0u
+
+/* The step generator (step_dir.pio): its own PIO block (the decoder's program fills most of
+ * pio0's instruction memory), the tick clock and the pulse machine. */
+#define STEP_PIO pio1
+#define STEP_CLOCK_SM 0u
+#define STEP_DIR_SM 1u
 
 /* PWM frequency, Hz: above the audible range by default. Configure with
  * -DUSBMOTION_PWM_HZ=...; at the 125 MHz system clock the duty has 125 MHz / f steps. */

@@ -20,6 +20,18 @@ void servo_core1_main(void);
 /* core1, before its first tick: the switches' interrupt, when the motor is on the pins */
 void motor_pins_core1_init(void);
 
+/* core1, first thing in the servo alarm's interrupt (before its ticks): the step generator
+ * takes a timing core0 changed, and restarts its tick clock at this instant when the period
+ * did (step_pins.c; inline: one comparison when nothing is new) */
+extern volatile uint32_t step_timing_staged;
+extern uint32_t step_timing_taken;
+void step_pins_take_timing(void);
+static inline void step_pins_tick(void) {
+    if (step_timing_staged != step_timing_taken) {
+        step_pins_take_timing();
+    }
+}
+
 /* core0: bring up USB and run the main loop; never returns */
 void usb_cdc_run(void);
 

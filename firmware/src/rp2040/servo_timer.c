@@ -63,6 +63,7 @@ static bool __not_in_flash_func(arm_alarm)(uint64_t target_us) {
 }
 
 static void __not_in_flash_func(servo_alarm_irq)(void) {
+    step_pins_tick(); /* first thing: the step generator's tick clock restarts here */
     timer_hw->intr = SERVO_ALARM_BIT;
     hw_clear_bits(&timer_hw->intf, SERVO_ALARM_BIT);
     uint32_t saved = spin_lock_blocking(schedule_lock);

@@ -29,7 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from usbmotion.errors import ArgumentError
-from usbmotion.host.config import AxisConfig
+from usbmotion.host.config import AxisConfig, SimMotorConfig
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -130,6 +130,9 @@ def simulated_model(axis: AxisConfig) -> AxisModel:
     if axis.sim is None:
         raise ArgumentError(f"axis {axis.name} has no sim table: no simulated motor",
                             reason="axis")
+    if not isinstance(axis.sim, SimMotorConfig):
+        raise ArgumentError(f"axis {axis.name} is a stepper: its simulated motor is no DC"
+                            " motor to model", reason="axis")
     motor = axis.sim.model()
     return true_model(torque_constant_nm_per_a=motor.torque_constant_nm_per_a,
                       resistance_ohm=motor.resistance_ohm, inertia_kg_m2=motor.inertia_kg_m2,

@@ -212,8 +212,77 @@ def _step(config: MachineConfig, axis_config: AxisConfig, *, step_mm: float,
     typer.echo(f"plot                  {target}")
 
 
+def _stepper_reach(config: MachineConfig, axis_config: AxisConfig) -> None:
+    """``--reach`` on a stepper axis: what limits it, said honestly. The step rate is the
+    device's (call 48, at the driver's timing); the torque is not measured (open loop the
+    device counts the steps it issues, not the shaft); a simulated stepper's torque curve
+    gives the limits its machine file may set."""
+    from usbmotion.host.config import (  # noqa: PLC0415
+        OPEN_LOOP_MARGIN,
+        REACH_MARGIN,
+        SimStepperConfig,
+        round_down,
+        stepper_reach,
+    )
+    from usbmotion.sim.machine import connect_machine  # noqa: PLC0415
+
+    stepper = axis_config.stepper
+    assert stepper is not None
+    name = axis_config.name
+    try:
+        with connect_machine(config) as connected:
+            connected.configure()
+            client = connected.axis(name).client
+            per_tick = client.steps().max_per_tick
+            tick_us = client.servo_interval_us()
+    except UsbMotionError as error:
+        fail("tune", str(error), EXIT_FAULT)
+    scale = axis_config.counts_per_mm
+    rate = per_tick / (tick_us * 1e-6)
+    share = 1.0 - REACH_MARGIN if stepper.closed else 1.0
+    typer.echo(f"axis {name}: a stepper, {stepper.loop} loop, {scale:g} microsteps per mm"
+               f" ({stepper.microsteps} microsteps per full step)")
+    typer.echo(f"step rate  the driver's timing ({stepper.step_pulse_ns} ns pulses,"
+               f" {stepper.dir_setup_ns} ns set-up) lets the device issue {per_tick} steps a"
+               f" {tick_us} us tick (call 48): {rate:.6g} steps/s, {rate / scale:.6g} mm/s;"
+               f" max_velocity_mm_s <= {round_down(share * rate / scale):g}"
+               + (f" ({1 - REACH_MARGIN:.0%}: the closed loop keeps the rest to catch up)"
+                  if stepper.closed else ""))
+    if stepper.closed:
+        typer.echo("torque     not measured: a run at full torque (the field a full step"
+                   " ahead of the shaft) does not come back to rest by itself on the device's"
+                   " closed loop; a load beyond the torque shows as following error on the"
+                   f" tick it comes (try gains with a step: usbmotion tune -a {name} --kp ...)")
+    else:
+        typer.echo("torque     not measured: open loop the device counts the steps it issues,"
+                   " not the shaft, so no run shows what the motor did; a step it loses shows"
+                   " only at the next homing, as the switch closing at another step count")
+    sim = axis_config.sim
+    top = axis_config.max_velocity_mm_s
+    if isinstance(sim, SimStepperConfig):
+        reach = stepper_reach(sim, stepper, scale)
+        margin = REACH_MARGIN if stepper.closed else OPEN_LOOP_MARGIN
+        typer.echo(
+            f"simulated  {sim.holding_torque_mnm} mNm up to {reach.corner_mm_s:.4g} mm/s"
+            f" ({sim.corner_rpm} rpm), falling as 1/speed; keeping {margin:.0%} of it,"
+            f" the machine file may set max_velocity_mm_s <="
+            f" {round_down(reach.usable_velocity_mm_s(margin=margin)):g} and, at"
+            f" max_velocity_mm_s {top:g}, max_accel_mm_s2 <="
+            f" {round_down(reach.usable_accel_mm_s2(top, margin=margin)):g} (it sets"
+            f" {top:g} and {axis_config.max_accel_mm_s2:g})")
+    typer.echo("no reach line: a stepper axis takes none; its limits are checked against its"
+               " step rate (and a simulated one's against its torque) when the file loads")
+
+
 def _reach(config: MachineConfig, axis_config: AxisConfig, distance_mm: float | None) -> None:
     from usbmotion.host.config import REACH_MARGIN, round_down  # noqa: PLC0415
+
+    if axis_config.stepper is not None:
+        if distance_mm is not None:
+            fail("tune", "--distance-mm: --reach on a stepper axis runs no motor",
+                 EXIT_BAD_INPUT)
+        _stepper_reach(config, axis_config)
+        return
     from usbmotion.sim.machine import connect_machine  # noqa: PLC0415
     from usbmotion.tuning import measure_reach  # noqa: PLC0415
 

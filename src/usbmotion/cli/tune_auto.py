@@ -28,6 +28,11 @@ def auto_tune(config: MachineConfig, axis_config: AxisConfig, *, travel_mm: floa
     from usbmotion.errors import ArgumentError, UsbMotionError  # noqa: PLC0415
     from usbmotion.sim.machine import connect_machine  # noqa: PLC0415
 
+    if axis_config.stepper is not None:
+        fail("tune", f"--auto identifies a DC servo's motor and places its PID; axis"
+             f" {axis_config.name} is a stepper ({axis_config.drive.words}): its limits are"
+             " checked against its step rate and torque (usbmotion tune --reach), a closed"
+             " loop's gains tried with usbmotion tune --kp", EXIT_BAD_INPUT)
     if write and config.path.resolve() == default_machine().resolve():
         fail("tune", f"--write: {config.path} is the built-in machine's file, part of the"
              " package; copy it (examples/machine.toml is the same), pass it with --machine"
@@ -73,8 +78,10 @@ def _finite(value: Any) -> Any:
 def _physical(found: Identification, axis_config: AxisConfig) -> PhysicalModel | None:
     """The model in SI figures when the file gives the motor's torque constant and
     resistance (its ``sim`` table)."""
+    from usbmotion.host.config import SimMotorConfig  # noqa: PLC0415
+
     sim = axis_config.sim
-    if sim is None:
+    if not isinstance(sim, SimMotorConfig):
         return None
     motor = sim.model()
     return found.fit.model.physical(torque_constant_nm_per_a=motor.torque_constant_nm_per_a,
@@ -84,8 +91,10 @@ def _physical(found: Identification, axis_config: AxisConfig) -> PhysicalModel |
 
 def _physical_sigmas(found: Identification, axis_config: AxisConfig) -> dict[str, float]:
     """One standard error of each SI figure, from the fit's covariance (linearised)."""
+    from usbmotion.host.config import SimMotorConfig  # noqa: PLC0415
+
     sim = axis_config.sim
-    if sim is None:
+    if not isinstance(sim, SimMotorConfig):
         return {}
     motor = sim.model()
 

@@ -47,6 +47,7 @@ from usbmotion.device.motor import (
     derive_constants,
     sci_value,
 )
+from usbmotion.device.stepper import StepperParams, derive_stepper, max_steps_per_tick
 from usbmotion.errors import DeviceParameterError, EmptyLineError, FlashError, ProtocolError
 from usbmotion.hermite import Keyframe
 from usbmotion.protocol.codec import (
@@ -56,7 +57,7 @@ from usbmotion.protocol.codec import (
     format_err,
     parse_call,
 )
-from usbmotion.protocol.names import FaultCode, fault_words
+from usbmotion.protocol.names import Drive, FaultCode, fault_words
 from usbmotion.protocol.table import (
     ALARM,
     BY_NUMBER,
@@ -164,6 +165,12 @@ class DeviceSettings:
     control_mode: int
     gains: Gains
     motor: MotorParams
+    drive: int
+    """Call 44: what the device drives."""
+    encoder: tuple[int, int]
+    """Call 49: the encoder's kind and the simulated magnet's angle."""
+    stepper: StepperParams
+    """Calls 45-47: the stepper, its driver's timing and the simulated stepper."""
     diagnostics_interval: int
     watchdog_ms: int
     following_error_limit: int
@@ -268,6 +275,9 @@ class Device:
         self._scalar = DEFAULT_SCALAR
         self._gains = self._power_up_gains
         self._motor = self._power_up_motor
+        self._drive = int(Drive.DC)
+        self._stepper = StepperParams()
+        self._encoder = (0, 0)
         self._diag_n = 0
         self._watchdog_ms = 0
         self._fe_limit = 0
@@ -473,6 +483,9 @@ class Device:
             control_mode=int(self._state[core1.S_MODE]),
             gains=self._gains,
             motor=self._motor,
+            drive=self._drive,
+            encoder=self._encoder,
+            stepper=self._stepper,
             diagnostics_interval=self._diag_n,
             watchdog_ms=self._watchdog_ms,
             following_error_limit=self._fe_limit,
@@ -676,12 +689,20 @@ class Device:
         window = min(core1.HISTORY_SLOTS, max(1, 1000 // tick_us))
         kd_dt = sci_value(self._gains.kd) / (dt_s * SciNumber.from_int(window, digits=DIGITS))
         vs = sci_value(self._motor.source_voltage_v)
+        stepper = self._stepper
+        if self._drive == Drive.STEP_CLOSED:
+            vs = SciNumber.from_int(stepper.microsteps, digits=DIGITS)  # one full step
         if ki_dt.coefficient == 0:
             integral_limit = 0
         else:
             integral_limit = max(1, min(_INTEGRAL_CAP, int(vs / ki_dt)))
         constants = derive_constants(self._motor, tick_us=tick_us)
         self._motor_constants = constants
+        motor = self._motor
+        steps = derive_stepper(stepper, tick_us=tick_us, substeps=constants.steps,
+                               inertia=sci_value(motor.inertia_kg_m2),
+                               viscous_unm=sci_value(motor.viscous_friction_unm_per_rad_s),
+                               load_mnm=sci_value(motor.load_torque_mnm))
         values = {
             core1.P_TICK_US: tick_us,
             core1.P_SCALAR: self._scalar,
@@ -713,6 +734,20 @@ class Device:
             core1.P_WINDOW: window,
             core1.P_PROBE_SIDE: self._probe_side,
             core1.P_PROBE_POSITION: self._probe_position,
+            core1.P_DRIVE: self._drive,
+            core1.P_MAX_STEPS: steps.max_steps,
+            core1.P_CYCLE: steps.cycle,
+            core1.P_FULL: steps.full,
+            core1.P_HOLDING: steps.holding_unm,
+            core1.P_DETENT: steps.detent_unm,
+            core1.P_CORNER: steps.corner,
+            core1.P_LOAD_UNM: steps.load_unm,
+            core1.P_VISCOUS_C: steps.viscous[0],
+            core1.P_VISCOUS_E: steps.viscous[1],
+            core1.P_ACCEL_C: steps.accel[0],
+            core1.P_ACCEL_E: steps.accel[1],
+            core1.P_ENCODER_CPR: motor.counts_per_revolution,
+            core1.P_PER_REV: stepper.microsteps_per_revolution,
         }
         for index, value in values.items():
             params[index] = value
@@ -747,7 +782,9 @@ class Device:
         state[core1.S_FRESH] = 1
         state[core1.S_MOTION_LEFT] = 0
         state[core1.S_DESIRED] = state[core1.S_ACTUAL]
+        state[core1.S_DESIRED_PREV] = state[core1.S_ACTUAL]
         state[core1.S_DESIRED_VEL] = 0
+        state[core1.S_VEL_ACC] = 0
         self._curve.interrupt(int(state[core1.S_ACTUAL]))
 
     def _push(self, values: tuple[int, ...] | IntArray) -> int:
@@ -876,6 +913,8 @@ class Device:
             self._reply(5, self.tick_us)
             return
         state = self._state
+        if self._drive != Drive.DC and self._max_steps(call.args[0] * 100) < 1:
+            raise _RefusedError(self._no_step_fits(call.args[0] * 100))
         self._interval_dms = call.args[0]
         self._clear_queue()
         self._clear_curve()
@@ -1051,6 +1090,7 @@ class Device:
         state[core1.S_OFFSET] = wrap_int32(int(state[core1.S_OFFSET]) + shift)
         state[core1.S_ACTUAL] = wrap_int32(int(state[core1.S_ACTUAL]) + shift)
         state[core1.S_DESIRED] = wrap_int32(int(state[core1.S_DESIRED]) + shift)
+        state[core1.S_DESIRED_PREV] = wrap_int32(int(state[core1.S_DESIRED_PREV]) + shift)
         for slot in range(core1.S_COUNTS, core1.S_COUNTS + core1.HISTORY_SLOTS):
             state[slot] = wrap_int32(int(state[slot]) + shift)
         core1.shift_edges(state, shift)
@@ -1155,6 +1195,102 @@ class Device:
         base = core1.S_PROBE_EDGE
         edge = state[base : base + core1.EDGE_FIELDS].tolist()
         self._reply(41, int(state[core1.S_PROBE]), *edge)
+
+    def _call_44(self, call: Call) -> None:
+        state = self._state
+        if call.is_query:
+            self._reply(44, self._drive)
+            return
+        if state[core1.S_ENABLE] == 1:
+            raise _RefusedError("the servo is enabled: disable it (call 3 0) before changing"
+                                " what it drives")
+        drive = call.args[0]
+        if drive != Drive.DC and self._max_steps(self.tick_us) < 1:
+            raise _RefusedError(self._no_step_fits(self.tick_us))
+        self._drive = drive
+        for index in (core1.S_THETA, core1.S_OMEGA, core1.S_OFFSET, core1.S_ACTUAL,
+                      core1.S_VELOCITY, core1.S_PHASE, core1.S_LAST_STEPS, core1.S_DESIRED):
+            state[index] = 0
+        state[core1.S_COUNTS : core1.S_COUNTS + core1.HISTORY_SLOTS] = 0
+        state[core1.S_COUNTS_POS] = 0
+        self._clear_queue()
+        self._clear_curve()
+        self._reset_controller()
+        self._copy_in()
+        state[core1.S_LIMITS] = self._switches()
+        state[core1.S_PROBE] = self._probe()
+        self._debug_line(44, drive)
+
+    def _max_steps(self, tick_us: int, stepper: StepperParams | None = None) -> int:
+        stepper = stepper if stepper is not None else self._stepper
+        return max_steps_per_tick(tick_us, stepper.pulse_ns, stepper.setup_ns)
+
+    def _no_step_fits(self, tick_us: int, stepper: StepperParams | None = None) -> str:
+        stepper = stepper if stepper is not None else self._stepper
+        return (f"a {tick_us} us tick fits no step pulse of {stepper.pulse_ns} ns after a"
+                f" {stepper.setup_ns} ns set-up (call 46)")
+
+    def _call_45(self, call: Call) -> None:
+        if call.is_query:
+            self._reply(45, self._stepper.full_steps, self._stepper.microsteps)
+            return
+        full_steps, microsteps = call.args
+        self._stepper = replace(self._stepper, full_steps=full_steps, microsteps=microsteps)
+        self._clear_queue()
+        self._clear_curve()
+        self._copy_in()
+        self._debug_line(45, full_steps, microsteps)
+
+    def _call_46(self, call: Call) -> None:
+        if call.is_query:
+            self._reply(46, self._stepper.pulse_ns, self._stepper.setup_ns)
+            return
+        pulse_ns, setup_ns = call.args
+        stepper = replace(self._stepper, pulse_ns=pulse_ns, setup_ns=setup_ns)
+        if self._max_steps(self.tick_us, stepper) < 1:
+            raise _RefusedError(self._no_step_fits(self.tick_us, stepper))
+        self._stepper = stepper
+        self._copy_in()
+        self._debug_line(46, pulse_ns, setup_ns)
+
+    def _call_47(self, call: Call) -> None:
+        stepper = self._stepper
+        if call.is_query:
+            self._reply(47, stepper.holding_mnm, stepper.detent_mnm, stepper.corner_rpm)
+            return
+        holding, detent, corner = call.args
+        if detent > holding:
+            raise _RefusedError(f"detent torque {detent} mNm is more than the holding torque"
+                                f" {holding} mNm")
+        self._stepper = replace(stepper, holding_mnm=holding, detent_mnm=detent,
+                                corner_rpm=corner)
+        self._copy_in()
+        self._debug_line(47, holding, detent, corner)
+
+    def _call_49(self, call: Call) -> None:
+        state = self._state
+        if call.is_query:
+            self._reply(49, *self._encoder)
+            return
+        if state[core1.S_ENABLE] == 1:
+            raise _RefusedError("the servo is enabled: disable it (call 3 0) before changing"
+                                " its encoder")
+        kind, angle = call.args
+        if kind == 1 and self._drive == Drive.STEP_OPEN:
+            raise _RefusedError("an open-loop stepper (drive 1) counts its steps: it has no"
+                                " encoder to read")
+        self._encoder = (kind, angle)
+        if kind == 1:
+            turn = (self._stepper.microsteps_per_revolution if self._drive == Drive.STEP_CLOSED
+                    else self._motor.counts_per_revolution)
+            source = wrap_int32(int(state[core1.S_ACTUAL]) - int(state[core1.S_OFFSET]))
+            self._shift_position((source + angle) % turn - int(state[core1.S_ACTUAL]))
+        self._debug_line(49, kind, angle)
+
+    def _call_48(self, call: Call) -> None:
+        state = self._state
+        self._reply(48, wrap_int32(int(state[core1.S_PHASE])), int(state[core1.S_LAST_STEPS]),
+                    self._max_steps(self.tick_us))
 
     def _call_42(self, call: Call) -> None:
         state = self._state

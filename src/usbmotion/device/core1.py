@@ -45,9 +45,10 @@ import numpy as np
 import numpy.typing as npt
 
 from usbmotion.device.motor import DIGITS, MICRO, motor_step
-from usbmotion.protocol.names import ControlMode, FaultCode
+from usbmotion.device.stepper import encoder_microsteps, stepper_step
+from usbmotion.protocol.names import ControlMode, Drive, FaultCode
 from usbmotion.protocol.table import OUTPUT_COUNT, OUTPUT_QUEUE_CAPACITY, QUEUE_CAPACITY
-from usbmotion.scimath import sci_add, sci_compare, sci_from_int, sci_mul
+from usbmotion.scimath import sci_add, sci_compare, sci_from_int, sci_mul, sci_to_int
 
 IntArray = npt.NDArray[np.int64]
 
@@ -183,7 +184,18 @@ DIAG_RECORD = 8
 (coefficient, exponent), queued values, peak following error."""
 S_DIAG = S_OUT_QUEUE + OUTPUT_QUEUE_CAPACITY * OUT_RECORD
 """First entry of the ``DIAG_SLOTS`` records."""
-STATE_SIZE = S_DIAG + DIAG_SLOTS * DIAG_RECORD
+S_PHASE = S_DIAG + DIAG_SLOTS * DIAG_RECORD
+"""Step drives: the driver's step counter, the steps issued since the drive was set
+(signed, not wrapped)."""
+S_LAST_STEPS = S_PHASE + 1
+"""Step drives: the steps the last tick issued (signed)."""
+S_VEL_ACC = S_LAST_STEPS + 1
+"""Step drives in velocity mode: the desired velocity's travel not yet a whole microstep,
+microsteps x 10**6."""
+S_DESIRED_PREV = S_VEL_ACC + 1
+"""The desired position of the tick before (the closed-loop stepper's command moved by the
+difference)."""
+STATE_SIZE = S_DESIRED_PREV + 1
 STATS_SUM_CAP = 1 << 62
 """The sum of squared following errors stops here instead of overflowing."""
 
@@ -229,7 +241,37 @@ P_PROBE_SIDE = 29
 :data:`P_PROBE_POSITION`, 2 at or above it."""
 P_PROBE_POSITION = 30
 """The simulated probe surface, motor counts from power-up."""
-PARAMS_SIZE = 31
+P_DRIVE = 31
+"""Call 44: 0 DC motor, 1 stepper open loop, 2 stepper closed loop."""
+P_MAX_STEPS = 32
+"""Step drives: the most steps one tick issues."""
+P_CYCLE = 33
+"""The simulated stepper's electrical cycle (4 full steps), micro-microsteps."""
+P_FULL = 34
+"""A full step, micro-microsteps (the detent's period)."""
+P_HOLDING = 35
+"""The simulated stepper's holding torque, uNm."""
+P_DETENT = 36
+"""Its detent torque, uNm."""
+P_CORNER = 37
+"""Its corner speed, microsteps/s."""
+P_LOAD_UNM = 38
+"""Call 33's load torque, uNm (the stepper's)."""
+P_VISCOUS_C = 39
+P_VISCOUS_E = 40
+"""Viscous torque per speed, uNm per micro-microstep/s (the stepper's)."""
+P_ACCEL_C = 41
+P_ACCEL_E = 42
+"""Speed change per uNm over one integration step, micro-microsteps/s (the stepper's)."""
+P_ENCODER_CPR = 43
+"""Call 16: the closed loop's encoder counts per revolution."""
+P_PER_REV = 44
+"""Call 45: microsteps per revolution."""
+PARAMS_SIZE = 45
+
+DRIVE_DC = int(Drive.DC)
+DRIVE_STEP_OPEN = int(Drive.STEP_OPEN)
+DRIVE_STEP_CLOSED = int(Drive.STEP_CLOSED)
 
 _DYNAMIC = (
     S_ENABLE,
@@ -251,6 +293,10 @@ _DYNAMIC = (
     S_START,
     S_LIMITS,
     S_PROBE,
+    S_PHASE,
+    S_LAST_STEPS,
+    S_VEL_ACC,
+    S_DESIRED_PREV,
     *range(S_HISTORY, S_HISTORY + 2 * HISTORY_SLOTS),
 )
 DYNAMIC_FIELDS: tuple[int, ...] = _DYNAMIC
@@ -413,6 +459,20 @@ def servo_block(
     diag_room = min(max(1, int(params[P_DIAG_ROOM])), DIAG_SLOTS)
     probe_side = int(params[P_PROBE_SIDE])
     probe_position = int(params[P_PROBE_POSITION])
+    drive = int(params[P_DRIVE])
+    max_steps = int(params[P_MAX_STEPS])
+    cycle = int(params[P_CYCLE])
+    full = int(params[P_FULL])
+    holding = int(params[P_HOLDING])
+    detent = int(params[P_DETENT])
+    corner = int(params[P_CORNER])
+    load_unm = int(params[P_LOAD_UNM])
+    viscous_c = int(params[P_VISCOUS_C])
+    viscous_e = int(params[P_VISCOUS_E])
+    accel_c = int(params[P_ACCEL_C])
+    accel_e = int(params[P_ACCEL_E])
+    encoder_cpr = int(params[P_ENCODER_CPR])
+    per_rev = int(params[P_PER_REV])
 
     clock = int(state[S_CLOCK])
     enable = int(state[S_ENABLE])
@@ -449,6 +509,10 @@ def servo_block(
     diag_count = int(state[S_DIAG_COUNT])
     diag_peak = int(state[S_DIAG_PEAK])
     out_next = int(state[S_OUT_NEXT])
+    phase = int(state[S_PHASE])
+    last_steps = int(state[S_LAST_STEPS])
+    vel_acc = int(state[S_VEL_ACC])
+    desired_prev = int(state[S_DESIRED_PREV])
 
     curve_len = len(curve)
     events = 0
@@ -484,10 +548,15 @@ def servo_block(
                             desired_vel = 0
                         motion_left = scalar
                     motion_left -= 1
+                if drive != DRIVE_DC and mode == MODE_VELOCITY:
+                    vel_acc += desired_vel * tick_us
+                    move = trunc_div(vel_acc, MICRO)
+                    vel_acc -= move * MICRO
+                    desired = wrap_int32(desired + move)
 
-        # 2. PID
-        if enable == 1:
-            if mode == MODE_VELOCITY:
+        # 2. PID (the DC motor's and the closed-loop stepper's) and the steps to issue
+        if enable == 1 and drive != DRIVE_STEP_OPEN:
+            if mode == MODE_VELOCITY and drive == DRIVE_DC:
                 error = desired_vel - velocity
             else:
                 error = wrap_int32(desired - actual)
@@ -533,30 +602,88 @@ def servo_block(
         else:
             out_c = 0
             out_e = 0
+        issue = 0
+        if drive != DRIVE_DC:
+            if enable == 1:
+                if drive == DRIVE_STEP_OPEN:
+                    issue = wrap_int32(desired - actual)
+                else:
+                    # where the rotor goes this tick: as measured, but never beyond the
+                    # command's own move (a stalled rotor is not extrapolated, and one that
+                    # ran ahead does not run on by its own measurement)
+                    moved = trunc_div(velocity * tick_us, MICRO)
+                    wanted = wrap_int32(desired - desired_prev)
+                    if wanted >= 0:
+                        ahead = min(max(moved, 0), wanted)
+                    else:
+                        ahead = max(min(moved, 0), wanted)
+                    target = wrap_int32(actual + ahead + sci_to_int(out_c, out_e))
+                    issue = wrap_int32(target - wrap_int32(phase + offset))
+                if issue > max_steps:
+                    issue = max_steps
+                elif issue < -max_steps:
+                    issue = -max_steps
+            out_c, out_e = sci_from_int(issue, DIGITS)
+        desired_prev = desired
 
         # 3. motor
-        drive_c, drive_e = sci_mul(out_c, out_e, drive_gain_c, drive_gain_e, DIGITS)
-        for _ in range(steps):
-            theta, omega = motor_step(
-                theta,
-                omega,
-                drive_c,
-                drive_e,
-                friction_c,
-                friction_e,
-                decay_c,
-                decay_e,
-                lag_c,
-                lag_e,
-                tick_us,
-                steps,
-                stop_low,
-                stop_high,
-            )
+        if drive == DRIVE_DC:
+            drive_c, drive_e = sci_mul(out_c, out_e, drive_gain_c, drive_gain_e, DIGITS)
+            for _ in range(steps):
+                theta, omega = motor_step(
+                    theta,
+                    omega,
+                    drive_c,
+                    drive_e,
+                    friction_c,
+                    friction_e,
+                    decay_c,
+                    decay_e,
+                    lag_c,
+                    lag_e,
+                    tick_us,
+                    steps,
+                    stop_low,
+                    stop_high,
+                )
+        else:
+            # The driver holds its field while the servo runs, and after a fault (a fault
+            # stops the steps; it does not drop a vertical axis): only call 3 0 releases it.
+            powered = 1 if enable == 1 or fault != FAULT_NONE else 0
+            for step in range(steps):
+                field = (phase + trunc_div(issue * (step + 1), steps)) * MICRO
+                theta, omega = stepper_step(
+                    theta,
+                    omega,
+                    field,
+                    powered,
+                    cycle,
+                    full,
+                    holding,
+                    detent,
+                    corner,
+                    load_unm,
+                    viscous_c,
+                    viscous_e,
+                    accel_c,
+                    accel_e,
+                    tick_us,
+                    steps,
+                    stop_low,
+                    stop_high,
+                )
+            phase += issue
+            last_steps = issue
 
         # 4. encoder and switches
         count = theta // MICRO
-        actual = wrap_int32(count + offset)
+        if drive == DRIVE_DC:
+            source = count
+        elif drive == DRIVE_STEP_OPEN:
+            source = phase
+        else:
+            source = encoder_microsteps(count, encoder_cpr, per_rev)
+        actual = wrap_int32(source + offset)
         then = int(state[S_COUNTS + counts_pos])
         velocity = trunc_div(wrap_int32(actual - then) * MICRO, window * tick_us)
         state[S_COUNTS + counts_pos] = actual
@@ -594,10 +721,13 @@ def servo_block(
             velocity_mode_us += tick_us
             if velocity_mode_us >= VELOCITY_RESET_US:
                 velocity_mode_us -= VELOCITY_RESET_US
-                offset = wrap_int32(-count)
+                offset = wrap_int32(-source)
                 for slot in range(window):
                     state[S_COUNTS + slot] = wrap_int32(int(state[S_COUNTS + slot]) - actual)
                 shift_edges(state, -actual)
+                if drive != DRIVE_DC:
+                    desired = wrap_int32(desired - actual)
+                    desired_prev = wrap_int32(desired_prev - actual)
                 actual = 0
 
         # 5. faults
@@ -697,6 +827,10 @@ def servo_block(
     state[S_DIAG_COUNT] = diag_count
     state[S_DIAG_PEAK] = diag_peak
     state[S_OUT_NEXT] = out_next
+    state[S_PHASE] = phase
+    state[S_LAST_STEPS] = last_steps
+    state[S_VEL_ACC] = vel_acc
+    state[S_DESIRED_PREV] = desired_prev
     return executed
 
 

@@ -18,9 +18,9 @@ module, or numba's user cache directory when that is not writable), so only the 
 after an install or a change pays the compile (a few seconds; ``BENCHMARKS.md`` gives the
 figures). numba's cache only checks the file of the function it compiles, not the files of
 the functions it calls; the cache key here also carries a hash of ``core1.py``,
-``motor.py``, ``scimath.py`` and ``protocol/table.py``, so an edit to any of them compiles
-afresh instead of loading stale machine code (when the sources cannot be read, nothing is
-cached).
+``motor.py``, ``stepper.py``, ``scimath.py`` and ``protocol/table.py``, so an edit to any of
+them compiles afresh instead of loading stale machine code (when the sources cannot be read,
+nothing is cached).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from types import ModuleType
 from typing import Any, Final
 
 from usbmotion import scimath
-from usbmotion.device import core1, motor
+from usbmotion.device import core1, motor, stepper
 from usbmotion.device.core1 import IntArray
 from usbmotion.errors import DeviceParameterError
 from usbmotion.protocol import table
@@ -125,7 +125,7 @@ def use_kernel(fast: bool | None = None) -> bool:
     return False
 
 
-SOURCES: Final = (core1, motor, scimath, table)
+SOURCES: Final = (core1, motor, stepper, scimath, table)
 """The modules whose source the compiled kernel depends on (code and constants)."""
 
 
@@ -187,6 +187,12 @@ def compile_kernel() -> BlockFunction:
                 core1.outputs_off,
                 motor._trunc_div,
                 motor.motor_step,
+                stepper.trunc_div,
+                stepper.travel,
+                stepper.speed_change,
+                stepper.sine_at,
+                stepper.encoder_microsteps,
+                stepper.stepper_step,
             ):
                 register_jitable(function)
             _jit_block = numba.njit(nogil=True)(core1.servo_block)

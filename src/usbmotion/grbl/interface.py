@@ -170,7 +170,8 @@ class AxisSettings:
     """One axis's part of ``$$`` (``$100`` up)."""
 
     counts_per_mm: float
-    """Encoder counts per millimetre, shown as grbl's steps per millimetre."""
+    """The device's counts per millimetre, shown as grbl's steps per millimetre: a
+    stepper's microsteps (its ``steps_per_mm``), a servo's encoder counts."""
     max_rate_mm_min: float
     accel_mm_s2: float
     max_travel_mm: float

@@ -401,7 +401,8 @@ class SessionMachine:
                             f"${number} is no setting of this machine")
         name = axes[index]
         if group == 10:
-            return {("axes", name, "counts_per_mm"): float(value)}
+            key = "steps_per_mm" if self.config.axis(name).stepper is not None else "counts_per_mm"
+            return {("axes", name, key): float(value)}
         if group == 11:
             return {("axes", name, "max_velocity_mm_s"): round(value / 60.0, 6)}
         if group == 12:

@@ -34,7 +34,8 @@ from usbmotion.protocol import (
     CallNumber,
     device_name_problem,
 )
-from usbmotion.protocol.table import INT32_MAX, INT32_MIN
+from usbmotion.protocol.names import Drive
+from usbmotion.protocol.table import INT32_MAX, INT32_MIN, STEP_CLOCK_HZ
 
 AXIS_LETTERS = ("X", "Y", "Z", "A", "B", "C", "U", "V", "W")
 DIALECTS = ("linuxcnc", "grbl", "marlin")
@@ -255,6 +256,209 @@ def simulated_reach(sim: SimMotorConfig, counts_per_mm: float) -> AxisReach:
     return AxisReach(speed_counts_s / counts_per_mm, accel_counts_s2 / counts_per_mm)
 
 
+AXIS_KINDS = ("servo", "stepper")
+"""What drives an axis: a DC servo (a brushed motor, its encoder and the device's PID) or a
+stepper on a step/direction driver (call 44)."""
+STEPPER_LOOPS = ("open", "closed")
+"""A stepper axis's loop: ``open`` (the position is the steps issued) or ``closed`` (an
+encoder on the shaft, the PID's output leading it by at most one full step)."""
+STEPPER_GAINS_DEFAULT = PidGains(kp=0.2, ki=1.0, kd=0.001)
+"""A closed-loop stepper's gains when its file gives none: the field's lead over the rotor
+(microsteps, saturated at a full step) per microstep of error, per microstep-second, per
+microstep/s. On the simulated NEMA 17 of ``examples/stepper.toml``'s Z they rest on the
+count and follow at 1 kHz and at 10 kHz (at 10 kHz higher gains follow closer:
+docs/setup.md); demo 1 on emulated chips at 1 kHz peaks at 11 microsteps."""
+OPEN_LOOP_MARGIN = 0.6
+"""The share of a simulated open-loop stepper's torque its limits leave unused (a closed
+loop leaves :data:`REACH_MARGIN`). An open-loop rotor rings on the field like a lightly
+damped spring at every change of acceleration, and lags further than the steady torque
+says: on ``examples/stepper.toml``'s X and Y (1.1e-5 kg m^2), moves at 50 mm/s with no
+loss up to 26,500 mm/s^2 (45 % of the torque), steps lost at 30,000 (51 %) and beyond."""
+OPEN_LOOP_GAINS = PidGains(kp=0.0, ki=0.0, kd=0.0)
+"""An open-loop stepper runs no PID: the device ignores its gains; these are sent."""
+
+
+def steps_per_tick(tick_us: int, pulse_ns: int, setup_ns: int) -> int:
+    """The steps one servo tick of ``tick_us`` can issue with a step pulse of ``pulse_ns``
+    high (and as long low) after a direction set-up of ``setup_ns``, as the device counts
+    them (call 48's ``max_per_tick``, PROTOCOL.md call 46): each time rounded up to whole
+    periods of the 125 MHz step clock; 0 when not even one fits."""
+    per_us = STEP_CLOCK_HZ // 1_000_000
+
+    def periods(ns: int) -> int:
+        return (ns * per_us + 999) // 1000
+
+    return max(0, (tick_us * per_us - periods(setup_ns)) // (2 * periods(pulse_ns)))
+
+
+@dataclass(frozen=True, slots=True)
+class StepperConfig:
+    """A stepper axis's motor and driver (calls 44-46, and call 16 for its encoder).
+
+    Fields:
+        loop: ``"open"`` or ``"closed"`` (:data:`STEPPER_LOOPS`).
+        full_steps_per_rev: the motor's full steps per revolution (200: 1.8 degrees).
+        microsteps: microsteps per full step, as set on the driver.
+        encoder_counts_per_rev: the closed loop's encoder, counts per revolution
+            (quadrature x4); ``None`` open loop.
+        step_pulse_ns: the step pulse's high time (and at least as long low), ns.
+        dir_setup_ns: the direction set-up time before a step edge, ns.
+    """
+
+    loop: str
+    full_steps_per_rev: int
+    microsteps: int
+    encoder_counts_per_rev: int | None
+    step_pulse_ns: int
+    dir_setup_ns: int
+
+    @property
+    def closed(self) -> bool:
+        """True for a closed loop."""
+        return self.loop == "closed"
+
+    @property
+    def drive(self) -> Drive:
+        """Call 44's drive."""
+        return Drive.STEP_CLOSED if self.closed else Drive.STEP_OPEN
+
+    @property
+    def microsteps_per_rev(self) -> int:
+        """Microsteps per motor revolution."""
+        return self.full_steps_per_rev * self.microsteps
+
+    def steps_per_tick(self, tick_us: int) -> int:
+        """The most steps one servo tick of ``tick_us`` issues (:func:`steps_per_tick`)."""
+        return steps_per_tick(tick_us, self.step_pulse_ns, self.dir_setup_ns)
+
+
+@dataclass(frozen=True, slots=True)
+class SimStepperConfig:
+    """The simulated stepper behind a simulated stepper axis (calls 12, 17, 32-34, 40, 47).
+
+    Fields:
+        update_interval_dms: integration step, tenths of a millisecond (1 = 100 us: a
+            stepper's field turns within a millisecond; at most the servo period).
+        holding_torque_mnm: the holding torque at the driver's current, mNm.
+        detent_torque_mnm: the unpowered detent torque, mNm.
+        corner_rpm: the speed above which the driver's current, and the torque, fall as
+            1/speed, rpm.
+        inertia_kg_m2: rotor plus load inertia at the motor shaft, kg m^2.
+        viscous_friction_unm_per_rad_s: viscous friction at the shaft, uNm per rad/s.
+        load_torque_mnm: constant load torque opposing motion, mNm.
+        start_mm, probe_side, probe_mm: as :class:`SimMotorConfig`'s.
+    """
+
+    update_interval_dms: int
+    holding_torque_mnm: int
+    detent_torque_mnm: int
+    corner_rpm: int
+    inertia_kg_m2: float
+    viscous_friction_unm_per_rad_s: float
+    load_torque_mnm: float
+    start_mm: float
+    probe_side: int = 0
+    probe_mm: float = 0.0
+
+    def torque_nm(self, rpm: float) -> float:
+        """The most torque the driver's field gives at ``rpm``, N m: the holding torque up
+        to the corner speed, falling as 1/speed above it."""
+        speed = abs(rpm)
+        held = self.holding_torque_mnm * 1e-3
+        return held if speed <= self.corner_rpm else held * self.corner_rpm / speed
+
+
+SIM_STEPPER_DEFAULTS: Mapping[str, float] = {
+    "update_interval_dms": 1,
+    "holding_torque_mnm": 590,
+    "detent_torque_mnm": 20,
+    "corner_rpm": 760,
+    "inertia_kg_m2": 8.2e-6,
+    "viscous_friction_unm_per_rad_s": 20.0,
+    "load_torque_mnm": 10.0,
+}
+"""The simulated stepper of a stepper axis's ``sim`` table's omitted keys: the device's
+power-up stepper (a NEMA 17 rated 2 A, 0.59 N m, on a 24 V driver: call 47), its rotor's
+8.2e-6 kg m^2 alone, and a bearing's friction; a file adds its screw and carriage."""
+
+
+@dataclass(frozen=True, slots=True)
+class StepperReach:
+    """What a stepper can do, in axis units: the torque its driver's field gives (the holding
+    torque up to the corner speed, falling as 1/speed above) less what friction, the load
+    and the detent take, over the inertia.
+
+    Fields:
+        per_mm_rad: motor radians per mm of travel (``2 pi steps_per_mm / microsteps per
+            revolution``).
+        holding_nm: the holding torque, N m.
+        corner_mm_s: the corner speed in axis mm/s.
+        drag_nm: the torque friction and the load take at standstill plus the detent's
+            ripple (the worst case), N m.
+        viscous_nm_s: viscous friction, N m per rad/s.
+        inertia_kg_m2: inertia at the shaft.
+    """
+
+    per_mm_rad: float
+    holding_nm: float
+    corner_mm_s: float
+    drag_nm: float
+    viscous_nm_s: float
+    inertia_kg_m2: float
+
+    def torque_nm(self, velocity_mm_s: float) -> float:
+        """The field's torque at ``velocity_mm_s``, N m."""
+        speed = abs(velocity_mm_s)
+        if speed <= self.corner_mm_s:
+            return self.holding_nm
+        return self.holding_nm * self.corner_mm_s / speed
+
+    def needed_nm(self, velocity_mm_s: float, accel_mm_s2: float) -> float:
+        """The torque a move needs at ``velocity_mm_s`` while accelerating at
+        ``accel_mm_s2``, N m (the detent's ripple included)."""
+        return (self.inertia_kg_m2 * accel_mm_s2 * self.per_mm_rad + self.drag_nm
+                + self.viscous_nm_s * velocity_mm_s * self.per_mm_rad)
+
+    def usable_accel_mm_s2(self, velocity_mm_s: float, *, margin: float) -> float:
+        """The largest acceleration at ``velocity_mm_s`` that leaves ``margin`` of the
+        field's torque unused, mm/s^2 (0 when none)."""
+        spare = (1.0 - margin) * self.torque_nm(velocity_mm_s) - self.needed_nm(
+            velocity_mm_s, 0.0)
+        return max(0.0, spare / (self.inertia_kg_m2 * self.per_mm_rad))
+
+    def usable_velocity_mm_s(self, *, margin: float) -> float:
+        """The fastest speed at which the torque, less ``margin``, still holds the move
+        against friction, mm/s (0 when even standstill needs more)."""
+        if self.usable_accel_mm_s2(0.0, margin=margin) <= 0.0:
+            return 0.0
+        low, high = 0.0, self.corner_mm_s
+        while self.usable_accel_mm_s2(high, margin=margin) > 0.0:
+            low, high = high, 2.0 * high
+            if high > 1e9:
+                return high
+        for _ in range(100):
+            middle = (low + high) / 2
+            if self.usable_accel_mm_s2(middle, margin=margin) > 0.0:
+                low = middle
+            else:
+                high = middle
+        return low
+
+
+def stepper_reach(sim: SimStepperConfig, stepper: StepperConfig,
+                  steps_per_mm: float) -> StepperReach:
+    """The reach of a simulated stepper (:class:`StepperReach`) through ``steps_per_mm``."""
+    per_mm_rev = steps_per_mm / stepper.microsteps_per_rev
+    return StepperReach(
+        per_mm_rad=2.0 * math.pi * per_mm_rev,
+        holding_nm=sim.holding_torque_mnm * 1e-3,
+        corner_mm_s=sim.corner_rpm / 60.0 / per_mm_rev,
+        drag_nm=(sim.load_torque_mnm + sim.detent_torque_mnm) * 1e-3,
+        viscous_nm_s=sim.viscous_friction_unm_per_rad_s * 1e-6,
+        inertia_kg_m2=sim.inertia_kg_m2,
+    )
+
+
 @dataclass(frozen=True, slots=True)
 class MotorModelConfig:
     """An axis's motor as ``usbmotion tune --auto`` identified it (the file's ``model``
@@ -286,7 +490,8 @@ class AxisConfig:
         url: where the device is, when known: ``sim://X`` (an in-process simulated
             device), ``/dev/ttyACM0``, ``COM3``, ``socket://host:port``; ``None`` to find
             ``device`` by discovery.
-        counts_per_mm: encoder counts per millimetre of axis travel (> 0).
+        counts_per_mm: device counts per millimetre of axis travel (> 0): encoder counts
+            on a servo, microsteps on a stepper (its file's ``steps_per_mm``).
         max_velocity_mm_s: the fastest the axis may move, mm/s.
         max_accel_mm_s2: the largest acceleration of the axis, mm/s^2.
         max_jerk_mm_s3: the largest jerk of jerk-limited profiles, mm/s^3.
@@ -302,11 +507,17 @@ class AxisConfig:
             and ``max_accel_mm_s2`` were checked against it, and against the motor model
             of a simulated axis, keeping :data:`REACH_MARGIN`.
         sim: the simulated motor, for simulated axes (always set for ``sim://`` axes;
-            ``None`` on real hardware unless the file gives a ``sim`` table).
+            ``None`` on real hardware unless the file gives a ``sim`` table): a DC motor
+            (:class:`SimMotorConfig`) on a servo axis, a stepper
+            (:class:`SimStepperConfig`) on a stepper axis.
         wrapped: a rotary axis that turns on without end (``wrapped = true``): no travel, no
             soft limits, homed by declaring its angle.
         model: the motor as ``usbmotion tune --auto --write`` identified it (the file's
             ``model`` table), or ``None``.
+        stepper: a stepper axis's motor and driver (``kind = "stepper"``), or ``None`` for
+            a servo axis. A stepper's ``velocity_gains`` are its ``gains``: in velocity mode
+            (homing) it integrates the velocity into its desired position and runs the same
+            position loop.
 
     A rotary axis (A, B, C) is in degrees: its file writes ``counts_per_degree``,
     ``max_velocity_deg_s``, ``travel_deg`` and so on (:data:`_ROTARY_NAMES`), and every
@@ -331,9 +542,25 @@ class AxisConfig:
     following_error_limit_mm: float
     homing: HomingConfig
     reach: AxisReach | None
-    sim: SimMotorConfig | None
+    sim: SimMotorConfig | SimStepperConfig | None
     wrapped: bool = False
     model: MotorModelConfig | None = None
+    stepper: StepperConfig | None = None
+
+    @property
+    def kind(self) -> str:
+        """``"servo"`` or ``"stepper"`` (:data:`AXIS_KINDS`)."""
+        return "servo" if self.stepper is None else "stepper"
+
+    @property
+    def drive(self) -> Drive:
+        """What the axis's device drives (call 44)."""
+        return Drive.DC if self.stepper is None else self.stepper.drive
+
+    @property
+    def count_words(self) -> str:
+        """What the device counts on this axis: ``counts`` or ``microsteps``."""
+        return "counts" if self.stepper is None else "microsteps"
 
     @property
     def scale(self) -> AxisScale:
@@ -895,7 +1122,19 @@ _JOINT_KEYS = ("axis", "unit", "counts_per_unit", "max_velocity", "max_accel", "
 _AXIS_KEYS = (
     "device", "url", "counts_per_mm", "max_velocity_mm_s", "max_accel_mm_s2", "max_jerk_mm_s3",
     "travel_mm", "gains", "velocity_gains", "following_error_limit_mm", "homing", "sim", "reach",
-    "model",
+    "model", "kind",
+)
+_STEPPER_ONLY_KEYS = ("steps_per_mm", "microsteps", "full_steps_per_rev", "loop",
+                      "encoder_counts_per_rev", "step_pulse_ns", "dir_setup_ns")
+_STEPPER_AXIS_KEYS = (
+    "device", "url", "kind", "max_velocity_mm_s", "max_accel_mm_s2", "max_jerk_mm_s3",
+    "travel_mm", "gains", "following_error_limit_mm", "homing", "sim", *_STEPPER_ONLY_KEYS,
+)
+_SERVO_ONLY_KEYS = ("counts_per_mm", "velocity_gains", "reach", "model")
+_SIM_STEPPER_KEYS = (
+    "update_interval_dms", "holding_torque_mnm", "detent_torque_mnm", "corner_rpm",
+    "inertia_kg_m2", "viscous_friction_unm_per_rad_s", "load_torque_mnm", "start_mm",
+    "probe_below_mm", "probe_above_mm",
 )
 _GAINS_KEYS = ("kp", "ki", "kd")
 _HOMING_KEYS = ("direction", "speed_mm_s", "slow_speed_mm_s", "backoff_mm", "position_mm",
@@ -913,6 +1152,7 @@ ROTARY_LETTERS = "ABC"
 _ROTARY_NAMES = {
     "counts_per_mm": "counts_per_degree", "max_velocity_mm_s": "max_velocity_deg_s",
     "max_accel_mm_s2": "max_accel_deg_s2", "max_jerk_mm_s3": "max_jerk_deg_s3",
+    "steps_per_mm": "steps_per_degree",
     "travel_mm": "travel_deg", "following_error_limit_mm": "following_error_limit_deg",
     "speed_mm_s": "speed_deg_s", "slow_speed_mm_s": "slow_speed_deg_s",
     "backoff_mm": "backoff_deg", "position_mm": "position_deg", "pull_off_mm": "pull_off_deg",
@@ -969,7 +1209,7 @@ def _machine(top: _Reader) -> MachineConfig:
         allowed=f"a table of axes, [axes.X], [axes.Y], ... (letters {', '.join(AXIS_LETTERS)})",
     )
     assert axes_table is not None
-    axes = _axes(axes_table, servo_interval_dms)
+    axes = _axes(axes_table, servo_interval_dms, motion_scalar)
     order = _homing_order(top, axes)
     joints_table = top.table("joints", allowed="a table of robot joints, [joints.<name>]")
     joints = () if joints_table is None else _joints(joints_table, axes)
@@ -1059,7 +1299,8 @@ def _string_list(reader: _Reader, name: str, allowed: str) -> tuple[str, ...]:
     return tuple(value)
 
 
-def _axes(table: _Reader, servo_interval_dms: int) -> tuple[AxisConfig, ...]:
+def _axes(table: _Reader, servo_interval_dms: int,
+          motion_scalar: int) -> tuple[AxisConfig, ...]:
     letters = ", ".join(AXIS_LETTERS)
     if not table.data:
         table.fail(None, f"no axes; add at least one [axes.<LETTER>] table ({letters})")
@@ -1071,7 +1312,7 @@ def _axes(table: _Reader, servo_interval_dms: int) -> tuple[AxisConfig, ...]:
     for name in table.data:
         reader = table.table(name, required=True, allowed="a table of axis settings")
         assert reader is not None
-        axes.append(_axis(name, reader, servo_interval_dms))
+        axes.append(_axis(name, reader, servo_interval_dms, motion_scalar))
     for key in ("device", "url"):
         seen: dict[str, str] = {}
         for axis in axes:
@@ -1113,11 +1354,101 @@ def _url(reader: _Reader) -> str | None:
     return url
 
 
-def _axis(name: str, reader: _Reader, servo_interval_dms: int) -> AxisConfig:
+def _kind(reader: _Reader) -> str:
+    """The axis's ``kind``, and no key of the other kind in its table."""
+    kinds = ", ".join(repr(kind) for kind in AXIS_KINDS)
+    allowed = (f"{kinds}: a DC motor with an encoder and the device's PID, or a stepper on a"
+               " step/direction driver")
+    kind = reader.string("kind", default="servo", allowed=allowed)
+    if kind not in AXIS_KINDS:
+        reader.fail("kind", f"{kind!r} is not a kind of axis; allowed: {allowed}")
+    if kind == "stepper":
+        for key in _SERVO_ONLY_KEYS:
+            if reader.has(key):
+                hint = {
+                    "counts_per_mm": "a stepper counts microsteps: give steps_per_mm"
+                                     " (microsteps per mm, grbl's $100)",
+                    "velocity_gains": "a stepper's velocity mode (homing) runs its position"
+                                      " loop: it takes gains, none of its own",
+                    "reach": "usbmotion tune --reach measures a servo's motor; a stepper's"
+                             " limits are checked against its step rate (and its simulated"
+                             " torque)",
+                    "model": "usbmotion tune --auto identifies a DC motor",
+                }[key]
+                reader.fail(key, f"{key!r} is a servo axis's key, and this axis is kind ="
+                            f" 'stepper': {hint}")
+    else:
+        for key in _STEPPER_ONLY_KEYS:
+            if reader.has(key):
+                reader.fail(key, f"{key!r} is a stepper axis's key; allowed: kind ="
+                            " 'stepper' with it, or this servo axis without it")
+    return str(kind)
+
+
+def _stepper(reader: _Reader, tick_us: int, motion_ticks: int, max_velocity: float,
+             steps_per_mm: float) -> StepperConfig:
+    """A stepper axis's motor and driver, and its step rate checked against the driver's
+    timing."""
+    loops = ", ".join(repr(loop) for loop in STEPPER_LOOPS)
+    loop = reader.string("loop", default="open", allowed=f"{loops}: the position is the steps"
+                         " issued (open), or an encoder's on the shaft (closed)")
+    if loop not in STEPPER_LOOPS:
+        reader.fail("loop", f"{loop!r} is not a stepper loop; allowed: {loops}")
+    step_spec = BY_NUMBER[CallNumber.SET_STEPPER].params
+    full = reader.integer("full_steps_per_rev", default=200, minimum=step_spec[0].minimum,
+                          maximum=step_spec[0].maximum,
+                          unit="the motor's full steps per revolution; 200 = 1.8 degrees")
+    microsteps = reader.integer("microsteps", default=16, minimum=step_spec[1].minimum,
+                                maximum=step_spec[1].maximum,
+                                unit="microsteps per full step, as set on the driver")
+    encoder: int | None = None
+    if loop == "closed":
+        encoder = reader.integer(
+            "encoder_counts_per_rev", minimum=1,
+            maximum=BY_NUMBER[CallNumber.SET_SIM_COUNTS_PER_REVOLUTION].params[0].maximum,
+            unit="the shaft encoder's counts per revolution (quadrature x4)")
+    elif reader.has("encoder_counts_per_rev"):
+        reader.fail("encoder_counts_per_rev", "an open-loop stepper reads no encoder (its"
+                    " position is the steps issued); allowed: loop = 'closed' with it, or no"
+                    " encoder_counts_per_rev")
+    timing = BY_NUMBER[CallNumber.SET_STEP_TIMING].params
+    pulse = reader.integer("step_pulse_ns", default=2000, minimum=timing[0].minimum,
+                           maximum=timing[0].maximum,
+                           unit="ns the step pulse is high (and at least as long low)")
+    setup = reader.integer("dir_setup_ns", default=1000, minimum=timing[1].minimum,
+                           maximum=timing[1].maximum,
+                           unit="ns from a direction change to the next step edge")
+    stepper = StepperConfig(loop, full, microsteps, encoder, pulse, setup)
+    per_tick = stepper.steps_per_tick(tick_us)
+    if per_tick < 1:
+        reader.fail("step_pulse_ns", f"{pulse!r} ns high and low after a {setup} ns set-up"
+                    f" fits no step in a {tick_us} us servo tick; allowed: a shorter"
+                    " step_pulse_ns or dir_setup_ns, or a longer servo_interval_dms")
+    per_value = per_tick * motion_ticks
+    share = 1.0 - REACH_MARGIN if stepper.closed else 1.0
+    fastest = share * per_value / (motion_ticks * tick_us * 1e-6) / steps_per_mm
+    if max_velocity > fastest:
+        why = (f", less {REACH_MARGIN:.0%} left to the closed loop to catch up"
+               if stepper.closed else "")
+        reader.fail("max_velocity_mm_s", (
+            f"{max_velocity!r} mm/s is {max_velocity * steps_per_mm:.0f} microsteps/s, more"
+            f" than the driver's timing lets the device issue: {per_tick} steps a"
+            f" {tick_us} us servo tick (a {pulse} ns pulse high and low after a {setup} ns"
+            f" set-up, in 8 ns periods) is {per_tick / (tick_us * 1e-6):.0f} steps/s"
+            f"{why}; allowed: <= {_down(fastest)} mm/s at steps_per_mm {steps_per_mm:g},"
+            " or a shorter step_pulse_ns"))
+    return stepper
+
+
+def _axis(name: str, reader: _Reader, servo_interval_dms: int,
+          motion_scalar: int) -> AxisConfig:
     rotary = name in ROTARY_LETTERS
     if rotary:
         reader = _Reader(reader.source, reader.data, reader.prefix, _ROTARY_NAMES)
-    reader.expect((*_AXIS_KEYS, "wrapped") if rotary else _AXIS_KEYS)
+    kind = _kind(reader)
+    is_stepper = kind == "stepper"
+    keys = _STEPPER_AXIS_KEYS if is_stepper else _AXIS_KEYS
+    reader.expect((*keys, "wrapped") if rotary else keys)
     device = _device_name(reader)
     url = _url(reader)
     if device is None and url is None:
@@ -1126,8 +1457,12 @@ def _axis(name: str, reader: _Reader, servo_interval_dms: int) -> AxisConfig:
             " written in its flash (found by discovery) or its port/URL (sim://X, /dev/ttyACM0,"
             " socket://host:port)",
         )
-    counts_per_mm = reader.number("counts_per_mm", above=0, maximum=1e7,
-                                  unit="encoder counts per mm")
+    if is_stepper:
+        counts_per_mm = reader.number("steps_per_mm", above=0, maximum=1e7,
+                                      unit="microsteps per mm (grbl's $100)")
+    else:
+        counts_per_mm = reader.number("counts_per_mm", above=0, maximum=1e7,
+                                      unit="encoder counts per mm")
     max_velocity = reader.number("max_velocity_mm_s", above=0, maximum=1e5, unit="mm/s")
     max_accel = reader.number("max_accel_mm_s2", above=0, maximum=1e7, unit="mm/s^2")
     max_jerk = reader.number("max_jerk_mm_s3", default=20 * max_accel, above=0, maximum=1e10,
@@ -1147,9 +1482,23 @@ def _axis(name: str, reader: _Reader, servo_interval_dms: int) -> AxisConfig:
         travel = (-turns, turns)
     else:
         travel = _travel(reader, counts_per_mm)
-    gains = _gains(reader, "gains", defaults=None, mode="position and curve modes")
-    velocity_gains = _gains(reader, "velocity_gains", defaults=VELOCITY_GAINS_DEFAULT,
-                            mode="velocity mode")
+    stepper: StepperConfig | None = None
+    if is_stepper:
+        stepper = _stepper(reader, servo_interval_dms * 100, motion_scalar, max_velocity,
+                           counts_per_mm)
+        if stepper.closed:
+            gains = _gains(reader, "gains", defaults=STEPPER_GAINS_DEFAULT,
+                           mode="the closed loop", stepper=True)
+        elif reader.has("gains"):
+            reader.fail("gains", "an open-loop stepper runs no PID (its position is the"
+                        " steps issued); allowed: loop = 'closed' with gains, or no gains")
+        else:
+            gains = OPEN_LOOP_GAINS
+        velocity_gains = gains
+    else:
+        gains = _gains(reader, "gains", defaults=None, mode="position and curve modes")
+        velocity_gains = _gains(reader, "velocity_gains", defaults=VELOCITY_GAINS_DEFAULT,
+                                mode="velocity mode")
     fe_limit = reader.number(
         "following_error_limit_mm", default=2.0, minimum=0,
         maximum=min(travel[1] - travel[0], INT32_MAX / counts_per_mm),
@@ -1157,6 +1506,20 @@ def _axis(name: str, reader: _Reader, servo_interval_dms: int) -> AxisConfig:
     )
     homing = _homing(reader, travel, max_velocity, wrapped=wrapped)
     simulated = url is not None and url.lower().startswith(SIM_SCHEME)
+    if stepper is not None:
+        stepper_sim = _sim_stepper(reader, travel, counts_per_mm, servo_interval_dms,
+                                   simulated=simulated)
+        if stepper_sim is not None:
+            _check_stepper_torque(reader, stepper_reach(stepper_sim, stepper, counts_per_mm),
+                                  max_velocity, max_accel, closed=stepper.closed)
+        reader.finish()
+        return AxisConfig(
+            name=name, device=device, url=url, counts_per_mm=counts_per_mm,
+            max_velocity_mm_s=max_velocity, max_accel_mm_s2=max_accel,
+            max_jerk_mm_s3=max_jerk, travel_mm=travel, gains=gains,
+            velocity_gains=velocity_gains, following_error_limit_mm=fe_limit, homing=homing,
+            reach=None, sim=stepper_sim, wrapped=wrapped, stepper=stepper,
+        )
     sim = _sim(reader, travel, counts_per_mm, servo_interval_dms, simulated=simulated)
     reach = _reach(reader)
     model = _model(reader)
@@ -1310,18 +1673,25 @@ def _sci(reader: _Reader, name: str, value: float, *, call: CallNumber, digits: 
         )
 
 
-def _gains(reader: _Reader, name: str, *, defaults: PidGains | None, mode: str) -> PidGains:
+def _gains(reader: _Reader, name: str, *, defaults: PidGains | None, mode: str,
+           stepper: bool = False) -> PidGains:
     table = reader.table(name, required=defaults is None,
                          allowed=f"a table with kp, ki, kd (PID gains of {mode}, numbers >= 0)")
     table = table if table is not None else _Reader(reader.source, {}, reader.key(name))
     table.expect(_GAINS_KEYS)
     values: dict[str, float] = {}
-    velocity = defaults is not None
+    velocity = defaults is not None and not stepper
+    if stepper:
+        units = ("microsteps of lead per microstep of error",
+                 "microsteps of lead per microstep-second", "microstep-seconds per microstep")
+    elif velocity:
+        units = ("V per count/s", "V per count", "V-seconds per count/s")
+    else:
+        units = ("V per count", "V per count-second", "V-seconds per count")
     for key, call, unit in (
-        ("kp", CallNumber.SET_PROPORTIONAL_GAIN, "V per count/s" if velocity else "V per count"),
-        ("ki", CallNumber.SET_INTEGRAL_GAIN, "V per count" if velocity else "V per count-second"),
-        ("kd", CallNumber.SET_DERIVATIVE_GAIN,
-         "V-seconds per count/s" if velocity else "V-seconds per count"),
+        ("kp", CallNumber.SET_PROPORTIONAL_GAIN, units[0]),
+        ("ki", CallNumber.SET_INTEGRAL_GAIN, units[1]),
+        ("kd", CallNumber.SET_DERIVATIVE_GAIN, units[2]),
     ):
         default = _REQUIRED if defaults is None else getattr(defaults, key)
         values[key] = table.number(key, default=default, minimum=0, unit=unit)
@@ -1441,6 +1811,17 @@ def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
         maximum=BY_NUMBER[CallNumber.SET_SIM_COUNTS_PER_REVOLUTION].params[0].maximum,
         unit="encoder counts per revolution",
     )
+    start, probe_side, probe_mm = _sim_place(table, travel, counts_per_mm)
+    table.finish()
+    return SimMotorConfig(
+        update_interval_dms=interval, counts_per_revolution=counts_per_rev, start_mm=start,
+        probe_side=probe_side, probe_mm=probe_mm, **values,
+    )
+
+
+def _sim_place(table: _Reader, travel: tuple[float, float],
+               counts_per_mm: float) -> tuple[float, int, float]:
+    """A simulated axis's ``start_mm`` and probe surface: (start, probe side, probe mm)."""
     start = table.number("start_mm", default=(travel[0] + travel[1]) / 2, minimum=travel[0],
                          maximum=travel[1], unit="mm, within travel_mm; default mid-travel")
     for end in travel:
@@ -1455,11 +1836,81 @@ def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
             probe_side = side
             probe_mm = table.number(key, minimum=travel[0], maximum=travel[1],
                                     unit="mm, the probe's surface within travel_mm")
+    return start, probe_side, probe_mm
+
+
+def _sim_stepper(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
+                 servo_interval_dms: int, *, simulated: bool) -> SimStepperConfig | None:
+    """A stepper axis's ``sim`` table: the simulated stepper (calls 47, 12, 17, 32, 33)."""
+    table = reader.table("sim", allowed="a table describing the simulated stepper")
+    if table is None:
+        if not simulated:
+            return None
+        table = _Reader(reader.source, {}, reader.key("sim"), reader.names)
+    table.expect(_SIM_STEPPER_KEYS)
+    d = SIM_STEPPER_DEFAULTS
+    interval = table.integer(
+        "update_interval_dms", default=min(int(d["update_interval_dms"]), servo_interval_dms),
+        minimum=1, maximum=servo_interval_dms,
+        unit="tenths of a millisecond, at most servo_interval_dms; 1 (100 us) suits a stepper")
+    spec = BY_NUMBER[CallNumber.SET_SIM_STEPPER].params
+    holding = table.integer("holding_torque_mnm", default=int(d["holding_torque_mnm"]),
+                            minimum=spec[0].minimum, maximum=spec[0].maximum,
+                            unit="mNm at the driver's current")
+    detent = table.integer("detent_torque_mnm", default=min(holding, int(d["detent_torque_mnm"])),
+                           minimum=spec[1].minimum, maximum=holding,
+                           unit="mNm unpowered, at most holding_torque_mnm")
+    corner = table.integer("corner_rpm", default=int(d["corner_rpm"]), minimum=spec[2].minimum,
+                           maximum=spec[2].maximum,
+                           unit="rpm above which the torque falls as 1/speed")
+    values: dict[str, float] = {}
+    for key, call in SIM_MOTOR_CALLS:
+        if key not in d:
+            continue
+        if key == "load_torque_mnm":
+            values[key] = table.number(key, default=d[key], minimum=0, unit=_SIM_UNITS[key])
+        else:
+            values[key] = table.number(key, default=d[key], above=0, unit=_SIM_UNITS[key])
+        _sci(table, key, values[key], call=call, digits=4)
+    start, probe_side, probe_mm = _sim_place(table, travel, counts_per_mm)
     table.finish()
-    return SimMotorConfig(
-        update_interval_dms=interval, counts_per_revolution=counts_per_rev, start_mm=start,
-        probe_side=probe_side, probe_mm=probe_mm, **values,
-    )
+    return SimStepperConfig(
+        update_interval_dms=interval, holding_torque_mnm=holding, detent_torque_mnm=detent,
+        corner_rpm=corner, start_mm=start, probe_side=probe_side, probe_mm=probe_mm,
+        **values)
+
+
+def _check_stepper_torque(reader: _Reader, reach: StepperReach, max_velocity: float,
+                          max_accel: float, *, closed: bool) -> None:
+    """Refuse a ``max_velocity_mm_s`` or ``max_accel_mm_s2`` whose move needs more than
+    ``1 - REACH_MARGIN`` (closed loop) or ``1 - OPEN_LOOP_MARGIN`` (open loop) of the
+    simulated stepper's torque at that speed (the detent's ripple counted against it):
+    beyond its pull-out torque an open-loop stepper loses steps, a closed-loop one falls
+    behind."""
+    table = ".".join(reader.key("sim"))
+    motor = table if reader.has("sim") else f"the simulated stepper ({table}'s defaults)"
+    margin = REACH_MARGIN if closed else OPEN_LOOP_MARGIN
+    kept = f"{margin:.0%} of its torque"
+    fate = "falls behind" if closed else "loses steps"
+    torque_how = (f"{reach.holding_nm * 1e3:.4g} mNm up to {reach.corner_mm_s:.4g} mm/s,"
+                  " falling as 1/speed above")
+    usable_velocity = reach.usable_velocity_mm_s(margin=margin)
+    if max_velocity > usable_velocity:
+        reader.fail("max_velocity_mm_s", (
+            f"{max_velocity!r} mm/s needs more than {1 - margin:.0%} of the torque of"
+            f" {motor} at that speed ({torque_how}; friction, the load and the detent take"
+            f" {reach.needed_nm(max_velocity, 0.0) * 1e3:.4g} mNm of the"
+            f" {reach.torque_nm(max_velocity) * 1e3:.4g} mNm there): beyond it the stepper"
+            f" {fate}; allowed: <= {_down(usable_velocity)} mm/s"))
+    usable = reach.usable_accel_mm_s2(max_velocity, margin=margin)
+    if max_accel > usable:
+        reader.fail("max_accel_mm_s2", (
+            f"{max_accel!r} mm/s^2 at max_velocity_mm_s {max_velocity:g} mm/s needs"
+            f" {reach.needed_nm(max_velocity, max_accel) * 1e3:.4g} mNm (J a + friction, load"
+            f" and detent), more than {1 - margin:.0%} of the"
+            f" {reach.torque_nm(max_velocity) * 1e3:.4g} mNm {motor} gives at that speed"
+            f" ({torque_how}): beyond it the stepper {fate}; allowed: <= {_down(usable)}"
+            f" mm/s^2 (keeping {kept}), or a lower max_velocity_mm_s"))
 
 
 def _tool_setter(reader: _Reader, axes: tuple[AxisConfig, ...]) -> ToolSetterConfig:

@@ -37,6 +37,7 @@ from usbmotion.protocol import (
     ControlMode,
     Diagnostics,
     DiagnosticsBlock,
+    Drive,
     MotionStats,
     Outputs,
     ProbeState,
@@ -44,6 +45,7 @@ from usbmotion.protocol import (
     Reply,
     ReplyKind,
     Status,
+    Steps,
     SwitchEdge,
     encode_call,
     encode_counted,
@@ -740,6 +742,64 @@ class DeviceClient:
         """Call 40 query: (side, position counts)."""
         side, position = self.query(C.SET_SIM_PROBE, -1, 0).values
         return side, position
+
+    # --- step/direction drives --------------------------------------------------------------
+
+    def set_drive(self, drive: Drive | int) -> None:
+        """Call 44: what the device drives (0 DC motor, 1 stepper open loop, 2 closed loop).
+
+        A change is a change of motor: the position counter, the steps issued and the queue
+        start afresh at 0. Refused (``ErrReplyError``) while the servo is enabled.
+        """
+        try:
+            value = Drive(int(drive))
+        except ValueError:
+            raise OutOfRangeError(f"drive {drive!r} is not one of"
+                                  f" {', '.join(f'{int(d)} ({d.words})' for d in Drive)}",
+                                  call=C.SET_DRIVE, reason="drive") from None
+        self.command(C.SET_DRIVE, int(value))
+
+    def drive(self) -> Drive:
+        """Call 44 query."""
+        return Drive(self.query(C.SET_DRIVE, -1).values[0])
+
+    def set_stepper(self, full_steps: int, microsteps: int) -> None:
+        """Call 45: the stepper's full steps per revolution and the driver's microsteps per
+        full step; clears the queue."""
+        self._check_range(C.SET_STEPPER, (full_steps, microsteps), "stepper")
+        self.command(C.SET_STEPPER, full_steps, microsteps)
+
+    def stepper(self) -> tuple[int, int]:
+        """Call 45 query: (full steps per revolution, microsteps per full step)."""
+        full_steps, microsteps = self.query(C.SET_STEPPER, -1, 0).values
+        return full_steps, microsteps
+
+    def set_step_timing(self, pulse_ns: int, setup_ns: int) -> None:
+        """Call 46: the step pulse's high time and the direction set-up time, ns."""
+        self._check_range(C.SET_STEP_TIMING, (pulse_ns, setup_ns), "step timing")
+        self.command(C.SET_STEP_TIMING, pulse_ns, setup_ns)
+
+    def step_timing(self) -> tuple[int, int]:
+        """Call 46 query: (pulse ns, set-up ns)."""
+        pulse_ns, setup_ns = self.query(C.SET_STEP_TIMING, -1, 0).values
+        return pulse_ns, setup_ns
+
+    def set_sim_stepper(self, holding_mnm: int, detent_mnm: int, corner_rpm: int) -> None:
+        """Call 47: the simulated stepper's holding and detent torque (mNm) and corner
+        speed (rpm)."""
+        self._check_range(C.SET_SIM_STEPPER, (holding_mnm, detent_mnm, corner_rpm),
+                          "simulated stepper")
+        self.command(C.SET_SIM_STEPPER, holding_mnm, detent_mnm, corner_rpm)
+
+    def sim_stepper(self) -> tuple[int, int, int]:
+        """Call 47 query: (holding mNm, detent mNm, corner rpm)."""
+        holding, detent, corner = self.query(C.SET_SIM_STEPPER, -1, 0, 0).values
+        return holding, detent, corner
+
+    def steps(self) -> Steps:
+        """Call 48: the steps issued since the drive was set, the last tick's, and the most
+        one tick can issue."""
+        return Steps.from_values(self.query(C.STEPS, -1).values)
 
     # --- flash ------------------------------------------------------------------------------
 

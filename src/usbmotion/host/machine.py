@@ -20,9 +20,16 @@ from usbmotion.errors import (
     ConfigError,
     DeviceError,
     DeviceNotFoundError,
+    ErrReplyError,
     UsbMotionError,
 )
-from usbmotion.host.config import SIM_MOTOR_CALLS, AxisConfig, MachineConfig
+from usbmotion.host.config import (
+    SIM_MOTOR_CALLS,
+    AxisConfig,
+    MachineConfig,
+    SimStepperConfig,
+    steps_per_tick,
+)
 from usbmotion.host.device import AxisScale, ControlMode, DeviceClient, Status
 from usbmotion.host.discovery import PROBE_TIMEOUT_S, discover
 from usbmotion.host.spindle import Spindle
@@ -34,7 +41,7 @@ from usbmotion.host.timesync import (
     synchronise_start,
 )
 from usbmotion.host.transport import LineTransport
-from usbmotion.protocol import CallNumber
+from usbmotion.protocol import CallNumber, Drive
 
 SPINDLE_KEY = "spindle"
 """The spindle's device among the machine's links (discovery, URLs)."""
@@ -185,9 +192,13 @@ class Machine:
     def configure(self) -> None:
         """Send the configuration to every device, servos disabled first.
 
-        Servo interval and motion scalar, control mode 1 (position) with its PID gains,
-        following-error limit, watchdog; for axes with a simulated motor its values and
-        travel. Each goes through the client's validated, confirmed setter.
+        What the device drives (call 44) and, on a stepper axis, its motor and driver
+        (calls 45, 46; call 16 for a closed loop's encoder); servo interval and motion
+        scalar, control mode 1 (position) with its PID gains, following-error limit,
+        watchdog; for axes with a simulated motor its values and travel (a simulated
+        stepper's torques, call 47). Each goes through the client's validated, confirmed
+        setter. A device whose drive or microsteps change starts counting afresh at 0, so
+        its homed mark is cleared (it must home again).
 
         Raises:
             OutOfRangeError: a value the device cannot take (names the axis's device).
@@ -197,20 +208,26 @@ class Machine:
         for axis in self.axes.values():
             client, settings = axis.client, axis.config
             client.set_servo_enable(False)
-            client.set_servo_interval_dms(config.servo_interval_dms)
+            _set_drive(client, settings, servo_interval_dms=config.servo_interval_dms)
             client.set_motion_scalar(config.motion_scalar)
             _set_mode(client, settings, ControlMode.POSITION)
             client.set_following_error_limit(settings.following_error_limit_counts)
             client.set_watchdog_ms(config.watchdog_ms)
             sim = settings.sim
             travel = settings.sim_travel_counts
-            if sim is not None and travel is not None:
-                client.set_sim_interval_dms(sim.update_interval_dms)
-                for key, call in SIM_MOTOR_CALLS:
+            if sim is None or travel is None:
+                continue
+            client.set_sim_interval_dms(sim.update_interval_dms)
+            for key, call in SIM_MOTOR_CALLS:
+                if hasattr(sim, key):  # a stepper has no voltage, torque constant, winding
                     client.set_sim_value(call, getattr(sim, key), label=key)
+            if isinstance(sim, SimStepperConfig):
+                client.set_sim_stepper(sim.holding_torque_mnm, sim.detent_torque_mnm,
+                                       sim.corner_rpm)
+            else:
                 client.set_sim_counts_per_revolution(sim.counts_per_revolution)
-                client.set_sim_travel(*travel)
-                client.set_sim_probe(*settings.sim_probe_counts)
+            client.set_sim_travel(*travel)
+            client.set_sim_probe(*settings.sim_probe_counts)
         if self.spindle is not None:
             self.spindle.configure()
 
@@ -249,7 +266,7 @@ class Machine:
             for axis in config.axes))
         for axis in self.axes.values():
             new = config.axis(axis.name)
-            for key in ("device", "sim"):
+            for key in ("device", "sim", "stepper"):
                 if getattr(new, key) != getattr(axis.config, key):
                     raise ConfigError(
                         f"{config.path}: axes.{axis.name}.{key} takes effect only when the"
@@ -473,6 +490,43 @@ def _take_over(client: DeviceClient, label: str, device: str | None,
             raise DeviceNotFoundError(
                 f"{label}: {url} answers to {answered!r}, not to the configured device"
                 f" {device!r}", name=device, searched=(url,))
+
+
+def _set_drive(client: DeviceClient, axis: AxisConfig, *, servo_interval_dms: int) -> None:
+    """The servo interval and what the device drives (servo disabled): a stepper's drive,
+    motor and timing, or the DC motor. The drive is set only when it differs (a change
+    starts the counter afresh: the homed mark is cleared then, and when the microsteps
+    change). A device that does not know call 44 (firmware before steppers) drives a DC
+    motor."""
+    stepper = axis.stepper
+    if stepper is None:
+        try:
+            drive = client.drive()
+        except ErrReplyError:
+            drive = Drive.DC
+        if drive is not Drive.DC:
+            client.set_drive(Drive.DC)
+            client.set_homed_marker(0)
+        client.set_servo_interval_dms(servo_interval_dms)
+        return
+    timing = (stepper.step_pulse_ns, stepper.dir_setup_ns)
+    # Call 46 and call 5 are each refused when no step fits the tick: send the timing first
+    # when it fits the present tick (the file's pair fits its own tick).
+    timing_first = steps_per_tick(client.servo_interval_us(), *timing) >= 1
+    if timing_first:
+        client.set_step_timing(*timing)
+    client.set_servo_interval_dms(servo_interval_dms)
+    if not timing_first:
+        client.set_step_timing(*timing)
+    steps = (stepper.full_steps_per_rev, stepper.microsteps)
+    if client.stepper() != steps:
+        client.set_stepper(*steps)
+        client.set_homed_marker(0)
+    if stepper.encoder_counts_per_rev is not None:
+        client.set_sim_counts_per_revolution(stepper.encoder_counts_per_rev)
+    if client.drive() is not stepper.drive:
+        client.set_drive(stepper.drive)
+        client.set_homed_marker(0)
 
 
 def _set_mode(client: DeviceClient, axis: AxisConfig, mode: ControlMode) -> None:

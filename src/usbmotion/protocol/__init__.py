@@ -18,7 +18,7 @@ from usbmotion.protocol.codec import (
     parse_reply,
     values_crc32,
 )
-from usbmotion.protocol.names import CallNumber, ControlMode, FaultCode, fault_words
+from usbmotion.protocol.names import CallNumber, ControlMode, Drive, FaultCode, fault_words
 from usbmotion.protocol.replies import (
     FEW_DIAGNOSTICS,
     Alarm,
@@ -29,6 +29,7 @@ from usbmotion.protocol.replies import (
     ProbeState,
     Replaced,
     Status,
+    Steps,
     SwitchEdge,
 )
 from usbmotion.protocol.table import (
@@ -62,6 +63,7 @@ __all__ = [
     "ControlMode",
     "Diagnostics",
     "DiagnosticsBlock",
+    "Drive",
     "FaultCode",
     "LineSplitter",
     "MotionStats",
@@ -73,6 +75,7 @@ __all__ = [
     "Reply",
     "ReplyKind",
     "Status",
+    "Steps",
     "SwitchEdge",
     "Template",
     "check_call",

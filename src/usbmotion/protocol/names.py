@@ -57,6 +57,12 @@ class CallNumber(IntEnum):
     PROBE = 41
     SET_OUTPUT_AT = 42
     OUTPUTS = 43
+    SET_DRIVE = 44
+    SET_STEPPER = 45
+    SET_STEP_TIMING = 46
+    SET_SIM_STEPPER = 47
+    STEPS = 48
+    SET_ENCODER = 49
 
 
 class ControlMode(IntEnum):
@@ -73,6 +79,30 @@ class ControlMode(IntEnum):
     def word(self) -> str:
         """The mode in one lower-case word (``position``, ``velocity``, ``curve``)."""
         return self.name.lower()
+
+
+class Drive(IntEnum):
+    """What the device drives (call 44)."""
+
+    DC = 0
+    """A brushed DC motor through an H-bridge, its PID output in volts (power-up)."""
+    STEP_OPEN = 1
+    """A stepper driver's step and direction inputs, open loop: the position is the steps
+    issued."""
+    STEP_CLOSED = 2
+    """A stepper driver's step and direction inputs, closed loop: an encoder measures the
+    shaft and the PID's output leads it by at most one full step."""
+
+    @property
+    def stepper(self) -> bool:
+        """True for the two step/direction drives."""
+        return self is not Drive.DC
+
+    @property
+    def words(self) -> str:
+        """``DC motor``, ``stepper, open loop``, ``stepper, closed loop``."""
+        return {Drive.DC: "DC motor", Drive.STEP_OPEN: "stepper, open loop",
+                Drive.STEP_CLOSED: "stepper, closed loop"}[self]
 
 
 class FaultCode(IntEnum):

@@ -66,6 +66,7 @@ _OUTPUTS = _checked(_reply_template(CallNumber.OUTPUTS), *_OUTPUT_FIELDS, "pendi
                     "last_change_tick")
 _MOTION_STATS = _checked(_reply_template(CallNumber.MOTION_STATS), "ticks", "max_error",
                          "max_error_tick", "sum_sq_error", "last_take_tick")
+_STEPS = _checked(_reply_template(CallNumber.STEPS), "issued", "last", "max_per_tick")
 REPLACED = _checked(_debug_template(CallNumber.REPLACE_FROM, 1), "kept", "skipped", "added",
                     "crc")
 """Call 38's acknowledgement (debug flag 1) and the fields it carries."""
@@ -255,6 +256,26 @@ class SwitchEdge:
         v = _read(_SWITCH_EDGE, values)
         return cls(switch=v["switch"], edges=v["edges"], closed=v["closed"] == 1,
                    position_counts=v["position"], tick=v["tick"])
+
+
+@dataclass(frozen=True, slots=True)
+class Steps:
+    """Call 48: a step/direction drive's step counter.
+
+    ``issued`` is the driver's step counter since the drive was set (signed, wrapping as an
+    int32), ``last`` the signed steps of the last servo tick, ``max_per_tick`` the most one
+    tick can issue with the driver's timing (call 46) at the servo period.
+    """
+
+    issued: int
+    last: int
+    max_per_tick: int
+
+    @classmethod
+    def from_values(cls, values: Sequence[int]) -> Steps:
+        """The step counter from the values of a ``STEPS`` line."""
+        v = _read(_STEPS, values)
+        return cls(issued=v["issued"], last=v["last"], max_per_tick=v["max_per_tick"])
 
 
 @dataclass(frozen=True, slots=True)

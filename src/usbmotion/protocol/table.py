@@ -35,6 +35,11 @@ OUTPUT_FULL = 1000
 """An output's full value: per mille of full duty (a digital output's on)."""
 OUTPUT_QUEUE_CAPACITY = 16
 """Pending output changes the device keeps (call 42)."""
+STEP_CLOCK_HZ = 125_000_000
+"""The clock step pulses are timed in (the RP2040's system clock): call 46's times are
+rounded up to whole periods of it (8 ns)."""
+STEP_PULSE_MIN_NS = 100
+"""Shortest step pulse call 46 takes (a TMC2209 needs 100 ns high and low)."""
 
 _FIELD = re.compile(r"\{(\w+)\}")
 REST_FIELDS = frozenset({"text", "values"})
@@ -654,6 +659,123 @@ CALLS: tuple[CallSpec, ...] = (
         " when it was queued late; -1: none since power-up; a fault's zeroing is no change)."
         " `43 1` drops the pending changes and leaves the outputs as they are, as a host's"
         " feed hold or stop needs; the answer is then the state after the drop.",
+    ),
+    CallSpec(
+        C.SET_DRIVE,
+        "What the device drives: a DC motor (0), or a stepper driver's step and direction"
+        " inputs, open loop (1) or closed loop (2).",
+        (_p("drive", 0, 2, "0 DC motor, 1 stepper open loop, 2 stepper closed loop"),),
+        query=(-1,),
+        query_reply=_t("DRIVE {value}"),
+        debug={1: _t("DRIVE MODIFIED TO {value}")},
+        notes="Power-up: 0. Refused (`ERR 44 ...`) while the servo is enabled. A change is a"
+        " change of motor: the queue and the keyframes are cleared, the position counter and"
+        " the steps issued (call 48) start at 0, the simulated shaft at 0 at rest, and the PID"
+        " afresh. With a stepper every position is in microsteps (the queue, the counter,"
+        " calls 20, 23, 29, 34, 36, 37, 40 and 41) and every velocity in microsteps/s. Each"
+        " servo tick the device issues the steps that take its step counter to the position"
+        " it commands, at most call 48's `max_per_tick`, spread evenly over the tick"
+        " (call 46). Open loop (1) the counter is the steps issued and the command is the"
+        " desired position: the following error is what the step rate could not follow."
+        " Closed loop (2) the counter is the encoder's (call 16's counts per revolution"
+        " converted to microsteps, call 45) and the PID's output, in microsteps saturated at"
+        " one full step, is the lead of the driver's field over the rotor: a torque command"
+        " that never leads by more than the angle of the greatest torque, so a load beyond"
+        " the motor's torque stalls the shaft rather than slipping it; the axis catches up"
+        " once the load falls, and a following error beyond call 29's limit is fault 2, as"
+        " on a DC axis. In velocity mode (2) a stepper integrates the desired velocity into the"
+        " desired position every running tick (the same position loop follows it). The"
+        " diagnostics line's `output` is the steps issued on its tick, in thousandths (the"
+        " field a DC drive fills with millivolts).",
+    ),
+    CallSpec(
+        C.SET_STEPPER,
+        "Stepper: full steps per revolution and microsteps per full step.",
+        (
+            _p("full_steps", 1, 1000, "full steps per revolution (200: 1.8 degrees)"),
+            _p("microsteps", 1, 256, "microsteps per full step, as set on the driver"),
+        ),
+        query=(-1, 0),
+        query_reply=_t("STEPPER {full_steps} {microsteps}"),
+        debug={1: _t("STEPPER MODIFIED TO {full_steps} {microsteps}")},
+        notes="Power-up: 200 16. The closed loop's encoder counts (call 16) become microsteps"
+        " through the microsteps per revolution (`full_steps` x `microsteps`); its output"
+        " leads by at most `microsteps` (one full step); the simulated stepper's electrical"
+        " cycle is 4 full steps. Clears the queue and the keyframes.",
+    ),
+    CallSpec(
+        C.SET_STEP_TIMING,
+        "Step pulse: its high time (the low time is at least as long) and the direction"
+        " set-up time before the first pulse after a change of direction.",
+        (
+            _p("pulse_ns", STEP_PULSE_MIN_NS, 1_000_000, "ns high (and at least as long low)"),
+            _p("setup_ns", 0, 1_000_000, "ns from a direction change to the next step edge"),
+        ),
+        query=(-1, 0),
+        query_reply=_t("STEP_TIMING {pulse_ns} {setup_ns}"),
+        debug={1: _t("STEP TIMING MODIFIED TO {pulse_ns} {setup_ns}")},
+        notes="Power-up: 2000 1000 (within what an A4988, a DRV8825 and a TMC2209 need)."
+        " Times are rounded up to whole periods of the 125 MHz step clock (8 ns). The steps"
+        " one servo tick can issue: `max_per_tick` = (tick - set-up) // (2 x pulse), in those"
+        " periods (call 48 answers it); a tick's steps start after the set-up and are spaced"
+        " evenly over the rest of the tick. Refused when not even one step fits a tick.",
+    ),
+    CallSpec(
+        C.SET_SIM_STEPPER,
+        "Simulated stepper: holding torque, detent torque and the corner speed above which"
+        " the driver's current, and so the torque, falls as 1/speed.",
+        (
+            _p("holding_mnm", 1, 100_000, "mNm at the rated current"),
+            _p("detent_mnm", 0, 100_000, "mNm unpowered (no more than holding)"),
+            _p("corner_rpm", 1, 100_000, "revolutions per minute"),
+        ),
+        query=(-1, 0, 0),
+        query_reply=_t("SIM_STEPPER {holding_mnm} {detent_mnm} {corner_rpm}"),
+        debug={1: _t("SIM STEPPER MODIFIED TO {holding_mnm} {detent_mnm} {corner_rpm}")},
+        notes="Power-up: 590 20 760, a NEMA 17 2 A stepper (PROTOCOL.md, \"The simulated"
+        " stepper\"). The simulated stepper runs with drives 1 and 2; calls 12 (integration"
+        " step), 16 (its encoder), 17 (inertia), 32 and 33 (friction and load) and 34 (travel,"
+        " in microsteps) set the rest of it.",
+    ),
+    CallSpec(
+        C.STEPS,
+        "Stepper: the steps issued since the drive was set, the last tick's, and the most a"
+        " tick can issue.",
+        (_p("query", -1, -1, "-1 queries"),),
+        query=(-1,),
+        query_reply=_t("STEPS {issued} {last} {max_per_tick}"),
+        notes="Always a query. `issued` is the driver's step counter (signed: a step with the"
+        " direction low counts -1; it wraps as an int32), the automation document's"
+        " `pulses_sent` summed; `last` the signed steps of the last servo tick; `max_per_tick`"
+        " what call 46's timing lets one tick issue at the current servo period. With the DC"
+        " drive: 0 0 and the same `max_per_tick`.",
+    ),
+    CallSpec(
+        C.SET_ENCODER,
+        "The encoder: incremental (0, counting from power-up) or absolute within a turn (1,"
+        " an AS5161-style magnetic encoder's PWM angle), and the simulated magnet's angle.",
+        (
+            _p("kind", 0, 1, "0 incremental (quadrature), 1 absolute within a turn (PWM)"),
+            _p("angle", 0, 1_000_000, "simulated: the angle the encoder reads, in counts of"
+               " the counter, when the simulated shaft is at 0"),
+        ),
+        query=(-1, 0),
+        query_reply=_t("ENCODER {kind} {angle}"),
+        debug={1: _t("ENCODER MODIFIED TO {kind} {angle}")},
+        notes="Power-up: 0 0. Refused while the servo is enabled, and kind 1 on an open-loop"
+        " stepper (drive 1: its counter is the steps issued, no encoder). An incremental"
+        " encoder counts from 0 at power-up: where the axis stands is unknown until it"
+        " homes. Kind 1 makes the counter, at once, the absolute angle within a turn (0 to"
+        " a turn less one count: call 16's counts per revolution, or a closed-loop"
+        " stepper's microsteps per revolution), and from then on it counts on across turns"
+        " (the turns counted by the angle's overflow), as any counter: calls 23 and 37"
+        " shift it. The queue and the keyframes are cleared. So a device with one knows"
+        " where its axis stands within a turn before it moves; homing tells which turn"
+        " (the host zeroes the axis at the turn boundary nearest the switch's edge, which"
+        " repeats to the encoder's count however the switch repeats). The simulated magnet"
+        " reads `angle` with the simulated shaft at 0 (where it happens to be mounted). On"
+        " the RP2040 with the motor on the pins the encoder input is the PWM output of the"
+        " encoder on the encoder's channel A pin.",
     ),
 )
 BY_NUMBER: Mapping[int, CallSpec] = {spec.number: spec for spec in CALLS}

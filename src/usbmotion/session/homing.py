@@ -27,6 +27,8 @@ def homed_mark(config: MachineConfig, axis: AxisConfig) -> int:
     machine and the axis's switch position, so another machine file's homing does not
     pass for this one's."""
     text = f"{config.name}|{axis.name}|{axis.homing.position_mm!r}|{axis.counts_per_mm!r}"
+    if axis.stepper is not None:
+        text += f"|stepper {axis.stepper.loop} {axis.stepper.microsteps_per_rev}"
     return 1 + zlib.crc32(text.encode("utf-8")) % 255
 
 

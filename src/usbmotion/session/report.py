@@ -398,6 +398,15 @@ def build_report(
             final, int(error.size), ticks=axis_stats.ticks, max_error_time_s=peak_s,
             max_error_line=line_at_tick(axis_stats.max_error_tick) if axis_stats.ticks else 0,
         ))
+    for name in axes:
+        stepper = machine.axis(name).config.stepper
+        if stepper is not None:
+            notes.append(
+                f"axis {name}: a stepper, counting microsteps; " + (
+                    "closed loop: its following error is its encoder's" if stepper.closed
+                    else "open loop: its position is the steps issued, so its following error"
+                    " is only what the step rate could not follow (a step the motor lost shows"
+                    " at the next homing)"))
     end_positions = {name: machine.axis(name).scale.to_mm(status.actual_counts)
                      for name, status in statuses.items()}
     for name, last in heard.items():

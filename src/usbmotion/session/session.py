@@ -212,9 +212,11 @@ class MachineSession:
                     " disabled the servo, so the position may be lost: homing is required")
                 client.clear_fault()
                 client.set_homed_marker(0)
-                continue
-            self.homed[name] = client.homed_marker() == homed_mark(self.config, axis.config)
-        machine.configure()
+        machine.configure()  # clears the mark of a device whose drive or stepper changes
+        for name, axis in machine.axes.items():
+            if name not in self.faults_found:
+                self.homed[name] = (axis.client.homed_marker()
+                                    == homed_mark(self.config, axis.config))
 
     def _stop_orphan_motion(self, names: list[str]) -> None:
         """Bring axes running a queue nobody here planned to rest together along their

@@ -20,7 +20,13 @@ from urllib.parse import quote
 from usbmotion.device import Device, MemoryFlash
 from usbmotion.device.motor import MotorParams
 from usbmotion.errors import ConfigError
-from usbmotion.host.config import AxisConfig, MachineConfig, SimMotorConfig, load_config
+from usbmotion.host.config import (
+    AxisConfig,
+    MachineConfig,
+    SimMotorConfig,
+    SimStepperConfig,
+    load_config,
+)
 from usbmotion.host.device import to_sci
 from usbmotion.host.discovery import PROBE_TIMEOUT_S
 from usbmotion.host.machine import Axis, Machine
@@ -76,7 +82,14 @@ def _add_simulated(world: SimWorld, key: str, axis: AxisConfig) -> None:
     assert axis.sim is not None
     travel = axis.sim_travel_counts
     assert travel is not None
-    device = Device(flash=MemoryFlash(), motor=sim_motor_params(axis.sim, travel_counts=travel))
+    if isinstance(axis.sim, SimStepperConfig):
+        # The device powers up driving a DC motor; connecting sets the drive, the stepper
+        # and its motor (Machine.configure), which starts the shaft afresh at 0.
+        motor = MotorParams(sim_update_interval_dms=axis.sim.update_interval_dms,
+                            travel_lower_counts=travel[0], travel_upper_counts=travel[1])
+    else:
+        motor = sim_motor_params(axis.sim, travel_counts=travel)
+    device = Device(flash=MemoryFlash(), motor=motor)
     name = axis.device or key
     device.feed(encode_device_name(name))
     device.take_output()

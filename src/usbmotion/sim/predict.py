@@ -37,6 +37,7 @@ from usbmotion.host.config import (
     MachineConfig,
     MotorModelConfig,
     SimMotorConfig,
+    SimStepperConfig,
     SpindleConfig,
 )
 from usbmotion.motion.dialects import Dialect
@@ -115,12 +116,19 @@ def _model_axis(axis: AxisConfig, standing_mm: float, servo_interval_dms: int
                 ) -> tuple[AxisConfig, str]:
     """``axis`` as a simulated device with the axis's motor, standing at ``standing_mm`` and
     homed by declaring it (its switches at least half the travel beyond its ends)."""
+    motor: SimMotorConfig | SimStepperConfig
     if axis.model is not None:
         step = axis.sim.update_interval_dms if axis.sim else min(10, servo_interval_dms)
-        motor = model_motor(axis.model, axis.sim, update_interval_dms=step)
+        like = axis.sim if isinstance(axis.sim, SimMotorConfig) else None
+        motor = model_motor(axis.model, like, update_interval_dms=step)
         source = IDENTIFIED
     elif axis.sim is not None:
         motor, source = axis.sim, SIMULATED
+    elif axis.stepper is not None:
+        raise ConfigError(
+            f"axis {axis.name} is a stepper with no sim table to predict with: give"
+            f" axes.{axis.name}.sim (its holding_torque_mnm, corner_rpm, inertia_kg_m2 and"
+            " friction)", key=f"axes.{axis.name}.sim")
     else:
         raise ConfigError(
             f"axis {axis.name} has no identified model to predict with: identify it first"
