@@ -32,6 +32,7 @@ from typing import Any
 
 from usbmotion.device import Device, MemoryFlash
 from usbmotion.host.config import AxisConfig, MachineConfig, load_config
+from usbmotion.motion.dialects import dialect_named
 from usbmotion.motion.gcode import read_gcode_text
 from usbmotion.sim.firmware import FirmwareSimDevice, PinsMotor, default_uf2
 from usbmotion.sim.machine import connect_session, sim_motor_params
@@ -85,12 +86,14 @@ def pins_motor(axis: AxisConfig) -> PinsMotor:
 
 
 def virtual_report(config: MachineConfig, *, firmware: Path | None, pins: bool = False,
-                   program: Path = DEMO) -> VirtualRun:
-    """Home the machine and run ``program`` (demo 1) in virtual time; ``firmware``: on
-    emulated chips running this image, else on Python devices (made as the firmware's are:
-    default motor, blank flash, the name written by call 18). ``pins``: each chip drives the
-    axis's motor outside it through its pins (call 39 1 and a power cycle first; its lines
-    are then not compared with the Python shadow's)."""
+                   program: Path = DEMO, dialect: str | None = None,
+                   origin: dict[str, float] | None = None) -> VirtualRun:
+    """Home the machine and run ``program`` (demo 1; in ``dialect``, from the work
+    ``origin`` when given) in virtual time; ``firmware``: on emulated chips running this
+    image, else on Python devices (made as the firmware's are: default motor, blank flash,
+    the name written by call 18). ``pins``: each chip drives the axis's motor outside it
+    through its pins (call 39 1 and a power cycle first; its lines are then not compared
+    with the Python shadow's)."""
     assert firmware is not None or not pins
     world = SimWorld()
     emulated: dict[str, FirmwareSimDevice] = {}
@@ -112,7 +115,10 @@ def virtual_report(config: MachineConfig, *, firmware: Path | None, pins: bool =
         text = read_gcode_text(program)
         with connect_session(config, world=world) as session:
             homing_s = session.home()
-            prepared = session.prepare(program, text=text)
+            if origin:
+                session.set_work_origin(origin)
+            prepared = session.prepare(program, text=text,
+                                       dialect=dialect_named(dialect) if dialect else None)
             report, _ = session.run(prepared, homing_s=homing_s)
             session.shutdown()
         return VirtualRun(report.to_json(),

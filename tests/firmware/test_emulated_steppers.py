@@ -11,20 +11,16 @@ figures are printed (``-s``).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import pytest
 
 from stepper_loads import EXAMPLE
-from usbmotion.device import Device, MemoryFlash
 from usbmotion.host.config import MachineConfig
-from usbmotion.motion.dialects import dialect_named
-from usbmotion.sim.firmware import FirmwareSimDevice, default_uf2
-from usbmotion.sim.machine import connect_session, load_machine_file
-from usbmotion.sim.world import SimWorld
+from usbmotion.sim.firmware import default_uf2
+from usbmotion.sim.machine import load_machine_file
 
 from .emulated import require_emulator
-from .jobs import differences
+from .jobs import differences, virtual_report
 
 ROOT = Path(__file__).resolve().parents[2]
 PROGRAMS = {
@@ -49,50 +45,19 @@ def _machine(folder: Path) -> MachineConfig:
     return load_machine_file(path)
 
 
-def _report(folder: Path, program: str, firmware: Path | None) -> tuple[
-        dict[str, Any], dict[str, int]]:
-    """Home examples/stepper.toml and run ``program`` on emulated chips (``firmware``) or
-    Python devices; the report and, per emulated axis, the lines compared."""
-    path, dialect, origin = PROGRAMS[program]
-    config = _machine(folder)
-    world = SimWorld()
-    emulated: dict[str, FirmwareSimDevice] = {}
-    try:
-        for axis in config.axes:
-            assert axis.url is not None and axis.device is not None
-            key = axis.url.removeprefix("sim://")
-            if firmware is not None:
-                emulated[axis.name] = FirmwareSimDevice(firmware, name=axis.device)
-                world.add(emulated[axis.name], key=key)
-            else:
-                device = Device(flash=MemoryFlash())
-                codes = " ".join(str(ord(c)) for c in axis.device)
-                device.feed(f"18 {len(axis.device)} {codes}\n".encode("ascii"))
-                device.take_output()
-                world.add(device, key=key)
-        with connect_session(config, world=world) as session:
-            homing_s = session.home()
-            if origin:
-                session.set_work_origin(origin)
-            prepared = session.prepare(path, text=path.read_text(),
-                                       dialect=dialect_named(dialect) if dialect else None)
-            report, _ = session.run(prepared, homing_s=homing_s)
-            session.shutdown()
-        return report.to_json(), {name: d.lines_compared for name, d in emulated.items()}
-    finally:
-        for chip in emulated.values():
-            chip.close()
-
-
 @pytest.mark.parametrize("program", sorted(PROGRAMS))
 def test_a_stepper_machine_of_emulated_chips_gives_the_python_report(
         program: str, tmp_path: Path) -> None:
     require_emulator()
-    python, _ = _report(tmp_path / "python", program, None)
+    path, dialect, origin = PROGRAMS[program]
+    python = virtual_report(_machine(tmp_path / "python"), firmware=None, program=path,
+                            dialect=dialect, origin=origin).report
     assert python["completed"] and not python["faults"], python
-    emulated, compared = _report(tmp_path / "chips", program, default_uf2())
+    run = virtual_report(_machine(tmp_path / "chips"), firmware=default_uf2(), program=path,
+                         dialect=dialect, origin=origin)
+    emulated = run.report
     assert differences(python, emulated) == []
-    assert all(count > 1000 for count in compared.values()), compared
+    assert all(count > 1000 for count in run.lines_compared.values()), run.lines_compared
     peaks = {axis["name"]: axis["max_error_counts"] for axis in emulated["axes"]}
     print(f"{program} on examples/stepper.toml, emulated RP2040s: {emulated['executed_time_s']}"
           f" s, peak following error {peaks} microsteps, the Python devices' report to the"
