@@ -37,7 +37,8 @@ run: $(STAMP)
 	@mkdir -p out
 	$(BIN)/usbmotion run $(DEMO) --plot out/demo-1.png --report out/demo-1.json
 
-# Three lanes at once, their output printed when they end, then lint and types:
+# The firmware is built while the senders are installed and the web page is built; then
+# three lanes at once, their output printed when they end, then lint and types:
 # - the Python suite in virtual time (PYTHON_SUITE without its `realtime` tests), at a lower
 #   priority (nice) than the others: its load takes every core they leave, but it does not
 #   starve the simulated devices they serve in real time (a device served by a process that
@@ -57,8 +58,11 @@ PYTHON_SUITE = $(EMULATED_IGNORE) --ignore=tests/senders --ignore=tests/reliabil
 	--ignore=tests/web
 test: $(STAMP)
 	@mkdir -p build; status=0; \
+	$(MAKE) --no-print-directory firmware-toolchain > build/firmware-build.log 2>&1; \
+	( $(MAKE) --no-print-directory firmware >> build/firmware-build.log 2>&1 ) & build=$$!; \
 	bash tests/senders/install.sh || status=1; \
 	$(MAKE) --no-print-directory web || status=1; \
+	wait $$build; \
 	( $(MAKE) --no-print-directory firmware-test > build/firmware-test.log 2>&1; \
 	  echo $$? > build/firmware-test.status; \
 	  $(BIN)/python -m pytest -q -x -p no:cacheprovider --basetemp=build/realtime-tmp \
@@ -71,7 +75,7 @@ test: $(STAMP)
 	  $(PYTHON_SUITE) || status=1; \
 	wait; echo "--- the senders', reliability and dashboard tests:"; cat build/senders-test.log; \
 	[ "$$(cat build/senders-test.status)" = 0 ] || status=1; \
-	echo "--- make firmware-test:"; cat build/firmware-test.log; \
+	echo "--- make firmware-test:"; cat build/firmware-build.log build/firmware-test.log; \
 	[ "$$(cat build/firmware-test.status)" = 0 ] || status=1; \
 	echo "--- the Python suite's real-time tests (devices on terminals and sockets):"; \
 	cat build/realtime-test.log; [ "$$(cat build/realtime-test.status)" = 0 ] || status=1; \

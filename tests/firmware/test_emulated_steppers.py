@@ -32,12 +32,19 @@ PROGRAMS = {
 
 
 def _machine(folder: Path) -> MachineConfig:
-    """examples/stepper.toml at 1 kHz, Z with gains for it."""
+    """examples/stepper.toml at 1 kHz, Z with gains for it, each simulated axis starting
+    3 mm inside the travel end it homes to, homing's slow approach quicker (the homing
+    emulated in 3 s of machine time, not 25)."""
     text = EXAMPLE.read_text()
-    for old, new in (("servo_interval_dms = 1 ", "servo_interval_dms = 10 "),
-                     ("gains = { kp = 0.5, ki = 1.0, kd = 0.005 }",
-                      "gains = { kp = 0.2, ki = 1.0, kd = 0.001 }")):
-        assert text.count(old) == 1, f"examples/stepper.toml no longer says {old!r}"
+    for old, new, count in (("servo_interval_dms = 1 ", "servo_interval_dms = 10 ", 1),
+                            ("gains = { kp = 0.5, ki = 1.0, kd = 0.005 }",
+                             "gains = { kp = 0.2, ki = 1.0, kd = 0.001 }", 1),
+                            ("start_mm = 150.0", "start_mm = 3.0", 1),
+                            ("start_mm = 100.0", "start_mm = 3.0", 1),
+                            ("start_mm = -40.0", "start_mm = -3.0", 1),
+                            ("slow_speed_mm_s = 1.0, backoff_mm = 1.0",
+                             "slow_speed_mm_s = 4.0, backoff_mm = 0.5", 3)):
+        assert text.count(old) == count, f"examples/stepper.toml no longer says {old!r}"
         text = text.replace(old, new)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "stepper.toml"
