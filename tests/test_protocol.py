@@ -38,7 +38,7 @@ from usbmotion.protocol import (
     parse_reply,
 )
 from usbmotion.protocol.reference import render_reference, splice
-from usbmotion.protocol.table import BY_NUMBER
+from usbmotion.protocol.table import BY_NUMBER, max_steps_per_tick
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -348,3 +348,14 @@ def test_a_counted_call_encodes_as_encode_call(number: int, items: list[int],
     expected = _outcome(lambda: encode_call(number, *lead, len(items), *items))
     assert _outcome(lambda: encode_counted(number, tuple(lead), array)) == expected
     assert _outcome(lambda: encode_counted(number, tuple(lead), items)) == expected
+
+
+@pytest.mark.parametrize(("tick_us", "pulse_ns", "setup_ns", "steps"),
+                         [(1000, 100, 20, 4807), (1000, 2000, 1000, 249), (100, 2000, 1000, 24),
+                          (100, 5000, 0, 10), (1000, 1_000_000, 0, 0), (250, 333, 17, 371)])
+def test_the_steps_a_tick_can_issue(tick_us: int, pulse_ns: int, setup_ns: int,
+                                    steps: int) -> None:
+    """Call 46's count, which the device issues at most and a host checks a step rate
+    against: (tick - set-up) // (2 x pulse), each in 8 ns periods rounded up (250 us with
+    333 ns pulses after 17 ns: (31,250 - 3) // 84 = 371)."""
+    assert max_steps_per_tick(tick_us, pulse_ns, setup_ns) == steps

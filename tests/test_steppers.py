@@ -25,7 +25,6 @@ from stepper_loads import (
 )
 from usbmotion.device import Device
 from usbmotion.device.motor import MICRO
-from usbmotion.device.stepper import max_steps_per_tick
 from usbmotion.errors import ConfigError
 from usbmotion.grbl.interface import Rejected
 from usbmotion.grbl.reports import machine_setting_values
@@ -34,7 +33,6 @@ from usbmotion.host.config import (
     SimStepperConfig,
     load_config,
     parse_config,
-    steps_per_tick,
 )
 from usbmotion.motion.dialects import dialect_named
 from usbmotion.protocol import Drive, FaultCode
@@ -91,15 +89,6 @@ def test_a_machine_mixes_servo_and_stepper_axes() -> None:
     z = config.axis("Z")
     assert z.stepper is not None and (z.stepper.loop, z.stepper.microsteps) == ("open", 16)
     assert isinstance(z.sim, SimStepperConfig), "a sim:// stepper gets the default stepper"
-
-
-@pytest.mark.parametrize(("tick_us", "pulse_ns", "setup_ns"),
-                         [(1000, 100, 20), (1000, 2000, 1000), (100, 2000, 1000),
-                          (100, 5000, 0), (1000, 1_000_000, 0), (250, 333, 17)])
-def test_the_host_counts_a_tick_s_steps_as_the_device_does(tick_us: int, pulse_ns: int,
-                                                              setup_ns: int) -> None:
-    assert steps_per_tick(tick_us, pulse_ns, setup_ns) == max_steps_per_tick(
-        tick_us, pulse_ns, setup_ns)
 
 
 def _refused(text: str) -> str:

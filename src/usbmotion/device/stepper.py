@@ -35,7 +35,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from usbmotion.protocol.table import STEP_CLOCK_HZ
+from usbmotion.protocol.table import max_steps_per_tick
+from usbmotion.protocol.table import step_periods as cycles
 from usbmotion.scimath import SciNumber, sci_from_int, sci_mul, sci_to_int
 
 DIGITS = 4
@@ -52,8 +53,6 @@ SINE: npt.NDArray[np.int64] = np.array(
 firmware's table is generated from this one)."""
 STEPPER_OMEGA_MAX = 10**13
 """Speed bound of the model, micro-microsteps/s (10**7 microsteps/s)."""
-CYCLES_PER_US = STEP_CLOCK_HZ // 1_000_000
-"""Step clock periods per microsecond."""
 _TWO_PI = SciNumber(6283, -3)
 
 
@@ -94,18 +93,6 @@ class StepperConstants:
     """Viscous torque per speed, uNm per micro-microstep/s (scientific notation)."""
     accel: tuple[int, int]
     """Speed change per uNm over one sub-step, micro-microsteps/s (scientific notation)."""
-
-
-def cycles(ns: int) -> int:
-    """``ns`` nanoseconds in whole step-clock periods, rounded up."""
-    return (ns * CYCLES_PER_US + 999) // 1000
-
-
-def max_steps_per_tick(tick_us: int, pulse_ns: int, setup_ns: int) -> int:
-    """The steps one servo tick can issue: after the set-up, a pulse high and as long low
-    each, in whole step-clock periods (0: not even one fits)."""
-    room = tick_us * CYCLES_PER_US - cycles(setup_ns)
-    return max(0, room // (2 * cycles(pulse_ns)))
 
 
 def derive_stepper(stepper: StepperParams, *, tick_us: int, substeps: int,

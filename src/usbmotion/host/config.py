@@ -35,7 +35,7 @@ from usbmotion.protocol import (
     device_name_problem,
 )
 from usbmotion.protocol.names import Drive
-from usbmotion.protocol.table import INT32_MAX, INT32_MIN, STEP_CLOCK_HZ
+from usbmotion.protocol.table import INT32_MAX, INT32_MIN, max_steps_per_tick
 
 AXIS_LETTERS = ("X", "Y", "Z", "A", "B", "C", "U", "V", "W")
 DIALECTS = ("linuxcnc", "grbl", "marlin")
@@ -278,19 +278,6 @@ OPEN_LOOP_GAINS = PidGains(kp=0.0, ki=0.0, kd=0.0)
 """An open-loop stepper runs no PID: the device ignores its gains; these are sent."""
 
 
-def steps_per_tick(tick_us: int, pulse_ns: int, setup_ns: int) -> int:
-    """The steps one servo tick of ``tick_us`` can issue with a step pulse of ``pulse_ns``
-    high (and as long low) after a direction set-up of ``setup_ns``, as the device counts
-    them (call 48's ``max_per_tick``, PROTOCOL.md call 46): each time rounded up to whole
-    periods of the 125 MHz step clock; 0 when not even one fits."""
-    per_us = STEP_CLOCK_HZ // 1_000_000
-
-    def periods(ns: int) -> int:
-        return (ns * per_us + 999) // 1000
-
-    return max(0, (tick_us * per_us - periods(setup_ns)) // (2 * periods(pulse_ns)))
-
-
 @dataclass(frozen=True, slots=True)
 class StepperConfig:
     """A stepper axis's motor and driver (calls 44-46, and call 16 for its encoder).
@@ -328,8 +315,9 @@ class StepperConfig:
         return self.full_steps_per_rev * self.microsteps
 
     def steps_per_tick(self, tick_us: int) -> int:
-        """The most steps one servo tick of ``tick_us`` issues (:func:`steps_per_tick`)."""
-        return steps_per_tick(tick_us, self.step_pulse_ns, self.dir_setup_ns)
+        """The most steps one servo tick of ``tick_us`` issues, as the device counts them
+        (:func:`~usbmotion.protocol.table.max_steps_per_tick`)."""
+        return max_steps_per_tick(tick_us, self.step_pulse_ns, self.dir_setup_ns)
 
 
 @dataclass(frozen=True, slots=True)

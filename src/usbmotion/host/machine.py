@@ -28,7 +28,6 @@ from usbmotion.host.config import (
     AxisConfig,
     MachineConfig,
     SimStepperConfig,
-    steps_per_tick,
 )
 from usbmotion.host.device import AxisScale, ControlMode, DeviceClient, Status
 from usbmotion.host.discovery import PROBE_TIMEOUT_S, discover
@@ -42,6 +41,7 @@ from usbmotion.host.timesync import (
 )
 from usbmotion.host.transport import LineTransport
 from usbmotion.protocol import CallNumber, Drive
+from usbmotion.protocol.table import max_steps_per_tick
 
 SPINDLE_KEY = "spindle"
 """The spindle's device among the machine's links (discovery, URLs)."""
@@ -512,7 +512,7 @@ def _set_drive(client: DeviceClient, axis: AxisConfig, *, servo_interval_dms: in
     timing = (stepper.step_pulse_ns, stepper.dir_setup_ns)
     # Call 46 and call 5 are each refused when no step fits the tick: send the timing first
     # when it fits the present tick (the file's pair fits its own tick).
-    timing_first = steps_per_tick(client.servo_interval_us(), *timing) >= 1
+    timing_first = max_steps_per_tick(client.servo_interval_us(), *timing) >= 1
     if timing_first:
         client.set_step_timing(*timing)
     client.set_servo_interval_dms(servo_interval_dms)

@@ -41,6 +41,21 @@ rounded up to whole periods of it (8 ns)."""
 STEP_PULSE_MIN_NS = 100
 """Shortest step pulse call 46 takes (a TMC2209 needs 100 ns high and low)."""
 
+
+def step_periods(ns: int) -> int:
+    """``ns`` nanoseconds in whole periods of the step clock (:data:`STEP_CLOCK_HZ`),
+    rounded up."""
+    return (ns * (STEP_CLOCK_HZ // 1_000_000) + 999) // 1000
+
+
+def max_steps_per_tick(tick_us: int, pulse_ns: int, setup_ns: int) -> int:
+    """The steps one servo tick of ``tick_us`` can issue (call 48's ``max_per_tick``): after
+    the set-up, a pulse high and as long low each, in whole step-clock periods (call 46;
+    0: not even one fits). The device issues at most this many; a host checks a machine's
+    step rate against it."""
+    room = tick_us * (STEP_CLOCK_HZ // 1_000_000) - step_periods(setup_ns)
+    return max(0, room // (2 * step_periods(pulse_ns)))
+
 _FIELD = re.compile(r"\{(\w+)\}")
 REST_FIELDS = frozenset({"text", "values"})
 """Template fields that take the rest of the line rather than one integer."""
