@@ -420,10 +420,12 @@ def test_sim_table_values_are_checked(tmp_path: Path) -> None:
 
 # --- a misspelt key is named as unknown, with the closest known key -----------------------
 
-AXIS_KEYS = ("counts_per_mm, device, following_error_limit_mm, gains, homing, kind,"
+AXIS_KEYS = ("counts_per_mm, device, encoder, encoder_counts_per_rev, following_error_limit_mm,"
+             " gains, homing, kind,"
              " max_accel_mm_s2, max_jerk_mm_s3, max_velocity_mm_s, model, reach, sim,"
              " travel_mm, url, velocity_gains")
-SIM_KEYS = ("counts_per_revolution, inertia_kg_m2, load_torque_mnm, probe_above_mm,"
+SIM_KEYS = ("counts_per_revolution, inertia_kg_m2, load_torque_mnm, magnet_angle_deg,"
+            " probe_above_mm,"
             " probe_below_mm, source_voltage_v, start_mm, torque_constant_mnm_per_a,"
             " update_interval_dms, viscous_friction_unm_per_rad_s, winding_resistance_ohm")
 

@@ -1330,10 +1330,29 @@ static void call_steps(const call_t *call) {
                                                                     vars.setup_ns))});
 }
 
+/* Call 49: one turn of the encoder, in counts of the counter. */
+static int64_t encoder_turn(void) {
+    return vars.drive == DRIVE_STEP_CLOSED ? (int64_t)vars.full_steps * vars.microsteps
+                                           : (int64_t)vars.counts_per_revolution;
+}
+
 static void call_set_encoder(const call_t *call) {
     if (call->is_query) {
-        reply(CALL_SET_ENCODER,
-              (field_t[]){NUMBER(vars.encoder_kind), NUMBER(vars.encoder_angle)});
+        int64_t zero = 0;
+        if (vars.encoder_kind == 1) {
+            /* where the turns begin in the counter's coordinates: (offset - angle) floored
+             * modulo a turn */
+            platform_servo_lock();
+            int64_t offset = servo_state.offset;
+            platform_servo_unlock();
+            int64_t turn = encoder_turn();
+            zero = (offset - vars.encoder_angle) % turn;
+            if (zero < 0) {
+                zero += turn;
+            }
+        }
+        reply(CALL_SET_ENCODER, (field_t[]){NUMBER(vars.encoder_kind),
+                                            NUMBER(vars.encoder_angle), NUMBER(zero)});
         return;
     }
     platform_servo_lock();
@@ -1355,9 +1374,7 @@ static void call_set_encoder(const call_t *call) {
     vars.encoder_angle = angle;
     if (kind == 1) {
         /* the counter becomes the angle within a turn: (source + angle) floored modulo it */
-        int64_t turn = vars.drive == DRIVE_STEP_CLOSED
-                           ? (int64_t)vars.full_steps * vars.microsteps
-                           : (int64_t)vars.counts_per_revolution;
+        int64_t turn = encoder_turn();
         platform_servo_lock();
         int64_t source = wrap_int32((int64_t)servo_state.actual - servo_state.offset);
         int64_t within = (source + angle) % turn;

@@ -470,7 +470,7 @@ const call_spec_t call_table[TABLE_CALLS] = {
         .query_count = 2,
         .query_any = 0x0,
         .query = {-1, 0},
-        .query_reply = {"ENCODER {kind} {angle}", 2, 0x0},
+        .query_reply = {"ENCODER {kind} {angle} {zero}", 3, 0x0},
         .debug = {[1] = {"ENCODER MODIFIED TO {kind} {angle}", 2, 0x0}},
     },
 };

@@ -48,6 +48,10 @@ class HomingAxis:
         switch_mm: the machine position of the switch's closing edge.
         pull_off_speed_mm_s: the speed of the final move off the switch.
         velocity_gains, gains: (kp, ki, kd) of velocity mode (homing) and position mode.
+        turn_counts: an absolute encoder's turn, counts (``None``: an incremental encoder).
+            The zero is then the turn boundary nearest the switch's edge (LinuxCNC's index
+            homing, the boundary standing for the index): it repeats to the encoder's count
+            however the switch repeats, within half a turn.
     """
 
     client: DeviceClient
@@ -58,6 +62,7 @@ class HomingAxis:
     pull_off_speed_mm_s: float
     velocity_gains: tuple[float, float, float]
     gains: tuple[float, float, float]
+    turn_counts: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -73,6 +78,12 @@ class MachineZero:
     seen_counts: int = 0
     """The counter at the poll that first saw the switch closed (same coordinates as
     ``edge_counts``): a zero taken there would be ``seen_counts - edge_counts`` off."""
+    turn_counts: int = 0
+    """An absolute encoder's turn, counts (0: incremental, zeroed on the edge itself)."""
+    edge_from_turn_counts: int = 0
+    """With an absolute encoder: how far the switch's edge was from the turn boundary the
+    zero was put on (-turn/2 to turn/2); near half a turn either way, a switch that repeats
+    worse than the margin left may pick the neighbouring turn."""
 
 
 @dataclass(slots=True)
@@ -306,11 +317,22 @@ class DeviceHomingIO:
         client.set_gains(kp=kp, ki=ki, kd=kd)
         client.set_control_mode(ControlMode.POSITION)
         switch_counts = config.scale.to_counts(config.switch_mm)
-        shift = wrap_int32(switch_counts - latched.position_counts)
+        turn = config.turn_counts
+        from_turn = 0
+        if turn is not None:
+            # the turn boundary nearest the edge: where the encoder reads angle 0
+            zero = client.encoder().zero
+            from_turn = (latched.position_counts - zero + turn // 2) % turn - turn // 2
+        shift = wrap_int32(switch_counts - (latched.position_counts - from_turn))
         client.shift_position(shift)
-        self.zeroes[axis] = MachineZero(latched.position_counts, latched.tick, shift)
+        self.zeroes[axis] = MachineZero(latched.position_counts, latched.tick, shift,
+                                        turn_counts=turn or 0,
+                                        edge_from_turn_counts=from_turn)
         here = client.status().actual_counts
-        target = config.scale.to_counts(config.switch_mm - config.direction * pull_off_mm)
+        # off the switch from its edge (with an absolute encoder the edge reads the
+        # switch's position plus its distance from the turn boundary)
+        target = (switch_counts + from_turn
+                  - config.direction * config.scale.to_counts(pull_off_mm))
         values: list[int] = []
         if target != here:
             profile = trapezoid_profile(float(target - here),

@@ -13,6 +13,8 @@ from usbmotion.cli.progress import progress_line
 from usbmotion.errors import SequenceFaultError, StopRequestedError, UsbMotionError
 
 if TYPE_CHECKING:
+    from usbmotion.automation.device_io import MachineZero
+    from usbmotion.host.device import AxisScale
     from usbmotion.host.machine import Machine
     from usbmotion.session import MachineSession
 
@@ -51,6 +53,7 @@ def describe_status(machine: Machine) -> list[str]:
 
     rows: list[tuple[str, ...]] = []
     states: list[MachineState] = []
+    notes: list[str] = []
     for name, axis in machine.axes.items():
         client = axis.client
         state = client.status()
@@ -72,6 +75,20 @@ def describe_status(machine: Machine) -> list[str]:
             f"{axis.scale.to_mm(state.desired_counts - state.actual_counts):.3f} {unit}",
             "on" if state.enabled else "off", client.control_mode().word, str(state.queued),
             ",".join(switches) or "open", fault))
+        absolute = axis.config.absolute_encoder
+        if absolute is not None and not homed:
+            setting = client.encoder()
+            if setting.absolute:
+                angle = absolute.angle_counts(state.actual_counts, setting.zero)
+                degrees = 360.0 * angle / absolute.turn_counts
+                notes.append(
+                    f"{name}: not homed; its absolute encoder reads {degrees:.1f} deg of its"
+                    f" turn ({axis.scale.to_mm(angle):.3f} {unit} past the turn's start):"
+                    " homing names the turn")
+            else:
+                notes.append(
+                    f"{name}: the machine file's encoder is absolute, the device's is not set"
+                    " up yet (the next home, run or jog sets it)")
     worst = next((s for s in (MachineState.ALARM, MachineState.RUN) if s in states),
                  MachineState.IDLE)
     homed_all = all(row[2] == "yes" for row in rows)
@@ -81,7 +98,7 @@ def describe_status(machine: Machine) -> list[str]:
     table = ["  ".join(cell.ljust(width) for cell, width in zip(row, widths, strict=True))
              .rstrip() for row in (header, *rows)]
     return [f"{machine.config.name}: {worst.value}, {'homed' if homed_all else 'not homed'}",
-            *table]
+            *table, *notes]
 
 
 def home(
@@ -143,4 +160,26 @@ def _home(session: MachineSession, axes: list[str] | None, *, quiet: bool) -> in
     where = session.positions_mm()
     at = "  ".join(f"{name} {where[name]:.3f}" for name in homed)
     typer.echo(f"homed {', '.join(homed)} in {seconds:.1f} s: {at} mm (machine coordinates)")
+    for name in homed:
+        zero = session.zeroes.get(name)
+        if zero is not None and zero.turn_counts:
+            typer.echo(absolute_zero_words(name, zero, session.machine.axis(name).scale))
     return 0
+
+
+def absolute_zero_words(name: str, zero: MachineZero, scale: AxisScale) -> str:
+    """How homing named an absolute encoder's turn: the boundary the zero is on, the
+    switch's edge from it, and the margin a switch's repeatability has before the
+    neighbouring turn would be taken."""
+    turn_mm = zero.turn_counts / scale.counts_per_mm
+    edge_mm = zero.edge_from_turn_counts / scale.counts_per_mm
+    margin_mm = turn_mm / 2 - abs(edge_mm)
+    switch_mm = scale.to_mm(zero.edge_counts + zero.shift_counts - zero.edge_from_turn_counts)
+    words = (f"{name}: absolute encoder: {switch_mm:.3f} mm is the turn boundary nearest the"
+             f" switch, whose edge read {switch_mm + edge_mm:.3f} mm (a turn is"
+             f" {turn_mm:.3f} mm; a switch that repeats within {margin_mm:.3f} mm names the"
+             " same turn)")
+    if margin_mm < turn_mm / 8:
+        words += ("; the edge is close to halfway between turns: move the switch or turn the"
+                  " encoder's magnet by a quarter turn")
+    return words

@@ -1270,7 +1270,11 @@ class Device:
     def _call_49(self, call: Call) -> None:
         state = self._state
         if call.is_query:
-            self._reply(49, *self._encoder)
+            kind, angle = self._encoder
+            zero = 0
+            if kind == 1:
+                zero = (int(state[core1.S_OFFSET]) - angle) % self._encoder_turn()
+            self._reply(49, kind, angle, zero)
             return
         if state[core1.S_ENABLE] == 1:
             raise _RefusedError("the servo is enabled: disable it (call 3 0) before changing"
@@ -1281,11 +1285,16 @@ class Device:
                                 " encoder to read")
         self._encoder = (kind, angle)
         if kind == 1:
-            turn = (self._stepper.microsteps_per_revolution if self._drive == Drive.STEP_CLOSED
-                    else self._motor.counts_per_revolution)
             source = wrap_int32(int(state[core1.S_ACTUAL]) - int(state[core1.S_OFFSET]))
-            self._shift_position((source + angle) % turn - int(state[core1.S_ACTUAL]))
+            self._shift_position((source + angle) % self._encoder_turn()
+                                 - int(state[core1.S_ACTUAL]))
         self._debug_line(49, kind, angle)
+
+    def _encoder_turn(self) -> int:
+        """Call 49: one turn of the encoder, in counts of the counter."""
+        if self._drive == Drive.STEP_CLOSED:
+            return self._stepper.microsteps_per_revolution
+        return self._motor.counts_per_revolution
 
     def _call_48(self, call: Call) -> None:
         state = self._state

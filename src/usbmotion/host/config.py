@@ -158,6 +158,7 @@ class SimMotorConfig:
     start_mm: float
     probe_side: int = 0
     probe_mm: float = 0.0
+    magnet_angle_deg: float = 0.0
 
     def model(self) -> DcMotorModel:
         """The motor's continuous model, each value to the 4 significant digits the device's
@@ -276,6 +277,31 @@ says: on ``examples/stepper.toml``'s X and Y (1.1e-5 kg m^2), moves at 50 mm/s w
 loss up to 26,500 mm/s^2 (45 % of the torque), steps lost at 30,000 (51 %) and beyond."""
 OPEN_LOOP_GAINS = PidGains(kp=0.0, ki=0.0, kd=0.0)
 """An open-loop stepper runs no PID: the device ignores its gains; these are sent."""
+ENCODER_KINDS = ("incremental", "absolute")
+"""An axis's encoder: ``incremental`` (quadrature, counting from power-up) or ``absolute``
+within a turn (an AS5161-style magnetic encoder's PWM angle, call 49)."""
+
+
+@dataclass(frozen=True, slots=True)
+class AbsoluteEncoder:
+    """An axis's absolute encoder (``encoder = "absolute"``, call 49 kind 1): the device
+    knows the shaft's angle within a turn from power-up, and homing names the turn.
+
+    Fields:
+        turn_counts: one turn of the encoder in counts of the device's counter (call 16's
+            counts per revolution on a servo; microsteps per revolution on a closed-loop
+            stepper).
+        magnet_counts: a simulated encoder's magnet: the angle it reads with the simulated
+            shaft at 0, counts (the ``sim`` table's ``magnet_angle_deg``); 0 on hardware.
+    """
+
+    turn_counts: int
+    magnet_counts: int = 0
+
+    def angle_counts(self, counts: int, zero: int) -> int:
+        """The absolute angle within a turn of the counter value ``counts``, given where
+        the turns begin (call 49's ``zero``)."""
+        return (counts - zero) % self.turn_counts
 
 
 @dataclass(frozen=True, slots=True)
@@ -347,6 +373,7 @@ class SimStepperConfig:
     start_mm: float
     probe_side: int = 0
     probe_mm: float = 0.0
+    magnet_angle_deg: float = 0.0
 
     def torque_nm(self, rpm: float) -> float:
         """The most torque the driver's field gives at ``rpm``, N m: the holding torque up
@@ -506,6 +533,8 @@ class AxisConfig:
             a servo axis. A stepper's ``velocity_gains`` are its ``gains``: in velocity mode
             (homing) it integrates the velocity into its desired position and runs the same
             position loop.
+        absolute_encoder: the axis's absolute encoder (``encoder = "absolute"``), or
+            ``None`` for an incremental one.
 
     A rotary axis (A, B, C) is in degrees: its file writes ``counts_per_degree``,
     ``max_velocity_deg_s``, ``travel_deg`` and so on (:data:`_ROTARY_NAMES`), and every
@@ -534,6 +563,7 @@ class AxisConfig:
     wrapped: bool = False
     model: MotorModelConfig | None = None
     stepper: StepperConfig | None = None
+    absolute_encoder: AbsoluteEncoder | None = None
 
     @property
     def kind(self) -> str:
@@ -1110,19 +1140,20 @@ _JOINT_KEYS = ("axis", "unit", "counts_per_unit", "max_velocity", "max_accel", "
 _AXIS_KEYS = (
     "device", "url", "counts_per_mm", "max_velocity_mm_s", "max_accel_mm_s2", "max_jerk_mm_s3",
     "travel_mm", "gains", "velocity_gains", "following_error_limit_mm", "homing", "sim", "reach",
-    "model", "kind",
+    "model", "kind", "encoder", "encoder_counts_per_rev",
 )
 _STEPPER_ONLY_KEYS = ("steps_per_mm", "microsteps", "full_steps_per_rev", "loop",
-                      "encoder_counts_per_rev", "step_pulse_ns", "dir_setup_ns")
+                      "step_pulse_ns", "dir_setup_ns")
 _STEPPER_AXIS_KEYS = (
     "device", "url", "kind", "max_velocity_mm_s", "max_accel_mm_s2", "max_jerk_mm_s3",
-    "travel_mm", "gains", "following_error_limit_mm", "homing", "sim", *_STEPPER_ONLY_KEYS,
+    "travel_mm", "gains", "following_error_limit_mm", "homing", "sim", "encoder",
+    "encoder_counts_per_rev", *_STEPPER_ONLY_KEYS,
 )
 _SERVO_ONLY_KEYS = ("counts_per_mm", "velocity_gains", "reach", "model")
 _SIM_STEPPER_KEYS = (
     "update_interval_dms", "holding_torque_mnm", "detent_torque_mnm", "corner_rpm",
     "inertia_kg_m2", "viscous_friction_unm_per_rad_s", "load_torque_mnm", "start_mm",
-    "probe_below_mm", "probe_above_mm",
+    "probe_below_mm", "probe_above_mm", "magnet_angle_deg",
 )
 _GAINS_KEYS = ("kp", "ki", "kd")
 _HOMING_KEYS = ("direction", "speed_mm_s", "slow_speed_mm_s", "backoff_mm", "position_mm",
@@ -1131,7 +1162,7 @@ _SIM_KEYS = (
     "update_interval_dms", "source_voltage_v", "torque_constant_mnm_per_a",
     "winding_resistance_ohm", "counts_per_revolution", "inertia_kg_m2",
     "viscous_friction_unm_per_rad_s", "load_torque_mnm", "start_mm", "probe_below_mm",
-    "probe_above_mm",
+    "probe_above_mm", "magnet_angle_deg",
 )
 _REACH_KEYS = ("velocity_mm_s", "accel_mm_s2")
 _MODEL_KEYS = ("time_constant_s", "speed_per_volt_counts_s", "coulomb_v", "supply_v")
@@ -1500,6 +1531,7 @@ def _axis(name: str, reader: _Reader, servo_interval_dms: int,
         if stepper_sim is not None:
             _check_stepper_torque(reader, stepper_reach(stepper_sim, stepper, counts_per_mm),
                                   max_velocity, max_accel, closed=stepper.closed)
+        absolute = _encoder(reader, stepper_sim, stepper=stepper)
         reader.finish()
         return AxisConfig(
             name=name, device=device, url=url, counts_per_mm=counts_per_mm,
@@ -1507,6 +1539,7 @@ def _axis(name: str, reader: _Reader, servo_interval_dms: int,
             max_jerk_mm_s3=max_jerk, travel_mm=travel, gains=gains,
             velocity_gains=velocity_gains, following_error_limit_mm=fe_limit, homing=homing,
             reach=None, sim=stepper_sim, wrapped=wrapped, stepper=stepper,
+            absolute_encoder=absolute,
         )
     sim = _sim(reader, travel, counts_per_mm, servo_interval_dms, simulated=simulated)
     reach = _reach(reader)
@@ -1531,14 +1564,58 @@ def _axis(name: str, reader: _Reader, servo_interval_dms: int,
             accel="by the reach that usbmotion tune --reach measured",
             accel_how=f"{table}, on a DC motor's straight torque-speed line",
         )
+    absolute = _encoder(reader, sim, stepper=None)
     reader.finish()
     return AxisConfig(
         name=name, device=device, url=url, counts_per_mm=counts_per_mm,
         max_velocity_mm_s=max_velocity, max_accel_mm_s2=max_accel, max_jerk_mm_s3=max_jerk,
         travel_mm=travel, gains=gains, velocity_gains=velocity_gains,
         following_error_limit_mm=fe_limit, homing=homing, reach=reach, sim=sim,
-        wrapped=wrapped, model=model,
+        wrapped=wrapped, model=model, absolute_encoder=absolute,
     )
+
+
+def _encoder(reader: _Reader, sim: SimMotorConfig | SimStepperConfig | None, *,
+             stepper: StepperConfig | None) -> AbsoluteEncoder | None:
+    """The axis's ``encoder``: ``None`` for an incremental one, else its turn (a servo's
+    ``encoder_counts_per_rev``, or its simulated motor's ``counts_per_revolution``; a
+    closed-loop stepper's microsteps per revolution) and the simulated magnet's angle."""
+    kinds = ", ".join(repr(kind) for kind in ENCODER_KINDS)
+    allowed = (f"{kinds}: counting from power-up (homing finds where the axis is), or the"
+               " shaft's angle within a turn from power-up (homing names the turn)")
+    kind = reader.string("encoder", default="incremental", allowed=allowed)
+    if kind not in ENCODER_KINDS:
+        reader.fail("encoder", f"{kind!r} is not a kind of encoder; allowed: {allowed}")
+    magnet_deg = 0.0 if sim is None else sim.magnet_angle_deg
+    if kind == "incremental":
+        if magnet_deg != 0.0:
+            reader.fail("sim", "magnet_angle_deg is an absolute encoder's; allowed: encoder ="
+                        " 'absolute' with it, or no magnet_angle_deg")
+        if stepper is None and reader.has("encoder_counts_per_rev"):
+            reader.fail("encoder_counts_per_rev", "a servo's incremental encoder is scaled by"
+                        " counts_per_mm alone; allowed: encoder = 'absolute' with it (its"
+                        " turn), or no encoder_counts_per_rev")
+        return None
+    if stepper is not None:
+        if not stepper.closed:
+            reader.fail("encoder", "an open-loop stepper reads no encoder (its position is the"
+                        " steps issued); allowed: loop = 'closed' with an absolute encoder,"
+                        " or encoder = 'incremental'")
+        turn = stepper.microsteps_per_rev
+    else:
+        simulated_turn = sim.counts_per_revolution if isinstance(sim, SimMotorConfig) else None
+        maximum = BY_NUMBER[CallNumber.SET_SIM_COUNTS_PER_REVOLUTION].params[0].maximum
+        turn = reader.integer(
+            "encoder_counts_per_rev",
+            default=_REQUIRED if simulated_turn is None else simulated_turn, minimum=2,
+            maximum=maximum, unit="counts of the counter per turn of the absolute encoder;"
+            " default the simulated motor's counts_per_revolution")
+        if simulated_turn is not None and turn != simulated_turn:
+            reader.fail("encoder_counts_per_rev", f"{turn!r} counts a turn, and the simulated"
+                        f" motor counts {simulated_turn} (its counts_per_revolution); allowed:"
+                        " the same number, or no encoder_counts_per_rev")
+    magnet = round(magnet_deg / 360.0 * turn) % turn
+    return AbsoluteEncoder(turn_counts=turn, magnet_counts=magnet)
 
 
 def _reach(reader: _Reader) -> AxisReach | None:
@@ -1800,11 +1877,21 @@ def _sim(reader: _Reader, travel: tuple[float, float], counts_per_mm: float,
         unit="encoder counts per revolution",
     )
     start, probe_side, probe_mm = _sim_place(table, travel, counts_per_mm)
+    magnet = _sim_magnet(table)
     table.finish()
     return SimMotorConfig(
         update_interval_dms=interval, counts_per_revolution=counts_per_rev, start_mm=start,
-        probe_side=probe_side, probe_mm=probe_mm, **values,
+        probe_side=probe_side, probe_mm=probe_mm, magnet_angle_deg=magnet, **values,
     )
+
+
+def _sim_magnet(table: _Reader) -> float:
+    """A simulated absolute encoder's ``magnet_angle_deg``: the angle it reads with the
+    simulated shaft at 0 (where the magnet happens to sit on the shaft)."""
+    return table.number("magnet_angle_deg", default=0.0, minimum=0.0, above=None,
+                        maximum=359.999,
+                        unit="degrees of the encoder's turn the simulated absolute encoder"
+                             " reads with the shaft at 0 (encoder = 'absolute')")
 
 
 def _sim_place(table: _Reader, travel: tuple[float, float],
@@ -1861,11 +1948,12 @@ def _sim_stepper(reader: _Reader, travel: tuple[float, float], counts_per_mm: fl
             values[key] = table.number(key, default=d[key], above=0, unit=_SIM_UNITS[key])
         _sci(table, key, values[key], call=call, digits=4)
     start, probe_side, probe_mm = _sim_place(table, travel, counts_per_mm)
+    magnet = _sim_magnet(table)
     table.finish()
     return SimStepperConfig(
         update_interval_dms=interval, holding_torque_mnm=holding, detent_torque_mnm=detent,
         corner_rpm=corner, start_mm=start, probe_side=probe_side, probe_mm=probe_mm,
-        **values)
+        magnet_angle_deg=magnet, **values)
 
 
 def _check_stepper_torque(reader: _Reader, reach: StepperReach, max_velocity: float,

@@ -38,6 +38,7 @@ from usbmotion.protocol import (
     Diagnostics,
     DiagnosticsBlock,
     Drive,
+    EncoderSetting,
     MotionStats,
     Outputs,
     ProbeState,
@@ -800,6 +801,17 @@ class DeviceClient:
         """Call 48: the steps issued since the drive was set, the last tick's, and the most
         one tick can issue."""
         return Steps.from_values(self.query(C.STEPS, -1).values)
+
+    def set_encoder(self, kind: int, angle: int = 0) -> None:
+        """Call 49: the encoder, incremental (0) or absolute within a turn (1), and the
+        simulated magnet's angle (counts). Kind 1 makes the counter the absolute angle within
+        a turn at once; clears the queue. Refused while the servo is enabled."""
+        self._check_range(C.SET_ENCODER, (kind, angle), "encoder")
+        self.command(C.SET_ENCODER, kind, angle)
+
+    def encoder(self) -> EncoderSetting:
+        """Call 49 query: the kind, the magnet's angle and where the turns begin."""
+        return EncoderSetting.from_values(self.query(C.SET_ENCODER, -1, 0).values)
 
     # --- flash ------------------------------------------------------------------------------
 

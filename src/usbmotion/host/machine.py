@@ -215,19 +215,19 @@ class Machine:
             client.set_watchdog_ms(config.watchdog_ms)
             sim = settings.sim
             travel = settings.sim_travel_counts
-            if sim is None or travel is None:
-                continue
-            client.set_sim_interval_dms(sim.update_interval_dms)
-            for key, call in SIM_MOTOR_CALLS:
-                if hasattr(sim, key):  # a stepper has no voltage, torque constant, winding
-                    client.set_sim_value(call, getattr(sim, key), label=key)
-            if isinstance(sim, SimStepperConfig):
-                client.set_sim_stepper(sim.holding_torque_mnm, sim.detent_torque_mnm,
-                                       sim.corner_rpm)
-            else:
-                client.set_sim_counts_per_revolution(sim.counts_per_revolution)
-            client.set_sim_travel(*travel)
-            client.set_sim_probe(*settings.sim_probe_counts)
+            if sim is not None and travel is not None:
+                client.set_sim_interval_dms(sim.update_interval_dms)
+                for key, call in SIM_MOTOR_CALLS:
+                    if hasattr(sim, key):  # a stepper has no voltage, torque constant, winding
+                        client.set_sim_value(call, getattr(sim, key), label=key)
+                if isinstance(sim, SimStepperConfig):
+                    client.set_sim_stepper(sim.holding_torque_mnm, sim.detent_torque_mnm,
+                                           sim.corner_rpm)
+                else:
+                    client.set_sim_counts_per_revolution(sim.counts_per_revolution)
+                client.set_sim_travel(*travel)
+                client.set_sim_probe(*settings.sim_probe_counts)
+            _set_encoder(client, settings)
         if self.spindle is not None:
             self.spindle.configure()
 
@@ -526,6 +526,29 @@ def _set_drive(client: DeviceClient, axis: AxisConfig, *, servo_interval_dms: in
         client.set_sim_counts_per_revolution(stepper.encoder_counts_per_rev)
     if client.drive() is not stepper.drive:
         client.set_drive(stepper.drive)
+        client.set_homed_marker(0)
+
+
+def _set_encoder(client: DeviceClient, axis: AxisConfig) -> None:
+    """The axis's encoder (call 49, servo disabled), sent only when it differs from the
+    device's: an absolute one makes the counter the angle within a turn, so the device's
+    homed mark is cleared then. A servo's absolute encoder gets its turn (call 16) first. A
+    device that does not know call 49 reads an incremental encoder."""
+    absolute = axis.absolute_encoder
+    try:
+        now = client.encoder()
+    except ErrReplyError:
+        if absolute is None:
+            return
+        raise
+    if absolute is None:
+        if now.absolute:
+            client.set_encoder(0, 0)
+        return
+    if axis.stepper is None:
+        client.set_sim_counts_per_revolution(absolute.turn_counts)
+    if (now.kind, now.angle) != (1, absolute.magnet_counts):
+        client.set_encoder(1, absolute.magnet_counts)
         client.set_homed_marker(0)
 
 

@@ -67,6 +67,7 @@ _OUTPUTS = _checked(_reply_template(CallNumber.OUTPUTS), *_OUTPUT_FIELDS, "pendi
 _MOTION_STATS = _checked(_reply_template(CallNumber.MOTION_STATS), "ticks", "max_error",
                          "max_error_tick", "sum_sq_error", "last_take_tick")
 _STEPS = _checked(_reply_template(CallNumber.STEPS), "issued", "last", "max_per_tick")
+_ENCODER = _checked(_reply_template(CallNumber.SET_ENCODER), "kind", "angle", "zero")
 REPLACED = _checked(_debug_template(CallNumber.REPLACE_FROM, 1), "kept", "skipped", "added",
                     "crc")
 """Call 38's acknowledgement (debug flag 1) and the fields it carries."""
@@ -276,6 +277,30 @@ class Steps:
         """The step counter from the values of a ``STEPS`` line."""
         v = _read(_STEPS, values)
         return cls(issued=v["issued"], last=v["last"], max_per_tick=v["max_per_tick"])
+
+
+@dataclass(frozen=True, slots=True)
+class EncoderSetting:
+    """Call 49: the encoder's kind (0 incremental, 1 absolute within a turn), the simulated
+    magnet's angle, and ``zero``: with an absolute encoder, the counter value (within a turn)
+    at which the encoder reads angle 0, in the counter's present coordinates; the absolute
+    angle of any counter value ``c`` is ``(c - zero) % turn``.
+    """
+
+    kind: int
+    angle: int
+    zero: int
+
+    @property
+    def absolute(self) -> bool:
+        """True for an absolute encoder."""
+        return self.kind == 1
+
+    @classmethod
+    def from_values(cls, values: Sequence[int]) -> EncoderSetting:
+        """The setting from the values of an ``ENCODER`` line."""
+        v = _read(_ENCODER, values)
+        return cls(kind=v["kind"], angle=v["angle"], zero=v["zero"])
 
 
 @dataclass(frozen=True, slots=True)

@@ -775,7 +775,7 @@ CALLS: tuple[CallSpec, ...] = (
                " the counter, when the simulated shaft is at 0"),
         ),
         query=(-1, 0),
-        query_reply=_t("ENCODER {kind} {angle}"),
+        query_reply=_t("ENCODER {kind} {angle} {zero}"),
         debug={1: _t("ENCODER MODIFIED TO {kind} {angle}")},
         notes="Power-up: 0 0. Refused while the servo is enabled, and kind 1 on an open-loop"
         " stepper (drive 1: its counter is the steps issued, no encoder). An incremental"
@@ -790,7 +790,12 @@ CALLS: tuple[CallSpec, ...] = (
         " repeats to the encoder's count however the switch repeats). The simulated magnet"
         " reads `angle` with the simulated shaft at 0 (where it happens to be mounted). On"
         " the RP2040 with the motor on the pins the encoder input is the PWM output of the"
-        " encoder on the encoder's channel A pin.",
+        " encoder on the encoder's channel A pin. The query's `zero` (kind 1) is where the"
+        " turns begin in the counter's present coordinates: the counter value, within a turn"
+        " (0 to a turn less one count), at which the encoder reads angle 0, so the absolute"
+        " angle at any counter value c (a latched edge, the position now) is (c - zero)"
+        " floored modulo a turn; calls 23 and 37 and the velocity-mode reset move it with"
+        " the counter. With kind 0: 0.",
     ),
 )
 BY_NUMBER: Mapping[int, CallSpec] = {spec.number: spec for spec in CALLS}

@@ -80,6 +80,8 @@ class HomingCycle:
                 velocity_gains=(axis.config.velocity_gains.kp, axis.config.velocity_gains.ki,
                                 axis.config.velocity_gains.kd),
                 gains=(axis.config.gains.kp, axis.config.gains.ki, axis.config.gains.kd),
+                turn_counts=(None if axis.config.absolute_encoder is None
+                             else axis.config.absolute_encoder.turn_counts),
             ) for name, axis in machine.axes.items() if name in self.names},
             clock=machine.clock, poll_period_s=1.0 / HOMING_POLL_HZ,
             tick_s=config.servo_period_s, motion_scalar=config.motion_scalar,
