@@ -312,7 +312,7 @@ def test_closed_loop_beyond_its_holding_torque_stops_every_axis(tmp_path: Path) 
 # --- grbl ---------------------------------------------------------------------------------
 
 
-def test_grbl_shows_and_sets_the_steps_per_mm(tmp_path: Path) -> None:
+def test_grbl_shows_and_sets_the_steps_per_mm_and_the_step_pulse(tmp_path: Path) -> None:
     path = tmp_path / "mixed.toml"
     path.write_text(MIXED.replace("steps_per_mm = 400", "steps_per_mm = 400.0"))
     config = load_config(path)
@@ -329,6 +329,13 @@ def test_grbl_shows_and_sets_the_steps_per_mm(tmp_path: Path) -> None:
             assert machine_setting_values(front.settings())[101] == 800.0
             assert not isinstance(front.set_setting(100, 250.0), Rejected)
             assert load_config(path).axis("X").counts_per_mm == 250.0
+            # $0: the step pulse, microseconds, on every stepper axis, sent to the driver
+            assert values[0] == 2.0
+            assert not isinstance(front.set_setting(0, 0.5), Rejected)
+            stepper = load_config(path).axis("Z").stepper
+            assert stepper is not None and stepper.step_pulse_ns == 500
+            assert session.machine.axis("Z").client.step_timing() == (500, 1000)
+            assert machine_setting_values(front.settings())[0] == 0.5
         finally:
             operator.close()
         session.shutdown()

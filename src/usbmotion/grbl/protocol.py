@@ -732,7 +732,7 @@ class GrblProtocol:
         elif number == 13:
             self._report_inches = bool(int(value))
             self._ok()
-        elif number in NOT_APPLICABLE:
+        elif number in NOT_APPLICABLE and number not in self.machine.settings().extra:
             shown, why = NOT_APPLICABLE[number]
             if setting_value(number, value) == setting_value(number, shown):
                 self._ok()  # a settings backup written back unchanged

@@ -61,8 +61,8 @@ def rate(value_mm_min: float, *, inches: bool = False) -> str:
 
 def setting_value(number: int, value: float) -> str:
     """A setting's value as ``$$`` prints it."""
-    if number in INTEGER_SETTINGS:
-        return f"{round(value):d}"
+    if number in INTEGER_SETTINGS and (number != 0 or value == round(value)):
+        return f"{round(value):d}"  # $0: a stepper driver's pulse may be under a microsecond
     return f"{value:.3f}"
 
 

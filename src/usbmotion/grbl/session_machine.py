@@ -328,7 +328,7 @@ class SessionMachine:
                                homing_feed_mm_min=first.homing.slow_speed_mm_s * 60.0,
                                homing_seek_mm_min=first.homing.speed_mm_s * 60.0,
                                homing_pull_off_mm=first.homing.pull_off_mm,
-                               extra=_spindle_settings(config))
+                               extra={**_spindle_settings(config), **_step_settings(config)})
 
     def set_setting(self, number: int, value: float) -> Rejected | Taken | None:
         current = self._setting_values().get(number)
@@ -377,6 +377,14 @@ class SessionMachine:
     def _changes(self, number: int, value: float) -> dict[Key, Value] | Rejected:
         """The machine file's keys a grbl setting maps onto, given its new value."""
         axes = self._axes
+        if number == 0:
+            steppers = [name for name in self.config.axis_names
+                        if self.config.axis(name).stepper is not None]
+            if not steppers:
+                return Rejected(GrblErrorCode.INVALID_STATEMENT,
+                                "$0 does not apply here: servo axes take no step pulses")
+            return {("axes", name, "step_pulse_ns"): round(value * 1000.0)
+                    for name in steppers}
         if number in (11, 12):
             key = "junction_deviation_mm" if number == 11 else "arc_tolerance_mm"
             return {(key,): float(value)}
@@ -496,6 +504,17 @@ class SessionMachine:
             feed_rate_mode="G93" if modes.inverse_time else "G94",
             feed=modes.feed_mm_min / (25.4 if modes.inches and not modes.inverse_time
                                       else 1.0))
+
+
+def _step_settings(config: MachineConfig) -> dict[int, float]:
+    """``$0``, the step pulse in microseconds, on a machine with stepper axes: the first
+    stepper axis's ``step_pulse_ns`` (grbl has one for every axis; writing it sets every
+    stepper axis's)."""
+    for name in config.axis_names:
+        stepper = config.axis(name).stepper
+        if stepper is not None:
+            return {0: stepper.step_pulse_ns / 1000.0}
+    return {}
 
 
 def _spindle_settings(config: MachineConfig) -> dict[int, float]:

@@ -234,10 +234,10 @@ class Machine:
     def reconfigure(self, config: MachineConfig) -> None:
         """Take a changed configuration of the same machine: its host-side values (scale,
         limits, travel, homing, planning) take effect at once; of what :meth:`configure`
-        sends, the following-error limit (it is in counts: it follows the scale) and the
-        position gains are sent again when they changed (the devices hold in position mode
-        while the machine is idle; the velocity gains take effect at the next homing). Each
-        axis keeps the link it was connected on.
+        sends, the following-error limit (it is in counts: it follows the scale), the
+        position gains and a stepper driver's timing are sent again when they changed (the
+        devices hold in position mode while the machine is idle; the velocity gains take
+        effect at the next homing). Each axis keeps the link it was connected on.
 
         Raises:
             ConfigError: the axes, their devices or a value only a restart applies differ
@@ -266,8 +266,13 @@ class Machine:
             for axis in config.axes))
         for axis in self.axes.values():
             new = config.axis(axis.name)
-            for key in ("device", "sim", "stepper"):
-                if getattr(new, key) != getattr(axis.config, key):
+            for key in ("device", "sim", "stepper", "absolute_encoder"):
+                old_value, new_value = getattr(axis.config, key), getattr(new, key)
+                if key == "stepper" and old_value is not None and new_value is not None:
+                    # the driver's timing (grbl's $0) is sent at once, the rest on connecting
+                    old_value = dataclasses.replace(old_value, step_pulse_ns=0, dir_setup_ns=0)
+                    new_value = dataclasses.replace(new_value, step_pulse_ns=0, dir_setup_ns=0)
+                if new_value != old_value:
                     raise ConfigError(
                         f"{config.path}: axes.{axis.name}.{key} takes effect only when the"
                         " machine connects: restart", path=str(config.path),
@@ -279,6 +284,8 @@ class Machine:
                 axis.client.set_following_error_limit(new.following_error_limit_counts)
             if new.gains != axis.config.gains:  # idle: the devices hold in position mode
                 axis.client.set_gains(kp=new.gains.kp, ki=new.gains.ki, kd=new.gains.kd)
+            if new.stepper is not None and new.stepper != axis.config.stepper:
+                axis.client.set_step_timing(new.stepper.step_pulse_ns, new.stepper.dir_setup_ns)
             axis.client.scale = new.scale
             axes[axis.name] = Axis(axis.name, new, axis.client, axis.url)
         self.axes = axes
