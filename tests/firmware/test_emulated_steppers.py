@@ -29,13 +29,22 @@ PROGRAMS = {
     "cam corner": (ROOT / "tests" / "programs" / "cam_corner.ngc", "grbl",
                    {"X": 100.0, "Y": 100.0, "Z": -40.0}),
 }
+ABSOLUTE_Z = {"cam corner"}
+"""The programs run with Z's encoder absolute (call 49, its magnet a third of a turn round):
+the chips take the angle, say where the turns begin, and home Z on a turn boundary as the
+Python devices do."""
 
 
-def _machine(folder: Path) -> MachineConfig:
+def _machine(folder: Path, *, absolute_z: bool = False) -> MachineConfig:
     """examples/stepper.toml at 1 kHz, Z with gains for it, each simulated axis starting
     3 mm inside the travel end it homes to, homing's slow approach quicker (the homing
-    emulated in 3 s of machine time, not 25)."""
+    emulated in 3 s of machine time, not 25); with ``absolute_z``, Z's encoder absolute."""
     text = EXAMPLE.read_text()
+    if absolute_z:
+        old = "encoder_counts_per_rev = 4000"
+        assert text.count(old) == 1, f"examples/stepper.toml no longer says {old!r}"
+        text = text.replace(old, f'{old}\nencoder = "absolute"').replace(
+            "start_mm = -40.0,", "start_mm = -40.0, magnet_angle_deg = 120.0,")
     for old, new, count in (("servo_interval_dms = 1 ", "servo_interval_dms = 10 ", 1),
                             ("gains = { kp = 0.5, ki = 1.0, kd = 0.005 }",
                              "gains = { kp = 0.2, ki = 1.0, kd = 0.001 }", 1),
@@ -57,15 +66,20 @@ def test_a_stepper_machine_of_emulated_chips_gives_the_python_report(
         program: str, tmp_path: Path) -> None:
     require_emulator()
     path, dialect, origin = PROGRAMS[program]
-    python = virtual_report(_machine(tmp_path / "python"), firmware=None, program=path,
+    absolute = program in ABSOLUTE_Z
+    python_machine = _machine(tmp_path / "python", absolute_z=absolute)
+    assert (python_machine.axis("Z").absolute_encoder is not None) == absolute
+    python = virtual_report(python_machine, firmware=None, program=path,
                             dialect=dialect, origin=origin).report
     assert python["completed"] and not python["faults"], python
-    run = virtual_report(_machine(tmp_path / "chips"), firmware=default_uf2(), program=path,
-                         dialect=dialect, origin=origin)
+    run = virtual_report(_machine(tmp_path / "chips", absolute_z=absolute),
+                         firmware=default_uf2(), program=path, dialect=dialect, origin=origin)
     emulated = run.report
     assert differences(python, emulated) == []
     assert all(count > 1000 for count in run.lines_compared.values()), run.lines_compared
     peaks = {axis["name"]: axis["max_error_counts"] for axis in emulated["axes"]}
-    print(f"{program} on examples/stepper.toml, emulated RP2040s: {emulated['executed_time_s']}"
+    encoder = ", Z's encoder absolute" if absolute else ""
+    print(f"{program} on examples/stepper.toml{encoder}, emulated RP2040s:"
+          f" {emulated['executed_time_s']}"
           f" s, peak following error {peaks} microsteps, the Python devices' report to the"
           " field")
