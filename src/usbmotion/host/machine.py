@@ -273,10 +273,11 @@ class Machine:
                     old_value = dataclasses.replace(old_value, step_pulse_ns=0, dir_setup_ns=0)
                     new_value = dataclasses.replace(new_value, step_pulse_ns=0, dir_setup_ns=0)
                 if new_value != old_value:
+                    label = "encoder" if key == "absolute_encoder" else key
                     raise ConfigError(
-                        f"{config.path}: axes.{axis.name}.{key} takes effect only when the"
+                        f"{config.path}: axes.{axis.name}.{label} takes effect only when the"
                         " machine connects: restart", path=str(config.path),
-                        key=f"axes.{axis.name}.{key}")
+                        key=f"axes.{axis.name}.{label}")
         axes = {}
         for axis in self.axes.values():
             new = config.axis(axis.name)
