@@ -142,6 +142,10 @@ class ServoState(ctypes.Structure):
     ]
 
 
+class EncoderRatioC(ctypes.Structure):
+    _fields_ = [("num", c_u32), ("den", c_u32), ("num_shift", c_u32), ("den_shift", c_u32)]
+
+
 class ServoParams(ctypes.Structure):
     _fields_ = [
         ("tick_us", c_i64), ("scalar", c_i64), ("kp", Sci), ("ki_dt", Sci), ("kd_dt", Sci),
@@ -156,7 +160,7 @@ class ServoParams(ctypes.Structure):
         ("pins_level_per_volt", Sci), ("travel_num", c_i64), ("travel_den", c_i64),
         ("velocity_num", c_i64), ("velocity_den", c_i64), ("reach", c_i32),
         ("sine_k", c_i32), ("full_mask", c_u32), ("cycle_mask", c_u32),
-        ("holding_corner", c_i64),
+        ("holding_corner", c_i64), ("encoder_ratio", EncoderRatioC),
     ]
 
 
@@ -207,6 +211,7 @@ STRUCTS: dict[str, type[ctypes.Structure]] = {
     "switch_edge_t": SwitchEdgeC, "output_values_t": OutputValuesC,
     "output_pins_t": OutputPinsC, "output_record_t": OutputRecordC,
     "output_queue_t": OutputQueueC,
+    "stepper_encoder_ratio_t": EncoderRatioC,
     "servo_state_t": ServoState, "servo_params_t": ServoParams,
     "device_vars_t": DeviceVars, "record_t": RecordC, "record_ring_t": RecordRing,
     "motor_constants_t": MotorConstantsC,
@@ -521,6 +526,14 @@ def test_sci_to_int(lib: ctypes.CDLL) -> None:
     pairs += [(c, e) for c in (9999, -9999, 1, -1, INT32_MAX, INT32_MIN + 1)
               for e in range(-12, 0)]
     bad = [(c, e) for c, e in pairs if lib.sci_to_int(Sci(c, e)) != scimath.sci_to_int(c, e)]
+    assert bad == []
+
+
+def test_sci_to_int_32_bit_path_every_coefficient(lib: ctypes.CDLL) -> None:
+    """Every coefficient below 2^14 in magnitude, at every exponent of the 32-bit path (a
+    multiply and a shift for -4..-1) and one beyond each end, and the first beyond 2^14."""
+    bad = [(c, e) for e in range(-5, 7) for c in range(-(2**14), 2**14 + 1)
+           if lib.sci_to_int(Sci(c, e)) != scimath.sci_to_int(c, e)]
     assert bad == []
 
 
@@ -2005,8 +2018,8 @@ MUTANTS = [
            "        return (uint32_t)x & mask;",
            "        return (uint32_t)sci_magnitude64(x) & mask;", _check_stepper_ticks),
     Mutant("encoder count truncated, not floored", "stepper.c",
-           "return -(int64_t)div_u64(magnitude + d - 1u, d);",
-           "return -(int64_t)div_u64(magnitude, d);", _check_stepper),
+           "if (shaft < 0 && q * den != low) {", "if (shaft < 0 && q * den != low && 0) {",
+           _check_stepper),
     Mutant("closed loop leads a microstep more", "servo.c",
            "int32_t target = wrap_int32((int64_t)s->actual + ahead + sci_to_int(s->out));",
            "int32_t target = wrap_int32((int64_t)s->actual + ahead + sci_to_int(s->out) + 1);",

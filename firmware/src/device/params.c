@@ -66,6 +66,11 @@ void servo_params_finish(servo_params_t *params) {
     params->full_mask = power_of_two ? microsteps - 1u : 0u;
     params->cycle_mask = power_of_two ? 4u * microsteps - 1u : 0u;
     params->holding_corner = params->holding * params->corner;
+    if (params->encoder_cpr > 0 && params->per_rev > 0) {
+        stepper_encoder_ratio(params->encoder_cpr, params->per_rev, &params->encoder_ratio);
+    } else {
+        params->encoder_ratio = (stepper_encoder_ratio_t){0, 1, STEPPER_NO_SHIFT, 0};
+    }
 }
 
 void servo_params_derive(const device_vars_t *vars, servo_params_t *params) {

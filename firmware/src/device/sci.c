@@ -31,6 +31,9 @@ const uint64_t sci_pow10_u64[20] = {
     10000000000000000000u,
 };
 
+const uint32_t sci_recip_pow10[5] = {1u, 209716u, 167773u, 134218u, 214749u};
+const uint8_t sci_recip_shift[5] = {0u, 21u, 24u, 27u, 31u};
+
 extern inline uint32_t sci_udiv(uint32_t n, uint32_t d);
 extern inline int32_t sci_sdiv(int32_t n, int32_t d);
 extern inline uint32_t sci_mul_32x32(uint32_t a, uint32_t b, uint32_t *hi);

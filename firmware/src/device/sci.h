@@ -176,19 +176,32 @@ inline sci_t sci_from_int(int64_t value) {
     return sci_normalize(value, 0);
 }
 
+/* floor(m / 10^k) = (m * sci_recip_pow10[k]) >> sci_recip_shift[k] for m < 2^14 and k = 1..4
+ * (each checked for every such m; the products stay below 2^32). */
+extern const uint32_t sci_recip_pow10[5];
+extern const uint8_t sci_recip_shift[5];
+#define SCI_RECIP_LIMIT (1u << 14)
+
 /* scimath.sci_to_int(c, e): c * 10^e truncated toward zero. The caller keeps the value
  * within int64 (|c| <= 9999 and e <= 14 always does; beyond int64 the result is not the
- * Python's); any int32 c with e < 0 is exact. */
+ * Python's); any int32 c with e < 0 is exact. A coefficient below 2^14 with -4 <= e <= 5,
+ * the usual case, takes 32-bit operations: |c| 10^5 < 2^31, and a multiply and a shift in
+ * place of a division (sci_recip_pow10). */
 inline int64_t sci_to_int(sci_t x) {
+    uint32_t m = x.c < 0 ? 0u - (uint32_t)x.c : (uint32_t)x.c;
+    if (m < SCI_RECIP_LIMIT && x.e >= -4 && x.e <= 5) {
+        uint32_t value = x.e >= 0 ? m * sci_pow10_u32[x.e]
+                                  : (m * sci_recip_pow10[-x.e]) >> sci_recip_shift[-x.e];
+        return x.c < 0 ? -(int64_t)value : (int64_t)value;
+    }
     if (x.e >= 0) {
         uint64_t scale = sci_pow10_u64[x.e > 19 ? 19 : x.e];
-        uint64_t m = sci_mul_32x64(x.c < 0 ? 0u - (uint32_t)x.c : (uint32_t)x.c, scale);
-        return x.c < 0 ? -(int64_t)m : (int64_t)m;
+        uint64_t product = sci_mul_32x64(m, scale);
+        return x.c < 0 ? -(int64_t)product : (int64_t)product;
     }
     if (x.e <= -10) {
         return 0;   /* |c| < 2^31 < 10^10 */
     }
-    uint32_t m = x.c < 0 ? 0u - (uint32_t)x.c : (uint32_t)x.c;
     m = sci_udiv(m, sci_pow10_u32[-x.e]);
     return x.c < 0 ? -(int64_t)m : (int64_t)m;
 }

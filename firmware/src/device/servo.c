@@ -486,7 +486,8 @@ static int64_t step_drive(servo_state_t *s, const servo_params_t *p, int64_t *co
             issue = -p->max_steps;
         }
     }
-    s->out = sci_from_int(issue);
+    /* sci_from_int(issue) on its 32-bit magnitude (|issue| <= max_steps) */
+    s->out = sci_normalize_u32(issue < 0 ? 0u - (uint32_t)issue : (uint32_t)issue, 0, issue < 0);
     /* the driver holds its field while the servo runs and after a fault, until it is
      * cleared (a fault stops the steps; it does not drop a vertical axis) */
     int32_t powered = (s->enable == 1 || s->fault != FAULT_NONE) ? 1 : 0;
@@ -517,7 +518,7 @@ static int64_t step_drive(servo_state_t *s, const servo_params_t *p, int64_t *co
     if (p->drive_kind == DRIVE_STEP_OPEN) {
         return s->phase;
     }
-    return stepper_encoder_microsteps(*count, p->encoder_cpr, p->per_rev);
+    return stepper_encoder_ratio_microsteps(*count, &p->encoder_ratio);
 }
 
 void servo_tick(servo_state_t *s, const servo_params_t *p, record_ring_t *ring) {

@@ -188,6 +188,16 @@ typedef struct {
     uint32_t pins_edges[2];    /* the switches' edges taken into edges[] so far */
 } servo_state_t;
 
+/* A ratio num / den in lowest terms and the shift that divides by each, its log2 when it is a
+ * power of two, else STEPPER_NO_SHIFT (stepper.c). */
+#define STEPPER_NO_SHIFT 32u
+typedef struct {
+    uint32_t num;
+    uint32_t den;
+    uint32_t num_shift;
+    uint32_t den_shift;
+} stepper_encoder_ratio_t;
+
 /* What core0 copies in when a variable changes (core1.py P_*). */
 typedef struct {
     int64_t tick_us;
@@ -241,6 +251,8 @@ typedef struct {
     uint32_t full_mask;        /* microsteps - 1 when a power of two, else 0 (stepper.c) */
     uint32_t cycle_mask;       /* 4 microsteps - 1 likewise */
     int64_t holding_corner;    /* holding * corner, the torque above the corner times the speed */
+    /* Not in core1.py: encoder_cpr / per_rev reduced (stepper_encoder_ratio). */
+    stepper_encoder_ratio_t encoder_ratio;
 } servo_params_t;
 
 /* The RAM variables core0 owns and the calls set (core0.py Device fields). Gains and the
@@ -331,8 +343,9 @@ void servo_state_init(servo_state_t *state, int32_t mode);
 void servo_params_derive(const device_vars_t *vars, servo_params_t *params);
 
 /* The fields of servo_params_t that are not core1.py's (travel_*, velocity_*, reach,
- * holding_corner), from tick_us, steps, window, full, holding and corner: whoever fills the
- * others without servo_params_derive calls this. */
+ * holding_corner, encoder_ratio), from tick_us, steps, window, full, holding, corner,
+ * encoder_cpr and per_rev: whoever fills the others without servo_params_derive calls
+ * this. */
 void servo_params_finish(servo_params_t *params);
 
 /* One servo tick (core1.servo_block for one tick, with curve mode's player run by core1 on

@@ -72,28 +72,72 @@ void stepper_derive(const device_vars_t *vars, int64_t tick_us, int32_t substeps
     out->accel = accel;
 }
 
-int64_t stepper_encoder_microsteps(int64_t shaft, int32_t cpr, int32_t per_rev) {
-    /* |shaft| < 2^32 (within the hard stops), so |shaft| * cpr is one 32 x 32-bit product,
-     * and |count| * per_rev <= |shaft| * cpr + per_rev; below 2^32 both divide in 32 bits */
+static uint32_t gcd32(uint32_t a, uint32_t b) {
+    while (b != 0u) {
+        uint32_t t = a % b;
+        a = b;
+        b = t;
+    }
+    return a;
+}
+
+/* log2(n) for a power of two n, else STEPPER_NO_SHIFT. */
+static uint32_t shift_of(uint32_t n) {
+    if (n == 0u || (n & (n - 1u)) != 0u) {
+        return STEPPER_NO_SHIFT;
+    }
+    uint32_t shift = 0;
+    while ((n >> shift) != 1u) {
+        shift++;
+    }
+    return shift;
+}
+
+void stepper_encoder_ratio(int32_t cpr, int32_t per_rev, stepper_encoder_ratio_t *out) {
+    uint32_t g = gcd32((uint32_t)cpr, (uint32_t)per_rev);
+    out->num = (uint32_t)cpr / g;
+    out->den = (uint32_t)per_rev / g;
+    out->num_shift = shift_of(out->num);
+    out->den_shift = shift_of(out->den);
+}
+
+/* floor(n / d) of n < 2^32: a shift when d is a power of two (shift its log2). */
+static inline uint32_t divide_u32(uint32_t n, uint32_t d, uint32_t shift) {
+    return shift != STEPPER_NO_SHIFT ? n >> shift : sci_udiv(n, d);
+}
+
+int64_t stepper_encoder_ratio_microsteps(int64_t shaft, const stepper_encoder_ratio_t *ratio) {
+    /* the counts a turn over the microsteps a turn as the reduced num / den: the same
+     * floors. |shaft| < 2^32 (within the hard stops), so |shaft| * num is one 32 x 32-bit
+     * product (one 32-bit multiply when both are below 2^16), and |count| * den <=
+     * |shaft| * num + den; below 2^31 both divide in 32 bits */
+    uint32_t num = ratio->num;
+    uint32_t den = ratio->den;
     uint32_t m = (uint32_t)sci_magnitude64(shaft);
-    uint32_t high;
-    uint32_t low = sci_mul_32x32(m, (uint32_t)cpr, &high);
+    uint32_t high = 0;
+    uint32_t low = (m | num) < 0x10000u ? m * num : sci_mul_32x32(m, num, &high);
     if (high == 0u && low < 0x80000000u) {
-        uint32_t q = sci_udiv(low, (uint32_t)per_rev);
-        if (shaft < 0 && q * (uint32_t)per_rev != low) {
+        uint32_t q = divide_u32(low, den, ratio->den_shift);
+        if (shaft < 0 && q * den != low) {
             q += 1u;   /* the floor of a negative quotient */
         }
-        uint32_t steps = q * (uint32_t)per_rev;   /* <= low + per_rev < 2^32 */
-        uint32_t r = sci_udiv(steps, (uint32_t)cpr);
+        uint32_t steps = q * den;   /* <= low + den < 2^32 */
+        uint32_t r = divide_u32(steps, num, ratio->num_shift);
         if (shaft >= 0) {
             return r;
         }
-        return -(int64_t)r - (r * (uint32_t)cpr != steps);
+        return -(int64_t)r - (r * num != steps);
     }
     int64_t counts = (int64_t)(((uint64_t)high << 32) | low);
-    int64_t count = floor_div(shaft < 0 ? -counts : counts, (uint32_t)per_rev);
-    int64_t steps = (int64_t)sci_mul_32x64((uint32_t)per_rev, sci_magnitude64(count));
-    return floor_div(count < 0 ? -steps : steps, (uint32_t)cpr);
+    int64_t count = floor_div(shaft < 0 ? -counts : counts, den);
+    int64_t steps = (int64_t)sci_mul_32x64(den, sci_magnitude64(count));
+    return floor_div(count < 0 ? -steps : steps, num);
+}
+
+int64_t stepper_encoder_microsteps(int64_t shaft, int32_t cpr, int32_t per_rev) {
+    stepper_encoder_ratio_t ratio;
+    stepper_encoder_ratio(cpr, per_rev, &ratio);
+    return stepper_encoder_ratio_microsteps(shaft, &ratio);
 }
 
 /* trunc_div(torque * sine, SINE_ONE) for 0 <= torque < 2^27 (10^8 uNm, call 47's largest)
@@ -142,17 +186,32 @@ static inline int64_t speed_change(sci_t change) {
     if (change.e > 11) {
         return change.c < 0 ? -1000000000000000LL : 1000000000000000LL;
     }
-    if (change.e >= 0 && change.e <= 5) {
-        return (int64_t)(change.c * (int32_t)sci_pow10_u32[change.e]);
+    if (change.e >= 6) {
+        /* |c| 10^(e - 6) < 10^9, times 10^6 in one 32 x 32-bit product */
+        uint32_t m = change.c < 0 ? 0u - (uint32_t)change.c : (uint32_t)change.c;
+        uint32_t high;
+        uint32_t low = sci_mul_32x32(m * sci_pow10_u32[change.e - 6], 1000000u, &high);
+        uint64_t value = ((uint64_t)high << 32) | low;
+        return change.c < 0 ? -(int64_t)value : (int64_t)value;
     }
     return sci_to_int(change);
 }
 
-/* holding * corner // speed for speed > corner >= 0 (a nonnegative product below 2^57). */
+/* holding * corner // speed for speed > corner >= 0 (a nonnegative product below 2^57);
+ * speed <= 10^7 < 2^24 (|omega| <= STEPPER_OMEGA_MAX). A product below 2^40 (the power-up
+ * stepper's is 2.4 x 10^10) divides in two 32-bit divisions, its top 32 bits and then the
+ * remainder (below speed < 2^24) with its last 8. */
 static inline int64_t torque_above_corner(const servo_params_t *p, uint32_t speed) {
     uint64_t product = (uint64_t)p->holding_corner;
     if (speed < 0x10000u) {
         return (int64_t)sci_div_u64_small(product, speed);
+    }
+    if ((product >> 40) == 0u) {
+        uint32_t high = (uint32_t)(product >> 8);
+        uint32_t q_high = sci_udiv(high, speed);
+        uint32_t rest = high - q_high * speed;
+        uint32_t q_low = sci_udiv((rest << 8) | ((uint32_t)product & 0xffu), speed);
+        return ((int64_t)q_high << 8) + q_low;
     }
     return (int64_t)(product / speed);
 }

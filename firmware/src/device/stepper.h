@@ -48,6 +48,13 @@ void stepper_derive(const device_vars_t *vars, int64_t tick_us, int32_t substeps
  * microsteps (of per_rev a turn): its count floored, in microsteps floored. */
 int64_t stepper_encoder_microsteps(int64_t shaft, int32_t cpr, int32_t per_rev);
 
+/* cpr / per_rev reduced (servo_params_finish keeps it in the params: the tick's encoder
+ * divides by small numbers, by shifts when they are powers of two). */
+void stepper_encoder_ratio(int32_t cpr, int32_t per_rev, stepper_encoder_ratio_t *out);
+
+/* stepper_encoder_microsteps through the reduced ratio: the same result. */
+int64_t stepper_encoder_ratio_microsteps(int64_t shaft, const stepper_encoder_ratio_t *ratio);
+
 /* stepper.stepper_step: one integration sub-step of the shaft (theta, omega) under the
  * driver's step count `field`, the field pulling while `powered`, with the constants, the
  * sub-step's length (params->travel_num / travel_den) and the hard stops of `params`
