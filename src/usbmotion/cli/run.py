@@ -84,7 +84,8 @@ def run(
     program: Annotated[Path, typer.Argument(help="The G-code program.", show_default=False)],
     machine: MachineOption = None,
     plot: Annotated[
-        Path | None, typer.Option("--plot", help="PNG to write (default: PROGRAM.png).")
+        Path | None, typer.Option("--plot", help="PNG to write (default: the program's name"
+                                  " with .png, in the working directory).")
     ] = None,
     no_plot: Annotated[bool, typer.Option("--no-plot", help="Write no plot.")] = False,
     report_path: Annotated[
@@ -441,7 +442,9 @@ def _write(report: RunReport, trace: Trace | None, prepared: Prepared | None, pr
     if not no_plot and trace is not None and prepared is not None:
         from usbmotion.cli.plots import plot_run  # noqa: PLC0415
 
-        target = plot or program.with_suffix(".png")
+        # in the working directory: a program may sit where nothing should be written (a
+        # demo inside the package, a read-only share)
+        target = plot or Path(program.with_suffix(".png").name)
         plot_run(target, prepared.plan, trace, report)
         typer.echo(f"plot           {target}")
 
