@@ -198,6 +198,23 @@ const commands = {
     const world = d.attachStepper(request.options ?? {});
     return { world: world.state };
   },
+  encoder_pwm(request) {
+    const d = requireDevice();
+    const pwm = d.world ? d.world.pwm : null;
+    if (!pwm) {
+      throw new DeviceError('no absolute encoder: attach a motor or stepper with "absolute" options first');
+    }
+    if (typeof request.on !== 'boolean') {
+      throw new DeviceError(`encoder_pwm needs "on": true or false, not ${JSON.stringify(request.on)}`);
+    }
+    d.pins.catchUp(d.nanos);
+    if (request.on) {
+      pwm.resume();
+    } else {
+      pwm.silence();
+    }
+    return { pwm: pwm.state };
+  },
   world() {
     const d = requireDevice();
     if (!d.world) {

@@ -199,6 +199,10 @@ bool platform_flash_program(unsigned sector, uint32_t offset, const uint8_t *pag
  * stands still, both switches open) and drives nothing. */
 void platform_motor_pins_start(void) {}
 
+void platform_motor_pins_encoder(int32_t kind) {
+    (void)kind;
+}
+
 void platform_motor_pins_sample(motor_pins_sample_t *sample) {
     *sample = (motor_pins_sample_t){0};
 }

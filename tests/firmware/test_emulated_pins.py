@@ -11,7 +11,7 @@
   a homing (velocity mode onto the lower switch, the edge latch, the shift to machine zero)
   follow as on the on-chip motor, their following errors within FOLLOWING_BOUND_COUNTS of
   it at every tick.
-- A step drive (call 44) on a chip whose motor is on its pins runs the simulated stepper,
+- An open-loop step drive (call 44) on a chip whose motor is on its pins counts its steps,
   line for line as the Python device, and call 44 0 gives the axis back to the pins.
 """
 
@@ -29,7 +29,7 @@ from usbmotion.sim.firmware import PinsMotor, emulator_dir
 
 from .emulated import require_emulator
 from .pins import PinsChip
-from .test_native_device import STEPPER, ramp, shaft_scan
+from .test_native_device import STEPPER, ramp
 
 QUADRATURE_MAX_COUNTS_PER_S = 10_400_000
 """Two edges more than 12 PIO cycles (96 ns at 125 MHz) apart are both counted."""
@@ -69,16 +69,24 @@ def test_call_39_is_kept_in_flash_and_runs_at_power_up() -> None:
         assert chip.feed("39 -1\n") == ["MOTOR 0 0"]
 
 
-def test_a_step_drive_runs_the_simulated_stepper_with_the_motor_on_the_pins() -> None:
-    """The motor on the pins is the DC bridge's: a step drive runs the on-chip stepper (and
-    issues its steps to the step outputs), exactly as the Python device runs it; back in the
-    DC drive the counter starts at 0 where the motor on the pins stands."""
+def unclocked(line: str) -> str:
+    """A STATUS line without its clock: on the pins a tick completes as the next starts, so
+    the clock counts one behind the alarms (firmware/README.md, "The tick")."""
+    return " ".join(line.split()[:1] + line.split()[2:]) if line.startswith("STATUS") else line
+
+
+def test_an_open_loop_step_drive_with_the_motor_on_the_pins_counts_its_steps() -> None:
+    """A step drive on a chip whose motor is on its pins issues its steps on STEP/DIR/EN and,
+    open loop, counts them, exactly as the Python device (nothing outside the chip: the
+    switches read open, as the Python device's travel does within it); back in the DC drive
+    the counter starts at 0 where the motor on the pins stands. (A closed loop there reads
+    the stepper outside the chip: test_emulated_absolute.py.)"""
     require_emulator()
     python = Device()
     session = [
-        [*STEPPER, "44 2", "21 25", "3 1", ramp(0, 3200, 160)], 220,
-        ["20 -1", "48 -1", "3 0", "44 1", "3 1", ramp(0, -1600, 80)], 120,
-        ["20 -1", "48 -1", *shaft_scan(-1700, -1500, 4)],
+        [*STEPPER, "44 1", "21 25", "3 1", ramp(0, 3200, 160)], 220,
+        ["20 -1", "48 -1", "3 0", "3 1", ramp(3200, -1600, 80)], 120,
+        ["20 -1", "48 -1"],
     ]
     with PinsChip(pins=True) as chip:
         for step in session:
@@ -89,7 +97,8 @@ def test_a_step_drive_runs_the_simulated_stepper_with_the_motor_on_the_pins() ->
                 text = "".join(line + "\n" for line in step)
                 python.feed(text.encode("ascii"))
                 got = chip.feed(text)
-            assert got == python.take_output().decode("ascii").splitlines()
+            want = python.take_output().decode("ascii").splitlines()
+            assert [unclocked(line) for line in got] == [unclocked(line) for line in want]
         chip.feed("3 0\n44 0\n")
         assert chip.status()[1] == 0 and chip.feed("48 -1\n") == ["STEPS 0 0 249"]
 

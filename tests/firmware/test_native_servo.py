@@ -51,7 +51,8 @@ from usbmotion.protocol import QUEUE_CAPACITY
 
 from .native import CACHE, DEVICE_SOURCES, load
 
-SOURCES = ("sci.c", "motor.c", "stepper.c", "curve.c", "params.c", "servo.c", "table_gen.c")
+SOURCES = ("sci.c", "motor.c", "stepper.c", "curve.c", "params.c", "servo.c", "absenc.c",
+           "table_gen.c")
 INT32_MIN = -(2**31)
 INT32_MAX = 2**31 - 1
 INT64_MIN = -(2**63)
@@ -122,6 +123,11 @@ class OutputQueueC(ctypes.Structure):
     ]
 
 
+class AbsencC(ctypes.Structure):
+    _fields_ = [("have", ctypes.c_bool), ("frames", c_u32), ("angle", c_i32),
+                ("source", c_i64), ("base", c_i64)]
+
+
 class ServoState(ctypes.Structure):
     _fields_ = [
         ("clock", c_i64), ("enable", c_i32), ("mode", c_i32), ("fault", c_i32),
@@ -139,6 +145,7 @@ class ServoState(ctypes.Structure):
         ("curve", CurvePlayerC),
         ("pins_started", ctypes.c_bool), ("pins_enabled", ctypes.c_bool),
         ("pins_edges", c_u32 * 2),
+        ("absenc", AbsencC), ("absenc_quiet_us", c_i64), ("encoder_lost", ctypes.c_bool),
     ]
 
 
@@ -157,7 +164,8 @@ class ServoParams(ctypes.Structure):
         ("cycle", c_i64), ("full", c_i64), ("holding", c_i64), ("detent", c_i64),
         ("corner", c_i64), ("load_unm", c_i64), ("viscous", Sci), ("accel", Sci),
         ("encoder_cpr", c_i32), ("per_rev", c_i32), ("motor_pins", c_i32),
-        ("pins_level_per_volt", Sci), ("travel_num", c_i64), ("travel_den", c_i64),
+        ("pins_level_per_volt", Sci), ("encoder_kind", c_i32), ("encoder_turn", c_i32),
+        ("travel_num", c_i64), ("travel_den", c_i64),
         ("velocity_num", c_i64), ("velocity_den", c_i64), ("reach", c_i32),
         ("sine_k", c_i32), ("full_mask", c_u32), ("cycle_mask", c_u32),
         ("holding_corner", c_i64), ("encoder_ratio", EncoderRatioC),
@@ -263,6 +271,7 @@ def _shim_source() -> str:
         "}",
         "/* the motor on the pins: a bare board */",
         "void platform_motor_pins_start(void) {}",
+        "void platform_motor_pins_encoder(int32_t kind) { (void)kind; }",
         "void platform_motor_pins_sample(motor_pins_sample_t *s) {",
         "    *s = (motor_pins_sample_t){0};",
         "}",

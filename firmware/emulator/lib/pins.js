@@ -83,6 +83,7 @@ export class PioClock {
     this.ticksNow = () => 0;
     this.edgeListeners = []; // (pin, level, timerNanos) for the step block's pins
     this.events = []; // [{nanos, pin, value}] in time order
+    this.sources = []; // inputs that run on the clock's own time (AbsolutePwm), emitting lazily
     this.marks = new Map(); // machine -> its state at the start of a pass, for fast-forward
     this.positions = new Map(); // machine -> the steps it has run
     this.sinceInput = 0; // steps since the last input change
@@ -151,6 +152,9 @@ export class PioClock {
 
   /** Runs every enabled state machine up to `nanos`, applying the input changes due. */
   catchUp(nanos) {
+    for (const source of this.sources) {
+        source.emitUpTo(nanos);
+    }
     const events = this.events;
     while (events.length > 0 && events[0].nanos <= nanos) {
       const event = events.shift();
@@ -382,6 +386,89 @@ function sameState(mark, machine) {
   );
 }
 
+/** The frame of an AS5161-style PWM angle output, in the sensor's clock periods
+ * (firmware/src/device/absenc.h): a start high, the 12-bit code high, the rest of the data
+ * part and an end low. */
+export const PWM_FRAME = { head: 128, codes: 4096, tail: 128, clocks: 128 + 4095 + 128 };
+
+/** An absolute encoder's PWM at power-up: a 920 Hz frame, its clock exact, the magnet at 0. */
+export const DEFAULT_ABSOLUTE = { frameHz: 920, clockScale: 1, magnetTurns: 0 };
+
+/**
+ * An absolute magnetic encoder's PWM output on the encoder's channel A pin (AS5161-style): a
+ * frame every 4351 of its clock periods, high for 128 + the code of the shaft's angle at the
+ * frame's start (floor of its fraction of a turn x 4096). It runs on the clock's own time,
+ * not the timer's: an oscillator of its own, going on while the harness holds the timer (the
+ * world stands still then, so the angle does too). `clockScale` stretches its clock (1.1: 10 %
+ * slow); `magnetTurns` is where the magnet sits on the shaft, a fraction of a turn. `silence()`
+ * stops it with the line low (a cut wire, a dead sensor) and `resume()` starts it again.
+ */
+export class AbsolutePwm {
+  /**
+   * @param {PioClock} clock
+   * @param {() => number} turns the shaft's angle now, in turns (any real number)
+   * @param {object} options DEFAULT_ABSOLUTE's keys
+   */
+  constructor(clock, turns, options = {}) {
+    for (const key of Object.keys(options)) {
+      if (!(key in DEFAULT_ABSOLUTE)) {
+        throw new Error(`absolute encoder option ${JSON.stringify(key)} is unknown; known: `
+          + `${Object.keys(DEFAULT_ABSOLUTE).join(', ')}`);
+      }
+    }
+    const o = { ...DEFAULT_ABSOLUTE, ...options };
+    if (!(o.frameHz > 0) || !(o.clockScale > 0) || typeof o.magnetTurns !== 'number') {
+      throw new Error(`absolute encoder frameHz ${o.frameHz} and clockScale ${o.clockScale} must be`
+        + ` above 0 and magnetTurns ${o.magnetTurns} a number`);
+    }
+    this.clock = clock;
+    this.turns = turns;
+    this.magnetTurns = o.magnetTurns;
+    this.clockNanos = (1e9 / (o.frameHz * PWM_FRAME.clocks)) * o.clockScale;
+    this.nextRise = clock.nanos + this.clockNanos; // the line low until the first frame
+    this.on = true;
+    this.frames = 0;
+    this.lastCode = -1;
+    clock.drive(PIN_MAP.encoderA);
+    clock.mcu.gpio[PIN_MAP.encoderA].setInputValue(false);
+    clock.sources.push(this);
+  }
+
+  /** The code of the shaft's angle now: 0..4095. */
+  code() {
+    const turns = this.turns() + this.magnetTurns;
+    const fraction = turns - Math.floor(turns);
+    return Math.min(Math.floor(fraction * PWM_FRAME.codes), PWM_FRAME.codes - 1);
+  }
+
+  /** Schedules every frame that starts by `nanos`. */
+  emitUpTo(nanos) {
+    while (this.on && this.nextRise <= nanos) {
+      const code = this.code();
+      this.clock.schedule(this.nextRise, PIN_MAP.encoderA, true);
+      this.clock.schedule(this.nextRise + (PWM_FRAME.head + code) * this.clockNanos, PIN_MAP.encoderA, false);
+      this.nextRise += PWM_FRAME.clocks * this.clockNanos;
+      this.frames++;
+      this.lastCode = code;
+    }
+  }
+
+  silence() {
+    this.on = false;
+  }
+
+  resume() {
+    if (!this.on) {
+      this.on = true;
+      this.nextRise = Math.max(this.nextRise, this.clock.nanos + this.clockNanos);
+    }
+  }
+
+  get state() {
+    return { on: this.on, frames: this.frames, code: this.lastCode };
+  }
+}
+
 /** The default motor of PROTOCOL.md (calls 13-17, 32, 33 at power-up). */
 export const DEFAULT_MOTOR = {
   supplyV: 12,
@@ -396,7 +483,7 @@ export const DEFAULT_MOTOR = {
 const MOTOR_KEYS = new Set([
   ...Object.keys(DEFAULT_MOTOR),
   'pins', 'lower', 'upper', 'overtravel', 'bounce', 'bounceNanos', 'startCount',
-  'probeSide', 'probePosition',
+  'probeSide', 'probePosition', 'absolute',
 ]);
 
 /** The firmware's pin map (firmware/src/rp2040/pins.h). */
@@ -444,7 +531,8 @@ export class MotorWorld {
    *   `bounceNanos` (apart, 50 us), `startCount` (the shaft's count at power-up, 0), and the
    *   probe's surface as call 40 gives it: `probeSide` (0 none, the default: the probe pin
    *   is left to its pull-up; 1 the probe closes at or below `probePosition`, 2 at or above
-   *   it) and `probePosition` (counts from power-up, 0)
+   *   it) and `probePosition` (counts from power-up, 0); `absolute`: an absolute encoder
+   *   (AbsolutePwm, its options) whose PWM drives channel A instead of the quadrature
    */
   constructor(clock, mcu, options = {}) {
     for (const key of Object.keys(options)) {
@@ -490,7 +578,12 @@ export class MotorWorld {
     this.probeClosed = this.touching(this.count);
     this.probeEdges = 0;
     clock.drive(PIN_MAP.encoderA, PIN_MAP.encoderB, PIN_MAP.lower, PIN_MAP.upper);
-    this.setEncoderPins(this.count, 0);
+    this.countsPerRevolution = m.countsPerRevolution;
+    this.pwm = options.absolute
+      ? new AbsolutePwm(clock, () => this.theta / this.countsPerRevolution, options.absolute) : null;
+    if (!this.pwm) {
+      this.setEncoderPins(this.count, 0);
+    }
     for (let i = 0; i < 2; i++) {
       mcu.gpio[i === 0 ? PIN_MAP.lower : PIN_MAP.upper].setInputValue(!this.closed[i]);
     }
@@ -588,7 +681,9 @@ export class MotorWorld {
     const after = GRAY[((count % 4) + 4) % 4];
     const changed = before ^ after;
     const pin = changed & 1 ? PIN_MAP.encoderA : PIN_MAP.encoderB;
-    this.clock.schedule(nanos, pin, ((changed & 1 ? after : after >> 1) & 1) !== 0);
+    if (!this.pwm) {
+      this.clock.schedule(nanos, pin, ((changed & 1 ? after : after >> 1) & 1) !== 0);
+    }
     this.edgesEmitted++;
     const closed = [count <= this.lower, count >= this.upper];
     for (let i = 0; i < 2; i++) {
@@ -627,6 +722,7 @@ export class MotorWorld {
       switchPinChanges: this.switchPinChanges,
       probeClosed: this.probeClosed,
       probeEdges: this.probeEdges,
+      pwm: this.pwm ? this.pwm.state : null,
     };
   }
 }
@@ -702,14 +798,16 @@ export class StepperWorld {
   /**
    * @param {PioClock} clock
    * @param {object} mcu
-   * @param {object} options DEFAULT_STEPPER's keys, and `startCount` (the encoder's count
-   *   at power-up, 0)
+   * @param {object} options DEFAULT_STEPPER's keys, `startCount` (the encoder's count
+   *   at power-up, 0), and `absolute`: an absolute encoder (AbsolutePwm, its options) whose
+   *   PWM drives channel A instead of the quadrature
    */
   constructor(clock, mcu, options = {}) {
+    const extra = ['startCount', 'absolute'];
     for (const key of Object.keys(options)) {
-      if (!(key in DEFAULT_STEPPER) && key !== 'startCount') {
+      if (!(key in DEFAULT_STEPPER) && !extra.includes(key)) {
         throw new Error(`stepper option ${JSON.stringify(key)} is unknown; known: `
-          + `${[...Object.keys(DEFAULT_STEPPER), 'startCount'].join(', ')}`);
+          + `${[...Object.keys(DEFAULT_STEPPER), ...extra].join(', ')}`);
       }
     }
     const m = { ...DEFAULT_STEPPER, ...options };
@@ -736,9 +834,13 @@ export class StepperWorld {
     this.countBase = this.count;
     this.edgesEmitted = 0;
     clock.drive(PIN_MAP.encoderA, PIN_MAP.encoderB);
-    const state = GRAY[((this.count % 4) + 4) % 4];
-    mcu.gpio[PIN_MAP.encoderA].setInputValue((state & 1) !== 0);
-    mcu.gpio[PIN_MAP.encoderB].setInputValue((state & 2) !== 0);
+    this.pwm = options.absolute
+      ? new AbsolutePwm(clock, () => this.turnsAt(), options.absolute) : null;
+    if (!this.pwm) {
+      const state = GRAY[((this.count % 4) + 4) % 4];
+      mcu.gpio[PIN_MAP.encoderA].setInputValue((state & 1) !== 0);
+      mcu.gpio[PIN_MAP.encoderB].setInputValue((state & 2) !== 0);
+    }
     clock.edgeListeners.push((pin, level, nanos) => {
       if (pin === STEPPER_PINS.dir) {
         this.direction = level ? 1 : -1;
@@ -747,6 +849,11 @@ export class StepperWorld {
         this.pending.push([nanos, this.direction]);
       }
     });
+  }
+
+  /** The shaft's angle in turns, from where the count started (startCount's turns on). */
+  turnsAt() {
+    return this.countBase / this.m.countsPerRevolution + this.theta / this.perRevolution;
   }
 
   /** The driver's enable pin low (active): the field pulls. */
@@ -813,7 +920,9 @@ export class StepperWorld {
       const after = GRAY[((next % 4) + 4) % 4];
       const changed = before ^ after;
       const pin = changed & 1 ? PIN_MAP.encoderA : PIN_MAP.encoderB;
-      this.clock.schedule(at, pin, ((changed & 1 ? after : after >> 1) & 1) !== 0);
+      if (!this.pwm) {
+        this.clock.schedule(at, pin, ((changed & 1 ? after : after >> 1) & 1) !== 0);
+      }
       this.edgesEmitted++;
       this.count = next;
     }
@@ -829,6 +938,7 @@ export class StepperWorld {
       count: this.count,
       powered: this.powered,
       edges: this.edgesEmitted,
+      pwm: this.pwm ? this.pwm.state : null,
     };
   }
 }

@@ -566,10 +566,9 @@ static void shift_position_locked(int64_t shift) {
     clear_curve_locked();
 }
 
-/* The tick runs the simulated motor: no motor on the pins (call 39), or a step drive (the
- * motor on the pins is the DC bridge's; a step drive runs the simulated stepper). */
+/* The tick runs the simulated motor (or stepper): no motor on the pins (call 39). */
 static bool simulated_motor(void) {
-    return !servo_params.motor_pins || servo_params.drive_kind != DRIVE_DC;
+    return !servo_params.motor_pins;
 }
 
 /* true (with the ERR line printed) when the device is in curve mode: calls 0 and 1. */
@@ -1228,7 +1227,7 @@ static void call_set_drive(const call_t *call) {
     vars.drive = drive;
     derive();
     motor_pins_sample_t pins = {0};
-    bool on_pins = vars.motor_pins && drive == DRIVE_DC;
+    bool on_pins = vars.motor_pins;
     if (on_pins) {
         platform_motor_pins_sample(&pins);
     }
@@ -1252,7 +1251,7 @@ static void call_set_drive(const call_t *call) {
     reset_controller_locked();
     copy_in_locked();
     if (on_pins) {
-        servo_pins_power_up(s, &pins);   /* the counter at 0 where the motor on the pins is */
+        servo_pins_power_up(s, &servo_params, &pins);   /* the counter at 0 where it is */
     } else {
         s->limits = servo_switches(s, &servo_params);
         s->probe = servo_probe(s, &servo_params);
@@ -1340,13 +1339,18 @@ static void call_set_encoder(const call_t *call) {
     if (call->is_query) {
         int64_t zero = 0;
         if (vars.encoder_kind == 1) {
-            /* where the turns begin in the counter's coordinates: (offset - angle) floored
-             * modulo a turn */
+            /* where the turns begin in the counter's coordinates: (offset + base) floored
+             * modulo a turn, the base being the source's count at angle 0: the simulated
+             * magnet's -angle, or on the pins what the first frame read */
             platform_servo_lock();
             int64_t offset = servo_state.offset;
+            int64_t base = -(int64_t)vars.encoder_angle;
+            if (vars.motor_pins && servo_state.absenc.have) {
+                base = servo_state.absenc.base;
+            }
             platform_servo_unlock();
             int64_t turn = encoder_turn();
-            zero = (offset - vars.encoder_angle) % turn;
+            zero = (offset + base) % turn;
             if (zero < 0) {
                 zero += turn;
             }
@@ -1372,7 +1376,22 @@ static void call_set_encoder(const call_t *call) {
     }
     vars.encoder_kind = kind;
     vars.encoder_angle = angle;
-    if (kind == 1) {
+    if (vars.motor_pins) {
+        /* the encoder on the pins: its input changes; an absolute one's first frame makes the
+         * counter its angle (core1, servo.c absenc_source); `angle` is the simulated magnet's */
+        derive();
+        platform_servo_lock();
+        copy_in_locked();
+        platform_motor_pins_encoder(kind);
+        motor_pins_sample_t pins;
+        platform_motor_pins_sample(&pins);
+        servo_pins_encoder_changed(&servo_state, &servo_params, &pins);
+        if (kind == 1) {
+            clear_queue_locked();
+            clear_curve_locked();
+        }
+        platform_servo_unlock();
+    } else if (kind == 1) {
         /* the counter becomes the angle within a turn: (source + angle) floored modulo it */
         int64_t turn = encoder_turn();
         platform_servo_lock();
@@ -1527,7 +1546,7 @@ void device_power_up(void) {
     records.tail = 0;
     records.dropped = 0;
     if (vars.motor_pins) {
-        servo_pins_power_up(&servo_state, &pins);
+        servo_pins_power_up(&servo_state, &servo_params, &pins);
     } else {
         servo_state.limits = servo_switches(&servo_state, &servo_params);
         servo_state.probe = servo_probe(&servo_state, &servo_params);

@@ -128,5 +128,8 @@ void servo_params_derive(const device_vars_t *vars, servo_params_t *params) {
     params->accel = steps.accel;
     params->encoder_cpr = vars->counts_per_revolution;
     params->per_rev = vars->full_steps * vars->microsteps;
+    params->encoder_kind = vars->encoder_kind;
+    params->encoder_turn =
+        vars->drive == DRIVE_STEP_CLOSED ? params->per_rev : vars->counts_per_revolution;
     servo_params_finish(params);
 }

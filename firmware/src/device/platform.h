@@ -51,8 +51,16 @@ typedef struct {
     uint32_t edges[2];        /* debounced edges of each switch since the start, mod 2^32 */
     int32_t edge_count[2];    /* the counter when each switch's last edge happened */
     int32_t probe;            /* the probe input as it reads now: 1 closed */
+    /* The absolute encoder (platform_motor_pins_encoder(1)): its PWM, the newest whole frame;
+     * count and edge_count are then 0 (the count is the portable code's, from the frames). */
+    uint32_t pwm_frames;      /* whole frames measured since the reader started, mod 2^32 */
+    uint32_t pwm_high;        /* the newest one's high time, system clock cycles */
+    uint32_t pwm_period;      /* ... and its period, rising edge to rising edge */
 } motor_pins_sample_t;
 void platform_motor_pins_start(void);                          /* core0 */
+/* core0, with the servo lock held: the encoder input, 0 the quadrature decoder on channels A
+ * and B, 1 the PWM angle reader on channel A (frames counted from 0, none yet). */
+void platform_motor_pins_encoder(int32_t kind);
 void platform_motor_pins_sample(motor_pins_sample_t *sample);  /* core1 */
 /* core1: the bridge's voltage as a signed level, -full..full (full: the whole supply; the
  * sign picks the input), and the enable output. */

@@ -379,6 +379,9 @@ static inline void tick_finish(servo_state_t *s, const servo_params_t *p, record
             s->since_command_us >= p->watchdog_us) {
             new_fault = FAULT_WATCHDOG;
         }
+        if (s->encoder_lost) {   /* first: the other faults read a count that stands still */
+            new_fault = FAULT_ENCODER_LOST;
+        }
     }
 
     /* 6. clock, statistics, fault latch, diagnostics */
@@ -492,6 +495,13 @@ static int64_t step_drive(servo_state_t *s, const servo_params_t *p, int64_t *co
      * cleared (a fault stops the steps; it does not drop a vertical axis) */
     int32_t powered = (s->enable == 1 || s->fault != FAULT_NONE) ? 1 : 0;
     platform_steps_issue(issue, powered == 1);
+    if (p->motor_pins) {
+        /* the stepper is outside the chip: the next tick reads its encoder as it starts */
+        s->phase += issue;
+        s->last_steps = issue;
+        *count = 0;
+        return s->phase;
+    }
 
     /* the field after sub-step k is phase + trunc_div(issue * k, steps) microsteps: the
      * quotient and remainder of |issue| / steps added up, a carry when the remainder reaches
@@ -549,25 +559,106 @@ static inline int32_t pins_level(sci_t out, const servo_params_t *p) {
     return (int32_t)sci_to_int(sci_mul(out, p->pins_level_per_volt));
 }
 
+/* The absolute encoder's source from the tick's sample: a new frame's angle counted on
+ * across turns (the first one's taken as the counter at once); with no new frame (or one no
+ * sensor sends) the count stands, and after ABSENC_TIMEOUT_US the encoder is lost. */
+static int64_t absenc_source(servo_state_t *s, const servo_params_t *p,
+                             const motor_pins_sample_t *pins) {
+    absenc_t *a = &s->absenc;
+    int32_t code = -1;
+    if (pins->pwm_frames != a->frames) {
+        a->frames = pins->pwm_frames;
+        code = absenc_code(pins->pwm_high, pins->pwm_period);
+    }
+    if (code < 0) {
+        if (s->absenc_quiet_us < ABSENC_TIMEOUT_US) {
+            s->absenc_quiet_us += p->tick_us;
+        }
+        s->encoder_lost = s->absenc_quiet_us >= ABSENC_TIMEOUT_US;
+        return a->have ? a->source : wrap_int32((int64_t)s->actual - s->offset);
+    }
+    s->absenc_quiet_us = 0;
+    s->encoder_lost = false;
+    int32_t angle = absenc_angle(code, p->encoder_turn);
+    if (!a->have) {
+        a->have = true;
+        a->source = wrap_int32((int64_t)s->actual - s->offset);
+        a->base = a->source - angle;
+        servo_shift_position(s, (int64_t)angle - s->actual);   /* the counter is the angle */
+    } else {
+        a->source += absenc_move(a->angle, angle, p->encoder_turn);
+    }
+    a->angle = angle;
+    return a->source;
+}
+
+/* A closed-loop stepper's encoder count in microsteps: floor(count x per_rev / cpr). */
+static inline int64_t count_microsteps(int32_t count, const servo_params_t *p) {
+    int64_t product = (int64_t)count * p->per_rev;
+    int64_t quotient = product / p->encoder_cpr;
+    return quotient * p->encoder_cpr > product ? quotient - 1 : quotient;
+}
+
+/* What the counter counts with the motor on the pins, from the tick's sample: the decoder's
+ * count (a closed-loop stepper's in microsteps), the absolute encoder's angle counted on
+ * across turns, or an open-loop stepper's steps issued; the switches' latched counts made
+ * the same (the absolute encoder's and the steps': the tick's own). */
+static int64_t pins_source(servo_state_t *s, const servo_params_t *p,
+                           motor_pins_sample_t *pins) {
+    int64_t source;
+    if (p->drive_kind == DRIVE_STEP_OPEN) {
+        source = s->phase;
+    } else if (p->encoder_kind == 1) {
+        source = absenc_source(s, p, pins);
+    } else if (p->drive_kind == DRIVE_STEP_CLOSED) {
+        pins->edge_count[0] = wrap_int32(count_microsteps(pins->edge_count[0], p));
+        pins->edge_count[1] = wrap_int32(count_microsteps(pins->edge_count[1], p));
+        return count_microsteps(pins->count, p);
+    } else {
+        return pins->count;
+    }
+    pins->edge_count[0] = wrap_int32(source);
+    pins->edge_count[1] = pins->edge_count[0];
+    return source;
+}
+
 void servo_tick_pins(servo_state_t *s, const servo_params_t *p, record_ring_t *ring) {
     motor_pins_sample_t pins;
     platform_motor_pins_sample(&pins);
     if (s->pins_started) {
-        int32_t closing = encoder(s, p, pins.count, pins.switches, pins.probe, &pins);
+        int64_t source = pins_source(s, p, &pins);
+        int32_t closing = encoder(s, p, source, pins.switches, pins.probe, &pins);
         tick_finish(s, p, ring, s->pins_enabled, closing);
     }
     s->pins_started = true;
     s->pins_enabled = tick_start(s, p);
+    if (p->drive_kind == DRIVE_DC) {
+        platform_motor_pins_drive(pins_level(s->out, p), s->enable == 1);
+    } else {
+        int64_t count;
+        (void)step_drive(s, p, &count);   /* the steps on STEP/DIR/EN */
+    }
     s->desired_prev = s->desired;
-    platform_motor_pins_drive(pins_level(s->out, p), s->enable == 1);
 }
 
-void servo_pins_power_up(servo_state_t *s, const motor_pins_sample_t *sample) {
+void servo_pins_power_up(servo_state_t *s, const servo_params_t *p,
+                         motor_pins_sample_t *sample) {
     s->limits = sample->switches;
     s->probe = sample->probe;
     s->pins_edges[0] = sample->edges[0];
     s->pins_edges[1] = sample->edges[1];
-    s->offset = wrap_int32(-(int64_t)sample->count);
     s->actual = 0;
+    s->offset = 0;
+    servo_pins_encoder_changed(s, p, sample);
     s->pins_started = false;
+}
+
+void servo_pins_encoder_changed(servo_state_t *s, const servo_params_t *p,
+                                motor_pins_sample_t *sample) {
+    s->absenc = (absenc_t){.have = false, .frames = sample->pwm_frames};
+    s->absenc_quiet_us = 0;
+    s->encoder_lost = false;
+    if (p->encoder_kind != 1 || p->drive_kind == DRIVE_STEP_OPEN) {
+        s->offset = wrap_int32((int64_t)s->actual - pins_source(s, p, sample));
+    }
 }

@@ -7,6 +7,7 @@
 #include <stdbool.h>
 #include <stdint.h>
 
+#include "absenc.h"
 #include "platform.h"
 #include "sci.h"
 
@@ -23,6 +24,7 @@
 #define FAULT_FOLLOWING_ERROR 2
 #define FAULT_LIMIT_SWITCH 3
 #define FAULT_INTERNAL 4
+#define FAULT_ENCODER_LOST 5   /* not in core1.py: the absolute encoder on the pins is silent */
 
 #define PROBE_SIDE_NONE 0
 #define PROBE_SIDE_BELOW 1   /* the probe closes at or below the surface */
@@ -186,6 +188,9 @@ typedef struct {
     bool pins_started;         /* a tick has started and waits for the next to complete it */
     bool pins_enabled;         /* ... and it ran enabled */
     uint32_t pins_edges[2];    /* the switches' edges taken into edges[] so far */
+    absenc_t absenc;           /* the absolute encoder on the pins (call 49 kind 1) */
+    int64_t absenc_quiet_us;   /* ... the time since its last frame, capped */
+    bool encoder_lost;         /* ... no frame for ABSENC_TIMEOUT_US: fault 5 while enabled */
 } servo_state_t;
 
 /* A ratio num / den in lowest terms and the shift that divides by each, its log2 when it is a
@@ -238,6 +243,10 @@ typedef struct {
      * per volt of output (platform_motor_pins_full over the supply voltage). */
     int32_t motor_pins;
     sci_t pins_level_per_volt;
+    /* Not in core1.py: call 49's kind, and the counts of a turn its angle is in (call 16's
+     * counts per revolution, a closed-loop stepper's microsteps per revolution). */
+    int32_t encoder_kind;
+    int32_t encoder_turn;
     /* Not in core1.py: the tick's two divisions as reduced fractions, set by
      * servo_params_finish from tick_us, steps and window (servo_params_derive calls it), so
      * that the usual periods divide by a small number or not at all. */
@@ -360,9 +369,18 @@ void servo_tick(servo_state_t *state, const servo_params_t *params, record_ring_
  * PID and bridge output. The caller holds the servo lock. */
 void servo_tick_pins(servo_state_t *state, const servo_params_t *params, record_ring_t *ring);
 
-/* Power-up with the motor on the pins: the switches and the probe as they read, no edge
- * yet. */
-void servo_pins_power_up(servo_state_t *state, const motor_pins_sample_t *sample);
+/* Power-up with the motor on the pins (or a change of drive): the switches and the probe as
+ * they read, no edge yet, the counter at 0 (an absolute encoder's: its angle, from the first
+ * frame). `params` already the drive's. The caller holds the servo lock. */
+void servo_pins_power_up(servo_state_t *state, const servo_params_t *params,
+                         motor_pins_sample_t *sample);
+
+/* The encoder input on the pins changed (call 49, platform_motor_pins_encoder; `params`
+ * already the new kind's), `sample` read after it: the incremental counter counts on from
+ * where it stood; an absolute one takes its angle from the first frame. The caller holds the
+ * servo lock. */
+void servo_pins_encoder_changed(servo_state_t *state, const servo_params_t *params,
+                                motor_pins_sample_t *sample);
 
 /* The switch bits the shaft position gives (core0._switches). */
 int32_t servo_switches(const servo_state_t *state, const servo_params_t *params);

@@ -22,7 +22,7 @@
 #define TABLE_CALLS 50u
 #define TABLE_MAX_PARAMS 4u
 #define TABLE_MAX_DEBUG_FLAG 2u
-#define TABLE_FAULTS 5u
+#define TABLE_FAULTS 6u
 #define TABLE_STEP_CLOCK_HZ 125000000u
 
 /* core0's RAM variables at power-up (usbmotion.device.core0 and .motor defaults);

@@ -475,7 +475,7 @@ const call_spec_t call_table[TABLE_CALLS] = {
     },
 };
 
-const char *const fault_names[TABLE_FAULTS] = {"none", "watchdog", "following error", "limit switch", "internal error"};
+const char *const fault_names[TABLE_FAULTS] = {"none", "watchdog", "following error", "limit switch", "internal error", "encoder lost"};
 
 const template_t template_diagnostics = {"D {clock} {desired} {actual} {velocity} {output_mv} {queued} {peak}", 7, 0x0};
 const template_t template_alarm = {"ALARM {fault} {tick}", 2, 0x0};

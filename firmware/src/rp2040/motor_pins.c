@@ -4,7 +4,11 @@
  *
  * Quadrature decoding runs quadrature.pio (assembled by the SDK's pioasm at build time):
  * 4x counting, the count pushed to the RX FIFO after every pass, the pins sampled at
- * least every 12 system clock cycles. The program sits at address 0. */
+ * least every 12 system clock cycles. The program sits at address 0. With an absolute
+ * encoder (call 49 kind 1) the same state machine runs pwm_angle.pio instead (the two do not
+ * fit pio0's 32 instructions together): the high time and the period of each frame of the
+ * encoder's PWM on channel A, in system clock cycles; the portable code makes them an angle
+ * (absenc.c). */
 #include <stdbool.h>
 #include <stdint.h>
 
@@ -17,6 +21,7 @@
 #include "pico/platform.h"
 
 #include "pins.h"
+#include "pwm_angle.pio.h"
 #include "quadrature.pio.h"
 #include "platform.h"
 #include "rp2040_platform.h"
@@ -46,6 +51,16 @@ static debounced_t probe;
 static uint32_t pwm_slice;
 static int32_t pwm_full;   /* the compare level of a whole period high: TOP + 1 */
 static bool started;
+
+/* The encoder input: 0 quadrature, 1 the PWM angle reader. The reader's frames: a high part
+ * waiting for the low part after it, and the newest whole frame. core1 (the tick's sample,
+ * interrupts off) and core0 (platform_motor_pins_encoder, the servo lock held) only. */
+static int32_t encoder_kind;
+static bool pwm_pending;
+static uint32_t pwm_pending_high;
+static uint32_t pwm_frames;
+static uint32_t pwm_high;
+static uint32_t pwm_period;
 
 /* The counter now: the FIFO's stale values dropped, then the next pass's push (at most 12
  * PIO cycles away). Interrupts off (the caller's). */
@@ -79,8 +94,69 @@ static bool __not_in_flash_func(contact_reads)(debounced_t *contact, bool closed
 static void __not_in_flash_func(switch_reads)(limit_switch_t *sw, bool closed, uint32_t now_us) {
     if (contact_reads(&sw->contact, closed, now_us)) {
         sw->edges += 1u;
-        sw->edge_count = read_count();
+        /* an absolute encoder's angle comes once a frame: its edges take the tick's count */
+        sw->edge_count = encoder_kind == 0 ? read_count() : 0;
     }
+}
+
+/* The PWM reader's words since the last sample: a high part (bit 31 set, ~n_high), then the
+ * low part after it (n_low) completes a frame (pwm_angle.pio has the cycles). Interrupts off
+ * (the caller's). */
+static void __not_in_flash_func(take_frames)(void) {
+    PIO pio = QUADRATURE_PIO;
+    while (!pio_sm_is_rx_fifo_empty(pio, QUADRATURE_SM)) {
+        uint32_t word = pio->rxf[QUADRATURE_SM];
+        if (word & 0x80000000u) {
+            pwm_pending_high = ~word;
+            pwm_pending = true;
+        } else if (pwm_pending) {
+            pwm_pending = false;
+            pwm_high = 2u * pwm_pending_high + 3u;
+            pwm_period = pwm_high + 2u * word + 4u;
+            pwm_frames += 1u;
+        }
+    }
+}
+
+/* The encoder input's program at address 0 of pio0 and its state machine started. */
+static void start_encoder_input(int32_t kind) {
+    PIO pio = QUADRATURE_PIO;
+    pio_sm_set_enabled(pio, QUADRATURE_SM, false);
+    pio_clear_instruction_memory(pio);
+    pio_sm_config config;
+    uint32_t start;
+    if (kind == 0) {
+        pio_add_program_at_offset(pio, &quadrature_program, 0);
+        config = quadrature_program_get_default_config(0);
+        sm_config_set_in_shift(&config, false, false, 32);   /* left, no autopush */
+        sm_config_set_out_shift(&config, true, false, 32);   /* right: out takes the low bits */
+        start = quadrature_offset_start;
+    } else {
+        pio_add_program_at_offset(pio, &pwm_angle_program, 0);
+        config = pwm_angle_program_get_default_config(0);
+        sm_config_set_jmp_pin(&config, PIN_ENCODER_A);
+        sm_config_set_fifo_join(&config, PIO_FIFO_JOIN_RX);   /* 8 words: 4 frames */
+        start = pwm_angle_offset_start;
+    }
+    sm_config_set_in_pins(&config, PIN_ENCODER_A);
+    sm_config_set_clkdiv_int_frac(&config, 1, 0);
+    pio_sm_set_consecutive_pindirs(pio, QUADRATURE_SM, PIN_ENCODER_A, 2, false);
+    pio_sm_init(pio, QUADRATURE_SM, start, &config);
+    encoder_kind = kind;
+    pwm_pending = false;
+    pwm_frames = 0;
+    pwm_high = 0;
+    pwm_period = 0;
+    pio_sm_set_enabled(pio, QUADRATURE_SM, true);
+}
+
+void platform_motor_pins_encoder(int32_t kind) {
+    if (!started) {
+        return;
+    }
+    uint32_t saved = save_and_disable_interrupts();   /* the switches' latch reads the input */
+    start_encoder_input(kind);
+    restore_interrupts(saved);
 }
 
 static void __not_in_flash_func(switch_irq)(void) {
@@ -96,21 +172,12 @@ static void __not_in_flash_func(switch_irq)(void) {
 }
 
 void platform_motor_pins_start(void) {
-    PIO pio = QUADRATURE_PIO;
     for (uint32_t pin = PIN_ENCODER_A; pin <= PIN_ENCODER_B; pin++) {
         gpio_init(pin);
         gpio_set_dir(pin, GPIO_IN);
         gpio_pull_up(pin);
     }
-    pio_add_program_at_offset(pio, &quadrature_program, 0);
-    pio_sm_config config = quadrature_program_get_default_config(0);
-    sm_config_set_in_pins(&config, PIN_ENCODER_A);
-    sm_config_set_in_shift(&config, false, false, 32);   /* left, no autopush */
-    sm_config_set_out_shift(&config, true, false, 32);   /* right: out takes the low bits */
-    sm_config_set_clkdiv_int_frac(&config, 1, 0);
-    pio_sm_set_consecutive_pindirs(pio, QUADRATURE_SM, PIN_ENCODER_A, 2, false);
-    pio_sm_init(pio, QUADRATURE_SM, quadrature_offset_start, &config);
-    pio_sm_set_enabled(pio, QUADRATURE_SM, true);
+    start_encoder_input(0);
 
     gpio_set_function(PIN_BRIDGE_IN1, GPIO_FUNC_PWM);
     gpio_set_function(PIN_BRIDGE_IN2, GPIO_FUNC_PWM);
@@ -159,7 +226,15 @@ void motor_pins_core1_init(void) {
 
 void __not_in_flash_func(platform_motor_pins_sample)(motor_pins_sample_t *sample) {
     uint32_t saved = save_and_disable_interrupts();
-    sample->count = read_count();
+    if (encoder_kind == 0) {
+        sample->count = read_count();
+    } else {
+        take_frames();
+        sample->count = 0;
+    }
+    sample->pwm_frames = pwm_frames;
+    sample->pwm_high = pwm_high;
+    sample->pwm_period = pwm_period;
     uint32_t now_us = timer_hw->timerawl;
     int32_t closed = 0;
     for (unsigned i = 0; i < 2u; i++) {

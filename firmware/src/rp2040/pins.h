@@ -7,7 +7,8 @@
 #define USBMOTION_PINS_H
 
 /* Encoder channels A and B: two consecutive GPIOs (the PIO state machine reads them as one
- * 2-bit value, A in bit 0), with the chip's pull-ups (open-collector encoders need them). */
+ * 2-bit value, A in bit 0), with the chip's pull-ups (open-collector encoders need them). An
+ * absolute encoder (call 49 kind 1) gives its PWM output on channel A; B is not read. */
 #define PIN_ENCODER_A 2u
 #define PIN_ENCODER_B 3u
 
@@ -51,7 +52,9 @@
 #define PIN_DIR 19u
 #define PIN_STEP_ENABLE 20u
 
-/* The PIO block and state machine of the quadrature decoder. */
+/* The PIO block and state machine of the encoder input: the quadrature decoder
+ * (quadrature.pio, on channels A and B), or with an absolute encoder (call 49 kind 1) the
+ * PWM angle reader (pwm_angle.pio, on channel A) in its place. */
 #define QUADRATURE_PIO pio0
 #define QUADRATURE_SM 0u
 

@@ -113,6 +113,8 @@ class FaultCode(IntEnum):
     FOLLOWING_ERROR = 2
     LIMIT_SWITCH = 3
     INTERNAL = 4
+    #: the RP2040's absolute encoder on the pins gave no angle (the Python device has none)
+    ENCODER_LOST = 5
 
     @property
     def words(self) -> str:

@@ -483,7 +483,8 @@ CALLS: tuple[CallSpec, ...] = (
         query=(-1,),
         query_reply=_t("FAULT {code} {tick}"),
         debug={1: _t("FAULT CLEARED")},
-        notes="Fault codes: 0 none, 1 watchdog, 2 following error, 3 limit switch.",
+        notes="Fault codes: 0 none, 1 watchdog, 2 following error, 3 limit switch, 4"
+        " internal error, 5 encoder lost (the RP2040's absolute encoder on the pins).",
     ),
     CallSpec(
         C.START_AT,
@@ -592,8 +593,11 @@ CALLS: tuple[CallSpec, ...] = (
         " counter, the limit switches and their edge latch are the pins', the output drives"
         " the H-bridge, and calls 12-17 and 32-34 still set the simulated motor, which then"
         " does not run (call 13's supply voltage stays the output's ceiling and is the"
-        " bridge's supply). The Python device stores and answers the choice and always runs"
-        " its simulated motor (it has no pins): its `running` is 0.",
+        " bridge's supply). A step drive (call 44) there issues its steps on STEP, DIR and"
+        " EN and runs no simulated stepper: open loop its counter is the steps issued, closed"
+        " loop the pins' encoder (call 16's counts per revolution in microsteps, or call"
+        " 49's absolute angle). The Python device stores and answers the choice and always"
+        " runs its simulated motor or stepper (it has no pins): its `running` is 0.",
     ),
     CallSpec(
         C.SET_SIM_PROBE,
@@ -790,12 +794,19 @@ CALLS: tuple[CallSpec, ...] = (
         " repeats to the encoder's count however the switch repeats). The simulated magnet"
         " reads `angle` with the simulated shaft at 0 (where it happens to be mounted). On"
         " the RP2040 with the motor on the pins the encoder input is the PWM output of the"
-        " encoder on the encoder's channel A pin. The query's `zero` (kind 1) is where the"
-        " turns begin in the counter's present coordinates: the counter value, within a turn"
-        " (0 to a turn less one count), at which the encoder reads angle 0, so the absolute"
-        " angle at any counter value c (a latched edge, the position now) is (c - zero)"
-        " floored modulo a turn; calls 23 and 37 and the velocity-mode reset move it with"
-        " the counter. With kind 0: 0.",
+        " encoder on the encoder's channel A pin (GP2), an AS5161-style 12-bit frame of 4351"
+        " of its clock periods (128 high, the angle's code 0-4095 high, the rest low), read"
+        " as high time over period (the sensor's clock tolerance cancels): 4096 positions a"
+        " turn, the counter's angle floor(code x turn / 4096); the counter takes the angle"
+        " from the first whole frame after this call (within two frames: 2.2 ms at 920 Hz),"
+        " turns counted when the angle moves more than half a turn between frames, and"
+        " `angle` is not used (the magnet is where it is). No whole frame for 5 ms: the count"
+        " stands and a servo enabled on it latches fault 5 (encoder lost). The query's `zero`"
+        " (kind 1) is where the turns begin in the counter's present coordinates: the"
+        " counter value, within a turn (0 to a turn less one count), at which the encoder"
+        " reads angle 0, so the absolute angle at any counter value c (a latched edge, the"
+        " position now) is (c - zero) floored modulo a turn; calls 23 and 37 and the"
+        " velocity-mode reset move it with the counter. With kind 0: 0.",
     ),
 )
 BY_NUMBER: Mapping[int, CallSpec] = {spec.number: spec for spec in CALLS}
