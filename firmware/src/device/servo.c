@@ -464,9 +464,17 @@ static int64_t step_drive(servo_state_t *s, const servo_params_t *p, int64_t *co
         if (p->drive_kind == DRIVE_STEP_OPEN) {
             issue = wrap_int32((int64_t)s->desired - s->actual);
         } else {
-            /* trunc_div(velocity * tick_us, 10^6): |velocity| * tick_us <= 2^31 * 10^6 */
-            uint64_t magnitude = sci_div_u64_small(
-                sci_mul_32x64((uint32_t)p->tick_us, sci_magnitude64(s->velocity)) >> 6, 15625u);
+            /* trunc_div(velocity * tick_us, 10^6) as velocity * tick_num / tick_den (the
+             * same fraction reduced): one 32-bit division for a whole number of ticks a
+             * second and a velocity below 2^32; |velocity| * tick_us <= 2^31 * 10^6 */
+            uint64_t velocity = sci_magnitude64(s->velocity);
+            uint64_t magnitude;
+            if (p->tick_num == 1 && (velocity >> 32) == 0u) {
+                magnitude = sci_udiv((uint32_t)velocity, (uint32_t)p->tick_den);
+            } else {
+                magnitude = sci_div_u64_small(
+                    sci_mul_32x64((uint32_t)p->tick_us, velocity) >> 6, 15625u);
+            }
             int64_t moved = s->velocity < 0 ? -(int64_t)magnitude : (int64_t)magnitude;
             /* where the rotor goes this tick: as measured, never beyond the command's move */
             int64_t wanted = wrap_int32((int64_t)s->desired - s->desired_prev);
