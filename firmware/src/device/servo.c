@@ -505,8 +505,12 @@ static int64_t step_drive(servo_state_t *s, const servo_params_t *p, int64_t *co
      * quotient and remainder of |issue| / steps added up, a carry when the remainder reaches
      * steps */
     uint32_t steps = (uint32_t)p->steps;
+    if (steps == 1u) {   /* the field after the one sub-step: phase + issue */
+        stepper_step(&s->theta, &s->omega, s->phase + issue, powered, p);
+        steps = 0;
+    }
     uint32_t magnitude = issue < 0 ? 0u - (uint32_t)issue : (uint32_t)issue;
-    uint32_t whole = steps == 1u ? magnitude : sci_udiv(magnitude, steps);
+    uint32_t whole = steps <= 1u ? magnitude : sci_udiv(magnitude, steps);
     uint32_t rest = magnitude - whole * steps;
     uint32_t moved = 0;
     uint32_t remainder = 0;
