@@ -255,8 +255,10 @@ static inline int32_t encoder(servo_state_t *s, const servo_params_t *p, int64_t
      * as the reduced fraction: velocity_num <= 10^6, velocity_den <= 10^4 */
     int32_t moved = wrap_int32((int64_t)s->actual - then);
     uint32_t moved_magnitude = moved < 0 ? 0u - (uint32_t)moved : (uint32_t)moved;
-    uint32_t high;
-    uint32_t low = sci_mul_32x32(moved_magnitude, (uint32_t)p->velocity_num, &high);
+    uint32_t num = (uint32_t)p->velocity_num;
+    uint32_t high = 0;   /* one 32-bit multiply when both are below 2^16 */
+    uint32_t low = (moved_magnitude | num) < 0x10000u ? moved_magnitude * num
+                                                      : sci_mul_32x32(moved_magnitude, num, &high);
     uint64_t speed = ((uint64_t)high << 32) | low;
     if (p->velocity_den != 1) {
         speed = p->velocity_den < 0x10000 ? sci_div_u64_small(speed, (uint32_t)p->velocity_den)
@@ -395,8 +397,10 @@ static inline void tick_finish(servo_state_t *s, const servo_params_t *p, record
         if ((uint32_t)size > peak_size) {   /* the earlier tick wins a tie */
             s->diag_peak = (int32_t)following;
         }
-        uint32_t square_high;
-        uint32_t square_low = sci_mul_32x32((uint32_t)size, (uint32_t)size, &square_high);
+        uint32_t square_high = 0;   /* one 32-bit multiply below 2^16 */
+        uint32_t square_low = size < 0x10000 ? (uint32_t)size * (uint32_t)size
+                                             : sci_mul_32x32((uint32_t)size, (uint32_t)size,
+                                                             &square_high);
         int64_t square = (int64_t)(((uint64_t)square_high << 32) | square_low);   /* <= 2^62 */
         if (square > STATS_SUM_CAP - s->stats_sum_sq) {
             s->stats_sum_sq = STATS_SUM_CAP;
