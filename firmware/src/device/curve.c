@@ -1024,22 +1024,17 @@ static inline int64_t numerator_value(const curve_differences_t *differences) {
 /* The next tick of a stepping segment: each of the numerator and its first two
  * differences gains the next difference, exactly, remainder by remainder. Remainders are
  * below den < 2^88, so their sums fit 3 words. */
-/* slot k += slot k + 1 for den < 2^64: qr_add2 with den in registers. */
-static inline void slot_step2(curve_differences_t *differences, unsigned k, uint64_t den) {
+/* slot k += slot k + 1 for den < 2^64 (qr_add2). */
+static inline void slot_step2(curve_differences_t *differences, unsigned k) {
     uint32_t *r = differences->remainder[k];
-    uint64_t a = words_u64(r);
     uint64_t b = words_u64(differences->remainder[k + 1]);
-    int64_t q = differences->quotient[k] + differences->quotient[k + 1];
-    uint64_t room = den - b;
-    if (a >= room) {
-        a -= room;
-        q++;
-    } else {
-        a += b;
-    }
-    differences->quotient[k] = q;
+    uint64_t room = words_u64(differences->den) - b;
+    uint64_t a = words_u64(r);
+    uint32_t carry = a >= room;
+    a = carry ? a - room : a + b;
     r[0] = (uint32_t)a;
     r[1] = (uint32_t)(a >> 32);
+    differences->quotient[k] += differences->quotient[k + 1] + carry;
 }
 
 static inline curve_differences_t *active_differences(curve_player_t *curve) {
@@ -1050,10 +1045,9 @@ static int64_t curve_step(curve_player_t *curve) {
     curve_differences_t *d = active_differences(curve);
     if (d->den[2] == 0u) {
         /* two words: the third of every remainder stays 0 */
-        uint64_t den = words_u64(d->den);
-        slot_step2(d, 0, den);
-        slot_step2(d, 1, den);
-        slot_step2(d, 2, den);
+        slot_step2(d, 0);
+        slot_step2(d, 1);
+        slot_step2(d, 2);
     } else {
         for (unsigned k = 0; k < 3; k++) {
             d->quotient[k] = qr_add3(d->quotient[k], d->remainder[k], d->quotient[k + 1],
