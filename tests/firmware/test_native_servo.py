@@ -1267,6 +1267,27 @@ def test_curve_player_long_plays(lib: ctypes.CDLL, tick_us: int) -> None:
     assert bad == []
 
 
+def test_curve_two_word_steps_either_side_of_their_bound(lib: ctypes.CDLL) -> None:
+    """A segment's remainders step in two words while den = 1024 (1000 D)^3 is below 2^64
+    (D up to 262 ms), in three from 263 ms: segments of both lengths, and a few short ones
+    between, at the extremes of position and tangent, every tick against the Python's."""
+    assert 1024 * 262_000**3 < 2**64 < 1024 * 263_000**3
+    rnd = random.Random(263)
+
+    def keyframes() -> Iterator[Keyframe]:
+        while True:
+            yield Keyframe(rnd.choice([262, 263, 262, 263, 1, 3]),
+                           rnd.choice([INT32_MIN, INT32_MAX, rnd.randint(-5000, 5000),
+                                       rnd.randint(INT32_MIN, INT32_MAX)]),
+                           rnd.choice([-32768, 32767, 0, rnd.randint(-32768, 32767)]),
+                           rnd.choice([-32768, 32767, 0, rnd.randint(-32768, 32767)]))
+
+    for tick_us in (100, 300):
+        bad, stepped = play(lib, rnd, tick_us, keyframes(), 12_000 * 100 // tick_us)
+        assert bad == []
+        assert stepped > 1000
+
+
 def test_curve_player_appended_at_the_end_of_a_keyframe(lib: ctypes.CDLL) -> None:
     """A keyframe appended after the last one was reached exactly: the next tick finds a
     segment nobody prepared (evaluated exactly, then stepped)."""
@@ -1957,7 +1978,8 @@ def _check_stepped_ties(lib: ctypes.CDLL) -> list[object]:
 
 
 def _check_plays(lib: ctypes.CDLL) -> list[object]:
-    """Segments one after the other at 10 kHz: prepared ahead, adopted at their start."""
+    """Segments one after the other at 10 kHz: prepared as they are appended, adopted at
+    their start."""
     rnd = random.Random(101)
     return list(play(lib, rnd, 100, keyframe_stream(rnd, extreme=False), 2000)[0])
 

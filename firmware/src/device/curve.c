@@ -375,8 +375,8 @@ static int64_t segment_c3(const segment_t *s) {
     return times_duration(s->duration_ms, s->m0 + s->m1) - (int64_t)((uint64_t)dp * 2048u);
 }
 
-/* The coefficients in two halves (two phases when prepared ahead): k2's and m0's, then
- * c3 and d's. */
+/* The coefficients in two halves (two phases of a warming segment's first tick): k2's and
+ * m0's, then c3 and d's. */
 static inline void coefficients_k2(const segment_t *s, coefficients_t *c) {
     int64_t k2 = segment_k2(s);
     c->m0 = s->m0;

@@ -103,12 +103,14 @@ typedef struct {
     int32_t start_tangent;
     /* Each buffered keyframe's segment as core0 prepared it (the slot of buffer[]), and the
      * keyframe core0 appended last (since the buffer was cleared: has_last), which the next
-     * one's segment starts from. core0 writes a slot only when it appends into it. */
+     * one's segment starts from (core1 never writes them). core0 writes a slot only when it
+     * appends into it, a slot no keyframe holds; core1 steps the head's differences in place
+     * once its segment started from them (`active`), and is done with them when it pops it. */
     curve_prepared_t prepared[CURVE_BUFFER_CAPACITY];
     keyframe_t last;
     bool has_last;
-    /* A segment started without its differences prepared (a curve's first, or one whose
-     * keyframe was prepared for another start) prepares them over its first ticks instead
+    /* A segment started without its differences prepared (a curve's first, or one started
+     * again after the curve was interrupted) prepares them over its first ticks instead
      * of on one (`warming` counts the ticks of that left: curve.c curve_warm_step), with the
      * segment's coefficients and a scratch slot meanwhile. */
     curve_coefficients_t coefficients;
@@ -408,8 +410,9 @@ void servo_shift_position(servo_state_t *state, int64_t shift);
  * `keyframe` (from the keyframe appended before it) for ticks of tick_us: core0's work,
  * outside the lock (it reads only what core0 writes); curve_append_prepared appends the
  * keyframe with it. A keyframe that continues a curve which reached its last keyframe
- * exactly on the last tick starts its segment there, from what was prepared (or, prepared
- * for another start, over the next ticks). curve_append is both in one. */
+ * exactly on the last tick starts its segment there, from what was prepared (or, not
+ * prepared, over the next ticks). curve_append is both in one, for the period the player
+ * last ran at. */
 void curve_prepare_keyframe(const curve_player_t *curve, keyframe_t keyframe, int64_t tick_us,
                             curve_prepared_t *prepared);
 bool curve_append_prepared(curve_player_t *curve, keyframe_t keyframe,
