@@ -107,8 +107,8 @@ def _lines(*texts: str) -> bytes:
 
 def _refeed(device: EmulatedDevice, mode: str, index: int) -> None:
     """More motion before tick ``index + 1``: in position and velocity mode the ramp again
-    before the queue runs dry; in curve mode the keyframes again while the curve plays (its
-    segments are prepared a phase a tick ahead); in "curve start" a new curve 30 ticks after
+    before the queue runs dry; in curve mode the keyframes again while the curve plays (core0
+    prepares their segments as it appends them); in "curve start" a new curve 30 ticks after
     the last one ended, the motor still settling (its first segment is prepared as it
     starts: the costliest ticks of curve mode)."""
     if mode.endswith(", four outputs"):

@@ -83,14 +83,24 @@ class CoefficientsC(ctypes.Structure):
     ]
 
 
+class CurveDifferencesC(ctypes.Structure):
+    _fields_ = [("quotient", c_i64 * 4), ("remainder", (c_u32 * 4) * 4), ("den", c_u32 * 4)]
+
+
+class CurvePreparedC(ctypes.Structure):
+    _fields_ = [
+        ("ready", ctypes.c_bool), ("p0", c_i32), ("m0", c_i32), ("step_us", c_i32),
+        ("differences", CurveDifferencesC),
+    ]
+
+
 class CurvePlayerC(ctypes.Structure):
     _fields_ = [
-        ("buffer", KeyframeC * 8), ("head", c_u8), ("count", c_u8), ("playing", ctypes.c_bool),
-        ("elapsed_us", c_i64), ("start_position", c_i32), ("start_tangent", c_i32),
-        ("stepping", ctypes.c_bool), ("step_us", c_i32), ("quotient", c_i64 * 4),
-        ("remainder", (c_u32 * 4) * 4), ("den", c_u32 * 4), ("next_phase", c_u8),
-        ("next_coefficients", CoefficientsC), ("next_quotient", c_i64 * 4),
-        ("next_remainder", (c_u32 * 4) * 4), ("next_den", c_u32 * 4), ("warming", c_u8),
+        ("playing", ctypes.c_bool), ("stepping", ctypes.c_bool), ("head", c_u8), ("count", c_u8),
+        ("warming", c_u8), ("active", c_u8), ("step_us", c_i32), ("elapsed_us", c_i64),
+        ("own", CurveDifferencesC), ("buffer", KeyframeC * 8),
+        ("start_position", c_i32), ("start_tangent", c_i32),
+        ("prepared", CurvePreparedC * 8), ("last", KeyframeC), ("has_last", ctypes.c_bool),
         ("coefficients", CoefficientsC), ("warm_quotient", c_i64),
         ("warm_remainder", c_u32 * 4),
     ]
@@ -168,7 +178,8 @@ class ServoParams(ctypes.Structure):
         ("travel_num", c_i64), ("travel_den", c_i64),
         ("velocity_num", c_i64), ("velocity_den", c_i64), ("reach", c_i32),
         ("sine_k", c_i32), ("full_mask", c_u32), ("cycle_mask", c_u32),
-        ("holding_corner", c_i64), ("encoder_ratio", EncoderRatioC),
+        ("holding_corner", c_i64), ("encoder_ratio", EncoderRatioC), ("tick_num", c_i64),
+        ("tick_den", c_i64),
     ]
 
 
@@ -215,6 +226,7 @@ class MotorConstantsC(ctypes.Structure):
 
 STRUCTS: dict[str, type[ctypes.Structure]] = {
     "sci_t": Sci, "keyframe_t": KeyframeC, "curve_coefficients_t": CoefficientsC,
+    "curve_differences_t": CurveDifferencesC, "curve_prepared_t": CurvePreparedC,
     "curve_player_t": CurvePlayerC,
     "switch_edge_t": SwitchEdgeC, "output_values_t": OutputValuesC,
     "output_pins_t": OutputPinsC, "output_record_t": OutputRecordC,
@@ -955,6 +967,25 @@ def entry_edge(rnd: random.Random, period: int) -> int:
     return rnd.randint(-5, 5) * period - (-entry * period // SINE_SIZE) + rnd.choice([-1, 0, 1])
 
 
+def test_stepper_encoder_finer_than_the_microsteps_every_residue(lib: ctypes.CDLL) -> None:
+    """The encoder's path without a division (counts a turn over microsteps a turn reduced
+    to num / den with den a power of two and den <= num): every shaft of several whole
+    periods of den either side of 0, and of 2^31 either way, for each such ratio."""
+    bad = []
+    for cpr, per_rev in ((4000, 3200), (1000, 1000), (1024, 512), (5000, 3200), (1, 1),
+                         (3, 2), (255, 128), (2**20 + 1, 2**19), (1_000_000, 256_000)):
+        g = math.gcd(cpr, per_rev)
+        num, den = cpr // g, per_rev // g
+        assert den <= num and den & (den - 1) == 0
+        span = 4 * den + 3
+        for base in (0, 2**31 + 201 - span, -(2**31) - 201 + span):
+            for shaft in range(base - span, base + span + 1):
+                if lib.stepper_encoder_microsteps(shaft, cpr, per_rev) != encoder_microsteps(
+                        shaft, cpr, per_rev):
+                    bad.append((shaft, cpr, per_rev))
+    assert bad == []
+
+
 def test_stepper_encoder_and_step_timing(lib: ctypes.CDLL) -> None:
     rnd = random.Random(107)
     bad: list[object] = []
@@ -1243,6 +1274,27 @@ def test_curve_player_long_plays(lib: ctypes.CDLL, tick_us: int) -> None:
     bad, _ = play(lib, rnd, tick_us, keyframe_stream(rnd, extreme=True), ticks // 4,
                   refill=0.5)
     assert bad == []
+
+
+def test_curve_two_word_steps_either_side_of_their_bound(lib: ctypes.CDLL) -> None:
+    """A segment's remainders step in two words while den = 1024 (1000 D)^3 is below 2^64
+    (D up to 262 ms), in three from 263 ms: segments of both lengths, and a few short ones
+    between, at the extremes of position and tangent, every tick against the Python's."""
+    assert 1024 * 262_000**3 < 2**64 < 1024 * 263_000**3
+    rnd = random.Random(263)
+
+    def keyframes() -> Iterator[Keyframe]:
+        while True:
+            yield Keyframe(rnd.choice([262, 263, 262, 263, 1, 3]),
+                           rnd.choice([INT32_MIN, INT32_MAX, rnd.randint(-5000, 5000),
+                                       rnd.randint(INT32_MIN, INT32_MAX)]),
+                           rnd.choice([-32768, 32767, 0, rnd.randint(-32768, 32767)]),
+                           rnd.choice([-32768, 32767, 0, rnd.randint(-32768, 32767)]))
+
+    for tick_us in (100, 300):
+        bad, stepped = play(lib, rnd, tick_us, keyframes(), 12_000 * 100 // tick_us)
+        assert bad == []
+        assert stepped > 1000
 
 
 def test_curve_player_appended_at_the_end_of_a_keyframe(lib: ctypes.CDLL) -> None:
@@ -1935,7 +1987,8 @@ def _check_stepped_ties(lib: ctypes.CDLL) -> list[object]:
 
 
 def _check_plays(lib: ctypes.CDLL) -> list[object]:
-    """Segments one after the other at 10 kHz: prepared ahead, adopted at their start."""
+    """Segments one after the other at 10 kHz: prepared as they are appended, adopted at
+    their start."""
     rnd = random.Random(101)
     return list(play(lib, rnd, 100, keyframe_stream(rnd, extreme=False), 2000)[0])
 
@@ -1958,9 +2011,10 @@ def _check_stepper(lib: ctypes.CDLL) -> list[object]:
     found: list[object] = []
     for _ in range(400):
         shaft = rnd.randint(-10**6, 10**6)
-        if lib.stepper_encoder_microsteps(shaft, 4000, 3200) != encoder_microsteps(shaft, 4000,
-                                                                                    3200):
-            found.append(("encoder", shaft))
+        for cpr, per_rev in ((4000, 3200), (1000, 3200), (4000, 3000)):
+            if lib.stepper_encoder_microsteps(shaft, cpr, per_rev) != encoder_microsteps(
+                    shaft, cpr, per_rev):
+                found.append(("encoder", shaft, cpr, per_rev))
     return found + stepper_step_mismatches(lib, rnd, 30)
 
 
@@ -1991,9 +2045,9 @@ MUTANTS = [
            "return q - ((r[0] | r[1] | r[2]) == 0 && q <= 0);",
            "return q - ((r[0] | r[1] | r[2]) == 0 && q < 0);",
            _check_stepped_ties),
-    Mutant("prepared third difference not adopted", "curve.c",
-           "for (unsigned k = 1; k < 4; k++) {", "for (unsigned k = 1; k < 3; k++) {",
-           _check_plays),
+    Mutant("prepared segment ends on the keyframe's out-tangent", "curve.c",
+           "keyframe.tangent_in, keyframe.duration_ms};",
+           "keyframe.tangent_out, keyframe.duration_ms};", _check_plays),
     Mutant("from_float boundary", "sci.c", "grid_value(middle, e) <= magnitude",
            "grid_value(middle, e) < magnitude", _check_from_double),
     Mutant("edge tick one count late", "servo.c", "edge->tick = s->clock + 1;",
@@ -2026,6 +2080,9 @@ MUTANTS = [
     Mutant("C's remainder (of the magnitude) for power-of-two microsteps", "stepper.c",
            "        return (uint32_t)x & mask;",
            "        return (uint32_t)sci_magnitude64(x) & mask;", _check_stepper_ticks),
+    Mutant("a finer encoder's microsteps not floored below zero", "stepper.c",
+           "return shaft - (t != 0u);", "return shaft - (t != 0u && shaft >= 0);",
+           _check_stepper),
     Mutant("encoder count truncated, not floored", "stepper.c",
            "if (shaft < 0 && q * den != low) {", "if (shaft < 0 && q * den != low && 0) {",
            _check_stepper),

@@ -16,15 +16,17 @@
  * and the ticks of a segment advance e by the period h, so the player keeps numerator +
  * den/2 and its three forward differences, each as a quotient and a remainder by den: a
  * tick adds each difference to the one before, remainder to remainder (one carry), exactly
- * (curve_step). The next segment's differences are prepared a phase a tick ahead while the
- * current segment steps (curve_prepare_ahead) and adopted on the tick that reaches its
- * keyframe exactly (its value is p1). A segment started unprepared (a curve's tick 0, whose
- * value is p0, a keyframe that came too late to be prepared ahead, or one appended after
- * the curve reached its last exactly: curve_append) is prepared over its first ticks
- * (curve_prepare_start, curve_warm_step), each finding its value with what it needs. So no
- * tick pays for a whole preparation. Elsewhere (a keyframe reached between ticks, periods of
- * 512 us and more, a step of 2^32 counts) the player evaluates exactly and prepares from
- * there. The tests compare every tick with the Python's.
+ * (curve_step); with den below 2^64 (segments up to 262 ms) the remainders take two words.
+ * core0 prepares each keyframe's segment from the keyframe appended before it when it
+ * appends it (curve_prepare_keyframe, outside the servo lock), and the tick that reaches
+ * the keyframe before exactly (its value is p1) adopts those differences when the segment
+ * starts where they were prepared for. A segment started unprepared (a curve's tick 0,
+ * whose value is p0, or one that starts elsewhere: a curve interrupted and started again)
+ * is prepared over its first ticks (curve_prepare_start, curve_warm_step), each finding
+ * its value with what it needs. So no tick pays for a whole preparation. Elsewhere (a
+ * keyframe reached between ticks, periods of 512 us and more, a step of 2^32 counts) the
+ * player evaluates exactly and prepares from there. The tests compare every tick with the
+ * Python's.
  *
  * Ranges: |p| < 2^31, |m| <= 2^15, D < 2^16, e <= d < 2^26, h <= 10^6 < 2^20. Then
  * |numerator| < 2^121 (|d^3 p0| < 2^109, |(p1 - p0) e^2 (3d - 2e)| <= 2^32 d^3 < 2^110, the
@@ -373,8 +375,8 @@ static int64_t segment_c3(const segment_t *s) {
     return times_duration(s->duration_ms, s->m0 + s->m1) - (int64_t)((uint64_t)dp * 2048u);
 }
 
-/* The coefficients in two halves (two phases when prepared ahead): k2's and m0's, then
- * c3 and d's. */
+/* The coefficients in two halves (two phases of a warming segment's first tick): k2's and
+ * m0's, then c3 and d's. */
 static inline void coefficients_k2(const segment_t *s, coefficients_t *c) {
     int64_t k2 = segment_k2(s);
     c->m0 = s->m0;
@@ -540,8 +542,8 @@ static bool words_floor_divide(const uint32_t *x, const uint32_t *den, int64_t *
 /* (qa den + ra) + (qb den + rb) as quotient (returned) and remainder, for remainders below
  * den; r may be ra or rb. As den < 2^88, a remainder's top word is 0 and a sum of two fits
  * three words: the addition and the comparison take three. */
-static inline int64_t qr_add(int64_t qa, const uint32_t *ra, int64_t qb, const uint32_t *rb,
-                             const uint32_t *den, uint32_t *r) {
+static inline int64_t qr_add3(int64_t qa, const uint32_t *ra, int64_t qb, const uint32_t *rb,
+                              const uint32_t *den, uint32_t *r) {
     uint32_t x0 = ra[0] + rb[0];
     uint32_t c0 = x0 < rb[0];
     uint32_t t1 = ra[1] + c0;
@@ -567,6 +569,40 @@ static inline int64_t qr_add(int64_t qa, const uint32_t *ra, int64_t qb, const u
     return q;
 }
 
+static inline uint64_t words_u64(const uint32_t *a) {
+    return ((uint64_t)a[1] << 32) | a[0];
+}
+
+/* qr_add3 for den < 2^64 (den = 1024 d^3 with d < 2^18: a segment of up to 262 ms): the
+ * remainders' third words are 0, and a + b >= den exactly when a >= den - b (b < den: no
+ * borrow), which needs no carry out of 64 bits. Their fourth words stay 0. */
+static inline int64_t qr_add2(int64_t qa, const uint32_t *ra, int64_t qb, const uint32_t *rb,
+                              const uint32_t *den, uint32_t *r) {
+    uint64_t a = words_u64(ra);
+    uint64_t b = words_u64(rb);
+    uint64_t room = words_u64(den) - b;
+    int64_t q = qa + qb;
+    if (a >= room) {
+        a -= room;
+        q++;
+    } else {
+        a += b;
+    }
+    r[0] = (uint32_t)a;
+    r[1] = (uint32_t)(a >> 32);
+    r[2] = 0;
+    return q;
+}
+
+/* qr_add3, in two words when den allows it. */
+static inline int64_t qr_add(int64_t qa, const uint32_t *ra, int64_t qb, const uint32_t *rb,
+                             const uint32_t *den, uint32_t *r) {
+    if (den[2] == 0u) {
+        return qr_add2(qa, ra, qb, rb, den, r);
+    }
+    return qr_add3(qa, ra, qb, rb, den, r);
+}
+
 /* floor and modulo of a signed int64 by a positive divisor */
 static inline int64_t floor_divide64(int64_t x, int64_t divisor, int64_t *rest) {
     int64_t q = x / divisor;
@@ -585,10 +621,10 @@ static inline int64_t floor_divide64(int64_t x, int64_t divisor, int64_t *rest) 
  *   a1 / den = m0 h / 1024000 (as d = 1000 D), so a1 = q1 den + r1 D d^2;
  *   a2 / den = k2 h^2 / (1024 d^2), so a2 = q2 den + r2 d;
  *   a3 = c3 h^3 (below 2^71) divided by den;
- * then delta1 = a1 + a2 + a3, delta2 = 2 a2 + 6 a3, delta3 = 6 a3. In phases (the player
- * runs them a tick at a time for the next segment), each one 128-bit addition or product
- * or so, about 150 cycles, so that no tick of a curve costs much more than another. */
-#define PREPARE_PHASES 16u
+ * then delta1 = a1 + a2 + a3, delta2 = 2 a2 + 6 a3, delta3 = 6 a3. In phases, each one
+ * 128-bit addition or product or so, about 150 cycles: a segment started unprepared runs
+ * them over its first ticks (curve_warm_step), so that no tick of it costs much more than
+ * another. */
 
 /* The arguments every phase takes: the coefficients (set by the first two phases), den
  * (set by the third), the slots, and a scratch slot. */
@@ -603,7 +639,7 @@ typedef struct {
     uint32_t *scratch;
 } phase_t;
 
-/* A phase is called through PHASES a tick at a time, and inlined where one tick runs all. */
+/* A phase is inlined where it runs. */
 #define PHASE static inline __attribute__((always_inline))
 
 PHASE void phase_coefficients(const phase_t *p) {
@@ -612,10 +648,6 @@ PHASE void phase_coefficients(const phase_t *p) {
 
 PHASE void phase_c3(const phase_t *p) {
     coefficients_c3(p->s, p->c);
-}
-
-PHASE void phase_den(const phase_t *p) {
-    segment_den(p->c->d, p->den);
 }
 
 /* slot 1 = a1: the quotient, and the remainder's factor r1 D (in the scratch) */
@@ -781,12 +813,6 @@ PHASE void phases_after_delta1(const phase_t *p) {
     phase_delta2(p);
 }
 
-static void (*const PHASES[PREPARE_PHASES])(const phase_t *) = {
-    phase_coefficients, phase_c3, phase_den, phase_a1, phase_a1_low, phase_a1_high, phase_a2,
-    phase_a3, phase_a3_divide, phase_a1_plus_a2, phase_delta1, phase_two_a3, phase_four_a3,
-    phase_delta3, phase_two_a2, phase_delta2,
-};
-
 /* Segments of more than WARM_TICKS ticks start warming (curve_prepare_start); those of
  * this many or fewer are prepared on their first. The ticks after the first that a warming
  * segment takes to stand where a stepping one would (curve_warm_step): WARM_STEPS, of
@@ -796,8 +822,8 @@ static void (*const PHASES[PREPARE_PHASES])(const phase_t *) = {
 
 /* The phases' arguments for the head segment's own slots (its segment set by the caller). */
 static inline phase_t curve_warm_phase(curve_player_t *curve) {
-    phase_t p = {0, &curve->coefficients, (uint32_t)curve->step_us, curve->den,
-                 curve->quotient, curve->remainder, &curve->warm_quotient,
+    phase_t p = {0, &curve->coefficients, (uint32_t)curve->step_us, curve->own.den,
+                 curve->own.quotient, curve->own.remainder, &curve->warm_quotient,
                  curve->warm_remainder};
     return p;
 }
@@ -818,7 +844,6 @@ static inline void curve_pop(curve_player_t *curve) {
     curve->head = (uint8_t)((curve->head + 1u) % CURVE_BUFFER_CAPACITY);
     curve->count--;
     curve->stepping = false;
-    curve->next_phase = 0;
     curve->warming = 0;
 }
 
@@ -830,19 +855,32 @@ static inline segment_t curve_segment(const curve_player_t *curve) {
 }
 
 static void curve_prepare_start(curve_player_t *curve, int64_t tick_us);
+static bool curve_adopt_prepared(curve_player_t *curve, int64_t tick_us);
 
-bool curve_append(curve_player_t *curve, keyframe_t keyframe) {
+bool curve_append_prepared(curve_player_t *curve, keyframe_t keyframe,
+                           const curve_prepared_t *prepared) {
     if (curve->count >= CURVE_BUFFER_CAPACITY) {
         return false;
     }
-    curve->buffer[(curve->head + curve->count) % CURVE_BUFFER_CAPACITY] = keyframe;
+    unsigned slot = (curve->head + curve->count) % CURVE_BUFFER_CAPACITY;
+    curve->buffer[slot] = keyframe;
+    curve->prepared[slot] = *prepared;
+    curve->last = keyframe;
+    curve->has_last = true;
     curve->count++;
-    if (curve->playing && curve->count == 1 && curve->elapsed_us == 0 && curve->step_us > 0) {
+    if (curve->playing && curve->count == 1 && curve->elapsed_us == 0 && curve->step_us > 0 &&
+        !curve_adopt_prepared(curve, curve->step_us)) {
         /* the curve reached its last keyframe exactly on the last tick and goes on with
-         * this one on the next: prepare its segment here, as that tick would have */
+         * this one on the next: start its segment here, as that tick would have */
         curve_prepare_start(curve, curve->step_us);
     }
     return true;
+}
+
+bool curve_append(curve_player_t *curve, keyframe_t keyframe) {
+    curve_prepared_t prepared;
+    curve_prepare_keyframe(curve, keyframe, curve->step_us, &prepared);
+    return curve_append_prepared(curve, keyframe, &prepared);
 }
 
 void curve_clear(curve_player_t *curve) {
@@ -851,43 +889,53 @@ void curve_clear(curve_player_t *curve) {
     curve->playing = false;
     curve->elapsed_us = 0;
     curve->stepping = false;
-    curve->next_phase = 0;
     curve->warming = 0;
+    curve->active = 0;
+    curve->has_last = false;
 }
 
 void curve_interrupt(curve_player_t *curve) {
     curve->playing = false;
     curve->elapsed_us = 0;
     curve->stepping = false;
-    curve->next_phase = 0;
     curve->warming = 0;
-}
-
-/* The segment after the head one: from the first keyframe to the second. */
-static inline segment_t curve_next_segment(const curve_player_t *curve) {
-    const keyframe_t *from = curve_first(curve);
-    const keyframe_t *to = &curve->buffer[(curve->head + 1u) % CURVE_BUFFER_CAPACITY];
-    segment_t s = {from->position_counts, to->position_counts, from->tangent_out,
-                   to->tangent_in, to->duration_ms};
-    return s;
-}
-
-/* One phase of the next segment's preparation, on a tick that stepped. */
-static void curve_prepare_ahead(curve_player_t *curve) {
-    if (curve->count < 2 || curve->next_phase >= PREPARE_PHASES || curve->step_us >= 512 ||
-        curve->step_us <= 0) {
-        return;
-    }
-    segment_t s = curve_next_segment(curve);
-    phase_t p = {&s, &curve->next_coefficients, (uint32_t)curve->step_us, curve->next_den,
-                 curve->next_quotient, curve->next_remainder, &curve->next_quotient[0],
-                 curve->next_remainder[0]};   /* slot 0 is not prepared ahead */
-    PHASES[curve->next_phase](&p);
-    curve->next_phase++;
+    curve->active = 0;
 }
 
 uint32_t curve_queued(const curve_player_t *curve) {
     return curve->count;
+}
+
+/* The differences of segment s at e0 for steps of h (0 < h, den set) as quotients and
+ * remainders by den (entries 1 to 3); false when a quotient is 2^32 counts a tick or more
+ * (the segment is then evaluated tick by tick). */
+static bool differences_prepared(const segment_t *s, uint32_t e0, uint32_t h, uint32_t *den,
+                                 int64_t *quotient, uint32_t (*remainder)[WORDS]) {
+    coefficients_t c;
+    segment_coefficients(s, &c);
+    if (e0 == 0 && h < 512) {
+        int64_t scratch_quotient;
+        uint32_t scratch[WORDS];
+        phase_t p = {s, &c, h, den, quotient, remainder, &scratch_quotient, scratch};
+        phase_a1(&p);
+        phase_a1_low(&p);
+        phase_a1_high(&p);
+        phases_to_delta1(&p);
+        phases_after_delta1(&p);
+        return true;
+    }
+    uint32_t delta[3][WORDS];
+    if (e0 == 0 && h < 0x10000) {
+        differences_at_start(&c, h, delta);
+    } else {
+        differences_at(&c, e0, h, delta);
+    }
+    for (unsigned k = 0; k < 3; k++) {
+        if (!words_floor_divide(delta[k], den, &quotient[k + 1], remainder[k + 1])) {
+            return false;
+        }
+    }
+    return true;
 }
 
 /* Ready the differences of the head segment at elapsed e0 (the numerator's quotient and
@@ -899,43 +947,56 @@ static void curve_prepare(curve_player_t *curve, uint32_t e0, int64_t tick_us) {
         return;
     }
     segment_t s = curve_segment(curve);
-    coefficients_t c;
-    segment_coefficients(&s, &c);
-    if (e0 == 0 && tick_us < 512) {
-        int64_t scratch_quotient;
-        uint32_t scratch[WORDS];
-        phase_t p = {&s, &c, (uint32_t)tick_us, curve->den, curve->quotient, curve->remainder,
-                     &scratch_quotient, scratch};
-        phase_a1(&p);   /* den is set */
-        phase_a1_low(&p);
-        phase_a1_high(&p);
-        phases_to_delta1(&p);
-        phases_after_delta1(&p);
-        curve->stepping = true;
-        return;
+    curve->stepping = differences_prepared(&s, e0, (uint32_t)tick_us, curve->own.den,
+                                           curve->own.quotient, curve->own.remainder);
+}
+
+void curve_prepare_keyframe(const curve_player_t *curve, keyframe_t keyframe, int64_t tick_us,
+                            curve_prepared_t *prepared) {
+    prepared->ready = false;
+    uint32_t d = segment_us(&keyframe);
+    if (!curve->has_last || tick_us <= 0 || tick_us >= (int64_t)d) {
+        return;   /* a curve's first segment, or one no tick steps in */
     }
-    uint32_t delta[3][WORDS];
-    if (e0 == 0 && tick_us < 0x10000) {
-        differences_at_start(&c, (uint32_t)tick_us, delta);
-    } else {
-        differences_at(&c, e0, (uint32_t)tick_us, delta);
+    const keyframe_t *from = &curve->last;
+    segment_t s = {from->position_counts, keyframe.position_counts, from->tangent_out,
+                   keyframe.tangent_in, keyframe.duration_ms};
+    curve_differences_t *differences = &prepared->differences;
+    segment_den(d, differences->den);
+    /* numerator + den/2 at the start: p0 den + den/2 */
+    differences->quotient[0] = from->position_counts;
+    words_half(differences->remainder[0], differences->den);
+    if (differences_prepared(&s, 0, (uint32_t)tick_us, differences->den,
+                             differences->quotient, differences->remainder)) {
+        prepared->p0 = from->position_counts;
+        prepared->m0 = from->tangent_out;
+        prepared->step_us = (int32_t)tick_us;
+        prepared->ready = true;
     }
-    for (unsigned k = 0; k < 3; k++) {
-        if (!words_floor_divide(delta[k], curve->den, &curve->quotient[k + 1],
-                                curve->remainder[k + 1])) {
-            return;   /* a quotient of 2^32 counts a tick: evaluated tick by tick */
-        }
+}
+
+/* The head segment starts (elapsed 0) from start_position with start_tangent: its
+ * differences as core0 prepared them, when they were prepared for this start and period
+ * (a segment is its keyframe's, start and period: the same numbers). */
+static bool curve_adopt_prepared(curve_player_t *curve, int64_t tick_us) {
+    const curve_prepared_t *next = &curve->prepared[curve->head];
+    if (!next->ready || next->p0 != curve->start_position ||
+        next->m0 != curve->start_tangent || next->step_us != tick_us) {
+        return false;
     }
-    curve->stepping = true;
+    curve->active = (uint8_t)(curve->head + 1u);
+    curve->stepping = true;   /* ready: the segment is longer than a tick */
+    return true;
 }
 
 /* A segment's first tick (elapsed 0): the value p0 exactly, numerator + den/2 =
  * p0 den + den/2. */
 static void curve_prepare_start(curve_player_t *curve, int64_t tick_us) {
     uint32_t d = segment_us(curve_first(curve));
-    segment_den(d, curve->den);
-    curve->quotient[0] = curve->start_position;
-    words_half(curve->remainder[0], curve->den);
+    curve->active = 0;
+    segment_den(d, curve->own.den);
+    curve->own.quotient[0] = curve->start_position;
+    words_half(curve->own.remainder[0], curve->own.den);
     if (tick_us > 0 && tick_us < 512 && (int64_t)d > WARM_TICKS * tick_us) {
         curve->stepping = false;
         phase_t p = curve_warm_phase(curve);
@@ -954,28 +1015,53 @@ static void curve_prepare_start(curve_player_t *curve, int64_t tick_us) {
 
 /* The value of the numerator as it stands: the quotient, less one for a tie or an exact
  * value below 0 (the rounding, curve.c's head). */
-static inline int64_t numerator_value(const curve_player_t *curve) {
-    const uint32_t *r = curve->remainder[0];
-    int64_t q = curve->quotient[0];
+static inline int64_t numerator_value(const curve_differences_t *differences) {
+    const uint32_t *r = differences->remainder[0];
+    int64_t q = differences->quotient[0];
     return q - ((r[0] | r[1] | r[2]) == 0 && q <= 0);
 }
 
 /* The next tick of a stepping segment: each of the numerator and its first two
  * differences gains the next difference, exactly, remainder by remainder. Remainders are
  * below den < 2^88, so their sums fit 3 words. */
+/* slot k += slot k + 1 for den < 2^64 (qr_add2). */
+static inline void slot_step2(curve_differences_t *differences, unsigned k) {
+    uint32_t *r = differences->remainder[k];
+    uint64_t b = words_u64(differences->remainder[k + 1]);
+    uint64_t room = words_u64(differences->den) - b;
+    uint64_t a = words_u64(r);
+    uint32_t carry = a >= room;
+    a = carry ? a - room : a + b;
+    r[0] = (uint32_t)a;
+    r[1] = (uint32_t)(a >> 32);
+    differences->quotient[k] += differences->quotient[k + 1] + carry;
+}
+
+static inline curve_differences_t *active_differences(curve_player_t *curve) {
+    return curve->active == 0 ? &curve->own : &curve->prepared[curve->active - 1u].differences;
+}
+
 static int64_t curve_step(curve_player_t *curve) {
-    for (unsigned k = 0; k < 3; k++) {
-        curve->quotient[k] = qr_add(curve->quotient[k], curve->remainder[k],
-                                    curve->quotient[k + 1], curve->remainder[k + 1], curve->den,
-                                    curve->remainder[k]);
+    curve_differences_t *d = active_differences(curve);
+    if (d->den[2] == 0u) {
+        /* two words: the third of every remainder stays 0 */
+        slot_step2(d, 0);
+        slot_step2(d, 1);
+        slot_step2(d, 2);
+    } else {
+        for (unsigned k = 0; k < 3; k++) {
+            d->quotient[k] = qr_add3(d->quotient[k], d->remainder[k], d->quotient[k + 1],
+                                     d->remainder[k + 1], d->den, d->remainder[k]);
+        }
     }
-    return numerator_value(curve);
+    return numerator_value(d);
 }
 
 /* slot k += slot j (curve_warm_step) */
 static inline void slot_add(curve_player_t *curve, unsigned k, unsigned j) {
-    curve->quotient[k] = qr_add(curve->quotient[k], curve->remainder[k], curve->quotient[j],
-                                curve->remainder[j], curve->den, curve->remainder[k]);
+    curve_differences_t *d = &curve->own;   /* a warming segment's */
+    d->quotient[k] = qr_add(d->quotient[k], d->remainder[k], d->quotient[j], d->remainder[j],
+                            d->den, d->remainder[k]);
 }
 
 /* The ticks of a warming segment after its first, e = h to 5h (N the numerator, D1 to D3
@@ -988,9 +1074,9 @@ static inline void slot_add(curve_player_t *curve, unsigned k, unsigned j) {
  * D1_3 = D1_2 + D2_2, N_4 = N_3 + D1_3, D2_3 = D2_2 + D3, D1_4 = D1_3 + D2_3. Tick 5:
  * D2_4 = D2_3 + D3 (where stepping stands after tick 4), then the step. */
 static int64_t curve_warm_step(curve_player_t *curve) {
-    int64_t *q = curve->quotient;
-    uint32_t(*r)[WORDS] = curve->remainder;
-    const uint32_t *den = curve->den;
+    int64_t *q = curve->own.quotient;
+    uint32_t(*r)[WORDS] = curve->own.remainder;
+    const uint32_t *den = curve->own.den;
     switch (curve->warming--) {
     case 5: {
         phase_t p = curve_warm_phase(curve);   /* the phases after a1's read no segment */
@@ -1026,13 +1112,29 @@ static int64_t curve_warm_step(curve_player_t *curve) {
         curve->stepping = true;
         return curve_step(curve);
     }
-    return numerator_value(curve);
+    return numerator_value(&curve->own);
 }
 
+static int64_t __attribute__((noinline))
+curve_next_position_general(curve_player_t *curve, int32_t current_desired, int64_t tick_us);
+
 int64_t curve_next_position(curve_player_t *curve, int32_t current_desired, int64_t tick_us) {
+    if (curve->stepping && curve->warming == 0 && curve->playing && curve->step_us == tick_us) {
+        /* the usual tick: within the segment, which steps (what the general path comes
+         * to: no keyframe passed or reached, elapsed neither 0 nor the end) */
+        int64_t elapsed = curve->elapsed_us + tick_us;
+        if (elapsed < (int64_t)segment_us(curve_first(curve))) {
+            curve->elapsed_us = elapsed;
+            return curve_step(curve);
+        }
+    }
+    return curve_next_position_general(curve, current_desired, tick_us);
+}
+
+static int64_t curve_next_position_general(curve_player_t *curve, int32_t current_desired,
+                                           int64_t tick_us) {
     if (curve->step_us != tick_us) {
         curve->stepping = false;   /* prepared for another period */
-        curve->next_phase = 0;
         curve->warming = 0;
         curve->step_us = (int32_t)tick_us;
     }
@@ -1044,7 +1146,6 @@ int64_t curve_next_position(curve_player_t *curve, int32_t current_desired, int6
         curve->start_position = current_desired;
         curve->start_tangent = 0;
         curve->stepping = false;
-        curve->next_phase = 0;
     } else {
         return current_desired;
     }
@@ -1074,31 +1175,20 @@ int64_t curve_next_position(curve_player_t *curve, int32_t current_desired, int6
         position = curve_warm_step(curve);
     } else if (curve->stepping) {
         position = curve_step(curve);
-        curve_prepare_ahead(curve);
     } else {
         segment_t s = curve_segment(curve);
-        segment_den(target.duration_ms * 1000u, curve->den);
-        position = segment_evaluate(&s, e, curve->den, &curve->quotient[0],
-                                    curve->remainder[0]);
+        curve->active = 0;
+        segment_den(target.duration_ms * 1000u, curve->own.den);
+        position = segment_evaluate(&s, e, curve->own.den, &curve->own.quotient[0],
+                                    curve->own.remainder[0]);
         curve_prepare(curve, e, tick_us);   /* the later ticks of this segment */
     }
     if (e == d) {
-        bool ready = curve->next_phase == PREPARE_PHASES;
         curve_pop(curve);
         curve->elapsed_us = 0;
         curve->start_position = target.position_counts;
         curve->start_tangent = target.tangent_out;
-        if (curve->count != 0 && ready) {
-            /* the next segment prepared ahead: numerator + den/2 = p0 den + den/2 */
-            words_copy(curve->den, curve->next_den);
-            curve->quotient[0] = curve->start_position;
-            words_half(curve->remainder[0], curve->den);
-            for (unsigned k = 1; k < 4; k++) {
-                curve->quotient[k] = curve->next_quotient[k];
-                words_copy(curve->remainder[k], curve->next_remainder[k]);
-            }
-            curve->stepping = (int64_t)segment_us(curve_first(curve)) > tick_us;
-        } else if (curve->count != 0) {
+        if (curve->count != 0 && !curve_adopt_prepared(curve, tick_us)) {
             curve_prepare_start(curve, tick_us);   /* a tick with nothing to evaluate */
         }
     }

@@ -961,6 +961,10 @@ static void call_append_keyframe(const call_t *call) {
         .tangent_in = (int16_t)call->args[2],
         .tangent_out = (int16_t)call->args[3],
     };
+    /* its segment derived outside the lock: core1 reads neither the keyframe appended
+     * last nor the period, which only core0 writes */
+    curve_prepared_t prepared;
+    curve_prepare_keyframe(&servo_state.curve, keyframe, servo_params.tick_us, &prepared);
     platform_servo_lock();
     if (servo_state.mode != MODE_CURVE) {
         platform_servo_unlock();
@@ -968,7 +972,7 @@ static void call_append_keyframe(const call_t *call) {
                        "keyframes play in curve mode only; select it with call 7 3");
         return;
     }
-    bool appended = curve_append(&servo_state.curve, keyframe);
+    bool appended = curve_append_prepared(&servo_state.curve, keyframe, &prepared);
     platform_servo_unlock();
     if (!appended) {
         print_plain(call_table[CALL_APPEND_KEYFRAME].refusal);

@@ -59,6 +59,14 @@ void servo_params_finish(servo_params_t *params) {
         params->velocity_num = 0;
         params->velocity_den = 1;
     }
+    if (params->tick_us > 0) {
+        int64_t g = gcd64(params->tick_us, MOTOR_MICRO);
+        params->tick_num = params->tick_us / g;
+        params->tick_den = MOTOR_MICRO / g;
+    } else {
+        params->tick_num = 0;
+        params->tick_den = 1;
+    }
     params->reach = (int32_t)(params->full / STEPPER_MICRO);
     params->sine_k = (int32_t)(params->full / 64);
     uint32_t microsteps = (uint32_t)params->reach;

@@ -255,8 +255,10 @@ static inline int32_t encoder(servo_state_t *s, const servo_params_t *p, int64_t
      * as the reduced fraction: velocity_num <= 10^6, velocity_den <= 10^4 */
     int32_t moved = wrap_int32((int64_t)s->actual - then);
     uint32_t moved_magnitude = moved < 0 ? 0u - (uint32_t)moved : (uint32_t)moved;
-    uint32_t high;
-    uint32_t low = sci_mul_32x32(moved_magnitude, (uint32_t)p->velocity_num, &high);
+    uint32_t num = (uint32_t)p->velocity_num;
+    uint32_t high = 0;   /* one 32-bit multiply when both are below 2^16 */
+    uint32_t low = (moved_magnitude | num) < 0x10000u ? moved_magnitude * num
+                                                      : sci_mul_32x32(moved_magnitude, num, &high);
     uint64_t speed = ((uint64_t)high << 32) | low;
     if (p->velocity_den != 1) {
         speed = p->velocity_den < 0x10000 ? sci_div_u64_small(speed, (uint32_t)p->velocity_den)
@@ -398,8 +400,10 @@ static inline void tick_finish(servo_state_t *s, const servo_params_t *p, record
         if ((uint32_t)size > peak_size) {   /* the earlier tick wins a tie */
             s->diag_peak = (int32_t)following;
         }
-        uint32_t square_high;
-        uint32_t square_low = sci_mul_32x32((uint32_t)size, (uint32_t)size, &square_high);
+        uint32_t square_high = 0;   /* one 32-bit multiply below 2^16 */
+        uint32_t square_low = size < 0x10000 ? (uint32_t)size * (uint32_t)size
+                                             : sci_mul_32x32((uint32_t)size, (uint32_t)size,
+                                                             &square_high);
         int64_t square = (int64_t)(((uint64_t)square_high << 32) | square_low);   /* <= 2^62 */
         if (square > STATS_SUM_CAP - s->stats_sum_sq) {
             s->stats_sum_sq = STATS_SUM_CAP;
@@ -467,9 +471,17 @@ static int64_t step_drive(servo_state_t *s, const servo_params_t *p, int64_t *co
         if (p->drive_kind == DRIVE_STEP_OPEN) {
             issue = wrap_int32((int64_t)s->desired - s->actual);
         } else {
-            /* trunc_div(velocity * tick_us, 10^6): |velocity| * tick_us <= 2^31 * 10^6 */
-            uint64_t magnitude = sci_div_u64_small(
-                sci_mul_32x64((uint32_t)p->tick_us, sci_magnitude64(s->velocity)) >> 6, 15625u);
+            /* trunc_div(velocity * tick_us, 10^6) as velocity * tick_num / tick_den (the
+             * same fraction reduced): one 32-bit division for a whole number of ticks a
+             * second and a velocity below 2^32; |velocity| * tick_us <= 2^31 * 10^6 */
+            uint64_t velocity = sci_magnitude64(s->velocity);
+            uint64_t magnitude;
+            if (p->tick_num == 1 && (velocity >> 32) == 0u) {
+                magnitude = sci_udiv((uint32_t)velocity, (uint32_t)p->tick_den);
+            } else {
+                magnitude = sci_div_u64_small(
+                    sci_mul_32x64((uint32_t)p->tick_us, velocity) >> 6, 15625u);
+            }
             int64_t moved = s->velocity < 0 ? -(int64_t)magnitude : (int64_t)magnitude;
             /* where the rotor goes this tick: as measured, never beyond the command's move */
             int64_t wanted = wrap_int32((int64_t)s->desired - s->desired_prev);
@@ -507,8 +519,12 @@ static int64_t step_drive(servo_state_t *s, const servo_params_t *p, int64_t *co
      * quotient and remainder of |issue| / steps added up, a carry when the remainder reaches
      * steps */
     uint32_t steps = (uint32_t)p->steps;
+    if (steps == 1u) {   /* the field after the one sub-step: phase + issue */
+        stepper_step(&s->theta, &s->omega, s->phase + issue, powered, p);
+        steps = 0;
+    }
     uint32_t magnitude = issue < 0 ? 0u - (uint32_t)issue : (uint32_t)issue;
-    uint32_t whole = steps == 1u ? magnitude : sci_udiv(magnitude, steps);
+    uint32_t whole = steps <= 1u ? magnitude : sci_udiv(magnitude, steps);
     uint32_t rest = magnitude - whole * steps;
     uint32_t moved = 0;
     uint32_t remainder = 0;

@@ -63,37 +63,58 @@ typedef struct {
     int64_t c3;
 } curve_coefficients_t;
 
-/* The keyframe buffer and the player of curve mode (device/curve.py CurvePlayer). */
+/* A segment's exact numerator (plus den / 2) and its three forward differences, each as
+ * quotient * den + remainder (0 <= remainder < den, little-endian 32-bit words), so that a
+ * tick within a segment costs additions (curve.c). */
 typedef struct {
-    keyframe_t buffer[CURVE_BUFFER_CAPACITY];
-    uint8_t head;
-    uint8_t count;
-    bool playing;
-    int64_t elapsed_us;
-    int32_t start_position;
-    int32_t start_tangent;
-    /* Not in curve.py: the playing segment's exact numerator (plus den / 2) and its three
-     * forward differences, each as quotient * den + remainder (0 <= remainder < den,
-     * little-endian 32-bit words), so that a tick within a segment costs additions
-     * (curve.c). A cache: valid while `stepping`, for ticks of step_us; the curve_*
-     * functions keep it. */
-    bool stepping;
-    int32_t step_us;
     int64_t quotient[4];
     uint32_t remainder[4][4];
     uint32_t den[4];           /* 1024 * (duration_ms * 1000)^3 */
-    /* The next segment's (the first keyframe to the second) differences and den, prepared
-     * a phase a tick ahead of its start; next_phase counts the phases done. */
-    uint8_t next_phase;
-    curve_coefficients_t next_coefficients;
-    int64_t next_quotient[4];
-    uint32_t next_remainder[4][4];
-    uint32_t next_den[4];
-    /* A segment started without its differences prepared ahead (a curve's first, or one
-     * whose keyframe came late) prepares them over its first ticks instead of on one:
-     * `warming` counts the ticks of that left (curve.c curve_warm_step), with the
-     * segment's coefficients and a scratch slot meanwhile. */
+} curve_differences_t;
+
+/* A keyframe's segment prepared by core0 when it was appended (curve.c
+ * curve_prepare_keyframe): its numerator and differences at its start for ticks of
+ * step_us, valid for a segment that starts at p0 with the out-tangent m0 (the keyframe
+ * appended before it), so that the tick that starts it only switches to them. */
+typedef struct {
+    bool ready;
+    int32_t p0;
+    int32_t m0;
+    int32_t step_us;
+    curve_differences_t differences;
+} curve_prepared_t;
+
+/* The keyframe buffer and the player of curve mode (device/curve.py CurvePlayer). What a
+ * stepping tick reads comes first: the M0+ reaches a field at a small offset (bytes below
+ * 32, words below 128) from the pointer in one instruction. */
+typedef struct {
+    bool playing;
+    bool stepping;
+    uint8_t head;
+    uint8_t count;
     uint8_t warming;
+    /* Not in curve.py: the playing segment's differences, valid while `stepping`, for ticks
+     * of step_us (a cache the curve_* functions keep): `own` (active 0) or those core0
+     * prepared for the head keyframe (active: its slot + 1). */
+    uint8_t active;
+    int32_t step_us;
+    int64_t elapsed_us;
+    curve_differences_t own;
+    keyframe_t buffer[CURVE_BUFFER_CAPACITY];
+    int32_t start_position;
+    int32_t start_tangent;
+    /* Each buffered keyframe's segment as core0 prepared it (the slot of buffer[]), and the
+     * keyframe core0 appended last (since the buffer was cleared: has_last), which the next
+     * one's segment starts from (core1 never writes them). core0 writes a slot only when it
+     * appends into it, a slot no keyframe holds; core1 steps the head's differences in place
+     * once its segment started from them (`active`), and is done with them when it pops it. */
+    curve_prepared_t prepared[CURVE_BUFFER_CAPACITY];
+    keyframe_t last;
+    bool has_last;
+    /* A segment started without its differences prepared (a curve's first, or one started
+     * again after the curve was interrupted) prepares them over its first ticks instead
+     * of on one (`warming` counts the ticks of that left: curve.c curve_warm_step), with the
+     * segment's coefficients and a scratch slot meanwhile. */
     curve_coefficients_t coefficients;
     int64_t warm_quotient;
     uint32_t warm_remainder[4];
@@ -262,6 +283,10 @@ typedef struct {
     int64_t holding_corner;    /* holding * corner, the torque above the corner times the speed */
     /* Not in core1.py: encoder_cpr / per_rev reduced (stepper_encoder_ratio). */
     stepper_encoder_ratio_t encoder_ratio;
+    /* Not in core1.py: tick_us / 10^6 reduced (servo_params_finish): the closed loop's
+     * rotor moves velocity * tick_num / tick_den microsteps a tick. */
+    int64_t tick_num;
+    int64_t tick_den;
 } servo_params_t;
 
 /* The RAM variables core0 owns and the calls set (core0.py Device fields). Gains and the
@@ -398,9 +423,18 @@ uint32_t servo_pending_outputs(const servo_state_t *state);
  * the queue and curve clearing, which the caller does). */
 void servo_shift_position(servo_state_t *state, int64_t shift);
 
-/* Curve mode's buffer (core0 calls these with the servo lock held). curve_append of a
- * keyframe that continues a curve which reached its last keyframe exactly on the last tick
- * prepares the new segment there (about 2000 cycles), as that tick had nothing to prepare. */
+/* Curve mode's buffer (core0 calls these with the servo lock held, but
+ * curve_prepare_keyframe). curve_prepare_keyframe derives the segment that ends at
+ * `keyframe` (from the keyframe appended before it) for ticks of tick_us: core0's work,
+ * outside the lock (it reads only what core0 writes); curve_append_prepared appends the
+ * keyframe with it. A keyframe that continues a curve which reached its last keyframe
+ * exactly on the last tick starts its segment there, from what was prepared (or, not
+ * prepared, over the next ticks). curve_append is both in one, for the period the player
+ * last ran at. */
+void curve_prepare_keyframe(const curve_player_t *curve, keyframe_t keyframe, int64_t tick_us,
+                            curve_prepared_t *prepared);
+bool curve_append_prepared(curve_player_t *curve, keyframe_t keyframe,
+                           const curve_prepared_t *prepared);   /* false: full */
 bool curve_append(curve_player_t *curve, keyframe_t keyframe);  /* false: full */
 void curve_clear(curve_player_t *curve);
 void curve_interrupt(curve_player_t *curve);

@@ -107,12 +107,21 @@ static inline uint32_t divide_u32(uint32_t n, uint32_t d, uint32_t shift) {
 }
 
 int64_t stepper_encoder_ratio_microsteps(int64_t shaft, const stepper_encoder_ratio_t *ratio) {
+    uint32_t num = ratio->num;
+    uint32_t den = ratio->den;
+    if (den <= num && ratio->den_shift != STEPPER_NO_SHIFT) {
+        /* an encoder as fine as the microsteps or finer, den a power of two (4000 counts
+         * over 3200 microsteps: 5 / 4): floor(shaft num / den) den = shaft num - t with
+         * t = (shaft num) mod den < den <= num, so the microsteps are
+         * floor((shaft num - t) / num) = shaft - ceil(t / num) = shaft - (t != 0); t is the
+         * low bits of the product, which its wrapping modulo 2^32 leaves alone */
+        uint32_t t = ((uint32_t)shaft * num) & (den - 1u);
+        return shaft - (t != 0u);
+    }
     /* the counts a turn over the microsteps a turn as the reduced num / den: the same
      * floors. |shaft| < 2^32 (within the hard stops), so |shaft| * num is one 32 x 32-bit
      * product (one 32-bit multiply when both are below 2^16), and |count| * den <=
      * |shaft| * num + den; below 2^31 both divide in 32 bits */
-    uint32_t num = ratio->num;
-    uint32_t den = ratio->den;
     uint32_t m = (uint32_t)sci_magnitude64(shaft);
     uint32_t high = 0;
     uint32_t low = (m | num) < 0x10000u ? m * num : sci_mul_32x32(m, num, &high);
