@@ -174,12 +174,12 @@ class ServoParams(ctypes.Structure):
         ("cycle", c_i64), ("full", c_i64), ("holding", c_i64), ("detent", c_i64),
         ("corner", c_i64), ("load_unm", c_i64), ("viscous", Sci), ("accel", Sci),
         ("encoder_cpr", c_i32), ("per_rev", c_i32), ("motor_pins", c_i32),
-        ("pins_level_per_volt", Sci), ("encoder_kind", c_i32), ("encoder_turn", c_i32),
+        ("pins_level_per_volt", Sci),
         ("travel_num", c_i64), ("travel_den", c_i64),
         ("velocity_num", c_i64), ("velocity_den", c_i64), ("reach", c_i32),
         ("sine_k", c_i32), ("full_mask", c_u32), ("cycle_mask", c_u32),
         ("holding_corner", c_i64), ("encoder_ratio", EncoderRatioC), ("tick_num", c_i64),
-        ("tick_den", c_i64),
+        ("tick_den", c_i64), ("encoder_kind", c_i32), ("encoder_turn", c_i32),
     ]
 
 

@@ -465,7 +465,11 @@ static inline void tick_finish(servo_state_t *s, const servo_params_t *p, record
  * steps reaching its field spread evenly over the sub-steps. Returns what the counter
  * counts: the steps issued (open loop) or the encoder in microsteps (closed loop); *count
  * is the shaft's whole microsteps after the tick. */
-static int64_t step_drive(servo_state_t *s, const servo_params_t *p, int64_t *count) {
+/* Inlined into both ticks (the simulated one's and the pins'): a call here costs the
+ * simulated closed loop's costliest tick about 80 cycles. */
+static inline __attribute__((always_inline)) int64_t step_drive(servo_state_t *s,
+                                                                const servo_params_t *p,
+                                                                int64_t *count) {
     int32_t issue = 0;
     if (s->enable == 1) {
         if (p->drive_kind == DRIVE_STEP_OPEN) {

@@ -264,10 +264,6 @@ typedef struct {
      * per volt of output (platform_motor_pins_full over the supply voltage). */
     int32_t motor_pins;
     sci_t pins_level_per_volt;
-    /* Not in core1.py: call 49's kind, and the counts of a turn its angle is in (call 16's
-     * counts per revolution, a closed-loop stepper's microsteps per revolution). */
-    int32_t encoder_kind;
-    int32_t encoder_turn;
     /* Not in core1.py: the tick's two divisions as reduced fractions, set by
      * servo_params_finish from tick_us, steps and window (servo_params_derive calls it), so
      * that the usual periods divide by a small number or not at all. */
@@ -287,6 +283,11 @@ typedef struct {
      * rotor moves velocity * tick_num / tick_den microsteps a tick. */
     int64_t tick_num;
     int64_t tick_den;
+    /* Not in core1.py: call 49's kind, and the counts of a turn its angle is in (call 16's
+     * counts per revolution, a closed-loop stepper's microsteps per revolution); last, out
+     * of the way of the simulated motor's hot fields. */
+    int32_t encoder_kind;
+    int32_t encoder_turn;
 } servo_params_t;
 
 /* The RAM variables core0 owns and the calls set (core0.py Device fields). Gains and the
