@@ -32,9 +32,10 @@ ENDPOINT_TOLERANCE_MM = 0.05
 """The stated tolerance: the executed path passes this close to every programmed end point."""
 
 
-def _usbmotion(*args: str, timeout: float = 240) -> subprocess.CompletedProcess[str]:
+def _usbmotion(*args: str, timeout: float = 240,
+               cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "usbmotion", *args], capture_output=True,
-                          text=True, timeout=timeout, check=False)
+                          text=True, timeout=timeout, check=False, cwd=cwd)
 
 
 def test_full_home_zeroes_every_axis_on_its_latched_switch_edge() -> None:
@@ -95,7 +96,9 @@ def test_usbmotion_run_a_demo_as_a_user_does(tmp_path: Path) -> None:
     program = tmp_path / "square.ngc"
     program.write_text(demo_path(1).read_text())
     report_path = tmp_path / "report.json"
-    done = _usbmotion("run", str(program), "--report", str(report_path), "-q")
+    work = tmp_path / "work"
+    work.mkdir()
+    done = _usbmotion("run", str(program), "--report", str(report_path), "-q", cwd=work)
     assert done.returncode == 0, done.stderr
     assert "following error" in done.stdout
     report = json.loads(report_path.read_text())
@@ -109,8 +112,8 @@ def test_usbmotion_run_a_demo_as_a_user_does(tmp_path: Path) -> None:
     assert abs(report["executed_time_s"] - report["planned_time_s"]) < 0.01
     assert report["ignored_words"] == []  # G94 is acted on (G93 is inverse time)
     assert report["stop_reason"] == "completed"
-    plot = tmp_path / "square.png"
-    assert plot.stat().st_size > 20_000, "a real plot was written next to the program"
+    plot = work / "square.png"
+    assert plot.stat().st_size > 20_000, "a real plot was written in the working directory"
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
