@@ -115,8 +115,8 @@ def test_the_counter_counts_on_across_turns_both_ways_and_follows_a_move(chip: P
     here = position(chip)
     base = true_angle(start, magnet, CPR) - start   # counter = shaft + base
     chip.feed(ABSOLUTE_GAINS + "7 1\n29 1000\n21 1\n")
-    up = cosine(here, 3 * CPR + 500, 3000)          # 3.26 turns up
-    down = cosine(up[-1], -5 * CPR - 300, 4000)     # 5.16 turns down
+    up = cosine(here, 2 * CPR + 500, 2100)          # 2.26 turns up
+    down = cosine(up[-1], -3 * CPR - 300, 2450)     # 3.16 turns down
     peaks = []
     for move in (up, down):
         lines = follow(chip, move, 150)
