@@ -1373,14 +1373,22 @@ def _url(reader: _Reader) -> str | None:
     return url
 
 
+def _one_of(reader: _Reader, key: str, choices: tuple[str, ...], *, default: str,
+            what: str, meaning: str) -> str:
+    """A key that names one of ``choices`` (``what`` they are, ``meaning`` what each means,
+    for the error)."""
+    allowed = ", ".join(repr(choice) for choice in choices) + f": {meaning}"
+    value = reader.string(key, default=default, allowed=allowed)
+    if value not in choices:
+        reader.fail(key, f"{value!r} is not {what}; allowed: {allowed}")
+    return str(value)
+
+
 def _kind(reader: _Reader) -> str:
     """The axis's ``kind``, and no key of the other kind in its table."""
-    kinds = ", ".join(repr(kind) for kind in AXIS_KINDS)
-    allowed = (f"{kinds}: a DC motor with an encoder and the device's PID, or a stepper on a"
-               " step/direction driver")
-    kind = reader.string("kind", default="servo", allowed=allowed)
-    if kind not in AXIS_KINDS:
-        reader.fail("kind", f"{kind!r} is not a kind of axis; allowed: {allowed}")
+    kind = _one_of(reader, "kind", AXIS_KINDS, default="servo", what="a kind of axis",
+                   meaning="a DC motor with an encoder and the device's PID, or a stepper on"
+                   " a step/direction driver")
     if kind == "stepper":
         for key in _SERVO_ONLY_KEYS:
             if reader.has(key):
@@ -1408,11 +1416,9 @@ def _stepper(reader: _Reader, tick_us: int, motion_ticks: int, max_velocity: flo
              steps_per_mm: float) -> StepperConfig:
     """A stepper axis's motor and driver, and its step rate checked against the driver's
     timing."""
-    loops = ", ".join(repr(loop) for loop in STEPPER_LOOPS)
-    loop = reader.string("loop", default="open", allowed=f"{loops}: the position is the steps"
-                         " issued (open), or an encoder's on the shaft (closed)")
-    if loop not in STEPPER_LOOPS:
-        reader.fail("loop", f"{loop!r} is not a stepper loop; allowed: {loops}")
+    loop = _one_of(reader, "loop", STEPPER_LOOPS, default="open", what="a stepper loop",
+                   meaning="the position is the steps issued (open), or an encoder's on the"
+                   " shaft (closed)")
     step_spec = BY_NUMBER[CallNumber.SET_STEPPER].params
     full = reader.integer("full_steps_per_rev", default=200, minimum=step_spec[0].minimum,
                           maximum=step_spec[0].maximum,
@@ -1580,12 +1586,10 @@ def _encoder(reader: _Reader, sim: SimMotorConfig | SimStepperConfig | None, *,
     """The axis's ``encoder``: ``None`` for an incremental one, else its turn (a servo's
     ``encoder_counts_per_rev``, or its simulated motor's ``counts_per_revolution``; a
     closed-loop stepper's microsteps per revolution) and the simulated magnet's angle."""
-    kinds = ", ".join(repr(kind) for kind in ENCODER_KINDS)
-    allowed = (f"{kinds}: counting from power-up (homing finds where the axis is), or the"
-               " shaft's angle within a turn from power-up (homing names the turn)")
-    kind = reader.string("encoder", default="incremental", allowed=allowed)
-    if kind not in ENCODER_KINDS:
-        reader.fail("encoder", f"{kind!r} is not a kind of encoder; allowed: {allowed}")
+    kind = _one_of(reader, "encoder", ENCODER_KINDS, default="incremental",
+                   what="a kind of encoder", meaning="counting from power-up (homing finds"
+                   " where the axis is), or the shaft's angle within a turn from power-up"
+                   " (homing names the turn)")
     magnet_deg = 0.0 if sim is None else sim.magnet_angle_deg
     if kind == "incremental":
         if magnet_deg != 0.0:
