@@ -331,8 +331,8 @@ class DeviceHomingIO:
         here = client.status().actual_counts
         # off the switch from its edge (with an absolute encoder the edge reads the
         # switch's position plus its distance from the turn boundary)
-        target = (switch_counts + from_turn
-                  - config.direction * config.scale.to_counts(pull_off_mm))
+        target = config.scale.to_counts(config.switch_mm - config.direction * pull_off_mm)
+        target += from_turn
         values: list[int] = []
         if target != here:
             profile = trapezoid_profile(float(target - here),
