@@ -1412,6 +1412,14 @@ def _kind(reader: _Reader) -> str:
     return str(kind)
 
 
+def _call_integer(reader: _Reader, key: str, call: CallNumber, index: int, *, default: int,
+                  unit: str) -> int:
+    """A key that a call's parameter ``index`` carries as it is: the call's range."""
+    param = BY_NUMBER[call].params[index]
+    return reader.integer(key, default=default, minimum=param.minimum, maximum=param.maximum,
+                          unit=unit)
+
+
 def _stepper(reader: _Reader, tick_us: int, motion_ticks: int, max_velocity: float,
              steps_per_mm: float) -> StepperConfig:
     """A stepper axis's motor and driver, and its step rate checked against the driver's
@@ -1419,13 +1427,10 @@ def _stepper(reader: _Reader, tick_us: int, motion_ticks: int, max_velocity: flo
     loop = _one_of(reader, "loop", STEPPER_LOOPS, default="open", what="a stepper loop",
                    meaning="the position is the steps issued (open), or an encoder's on the"
                    " shaft (closed)")
-    step_spec = BY_NUMBER[CallNumber.SET_STEPPER].params
-    full = reader.integer("full_steps_per_rev", default=200, minimum=step_spec[0].minimum,
-                          maximum=step_spec[0].maximum,
-                          unit="the motor's full steps per revolution; 200 = 1.8 degrees")
-    microsteps = reader.integer("microsteps", default=16, minimum=step_spec[1].minimum,
-                                maximum=step_spec[1].maximum,
-                                unit="microsteps per full step, as set on the driver")
+    full = _call_integer(reader, "full_steps_per_rev", CallNumber.SET_STEPPER, 0, default=200,
+                         unit="the motor's full steps per revolution; 200 = 1.8 degrees")
+    microsteps = _call_integer(reader, "microsteps", CallNumber.SET_STEPPER, 1, default=16,
+                               unit="microsteps per full step, as set on the driver")
     encoder: int | None = None
     if loop == "closed":
         encoder = reader.integer(
@@ -1436,13 +1441,10 @@ def _stepper(reader: _Reader, tick_us: int, motion_ticks: int, max_velocity: flo
         reader.fail("encoder_counts_per_rev", "an open-loop stepper reads no encoder (its"
                     " position is the steps issued); allowed: loop = 'closed' with it, or no"
                     " encoder_counts_per_rev")
-    timing = BY_NUMBER[CallNumber.SET_STEP_TIMING].params
-    pulse = reader.integer("step_pulse_ns", default=2000, minimum=timing[0].minimum,
-                           maximum=timing[0].maximum,
-                           unit="ns the step pulse is high (and at least as long low)")
-    setup = reader.integer("dir_setup_ns", default=1000, minimum=timing[1].minimum,
-                           maximum=timing[1].maximum,
-                           unit="ns from a direction change to the next step edge")
+    pulse = _call_integer(reader, "step_pulse_ns", CallNumber.SET_STEP_TIMING, 0, default=2000,
+                          unit="ns the step pulse is high (and at least as long low)")
+    setup = _call_integer(reader, "dir_setup_ns", CallNumber.SET_STEP_TIMING, 1, default=1000,
+                          unit="ns from a direction change to the next step edge")
     stepper = StepperConfig(loop, full, microsteps, encoder, pulse, setup)
     per_tick = stepper.steps_per_tick(tick_us)
     if per_tick < 1:
@@ -1932,15 +1934,14 @@ def _sim_stepper(reader: _Reader, travel: tuple[float, float], counts_per_mm: fl
         "update_interval_dms", default=min(int(d["update_interval_dms"]), servo_interval_dms),
         minimum=1, maximum=servo_interval_dms,
         unit="tenths of a millisecond, at most servo_interval_dms; 1 (100 us) suits a stepper")
-    spec = BY_NUMBER[CallNumber.SET_SIM_STEPPER].params
-    holding = table.integer("holding_torque_mnm", default=int(d["holding_torque_mnm"]),
-                            minimum=spec[0].minimum, maximum=spec[0].maximum,
+    holding = _call_integer(table, "holding_torque_mnm", CallNumber.SET_SIM_STEPPER, 0,
+                            default=int(d["holding_torque_mnm"]),
                             unit="mNm at the driver's current")
     detent = table.integer("detent_torque_mnm", default=min(holding, int(d["detent_torque_mnm"])),
-                           minimum=spec[1].minimum, maximum=holding,
-                           unit="mNm unpowered, at most holding_torque_mnm")
-    corner = table.integer("corner_rpm", default=int(d["corner_rpm"]), minimum=spec[2].minimum,
-                           maximum=spec[2].maximum,
+                           minimum=BY_NUMBER[CallNumber.SET_SIM_STEPPER].params[1].minimum,
+                           maximum=holding, unit="mNm unpowered, at most holding_torque_mnm")
+    corner = _call_integer(table, "corner_rpm", CallNumber.SET_SIM_STEPPER, 2,
+                           default=int(d["corner_rpm"]),
                            unit="rpm above which the torque falls as 1/speed")
     values: dict[str, float] = {}
     for key, call in SIM_MOTOR_CALLS:

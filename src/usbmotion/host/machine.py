@@ -540,7 +540,8 @@ def _set_drive(client: DeviceClient, axis: AxisConfig, *, servo_interval_dms: in
 def _set_encoder(client: DeviceClient, axis: AxisConfig) -> None:
     """The axis's encoder (call 49, servo disabled), sent only when it differs from the
     device's: an absolute one makes the counter the angle within a turn, so the device's
-    homed mark is cleared then. A servo's absolute encoder gets its turn (call 16) first. A
+    homed mark is cleared then. A real servo's absolute encoder gets its turn (call 16)
+    first (a simulated motor's, the same by the file's check, went with its values). A
     device that does not know call 49 reads an incremental encoder."""
     absolute = axis.absolute_encoder
     try:
@@ -553,7 +554,7 @@ def _set_encoder(client: DeviceClient, axis: AxisConfig) -> None:
         if now.absolute:
             client.set_encoder(0, 0)
         return
-    if axis.stepper is None:
+    if axis.stepper is None and axis.sim is None:  # a simulated motor's was sent with it
         client.set_sim_counts_per_revolution(absolute.turn_counts)
     if (now.kind, now.angle) != (1, absolute.magnet_counts):
         client.set_encoder(1, absolute.magnet_counts)
