@@ -40,8 +40,8 @@ USAGE_ERRORS = [
      " (usbmotion --help)"),
     (["sim", "--pty", "abc"], "usbmotion sim: --pty 'abc' is not a whole number (usbmotion"
      " sim --help)"),
-    (["run", "x.ngc", "--from-line", "0"], "usbmotion run: --from-line: input should be greater"
-     " than or equal to 1 (usbmotion run --help)"),
+    (["run", "x.ngc", "--from-line", "0"], "usbmotion run: --from-line 0 is out of range;"
+     " allowed: 1 or more (usbmotion run --help)"),
     (["sim", "--pty=abc"], "usbmotion sim: --pty 'abc' is not a whole number (usbmotion"
      " sim --help)"),
     (["sim", "--pty"], "usbmotion sim: option --pty requires an argument (usbmotion sim"

@@ -158,7 +158,7 @@ def test_usbmotion_run_from_line(tmp_path: Path) -> None:
     assert done.exit_code == 0, done.output
     assert "run from line 12" in done.output and "completed" in done.output
     for line, words in (("99", "allowed 1..16"), ("16", "makes no move"),
-                        ("0", "greater than or equal to 1")):
+                        ("0", "--from-line 0 is out of range; allowed: 1 or more")):
         done = CliRunner().invoke(app, [*base, "--from-line", line])
         assert done.exit_code == 2, done.output
         assert words in done.output, done.output

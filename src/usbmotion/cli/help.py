@@ -32,14 +32,27 @@ from typer._click.exceptions import (
     NoSuchOption,
     UsageError,
 )
+from typer._click.types import FloatParamType, IntParamType, ParamType, StringParamType
 from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
-from typer.models import CommandFunctionType
+from typer.models import CommandFunctionType, TyperPath
 
 from usbmotion.cli.exits import EXIT_BAD_INPUT, EXIT_FAULT, fail
 from usbmotion.cli.machines import command_running, unreadable
 
 _NAMED_TYPES = {"path": "PATH", "int": "N", "float": "NUMBER", "str": "TEXT"}
 """The placeholder of an option's value by its type, when the option names none."""
+
+
+def _kind(param: Any) -> str:
+    """What a parameter's value is: ``path``, ``int``, ``float``, ``str``, or another."""
+    kind: ParamType = param.type
+    if isinstance(kind, TyperPath):
+        return "path"
+    for family, name in ((IntParamType, "int"), (FloatParamType, "float"),
+                         (StringParamType, "str")):
+        if isinstance(kind, family):
+            return name
+    return kind.name
 
 
 def _clean(params: list[Any]) -> list[Any]:
@@ -50,7 +63,7 @@ def _clean(params: list[Any]) -> list[Any]:
             if param.is_flag or param.count:
                 param.metavar = ""
             else:
-                bare = param.bare_type() if not param.type_descriptor.is_path else "path"
+                bare = {"integer": "int", "text": "str"}.get(param.type.name, param.type.name)
                 param.metavar = _NAMED_TYPES.get(bare.removeprefix("list[").removesuffix("]"),
                                                  "VALUE")
         elif isinstance(param, TyperArgument) and param.name:
@@ -155,12 +168,39 @@ def _bad_value(error: typer.BadParameter, args: list[str]) -> str:
         hint = _names(param)
     named = " / ".join(hint) if isinstance(hint, Sequence) and not isinstance(
         hint, str) else hint
-    if isinstance(param, TyperOption) and not param.type_descriptor.is_path:
-        wanted = _NUMBER_WORDS.get(param.bare_type())
+    if isinstance(param, TyperOption):
+        kind = _kind(param)
+        wanted = _NUMBER_WORDS.get(kind)
         given = _given(param.opts, args)
-        if wanted is not None and given is not None and not _parses(given, param.bare_type()):
+        if wanted is not None and given is not None and not _parses(given, kind):
             return f"{_names(param)} {given!r} is not {wanted}"
+        allowed = _range_words(error.message)
+        if allowed is not None and given is not None:
+            return f"{_names(param)} {given} is out of range; allowed: {allowed}"
     return f"{_plain(named)}: {_plain(error.message)}" if named else _plain(error.message)
+
+
+_NUMBER = r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?"
+_RANGE = re.compile(rf"is not in the range (?:(?P<low>{_NUMBER})(?P<lop><=?))?x"
+                    rf"(?:(?P<hop>[<>]=?)(?P<high>{_NUMBER}))?\.?$")
+"""The command-line library's message for a number outside an option's range."""
+
+
+def _range_words(message: str) -> str | None:
+    """What an option's range allows, in words (``1 or more``, ``1 to 16``), from the
+    command-line library's message of a value outside it, or None for another message."""
+    found = _RANGE.search(message)
+    if found is None:
+        return None
+    low, lop, hop, high = found.group("low", "lop", "hop", "high")
+    if low is not None and high is not None:
+        ends = ("" if lop == "<=" else "above ", "" if hop == "<=" else "below ")
+        return f"{ends[0]}{low} to {ends[1]}{high}"
+    if hop is not None and high is not None:
+        if hop.startswith(">"):
+            return f"{high} or more" if hop == ">=" else f"more than {high}"
+        return f"{high} or less" if hop == "<=" else f"less than {high}"
+    return None
 
 
 def _parses(text: str, kind: str) -> bool:
@@ -202,12 +242,12 @@ def _path_in_args(root: Any, args: list[str]) -> str:
 def _unreadable_argument(context: Any, command: Any) -> tuple[str, str] | None:
     """The first file argument given that cannot be read: (path, why)."""
     for param in command.get_params(context):
-        if not isinstance(param, TyperArgument) or not param.type_descriptor.is_path:
+        if not isinstance(param, TyperArgument) or _kind(param) != "path":
             continue
         value = context.params.get(param.name or "")
         for each in value if isinstance(value, list | tuple) else [value]:
-            if isinstance(each, Path):
-                problem = unreadable(each)
+            if isinstance(each, str | Path):
+                problem = unreadable(Path(each))
                 if problem is not None:
                     return str(each), problem
     return None
