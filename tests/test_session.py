@@ -34,7 +34,9 @@ from usbmotion.session import (
     home_position_mm,
 )
 from usbmotion.session.live import LiveSnapshot as Progress
+from usbmotion.session.rest import STOP_LEAD_S
 from usbmotion.session.state import UNITS, Event, StateMachine
+from usbmotion.session.streaming import RunStreams
 from usbmotion.sim.machine import connect_session
 from usbmotion.sim.world import SimWorld
 
@@ -281,6 +283,38 @@ def _stop_mid_run(session: MachineSession, at_s: float, *, twice: bool = False) 
     report, trace = session.run(session.prepare("line.ngc", text=LINE), on_progress=progress)
     assert asked[0]
     session.last = (report, trace)  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("stall_s", [0.02, 0.2])
+def test_a_stop_that_reaches_the_devices_late_still_decelerates_in_full(
+        near: MachineConfig, stall_s: float, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The host held up between planning the stop and sending it (20 ms: part of the 40 ms
+    deceleration already past when it arrives; 200 ms: all of it): the axis runs on at speed
+    until the stop arrives, then decelerates in full from there (call 50), where call 38
+    would have cut the deceleration short, down to a dead stop from 20 mm/s."""
+    stop = RunStreams.stop
+
+    def held_up(streams: RunStreams, tick: int, index: int, rows: np.ndarray) -> int:
+        streams.machine.clock.sleep(stall_s)
+        return stop(streams, tick, index, rows)
+
+    monkeypatch.setattr(RunStreams, "stop", held_up)
+    with connect_session(near) as session:
+        session.home()
+        devices = _devices(session)
+        _stop_mid_run(session, 3.0)
+        report, _ = session.last  # type: ignore[attr-defined]
+        planned = 20.0**2 / (2 * 500.0)
+        run_on = 20.0 * (stall_s - STOP_LEAD_S)
+        assert report.stop_planned_mm == pytest.approx(planned, rel=0.05)
+        assert run_on + 0.8 * planned <= report.stop_distance_mm <= run_on + planned + 0.1, (
+            "the run-on at speed, then the whole deceleration")
+        x = next(axis for axis in report.axes if axis.name == "X")
+        assert x.max_error_counts <= 30, "no dead stop from speed: the error stays small"
+        assert any("decelerated in full" in note for note in report.notes), report.notes
+        for name, device in devices.items():
+            state = device.state
+            assert state.enable == 1 and state.queued == 0 and state.velocity == 0, name
 
 
 def test_a_stop_mid_run_decelerates_along_the_path_within_v2_over_2a(

@@ -193,6 +193,7 @@ DEBUG_LINES = [
     ([], "35 0", "MOTION STATS RESET"),
     ([], "37 -3", "POSITION SHIFTED BY -3"),
     ([], "38 0 2 5 -5", "REPLACED 0 0 2 CRC 2082170553"),
+    ([], "50 0 2 5 -5", "STOPPED 0 0 2 0 CRC 2082170553"),
     ([], "39 1", "MOTOR MODIFIED TO 1"),
     ([], "40 2 -250", "SIM PROBE MODIFIED TO 2 -250"),
     (["43 1"], "42 0 1000 7", "OUTPUT 0 TO 1000 AT 7 FREE 15"),

@@ -593,6 +593,36 @@ def test_replacing_the_queue_future(driver: Driver, scalar: int) -> None:
     assert_same(driver, steps)
 
 
+@pytest.mark.parametrize("scalar", [1, 3])
+def test_stopping_on_time_and_late(driver: Driver, scalar: int) -> None:
+    """Call 50 on time (as call 38), late by one value and by more than its length (every
+    value offset from the value due), in velocity mode (delayed, not offset), from an empty
+    queue (offset from the held position), an offset beyond int32, and too many to fit."""
+    ramp = " ".join(str(3 * k) for k in range(1, 401))
+    steps: list[Step] = [lines("8 50 1", f"6 {scalar}")]
+    clock = 0
+    for lead in (17, 0, -1, -25):
+        steps += [lines("3 0", "23 0", "3 1", f"1 400 {ramp}"), Run(60 * scalar + 1)]
+        tick = clock + 60 * scalar + 1 + (scalar - 1) + lead * scalar
+        steps += [lines(f"50 {tick} 5 190 193 195 196 196", "2 -1", "20 -1"), Run(9 * scalar)]
+        clock += 69 * scalar + 1
+    steps += [Run(100), lines(f"50 {clock + 10} 2 7 8", "20 -1"), Run(50),
+              lines("3 0", "7 2", "3 1", "1 50 " + " ".join(["400"] * 50)), Run(20),
+              lines("50 3 3 300 200 0", "2 -1", "20 -1"), Run(20), lines("20 -1"),
+              lines("3 0", "7 1", "23 2147483000", "3 1", "1 3 2147483000 2147483100 2147483200"),
+              Run(2), lines("50 0 2 -5 2147483647", "2 -1", "20 -1"),
+              lines("3 0", "23 0", "3 1", "1 1000 " + " ".join(["5"] * 1000)), Run(3),
+              lines(f"50 {10 ** 6} 991 " + " ".join(["1"] * 991), "2 -1"), Run(5),
+              lines("7 3", "50 0 1 5")]
+    printed = assert_same(driver, steps)
+    text = [line.decode() for _, line in printed]
+    acks = [[int(v) for v in line.split()[1:5]] for line in text if line.startswith("STOPPED")]
+    assert [ack[1] for ack in acks[:4]] == [0, 0, 1, 25]  # late, in value periods
+    assert [ack[3] for ack in acks] == [0, 0, -4, -4, 185, 0]  # offset: late, mode 1 only
+    assert acks[0][0] == 17 and acks[4][1] > 0 and acks[5][1] > 0
+    assert text.count("E50") == 2
+
+
 @settings(max_examples=60, deadline=None)
 @given(*EXTREME_PARAMETERS)
 def test_extreme_parameters(driver: Driver, sci: list[tuple[int, int]], interval_dms: int,

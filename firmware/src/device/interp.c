@@ -1461,6 +1461,60 @@ static void call_replace_from(const call_t *call) {
     }
 }
 
+/* Call 50: as call 38 on time; late, every value from the next motion update, offset in
+ * mode 1 so that the axis goes on from the value the queue had due then. */
+static void call_stop_from(const call_t *call) {
+    if (refused_in_curve_mode(CALL_STOP_FROM)) {
+        return;
+    }
+    int64_t tick = call->args[0];
+    uint32_t count = (uint32_t)call->args[1];
+    const int32_t *values = interp_items;
+    platform_servo_lock();
+    int64_t queued = mq_level();
+    int64_t kept = 0;
+    int64_t late = 0;
+    int64_t offset = 0;
+    if (servo_state.enable == 1) {
+        int64_t clock = servo_state.clock;
+        int64_t start = servo_state.start;
+        int64_t first = start >= 0 ? (start > clock ? start : clock)
+                                   : clock + servo_state.motion_left;
+        int64_t ahead = ceil_div(tick - first, vars.scalar);
+        late = ceil_div(first - tick, vars.scalar);
+        kept = ahead < 0 ? 0 : (ahead < queued ? ahead : queued);
+        late = late < 0 ? 0 : late;
+        if (late > 0 && count > 0 && servo_state.mode == MODE_POSITION) {
+            int64_t due = queued > 0 ? mq_peek(0) : servo_state.desired;
+            offset = due - values[0];
+        }
+    }
+    bool refused = kept + count > TABLE_QUEUE_CAPACITY;
+    for (uint32_t i = 0; i < count && offset != 0 && !refused; i++) {
+        int64_t moved = (int64_t)values[i] + offset;
+        refused = moved < INT32_MIN || moved > INT32_MAX;
+    }
+    if (refused) {
+        platform_servo_unlock();
+        print_plain(call_table[CALL_STOP_FROM].refusal);
+        return;
+    }
+    uint32_t crc = debug_flags[CALL_STOP_FROM] == 1 ? values_crc32(values, count) : 0;
+    mq_truncate((uint32_t)kept);
+    uint32_t locked = count < REPLACE_LOCKED_VALUES ? count : REPLACE_LOCKED_VALUES;
+    for (uint32_t i = 0; i < locked; i++) {
+        (void)mq_try_add((int32_t)(values[i] + offset));
+    }
+    platform_servo_unlock();
+    for (uint32_t i = locked; i < count; i++) {
+        (void)mq_try_add((int32_t)(values[i] + offset));
+    }
+    if (debug_flags[CALL_STOP_FROM] == 1) {
+        debug_line(CALL_STOP_FROM, (field_t[]){NUMBER(kept), NUMBER(late), NUMBER(count),
+                                               NUMBER(offset), NUMBER(crc)});
+    }
+}
+
 #define HANDLER(NAME, name) [CALL_##NAME] = call_##name,
 static const handler_t handlers[TABLE_CALLS] = {TABLE_CALL_LIST(HANDLER)};
 #undef HANDLER

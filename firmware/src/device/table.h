@@ -19,7 +19,7 @@
 #define TABLE_OUTPUT_QUEUE_CAPACITY 16u
 #define TABLE_DEFAULT_DEVICE_NAME "GENERIC USB MOTION DEVICE"
 #define TABLE_HUGE_DIGITS 18u
-#define TABLE_CALLS 50u
+#define TABLE_CALLS 51u
 #define TABLE_MAX_PARAMS 4u
 #define TABLE_MAX_DEBUG_FLAG 2u
 #define TABLE_FAULTS 6u
@@ -103,6 +103,7 @@
 #define CALL_SET_SIM_STEPPER 47
 #define CALL_STEPS 48
 #define CALL_SET_ENCODER 49
+#define CALL_STOP_FROM 50
 
 /* Every call as X(NAME, name), in number order: the firmware builds its handler table
  * from this list (a handler call_<name> for each CALL_<NAME>), so none is left out. */
@@ -156,7 +157,8 @@
     X(SET_STEP_TIMING, set_step_timing) \
     X(SET_SIM_STEPPER, set_sim_stepper) \
     X(STEPS, steps) \
-    X(SET_ENCODER, set_encoder)
+    X(SET_ENCODER, set_encoder) \
+    X(STOP_FROM, stop_from)
 
 /* One supporting input: its name and inclusive range (Param). */
 typedef struct {

@@ -473,6 +473,15 @@ const call_spec_t call_table[TABLE_CALLS] = {
         .query_reply = {"ENCODER {kind} {angle} {zero}", 3, 0x0},
         .debug = {[1] = {"ENCODER MODIFIED TO {kind} {angle}", 2, 0x0}},
     },
+    [50] = {
+        .name = "STOP_FROM",
+        .param_count = 2,
+        .params = {{"tick", 0, 2147483647}, {"count", 0, 1000}},
+        .counted = true,
+        .item = {"value", INT32_MIN, 2147483647},
+        .debug = {[1] = {"STOPPED {kept} {late} {added} {offset} CRC {crc}", 5, 0x0}},
+        .refusal = "E50",
+    },
 };
 
 const char *const fault_names[TABLE_FAULTS] = {"none", "watchdog", "following error", "limit switch", "internal error", "encoder lost"};

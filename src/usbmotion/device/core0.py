@@ -64,6 +64,8 @@ from usbmotion.protocol.table import (
     DIAGNOSTICS,
     DIGITAL_OUTPUTS,
     ERR,
+    INT32_MAX,
+    INT32_MIN,
     MAX_LINE_BYTES,
     OUTPUT_COUNT,
     OUTPUT_FULL,
@@ -878,6 +880,36 @@ class Device:
         if self._debug.get(38, 0) == 1:
             crc = zlib.crc32(np.asarray(added, dtype="<i4").tobytes())
             self._debug_line(38, kept, skipped, len(added), crc)
+
+    def _call_50(self, call: Call) -> None:
+        self._refuse_in_curve_mode()
+        state = self._state
+        tick = call.args[0]
+        values = call.args[2:]
+        queued = int(state[core1.S_QUEUE_COUNT])
+        kept, late, offset = 0, 0, 0
+        if state[core1.S_ENABLE] == 1:
+            clock = int(state[core1.S_CLOCK])
+            start = int(state[core1.S_START])
+            first = max(start, clock) if start >= 0 else clock + int(state[core1.S_MOTION_LEFT])
+            scalar = self._scalar
+            kept = min(queued, max(0, -(-(tick - first) // scalar)))
+            late = max(0, -(-(first - tick) // scalar))
+            if late and values and state[core1.S_MODE] == MODE_POSITION:
+                due = (int(self._queue[int(state[core1.S_QUEUE_HEAD])]) if queued
+                       else int(state[core1.S_DESIRED]))
+                offset = due - values[0]
+        added = [value + offset for value in values]
+        if (kept + len(added) > QUEUE_CAPACITY
+                or (offset and not INT32_MIN <= min(added) <= max(added) <= INT32_MAX)):
+            self._print("E50")
+            return
+        kept_values = self.queue_values()[:kept]
+        self._clear_queue()
+        self._push((*kept_values, *added))
+        if self._debug.get(50, 0) == 1:
+            crc = zlib.crc32(np.asarray(values, dtype="<i4").tobytes())
+            self._debug_line(50, kept, late, len(added), offset, crc)
 
     def _call_2(self, call: Call) -> None:
         queued = int(self._state[core1.S_QUEUE_COUNT])

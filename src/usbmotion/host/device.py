@@ -57,7 +57,7 @@ from usbmotion.protocol import (
     values_crc32,
 )
 from usbmotion.protocol import CallNumber as C
-from usbmotion.protocol.replies import read_replaced
+from usbmotion.protocol.replies import Stopped, read_replaced, read_stopped
 from usbmotion.protocol.table import DIAGNOSTICS, HOMED_MARKER_CALL, RESYNC_CALL
 
 GAIN_CALLS = (C.SET_PROPORTIONAL_GAIN, C.SET_INTEGRAL_GAIN, C.SET_DERIVATIVE_GAIN)
@@ -169,6 +169,7 @@ class DeviceClient:
         self.stray_lines = 0
         """Lines :meth:`read_pending` found that no call was waiting for (dropped)."""
         self._replace_acknowledged = False
+        self._stop_acknowledged = False
         self._answer_owed = False
         """An answer did not come in time: it may still come, so the next exchange first
         brings the link back in step (:meth:`_realign`)."""
@@ -616,6 +617,36 @@ class DeviceClient:
                 f" sent ({len(values)} values)", device=self.name, call=C.REPLACE_FROM)
         return replaced
 
+    def stop_from(self, tick: int,
+                  values: Sequence[int] | npt.NDArray[np.integer]) -> Stopped:
+        """Call 50: the queue's future from device tick ``tick`` becomes the stop
+        ``values``, as :meth:`replace_from` does when the line comes in time; when it comes
+        late, every value is used from the next motion update, offset (mode 1) so that the
+        axis decelerates from where it had got to (:class:`Stopped` says how late, and by how
+        much). The device's acknowledgement (debug flag 1, set on first use) is checked
+        against what was sent.
+
+        Raises:
+            QueueFullError: the device answered ``E50`` (nothing changed).
+            LinkCorruptedError: the acknowledgement does not match the values sent.
+        """
+        if not self._stop_acknowledged:
+            self.set_debug_flag(C.STOP_FROM, 1)
+            self._stop_acknowledged = True
+        self.take_debug_lines(C.STOP_FROM)
+        self._confirm(encode_counted(C.STOP_FROM, (tick,), values))
+        acks = self.take_debug_lines(C.STOP_FROM)
+        if len(acks) != 1:
+            raise LinkCorruptedError(
+                f"{self.name}: call 50 was acknowledged {len(acks)} times", device=self.name,
+                call=C.STOP_FROM)
+        stopped, crc = read_stopped(acks[0].values)
+        if stopped.added != len(values) or crc != values_crc32(values):
+            raise LinkCorruptedError(
+                f"{self.name}: call 50 acknowledged {acks[0].line!r}, which is not what was"
+                f" sent ({len(values)} values)", device=self.name, call=C.STOP_FROM)
+        return stopped
+
     def queue_status(self) -> tuple[int, int]:
         """Call 2: (values queued, free slots)."""
         queued, free = self.query(C.MOTION_QUEUE, -1).values
@@ -1046,6 +1077,7 @@ __all__ = [
     "ProbeState",
     "Replaced",
     "Status",
+    "Stopped",
     "SwitchEdge",
     "from_sci",
     "to_sci",

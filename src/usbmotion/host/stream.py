@@ -32,7 +32,7 @@ from usbmotion.errors import (
     UnexpectedReplyError,
 )
 from usbmotion.hermite import Keyframe
-from usbmotion.host.device import DeviceClient
+from usbmotion.host.device import DeviceClient, Stopped
 from usbmotion.protocol import (
     CURVE_BUFFER_CAPACITY,
     QUEUE_CAPACITY,
@@ -251,6 +251,30 @@ class SetpointStream:
             self.replace_future(index, array, sent=count,
                                 queued=replaced.kept + replaced.added)
             return count
+
+    def stop_from(self, tick: int, index: int,
+                  values: Sequence[int] | npt.NDArray[np.integer]) -> Stopped:
+        """Replace the device's queued future from device tick ``tick`` (when value
+        ``index`` is due) by the stop ``values``, all in one call 50, which is delayed
+        rather than cut short when it arrives late (:meth:`DeviceClient.stop_from`); the
+        stream's values from ``index`` become the values the device took (offset as it
+        offset them). Returns what the device did.
+
+        Raises:
+            ArgumentError: ``index`` beyond the values, or more values than a queue holds.
+            QueueFullError: refused (the values and those kept do not fit the queue).
+            LinkCorruptedError, DeviceTimeoutError, LinkLostError: as
+                :meth:`DeviceClient.stop_from`; the stream's account is then unchanged.
+        """
+        array = np.asarray(values, dtype=np.int64)
+        if not 0 <= index <= self.total or array.size > QUEUE_CAPACITY:
+            raise ArgumentError(f"stop_from index {index!r} (of {self.total}) or"
+                                f" {array.size} values (at most {QUEUE_CAPACITY})",
+                                reason="index")
+        stopped = self.client.stop_from(tick, array)
+        self.replace_future(index, array + stopped.offset, sent=int(array.size),
+                            queued=stopped.kept + stopped.added)
+        return stopped
 
     def replace_future(self, index: int, values: Sequence[int] | npt.NDArray[np.integer],
                        *, sent: int, queued: int | None = None) -> None:

@@ -63,6 +63,7 @@ class CallNumber(IntEnum):
     SET_SIM_STEPPER = 47
     STEPS = 48
     SET_ENCODER = 49
+    STOP_FROM = 50
 
 
 class ControlMode(IntEnum):

@@ -72,6 +72,10 @@ REPLACED = _checked(_debug_template(CallNumber.REPLACE_FROM, 1), "kept", "skippe
                     "crc")
 """Call 38's acknowledgement (debug flag 1) and the fields it carries."""
 
+STOPPED = _checked(_debug_template(CallNumber.STOP_FROM, 1), "kept", "late", "added",
+                   "offset", "crc")
+"""Call 50's acknowledgement (debug flag 1) and the fields it carries."""
+
 
 def _read(template: Template, values: Sequence[int]) -> Mapping[str, int]:
     """The values of a line of ``template`` by field name.
@@ -365,6 +369,19 @@ class Replaced:
 
 
 @dataclass(frozen=True, slots=True)
+class Stopped:
+    """What call 50 did: queued values kept (due before the tick), the value periods the
+    stop came late (0: on time), the values added (all of them) and the counts each was
+    offset by (mode 1, late: where the axis had got to), so the axis rests that far beyond
+    the stop's last value."""
+
+    kept: int
+    late: int
+    added: int
+    offset: int
+
+
+@dataclass(frozen=True, slots=True)
 class MotionStats:
     """Call 35: the device's own account of how it followed, tick by tick, since a reset.
 
@@ -392,6 +409,13 @@ class MotionStats:
     def rms_error_counts(self) -> float:
         """Root mean square following error over the ticks counted, counts (0 with none)."""
         return math.sqrt(self.sum_sq_error / self.ticks) if self.ticks else 0.0
+
+
+def read_stopped(values: Sequence[int]) -> tuple[Stopped, int]:
+    """Call 50's acknowledgement: what it did, and the CRC-32 of the values as sent."""
+    v = _read(STOPPED, values)
+    return (Stopped(kept=v["kept"], late=v["late"], added=v["added"], offset=v["offset"]),
+            v["crc"])
 
 
 def read_replaced(values: Sequence[int]) -> tuple[Replaced, int]:

@@ -808,6 +808,36 @@ CALLS: tuple[CallSpec, ...] = (
         " position now) is (c - zero) floored modulo a turn; calls 23 and 37 and the"
         " velocity-mode reset move it with the counter. With kind 0: 0.",
     ),
+    CallSpec(
+        C.STOP_FROM,
+        "Replace the motion queue's future from device tick T with a motion to rest: as"
+        " call 38, but a stop that comes late is delayed, never cut short.",
+        (
+            _p("tick", 0, INT32_MAX, "device clock tick the first new value is for"),
+            _p("count", 0, QUEUE_CAPACITY, "number of values that follow"),
+        ),
+        item=_p("value", INT32_MIN, INT32_MAX, "setpoint: counts (mode 1) or counts/s (mode 2)"),
+        debug={1: _t("STOPPED {kept} {late} {added} {offset} CRC {crc}")},
+        refusal="E50",
+        notes="What a host sends to stop or hold an axis along its deceleration, however late"
+        " the line arrives. On time (the first value's tick T not yet past: the next motion"
+        " update is at or before T) it is call 38: the queued values due before T are kept"
+        " (`kept`) and the new values follow, value k for tick T + k x scalar. Late (the"
+        " host or the link stalled: the motion update that would take value 0 is already"
+        " past), call 38 would drop the values already past and, when every one is past,"
+        " leave the axis to stop dead from speed at the last value it took. Call 50 instead"
+        " drops the whole queued future and starts the new values on the next motion update,"
+        " `late` value periods (of `scalar` ticks) after T, all of them: in mode 1 each"
+        " offset by `offset` = (the value the queue had due on that update, or the desired"
+        " position when it had none) - value 0, so the axis goes on from where the old"
+        " motion had it and decelerates as planned from there (its rest `offset` counts"
+        " beyond the planned one); in mode 2 (velocities) not offset. A value that the"
+        " offset would take outside int32 refuses the call with `E50` (nothing changes), as"
+        " does a result that would not fit the queue, and curve mode (like calls 0, 1 and"
+        " 38). With the servo disabled the queue is replaced whole. Debug flag 1"
+        " acknowledges what was done: `late` 0 on time, `added` = N, `offset` 0 unless"
+        " late, and `crc` the CRC-32 of the values as sent (before the offset).",
+    ),
 )
 BY_NUMBER: Mapping[int, CallSpec] = {spec.number: spec for spec in CALLS}
 BY_NAME: Mapping[str, CallSpec] = {spec.name: spec for spec in CALLS}

@@ -119,7 +119,8 @@ class Decelerated:
 def decelerate(legs: Legs, streams: RunStreams, machine: Machine, *,
                accel_mm_s2: Sequence[float], stop_now: Callable[[], bool]) -> Decelerated:
     """Every axis still enabled to rest along the path at its planned deceleration: the
-    queued future replaced from a device tick just ahead (call 38)."""
+    queued future replaced from a device tick just ahead (call 50: a stop that reaches a
+    device late decelerates in full from where the axis had got to)."""
     index, tick = streams.seam()
     scales = np.array(legs.counts_per_mm)
     accel = [a * s for a, s in zip(accel_mm_s2, legs.counts_per_mm, strict=True)]
@@ -139,8 +140,12 @@ def decelerate(legs: Legs, streams: RunStreams, machine: Machine, *,
     began = legs.rows[index - 1].astype(np.float64) if index > 0 else None
     legs.cut(index, stop_rows)
     streams.released = index
-    streams.replace(tick, index, legs.rows[index:], legs.count)
+    late = streams.stop(tick, index, legs.rows[index:])
     note = ""
+    if late:
+        note = (f"the stop reached a device {late * legs.period_s * 1000:.0f} ms after the"
+                " tick it was planned from (the host or the link was held up): the axes"
+                " decelerated in full from where they had got to, that much further along")
     try:
         wait_for_rest(machine, streams.axes, stop_now=stop_now)
     except DeviceError as error:

@@ -242,7 +242,7 @@ class MachineSession:
             start = status.desired_counts + velocity[name] * lead * tick_s
             values = [round(start + velocity[name] * period * (k - k * k / (2 * steps)))
                       for k in range(1, steps + 1)]
-            machine.axis(name).client.replace_from(status.clock + lead, values)
+            machine.axis(name).client.stop_from(status.clock + lead, values)
         wait_for_rest(self.machine, names, stop_now=self._stop_now)
 
     # --- what the machine is and where --------------------------------------------------------

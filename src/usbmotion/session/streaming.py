@@ -144,6 +144,22 @@ class RunStreams:
             self.streams[name].replace_from(tick, index, given[:, column], most=REPLACE_BATCH)
         self.released = limit
 
+    def stop(self, tick: int, index: int, rows: npt.NDArray[np.integer]) -> int:
+        """Every device's queued future from ``tick`` (row ``index``) replaced by the stop
+        ``rows`` (its last row at rest): in one call 50 each when they fit a queue beside
+        what it keeps, so that a stop arriving late is delayed and not cut short; a longer
+        stop as :meth:`replace` sends it. Returns how many value periods the latest device
+        took it late (0: on time everywhere); the streams are given every row."""
+        late = 0
+        if len(rows) > REPLACE_BATCH:  # kept beside it: the few values due before the tick
+            self.replace(tick, index, rows, index + len(rows))
+            return late
+        for column, name in enumerate(self.axes):
+            stopped = self.streams[name].stop_from(tick, index, rows[:, column])
+            late = max(late, stopped.late)
+        self.released = index + len(rows)
+        return late
+
     def stream(self, should_stop: Callable[[], bool], *, max_wait_s: float,
                sends_from: Callable[[], float] | None = None) -> None:
         """Service the streams until every row given is sent, or ``should_stop``
