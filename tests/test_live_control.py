@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 from tests.executed import (
     PATH_TOLERANCE_COUNTS,
@@ -34,6 +35,7 @@ from usbmotion.errors import ArgumentError
 from usbmotion.host.config import MachineConfig, load_config
 from usbmotion.protocol import FaultCode
 from usbmotion.session import MachineSession, MachineState, StopReason
+from usbmotion.session.streaming import RunStreams
 from usbmotion.sim.machine import connect_session
 
 DEMO = Path(usbmotion.__file__).parent / "data" / "demos" / "1-rounded-square.ngc"
@@ -84,6 +86,50 @@ def test_hold_then_resume_keeps_the_path_within_the_limits(
     assert session.last_run is not None
     ((_, _, planned_mm, distance_mm),) = session.last_run.holds
     assert distance_mm <= planned_mm + 0.05 and distance_mm > 0.5 * planned_mm
+
+
+@pytest.mark.parametrize("hold_at", [4000, 9000], ids=["line", "arc"])
+def test_a_hold_that_reaches_the_devices_late_resumes_on_the_path(
+        config: MachineConfig, reference: Positions, hold_at: int,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The host held up 100 ms between planning the hold's stop and sending it (longer than
+    the stop lasts): the axes run on along the path, decelerate in full from there, and the
+    resume takes the program up where they came to rest, on the same path within the
+    limits (no jump back to where the stop was planned to end)."""
+    stop = RunStreams.stop
+
+    def held_up(streams: RunStreams, tick: int, index: int, rows: np.ndarray) -> int:
+        streams.machine.clock.sleep(0.1)
+        return stop(streams, tick, index, rows)
+
+    monkeypatch.setattr(RunStreams, "stop", held_up)
+
+    def act(session: MachineSession, tick: int) -> None:
+        if tick == hold_at:
+            session.request_hold()
+        if tick == hold_at + 700:
+            session.request_resume()
+
+    session, positions, report = _run(config, act)
+    assert report.completed  # type: ignore[attr-defined]
+    check_limits(config, positions, reference)
+    # On the line the stop stays on the path. On the arc the stop is the planned one moved to
+    # where the axes had got to, so it ends inside the curve by its length (0.39 mm) times the
+    # angle the path turned meanwhile, and the resume's straight move back to the path and
+    # the path differ by as much: 10 counts (0.04 mm) here.
+    tolerance = PATH_TOLERANCE_COUNTS if hold_at == 4000 else 12.0
+    off = distance_to_path(positions, reference)
+    print(f"late hold on the {hold_at} tick: {off:.1f} counts off the path at most")
+    assert off <= tolerance, "left the path"
+    assert distance_to_path(reference, positions) <= tolerance, "skipped a part"
+    assert np.array_equal(positions[-1], reference[-1]), "the same end position"
+    travelled, planned = (float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+                          for p in (positions, reference))
+    print(f"  travelled {travelled:.0f} counts against {planned:.0f} uninterrupted")
+    assert travelled <= planned + 2 * tolerance, "nothing of the path gone over twice"
+    assert session.last_run is not None
+    ((_, _, planned_mm, distance_mm),) = session.last_run.holds
+    assert distance_mm > planned_mm + 0.05, "the run-on, then the whole deceleration"
 
 
 def test_two_holds_and_resumes_one_on_an_arc(config: MachineConfig,

@@ -312,6 +312,7 @@ def test_a_stop_that_reaches_the_devices_late_still_decelerates_in_full(
         x = next(axis for axis in report.axes if axis.name == "X")
         assert x.max_error_counts <= 30, "no dead stop from speed: the error stays small"
         assert any("decelerated in full" in note for note in report.notes), report.notes
+        assert report.stop_late_s == pytest.approx(stall_s - STOP_LEAD_S, abs=0.002)
         for name, device in devices.items():
             state = device.state
             assert state.enable == 1 and state.queued == 0 and state.velocity == 0, name

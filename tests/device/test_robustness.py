@@ -59,6 +59,7 @@ _MAY_CHANGE: dict[int, set[str]] = {
     46: {"stepper"},
     47: {"stepper"},
     49: {"encoder", "queue", "keyframes", "actual", "desired"},
+    50: {"queue"},
 }
 _SETTINGS = [f.name for f in fields(DeviceSettings)]
 

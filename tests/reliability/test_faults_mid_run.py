@@ -2,9 +2,9 @@
 
 The device trips on the servo tick the fault happens; the host sees it at its next fault
 check (every ``FAULT_CHECK_S`` of program time) and stops every other axis along the path
-at its planned deceleration (call 38 replaces what each has queued). Each test measures both
+at its planned deceleration (call 50 replaces what each has queued). Each test measures both
 in device ticks: the fault tick from the device (call 30), and the tick on which each other
-axis received its ``38`` (watched on the simulated devices). The report must name the axis,
+axis received its ``50`` (watched on the simulated devices). The report must name the axis,
 the fault, the time and the program line.
 
 ``tests/test_job.py`` shows a following-error fault through ``usbmotion run``; here the load
@@ -48,7 +48,7 @@ class Outcome:
     start_tick: int
     devices: dict[str, Device]
     stopped_at: dict[str, list[int]]
-    """Device clock at every ``38`` (a stop replacing the queue) the axis received."""
+    """Device clock at every ``50`` (a stop replacing the queue) the axis received."""
 
     def first_stop_after(self, axis: str, tick: int) -> int:
         return min(t for t in self.stopped_at[axis] if t >= tick)
@@ -58,7 +58,7 @@ def _watch_stops(device: Device, ticks: list[int]) -> Callable[[bytes], None]:
     feed = device.feed
 
     def watched(data: bytes) -> None:
-        if any(line.startswith(b"38 ") for line in bytes(data).split(b"\n")):
+        if any(line.startswith(b"50 ") for line in bytes(data).split(b"\n")):
             ticks.append(device.clock)
         feed(data)
 

@@ -137,7 +137,8 @@ def test_ctrl_c_mid_run_stops_within_the_planned_deceleration(tmp_path: Path) ->
     assert report["stop_reason"] == "interrupted by the user"
     planned = 20.0**2 / (2 * 500.0)
     assert report["stop_planned_mm"] == pytest.approx(planned, rel=0.05)
-    assert report["stop_distance_mm"] <= float(report["stop_planned_mm"]) + 0.05, report
+    run_on = 20.0 * report["stop_late_s"]  # the host held up: on at speed until it arrived
+    assert report["stop_distance_mm"] <= float(report["stop_planned_mm"]) + run_on + 0.05, report
     assert report["stop_distance_mm"] > 0.5 * planned, "a deceleration, not a dead stop"
     assert report["faults"] == []
     assert "STOPPED (interrupted by the user)" in output
@@ -152,7 +153,10 @@ def test_sigterm_mid_run_stops_the_same_way_and_exits_143_with_a_report(
     code, report, output = _interrupted(tmp_path, signal.SIGTERM, "31 ", 2.5)
     assert code == 143, output
     assert report["stop_reason"] == "terminated (SIGTERM)"
-    assert report["stop_distance_mm"] <= float(report["stop_planned_mm"]) + 0.05, report
+    run_on = 20.0 * report["stop_late_s"]
+    assert report["stop_distance_mm"] <= float(report["stop_planned_mm"]) + run_on + 0.05, report
+    assert report["stop_distance_mm"] > 0.5 * float(report["stop_planned_mm"]) + run_on, (
+        "a deceleration, not a dead stop", report)
 
 
 @pytest.mark.realtime

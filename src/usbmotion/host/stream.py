@@ -252,6 +252,12 @@ class SetpointStream:
                                 queued=replaced.kept + replaced.added)
             return count
 
+    def room_from(self, index: int) -> int:
+        """How many values a replacement from value ``index`` can carry beside those the
+        device is predicted to keep (due before it), with :data:`REPLACE_ROOM_MARGIN` to
+        spare."""
+        return QUEUE_CAPACITY - REPLACE_ROOM_MARGIN - max(0, index - self.consumed_estimate)
+
     def stop_from(self, tick: int, index: int,
                   values: Sequence[int] | npt.NDArray[np.integer]) -> Stopped:
         """Replace the device's queued future from device tick ``tick`` (when value

@@ -60,7 +60,8 @@ class Stops:
     """The figures of a run's stops and holds: every hold's request time (s), the device
     tick its deceleration began on, its planned v^2/2a and its distance (mm); the last
     stop's distance, planned distance and latency, the row (of the rows since the last
-    start, fractional) it stopped at, where that is on the program (s) and its line."""
+    start, fractional) it stopped at, where that is on the program (s) and its line, and
+    how late it reached the latest device (s)."""
 
     holds: list[tuple[float, int, float, float]] = field(default_factory=list)
     distance_mm: float = 0.0
@@ -70,6 +71,7 @@ class Stops:
     stopped_at_s: float = 0.0
     stopped_at_line: int = 0
     stop_tick: int = 0
+    late_s: float = 0.0
 
     def take(self, stopped: Decelerated, *, asked_s: float, now_s: float, line: int,
              hold: bool) -> None:
@@ -80,6 +82,7 @@ class Stops:
         self.stopped_row = stopped.stopped_row
         self.stopped_at_s = stopped.point.program_time_s
         self.stopped_at_line = line
+        self.late_s = stopped.late_s
         if hold:
             self.holds.append((asked_s, stopped.tick, stopped.planned_mm, stopped.distance_mm))
         else:
@@ -137,7 +140,8 @@ def report_of(prepared: Prepared, machine: Machine, legs: Legs, streams: RunStre
         ending.reason, completed, legs.rows_before + min(executed, legs.count),
         legs.rows_before + legs.count, stopped_at_s=stopped_at_s,
         stopped_at_line=stopped_at_line, stop_distance_mm=stops.distance_mm,
-        stop_planned_mm=stops.planned_mm, stop_latency_s=stops.latency_s, skew_s=skew_s,
+        stop_planned_mm=stops.planned_mm, stop_latency_s=stops.latency_s,
+        stop_late_s=stops.late_s, skew_s=skew_s,
         link_error=ending.link_error, notes=tuple(notes))
     return build_report(prepared.program, machine, legs.plan, trace, homing_s, statuses, stats,
                         watch.faults, run_ending, line_at_tick=line_at_tick, last_heard=heard,

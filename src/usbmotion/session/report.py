@@ -148,6 +148,9 @@ class RunReport:
     the axes came to rest (measured: their encoders), ``stop_planned_mm`` the planned
     deceleration's ``v^2 / 2a`` from the speed there, and ``stop_latency_s`` from the stop
     request (or the fault seen) to every axis at rest (0 when the run completed).
+    ``stop_late_s`` is how long after its planned device tick the stop reached the latest
+    device (the host or the link held up; 0 on time): the axes ran on along the path that
+    long, then decelerated in full, and ``stop_distance_mm`` includes the run-on.
     """
 
     program: str
@@ -170,6 +173,7 @@ class RunReport:
     stop_distance_mm: float = 0.0
     stop_planned_mm: float = 0.0
     stop_latency_s: float = 0.0
+    stop_late_s: float = 0.0
     skew_estimate_s: float = 0.0
     endpoints_checked: int = 0
     max_endpoint_miss_mm: float = 0.0
@@ -305,7 +309,7 @@ class RunEnding:
             (every leg since the start); ``rows_total`` those streamed.
         stopped_at_s: where on the program it stopped (program time, s); ``stopped_at_line``
             the line there.
-        stop_distance_mm, stop_planned_mm, stop_latency_s: a stop's figures.
+        stop_distance_mm, stop_planned_mm, stop_latency_s, stop_late_s: a stop's figures.
         skew_s: the start's estimated skew between axes.
         link_error: the lost link's error ("" none).
         notes: what else the report says.
@@ -320,6 +324,7 @@ class RunEnding:
     stop_distance_mm: float = 0.0
     stop_planned_mm: float = 0.0
     stop_latency_s: float = 0.0
+    stop_late_s: float = 0.0
     skew_s: float = 0.0
     link_error: str = ""
     notes: tuple[str, ...] = ()
@@ -434,6 +439,7 @@ def build_report(
         stop_distance_mm=ending.stop_distance_mm,
         stop_planned_mm=ending.stop_planned_mm,
         stop_latency_s=ending.stop_latency_s,
+        stop_late_s=ending.stop_late_s,
         stopped_at_line=0 if completed else ending.stopped_at_line,
         stopped_at_setpoint=0 if completed else ending.rows_executed,
         skew_estimate_s=ending.skew_s,

@@ -82,7 +82,10 @@ def describe(report: RunReport) -> str:
         if report.stop_planned_mm or report.stop_distance_mm:
             lines.append(f"stop           along the path to rest in {report.stop_distance_mm:.3f}"
                          f" mm (planned deceleration v^2/2a {report.stop_planned_mm:.3f} mm),"
-                         f" at rest {report.stop_latency_s * 1000:.0f} ms after it was asked")
+                         f" at rest {report.stop_latency_s * 1000:.0f} ms after it was asked"
+                         + (f"; it reached the devices {report.stop_late_s * 1000:.0f} ms late,"
+                            " the axes running on along the path until then"
+                            if report.stop_late_s else ""))
     return "\n".join(lines)
 
 

@@ -34,7 +34,7 @@ from usbmotion.session.outputs import RunOutputs, laser_names
 from usbmotion.session.planning import Prepared, planner_inputs
 from usbmotion.session.progress import RunProgress
 from usbmotion.session.report import RunReport, SpindleRecord, Trace
-from usbmotion.session.seams import decelerate, replan_from_seam, stop_time_s
+from usbmotion.session.seams import decelerate, rejoin, replan_from_seam, stop_time_s
 from usbmotion.session.state import Event, MachineState, StopReason
 from usbmotion.session.streaming import RunStreams
 from usbmotion.session.watch import FAULT_CHECK_S, Watch
@@ -98,6 +98,9 @@ class Run:
             " limits were not checked"]
         self.stops = Stops()
         self.hold_point: PathPoint | None = None
+        self.rejoin = False
+        """Whether the axes stand off the hold point (a hold that came late) until the resume
+        brings them onto it."""
         self.paused: list[Pause] = []
         """The program pauses the run waited at, in order."""
         self.spindle_waits: list[tuple[int, float, float, float]] = []
@@ -346,6 +349,7 @@ class Run:
                         line=self.legs.place(stopped.stopped_row).line,
                         hold=self.states.state is MachineState.HOLD)
         self.hold_point = stopped.point
+        self.rejoin = stopped.late_s > 0  # it ended beside the path where the path curves
         if self.requests.taken.stop_now:
             self.notes.append("a second stop request stopped every axis at once (servos off:"
                               " the axes coasted)")
@@ -465,6 +469,11 @@ class Run:
         self._take_feed(streaming=False)
         self.legs.overrides = self._overrides()
         point = self.hold_point
+        if point is not None and self.rejoin:
+            rejoin(self.machine, self.streams.axes, point, counts_per_mm=self.legs.counts_per_mm,
+                   accel_mm_s2=self.accel_mm_s2, period_s=self.legs.period_s,
+                   stop_now=self._stop_now)
+        self.rejoin = False
         leg = self.legs.plan_rest(point) if point is not None else None
         if leg is None:
             if not self.feeding.complete:

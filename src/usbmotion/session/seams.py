@@ -15,11 +15,16 @@ import numpy.typing as npt
 
 from usbmotion.errors import DeviceError, PlanningError
 from usbmotion.host.machine import Machine
+from usbmotion.host.stream import SetpointStream, run_streams
 from usbmotion.motion.replanning import PathPoint, locate
 from usbmotion.motion.stopping import stop_setpoints
 from usbmotion.session.legs import Legs
 from usbmotion.session.rest import wait_for_rest
 from usbmotion.session.streaming import REPLACE_BATCH, RunStreams
+
+REJOIN_COUNTS = 1
+"""How far off its path point (counts, any axis) a resumed axis may stand without a move
+there first: the rounding of the two."""
 
 RESEAM_ROWS = 20
 """When the rest cannot be planned from the seam at the speed the axes have there (too
@@ -114,6 +119,9 @@ class Decelerated:
     point: PathPoint
     stopped_row: float
     note: str = ""
+    late_s: float = 0.0
+    """How long after its planned tick the stop reached the latest device (0: on time): the
+    axes ran on along the path that long first, and ``distance_mm`` includes it."""
 
 
 def decelerate(legs: Legs, streams: RunStreams, machine: Machine, *,
@@ -135,17 +143,18 @@ def decelerate(legs: Legs, streams: RunStreams, machine: Machine, *,
         decel_mm_s2 = stop.step * speed_mm_s / legs.period_s
         if decel_mm_s2 > 0:
             planned_mm = speed_mm_s**2 / (2 * decel_mm_s2)
-    first, leg = legs.leg_at(end)
-    point = replace(locate(legs.plan, leg, (end - first) * legs.period_s), speed_mm_s=0.0)
     began = legs.rows[index - 1].astype(np.float64) if index > 0 else None
     legs.cut(index, stop_rows)
     streams.released = index
     late = streams.stop(tick, index, legs.rows[index:])
     note = ""
-    if late:
+    if late:  # run on along the path that long, then the whole stop: it ends that far on
         note = (f"the stop reached a device {late * legs.period_s * 1000:.0f} ms after the"
                 " tick it was planned from (the host or the link was held up): the axes"
                 " decelerated in full from where they had got to, that much further along")
+        end += late
+    first, leg = legs.leg_at(end)
+    point = replace(locate(legs.plan, leg, (end - first) * legs.period_s), speed_mm_s=0.0)
     try:
         wait_for_rest(machine, streams.axes, stop_now=stop_now)
     except DeviceError as error:
@@ -156,7 +165,37 @@ def decelerate(legs: Legs, streams: RunStreams, machine: Machine, *,
         statuses = machine.status()
         rest = np.array([statuses[n].actual_counts for n in streams.axes], dtype=np.float64)
         distance_mm = float(np.linalg.norm((rest - began) / scales))
-    return Decelerated(tick, planned_mm, distance_mm, point, end, note)
+    return Decelerated(tick + late * streams.scalar, planned_mm, distance_mm, point, end,
+                       note, late * legs.period_s)
+
+
+def rejoin(machine: Machine, axes: Sequence[str], point: PathPoint, *,
+           counts_per_mm: Sequence[float], accel_mm_s2: Sequence[float], period_s: float,
+           stop_now: Callable[[], bool]) -> bool:
+    """Axes at rest off the path point ``point`` (a stop that came late ended where the axes
+    had got to, beside the path where it curves) brought onto it before the program takes
+    up from there: one straight move from rest to rest, each axis's values a half cosine of
+    one length, within every axis's acceleration. True when they had to move.
+
+    Raises:
+        DeviceError: as :func:`wait_for_rest`.
+    """
+    statuses = machine.status()
+    start = np.array([statuses[name].desired_counts for name in axes], dtype=np.int64)
+    scales = np.asarray(counts_per_mm, dtype=np.float64)
+    delta = np.rint(np.asarray(point.position_mm) * scales).astype(np.int64) - start
+    if not np.any(np.abs(delta) > REJOIN_COUNTS):
+        return False
+    accel = np.asarray(accel_mm_s2, dtype=np.float64) * scales
+    duration_s = float(np.max(math.pi * np.sqrt(np.abs(delta) / (2 * accel))))
+    steps = max(2, math.ceil(duration_s / period_s))
+    shape = (1 - np.cos(math.pi * np.arange(1, steps + 1) / steps)) / 2
+    run_streams([SetpointStream(machine.axis(name).client,
+                                np.rint(start[column] + delta[column] * shape).astype(np.int64),
+                                period_s=period_s)
+                 for column, name in enumerate(axes)], should_stop=stop_now)
+    wait_for_rest(machine, list(axes), stop_now=stop_now)
+    return True
 
 
 def stop_time_s(limits: Sequence[tuple[float, float]]) -> float:

@@ -151,7 +151,7 @@ class RunStreams:
         stop as :meth:`replace` sends it. Returns how many value periods the latest device
         took it late (0: on time everywhere); the streams are given every row."""
         late = 0
-        if len(rows) > REPLACE_BATCH:  # kept beside it: the few values due before the tick
+        if any(len(rows) > stream.room_from(index) for stream in self.streams.values()):
             self.replace(tick, index, rows, index + len(rows))
             return late
         for column, name in enumerate(self.axes):
