@@ -313,6 +313,9 @@ def test_a_stop_that_reaches_the_devices_late_still_decelerates_in_full(
         assert x.max_error_counts <= 30, "no dead stop from speed: the error stays small"
         assert any("decelerated in full" in note for note in report.notes), report.notes
         assert report.stop_late_s == pytest.approx(stall_s - STOP_LEAD_S, abs=0.002)
+        print(f"stop {report.stop_late_s * 1000:.0f} ms late at 20 mm/s: {run_on:.3f} mm of"
+              f" run-on, then stopped in {report.stop_distance_mm:.3f} mm in all (planned"
+              f" {report.stop_planned_mm:.3f} mm), X's peak error {x.max_error_counts} counts")
         for name, device in devices.items():
             state = device.state
             assert state.enable == 1 and state.queued == 0 and state.velocity == 0, name
