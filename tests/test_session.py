@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -22,6 +24,7 @@ from usbmotion.errors import (
     StopRequestedError,
 )
 from usbmotion.host.config import MachineConfig, load_config, parse_config
+from usbmotion.host.device import DeviceClient, Stopped
 from usbmotion.motion.limits import SETTLED_BAND_COUNTS
 from usbmotion.protocol import FaultCode
 from usbmotion.session import (
@@ -379,6 +382,62 @@ def test_a_stop_during_homing_brings_every_axis_to_rest_unhomed(
         for name, device in _devices(session).items():
             assert device.state.velocity == 0 and device.state.queued == 0, name
             assert device.state.fault == FaultCode.NONE
+
+
+def test_a_stop_during_homing_sent_late_still_ramps_down(
+        config: MachineConfig, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The host held up 40 ms before each axis's ramp to rest (longer than the ramp, shorter
+    than the velocity the device holds between polls): the ramp still plays whole, late
+    (call 50), where call 38 would have left the queue empty and the velocity loop braking
+    from the seek speed at once."""
+    stop_from = DeviceClient.stop_from
+
+    def held_up(client: DeviceClient, tick: int, values: Sequence[int]) -> Stopped:
+        client.link_clock.sleep(0.04)
+        stopped = stop_from(client, tick, values)
+        late.append(stopped.late)
+        return stopped
+
+    late: list[int] = []
+    original = device_io.DeviceHomingIO.after_poll
+    polls = [0]
+    with connect_session(config) as session:
+
+        def after_poll(self: device_io.DeviceHomingIO) -> None:
+            original(self)
+            polls[0] += 1
+            if polls[0] == 40:
+                monkeypatch.setattr(DeviceClient, "stop_from", held_up)
+                session.request_stop()
+
+        monkeypatch.setattr(device_io.DeviceHomingIO, "after_poll", after_poll)
+        velocities: dict[str, list[int]] = {}
+        for name, device in _devices(session).items():
+            run, seen = type(device).run, velocities.setdefault(name, [])
+
+            def tick_by_tick(ticks: int, device: Device = device, run: Any = run,
+                             seen: list[int] = seen) -> None:
+                for _ in range(ticks):
+                    run(device, 1)
+                    seen.append(device.state.desired_velocity)
+
+            device.__dict__["run"] = tick_by_tick
+        world = session.machine.world
+        assert world is not None
+        world.run_ahead = False  # every tick seen once, at the world's time
+        with pytest.raises(StopRequestedError, match="interrupted by the user"):
+            session.home()
+        assert late and min(late) > 0, "every stop came late"
+        moving = 0
+        for name in ("X", "Y", "Z"):  # Z homes first: the stop finds it seeking
+            axis = config.axis(name)
+            step = axis.counts_per_mm * axis.max_accel_mm_s2 * config.motion_period_s
+            seen = np.array(velocities[name])
+            moving += int(np.abs(seen).max() >= axis.homing.speed_mm_s * axis.counts_per_mm - 1)
+            assert np.abs(np.diff(seen)).max() <= step + 1, f"{name}: a dead stop"
+        assert moving, "an axis was seeking at speed when the stop came"
+        for name, device in _devices(session).items():
+            assert device.state.velocity == 0 and device.state.fault == FaultCode.NONE, name
 
 
 def test_no_switch_within_the_search_distance_fails_naming_the_axis() -> None:

@@ -260,13 +260,20 @@ class DeviceHomingIO:
             return drive.queue[index]
         return drive.last if drive.position_mode else 0
 
-    def _replace(self, name: str, tick: int, values: list[int]) -> None:
-        """Call 38 from ``tick``, and the host's copy of the queue to match."""
+    def _replace(self, name: str, tick: int, values: list[int], *, stop: bool = False) -> None:
+        """Call 38 from ``tick`` (``stop``: call 50, which a late arrival delays rather than
+        cuts short), and the host's copy of the queue to match."""
         drive = self._drives[name]
         index = min(self._due_index(name, tick), len(drive.queue))
-        done = self.axes[name].client.replace_from(tick, values)
-        kept = drive.queue[max(0, index - done.kept) : index]
-        drive.queue = kept + values[done.skipped :]
+        client = self.axes[name].client
+        if stop:
+            stopped = client.stop_from(tick, values)
+            kept_count, added = stopped.kept, [v + stopped.offset for v in values]
+        else:
+            replaced = client.replace_from(tick, values)
+            kept_count, added = replaced.kept, values[replaced.skipped :]
+        kept = drive.queue[max(0, index - kept_count) : index]
+        drive.queue = kept + added
         if drive.queue:
             drive.last = drive.queue[-1]
 
@@ -295,7 +302,7 @@ class DeviceHomingIO:
             hold = max(2, math.ceil(cover_ticks / self.motion_scalar))
             values += [target] * hold
         values = values[:QUEUE_CAPACITY] or [0]
-        self._replace(axis, tick, values)
+        self._replace(axis, tick, values, stop=target == 0)
         self.velocity_commands += 1
         drive.target = target
 
@@ -376,7 +383,7 @@ class DeviceHomingIO:
             speed -= math.copysign(step, speed)
             where += speed
             values.append(round(where))
-        self._replace(name, tick, values or [round(where)])
+        self._replace(name, tick, values or [round(where)], stop=True)
 
     def after_poll(self) -> None:
         """Between polls: top up planned moves, feed the watchdogs of axes nothing reached,
