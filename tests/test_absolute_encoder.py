@@ -164,6 +164,23 @@ def invoke_status(session: MachineSession) -> list[str]:
     return describe_status(session.machine)
 
 
+def _check_the_rest_after_homing(session: MachineSession, config: MachineConfig) -> None:
+    """Each axis at rest within its travel, at least the pull-off from the switch's edge
+    and no nearer the switch than an incremental axis rests (Z's edge is 2.555 mm beyond
+    its boundary, toward the travel's end at the switch)."""
+    for axis in "XZ":
+        homing = config.axis(axis).homing
+        zero = session.zeroes[axis]
+        scale = session.machine.axis(axis).scale
+        here = scale.to_mm(session.machine.axis(axis).client.status().actual_counts)
+        lower, upper = config.axis(axis).travel_mm
+        assert lower - 0.01 <= here <= upper + 0.01, (axis, here)
+        edge = homing.position_mm + scale.to_mm(zero.edge_from_turn_counts)
+        away = -homing.direction
+        assert away * (here - edge) >= homing.pull_off_mm - 0.01, (axis, here, edge)
+        assert away * (here - homing.position_mm) >= homing.pull_off_mm - 0.01, (axis, here)
+
+
 def test_homing_names_the_turn_and_repeats_to_the_count_where_the_switch_does_not(
         tmp_path: Path) -> None:
     """Between two homings the switch moves by half the margin homing reported (a switch
@@ -182,6 +199,7 @@ def test_homing_names_the_turn_and_repeats_to_the_count_where_the_switch_does_no
         with connect_session(config) as session:
             session.home()
             first = {axis: _counter_minus_shaft(session, axis) for axis in "XZ"}
+            _check_the_rest_after_homing(session, config)
             for axis, turn in (("X", X_TURN), ("Z", Z_TURN)):
                 zero = session.zeroes[axis]
                 if label == "incremental":

@@ -336,10 +336,13 @@ class DeviceHomingIO:
                                         turn_counts=turn or 0,
                                         edge_from_turn_counts=from_turn)
         here = client.status().actual_counts
-        # off the switch from its edge (with an absolute encoder the edge reads the
-        # switch's position plus its distance from the turn boundary)
+        # off the switch: the pull-off from the switch's position, and with an absolute
+        # encoder (whose edge reads the switch's position plus its distance from the turn
+        # boundary) at least the pull-off from the edge, whichever is further from the
+        # switch: so the axis rests off the switch and never beyond the incremental axis's
+        # rest towards it (the end of the travel, on a machine whose switch is there)
         target = config.scale.to_counts(config.switch_mm - config.direction * pull_off_mm)
-        target += from_turn
+        target = (min if config.direction > 0 else max)(target, target + from_turn)
         values: list[int] = []
         if target != here:
             profile = trapezoid_profile(float(target - here),
