@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -362,19 +362,26 @@ def test_a_second_stop_request_stops_at_once(near: MachineConfig) -> None:
         assert all(not s.enabled for s in session.machine.status().values())
 
 
-def test_a_stop_during_homing_brings_every_axis_to_rest_unhomed(
-        config: MachineConfig, monkeypatch: pytest.MonkeyPatch) -> None:
+def _stop_homing_at_poll(session: MachineSession, monkeypatch: pytest.MonkeyPatch,
+                         poll: int, before: Callable[[], None] = lambda: None) -> None:
+    """Ask the session to stop once homing has polled ``poll`` times (``before`` first)."""
     original = device_io.DeviceHomingIO.after_poll
     polls = [0]
+
+    def after_poll(self: device_io.DeviceHomingIO) -> None:
+        original(self)
+        polls[0] += 1
+        if polls[0] == poll:
+            before()
+            session.request_stop()
+
+    monkeypatch.setattr(device_io.DeviceHomingIO, "after_poll", after_poll)
+
+
+def test_a_stop_during_homing_brings_every_axis_to_rest_unhomed(
+        config: MachineConfig, monkeypatch: pytest.MonkeyPatch) -> None:
     with connect_session(config) as session:
-
-        def after_poll(self: device_io.DeviceHomingIO) -> None:
-            original(self)
-            polls[0] += 1
-            if polls[0] == 40:
-                session.request_stop()
-
-        monkeypatch.setattr(device_io.DeviceHomingIO, "after_poll", after_poll)
+        _stop_homing_at_poll(session, monkeypatch, 40)
         with pytest.raises(StopRequestedError, match="interrupted by the user"):
             session.home()
         assert session.state is MachineState.IDLE and not session.is_homed
@@ -399,18 +406,9 @@ def test_a_stop_during_homing_sent_late_still_ramps_down(
         return stopped
 
     late: list[int] = []
-    original = device_io.DeviceHomingIO.after_poll
-    polls = [0]
     with connect_session(config) as session:
-
-        def after_poll(self: device_io.DeviceHomingIO) -> None:
-            original(self)
-            polls[0] += 1
-            if polls[0] == 40:
-                monkeypatch.setattr(DeviceClient, "stop_from", held_up)
-                session.request_stop()
-
-        monkeypatch.setattr(device_io.DeviceHomingIO, "after_poll", after_poll)
+        _stop_homing_at_poll(session, monkeypatch, 40, before=lambda: monkeypatch.setattr(
+            DeviceClient, "stop_from", held_up))
         velocities: dict[str, list[int]] = {}
         for name, device in _devices(session).items():
             run, seen = type(device).run, velocities.setdefault(name, [])

@@ -1415,6 +1415,25 @@ static int64_t ceil_div(int64_t numerator, int64_t denominator) {
                           : -((-numerator) / denominator);
 }
 
+/* Calls 38 and 50 from device tick `tick`, with the servo lock held: the queued values due
+ * before it (kept), and how many value periods the first new value's tick is already past
+ * (late; 0 on time). With the servo disabled nothing is due: both 0. */
+static void replacement_timing(int64_t tick, int64_t *kept, int64_t *late) {
+    *kept = 0;
+    *late = 0;
+    if (servo_state.enable != 1) {
+        return;
+    }
+    int64_t queued = mq_level();
+    int64_t clock = servo_state.clock;
+    int64_t start = servo_state.start;
+    int64_t first = start >= 0 ? (start > clock ? start : clock) : clock + servo_state.motion_left;
+    int64_t ahead = ceil_div(tick - first, vars.scalar);
+    int64_t behind = ceil_div(first - tick, vars.scalar);
+    *kept = ahead < 0 ? 0 : (ahead < queued ? ahead : queued);
+    *late = behind < 0 ? 0 : behind;
+}
+
 /* Values call 38 adds with the servo lock still held: the first new values may be due on
  * the next tick; the rest go in after it is released, far faster than core1 takes them. */
 #define REPLACE_LOCKED_VALUES 16u
@@ -1426,19 +1445,10 @@ static void call_replace_from(const call_t *call) {
     int64_t tick = call->args[0];
     int64_t count = call->args[1];
     platform_servo_lock();
-    int64_t queued = mq_level();
     int64_t kept = 0;
-    int64_t skipped = 0;
-    if (servo_state.enable == 1) {
-        int64_t clock = servo_state.clock;
-        int64_t start = servo_state.start;
-        int64_t first = start >= 0 ? (start > clock ? start : clock)
-                                   : clock + servo_state.motion_left;
-        int64_t ahead = ceil_div(tick - first, vars.scalar);
-        int64_t late = ceil_div(first - tick, vars.scalar);
-        kept = ahead < 0 ? 0 : (ahead < queued ? ahead : queued);
-        skipped = late < 0 ? 0 : (late < count ? late : count);
-    }
+    int64_t late = 0;
+    replacement_timing(tick, &kept, &late);
+    int64_t skipped = late < count ? late : count;
     uint32_t added = (uint32_t)(count - skipped);
     if (kept + added > TABLE_QUEUE_CAPACITY) {
         platform_servo_unlock();
@@ -1471,23 +1481,13 @@ static void call_stop_from(const call_t *call) {
     uint32_t count = (uint32_t)call->args[1];
     const int32_t *values = interp_items;
     platform_servo_lock();
-    int64_t queued = mq_level();
     int64_t kept = 0;
     int64_t late = 0;
     int64_t offset = 0;
-    if (servo_state.enable == 1) {
-        int64_t clock = servo_state.clock;
-        int64_t start = servo_state.start;
-        int64_t first = start >= 0 ? (start > clock ? start : clock)
-                                   : clock + servo_state.motion_left;
-        int64_t ahead = ceil_div(tick - first, vars.scalar);
-        late = ceil_div(first - tick, vars.scalar);
-        kept = ahead < 0 ? 0 : (ahead < queued ? ahead : queued);
-        late = late < 0 ? 0 : late;
-        if (late > 0 && count > 0 && servo_state.mode == MODE_POSITION) {
-            int64_t due = queued > 0 ? mq_peek(0) : servo_state.desired;
-            offset = due - values[0];
-        }
+    replacement_timing(tick, &kept, &late);
+    if (late > 0 && count > 0 && servo_state.mode == MODE_POSITION) {
+        int64_t due = mq_level() > 0 ? mq_peek(0) : servo_state.desired;
+        offset = due - values[0];
     }
     bool refused = kept + count > TABLE_QUEUE_CAPACITY;
     for (uint32_t i = 0; i < count && offset != 0 && !refused; i++) {

@@ -854,22 +854,27 @@ class Device:
             crc = zlib.crc32(self._queue[: len(values) - first].astype("<i4").tobytes(), crc)
             self._debug_line(1, len(values), crc)
 
+    def _replacement_timing(self, tick: int) -> tuple[int, int]:
+        """Calls 38 and 50 from device tick ``tick``: the queued values due before it
+        (kept), and how many value periods the first new value's tick is already past (0:
+        on time). With the servo disabled nothing is due: (0, 0)."""
+        state = self._state
+        if state[core1.S_ENABLE] != 1:
+            return 0, 0
+        clock = int(state[core1.S_CLOCK])
+        start = int(state[core1.S_START])
+        first = max(start, clock) if start >= 0 else clock + int(state[core1.S_MOTION_LEFT])
+        scalar = self._scalar
+        queued = int(state[core1.S_QUEUE_COUNT])
+        return (min(queued, max(0, -(-(tick - first) // scalar))),
+                max(0, -(-(first - tick) // scalar)))
+
     def _call_38(self, call: Call) -> None:
         self._refuse_in_curve_mode()
-        state = self._state
         tick, count = call.args[0], call.args[1]
         values = call.args[2:]
-        queued = int(state[core1.S_QUEUE_COUNT])
-        kept, skipped = queued, 0
-        if state[core1.S_ENABLE] == 1:
-            clock = int(state[core1.S_CLOCK])
-            start = int(state[core1.S_START])
-            first = max(start, clock) if start >= 0 else clock + int(state[core1.S_MOTION_LEFT])
-            scalar = self._scalar
-            kept = min(queued, max(0, -(-(tick - first) // scalar)))
-            skipped = min(count, max(0, -(-(first - tick) // scalar)))
-        else:
-            kept = 0
+        kept, late = self._replacement_timing(tick)
+        skipped = min(count, late)
         added = values[skipped:]
         if kept + len(added) > QUEUE_CAPACITY:
             self._print("E38")
@@ -886,19 +891,12 @@ class Device:
         state = self._state
         tick = call.args[0]
         values = call.args[2:]
-        queued = int(state[core1.S_QUEUE_COUNT])
-        kept, late, offset = 0, 0, 0
-        if state[core1.S_ENABLE] == 1:
-            clock = int(state[core1.S_CLOCK])
-            start = int(state[core1.S_START])
-            first = max(start, clock) if start >= 0 else clock + int(state[core1.S_MOTION_LEFT])
-            scalar = self._scalar
-            kept = min(queued, max(0, -(-(tick - first) // scalar)))
-            late = max(0, -(-(first - tick) // scalar))
-            if late and values and state[core1.S_MODE] == MODE_POSITION:
-                due = (int(self._queue[int(state[core1.S_QUEUE_HEAD])]) if queued
-                       else int(state[core1.S_DESIRED]))
-                offset = due - values[0]
+        kept, late = self._replacement_timing(tick)
+        offset = 0
+        if late and values and state[core1.S_MODE] == MODE_POSITION:
+            due = (int(self._queue[int(state[core1.S_QUEUE_HEAD])]) if state[core1.S_QUEUE_COUNT]
+                   else int(state[core1.S_DESIRED]))
+            offset = due - values[0]
         added = [value + offset for value in values]
         if (kept + len(added) > QUEUE_CAPACITY
                 or (offset and not INT32_MIN <= min(added) <= max(added) <= INT32_MAX)):

@@ -168,8 +168,8 @@ class DeviceClient:
         self._held: list[bytes] = []
         self.stray_lines = 0
         """Lines :meth:`read_pending` found that no call was waiting for (dropped)."""
-        self._replace_acknowledged = False
-        self._stop_acknowledged = False
+        self._acknowledging: set[int] = set()
+        """The calls whose debug flag 1 (their acknowledgement) this client has set."""
         self._answer_owed = False
         """An answer did not come in time: it may still come, so the next exchange first
         brings the link back in step (:meth:`_realign`)."""
@@ -599,22 +599,11 @@ class DeviceClient:
             QueueFullError: the device answered ``E38`` (nothing changed).
             LinkCorruptedError: the acknowledgement does not match the values sent.
         """
-        if not self._replace_acknowledged:
-            self.set_debug_flag(C.REPLACE_FROM, 1)
-            self._replace_acknowledged = True
-        self.take_debug_lines(C.REPLACE_FROM)
-        self._confirm(encode_counted(C.REPLACE_FROM, (tick,), values))
-        acks = self.take_debug_lines(C.REPLACE_FROM)
-        if len(acks) != 1:
-            raise LinkCorruptedError(
-                f"{self.name}: call 38 was acknowledged {len(acks)} times", device=self.name,
-                call=C.REPLACE_FROM)
-        replaced, crc = read_replaced(acks[0].values)
+        ack = self._acknowledged(C.REPLACE_FROM, tick, values)
+        replaced, crc = read_replaced(ack.values)
         if (replaced.added != len(values) - replaced.skipped
                 or crc != values_crc32(values[replaced.skipped:])):
-            raise LinkCorruptedError(
-                f"{self.name}: call 38 acknowledged {acks[0].line!r}, which is not what was"
-                f" sent ({len(values)} values)", device=self.name, call=C.REPLACE_FROM)
+            raise self._misacknowledged(ack, values)
         return replaced
 
     def stop_from(self, tick: int,
@@ -630,22 +619,38 @@ class DeviceClient:
             QueueFullError: the device answered ``E50`` (nothing changed).
             LinkCorruptedError: the acknowledgement does not match the values sent.
         """
-        if not self._stop_acknowledged:
-            self.set_debug_flag(C.STOP_FROM, 1)
-            self._stop_acknowledged = True
-        self.take_debug_lines(C.STOP_FROM)
-        self._confirm(encode_counted(C.STOP_FROM, (tick,), values))
-        acks = self.take_debug_lines(C.STOP_FROM)
+        ack = self._acknowledged(C.STOP_FROM, tick, values)
+        stopped, crc = read_stopped(ack.values)
+        if stopped.added != len(values) or crc != values_crc32(values):
+            raise self._misacknowledged(ack, values)
+        return stopped
+
+    def _acknowledged(self, number: int, tick: int,
+                      values: Sequence[int] | npt.NDArray[np.integer]) -> Reply:
+        """Call ``number`` (38 or 50) from ``tick`` with ``values``, confirmed, and its one
+        acknowledgement (debug flag 1, set on the call's first use).
+
+        Raises:
+            QueueFullError: the device refused it (nothing changed).
+            LinkCorruptedError: not one acknowledgement came back.
+        """
+        if number not in self._acknowledging:
+            self.set_debug_flag(number, 1)
+            self._acknowledging.add(number)
+        self.take_debug_lines(number)
+        self._confirm(encode_counted(number, (tick,), values))
+        acks = self.take_debug_lines(number)
         if len(acks) != 1:
             raise LinkCorruptedError(
-                f"{self.name}: call 50 was acknowledged {len(acks)} times", device=self.name,
-                call=C.STOP_FROM)
-        stopped, crc = read_stopped(acks[0].values)
-        if stopped.added != len(values) or crc != values_crc32(values):
-            raise LinkCorruptedError(
-                f"{self.name}: call 50 acknowledged {acks[0].line!r}, which is not what was"
-                f" sent ({len(values)} values)", device=self.name, call=C.STOP_FROM)
-        return stopped
+                f"{self.name}: call {number} was acknowledged {len(acks)} times",
+                device=self.name, call=number)
+        return acks[0]
+
+    def _misacknowledged(self, ack: Reply, values: Sequence[int] | npt.NDArray[np.integer],
+                         ) -> LinkCorruptedError:
+        return LinkCorruptedError(
+            f"{self.name}: call {ack.call} acknowledged {ack.line!r}, which is not what was"
+            f" sent ({len(values)} values)", device=self.name, call=ack.call)
 
     def queue_status(self) -> tuple[int, int]:
         """Call 2: (values queued, free slots)."""
