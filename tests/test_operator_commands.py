@@ -53,7 +53,8 @@ def invoke(*args: str) -> tuple[int, str, str]:
 def test_help_reads_cleanly(command: list[str]) -> None:
     code, out, _ = invoke(*command, "--help")
     assert code == 0
-    for wrong in ("``", "<bool>", "default: -1", "<int>", "<float>", "<list[str]>", "{"):
+    for wrong in ("``", "<bool>", "default: -1", "<int>", "<float>", "<list[str]>", "{",
+                  "<str>", "<path>", "<text>", "<integer>", "<file>", "<directory>"):
         assert wrong not in out, f"{wrong!r} in the help of {command}:\n{out}"
 
 

@@ -18,6 +18,7 @@ without repeating them.
 
 from __future__ import annotations
 
+import copy
 import inspect
 import re
 import sys
@@ -63,20 +64,33 @@ def _clean(params: list[Any]) -> list[Any]:
             if param.is_flag or param.count:
                 param.metavar = ""
             else:
-                bare = {"integer": "int", "text": "str"}.get(param.type.name, param.type.name)
-                param.metavar = _NAMED_TYPES.get(bare.removeprefix("list[").removesuffix("]"),
-                                                 "VALUE")
+                param.metavar = _NAMED_TYPES.get(_kind(param), "VALUE")
         elif isinstance(param, TyperArgument) and param.name:
             param.metavar = param.name.upper()
             param.__class__ = _NamedArgument
+            param.type = _unnamed(param.type)
     return params
 
 
 class _NamedArgument(TyperArgument):
-    """An argument whose name says what it is: typer would add its type (``<path>``)."""
+    """An argument whose name says what it is: typer would add its type (``<path>``); one
+    that takes many values says so in the usage line (``[AXES]...``)."""
 
-    def display_type_rich(self, ctx: Any) -> str | None:
-        return None
+    def make_metavar(self, ctx: Any, *, usage: bool = False) -> str:
+        named = str(super().make_metavar(ctx, usage=usage))
+        return f"{named}..." if usage and self.nargs != 1 else named
+
+
+def _unnamed(kind: ParamType) -> ParamType:
+    """``kind`` as an argument's type that the help does not name (typer's help shows an
+    argument's type as ``<path>`` unless the type gives a metavar): a copy, since a type may
+    be shared by many parameters."""
+    if getattr(kind, "unnamed", False):
+        return kind
+    copied = copy.copy(kind)
+    setattr(copied, "get_metavar", lambda param, ctx: "")  # noqa: B010 - on this copy alone
+    setattr(copied, "unnamed", True)  # noqa: B010
+    return copied
 
 
 def _usage(pieces: list[str]) -> list[str]:
