@@ -58,6 +58,16 @@ def test_help_reads_cleanly(command: list[str]) -> None:
         assert wrong not in out, f"{wrong!r} in the help of {command}:\n{out}"
 
 
+def test_help_names_arguments_and_values_as_they_are_typed() -> None:
+    """Many values read ``[AXES]...``, a required argument its name alone, a whole number
+    ``N`` with its range."""
+    assert "usbmotion home [OPTIONS] [AXES]..." in invoke("home", "--help")[1]
+    assert "usbmotion jog [OPTIONS] STEPS..." in invoke("jog", "--help")[1]
+    run_help = invoke("run", "--help")[1]
+    assert "usbmotion run [OPTIONS] PROGRAM " in run_help
+    assert "--from-line             N [x>=1]" in run_help
+
+
 def test_the_machine_commands_say_the_default_machine_is_fresh_each_time() -> None:
     for command in ("status", "home", "jog", "get", "set"):
         out = invoke(command, "--help")[1]
