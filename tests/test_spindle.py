@@ -9,15 +9,18 @@ words stay listed as ignored."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from usbmotion.console import Console
+from usbmotion.device import Device
 from usbmotion.errors import ConfigError, GCodeError
 from usbmotion.grbl.session_machine import SessionMachine
 from usbmotion.host.config import load_config
+from usbmotion.host.device import DeviceClient, Stopped
 from usbmotion.host.spindle import SpindleNow
 from usbmotion.motion.gcode import MachineAxes, parse_gcode
 from usbmotion.motion.moves import Dwell
@@ -108,6 +111,56 @@ def test_the_feed_waits_for_the_spindle_at_speed_and_m5_stops_it(tmp_path: Path)
     moving = clocks[np.flatnonzero(desired != desired[0])[0]]
     assert (moving - trace.start_tick) * trace.tick_s >= up.waited_s - 0.011
     assert report.executed_time_s >= report.planned_time_s + up.waited_s + down.waited_s
+
+
+def test_a_new_speed_sent_late_ramps_whole(tmp_path: Path,
+                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """The host held up 0.2 s before sending the ramp from 12,000 to 6,000 rpm (a third of
+    it): the ramp plays whole, late (call 50), where call 38 would have dropped its first
+    third and stepped the commanded speed by 2,000 rpm at once."""
+    stop_from = DeviceClient.stop_from
+    late: list[int] = []
+    held: list[DeviceClient | None] = [None]
+
+    def held_up(client: DeviceClient, tick: int, values: Sequence[int]) -> Stopped:
+        if client is held[0]:
+            client.link_clock.sleep(0.2)
+        stopped = stop_from(client, tick, values)
+        late.append(stopped.late)
+        return stopped
+
+    config = load_config(_router(tmp_path))
+    spindle = config.spindle
+    assert spindle is not None
+    with connect_session(config) as session:
+        session.home()
+        world = session.machine.world
+        assert world is not None
+        device = world.device("S")
+        assert isinstance(device, Device)
+        run, seen = type(device).run, []
+
+        def tick_by_tick(ticks: int) -> None:
+            for _ in range(ticks):
+                run(device, 1)
+                seen.append(device.state.desired_velocity)
+
+        device.__dict__["run"] = tick_by_tick
+        world.run_ahead = False
+        machine_spindle = session.machine.spindle
+        assert machine_spindle is not None
+        held[0] = machine_spindle.client
+        period_s = machine_spindle.period_s  # a value every 10 ms
+        monkeypatch.setattr(DeviceClient, "stop_from", held_up)
+        report, _ = session.run(session.prepare(
+            "spindle.ngc", text="G21 G90\nM3 S12000\nG1 X10 F600\nS6000\nG1 X20\nM5\nM2\n"))
+        session.shutdown()
+    assert report.completed, report.stop_reason
+    assert max(late) > 0, "the new speed came late"
+    step = spindle.accel_rpm_s * spindle.counts_per_revolution / 60.0 * period_s
+    speeds = np.array(seen)
+    assert np.abs(speeds).max() >= spindle.counts_per_s(12000) - 1
+    assert np.abs(np.diff(speeds)).max() <= step + 1, "the ramp cut short: a jump in speed"
 
 
 def test_a_stall_is_an_alarm_that_stops_every_axis_along_its_path(tmp_path: Path) -> None:

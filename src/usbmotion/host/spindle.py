@@ -174,7 +174,9 @@ class Spindle:
         values = self._ramp(start_value, self._lead_values())
         if status.enabled:
             start = status.clock + max(1, math.ceil(AHEAD_S / self.tick_s))
-            client.replace_from(start, values)
+            # call 50: a line that comes late delays the ramp rather than cutting it short
+            # (a jump in speed; every value past, the queue left empty: the spindle braking)
+            start += client.stop_from(start, values).late * self.scalar
         else:  # the queue starts on the first tick after enabling
             client.clear_queue()
             client.add_setpoints(values.tolist())
