@@ -819,8 +819,8 @@ CALLS: tuple[CallSpec, ...] = (
         item=_p("value", INT32_MIN, INT32_MAX, "setpoint: counts (mode 1) or counts/s (mode 2)"),
         debug={1: _t("STOPPED {kept} {late} {added} {offset} CRC {crc}")},
         refusal="E50",
-        notes="What a host sends to stop or hold an axis along its deceleration, however late"
-        " the line arrives. On time (the first value's tick T not yet past: the next motion"
+        notes="What a host sends to stop or hold an axis along its deceleration, or to ramp a"
+        " velocity (a spindle's) to a new speed, however late the line arrives. On time (the first value's tick T not yet past: the next motion"
         " update is at or before T) it is call 38: the queued values due before T are kept"
         " (`kept`) and the new values follow, value k for tick T + k x scalar. Late (the"
         " host or the link stalled: the motion update that would take value 0 is already"
