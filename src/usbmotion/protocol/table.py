@@ -820,8 +820,9 @@ CALLS: tuple[CallSpec, ...] = (
         debug={1: _t("STOPPED {kept} {late} {added} {offset} CRC {crc}")},
         refusal="E50",
         notes="What a host sends to stop or hold an axis along its deceleration, or to ramp a"
-        " velocity (a spindle's) to a new speed, however late the line arrives. On time (the first value's tick T not yet past: the next motion"
-        " update is at or before T) it is call 38: the queued values due before T are kept"
+        " velocity (a spindle's) to a new speed, however late the line arrives. On time (the"
+        " first value's tick T not yet past: the next motion update is at or before T) it is"
+        " call 38: the queued values due before T are kept"
         " (`kept`) and the new values follow, value k for tick T + k x scalar. Late (the"
         " host or the link stalled: the motion update that would take value 0 is already"
         " past), call 38 would drop the values already past and, when every one is past,"
