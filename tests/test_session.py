@@ -324,6 +324,33 @@ def test_a_stop_that_reaches_the_devices_late_still_decelerates_in_full(
             assert state.enable == 1 and state.queued == 0 and state.velocity == 0, name
 
 
+def test_a_stop_reaches_every_device_together_over_slow_links(near: MachineConfig) -> None:
+    """Links with 2 ms each way: the stop's line goes to every device before any answer is
+    read, so all three take it on one device tick (one after another, each waiting for
+    its answer, they took it 4 ms apart: the last one late)."""
+    slow = replace(near, axes=tuple(replace(axis, url=f"{axis.url}?latency_us=2000")
+                                    for axis in near.axes))
+    with connect_session(slow) as session:
+        session.home()
+        taken: dict[str, list[int]] = {}
+        for name, device in _devices(session).items():
+            feed, ticks = device.feed, taken.setdefault(name, [])
+
+            def watched(data: bytes, feed: Any = feed, ticks: list[int] = ticks,
+                        device: Device = device) -> None:
+                if any(line.startswith(b"50 ") for line in bytes(data).split(b"\n")):
+                    ticks.append(device.clock)
+                feed(data)
+
+            device.__dict__["feed"] = watched
+        _stop_mid_run(session, 3.0)
+        report, _ = session.last  # type: ignore[attr-defined]
+    assert report.stop_reason == StopReason.USER.value and report.stop_late_s == 0.0
+    assert all(len(ticks) == 1 for ticks in taken.values()), taken
+    firsts = [ticks[0] for ticks in taken.values()]
+    assert max(firsts) - min(firsts) <= 1, taken
+
+
 def test_a_stop_mid_run_decelerates_along_the_path_within_v2_over_2a(
         near: MachineConfig) -> None:
     with connect_session(near) as session:

@@ -619,7 +619,28 @@ class DeviceClient:
             QueueFullError: the device answered ``E50`` (nothing changed).
             LinkCorruptedError: the acknowledgement does not match the values sent.
         """
-        ack = self._acknowledged(C.STOP_FROM, tick, values)
+        self.send_stop_from(tick, values)
+        return self.stopped(values)
+
+    def send_stop_from(self, tick: int,
+                       values: Sequence[int] | npt.NDArray[np.integer]) -> None:
+        """:meth:`stop_from`'s line, without waiting for its answer (:meth:`stopped` reads
+        it): a stop sent to every device before any answer is read reaches them all at
+        once, whatever the link's round trip.
+
+        Raises:
+            LinkLostError: the port is gone.
+        """
+        self._send_acknowledged(C.STOP_FROM, tick, values)
+
+    def stopped(self, values: Sequence[int] | npt.NDArray[np.integer]) -> Stopped:
+        """What the call 50 :meth:`send_stop_from` sent with ``values`` did.
+
+        Raises:
+            QueueFullError: the device answered ``E50`` (nothing changed).
+            LinkCorruptedError: the acknowledgement does not match the values sent.
+        """
+        ack = self._await_acknowledged(C.STOP_FROM)
         stopped, crc = read_stopped(ack.values)
         if stopped.added != len(values) or crc != values_crc32(values):
             raise self._misacknowledged(ack, values)
@@ -634,11 +655,24 @@ class DeviceClient:
             QueueFullError: the device refused it (nothing changed).
             LinkCorruptedError: not one acknowledgement came back.
         """
+        self._send_acknowledged(number, tick, values)
+        return self._await_acknowledged(number)
+
+    def _send_acknowledged(self, number: int, tick: int,
+                           values: Sequence[int] | npt.NDArray[np.integer]) -> None:
+        """Call ``number`` with a queue-status query behind it (its answer says the call
+        has executed), its acknowledgement armed first."""
         if number not in self._acknowledging:
             self.set_debug_flag(number, 1)
             self._acknowledging.add(number)
         self.take_debug_lines(number)
-        self._confirm(encode_counted(number, (tick,), values))
+        self._realign()
+        self.transport.write(encode_counted(number, (tick,), values) + _QUEUE_QUERY)
+
+    def _await_acknowledged(self, number: int) -> Reply:
+        """The answer behind call ``number`` sent by :meth:`_send_acknowledged`, and the
+        call's one acknowledgement."""
+        self._await_answer(C.MOTION_QUEUE, after_error=True)
         acks = self.take_debug_lines(number)
         if len(acks) != 1:
             raise LinkCorruptedError(

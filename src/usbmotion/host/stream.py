@@ -272,12 +272,34 @@ class SetpointStream:
             LinkCorruptedError, DeviceTimeoutError, LinkLostError: as
                 :meth:`DeviceClient.stop_from`; the stream's account is then unchanged.
         """
+        self.send_stop(tick, index, values)
+        return self.take_stop(index, values)
+
+    def send_stop(self, tick: int, index: int,
+                  values: Sequence[int] | npt.NDArray[np.integer]) -> None:
+        """:meth:`stop_from`'s line alone (:meth:`take_stop` reads its answer): the stops of
+        several devices all sent before any answer is read reach them together.
+
+        Raises:
+            ArgumentError: ``index`` beyond the values, or more values than a queue holds.
+            LinkLostError: the port is gone.
+        """
         array = np.asarray(values, dtype=np.int64)
         if not 0 <= index <= self.total or array.size > QUEUE_CAPACITY:
             raise ArgumentError(f"stop_from index {index!r} (of {self.total}) or"
                                 f" {array.size} values (at most {QUEUE_CAPACITY})",
                                 reason="index")
-        stopped = self.client.stop_from(tick, array)
+        self.client.send_stop_from(tick, array)
+
+    def take_stop(self, index: int, values: Sequence[int] | npt.NDArray[np.integer]) -> Stopped:
+        """What the stop :meth:`send_stop` sent did, taken into the stream's account.
+
+        Raises:
+            QueueFullError, LinkCorruptedError, DeviceTimeoutError, LinkLostError: as
+                :meth:`DeviceClient.stopped`; the stream's account is then unchanged.
+        """
+        array = np.asarray(values, dtype=np.int64)
+        stopped = self.client.stopped(array)
         self.replace_future(index, array + stopped.offset, sent=int(array.size),
                             queued=stopped.kept + stopped.added)
         return stopped

@@ -16,6 +16,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import numpy.typing as npt
 
+from usbmotion.errors import UsbMotionError
 from usbmotion.host.device import DeviceClient
 from usbmotion.host.machine import Machine
 from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams
@@ -147,16 +148,28 @@ class RunStreams:
     def stop(self, tick: int, index: int, rows: npt.NDArray[np.integer]) -> int:
         """Every device's queued future from ``tick`` (row ``index``) replaced by the stop
         ``rows`` (its last row at rest): in one call 50 each when they fit a queue beside
-        what it keeps, so that a stop arriving late is delayed and not cut short; a longer
+        what it keeps, every line sent before any answer is read (the stop reaches the
+        devices together), so that a stop arriving late is delayed and not cut short; a longer
         stop as :meth:`replace` sends it. Returns how many value periods the latest device
         took it late (0: on time everywhere); the streams are given every row."""
         late = 0
         if any(len(rows) > stream.room_from(index) for stream in self.streams.values()):
             self.replace(tick, index, rows, index + len(rows))
             return late
-        for column, name in enumerate(self.axes):
-            stopped = self.streams[name].stop_from(tick, index, rows[:, column])
-            late = max(late, stopped.late)
+        sent: list[tuple[str, int]] = []
+        failure: Exception | None = None
+        try:  # every device's line first, then the answers: the stop reaches them together
+            for column, name in enumerate(self.axes):
+                self.streams[name].send_stop(tick, index, rows[:, column])
+                sent.append((name, column))
+        finally:
+            for name, column in sent:  # every answer read, even after a failure
+                try:
+                    late = max(late, self.streams[name].take_stop(index, rows[:, column]).late)
+                except UsbMotionError as error:
+                    failure = failure or error
+        if failure is not None:
+            raise failure
         self.released = index + len(rows)
         return late
 
