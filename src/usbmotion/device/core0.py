@@ -17,7 +17,7 @@ device keeps serving. Nothing escapes :meth:`Device.feed`.
 from __future__ import annotations
 
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -56,6 +56,7 @@ from usbmotion.protocol.codec import (
     Overlong,
     format_err,
     parse_call,
+    values_crc32,
 )
 from usbmotion.protocol.names import Drive, FaultCode, fault_words
 from usbmotion.protocol.table import (
@@ -879,12 +880,9 @@ class Device:
         if kept + len(added) > QUEUE_CAPACITY:
             self._print("E38")
             return
-        kept_values = self.queue_values()[:kept]
-        self._clear_queue()
-        self._push((*kept_values, *added))
+        self._keep_then_add(kept, added)
         if self._debug.get(38, 0) == 1:
-            crc = zlib.crc32(np.asarray(added, dtype="<i4").tobytes())
-            self._debug_line(38, kept, skipped, len(added), crc)
+            self._debug_line(38, kept, skipped, len(added), values_crc32(added))
 
     def _call_50(self, call: Call) -> None:
         self._refuse_in_curve_mode()
@@ -902,12 +900,15 @@ class Device:
                 or (offset and not INT32_MIN <= min(added) <= max(added) <= INT32_MAX)):
             self._print("E50")
             return
+        self._keep_then_add(kept, added)
+        if self._debug.get(50, 0) == 1:
+            self._debug_line(50, kept, late, len(added), offset, values_crc32(values))
+
+    def _keep_then_add(self, kept: int, added: Sequence[int]) -> None:
+        """Calls 38 and 50: the queue becomes its first ``kept`` values, then ``added``."""
         kept_values = self.queue_values()[:kept]
         self._clear_queue()
         self._push((*kept_values, *added))
-        if self._debug.get(50, 0) == 1:
-            crc = zlib.crc32(np.asarray(values, dtype="<i4").tobytes())
-            self._debug_line(50, kept, late, len(added), offset, crc)
 
     def _call_2(self, call: Call) -> None:
         queued = int(self._state[core1.S_QUEUE_COUNT])

@@ -253,6 +253,14 @@ def _sim_sci(number: CallNumber, what: str, unit: str, *, zero: bool = False) ->
     )
 
 
+_REPLACEMENT = (
+    _p("tick", 0, INT32_MAX, "device clock tick the first new value is for"),
+    _p("count", 0, QUEUE_CAPACITY, "number of values that follow"),
+)
+"""Calls 38 and 50: the tick the new values start from and how many follow."""
+_REPLACEMENT_ITEM = _p("value", INT32_MIN, INT32_MAX,
+                       "setpoint: counts (mode 1) or counts/s (mode 2)")
+
 CALLS: tuple[CallSpec, ...] = (
     CallSpec(
         C.ADD_SINGLE,
@@ -560,11 +568,8 @@ CALLS: tuple[CallSpec, ...] = (
     CallSpec(
         C.REPLACE_FROM,
         "Replace the motion queue's future from device tick T with N values, in one step.",
-        (
-            _p("tick", 0, INT32_MAX, "device clock tick the first new value is for"),
-            _p("count", 0, QUEUE_CAPACITY, "number of values that follow"),
-        ),
-        item=_p("value", INT32_MIN, INT32_MAX, "setpoint: counts (mode 1) or counts/s (mode 2)"),
+        _REPLACEMENT,
+        item=_REPLACEMENT_ITEM,
         debug={1: _t("REPLACED {kept} {skipped} {added} CRC {crc}")},
         refusal="E38",
         notes="What a host needs to stop, hold or change a motion already queued without a"
@@ -812,11 +817,8 @@ CALLS: tuple[CallSpec, ...] = (
         C.STOP_FROM,
         "Replace the motion queue's future from device tick T with a motion to rest: as"
         " call 38, but a stop that comes late is delayed, never cut short.",
-        (
-            _p("tick", 0, INT32_MAX, "device clock tick the first new value is for"),
-            _p("count", 0, QUEUE_CAPACITY, "number of values that follow"),
-        ),
-        item=_p("value", INT32_MIN, INT32_MAX, "setpoint: counts (mode 1) or counts/s (mode 2)"),
+        _REPLACEMENT,
+        item=_REPLACEMENT_ITEM,
         debug={1: _t("STOPPED {kept} {late} {added} {offset} CRC {crc}")},
         refusal="E50",
         notes="What a host sends to stop or hold an axis along its deceleration, or to ramp a"
