@@ -599,7 +599,8 @@ class DeviceClient:
             QueueFullError: the device answered ``E38`` (nothing changed).
             LinkCorruptedError: the acknowledgement does not match the values sent.
         """
-        ack = self._acknowledged(C.REPLACE_FROM, tick, values)
+        self._send_acknowledged(C.REPLACE_FROM, tick, values)
+        ack = self._await_acknowledged(C.REPLACE_FROM)
         replaced, crc = read_replaced(ack.values)
         if (replaced.added != len(values) - replaced.skipped
                 or crc != values_crc32(values[replaced.skipped:])):
@@ -645,18 +646,6 @@ class DeviceClient:
         if stopped.added != len(values) or crc != values_crc32(values):
             raise self._misacknowledged(ack, values)
         return stopped
-
-    def _acknowledged(self, number: int, tick: int,
-                      values: Sequence[int] | npt.NDArray[np.integer]) -> Reply:
-        """Call ``number`` (38 or 50) from ``tick`` with ``values``, confirmed, and its one
-        acknowledgement (debug flag 1, set on the call's first use).
-
-        Raises:
-            QueueFullError: the device refused it (nothing changed).
-            LinkCorruptedError: not one acknowledgement came back.
-        """
-        self._send_acknowledged(number, tick, values)
-        return self._await_acknowledged(number)
 
     def _send_acknowledged(self, number: int, tick: int,
                            values: Sequence[int] | npt.NDArray[np.integer]) -> None:

@@ -258,27 +258,13 @@ class SetpointStream:
         spare."""
         return QUEUE_CAPACITY - REPLACE_ROOM_MARGIN - max(0, index - self.consumed_estimate)
 
-    def stop_from(self, tick: int, index: int,
-                  values: Sequence[int] | npt.NDArray[np.integer]) -> Stopped:
-        """Replace the device's queued future from device tick ``tick`` (when value
-        ``index`` is due) by the stop ``values``, all in one call 50, which is delayed
-        rather than cut short when it arrives late (:meth:`DeviceClient.stop_from`); the
-        stream's values from ``index`` become the values the device took (offset as it
-        offset them). Returns what the device did.
-
-        Raises:
-            ArgumentError: ``index`` beyond the values, or more values than a queue holds.
-            QueueFullError: refused (the values and those kept do not fit the queue).
-            LinkCorruptedError, DeviceTimeoutError, LinkLostError: as
-                :meth:`DeviceClient.stop_from`; the stream's account is then unchanged.
-        """
-        self.send_stop(tick, index, values)
-        return self.take_stop(index, values)
-
     def send_stop(self, tick: int, index: int,
                   values: Sequence[int] | npt.NDArray[np.integer]) -> None:
-        """:meth:`stop_from`'s line alone (:meth:`take_stop` reads its answer): the stops of
-        several devices all sent before any answer is read reach them together.
+        """Replace the device's queued future from device tick ``tick`` (when value
+        ``index`` is due) by the stop ``values``, all in one call 50, which is delayed
+        rather than cut short when it arrives late (:meth:`DeviceClient.stop_from`): its
+        line alone, :meth:`take_stop` reading its answer, so that the stops of several
+        devices all sent before any answer is read reach them together.
 
         Raises:
             ArgumentError: ``index`` beyond the values, or more values than a queue holds.
@@ -286,13 +272,15 @@ class SetpointStream:
         """
         array = np.asarray(values, dtype=np.int64)
         if not 0 <= index <= self.total or array.size > QUEUE_CAPACITY:
-            raise ArgumentError(f"stop_from index {index!r} (of {self.total}) or"
+            raise ArgumentError(f"send_stop index {index!r} (of {self.total}) or"
                                 f" {array.size} values (at most {QUEUE_CAPACITY})",
                                 reason="index")
         self.client.send_stop_from(tick, array)
 
     def take_stop(self, index: int, values: Sequence[int] | npt.NDArray[np.integer]) -> Stopped:
-        """What the stop :meth:`send_stop` sent did, taken into the stream's account.
+        """What the stop :meth:`send_stop` sent did, taken into the stream's account: the
+        stream's values from ``index`` become the values the device took (offset as it
+        offset them).
 
         Raises:
             QueueFullError, LinkCorruptedError, DeviceTimeoutError, LinkLostError: as
