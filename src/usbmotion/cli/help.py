@@ -33,7 +33,14 @@ from typer._click.exceptions import (
     NoSuchOption,
     UsageError,
 )
-from typer._click.types import FloatParamType, IntParamType, ParamType, StringParamType
+from typer._click.types import (
+    FloatParamType,
+    FloatRange,
+    IntParamType,
+    IntRange,
+    ParamType,
+    StringParamType,
+)
 from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 from typer.models import CommandFunctionType, TyperPath
 
@@ -188,32 +195,25 @@ def _bad_value(error: typer.BadParameter, args: list[str]) -> str:
         given = _given(param.opts, args)
         if wanted is not None and given is not None and not _parses(given, kind):
             return f"{_names(param)} {given!r} is not {wanted}"
-        allowed = _range_words(error.message)
-        if allowed is not None and given is not None:
+        allowed = _range_words(param.type)
+        if allowed is not None and given is not None and "not in the range" in error.message:
             return f"{_names(param)} {given} is out of range; allowed: {allowed}"
     return f"{_plain(named)}: {_plain(error.message)}" if named else _plain(error.message)
 
 
-_NUMBER = r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?"
-_RANGE = re.compile(rf"is not in the range (?:(?P<low>{_NUMBER})(?P<lop><=?))?x"
-                    rf"(?:(?P<hop>[<>]=?)(?P<high>{_NUMBER}))?\.?$")
-"""The command-line library's message for a number outside an option's range."""
-
-
-def _range_words(message: str) -> str | None:
-    """What an option's range allows, in words (``1 or more``, ``1 to 16``), from the
-    command-line library's message of a value outside it, or None for another message."""
-    found = _RANGE.search(message)
-    if found is None:
+def _range_words(kind: ParamType) -> str | None:
+    """What a number option's range allows, in words (``1 or more``, ``1 to 16``), or None
+    for a type with no range."""
+    if not isinstance(kind, IntRange | FloatRange):
         return None
-    low, lop, hop, high = found.group("low", "lop", "hop", "high")
+    low, high = kind.min, kind.max
     if low is not None and high is not None:
-        ends = ("" if lop == "<=" else "above ", "" if hop == "<=" else "below ")
-        return f"{ends[0]}{low} to {ends[1]}{high}"
-    if hop is not None and high is not None:
-        if hop.startswith(">"):
-            return f"{high} or more" if hop == ">=" else f"more than {high}"
-        return f"{high} or less" if hop == "<=" else f"less than {high}"
+        return (f"{'above ' if kind.min_open else ''}{low} to"
+                f" {'below ' if kind.max_open else ''}{high}")
+    if low is not None:
+        return f"more than {low}" if kind.min_open else f"{low} or more"
+    if high is not None:
+        return f"less than {high}" if kind.max_open else f"{high} or less"
     return None
 
 
