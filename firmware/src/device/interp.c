@@ -1438,6 +1438,21 @@ static void replacement_timing(int64_t tick, int64_t *kept, int64_t *late) {
  * the next tick; the rest go in after it is released, far faster than core1 takes them. */
 #define REPLACE_LOCKED_VALUES 16u
 
+/* Calls 38 and 50, with the servo lock held (released here): the queue keeps its first
+ * `kept` values, then takes `count` values each moved by `offset` (checked to fit int32). */
+static void keep_then_add_unlocking(uint32_t kept, const int32_t *values, uint32_t count,
+                                    int64_t offset) {
+    mq_truncate(kept);
+    uint32_t locked = count < REPLACE_LOCKED_VALUES ? count : REPLACE_LOCKED_VALUES;
+    for (uint32_t i = 0; i < locked; i++) {
+        (void)mq_try_add((int32_t)(values[i] + offset));
+    }
+    platform_servo_unlock();
+    for (uint32_t i = locked; i < count; i++) {
+        (void)mq_try_add((int32_t)(values[i] + offset));
+    }
+}
+
 static void call_replace_from(const call_t *call) {
     if (refused_in_curve_mode(CALL_REPLACE_FROM)) {
         return;
@@ -1456,15 +1471,7 @@ static void call_replace_from(const call_t *call) {
         return;
     }
     const int32_t *values = &interp_items[skipped];
-    mq_truncate((uint32_t)kept);
-    uint32_t locked = added < REPLACE_LOCKED_VALUES ? added : REPLACE_LOCKED_VALUES;
-    for (uint32_t i = 0; i < locked; i++) {
-        (void)mq_try_add(values[i]);
-    }
-    platform_servo_unlock();
-    for (uint32_t i = locked; i < added; i++) {
-        (void)mq_try_add(values[i]);
-    }
+    keep_then_add_unlocking((uint32_t)kept, values, added, 0);
     if (debug_flags[CALL_REPLACE_FROM] == 1) {
         debug_line(CALL_REPLACE_FROM, (field_t[]){NUMBER(kept), NUMBER(skipped), NUMBER(added),
                                                   NUMBER(values_crc32(values, added))});
@@ -1500,15 +1507,7 @@ static void call_stop_from(const call_t *call) {
         return;
     }
     uint32_t crc = debug_flags[CALL_STOP_FROM] == 1 ? values_crc32(values, count) : 0;
-    mq_truncate((uint32_t)kept);
-    uint32_t locked = count < REPLACE_LOCKED_VALUES ? count : REPLACE_LOCKED_VALUES;
-    for (uint32_t i = 0; i < locked; i++) {
-        (void)mq_try_add((int32_t)(values[i] + offset));
-    }
-    platform_servo_unlock();
-    for (uint32_t i = locked; i < count; i++) {
-        (void)mq_try_add((int32_t)(values[i] + offset));
-    }
+    keep_then_add_unlocking((uint32_t)kept, values, count, offset);
     if (debug_flags[CALL_STOP_FROM] == 1) {
         debug_line(CALL_STOP_FROM, (field_t[]){NUMBER(kept), NUMBER(late), NUMBER(count),
                                                NUMBER(offset), NUMBER(crc)});
