@@ -13,9 +13,11 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import serial
+import typer.main
 from tests.reliability.bench import bench_machine, served
 from typer.testing import CliRunner
 
@@ -28,10 +30,19 @@ from usbmotion.session.live import LiveSnapshot as Progress
 from usbmotion.session.operator import parse_steps
 from usbmotion.sim.machine import connect_session, load_machine_file
 
-COMMANDS = (
-    [], ["run"], ["console"], ["tune"], ["sim"], ["status"], ["home"], ["jog"], ["get"],
-    ["set"], ["devices"], ["version"], ["gcode"], ["gcode", "moves"],
-)
+
+def _every_command() -> Iterator[tuple[list[str], Any]]:
+    """Every command and group under the root, with the words that call it."""
+    waiting: list[tuple[list[str], Any]] = [([], typer.main.get_command(app))]
+    while waiting:
+        words, command = waiting.pop()
+        yield words, command
+        for name, sub in getattr(command, "commands", {}).items():
+            waiting.append(([*words, name], sub))
+
+
+COMMANDS = sorted(words for words, _ in _every_command())
+"""Every command and group, by the words that call it (the root's are none)."""
 MACHINE_COMMANDS = (
     ["status"], ["home"], ["jog", "X", "1", "--feed", "60"], ["get"], ["get", "X", "kp"],
     ["set", "X", "kp", "0.2"],
@@ -53,9 +64,27 @@ def invoke(*args: str) -> tuple[int, str, str]:
 def test_help_reads_cleanly(command: list[str]) -> None:
     code, out, _ = invoke(*command, "--help")
     assert code == 0
-    for wrong in ("``", "<bool>", "default: -1", "<int>", "<float>", "<list[str]>", "{",
+    for wrong in ("``", "<bool>", "default: -1", "<int>", "<float>", "<list[str]>",
                   "<str>", "<path>", "<text>", "<integer>", "<file>", "<directory>"):
         assert wrong not in out, f"{wrong!r} in the help of {command}:\n{out}"
+    assert not re.search(r"\{[A-Z_]+\}", out), f"a braced argument in {command}:\n{out}"
+
+
+def test_help_shows_square_brackets_as_written() -> None:
+    """The help is rendered with rich's markup, which took ``[joints]`` for a style and
+    dropped it: every bracketed word of a command's help and of its parameters' help is
+    in what ``--help`` prints."""
+    checked = 0
+    for words, command in _every_command():
+        texts = [command.help or "", *(getattr(p, "help", None) or "" for p in command.params)]
+        out = re.sub(r"[\s│]", "", invoke(*words, "--help")[1])
+        for text in texts:
+            written = re.sub(r"\\\[", "[", text)
+            for bracketed in re.findall(r"\[[^\]]*\]", written):
+                checked += 1
+                assert re.sub(r"\s", "", bracketed) in out, (
+                    f"{bracketed!r} missing from the help of {words}:\n{out}")
+    assert checked >= 3
 
 
 def test_help_names_arguments_and_values_as_they_are_typed() -> None:

@@ -120,6 +120,27 @@ def reflow(text: str) -> str:
     return "\n\n".join(paragraphs)
 
 
+def _shown_as_written(text: str) -> str:
+    """``text`` for rich's markup, which the help is rendered with: a word in square
+    brackets (``[joints]``, ``[[t, ...], ...]``) would be taken for a style and dropped,
+    so each bracket is escaped (and a backslash before one doubled)."""
+    return re.sub(r"(\\*)\[", lambda found: found.group(1) * 2 + "\\[", text)
+
+
+def _as_written(command: Any) -> None:
+    """A command's or group's help, and its parameters', shown as written (under rich's
+    markup; with typer's plain help, nothing is read as markup and nothing changes)."""
+    if getattr(command, "rich_markup_mode", None) != "rich":
+        return
+    for name in ("help", "short_help", "epilog"):
+        text = getattr(command, name, None)
+        if text:
+            setattr(command, name, _shown_as_written(text))
+    for param in command.params:
+        if getattr(param, "help", None):
+            param.help = _shown_as_written(param.help)
+
+
 def _command_path(context: Any) -> str:
     """``usbmotion gcode moves``: the command's names under the root, whatever the program
     was called (``python -m usbmotion``, a test runner)."""
@@ -276,6 +297,7 @@ class UsbMotionCommand(TyperCommand):
         super().__init__(*args, **settings)
         if self.help:
             self.help = reflow(self.help)
+        _as_written(self)
 
     def get_params(self, ctx: Any) -> list[Any]:
         return _clean(super().get_params(ctx))
@@ -295,6 +317,10 @@ class UsbMotionCommand(TyperCommand):
 class UsbMotionGroup(TyperGroup):
     """A group whose own help follows the module's rules, and which, run as the program
     (standalone), says every usage error in one line (:func:`usage_error_line`)."""
+
+    def __init__(self, *args: Any, **settings: Any) -> None:
+        super().__init__(*args, **settings)
+        _as_written(self)
 
     def get_params(self, ctx: Any) -> list[Any]:
         return _clean(super().get_params(ctx))
