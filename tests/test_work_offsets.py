@@ -366,3 +366,34 @@ def test_machine_file_keys_for_the_tool_table_and_parameter_file(tmp_path: Path)
         load_config(_machine_file(tmp_path, "tool_table = 5\n"))
     assert "tool_table" in str(info.value) and "not a file name" in str(info.value)
     assert info.value.line is not None
+
+
+def test_the_console_homes_with_dollar_h_and_says_how_when_a_line_needs_it(
+    tmp_path: Path,
+) -> None:
+    """A line of G-code before homing is refused with the way to home (``$H``, as grbl
+    spells it; ``$h`` stays the help); ``$H`` homes every axis, then the line runs."""
+    config = load_config(_machine_file(tmp_path))
+    lines: list[str] = []
+    with connect_session(config) as session:
+        console = Console(session, lines.append)
+
+        def do(line: str) -> None:
+            console.handle(line)
+            assert console.operator.wait_idle(60)
+
+        try:
+            do("G0 X1")
+            assert lines[-1] == "error: the machine is not homed: home it first; $H homes it"
+            do("$z")
+            assert lines[-1].endswith("$H homes it")
+            do("$h")
+            assert any(line.startswith("$H ") for line in lines[-1].splitlines())
+            do("$H")
+            assert lines[-1].startswith("homed in ") and session.is_homed, lines[-3:]
+            where = session.positions_mm()
+            do("G91 G0 X1")
+            assert lines[-1] == "ok"
+            assert session.positions_mm()["X"] == pytest.approx(where["X"] + 1)
+        finally:
+            console.close()

@@ -2,15 +2,15 @@
 MDI, jogging and live control while the machine moves.
 
 Commands are ``$`` and a letter, then values: ``$c`` runs the loaded program from where the
-machine stands, ``$r`` stops the machine, clears any alarm and homes it, ``$d N`` loads demo
-program N, ``$l FILE`` loads a G-code file, ``?`` reports the state, ``$h`` lists the
-commands, ``$q`` leaves. ``$z [AXES]`` sets the work origin (G54) where the machine stands
-for the named axes (all by default), as a sender's zero button does, and a line of G-code
-that sets offsets without moving (``G10 L20 P1 X0 Y0``, ``G10 L2 P2 X50``, ``G28.1``) is
-carried out at the machine's position; both keep the offsets in the machine's parameter
-file. Every command answers with at least one line; unknown input answers one ``error:``
-line. A cycle start plans the program from where the machine is, so
-two in a row run it twice from wherever the first ended.
+machine stands, ``$H`` homes it (grbl's spelling), ``$r`` stops the machine, clears any
+alarm and homes it, ``$d N`` loads demo program N, ``$l FILE`` loads a G-code file, ``?``
+reports the state, ``$h`` lists the commands, ``$q`` leaves. ``$z [AXES]`` sets the work
+origin (G54) where the machine stands for the named axes (all by default), as a sender's
+zero button does, and a line of G-code that sets offsets without moving (``G10 L20 P1 X0
+Y0``, ``G10 L2 P2 X50``, ``G28.1``) is carried out at the machine's position; both keep the
+offsets in the machine's parameter file. Every command answers with at least one line;
+unknown input answers one ``error:`` line. A cycle start plans the program from where the
+machine is, so two in a row run it twice from wherever the first ended.
 
 The machine moves on a worker thread (:class:`~usbmotion.session.operator.Operator`), so
 the console keeps reading while it moves: any other line of G-code is MDI, run at once
@@ -63,6 +63,7 @@ G0 X10    MDI: any other G-code line runs at once (modal state kept between line
 ^X  $x    stop: every axis to rest along its deceleration, the rest dropped
 $j X10 Y-2 F600   jog by distances (machine coordinates); $j X+ F600 jogs until $jx or ^X
 $o F150   feed override 10..200 %; $o R50 rapid override 100, 50 or 25 %
+$H        home every axis (grbl's $H; in Alarm, $r)
 $r        reset: stop every axis, clear any alarm, then home
 $d N      load demo program N (1 rounded square, 2 star, 3 spiral)
 $l FILE   load a G-code file
@@ -122,6 +123,8 @@ class Console:
                            " loaded program from line 120)")
                 return True
             machine = partial(self._cycle_start, int(value))
+        elif command == "$H" and not value:
+            machine = self._home
         elif command == "$r" and not value:
             machine = self._reset
         elif command == "$d":
@@ -280,7 +283,10 @@ class Console:
             try:
                 taken = operator.submit(text)
             except (GCodeError, PlanningError, MachineStateError) as error:
-                self.write(f"error: {error}")
+                session = self.session
+                hint = ("; $H homes it" if not session.is_homed
+                        and session.state is not MachineState.HOMING else "")
+                self.write(f"error: {error}{hint}")
                 return
             if taken:
                 self.write("ok")
@@ -412,7 +418,7 @@ class Console:
             return
         if not session.is_homed:
             self.write("error: the machine is not homed, so its position means nothing;"
-                       " $r homes it")
+                       " $H homes it")
             return
         where = session.positions_mm()
         offsets = session.set_work_origin({name: where[name] for name in names})
@@ -423,7 +429,7 @@ class Console:
         session = self.session
         if not session.is_homed:
             self.write("error: the machine is not homed, so its position means nothing;"
-                       " $r homes it")
+                       " $H homes it")
             return
         where = session.positions_mm()
         machine = machine_axes(session.config)
@@ -438,9 +444,19 @@ class Console:
                    f" {session.config.parameter_path}")
 
     def _reset(self) -> None:
-        session = self.session
         self.write("reset: stopping every axis")
-        session.reset()
+        self.session.reset()
+        self._homed()
+
+    def _home(self) -> None:
+        if self.session.state is MachineState.ALARM:
+            self.write("error: the machine is in Alarm; $r resets and homes it")
+            return
+        self._homed()
+
+    def _homed(self) -> None:
+        """Home every axis and say where they are."""
+        session = self.session
         seconds = session.home()
         positions = "  ".join(f"{k} {v:.3f}" for k, v in session.positions_mm().items())
         self.write(f"homed in {seconds:.2f} s: {positions} mm")
