@@ -254,6 +254,8 @@ def test_usbmotion_play(tmp_path: Path) -> None:
     done = CliRunner().invoke(app, ["play", str(wave), "--machine", str(machine)])
     assert done.exit_code == 0, done.output
     assert "every device from tick" in done.output and "result         completed" in done.output
+    homing = float(done.output.split("homing ", 1)[1].split()[0])
+    assert homing > 0, "the copy's robot starts unhomed: its homing time is said, as run says it"
     bad = tmp_path / "bad.csv"
     bad.write_text("time_s,shoulder\n0,0\n0.1,100\n")
     for args, words in (([str(bad), "--machine", str(machine)], "its speed reaches"),

@@ -83,9 +83,8 @@ def play(
 
         previous = {sig: signal.signal(sig, on_signal) for sig in reasons}
         try:
-            if not session.is_homed:
-                typer.echo("homing         the robot is not homed", err=True)
-                session.home()
+            homing_s = 0.0 if session.is_homed else session.home()
+            typer.echo(f"homing         {homing_s:.3f} s")
             first = dict(zip(planned.joints, planned.positions[0].tolist(), strict=True))
             robot.move_to(first)
             report = robot.play(planned)
