@@ -56,7 +56,8 @@ def main() -> None:
 
         def resume_when_held() -> None:
             robot.held.wait(timeout=30)
-            print(f"held at rest on the figure: {robot.positions()}")
+            held = ", ".join(f"{name} {value:.2f}" for name, value in robot.positions().items())
+            print(f"held at rest on the figure: {held} degrees")
             robot.resume()
 
         asked = threading.Event()
