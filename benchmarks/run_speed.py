@@ -186,6 +186,16 @@ def anatomy(
             counts["blocks_ended_by_full_records"] += 1
         return done
 
+    rounds = {"count": 0, "wall_s": 0.0}
+    """The world's rounds of devices run ahead together (``SimWorld._catch_up_together``)."""
+    original_together = SimWorld._catch_up_together
+
+    def together(self: SimWorld, *args: Any) -> None:
+        started = time.perf_counter()
+        original_together(self, *args)
+        rounds["count"] += 1
+        rounds["wall_s"] += time.perf_counter() - started
+
     original_kernel = core0.compile_kernel  # type: ignore[attr-defined]
     original_aside = DeviceClient.take_aside
     original_interpret = core0.Device._interpret
@@ -210,6 +220,7 @@ def anatomy(
     DeviceClient.take_aside = take_aside  # type: ignore[method-assign]
     LiveModel.take_lines = take_lines  # type: ignore[method-assign]
     core0.Device._interpret = interpret  # type: ignore[method-assign]
+    SimWorld._catch_up_together = together  # type: ignore[method-assign]
     if diagnostics_period_s is not None:
         job.DIAGNOSTICS_PERIOD_S = diagnostics_period_s
         job.TRACE_POINTS = 1 << 62
@@ -228,11 +239,14 @@ def anatomy(
         DeviceClient.take_aside = original_aside  # type: ignore[method-assign]
         LiveModel.take_lines = original_take_lines  # type: ignore[method-assign]
         core0.Device._interpret = original_interpret  # type: ignore[method-assign]
+        SimWorld._catch_up_together = original_together  # type: ignore[method-assign]
     machine_s = report.homing_time_s + report.planned_time_s
     return {
         **counts,
         "kernel_main_s": kernel_s["main"],
         "kernel_helper_s": kernel_s["helper"],
+        "rounds_together": rounds["count"],
+        "rounds_together_wall_s": rounds["wall_s"],
         "diagnostics_period_s": diagnostics_period_s or job.trace_period_s(plan.duration_s),
         "job_wall_s": elapsed,
         "real_time_multiple": machine_s / elapsed,
@@ -366,7 +380,9 @@ def report(figures: dict[str, Any]) -> str:
         f" {parts['diagnostics_period_s'] * 1e3:g} ms), {parts['alarm_lines']} alarms",
         f"  of the kernel's {parts['kernel_main_s'] + parts['kernel_helper_s']:.2f} s in the"
         f" anatomy, {parts['kernel_helper_s']:.2f} s ran on the world's helper thread beside"
-        f" other work and {parts['kernel_main_s']:.2f} s on the job's own thread; were all of"
+        f" other work and {parts['kernel_main_s']:.2f} s on the job's own thread (devices run"
+        f" ahead together in {parts['rounds_together']:,} rounds,"
+        f" {parts['rounds_together_wall_s']:.2f} s of wall); were all of"
         f" it beside the interpreter's work, the command would take at least"
         f" {beside['wall_s']:.2f} s = {beside['real_time_multiple']:.0f}x real time, keeping"
         f" {beside['share']:.0%} of the bare kernel",
