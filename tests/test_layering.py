@@ -192,6 +192,25 @@ def test_an_operator_command_on_a_real_machine_loads_no_simulator(
     assert done.stderr.splitlines()[-1] == "[]", done.stderr
 
 
+@pytest.mark.parametrize("command", [["status"], ["get", "X", "kp"], ["set", "X", "kp", "0.2"]])
+def test_an_operator_command_that_moves_nothing_on_the_simulated_machine_loads_no_numba(
+        tmp_path: Path, command: list[str]) -> None:
+    """On the built-in simulated machine, a command that moves nothing answers from the
+    devices' reference path: importing numba and loading the kernel (about 0.3 s, as long as
+    the rest of the command) wait for a device's first long block."""
+    script = (
+        "import runpy, sys; sys.argv = ['usbmotion', *sys.argv[1:]]\n"
+        "try:\n    runpy.run_module('usbmotion', run_name='__main__')\n"
+        "except SystemExit as done:\n    code = done.code\n"
+        "sys.stderr.write(f'{code} ' + repr(sorted(m for m in sys.modules"
+        " if m.startswith(('numba', 'llvmlite', 'matplotlib')))))\n")
+    done = subprocess.run([sys.executable, "-c", script, *command], check=False,
+                          capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "USBMOTION_STATE_DIR": str(tmp_path / "state"),
+                               "USBMOTION_KERNEL": ""})
+    assert done.stderr.splitlines()[-1] == "0 []", done.stderr
+
+
 def test_importing_the_host_leaves_pyserials_url_handlers_alone() -> None:
     assert _in_fresh_python(
         "import serial; before = list(serial.protocol_handler_packages);"

@@ -21,7 +21,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from usbmotion.device import Device, core1, kernel
+from usbmotion.device import Device, core0, core1, kernel
 from usbmotion.device.core1 import IntArray
 from usbmotion.errors import DeviceParameterError
 from usbmotion.host.device import DeviceClient
@@ -408,15 +408,92 @@ def test_without_numba_asking_for_the_kernel_is_an_error(
 def test_a_broken_numba_is_named_in_the_notice_and_the_error(
     monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture, no_environment: None
 ) -> None:
+    """An installed numba is imported when a device first needs the kernel: one that does
+    not import then leaves the device on the reference path, the notice naming why."""
     monkeypatch.setattr(kernel, "_numba_problem", lambda: ImportError("llvmlite is too old"))
     monkeypatch.setattr(kernel, "_noticed", False)
+    monkeypatch.setattr(kernel, "_warm", False)
     with caplog.at_level(logging.WARNING, logger="usbmotion.device.kernel"):
-        assert Device().fast is False
+        device = Device()
+        assert device.fast is True, "numba is installed: not imported yet"
+        send(device, "3 1", "0 100")
+        device.run(500)
+        assert device.fast is False
+    assert abs(device.state.actual - 100) <= 2
     assert [record.getMessage() for record in caplog.records] == [
         f"{kernel.NOTICE} [llvmlite is too old]"
     ]
     with pytest.raises(DeviceParameterError, match=r"numba cannot be imported \(llvmlite is"):
         Device(fast=True)
+
+
+@needs_numba
+def test_short_blocks_run_the_reference_until_a_long_one_loads_the_kernel(
+    compiled: kernel.BlockFunction, monkeypatch: pytest.MonkeyPatch, no_environment: None
+) -> None:
+    """A device that takes the kernel for numba's presence answers queries and runs short
+    blocks on the reference (a command that moves nothing never loads the kernel); its
+    first long block loads it; its bytes and state stay the reference's throughout."""
+    monkeypatch.setattr(kernel, "_warm", False)  # as in a fresh process
+    blocks: list[int] = []
+    monkeypatch.setattr("usbmotion.device.core0.compile_kernel",
+                        lambda: lambda *args: blocks.append(args[-1]) or compiled(*args))
+    lazy, reference = Device(), Device(fast=False)
+    assert lazy.fast
+    outputs: list[list[str]] = [[], []]
+    ramp = " ".join(str(value) for value in range(0, 4000, 10))
+    for device, out in zip((lazy, reference), outputs, strict=True):
+        out += send(device, "18 -1", "3 1", f"1 400 {ramp}", "30 -1")
+        for _ in range(5):
+            device.run(core0.REFERENCE_BLOCK_TICKS)  # the queue runs: servo blocks
+        out += take(device)
+    assert not kernel.loaded() and blocks == []
+    for device, out in zip((lazy, reference), outputs, strict=True):
+        device.run(2000)
+        out += send(device, "30 -1")
+    assert kernel.loaded() and blocks and max(blocks) > core0.REFERENCE_BLOCK_TICKS
+    assert outputs[0] == outputs[1] and lazy.state == reference.state
+    assert abs(lazy.state.actual - 3990) <= 4
+
+
+@needs_numba
+def test_short_blocks_load_the_kernel_once_they_add_up(
+    compiled: kernel.BlockFunction, monkeypatch: pytest.MonkeyPatch, no_environment: None
+) -> None:
+    monkeypatch.setattr(kernel, "_warm", False)
+    device = Device()
+    send(device, "3 1")
+    while device.clock < core0.REFERENCE_TICKS:
+        send(device, "1 8 1 2 3 4 5 6 7 8")  # the queue runs: servo blocks of 8 ticks
+        device.run(8)
+    assert not kernel.loaded()
+    send(device, "1 8 1 2 3 4 5 6 7 8")
+    device.run(8)
+    assert kernel.loaded()
+
+
+@needs_numba
+def test_asking_for_the_kernel_loads_it_with_the_device(
+    compiled: kernel.BlockFunction, monkeypatch: pytest.MonkeyPatch, no_environment: None
+) -> None:
+    monkeypatch.setattr(kernel, "_warm", False)
+    Device(fast=True)
+    assert kernel.loaded()
+    monkeypatch.setattr(kernel, "_warm", False)
+    monkeypatch.setenv(kernel.ENVIRONMENT_VARIABLE, "1")
+    Device()
+    assert kernel.loaded()
+
+
+@needs_numba
+def test_a_world_in_real_time_loads_the_kernel_when_it_takes_a_device(
+    compiled: kernel.BlockFunction, monkeypatch: pytest.MonkeyPatch, no_environment: None
+) -> None:
+    monkeypatch.setattr(kernel, "_warm", False)
+    SimWorld().add(Device())
+    assert not kernel.loaded()
+    SimWorld(realtime=True).add(Device())
+    assert kernel.loaded()
 
 
 @needs_numba

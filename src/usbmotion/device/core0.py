@@ -37,7 +37,9 @@ from usbmotion.device.core1 import (
 )
 from usbmotion.device.curve import CurvePlayer
 from usbmotion.device.flash import Flash, FlashContents, MemoryFlash
-from usbmotion.device.kernel import BlockFunction, compile_kernel, use_kernel, warm_up
+from usbmotion.device.kernel import BlockFunction, compile_kernel, requested, use_kernel
+from usbmotion.device.kernel import load as load_kernel
+from usbmotion.device.kernel import loaded as kernel_loaded
 from usbmotion.device.motor import (
     DIGITS,
     MICRO,
@@ -81,6 +83,11 @@ DEFAULT_SCALAR = 1
 """Motion update interval scalar at power-up (seed 000)."""
 _CURVE_CHUNK = 4096
 _SETTLE_CHUNK = 256
+REFERENCE_BLOCK_TICKS = 64
+"""Before the kernel is loaded, a fast device runs a block of at most this many ticks on the
+reference (a query's answer takes a tick or so); a longer one loads the kernel."""
+REFERENCE_TICKS = 4096
+"""And at most this many ticks in all (about 25 ms of the reference's time)."""
 _INTEGRAL_CAP = 1 << 62
 
 
@@ -219,7 +226,13 @@ class Device:
         fast: run core1 as the compiled kernel (True), as the reference Python (False),
             or (None) as :func:`usbmotion.device.kernel.use_kernel` decides: the kernel
             when numba is installed, unless ``USBMOTION_KERNEL=0``. Both are bit-for-bit
-            equal. The kernel is loaded (or compiled) when the device is made.
+            equal. Asked for by name (True, or ``USBMOTION_KERNEL=1``), the kernel is
+            loaded (or compiled) when the device is made; chosen for numba's presence
+            (None), when a device of the process first runs a block of more than
+            :data:`REFERENCE_BLOCK_TICKS` ticks, or :data:`REFERENCE_TICKS` in short
+            blocks (:meth:`load_kernel` loads it at once): until then the reference runs
+            the short blocks that answering queries takes, so a command that moves nothing
+            never waits for the kernel's loading (about 0.3 s).
 
     Raises:
         DeviceParameterError: a parameter of the wrong type, or ``fast=True`` without
@@ -244,8 +257,10 @@ class Device:
         if gains is not None and not isinstance(gains, Gains):
             raise DeviceParameterError(f"gains {gains!r} is not a Gains")
         self._fast = use_kernel(fast)
-        if self._fast:
-            warm_up()
+        self._reference_ticks = 0
+        """Ticks this fast device ran on the reference before the kernel was loaded."""
+        if requested(fast):
+            self.load_kernel()  # asked for by name: loaded (or compiled) now
         self._flash: Flash = flash if flash is not None else MemoryFlash()
         self._power_up_motor = motor if motor is not None else MotorParams()
         self._power_up_gains = gains if gains is not None else Gains()
@@ -511,7 +526,23 @@ class Device:
 
     # --- core1 ---------------------------------------------------------------------------
 
-    def _servo_block(self) -> BlockFunction:
+    def load_kernel(self) -> None:
+        """Load the compiled kernel now, if this device runs it (a device in a world that
+        keeps pace with the wall clock cannot stand still for the loading at its first
+        motion). A device whose numba does not import after all runs the reference."""
+        if self._fast and not kernel_loaded() and load_kernel() is None:
+            self._fast = False
+
+    def _servo_block(self, ticks: int) -> BlockFunction:
+        """core1's block function for a block of ``ticks``: the kernel, once loaded; a short
+        block before that runs the reference, bit for bit the same."""
+        if not self._fast:
+            return servo_block
+        if (not kernel_loaded() and ticks <= REFERENCE_BLOCK_TICKS
+                and self._reference_ticks < REFERENCE_TICKS):
+            self._reference_ticks += ticks
+            return servo_block
+        self.load_kernel()
         return compile_kernel() if self._fast else servo_block
 
     def _run_some(self, limit: int) -> int:
@@ -533,12 +564,12 @@ class Device:
             if busy:
                 event = ticks_to_scheduled_event(state, self._params, diagnostics=False)
                 n = min(limit, event or limit)
-            done = self._servo_block()(state, self._params, self._queue, self._empty, n)
+            done = self._servo_block(n)(state, self._params, self._queue, self._empty, n)
             self._settle_left = max(0, self._settle_left - done)
             self._after_block()
             return done
         before = state[list(DYNAMIC_FIELDS)].copy()
-        done = self._servo_block()(state, self._params, self._queue, self._empty, 1)
+        done = self._servo_block(1)(state, self._params, self._queue, self._empty, 1)
         events = int(state[core1.S_EVENTS])
         self._after_block()
         if (events != 0 or not np.array_equal(before, state[list(DYNAMIC_FIELDS)])
@@ -582,7 +613,7 @@ class Device:
             position = curve.next_position(desired, tick_us)
             values[i] = position
             desired = wrap_int32(position)
-        done = self._servo_block()(self._state, self._params, self._queue, values, n)
+        done = self._servo_block(n)(self._state, self._params, self._queue, values, n)
         if done < n:
             curve.restore(snapshot)
             desired = first_desired

@@ -8,10 +8,17 @@ the int32 wrap) registered as jitable, so it is bit-for-bit equal to the referen
 core0 calls it up to the next pending command, queue event or diagnostics line.
 
 numba is optional (the ``fast`` extra). :func:`use_kernel` decides which path a device
-runs: the kernel when numba is importable, unless the environment variable
+runs: the kernel when numba is installed, unless the environment variable
 ``USBMOTION_KERNEL`` says otherwise (``0``: always the reference path; ``1``: the kernel or
 an error). Without numba the reference path runs and a one-line notice (a warning on the
 ``usbmotion.device.kernel`` logger, printed once per process) says so.
+
+Importing numba and loading the kernel take about 0.3 s, more than a command that moves
+nothing takes in all, so neither happens before a device needs it: :func:`load` does both,
+when a device first runs a long block (``usbmotion.device.core0``), or at once for a world
+that keeps pace with the wall clock and cannot stand still for it (:func:`preload`). An
+installed numba that fails to import is found then, and the device runs the reference
+path, with the notice.
 
 The compiled code is cached on disk (numba's ``cache=True``: ``__pycache__`` next to this
 module, or numba's user cache directory when that is not writable), so only the first run
@@ -26,6 +33,7 @@ nothing is cached).
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import inspect
 import logging
 import os
@@ -57,6 +65,16 @@ _compiled: BlockFunction | None = None
 _jit_block: Any = None
 """``core1.servo_block`` jitted (not cached by itself): what the cached wrapper calls."""
 _noticed = False
+_warm = False
+"""Whether the kernel's machine code is loaded (:func:`warm_up` ran)."""
+
+
+def _numba_installed() -> bool:
+    """Whether numba is installed (found on the path), without importing it."""
+    try:
+        return importlib.util.find_spec("numba") is not None
+    except (ImportError, ValueError):  # a broken parent, or a module set to None
+        return False
 
 
 def _numba_problem() -> BaseException | None:
@@ -87,6 +105,19 @@ def _environment_choice() -> bool | None:
     )
 
 
+def requested(fast: bool | None = None) -> bool | None:
+    """What ``fast``, else ``USBMOTION_KERNEL``, asks for: True the kernel (and an error
+    without it), False the reference, None whichever numba's presence gives.
+
+    Raises:
+        DeviceParameterError: ``fast`` is not a bool or None, or ``USBMOTION_KERNEL`` holds
+            something other than ``0``, ``1`` or nothing.
+    """
+    if fast is not None and not isinstance(fast, bool):
+        raise DeviceParameterError(f"fast {fast!r} is not True, False or None")
+    return fast if fast is not None else _environment_choice()
+
+
 def use_kernel(fast: bool | None = None) -> bool:
     """Whether a device should run the compiled kernel.
 
@@ -101,28 +132,61 @@ def use_kernel(fast: bool | None = None) -> bool:
             (``fast=True`` or ``USBMOTION_KERNEL=1``) but numba cannot be imported; or
             ``USBMOTION_KERNEL`` holds something other than ``0``, ``1`` or nothing.
     """
-    global _noticed  # noqa: PLW0603 - the notice is printed once per process
-    if fast is not None and not isinstance(fast, bool):
-        raise DeviceParameterError(f"fast {fast!r} is not True, False or None")
-    choice = fast if fast is not None else _environment_choice()
+    choice = requested(fast)
     if choice is False:
         return False
+    if choice is None and _numba_installed():
+        return True  # imported when a device first needs the kernel (load)
     problem = _numba_problem()
     if problem is None:
         return True
-    missing = isinstance(problem, ModuleNotFoundError)
-    why = "numba is not installed" if missing else f"numba cannot be imported ({problem})"
     if choice is True:
+        missing = isinstance(problem, ModuleNotFoundError)
+        why = "numba is not installed" if missing else f"numba cannot be imported ({problem})"
         source = "fast=True" if fast else f"{ENVIRONMENT_VARIABLE}=1"
         raise DeviceParameterError(
             f"{source} asks for the compiled servo kernel, but {why};"
             " pip install 'usbmotion[fast]', or use the reference path"
             f" (fast=False or {ENVIRONMENT_VARIABLE}=0)"
         )
+    _notice(problem)
+    return False
+
+
+def _notice(problem: BaseException) -> None:
+    """The notice that the reference path runs, once per process (naming ``problem`` when
+    numba is installed but does not import)."""
+    global _noticed  # noqa: PLW0603 - the notice is printed once per process
     if not _noticed:
         _noticed = True
+        missing = isinstance(problem, ModuleNotFoundError)
         _log.warning(NOTICE if missing else f"{NOTICE} [{problem}]")
-    return False
+
+
+def loaded() -> bool:
+    """Whether the kernel is loaded in this process (:func:`load` or :func:`warm_up`)."""
+    return _warm
+
+
+def load() -> BlockFunction | None:
+    """The compiled kernel, numba imported and the machine code loaded (from numba's cache,
+    or compiled) if that has not happened yet in this process; None when numba does not
+    import after all (the reference path runs then: the notice says so, once)."""
+    if not _warm:
+        problem = _numba_problem()
+        if problem is not None:
+            _notice(problem)
+            return None
+        warm_up()
+    return compile_kernel()
+
+
+def preload() -> None:
+    """Load the kernel now when the devices made in this process run it (:func:`use_kernel`):
+    for a world that keeps pace with the wall clock, which cannot stand still for the
+    loading (about 0.3 s) at its first motion."""
+    if use_kernel():
+        load()
 
 
 SOURCES: Final = (core1, motor, stepper, scimath, table)
@@ -210,9 +274,11 @@ def warm_up() -> None:
     Raises:
         ImportError: numba is not installed.
     """
+    global _warm  # noqa: PLW0603 - one compiled kernel per process
     function = compile_kernel()
     empty = core1.new_state()[:0]
     function(core1.new_state(), core1.new_params(), empty.copy(), empty, 0)
+    _warm = True
 
 
 def servo_block(

@@ -28,7 +28,7 @@ from usbmotion.serving import (
     Serving,
     TcpEndpoint,
 )
-from usbmotion.sim.world import SimLink, SimWorld
+from usbmotion.sim.world import SimLink, SimWorld, ready
 
 _POLL_S = 0.001
 _MAX_STEP_US = 20_000
@@ -111,9 +111,9 @@ class DeviceServer:
 
     def warm_up(self, *, timeout_s: float = 1.0) -> None:
         """Ask every device for its name and run it a tick past the answer, in the world's
-        virtual time, before any client connects: whatever a device's first exchange loads
-        (the compiled servo kernel, from numba's cache or compiled afresh: seconds) is
-        loaded now, and a client's first exchange is answered at once.
+        virtual time, and load what a device loads at its first motion (the compiled servo
+        kernel, from numba's cache or compiled afresh: seconds), before any client
+        connects: a client's first exchange is answered at once, its first move on time.
 
         Parameters:
             timeout_s: device time each device has to answer, seconds.
@@ -135,6 +135,7 @@ class DeviceServer:
                     f" within {timeout_s} s of device time")
             self.world.advance(link.device.tick_us)
             link.discard_input()
+            ready(link.device)
 
     def start(self) -> DeviceServer:
         """Run the serving loop in a background thread."""

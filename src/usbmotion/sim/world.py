@@ -258,6 +258,15 @@ class SimLink:
             self.world._detach(self)
 
 
+def ready(device: SimulatedDevice) -> None:
+    """Load now what a device would load at its first motion (the compiled kernel of a
+    :class:`usbmotion.device.Device`: ``load_kernel``): a world that keeps pace with the wall
+    clock, or a server whose clients wait on it, cannot stand still for it then."""
+    load = getattr(device, "load_kernel", None)
+    if load is not None:
+        load()
+
+
 class SimWorld:
     """Devices on one virtual clock, in microseconds since the world was made."""
 
@@ -297,6 +306,8 @@ class SimWorld:
         if key in self._members:
             raise ArgumentError(f"device key {key!r} is already in this world", reason="key")
         rewindable = isinstance(device, RewindableDevice)
+        if self.realtime:
+            ready(device)
         self._members[key] = _Member(
             device, time_us=self._time_us, rewindable=rewindable,
             parallel=rewindable and getattr(device, "fast", False) is True and _CORES > 1)
