@@ -195,6 +195,10 @@ def run(
     try:
         with _startup_kept():
             session = connect_any(config, realtime=realtime)
+            if config.is_simulated:  # it will move: the kernel loaded now, and kept
+                from usbmotion.device.kernel import preload  # noqa: PLC0415
+
+                preload()
     except UsbMotionError as error:
         typer.echo(f"usbmotion run: {error}", err=True)
         raise typer.Exit(EXIT_FAULT) from None
@@ -250,10 +254,10 @@ def _check_program(config: MachineConfig, program: Path, text: str,
 
 @contextmanager
 def _startup_kept() -> Iterator[None]:
-    """The garbage collector paused while the command connects, and everything made so far
-    frozen out of its collections then: the modules, numba and a simulated machine's servo
-    kernel live as long as the process, and two full collections of numba's objects took
-    0.1 s of a run."""
+    """The garbage collector paused while the command connects (and loads a simulated
+    machine's servo kernel), and everything made so far frozen out of its collections then:
+    the modules, numba and the kernel live as long as the process, and two full collections
+    of numba's objects took 0.1 s of a run."""
     gc.disable()
     try:
         yield
