@@ -306,3 +306,20 @@ def test_the_reach_of_a_served_device_over_a_pseudo_terminal() -> None:
     assert result.reach.velocity_mm_s == pytest.approx(speed, rel=0.01)
     assert result.reach.accel_mm_s2 == pytest.approx(accel, rel=0.02)
     assert all(run.fit.rms_residual_counts < 1.0 for run in result.runs)
+
+
+def test_tune_writes_its_plot_unless_told_not_to(tmp_path: Path,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """As run: ``--no-plot`` writes none, ``--plot`` names it, and both at once are refused."""
+    monkeypatch.chdir(tmp_path)
+    code, out, _ = invoke("tune", "--axis", "X", "--no-plot")
+    assert code == 0 and "overshoot" in out and "plot" not in out
+    assert list(tmp_path.iterdir()) == []
+    code, out, _ = invoke("tune", "--axis", "X", "--plot", "step.png")
+    assert code == 0 and (tmp_path / "step.png").is_file()
+    message = "--plot step.png and --no-plot: give one or the other"
+    assert invoke("tune", "--axis", "X", "--plot", "step.png", "--no-plot") == (
+        2, "", f"usbmotion tune: {message}\n")
+    (tmp_path / "p.ngc").write_text("G0 X1\n")
+    code, _, err = invoke("run", "p.ngc", "--plot", "step.png", "--no-plot")
+    assert (code, err) == (2, f"usbmotion run: {message}\n")

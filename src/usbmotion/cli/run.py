@@ -162,6 +162,10 @@ def run(
         except ValueError as error:
             typer.echo(f"usbmotion run: --dialect: {error}", err=True)
             raise typer.Exit(EXIT_BAD_INPUT) from None
+    if plot is not None and no_plot:
+        typer.echo(f"usbmotion run: --plot {plot} and --no-plot: give one or the other",
+                   err=True)
+        raise typer.Exit(EXIT_BAD_INPUT)
     origin_mm = parse_origin(origin or [])
     if tolerance is not None and not (math.isfinite(tolerance) and tolerance > 0):
         typer.echo(f"usbmotion run: --tolerance: {tolerance!r} is not a following error;"

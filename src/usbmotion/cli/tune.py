@@ -94,6 +94,7 @@ def tune(
     plot: Annotated[
         Path | None, typer.Option("--plot", help="PNG to write (default: tune-AXIS.png).")
     ] = None,
+    no_plot: Annotated[bool, typer.Option("--no-plot", help="Write no plot.")] = False,
 ) -> None:
     """Step one axis and print rise time, overshoot, settling time and steady-state error.
 
@@ -109,6 +110,8 @@ def tune(
     phase margin and 6 dB of gain margin, checks them with a step and a move, and prints
     predicted beside measured; --write puts the gains and the model into the machine file.
     """
+    if plot is not None and no_plot:
+        fail("tune", f"--plot {plot} and --no-plot: give one or the other", EXIT_BAD_INPUT)
     config = load_machine(machine, "tune")
     if axis.upper() not in config.axis_names:
         fail("tune", f"no axis {axis!r}; {config.path} has {', '.join(config.axis_names)}",
@@ -161,12 +164,13 @@ def tune(
         typer.echo("usbmotion tune: --distance-mm applies to --reach only", err=True)
         raise typer.Exit(EXIT_BAD_INPUT)
     _step(config, axis_config, step_mm=2.0 if step_mm is None else step_mm,
-          duration_s=0.5 if duration_s is None else duration_s, kp=kp, ki=ki, kd=kd, plot=plot)
+          duration_s=0.5 if duration_s is None else duration_s, kp=kp, ki=ki, kd=kd, plot=plot,
+          no_plot=no_plot)
 
 
 def _step(config: MachineConfig, axis_config: AxisConfig, *, step_mm: float,
           duration_s: float, kp: float | None, ki: float | None, kd: float | None,
-          plot: Path | None) -> None:
+          plot: Path | None, no_plot: bool = False) -> None:
     from usbmotion.host.config import PidGains  # noqa: PLC0415
     from usbmotion.sim.machine import connect_machine  # noqa: PLC0415
     from usbmotion.tuning import stands_at_mm, step_response  # noqa: PLC0415
@@ -205,6 +209,8 @@ def _step(config: MachineConfig, axis_config: AxisConfig, *, step_mm: float,
                " counts)")
     typer.echo(f"steady-state error    {m.steady_state_error_counts:.2f} counts"
                f" ({m.steady_state_error_counts / scale * 1000:.2f} um)")
+    if no_plot:
+        return
     from usbmotion.cli.plots import plot_step  # noqa: PLC0415
 
     target = plot or Path(f"tune-{axis_config.name}.png")
