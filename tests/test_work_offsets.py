@@ -5,6 +5,8 @@ zero``, the console's ``$z`` and G10 lines, and CAM-style programs on the simula
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -27,6 +29,7 @@ from usbmotion.motion.offsets import (
     write_parameter_file,
 )
 from usbmotion.motion.tools import load_tool_table, parse_tool_table
+from usbmotion.session import MachineSession
 from usbmotion.sim.machine import connect_session
 
 PROGRAMS = Path(__file__).parent / "programs"
@@ -40,6 +43,24 @@ def _machine_file(tmp_path: Path, extra: str = "") -> Path:
     path = tmp_path / "mill.toml"
     path.write_text(head + "\n" + extra + sep + rest)
     return path
+
+
+@contextmanager
+def _console(tmp_path: Path) -> Iterator[tuple[MachineSession, Callable[[str], None], list[str]]]:
+    """A console on the machine of :func:`_machine_file`: its session, a function that hands
+    it a line and waits for what the line started, and the lines it wrote."""
+    lines: list[str] = []
+    with connect_session(load_config(_machine_file(tmp_path))) as session:
+        console = Console(session, lines.append)
+
+        def do(line: str) -> None:
+            console.handle(line)
+            assert console.operator.wait_idle(60)
+
+        try:
+            yield session, do, lines
+        finally:
+            console.close()
 
 
 def _xyz(x: float, y: float, z: float) -> tuple[float, ...]:
@@ -319,15 +340,8 @@ def test_a_jobs_g92_does_not_shift_the_next_job(tmp_path: Path) -> None:
 def test_zero_and_g10_from_the_console_set_g54_where_the_machine_stands(
     tmp_path: Path,
 ) -> None:
-    config = load_config(_machine_file(tmp_path))
-    lines: list[str] = []
-    with connect_session(config) as session:
-        console = Console(session, lines.append)
-
-        def do(line: str) -> None:
-            console.handle(line)
-            assert console.operator.wait_idle(60)
-
+    with _console(tmp_path) as (session, do, lines):
+        config = session.config
         do("$z")
         assert lines[-1].startswith("error: the machine is not homed")
         session.home()
@@ -344,7 +358,6 @@ def test_zero_and_g10_from_the_console_set_g54_where_the_machine_stands(
             {"X": where["X"] + 1, "Y": where["Y"] + 1, "Z": where["Z"] - 9}), "in G54"
         do("$z Q")
         assert "takes axes X, Y, Z" in lines[-1]
-        console.close()
 
 
 def test_usbmotion_zero_sets_g54_at_the_homed_position(tmp_path: Path) -> None:
@@ -373,27 +386,16 @@ def test_the_console_homes_with_dollar_h_and_says_how_when_a_line_needs_it(
 ) -> None:
     """A line of G-code before homing is refused with the way to home (``$H``, as grbl
     spells it; ``$h`` stays the help); ``$H`` homes every axis, then the line runs."""
-    config = load_config(_machine_file(tmp_path))
-    lines: list[str] = []
-    with connect_session(config) as session:
-        console = Console(session, lines.append)
-
-        def do(line: str) -> None:
-            console.handle(line)
-            assert console.operator.wait_idle(60)
-
-        try:
-            do("G0 X1")
-            assert lines[-1] == "error: the machine is not homed: home it first; $H homes it"
-            do("$z")
-            assert lines[-1].endswith("$H homes it")
-            do("$h")
-            assert any(line.startswith("$H ") for line in lines[-1].splitlines())
-            do("$H")
-            assert lines[-1].startswith("homed in ") and session.is_homed, lines[-3:]
-            where = session.positions_mm()
-            do("G91 G0 X1")
-            assert lines[-1] == "ok"
-            assert session.positions_mm()["X"] == pytest.approx(where["X"] + 1)
-        finally:
-            console.close()
+    with _console(tmp_path) as (session, do, lines):
+        do("G0 X1")
+        assert lines[-1] == "error: the machine is not homed: home it first; $H homes it"
+        do("$z")
+        assert lines[-1].endswith("$H homes it")
+        do("$h")
+        assert any(line.startswith("$H ") for line in lines[-1].splitlines())
+        do("$H")
+        assert lines[-1].startswith("homed in ") and session.is_homed, lines[-3:]
+        where = session.positions_mm()
+        do("G91 G0 X1")
+        assert lines[-1] == "ok"
+        assert session.positions_mm()["X"] == pytest.approx(where["X"] + 1)
