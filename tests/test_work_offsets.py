@@ -5,9 +5,10 @@ zero``, the console's ``$z`` and G10 lines, and CAM-style programs on the simula
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Protocol
 
 import pytest
 from tests.executed import near_the_switches_text
@@ -45,17 +46,24 @@ def _machine_file(tmp_path: Path, extra: str = "") -> Path:
     return path
 
 
+class Doing(Protocol):
+    """A line handed to the console (waiting for what it started, unless ``wait=False``)."""
+
+    def __call__(self, line: str, *, wait: bool = True) -> None: ...
+
+
 @contextmanager
-def _console(tmp_path: Path) -> Iterator[tuple[MachineSession, Callable[[str], None], list[str]]]:
+def _console(tmp_path: Path) -> Iterator[tuple[MachineSession, Doing, list[str]]]:
     """A console on the machine of :func:`_machine_file`: its session, a function that hands
-    it a line and waits for what the line started, and the lines it wrote."""
+    it a line and (unless ``wait=False``) waits for what the line started, and the lines it
+    wrote."""
     lines: list[str] = []
     with connect_session(load_config(_machine_file(tmp_path))) as session:
         console = Console(session, lines.append)
 
-        def do(line: str) -> None:
+        def do(line: str, *, wait: bool = True) -> None:
             console.handle(line)
-            assert console.operator.wait_idle(60)
+            assert not wait or console.wait_idle(60)
 
         try:
             yield session, do, lines
@@ -379,6 +387,29 @@ def test_machine_file_keys_for_the_tool_table_and_parameter_file(tmp_path: Path)
         load_config(_machine_file(tmp_path, "tool_table = 5\n"))
     assert "tool_table" in str(info.value) and "not a file name" in str(info.value)
     assert info.value.line is not None
+
+
+def test_the_console_holds_the_lines_typed_while_it_homes_and_runs_them_in_order(
+    tmp_path: Path,
+) -> None:
+    """As grbl holds the lines after its ``$H``: lines handed in at once after ``$H`` (a
+    script piped in) run once the homing has ended, in order (a jog between two lines runs
+    between them); a stop drops those held."""
+    with _console(tmp_path) as (session, do, lines):
+        for line in ("$H", "G90 G0 X5", "$j X1 F600", "G91 G0 X1"):
+            do(line, wait=False)
+        do("G0 Y2")
+        assert lines[0].startswith("homed in "), lines
+        assert lines[1:] == ["ok", "jogged: X 6.000  Y 0.000  Z 0.000 mm", "ok", "ok"], lines
+        where = session.positions_mm()
+        assert (where["X"], where["Y"]) == pytest.approx((7.0, 2.0), abs=0.01), where
+        lines.clear()
+        do("$H", wait=False)
+        do("G0 X9", wait=False)
+        do("$x")
+        assert "dropped 1 line held for the homing" in lines, lines
+        assert "ok" not in lines
+        assert session.positions_mm()["X"] != pytest.approx(15.0, abs=0.01)
 
 
 def test_the_console_homes_with_dollar_h_and_says_how_when_a_line_needs_it(

@@ -19,15 +19,19 @@ lines written while the machine moves are streamed after what it is doing); ``!`
 ``~`` (or ``$c``) resumes a hold or a program pause (M0, M1, M6), Ctrl-X (0x18) or ``$x``
 stops (every axis to rest along its deceleration, the rest dropped, the machine homed and
 Idle); ``$j X10 Y-2 F600`` jogs by distances, ``$j X+ F600`` jogs continuously until
-``$jx``, ``!``, Ctrl-X or the soft limit; ``$o F150`` and ``$o R50`` set the feed and rapid
-overrides; ``?`` reports the state, the positions (machine and work), the line and the
-overrides while a program runs.
+``$jx``, ``!``, Ctrl-X or the soft limit; the lines typed while a homing asked for here
+runs (``$H``, ``$r``) wait for it to end, then run in order, as grbl holds the lines after
+its ``$H`` (a stop or ``$r`` drops them, saying how many); ``$o F150`` and ``$o R50`` set
+the feed and rapid overrides; ``?`` reports the state, the positions (machine and work),
+the line and the overrides while a program runs.
 """
 
 from __future__ import annotations
 
 import re
+import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
 from functools import partial
 from pathlib import Path
@@ -63,7 +67,7 @@ G0 X10    MDI: any other G-code line runs at once (modal state kept between line
 ^X  $x    stop: every axis to rest along its deceleration, the rest dropped
 $j X10 Y-2 F600   jog by distances (machine coordinates); $j X+ F600 jogs until $jx or ^X
 $o F150   feed override 10..200 %; $o R50 rapid override 100, 50 or 25 %
-$H        home every axis (grbl's $H; in Alarm, $r)
+$H        home every axis (grbl's $H; in Alarm, $r); what is typed meanwhile waits for it
 $r        reset: stop every axis, clear any alarm, then home
 $d N      load demo program N (1 rounded square, 2 star, 3 spiral)
 $l FILE   load a G-code file
@@ -75,6 +79,11 @@ G10 ...   set offsets at the machine's position: G10 L20 P1 X0 Y0, G10 L2 P1 Z-5
 ?         status: state, line, positions (machine and work), overrides, faults
 $h        this help
 $q        quit"""
+
+
+def _is_mdi(text: str) -> bool:
+    """Whether a console line is G-code run as MDI (not one that only sets offsets)."""
+    return _SETTING.match(text) is None and text[:1].upper() in _GCODE_LETTERS
 
 
 class Console:
@@ -92,19 +101,62 @@ class Console:
         self.path: Path | None = None
         self.text = ""
         self.last_result = ""
+        self._held: deque[str] = deque()
+        """Lines typed while a homing asked for here runs (or lines wait): carried out once
+        it has ended, in order, as grbl holds the lines after its ``$H``."""
+        self._homings = 0
+        """Homings (``$H``, ``$r``) queued or running."""
+        self._releasing: threading.Thread | None = None
+        """Sends the held lines (until they are all taken)."""
+        self._held_lock = threading.Lock()
 
     def close(self) -> None:
-        """Wait for what runs, then end the worker."""
-        self.operator.wait_idle()
+        """Wait for what runs (and for the lines held for a homing), then end the worker."""
+        self.wait_idle()
         self.operator.close()
+
+    def wait_idle(self, timeout_s: float | None = None) -> bool:
+        """Wait until what the lines handed in started has ended: the worker's actions and
+        the lines held for a homing; False when ``timeout_s`` passed first."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+
+        def left() -> float | None:
+            return None if deadline is None else max(0.0, deadline - time.monotonic())
+
+        while True:
+            if not self.operator.wait_idle(left()):
+                return False
+            releasing = self._releasing
+            if releasing is None:
+                if not self.operator.busy:
+                    return True
+                continue
+            releasing.join(left())
+            if releasing.is_alive():
+                return False
 
     def handle(self, line: str) -> bool:
         """Carry out one line; returns False when the console should end."""
         text = line.strip()
         if not text:
             return True
-        if self._live(text):
+        if self._live(text) or self._hold(text):
             return True
+        return self._handle(text)
+
+    def _hold(self, text: str) -> bool:
+        """Hold ``text`` for after a homing asked for here (True), if one is queued or runs
+        or lines wait already: what was typed after ``$H`` runs after it, in order. The
+        help, ``$q`` and ``$r`` (which drops what waits) act at once."""
+        if text in ("$h", "$?", "$q", "$r"):
+            return False
+        with self._held_lock:
+            if self._homings or self._held or self._releasing is not None:
+                self._held.append(text)
+                return True
+        return False
+
+    def _handle(self, text: str) -> bool:
         command, _, value = text.partition(" ")
         value = value.strip()
         machine: Callable[[], None] | None = None
@@ -124,9 +176,10 @@ class Console:
                 return True
             machine = partial(self._cycle_start, int(value))
         elif command == "$H" and not value:
-            machine = self._home
+            machine = self._homing_then(self._home)
         elif command == "$r" and not value:
-            machine = self._reset
+            self._drop_held()  # a reset drops what waits, as a stop does
+            machine = self._homing_then(self._reset)
         elif command == "$d":
             self._guarded(lambda: self._load_demo(value))
         elif command == "$l":
@@ -146,7 +199,7 @@ class Console:
             machine = partial(self._measure_tool, int(value) if value else None)
         elif _SETTING.match(text):
             machine = partial(self._set_offsets, text)
-        elif text[:1].upper() in _GCODE_LETTERS:
+        elif _is_mdi(text):
             self._mdi(text)
         else:
             self.write(f"error: unknown command {text!r}; $h lists the commands")
@@ -188,6 +241,7 @@ class Console:
                 self.write("error: nothing to resume (no hold, no pause)")
             return True
         if text in ("\x18", "$x"):
+            self._drop_held()
             if operator.busy:
                 operator.stop()
                 self.write("stop: every axis to rest along its deceleration")
@@ -442,6 +496,49 @@ class Console:
         self.write(f"G{53 + system if system <= 6 else f'59.{system - 6}'} is active; G54"
                    f" origin {format_point(offsets.g5x[0], machine.axes)} mm (machine), saved in"
                    f" {session.config.parameter_path}")
+
+    def _homing_then(self, homing: Callable[[], None]) -> Callable[[], None]:
+        """``homing`` for the worker, the lines typed meanwhile held until it ends."""
+        with self._held_lock:
+            self._homings += 1
+
+        def then() -> None:
+            try:
+                homing()
+            finally:
+                with self._held_lock:
+                    self._homings -= 1
+                    if self._held and not self._homings and self._releasing is None:
+                        self._releasing = threading.Thread(
+                            target=self._release_held, name="usbmotion-console-held",
+                            daemon=True)
+                        self._releasing.start()
+
+        return then
+
+    def _release_held(self) -> None:
+        """Carry out the held lines in order, each as if typed now (until one is a homing:
+        the lines after it wait for its end in turn)."""
+        after_action = False
+        while True:
+            with self._held_lock:
+                if not self._held or self._homings:
+                    self._releasing = None
+                    return
+                line = self._held.popleft()
+            mdi = _is_mdi(line)
+            if mdi and after_action:
+                self.operator.wait_idle()  # a line would join a run queued before the action
+            self._handle(line)
+            after_action = not mdi
+
+    def _drop_held(self) -> None:
+        """A stop drops the lines held for a homing, saying how many."""
+        with self._held_lock:
+            dropped = len(self._held)
+            self._held.clear()
+        if dropped:
+            self.write(f"dropped {dropped} line{'s' if dropped > 1 else ''} held for the homing")
 
     def _reset(self) -> None:
         self.write("reset: stopping every axis")
