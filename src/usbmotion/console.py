@@ -241,11 +241,7 @@ class Console:
                 self.write("error: nothing to resume (no hold, no pause)")
             return True
         if text in ("\x18", "$x"):
-            self._drop_held()
-            if operator.busy:
-                operator.stop()
-                self.write("stop: every axis to rest along its deceleration")
-            else:
+            if not self.stop():
                 self.write("stop: nothing moves")
             return True
         if text == "?" and operator.busy:
@@ -531,6 +527,16 @@ class Console:
                 self.operator.wait_idle()  # a line would join a run queued before the action
             self._handle(line)
             after_action = not mdi
+
+    def stop(self) -> bool:
+        """Stop as Ctrl-X does: what waits for a homing dropped, then every axis to rest
+        along its deceleration; False when nothing moved nor waited."""
+        self._drop_held()
+        if not self.operator.busy:
+            return False
+        self.operator.stop()
+        self.write("stop: every axis to rest along its deceleration")
+        return True
 
     def _drop_held(self) -> None:
         """A stop drops the lines held for a homing, saying how many."""

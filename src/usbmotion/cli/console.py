@@ -55,9 +55,7 @@ def console(
                         operator.keep_alive()
                     line = sys.stdin.readline()
                 except KeyboardInterrupt:
-                    if operator.busy:
-                        operator.stop()
-                        write("stop: every axis to rest along its deceleration")
+                    if console_session.stop():
                         continue
                     break
                 if not line:
