@@ -95,7 +95,11 @@ def test_the_dashboard_drives_emulated_rp2040s(tmp_path: Path) -> None:
         warnings.warn(f"the emulated chips did not keep real time here ({sim.messages.strip()}):"
                       f" the page's flow stopped at {done.stderr.strip()[-300:]}", stacklevel=1)
         return
-    assert done.returncode == 0, f"{done.stderr}\n{done.stdout}\n{sim.messages}"
+    faults = {name: axis["fault"] for name, axis in state["axes"].items()}
+    assert done.returncode == 0, (
+        f"{done.stderr}\n{done.stdout}\n{sim.messages}\nthe server at the end: state"
+        f" {state['state']}, alarm {state['alarm']!r}, faults {faults}; its standard error:"
+        f"\n{errors[-3000:]}")
     result = json.loads(done.stdout.strip().splitlines()[-1])
     assert result["console_errors"] == []
     assert result["chart_updates_per_s"] >= 50
