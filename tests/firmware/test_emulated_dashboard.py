@@ -80,6 +80,10 @@ def test_the_dashboard_drives_emulated_rp2040s(tmp_path: Path) -> None:
                                              headers={"Authorization": f"Bearer {token}"})
             with urllib.request.urlopen(request, timeout=10) as answer:
                 state = json.loads(answer.read())
+            request = urllib.request.Request(base + "/api/messages",
+                                             headers={"Authorization": f"Bearer {token}"})
+            with urllib.request.urlopen(request, timeout=10) as answer:
+                said = [m["text"] for m in json.loads(answer.read())["messages"]]
         finally:
             web.send_signal(signal.SIGTERM)
             try:
@@ -98,8 +102,8 @@ def test_the_dashboard_drives_emulated_rp2040s(tmp_path: Path) -> None:
     faults = {name: axis["fault"] for name, axis in state["axes"].items()}
     assert done.returncode == 0, (
         f"{done.stderr}\n{done.stdout}\n{sim.messages}\nthe server at the end: state"
-        f" {state['state']}, alarm {state['alarm']!r}, faults {faults}; its standard error:"
-        f"\n{errors[-3000:]}")
+        f" {state['state']}, alarm {state['alarm']!r}, faults {faults}; its last messages:"
+        f"\n" + "\n".join(said[-15:]) + f"\nits standard error:\n{errors[-3000:]}")
     result = json.loads(done.stdout.strip().splitlines()[-1])
     assert result["console_errors"] == []
     assert result["chart_updates_per_s"] >= 50
