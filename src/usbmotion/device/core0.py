@@ -536,13 +536,11 @@ class Device:
     def _servo_block(self, ticks: int) -> BlockFunction:
         """core1's block function for a block of ``ticks``: the kernel, once loaded; a short
         block before that runs the reference, bit for bit the same."""
-        if not self._fast:
-            return servo_block
-        if (not kernel_loaded() and ticks <= REFERENCE_BLOCK_TICKS
-                and self._reference_ticks < REFERENCE_TICKS):
-            self._reference_ticks += ticks
-            return servo_block
-        self.load_kernel()
+        if self._fast and not kernel_loaded():
+            if ticks <= REFERENCE_BLOCK_TICKS and self._reference_ticks < REFERENCE_TICKS:
+                self._reference_ticks += ticks
+                return servo_block
+            self.load_kernel()
         return compile_kernel() if self._fast else servo_block
 
     def _run_some(self, limit: int) -> int:
