@@ -15,7 +15,7 @@ from tests.executed import near_the_switches_text
 from typer.testing import CliRunner
 
 from usbmotion.cli.main import app
-from usbmotion.cli.run import default_machine, parse_origin
+from usbmotion.cli.run import NO_ORIGIN_HINT, default_machine, parse_origin
 from usbmotion.console import Console
 from usbmotion.errors import ConfigError, GCodeError
 from usbmotion.host.config import load_config
@@ -221,6 +221,20 @@ def test_interpret_setting_sets_offsets_and_refuses_moves() -> None:
 # --- the command line and the console --------------------------------------------------------
 
 
+def test_an_origin_is_set_by_any_offset_that_moves_a_program() -> None:
+    from dataclasses import replace  # noqa: PLC0415
+
+    assert not NO_OFFSETS.origin_set
+    assert NO_OFFSETS.with_g5x(3, _xyz(0.0, 0.0, -40.0)).origin_set, "G56's Z"
+    rotated = list(NO_OFFSETS.rotation_deg)
+    rotated[0] = 15.0
+    assert replace(NO_OFFSETS, rotation_deg=tuple(rotated)).origin_set
+    shifted = replace(NO_OFFSETS, g92=_xyz(1.0, 0.0, 0.0))
+    assert not shifted.origin_set, "a G92 offset not in force"
+    assert replace(shifted, g92_enabled=True).origin_set
+    assert not replace(NO_OFFSETS, g28=_xyz(5.0, 5.0, 5.0)).origin_set, "G28's position"
+
+
 def test_parse_origin_reads_axis_words() -> None:
     assert parse_origin(["X100 Y100", "Z60"]) == {"X": 100.0, "Y": 100.0, "Z": 60.0}
     assert parse_origin(["x-1.5y2"]) == {"X": -1.5, "Y": 2.0}
@@ -250,6 +264,7 @@ def test_a_cam_program_runs_after_origin_and_is_refused_without(tmp_path: Path) 
     assert f"{program}:8: Z would reach 5.000 mm, beyond the upper end 0 mm of axis Z's" in (
         refused.output), refused.output  # the clearance, G0 Z5, above the top of Z
     assert "nothing was moved" in refused.output, refused.output
+    assert NO_ORIGIN_HINT in refused.output, "no origin set: how to set one"
     assert not (tmp_path / "mill.var").exists()
     report = tmp_path / "cam.json"
     done = runner.invoke(app, [*base, "--dialect", "grbl", "--origin", "X100 Y100 Z-40",
@@ -260,6 +275,13 @@ def test_a_cam_program_runs_after_origin_and_is_refused_without(tmp_path: Path) 
     assert figures["completed"] is True, figures
     assert figures["end_position_mm"]["Z"] == pytest.approx(-35.0, abs=0.02), "G0 Z5 at the end"
     assert figures["notes"] == [], "no rapid into the stock"
+    far = tmp_path / "far.ngc"
+    far.write_text("G21 G90\nG0 X500\nM2\n")
+    beyond = runner.invoke(app, ["run", str(far), "--machine", str(machine), "--no-plot",
+                                 "--quiet"])
+    assert beyond.exit_code == 2 and f"{far}:2: X would reach 600.000 mm" in beyond.output, (
+        beyond.output)
+    assert "hint" not in beyond.output, "an origin is set: no hint to set one"
 
 
 def test_a_rapid_into_the_stock_is_reported_and_the_program_still_runs(tmp_path: Path) -> None:

@@ -45,9 +45,17 @@ if TYPE_CHECKING:
     from usbmotion.sim.predict import Prediction
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_COMPLETED", "EXIT_FAULT", "EXIT_INTERRUPTED",
-           "EXIT_TERMINATED", "MachineOption", "default_machine", "exit_code", "load_machine",
-           "parse_origin", "run", "stop_on_signals"]
+           "EXIT_TERMINATED", "NO_ORIGIN_HINT", "MachineOption", "default_machine", "exit_code",
+           "load_machine", "parse_origin", "run", "stop_on_signals"]
 
+
+NO_ORIGIN_HINT = (
+    "hint: no work origin is set (every work offset of the machine's parameter file is 0), so"
+    " the program's X0 Y0 Z0 is the machine's own; set the origin where the program's zero is"
+    " on the stock first: --origin 'X.. Y.. Z..' in machine mm, or jog there and"
+    " `usbmotion zero`")
+"""What a program refused for leaving the travel is told when no work origin is set (a CAM
+program's zero is usually the stock's top corner, the machine's is where it homes)."""
 
 _ORIGIN_WORD = re.compile(r"\s*([XYZUVWxyzuvw])\s*([-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+))\s*")
 
@@ -332,7 +340,7 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
         prepared = session.prepare(program, text=text, unhomed=no_home, dialect=dialect,
                                    pauses=rule, from_line=from_line)
     except SoftLimitError as error:
-        _refused(program, error)
+        _refused(program, error, session.config)
         return EXIT_BAD_INPUT, None, None, None
     except GCodeError as error:
         typer.echo(f"{error.file}:{error.line}: {error.message}", err=True)
@@ -366,7 +374,7 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
         typer.echo(f"usbmotion run: homing failed: {error}", err=True)
         return unstarted(f"fault: homing failed: {error}", EXIT_FAULT)
     except SoftLimitError as error:
-        _refused(program, error)
+        _refused(program, error, config)
         return EXIT_BAD_INPUT, None, None, None
     except UsbMotionError as error:
         typer.echo(f"usbmotion run: {error}", err=True)
@@ -390,10 +398,19 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
     return code, report, trace, prepared
 
 
-def _refused(program: Path, error: SoftLimitError) -> None:
-    """``FILE:LINE: what`` for a program that leaves the travel."""
+def _refused(program: Path, error: SoftLimitError, config: MachineConfig) -> None:
+    """``FILE:LINE: what`` for a program that leaves the travel; when no work origin is set
+    (a program's zero is then the machine's), how to set one."""
     message = str(error).removeprefix(f"line {error.line}: ")
     typer.echo(f"{program}:{error.line}: {message}", err=True)
+    from usbmotion.motion.offsets import read_parameter_file  # noqa: PLC0415
+
+    try:
+        offsets = read_parameter_file(config.parameter_path)
+    except ConfigError:
+        return
+    if not offsets.origin_set:
+        typer.echo(NO_ORIGIN_HINT, err=True)
 
 
 def _predict(config: MachineConfig, program: Path, text: str, dialect: Dialect | None, *,
@@ -408,7 +425,7 @@ def _predict(config: MachineConfig, program: Path, text: str, dialect: Dialect |
         predicted = predict(config, program, text, dialect=dialect, from_line=from_line,
                             standing_mm=standing_mm)
     except SoftLimitError as error:
-        _refused(program, error)
+        _refused(program, error, config)
         raise typer.Exit(EXIT_BAD_INPUT) from None
     except GCodeError as error:
         typer.echo(f"{error.file}:{error.line}: {error.message}", err=True)

@@ -112,6 +112,14 @@ class WorkOffsets:
             if len(point) != len(AXIS_ORDER):
                 raise ValueError(f"{name} {point!r} needs one value per axis of {AXIS_ORDER!r}")
 
+    @property
+    def origin_set(self) -> bool:
+        """Whether any work offset moves a program off the machine's coordinates: a
+        coordinate system's offset or rotation, or a G92 offset in force (all 0: a program's
+        X0 Y0 Z0 is the machine's)."""
+        return (any(any(point) for point in self.g5x) or any(self.rotation_deg)
+                or (self.g92_enabled and any(self.g92)))
+
     def with_g5x(self, system: int, offset: Point) -> WorkOffsets:
         """These offsets with coordinate system ``system`` (1-9) at ``offset`` (mm, one
         value per axis of X Y Z A B C U V W)."""
