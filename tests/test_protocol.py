@@ -38,7 +38,7 @@ from usbmotion.protocol import (
     parse_reply,
 )
 from usbmotion.protocol.reference import render_reference, splice
-from usbmotion.protocol.table import BY_NUMBER, max_steps_per_tick
+from usbmotion.protocol.table import BY_NUMBER, DIAGNOSTICS, REST_FIELDS, max_steps_per_tick
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -247,6 +247,21 @@ def test_a_diagnostics_line_reads_by_field_name() -> None:
     assert Diagnostics.from_values(values) == Diagnostics(
         clock=10, desired=5, actual_counts=4, velocity_counts_s=100, output_mv=-2500, queued=7,
         peak_error_counts=-(2**31))
+
+
+@given(st.lists(st.integers(min_value=-(2**63), max_value=2**63 - 1), min_size=7, max_size=7))
+@settings(max_examples=200, deadline=None)
+def test_a_diagnostics_line_formats_the_same_in_one_step(values: list[int]) -> None:
+    """What a device prints per record (``int_line_format``) is ``format``'s line."""
+    assert DIAGNOSTICS.int_line_format() % tuple(values) == (
+        DIAGNOSTICS.format(*values) + "\n").encode("ascii")
+
+
+def test_a_template_with_text_has_no_integer_line_format() -> None:
+    text = next(t for spec in CALLS for t in spec.debug.values()
+                if any(f in REST_FIELDS for f in t.fields))
+    with pytest.raises(ValueError, match="takes text"):
+        text.int_line_format()
 
 
 @pytest.mark.parametrize("line", ["", "HELLO", "SERVO_ENABLE x", "E9", "MOTION_QUEUE 1",

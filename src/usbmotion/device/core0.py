@@ -83,6 +83,7 @@ DEFAULT_SCALAR = 1
 """Motion update interval scalar at power-up (seed 000)."""
 _CURVE_CHUNK = 4096
 _SETTLE_CHUNK = 256
+_DIAGNOSTICS_LINE = DIAGNOSTICS.int_line_format()
 REFERENCE_BLOCK_TICKS = 64
 """Before the kernel is loaded, a fast device runs a block of at most this many ticks on the
 reference (a query's answer takes a tick or so); a longer one loads the kernel."""
@@ -639,21 +640,25 @@ class Device:
                     ticks_ago=max(0, int(state[core1.S_CLOCK]) - tick))
 
     def _print_diagnostics(self) -> None:
+        """Each record core1 kept as its line, stamped with its own tick (as :meth:`_print`
+        would print it, in one ``%`` format a line)."""
         state = self._state
         count = int(state[core1.S_DIAG_COUNT])
         state[core1.S_DIAG_COUNT] = 0
-        clock = int(state[core1.S_CLOCK])
-        curve = state[core1.S_MODE] == MODE_CURVE
+        curve_queued = self._curve.queued if state[core1.S_MODE] == MODE_CURVE else None
         start = core1.S_DIAG
         records = state[start : start + count * core1.DIAG_RECORD].tolist()
+        output, stamps, clock_base = self._output, self._stamps, self._clock_base
         for base in range(0, len(records), core1.DIAG_RECORD):
             tick, desired, actual, velocity, out_c, out_e, queued, peak = records[
                 base : base + core1.DIAG_RECORD
             ]
-            line = DIAGNOSTICS.format(tick, desired, actual, velocity,
-                                      sci_to_int(out_c, out_e + 3),
-                                      self._curve.queued if curve else queued, peak)
-            self._print(line, ticks_ago=clock - tick)
+            stamp = clock_base + tick
+            if not stamps or stamps[-1][1] != stamp:
+                stamps.append((len(output), stamp))
+            output += _DIAGNOSTICS_LINE % (
+                tick, desired, actual, velocity, sci_to_int(out_c, out_e + 3),
+                queued if curve_queued is None else curve_queued, peak)
 
     # --- core0: lines --------------------------------------------------------------------
 
