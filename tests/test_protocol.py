@@ -338,15 +338,18 @@ def test_a_long_line_of_numbers_parses_as_token_by_token(
         lambda: parse_call(line))
 
 
-def test_the_bulk_path_is_taken_and_refuses_a_misplaced_sign() -> None:
-    values = list(range(-300, 300))
+@pytest.mark.parametrize("values", [list(range(-300, 300)), list(range(600))],
+                         ids=["signed", "unsigned"])
+def test_the_bulk_path_is_taken_and_refuses_a_misplaced_sign(values: list[int]) -> None:
     line = encode_call(1, len(values), *values)
     assert len(line) > codec.BULK_BYTES
     assert parse_call(line) == Call(1, (len(values), *values))
-    for bad in (b" 5- ", b" -- ", b" - ", b" 1-2 ", b" +-3 "):
+    for bad in (b" 5- ", b" -- ", b" - ", b" 1-2 ", b" +-3 ", b" 5+ ", b" ++3 ", b" + ",
+                b" 1+2 "):
         broken = line.replace(b" 7 ", bad, 1)
         with pytest.raises(NonIntegerTokenError):
             parse_call(broken)
+    assert parse_call(line.replace(b" 7 ", b" +7 ", 1)) == Call(1, (len(values), *values))
     huge = line.replace(b" 7 ", b" 99999999999999999999999 ", 1)
     with pytest.raises(OutOfRangeError, match=r"999999999999999999\.\.\.\(23 digits\)"):
         parse_call(huge)

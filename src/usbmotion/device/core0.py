@@ -437,11 +437,14 @@ class Device:
         if not self._stamps:
             return []
         now = self._ticks()
-        bounds = [offset for offset, _ in self._stamps[1:]] + [len(self._output)]
-        runs = [(now - stamp, bytes(self._output[offset:end]))
-                for (offset, stamp), end in zip(self._stamps, bounds, strict=True)]
+        data = bytes(self._output)
+        stamps = self._stamps
+        ends = [offset for offset, _ in stamps[1:]]
+        ends.append(len(data))
+        runs = [(now - stamp, data[offset:end])
+                for (offset, stamp), end in zip(stamps, ends, strict=True)]
         self._output.clear()
-        self._stamps.clear()
+        stamps.clear()
         return runs
 
     def ticks_until_event(self, *, diagnostics: bool = True) -> int | None:
