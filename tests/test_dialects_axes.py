@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 from usbmotion.cli.main import app
 from usbmotion.errors import ConfigError, GCodeError, UnsupportedGCodeError
 from usbmotion.host.config import DIALECTS, load_config, parse_config
-from usbmotion.motion.dialects import Dialect, dialect_named
+from usbmotion.motion.dialects import Declared, Dialect, declared_dialect, dialect_named
 from usbmotion.motion.gcode import (
     MachineAxes,
     distinct_ignored,
@@ -281,6 +281,45 @@ def test_the_dialect_names_agree() -> None:
     assert tuple(dialect.value for dialect in Dialect) == DIALECTS
     with pytest.raises(ValueError, match="'klipper' is not one of linuxcnc, grbl, marlin"):
         dialect_named("klipper")
+
+
+@pytest.mark.parametrize(("text", "declared"), [
+    (";FLAVOR:Marlin\nG1 X1\n", Declared(Dialect.MARLIN, 1, ";FLAVOR:Marlin")),
+    ("G1 X1\n; gcode_flavor = marlin2\n",
+     Declared(Dialect.MARLIN, 2, "; gcode_flavor = marlin2")),
+    ("; LightBurn 1.4.03\n; GRBL device profile, absolute coords\nG0 X1\n",
+     Declared(Dialect.GRBL, 2, "; GRBL device profile, absolute coords")),
+    (";FLAVOR:RepRap\nG1 X1\n", None),  # RepRapFirmware's reading is none of ours
+    ("G1 X1 (FLAVOR:Marlin)\n; say FLAVOR:Marlin\n", None),  # not the writer's header
+])
+def test_a_program_says_which_dialect_it_was_written_for(text: str,
+                                                         declared: Declared | None) -> None:
+    assert declared_dialect(text) == declared
+
+
+def test_a_program_that_does_not_read_is_told_the_dialect_it_names(tmp_path: Path) -> None:
+    """A slicer's file read as LinuxCNC reads G-code fails at its first Marlin code: the
+    error names the dialect its header names, and how to read it so."""
+    runner = CliRunner()
+    slicer = PROGRAMS / "slicer.gcode"
+    done = runner.invoke(app, ["run", str(slicer), "--no-plot", "-q"])
+    assert done.exit_code == 2, done.output
+    assert f"{slicer}:6: M73" in done.output, done.output
+    hint = ("hint: the program says it was written for marlin (';FLAVOR:Marlin', line 2), and"
+            " was read as linuxcnc reads G-code: read it with --dialect marlin")
+    assert hint in done.output, done.output
+    moves = runner.invoke(app, ["gcode", "moves", str(slicer)])
+    assert moves.exit_code == 1 and hint in moves.output, moves.output
+    laser = tmp_path / "lightburn.nc"
+    laser.write_text("; LightBurn 1.4.03\n; GRBL device profile, absolute coords\n"
+                     + (PROGRAMS / "laser.nc").read_text())
+    refused = runner.invoke(app, ["run", str(laser), "--no-plot", "-q", "--dialect", "marlin"])
+    assert refused.exit_code == 2, refused.output
+    assert ("written for grbl ('; GRBL device profile, absolute coords', line 2), and was read"
+            " as marlin reads G-code: read it with --dialect grbl") in refused.output, (
+        refused.output)
+    unhinted = runner.invoke(app, ["gcode", "moves", str(PROGRAMS / "laser.nc")])
+    assert unhinted.exit_code == 1 and "hint" not in unhinted.output, "it names no dialect"
 
 
 def test_a_machine_file_names_its_dialect(tmp_path: Path) -> None:

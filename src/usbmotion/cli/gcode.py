@@ -13,7 +13,7 @@ import typer
 from usbmotion.cli.exits import EXIT_BAD_INPUT, fail, os_problem
 from usbmotion.cli.help import UsbMotionTyper
 from usbmotion.errors import ConfigError
-from usbmotion.motion.dialects import Dialect, dialect_named
+from usbmotion.motion.dialects import Dialect, declared_dialect, dialect_named
 from usbmotion.motion.gcode import (
     DEFAULT_MACHINE,
     GCodeProgram,
@@ -106,7 +106,23 @@ def moves(
     if error is not None:
         where = f" (column {error.column})" if error.column else ""
         typer.echo(f"{error.file}:{error.line}: {error.message}{where}", err=True)
+        hint = dialect_hint(text, reading.dialect)
+        if hint is not None:
+            typer.echo(hint, err=True)
         raise typer.Exit(_EXIT_INVALID_PROGRAM)
+
+
+def dialect_hint(text: str, reading: Dialect) -> str | None:
+    """For a program that failed read as ``reading`` reads it: the line that says which
+    dialect its own comments name, when that is another (a slicer's file read as LinuxCNC
+    reads G-code), else None."""
+    declared = declared_dialect(text)
+    if declared is None or declared.dialect is reading:
+        return None
+    name = declared.dialect.value
+    return (f"hint: the program says it was written for {name} ({declared.words!r}, line"
+            f" {declared.line}), and was read as {reading.value} reads G-code: read it with"
+            f" --dialect {name}, or give the machine file dialect = \"{name}\"")
 
 
 def _fail(message: str) -> NoReturn:

@@ -186,7 +186,7 @@ def run(
         if origin_mm:  # a program refused leaves the parameter file as it was
             _check_program(config, program, text, chosen)
     except GCodeError as error:
-        typer.echo(f"{error.file}:{error.line}: {error.message}", err=True)
+        _unread(error, text, config, chosen)
         raise typer.Exit(EXIT_BAD_INPUT) from None
     except ConfigError as error:
         typer.echo(f"usbmotion run: {error}", err=True)
@@ -343,7 +343,7 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
         _refused(program, error, session.config)
         return EXIT_BAD_INPUT, None, None, None
     except GCodeError as error:
-        typer.echo(f"{error.file}:{error.line}: {error.message}", err=True)
+        _unread(error, text, session.config, dialect)
         return EXIT_BAD_INPUT, None, None, None
     except (ConfigError, PlanningError, ArgumentError) as error:
         typer.echo(f"usbmotion run: {error}", err=True)
@@ -398,6 +398,23 @@ def _job(session: MachineSession, program: Path, text: str, *, no_home: bool,
     return code, report, trace, prepared
 
 
+def _unread(error: GCodeError, text: str, config: MachineConfig,
+            dialect: Dialect | None) -> None:
+    """``FILE:LINE: what`` for a program that does not read; when its own comments name
+    another dialect than the one it was read in, how to read it in that one."""
+    typer.echo(f"{error.file}:{error.line}: {error.message}", err=True)
+    from usbmotion.cli.gcode import dialect_hint  # noqa: PLC0415
+    from usbmotion.session.planning import machine_dialect  # noqa: PLC0415
+
+    try:
+        reading = machine_dialect(config, dialect)
+    except ValueError:
+        return
+    hint = dialect_hint(text, reading)
+    if hint is not None:
+        typer.echo(hint, err=True)
+
+
 def _refused(program: Path, error: SoftLimitError, config: MachineConfig) -> None:
     """``FILE:LINE: what`` for a program that leaves the travel; when no work origin is set
     (a program's zero is then the machine's), how to set one."""
@@ -428,7 +445,7 @@ def _predict(config: MachineConfig, program: Path, text: str, dialect: Dialect |
         _refused(program, error, config)
         raise typer.Exit(EXIT_BAD_INPUT) from None
     except GCodeError as error:
-        typer.echo(f"{error.file}:{error.line}: {error.message}", err=True)
+        _unread(error, text, config, dialect)
         raise typer.Exit(EXIT_BAD_INPUT) from None
     except (ConfigError, PlanningError, ArgumentError) as error:
         typer.echo(f"usbmotion run: --predict: {error}", err=True)

@@ -34,13 +34,15 @@ homed, a move at rapid to where homing leaves each axis, in the machine's homing
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from enum import Enum
 
 from usbmotion.motion.gcode_codes import GCode, MCode
 from usbmotion.motion.gcode_lexer import LineLimit
 
-__all__ = ["GRBL_COMMANDS", "RULES", "Dialect", "DialectMCode", "DialectRules", "dialect_named"]
+__all__ = ["GRBL_COMMANDS", "RULES", "Declared", "Dialect", "DialectMCode", "DialectRules",
+           "declared_dialect", "dialect_named"]
 
 MARLIN_G11 = 110
 """Marlin's G11 (firmware recover), ten times its number: a code LinuxCNC has no name for."""
@@ -239,3 +241,37 @@ def dialect_named(name: str) -> Dialect:
     except ValueError:
         names = ", ".join(d.value for d in Dialect)
         raise ValueError(f"dialect {name!r} is not one of {names}") from None
+
+
+@dataclass(frozen=True, slots=True)
+class Declared:
+    """A dialect a program's own comments name: ``words`` on line ``line``."""
+
+    dialect: Dialect
+    line: int
+    words: str
+
+
+_DECLARATIONS = (
+    (re.compile(r"^;[ \t]*FLAVOR:[ \t]*Marlin\b.*$", re.IGNORECASE | re.MULTILINE),
+     Dialect.MARLIN),  # Cura's header
+    (re.compile(r"^;[ \t]*gcode_flavor[ \t]*=[ \t]*marlin\w*[ \t]*$",
+                re.IGNORECASE | re.MULTILINE), Dialect.MARLIN),  # PrusaSlicer's and its
+    # descendants' settings, at the file's end
+    (re.compile(r"^;[ \t]*GRBL device profile\b.*$", re.IGNORECASE | re.MULTILINE),
+     Dialect.GRBL),  # LightBurn's header
+)
+
+
+def declared_dialect(text: str) -> Declared | None:
+    """The dialect a program says it was written for, in the comments its writer puts in
+    (a slicer's flavour, a laser program's device profile), or None: the first such comment
+    of the program's text."""
+    found: Declared | None = None
+    for pattern, dialect in _DECLARATIONS:
+        match = pattern.search(text)
+        if match is not None:
+            line = text.count("\n", 0, match.start()) + 1
+            if found is None or line < found.line:
+                found = Declared(dialect, line, match.group(0).strip())
+    return found
