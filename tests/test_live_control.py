@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from tests.executed import (
+    AXES,
     PATH_TOLERANCE_COUNTS,
     Positions,
     at_rest_spans,
@@ -130,6 +131,82 @@ def test_a_hold_that_reaches_the_devices_late_resumes_on_the_path(
     assert session.last_run is not None
     ((_, _, planned_mm, distance_mm),) = session.last_run.holds
     assert distance_mm > planned_mm + 0.05, "the run-on, then the whole deceleration"
+
+
+@pytest.mark.parametrize("resume", [False, True], ids=["start", "resume"])
+def test_a_host_held_up_as_it_starts_the_axes_still_starts_them_together(
+        config: MachineConfig, reference: Positions, resume: bool,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The host held up 0.4 s, twice the start's margin, between measuring the devices'
+    clocks and sending the first setpoints (as it opens the streams: at the run's start, or
+    at a resume after a hold): every device is held while its queue takes its first values,
+    and all are armed after that, so every axis starts on the one tick. A device armed
+    first started late on its own, when its values came: out of step with the others, the
+    run's account of where it is wrong, and a stop planned from that account a jump (a
+    following-error fault)."""
+    opened = RunStreams.open
+
+    def held_up(streams: RunStreams, rows: np.ndarray, released: int) -> None:
+        opened(streams, rows, released)
+        streams.machine.clock.sleep(0.4)
+
+    monkeypatch.setattr(RunStreams, "open", held_up)
+
+    def act(session: MachineSession, tick: int) -> None:
+        if resume and tick == 4000:
+            session.request_hold()
+        if resume and tick == 4700:
+            session.request_resume()
+
+    _, positions, report = _run(config, act)
+    assert report.completed, report  # type: ignore[attr-defined]
+    check_limits(config, positions, reference)
+    check_same_path(positions, reference)
+    if not resume:  # every axis took its last value when the plan says (its last period)
+        assert report.executed_time_s == pytest.approx(  # type: ignore[attr-defined]
+            report.planned_time_s, abs=config.motion_period_s)  # type: ignore[attr-defined]
+
+
+def test_a_start_armed_too_late_ends_the_run_with_every_axis_stopped(
+        config: MachineConfig, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The host held up 0.5 s right after arming the first axis's real start, past its
+    tick: that axis started alone, the others only when their arming came. The run says so
+    and ends there: every queue is emptied at once (a device that had started stops taking
+    values where it is, its servo holding it: no coasting), every axis at rest."""
+    from usbmotion.device import Device, core1  # noqa: PLC0415
+    from usbmotion.host.device import DeviceClient  # noqa: PLC0415
+
+    armed = DeviceClient.start_at
+    arms: list[int] = []
+
+    def late(client: DeviceClient, tick: int) -> None:
+        armed(client, tick)
+        arms.append(tick)
+        if len(arms) == len(AXES) + 1:  # the real start's first arming (the held ones first)
+            client.link_clock.sleep(0.5)
+
+    monkeypatch.setattr(DeviceClient, "start_at", late)
+    with connect_session(config) as session:
+        session.home()
+        report, _ = session.run(session.prepare(DEMO))
+        assert not report.completed
+        assert "the host was held up while it armed the axes' common start" in (
+            report.stop_reason), report.stop_reason
+        assert "run it again" in report.stop_reason, report.stop_reason
+        assert session.state is MachineState.ALARM
+        world = session.machine.world
+        assert world is not None
+        devices = [world.device(name) for name in AXES]
+        assert all(isinstance(d, Device) for d in devices)
+        before = [int(d._state[core1.S_DESIRED]) for d in devices]  # type: ignore[union-attr]
+        world.advance(500_000)
+        states = [d._state for d in devices]  # type: ignore[union-attr]
+        assert [int(s[core1.S_DESIRED]) for s in states] == before, "held where it stood"
+        assert [int(s[core1.S_ENABLE]) for s in states] == [1, 1, 1], "servos on: no coasting"
+        assert all(abs(int(s[core1.S_ACTUAL]) - int(s[core1.S_DESIRED])) <= 2 for s in states)
+        assert [int(s[core1.S_QUEUE_COUNT]) for s in states] == [0, 0, 0], (
+            "nothing left to run when the held start's tick comes")
+        assert before[0] != 0, "X had started alone (the case this test is about)"
 
 
 def test_two_holds_and_resumes_one_on_an_arc(config: MachineConfig,

@@ -153,9 +153,10 @@ class Run:
             if self.states.state is not MachineState.ALARM:
                 self.states.fire(Event.FAULT)
             try:
-                if self.streams.sync is None:  # nothing started: nothing to decelerate
+                if self.streams.sync is not None:
+                    self._decelerate(asked_s=self.clock.now())
+                elif not self.streams.held:  # nothing started: nothing to decelerate
                     raise ValueError("not started")
-                self._decelerate(asked_s=self.clock.now())
             except (UsbMotionError, ArithmeticError, LookupError, TypeError, ValueError):
                 self.machine.stop()
         if self.states.state is not MachineState.ALARM:
@@ -166,16 +167,20 @@ class Run:
 
     def _start(self, *, first: bool) -> None:
         """Every axis started on one device tick (the first time: statistics reset and the
-        diagnostics lines at the trace's period, or the live one), its streams opened."""
-        sync = self.streams.start_together(first=first)
+        diagnostics lines at the trace's period, or the live one), its streams opened:
+        every device held while its queue takes its first values, then all armed."""
+        self.streams.hold(first=first)
         if first:
-            self.skew_s = sync.estimated_skew_s
-            self.trace.start_tick = self.streams.start_tick
             self.watch.begin(self.axes, self.legs.plan.duration_s,
                              live=self.context.live_control)
         self.resting = False
         self.streams.released = 0
         self.streams.open(self.legs.rows, self.feeding.release_limit(executed=0))
+        self.streams.fill()
+        sync = self.streams.arm(first=first)
+        if first:
+            self.skew_s = sync.estimated_skew_s
+            self.trace.start_tick = self.streams.start_tick
         self._outputs_from(0)
         self.feeding.dry = False
         self.watch.start(self.clock.now(), check_s=self.check_s)

@@ -16,17 +16,28 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import numpy.typing as npt
 
-from usbmotion.errors import UsbMotionError
+from usbmotion.errors import DeviceError, UsbMotionError
 from usbmotion.host.device import DeviceClient
 from usbmotion.host.machine import Machine
 from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams
-from usbmotion.host.timesync import SyncReport, synchronise_start
+from usbmotion.host.timesync import (
+    ClockEstimate,
+    SyncReport,
+    arm_start,
+    measure_clocks,
+    shared_clock,
+    zero_clocks,
+)
 from usbmotion.session.rest import STOP_LEAD_S, wait_until_settled
 
 START_MARGIN_S = 0.2
 """A run's common start tick, beyond the round trips that arm it."""
 RESUME_MARGIN_S = 0.05
 """A resume's common start tick, beyond the round trips that arm it."""
+HOLD_S = 30.0
+"""How far ahead every device's start is armed while its queue takes its first values (the
+real start is armed once every queue holds them: a host slowed down between arming and
+filling cannot make a device start late, on its own, out of step with the others)."""
 REPLACE_BATCH = 600
 """The most new values a replacement (call 38) carries; the streams send the rest."""
 
@@ -54,6 +65,11 @@ class RunStreams:
         self.start_tick = 0
         """The device tick row 0 of the rows streamed is due on."""
         self.sync: SyncReport | None = None
+        self._estimates: Sequence[ClockEstimate] = ()
+        """The clocks as :meth:`hold` measured them, for :meth:`arm`."""
+        self.held = False
+        """True once a start armed too late left every device held where it stood, its
+        queue emptied, its servo on (:meth:`arm`): nothing to decelerate."""
         self.released = 0
         """How many rows the streams were given."""
 
@@ -65,12 +81,47 @@ class RunStreams:
             client.clear_queue()
             client.set_servo_enable(True)
 
-    def start_together(self, *, first: bool) -> SyncReport:
-        """Arm every axis to start on one device tick (the first start zeroes the clocks)."""
+    def hold(self, *, first: bool) -> None:
+        """Measure the devices' clocks (zeroed first on the first start) and arm every
+        device to start :data:`HOLD_S` ahead: what is queued now waits for :meth:`arm`."""
         if first:
-            self.sync = self.machine.synchronise(margin_s=START_MARGIN_S, axes=tuple(self.axes))
-        else:
-            self.sync = synchronise_start(self.clients, margin_s=RESUME_MARGIN_S, zero=False)
+            zero_clocks(self.clients)
+        self._estimates = measure_clocks(self.clients)
+        arm_start(self.clients, self._estimates,
+                  start_s=shared_clock(self.clients).now() + HOLD_S)
+
+    def fill(self) -> None:
+        """Every stream's first values queued (their devices held by :meth:`hold`)."""
+        for stream in self.streams.values():
+            stream.service()
+
+    def arm(self, *, first: bool) -> SyncReport:
+        """Arm every axis to start on one device tick, its queue filled (:meth:`fill`): a
+        few of the slowest round trips and a margin ahead.
+
+        Raises:
+            DeviceError: a device confirmed the start only after its tick (the host was held
+                up): it may have started on its own; nothing else did.
+        """
+        estimates = self._estimates
+        lead_s = ((4 + len(estimates)) * max(e.rtt_s for e in estimates)
+                  + (START_MARGIN_S if first else RESUME_MARGIN_S))
+        self.sync = None  # until armed: a run that fails here stops the devices where they are
+        try:
+            self.sync = arm_start(self.clients, estimates,
+                                  start_s=shared_clock(self.clients).now() + lead_s)
+        except DeviceError as error:
+            # Every queue emptied at once: a device that had started stops taking values
+            # and its servo holds it where its setpoint is; one that had not finds nothing
+            # to run at its tick.
+            for client in self.clients:
+                client.clear_queue()
+            self.held = True
+            raise DeviceError(
+                f"{error.device}: the host was held up while it armed the axes' common start"
+                " (the arming was confirmed only after the start tick): an axis may have"
+                " started out of step with the others, so every axis was held where it stood;"
+                " run it again", device=error.device, call=error.call) from error
         self.start_tick = self.sync.devices[0].start_tick
         return self.sync
 
