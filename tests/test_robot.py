@@ -155,6 +155,32 @@ def test_a_trajectory_on_three_devices_starts_on_one_tick_and_is_followed(
           f" {report.peak_error_counts} counts; farthest from the trajectory {worst} counts")
 
 
+def test_a_host_held_up_as_it_starts_a_play_still_starts_every_joint_on_one_tick(
+        arm: tuple[MachineSession, Robot], monkeypatch: pytest.MonkeyPatch) -> None:
+    """The host held up 0.4 s (more than the start's margin) before it gives the devices
+    their first keyframes: every device is held while its curve takes them, then all are
+    armed, so the joints still start together and follow the trajectory."""
+    from usbmotion import robot as robots  # noqa: PLC0415
+
+    session, robot = arm
+    send = robots._Player._send
+    calls = [0]
+
+    def held_up(player: robots._Player, count: int, *, target: float = 1.0) -> None:
+        calls[0] += 1
+        if calls[0] == 1:
+            player.machine.clock.sleep(0.4)
+        send(player, count, target=target)
+
+    monkeypatch.setattr(robots._Player, "_send", held_up)
+    trajectory = _wave()
+    report = robot.play(trajectory, record=True)
+    assert report.completed
+    _played_from_one_tick(report, round(session.config.servo_period_s * 1e6))
+    worst = _followed(report, trajectory, robot, session.config.servo_period_s)
+    assert max(worst.values()) <= FOLLOW_BOUND_COUNTS, worst
+
+
 def test_a_hold_decelerates_along_the_path_and_a_resume_goes_on(
         arm: tuple[MachineSession, Robot]) -> None:
     _, robot = arm

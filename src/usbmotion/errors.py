@@ -113,6 +113,11 @@ class DeviceFaultError(DeviceError):
     """The device reports a fault (watchdog, following error, limit switch)."""
 
 
+class StartMissedError(DeviceError):
+    """A device confirmed its armed start (call 31) only after the start's tick: it may
+    have started on its own, when the arming came, out of step with the others."""
+
+
 class DeviceTimeoutError(UsbMotionError, TimeoutError):
     """A device did not answer in time."""
 

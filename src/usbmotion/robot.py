@@ -34,12 +34,18 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from usbmotion.errors import ArgumentError, DeviceError, DeviceFaultError, StopRequestedError
+from usbmotion.errors import (
+    ArgumentError,
+    DeviceError,
+    DeviceFaultError,
+    StartMissedError,
+    StopRequestedError,
+)
 from usbmotion.hermite import Keyframe, tangent_to_fixed
 from usbmotion.host.config import JointConfig
 from usbmotion.host.device import ControlMode, DeviceClient, Diagnostics
 from usbmotion.host.machine import Machine
-from usbmotion.host.timesync import synchronise_start
+from usbmotion.host.timesync import start_filled
 from usbmotion.motion.profiles import jerk_limited_profile
 from usbmotion.session.report import SETTLE_COUNTS
 from usbmotion.session.rest import wait_until_settled
@@ -498,9 +504,24 @@ class _Player:
         return report
 
     def _start(self, *, zero: bool) -> tuple[int, float]:
-        """Arm every device to start on one tick, and give each its first keyframes."""
-        sync = synchronise_start(self.clients, margin_s=START_MARGIN_S, zero=zero)
-        self._send(KEYFRAMES_AHEAD + 1)
+        """Give every device its first keyframes, each held meanwhile, then arm them all to
+        start on one tick (:func:`usbmotion.host.timesync.start_filled`).
+
+        Raises:
+            StartMissedError: a device confirmed the start only after its tick (the host was
+                held up): every curve is emptied at once, each servo holding its joint.
+        """
+        try:
+            sync = start_filled(self.clients, lambda: self._send(KEYFRAMES_AHEAD + 1),
+                                margin_s=START_MARGIN_S, zero=zero)
+        except StartMissedError as error:
+            for client in self.clients:
+                client.clear_keyframes()
+            raise StartMissedError(
+                f"{error.device}: the host was held up while it armed the joints' common"
+                " start (the arming was confirmed only after the start tick): a joint may"
+                " have started out of step with the others, so every joint was held where it"
+                " stood; play it again", device=error.device, call=error.call) from error
         return sync.devices[0].start_tick, sync.start_s
 
     def _play(self, on_progress: Callable[[float], None] | None) -> str:

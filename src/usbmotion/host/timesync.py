@@ -22,11 +22,11 @@ tick on every device); in real time the skew is bounded by the round trips and o
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from usbmotion.clock import Clock
-from usbmotion.errors import ArgumentError, DeviceError
+from usbmotion.errors import ArgumentError, StartMissedError
 from usbmotion.host.device import DeviceClient
 from usbmotion.protocol import CallNumber
 from usbmotion.protocol.table import INT32_MAX
@@ -221,8 +221,8 @@ def arm_start(
 
     Raises:
         ArgumentError: the lists differ in length, or a start tick is outside 0..2**31-1.
-        DeviceError: a device confirmed its arming only after its start tick may have
-            passed (give a larger margin).
+        StartMissedError: a device confirmed its arming only after its start tick may
+            have passed (give a larger margin).
     """
     if len(clients) != len(estimates):
         raise ArgumentError(
@@ -245,7 +245,7 @@ def arm_start(
     late = [d for d in starts if d.confirmed_s >= d.start_s]
     if late:
         names = ", ".join(d.estimate.device for d in late)
-        raise DeviceError(
+        raise StartMissedError(
             f"{names}: arming was confirmed only after the start time; the start may have"
             " passed before it was armed: give a larger margin",
             device=names, call=CallNumber.START_AT,
@@ -277,7 +277,7 @@ def synchronise_start(
 
     Raises:
         ArgumentError: a bad argument, or clients on different clocks.
-        DeviceError: the start passed before a device was armed.
+        StartMissedError: the start passed before a device was armed.
     """
     if not (math.isfinite(margin_s) and margin_s >= 0):
         raise ArgumentError(f"margin_s {margin_s!r} must be >= 0", reason="margin_s")
@@ -285,5 +285,45 @@ def synchronise_start(
     if zero:
         zero_clocks(clients)
     estimates = measure_clocks(clients, samples=samples)
+    lead_s = (4 + len(clients)) * max(e.rtt_s for e in estimates) + margin_s
+    return arm_start(clients, estimates, start_s=clock.now() + lead_s)
+
+
+HOLD_S = 30.0
+"""How far ahead :func:`start_filled` arms every device while its queue or curve takes its
+first values: they wait there for the real start."""
+
+
+def start_filled(
+    clients: Sequence[DeviceClient],
+    fill: Callable[[], None],
+    *,
+    samples: int = DEFAULT_SAMPLES,
+    margin_s: float = DEFAULT_MARGIN_S,
+    zero: bool = True,
+) -> SyncReport:
+    """Measure the clocks (zeroed first with ``zero``), hold every device (call 31 armed
+    :data:`HOLD_S` ahead) while ``fill()`` gives each its first values, then arm every
+    device to start on the same instant, ``4 + len(clients)`` of the slowest round trips
+    plus ``margin_s`` ahead.
+
+    Unlike :func:`synchronise_start` followed by the filling, a host held up while it fills
+    (a loaded computer) only starts later: no device starts when its first values come,
+    late and out of step with the others.
+
+    Raises:
+        ArgumentError: as :func:`synchronise_start`.
+        StartMissedError: a device confirmed the real start only after its tick: one may
+            have started on its own (what it was given is still in its queue or curve: the
+            caller empties them).
+    """
+    if not (math.isfinite(margin_s) and margin_s >= 0):
+        raise ArgumentError(f"margin_s {margin_s!r} must be >= 0", reason="margin_s")
+    clock = shared_clock(clients)
+    if zero:
+        zero_clocks(clients)
+    estimates = measure_clocks(clients, samples=samples)
+    arm_start(clients, estimates, start_s=clock.now() + HOLD_S)
+    fill()
     lead_s = (4 + len(clients)) * max(e.rtt_s for e in estimates) + margin_s
     return arm_start(clients, estimates, start_s=clock.now() + lead_s)

@@ -169,15 +169,17 @@ class Run:
         """Every axis started on one device tick (the first time: statistics reset and the
         diagnostics lines at the trace's period, or the live one), its streams opened:
         every device held while its queue takes its first values, then all armed."""
-        self.streams.hold(first=first)
-        if first:
-            self.watch.begin(self.axes, self.legs.plan.duration_s,
-                             live=self.context.live_control)
+
+        def fill() -> None:
+            if first:
+                self.watch.begin(self.axes, self.legs.plan.duration_s,
+                                 live=self.context.live_control)
+            self.streams.released = 0
+            self.streams.open(self.legs.rows, self.feeding.release_limit(executed=0))
+            self.streams.fill()
+
         self.resting = False
-        self.streams.released = 0
-        self.streams.open(self.legs.rows, self.feeding.release_limit(executed=0))
-        self.streams.fill()
-        sync = self.streams.arm(first=first)
+        sync = self.streams.start(fill, first=first)
         if first:
             self.skew_s = sync.estimated_skew_s
             self.trace.start_tick = self.streams.start_tick

@@ -16,28 +16,17 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import numpy.typing as npt
 
-from usbmotion.errors import DeviceError, UsbMotionError
+from usbmotion.errors import StartMissedError, UsbMotionError
 from usbmotion.host.device import DeviceClient
 from usbmotion.host.machine import Machine
 from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams
-from usbmotion.host.timesync import (
-    ClockEstimate,
-    SyncReport,
-    arm_start,
-    measure_clocks,
-    shared_clock,
-    zero_clocks,
-)
+from usbmotion.host.timesync import SyncReport, start_filled
 from usbmotion.session.rest import STOP_LEAD_S, wait_until_settled
 
 START_MARGIN_S = 0.2
 """A run's common start tick, beyond the round trips that arm it."""
 RESUME_MARGIN_S = 0.05
 """A resume's common start tick, beyond the round trips that arm it."""
-HOLD_S = 30.0
-"""How far ahead every device's start is armed while its queue takes its first values (the
-real start is armed once every queue holds them: a host slowed down between arming and
-filling cannot make a device start late, on its own, out of step with the others)."""
 REPLACE_BATCH = 600
 """The most new values a replacement (call 38) carries; the streams send the rest."""
 
@@ -65,11 +54,9 @@ class RunStreams:
         self.start_tick = 0
         """The device tick row 0 of the rows streamed is due on."""
         self.sync: SyncReport | None = None
-        self._estimates: Sequence[ClockEstimate] = ()
-        """The clocks as :meth:`hold` measured them, for :meth:`arm`."""
         self.held = False
         """True once a start armed too late left every device held where it stood, its
-        queue emptied, its servo on (:meth:`arm`): nothing to decelerate."""
+        queue emptied, its servo on (:meth:`start`): nothing to decelerate."""
         self.released = 0
         """How many rows the streams were given."""
 
@@ -81,49 +68,38 @@ class RunStreams:
             client.clear_queue()
             client.set_servo_enable(True)
 
-    def hold(self, *, first: bool) -> None:
-        """Measure the devices' clocks (zeroed first on the first start) and arm every
-        device to start :data:`HOLD_S` ahead: what is queued now waits for :meth:`arm`."""
-        if first:
-            zero_clocks(self.clients)
-        self._estimates = measure_clocks(self.clients)
-        arm_start(self.clients, self._estimates,
-                  start_s=shared_clock(self.clients).now() + HOLD_S)
-
-    def fill(self) -> None:
-        """Every stream's first values queued (their devices held by :meth:`hold`)."""
-        for stream in self.streams.values():
-            stream.service()
-
-    def arm(self, *, first: bool) -> SyncReport:
-        """Arm every axis to start on one device tick, its queue filled (:meth:`fill`): a
-        few of the slowest round trips and a margin ahead.
+    def start(self, fill: Callable[[], None], *, first: bool) -> SyncReport:
+        """Every axis armed to start on one device tick once ``fill()`` (:meth:`open`, then
+        :meth:`fill`) has given every device its first values, each device held meanwhile
+        (:func:`usbmotion.host.timesync.start_filled`; the first start zeroes the clocks),
+        a few of the slowest round trips and a margin ahead.
 
         Raises:
-            DeviceError: a device confirmed the start only after its tick (the host was held
-                up): it may have started on its own; nothing else did.
+            StartMissedError: a device confirmed the start only after its tick (the host was
+                held up): it may have started on its own, so every queue is emptied at once
+                (a device that had started stops taking values, its servo holding it where
+                its setpoint is; one that had not finds nothing to run at its tick).
         """
-        estimates = self._estimates
-        lead_s = ((4 + len(estimates)) * max(e.rtt_s for e in estimates)
-                  + (START_MARGIN_S if first else RESUME_MARGIN_S))
-        self.sync = None  # until armed: a run that fails here stops the devices where they are
+        self.sync = None  # until armed: a run that fails here has nothing to decelerate
         try:
-            self.sync = arm_start(self.clients, estimates,
-                                  start_s=shared_clock(self.clients).now() + lead_s)
-        except DeviceError as error:
-            # Every queue emptied at once: a device that had started stops taking values
-            # and its servo holds it where its setpoint is; one that had not finds nothing
-            # to run at its tick.
+            self.sync = start_filled(self.clients, fill, zero=first,
+                                     margin_s=START_MARGIN_S if first else RESUME_MARGIN_S)
+        except StartMissedError as error:
             for client in self.clients:
                 client.clear_queue()
             self.held = True
-            raise DeviceError(
+            raise StartMissedError(
                 f"{error.device}: the host was held up while it armed the axes' common start"
                 " (the arming was confirmed only after the start tick): an axis may have"
                 " started out of step with the others, so every axis was held where it stood;"
                 " run it again", device=error.device, call=error.call) from error
         self.start_tick = self.sync.devices[0].start_tick
         return self.sync
+
+    def fill(self) -> None:
+        """Every stream's first values queued (their devices held: :meth:`start`)."""
+        for stream in self.streams.values():
+            stream.service()
 
     def open(self, rows: npt.NDArray[np.int32], released: int) -> None:
         """New streams of the first ``released`` of ``rows``."""
