@@ -209,6 +209,78 @@ def test_a_start_armed_too_late_ends_the_run_with_every_axis_stopped(
         assert before[0] != 0, "X had started alone (the case this test is about)"
 
 
+def test_a_host_held_up_longer_than_a_queue_lasts_ends_the_run_with_every_axis_held(
+        config: MachineConfig, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The host held up 1.5 s mid-program, longer than a queue's setpoints last (at most
+    1,000 of 1 ms): the queues run dry and the axes stand still. At its next refill the host
+    finds a queue empty with setpoints still to send: it ends the run there, every queue
+    emptied and every servo holding its axis, rather than send what follows to run late,
+    each axis out of step with the others and with the run's account of it (where a stop
+    planned from that account is a jump: a following-error fault)."""
+    from usbmotion.device import Device, core1  # noqa: PLC0415
+    from usbmotion.session.run import Run  # noqa: PLC0415
+
+    looked = Run._look
+    held = [False]
+
+    def held_up(run: Run, *, at_once: bool = False) -> bool:
+        if not held[0] and run.streams.sent > 3000:
+            held[0] = True
+            run.clock.sleep(1.5)
+        return looked(run, at_once=at_once)
+
+    monkeypatch.setattr(Run, "_look", held_up)
+    with connect_session(config) as session:
+        session.home()
+        report, _ = session.run(session.prepare(DEMO))
+        assert held[0] and not report.completed
+        assert "motion queue ran dry" in report.stop_reason, report.stop_reason
+        assert "the host fell behind it" in report.stop_reason, report.stop_reason
+        assert not report.faults, "no device faulted: no jump, no following error"
+        assert session.state is MachineState.ALARM
+        world = session.machine.world
+        assert world is not None
+        devices = [world.device(name) for name in AXES]
+        assert all(isinstance(d, Device) for d in devices)
+        states = [d._state for d in devices]  # type: ignore[union-attr]
+        before = [int(s[core1.S_DESIRED]) for s in states]
+        world.advance(500_000)
+        assert [int(s[core1.S_DESIRED]) for s in states] == before, "held where they stood"
+        assert [int(s[core1.S_ENABLE]) for s in states] == [1, 1, 1], "servos on"
+        assert [int(s[core1.S_QUEUE_COUNT]) for s in states] == [0, 0, 0]
+
+
+def test_a_queue_that_ran_dry_where_its_axis_stands_still_is_taken_up_on_schedule(
+        config: MachineConfig, reference: Positions, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Y's stream not served for 1.5 s while X cuts line 7 (X20 to X80 at Y10, 3 s): Y's
+    queue runs dry where Y is to stand still anyway. The host takes it up again on schedule
+    (call 38 from a row already due: the device skips what is past), so the program runs
+    to its end on the same path, in its planned time, where a queue that ran dry mid-move
+    ends the run (above)."""
+    from usbmotion.host.stream import SetpointStream  # noqa: PLC0415
+
+    serve = SetpointStream.service
+    skipped: list[float] = []
+
+    def late_for_y(stream: SetpointStream) -> None:
+        clock = stream.client.link_clock
+        if stream.client.name.startswith("Y") and stream.sent >= 2000:
+            if not skipped:
+                skipped.append(clock.now())
+            if clock.now() < skipped[0] + 1.5:
+                clock.sleep(0.01)  # held up elsewhere: time passes, Y's stream waits
+                return
+        serve(stream)
+
+    monkeypatch.setattr(SetpointStream, "service", late_for_y)
+    _, positions, report = _run(config)
+    assert skipped, "Y's stream was held up"
+    assert report.completed, report.stop_reason  # type: ignore[attr-defined]
+    check_same_path(positions, reference)
+    assert report.executed_time_s == pytest.approx(  # type: ignore[attr-defined]
+        report.planned_time_s, abs=config.motion_period_s)  # type: ignore[attr-defined]
+
+
 def test_two_holds_and_resumes_one_on_an_arc(config: MachineConfig,
                                              reference: Positions) -> None:
     def act(session: MachineSession, tick: int) -> None:

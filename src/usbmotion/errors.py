@@ -113,6 +113,17 @@ class DeviceFaultError(DeviceError):
     """The device reports a fault (watchdog, following error, limit switch)."""
 
 
+class QueueUnderrunError(DeviceError):
+    """A device's motion queue ran dry while setpoints meant to follow were still unsent: the
+    host fell behind, the axis stood still, and what followed would have run late, out of
+    step. ``confirmed`` is how many setpoints the device had confirmed queued."""
+
+    def __init__(self, message: str, *, device: str = "", call: int | None = None,
+                 confirmed: int = 0) -> None:
+        super().__init__(message, device=device, call=call)
+        self.confirmed = confirmed
+
+
 class StartMissedError(DeviceError):
     """A device confirmed its armed start (call 31) only after the start's tick: it may
     have started on its own, when the arming came, out of step with the others."""

@@ -29,6 +29,7 @@ from usbmotion.errors import (
     LinkCorruptedError,
     LinkLostError,
     QueueFullError,
+    QueueUnderrunError,
     UnexpectedReplyError,
 )
 from usbmotion.hermite import Keyframe
@@ -112,6 +113,10 @@ class SetpointStream:
         on_progress: called after every service.
         on_acknowledgement: with ``verify``, called with (count, CRC-32) of every batch the
             device acknowledges, as it is read.
+        dry_is_late: a queue found empty after the first batch, while values are still to
+            be sent, raises :class:`~usbmotion.errors.QueueUnderrunError` instead of being
+            filled: the device stood still waiting, and would run what follows late (for
+            values due on a schedule, as a run's are).
     """
 
     def __init__(
@@ -126,6 +131,7 @@ class SetpointStream:
         verify: bool = False,
         on_progress: ProgressCallback | None = None,
         on_acknowledgement: Callable[[int, int], None] | None = None,
+        dry_is_late: bool = False,
     ) -> None:
         if not (math.isfinite(period_s) and period_s > 0):
             raise ArgumentError(f"period_s {period_s!r} must be > 0", reason="period_s")
@@ -160,6 +166,7 @@ class SetpointStream:
         self.on_progress = on_progress
         self.on_acknowledgement = on_acknowledgement
         self.verify = verify
+        self.dry_is_late = dry_is_late
         self.sent = 0
         self.batches = 0
         self.refusals = 0
@@ -251,6 +258,34 @@ class SetpointStream:
             self.replace_future(index, array, sent=count,
                                 queued=replaced.kept + replaced.added)
             return count
+
+    def rejoin_at_rest(self, tick: int, index: int, *, ahead: int, most: int) -> bool:
+        """After its queue ran dry (:class:`~usbmotion.errors.QueueUnderrunError`), while
+        value ``index`` was due on device tick ``tick`` (at or before the device's clock):
+        when every value it missed, from the last one its device ran through ``index +
+        ahead``, is that same value (its axis stood where it was meant to stand), take the
+        stream up again from ``index`` in one call 38, whose values already past are skipped,
+        so that what follows runs on schedule, with at most ``most`` values; True. Otherwise
+        False, nothing sent: the axis missed part of its motion, its schedule is lost.
+
+        Raises:
+            ArgumentError: ``index`` before the values sent or beyond the values.
+            QueueFullError, LinkCorruptedError, DeviceTimeoutError, LinkLostError: as
+                :meth:`DeviceClient.replace_from`; the stream's account is then unchanged.
+        """
+        if not self.sent <= index <= self.total:
+            raise ArgumentError(f"rejoin_at_rest index {index!r}: within {self.sent} .."
+                                f" {self.total}", reason="index")
+        if not self.sent:
+            return False
+        missed = self._values[self.sent - 1 : index + ahead + 1]
+        if np.any(missed != missed[0]):
+            return False
+        rest = self._values[index:]
+        count = min(rest.size, most, QUEUE_CAPACITY - REPLACE_ROOM_MARGIN)
+        replaced = self.client.replace_from(tick, rest[:count])
+        self.replace_future(index, rest, sent=count, queued=replaced.kept + replaced.added)
+        return True
 
     def room_from(self, index: int) -> int:
         """How many values a replacement from value ``index`` can carry beside those the
@@ -374,6 +409,12 @@ class SetpointStream:
             self.client.set_debug_flag(C.ADD_MULTIPLE, 2)
             self._verify_armed = True
         queued, free = self._status()
+        if not queued and self.batches and self.dry_is_late:
+            raise QueueUnderrunError(
+                f"{self.client.name}: its motion queue ran dry with {self.total - self.sent}"
+                f" setpoints still to send: the host fell behind it (held up longer than the"
+                f" queue lasts) and the axis stood still; {self.sent} setpoints were confirmed",
+                device=self.client.name, call=C.ADD_MULTIPLE, confirmed=self.sent)
         if queued > self.low_water + (self.high_water - self.low_water) // 10 and self.batches:
             return
         count = min(self.high_water - queued, free, self.max_batch, self.total - self.sent)

@@ -20,7 +20,13 @@ from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import replace
 
-from usbmotion.errors import DeviceTimeoutError, LinkCorruptedError, LinkLostError, UsbMotionError
+from usbmotion.errors import (
+    DeviceTimeoutError,
+    LinkCorruptedError,
+    LinkLostError,
+    QueueUnderrunError,
+    UsbMotionError,
+)
 from usbmotion.host.spindle import Spindle
 from usbmotion.motion.gcode import Pause
 from usbmotion.motion.replanning import PathPoint
@@ -141,13 +147,20 @@ class Run:
         self.watch.listen_alarms(listening)
 
     def _guarded(self, step: Callable[[], Ending | None]) -> Ending | None:
-        """``step``'s ending; a lost link (every axis stopped at once) or an error on the
-        way (every axis to rest along the path if it can be), starting too, ends the run
-        in Alarm, never with the state left running."""
+        """``step``'s ending; a lost link (every axis stopped at once), a queue that ran dry
+        (every axis held where it stands) or an error on the way (every axis to rest along
+        the path if it can be), starting too, ends the run in Alarm, never with the state
+        left running."""
         try:
             return step()
         except (LinkLostError, LinkCorruptedError, DeviceTimeoutError) as error:
             ending = link_lost(self.machine, self.axes, error, self.notes)
+        except QueueUnderrunError as error:  # the axes' schedule lost: held where they stand
+            ending = internal_error(error)
+            try:
+                self.streams.hold_where_they_stand()
+            except UsbMotionError:
+                self.machine.stop()
         except (UsbMotionError, ArithmeticError, LookupError, TypeError, ValueError) as error:
             ending = internal_error(error)
             if self.states.state is not MachineState.ALARM:

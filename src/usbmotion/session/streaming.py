@@ -16,7 +16,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import numpy.typing as npt
 
-from usbmotion.errors import StartMissedError, UsbMotionError
+from usbmotion.errors import QueueUnderrunError, StartMissedError, UsbMotionError
 from usbmotion.host.device import DeviceClient
 from usbmotion.host.machine import Machine
 from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams
@@ -27,6 +27,10 @@ START_MARGIN_S = 0.2
 """A run's common start tick, beyond the round trips that arm it."""
 RESUME_MARGIN_S = 0.05
 """A resume's common start tick, beyond the round trips that arm it."""
+REJOIN_AHEAD_S = 0.1
+"""How far beyond the row due now a queue that ran dry must have stood still for its
+stream to be taken up again on schedule (the devices' clocks as the host estimates them,
+and the answer's way back)."""
 REPLACE_BATCH = 600
 """The most new values a replacement (call 38) carries; the streams send the rest."""
 
@@ -55,8 +59,8 @@ class RunStreams:
         """The device tick row 0 of the rows streamed is due on."""
         self.sync: SyncReport | None = None
         self.held = False
-        """True once a start armed too late left every device held where it stood, its
-        queue emptied, its servo on (:meth:`start`): nothing to decelerate."""
+        """True once every device was held where it stood, its queue emptied, its servo on
+        (:meth:`hold_where_they_stand`): nothing to decelerate."""
         self.released = 0
         """How many rows the streams were given."""
 
@@ -85,9 +89,7 @@ class RunStreams:
             self.sync = start_filled(self.clients, fill, zero=first,
                                      margin_s=START_MARGIN_S if first else RESUME_MARGIN_S)
         except StartMissedError as error:
-            for client in self.clients:
-                client.clear_queue()
-            self.held = True
+            self.hold_where_they_stand()
             raise StartMissedError(
                 f"{error.device}: the host was held up while it armed the axes' common start"
                 " (the arming was confirmed only after the start tick): an axis may have"
@@ -95,6 +97,14 @@ class RunStreams:
                 " run it again", device=error.device, call=error.call) from error
         self.start_tick = self.sync.devices[0].start_tick
         return self.sync
+
+    def hold_where_they_stand(self) -> None:
+        """Every queue emptied at once, the servos on: an axis that was moving stops taking
+        values and is held where its setpoint is (a start armed too late, a queue that ran
+        dry: the axes' schedule is lost, so there is no path to decelerate along)."""
+        for client in self.clients:
+            client.clear_queue()
+        self.held = True
 
     def fill(self) -> None:
         """Every stream's first values queued (their devices held: :meth:`start`)."""
@@ -107,7 +117,8 @@ class RunStreams:
         for index, name in enumerate(self.axes):
             self.streams[name] = SetpointStream(
                 self.machine.axis(name).client, rows[:released, index],
-                period_s=self.period_s, verify=True, on_progress=self.on_progress)
+                period_s=self.period_s, verify=True, on_progress=self.on_progress,
+                dry_is_late=True)
 
     # --- where the devices are ----------------------------------------------------------------
 
@@ -203,9 +214,39 @@ class RunStreams:
     def stream(self, should_stop: Callable[[], bool], *, max_wait_s: float,
                sends_from: Callable[[], float] | None = None) -> None:
         """Service the streams until every row given is sent, or ``should_stop``
-        (``sends_from``: as :func:`~usbmotion.host.stream.run_streams`)."""
-        run_streams(list(self.streams.values()), should_stop=should_stop, max_wait_s=max_wait_s,
-                    sends_from=sends_from)
+        (``sends_from``: as :func:`~usbmotion.host.stream.run_streams`). A queue that ran
+        dry while its axis stood where it was meant to stand is taken up again on schedule
+        (:meth:`rejoin_at_rest`).
+
+        Raises:
+            QueueUnderrunError: a queue ran dry while its axis was to move: its schedule,
+                and the axes' lockstep, is lost.
+        """
+        while True:
+            try:
+                run_streams(list(self.streams.values()), should_stop=should_stop,
+                            max_wait_s=max_wait_s, sends_from=sends_from)
+                return
+            except QueueUnderrunError as error:
+                if not self.rejoin_at_rest(error):
+                    raise
+
+    def rejoin_at_rest(self, error: QueueUnderrunError) -> bool:
+        """The stream whose queue ran dry (``error``) taken up again from a row already due
+        (its device skips what is past), when its axis missed no motion: every row from
+        the last it ran to :data:`REJOIN_AHEAD_S` beyond the one due now is where it stands;
+        False otherwise."""
+        stream = next((s for s in self.streams.values() if s.client.name == error.device),
+                      None)
+        if stream is None:
+            return False
+        now = math.floor(self.device_tick())
+        index = max(stream.sent, (now - self.start_tick) // self.scalar)
+        if index > stream.total:
+            return False
+        ahead = math.ceil(REJOIN_AHEAD_S / (self.tick_s * self.scalar))
+        return stream.rejoin_at_rest(self.tick_of(index), index, ahead=ahead,
+                                     most=REPLACE_BATCH)
 
     # --- waiting for the devices ----------------------------------------------------------------
 
