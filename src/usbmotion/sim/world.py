@@ -82,7 +82,7 @@ class _Helper:
                 future.set_result(None)
 
 
-_helpers = (_Helper(), _Helper())
+_helper = _Helper()
 
 
 MAX_AHEAD_US = 500_000
@@ -455,14 +455,13 @@ class SimWorld:
                     return
                 self._catch_up(member, target_us, quiet_until_us)
 
-        helpers = [helper.submit(drain) for helper in _helpers[:len(behind) - 1]]
+        helper = _helper.submit(drain)
         try:
             drain()
         finally:
             if sys.exc_info()[0] is not None:
-                behind.clear()  # leaving on an error: the workers end after their devices
-            for helper in helpers:
-                helper.result()
+                behind.clear()  # leaving on an error: the worker ends after its device
+            helper.result()
 
     def keep_pace(self) -> None:
         """A real-time world: move its clock up to the wall clock now (a host that is idle
