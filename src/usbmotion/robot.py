@@ -45,7 +45,7 @@ from usbmotion.hermite import Keyframe, tangent_to_fixed
 from usbmotion.host.config import JointConfig
 from usbmotion.host.device import ControlMode, DeviceClient, Diagnostics
 from usbmotion.host.machine import Machine
-from usbmotion.host.timesync import start_filled
+from usbmotion.host.timesync import held_up, start_filled
 from usbmotion.motion.profiles import jerk_limited_profile
 from usbmotion.session.report import SETTLE_COUNTS
 from usbmotion.session.rest import wait_until_settled
@@ -517,11 +517,7 @@ class _Player:
         except StartMissedError as error:
             for client in self.clients:
                 client.clear_keyframes()
-            raise StartMissedError(
-                f"{error.device}: the host was held up while it armed the joints' common"
-                " start (the arming was confirmed only after the start tick): a joint may"
-                " have started out of step with the others, so every joint was held where it"
-                " stood; play it again", device=error.device, call=error.call) from error
+            raise held_up(error, what="joints", again="play it again") from error
         return sync.devices[0].start_tick, sync.start_s
 
     def _play(self, on_progress: Callable[[float], None] | None) -> str:

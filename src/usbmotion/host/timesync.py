@@ -279,14 +279,7 @@ def synchronise_start(
         ArgumentError: a bad argument, or clients on different clocks.
         StartMissedError: the start passed before a device was armed.
     """
-    if not (math.isfinite(margin_s) and margin_s >= 0):
-        raise ArgumentError(f"margin_s {margin_s!r} must be >= 0", reason="margin_s")
-    clock = shared_clock(clients)
-    if zero:
-        zero_clocks(clients)
-    estimates = measure_clocks(clients, samples=samples)
-    lead_s = (4 + len(clients)) * max(e.rtt_s for e in estimates) + margin_s
-    return arm_start(clients, estimates, start_s=clock.now() + lead_s)
+    return _start(clients, None, samples=samples, margin_s=margin_s, zero=zero)
 
 
 HOLD_S = 30.0
@@ -317,13 +310,31 @@ def start_filled(
             have started on its own (what it was given is still in its queue or curve: the
             caller empties them).
     """
+    return _start(clients, fill, samples=samples, margin_s=margin_s, zero=zero)
+
+
+def _start(clients: Sequence[DeviceClient], fill: Callable[[], None] | None, *, samples: int,
+           margin_s: float, zero: bool) -> SyncReport:
+    """:func:`synchronise_start`, or with ``fill`` :func:`start_filled`."""
     if not (math.isfinite(margin_s) and margin_s >= 0):
         raise ArgumentError(f"margin_s {margin_s!r} must be >= 0", reason="margin_s")
     clock = shared_clock(clients)
     if zero:
         zero_clocks(clients)
     estimates = measure_clocks(clients, samples=samples)
-    arm_start(clients, estimates, start_s=clock.now() + HOLD_S)
-    fill()
+    if fill is not None:
+        arm_start(clients, estimates, start_s=clock.now() + HOLD_S)
+        fill()
     lead_s = (4 + len(clients)) * max(e.rtt_s for e in estimates) + margin_s
     return arm_start(clients, estimates, start_s=clock.now() + lead_s)
+
+
+def held_up(error: StartMissedError, *, what: str, again: str) -> StartMissedError:
+    """``error`` told as a front says it: the host held up while it armed ``what``'s
+    common start (the axes, the joints), each held where it stood, and ``again`` (what to
+    do: run it again)."""
+    return StartMissedError(
+        f"{error.device}: the host was held up while it armed the {what}' common start (the"
+        f" arming was confirmed only after the start tick): one may have started out of step"
+        f" with the others, so each was held where it stood; {again}",
+        device=error.device, call=error.call)

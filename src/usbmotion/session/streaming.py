@@ -20,7 +20,7 @@ from usbmotion.errors import QueueUnderrunError, StartMissedError, UsbMotionErro
 from usbmotion.host.device import DeviceClient
 from usbmotion.host.machine import Machine
 from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams
-from usbmotion.host.timesync import SyncReport, start_filled
+from usbmotion.host.timesync import SyncReport, held_up, start_filled
 from usbmotion.session.rest import STOP_LEAD_S, wait_until_settled
 
 START_MARGIN_S = 0.2
@@ -90,11 +90,7 @@ class RunStreams:
                                      margin_s=START_MARGIN_S if first else RESUME_MARGIN_S)
         except StartMissedError as error:
             self.hold_where_they_stand()
-            raise StartMissedError(
-                f"{error.device}: the host was held up while it armed the axes' common start"
-                " (the arming was confirmed only after the start tick): an axis may have"
-                " started out of step with the others, so every axis was held where it stood;"
-                " run it again", device=error.device, call=error.call) from error
+            raise held_up(error, what="axes", again="run it again") from error
         self.start_tick = self.sync.devices[0].start_tick
         return self.sync
 
