@@ -356,3 +356,19 @@ def test_override_values_outside_their_range_are_refused(config: MachineConfig) 
                                r"rapid override 200"):
                 session.set_rapid_override(bad)
         assert session.feed_override_percent == 100 and session.rapid_override_percent == 100
+
+
+@pytest.mark.parametrize("realtime", [False, True], ids=["virtual", "realtime"])
+def test_a_run_against_the_wall_clock_keeps_more_of_its_queue(config: MachineConfig,
+                                                               realtime: bool) -> None:
+    """Against the wall clock a run refills a queue once 0.6 s of setpoints are left (a host
+    or a link held up that long still finds it running), in virtual time at 0.3 s (its
+    devices wait for it: batches of 600, half the exchanges)."""
+    from usbmotion.sim.world import SimWorld  # noqa: PLC0415
+
+    with connect_session(config, world=SimWorld(realtime=realtime)) as session:
+        streams = RunStreams(session.machine, ["X", "Y"], period_s=config.motion_period_s,
+                             scalar=1)
+        streams.open(np.zeros((10, 2), dtype=np.int32), 10)
+        marks = {(s.low_water, s.high_water) for s in streams.streams.values()}
+    assert marks == ({(600, 950)} if realtime else {(300, 900)})

@@ -16,6 +16,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import numpy.typing as npt
 
+from usbmotion.clock import is_paced
 from usbmotion.errors import QueueUnderrunError, StartMissedError, UsbMotionError
 from usbmotion.host.device import DeviceClient
 from usbmotion.host.machine import Machine
@@ -27,6 +28,15 @@ START_MARGIN_S = 0.2
 """A run's common start tick, beyond the round trips that arm it."""
 RESUME_MARGIN_S = 0.05
 """A resume's common start tick, beyond the round trips that arm it."""
+PACED_LOW_WATER = 600
+PACED_HIGH_WATER = 950
+"""A run against the wall clock refills a queue when it is predicted to hold this few
+values, up to that many: at the usual 1 kHz, 0.6 s of setpoints left for a host or a link
+held up (on a loaded computer a pseudo-terminal's bytes were seen arrive 0.4 s late), in
+batches of about 350."""
+VIRTUAL_LOW_WATER = 300
+VIRTUAL_HIGH_WATER = 900
+"""In virtual time the devices wait for their host: batches of 600, half the exchanges."""
 REJOIN_AHEAD_S = 0.1
 """How far beyond the row due now a queue that ran dry must have stood still for its
 stream to be taken up again on schedule (the devices' clocks as the host estimates them,
@@ -108,13 +118,16 @@ class RunStreams:
             stream.service()
 
     def open(self, rows: npt.NDArray[np.int32], released: int) -> None:
-        """New streams of the first ``released`` of ``rows``."""
+        """New streams of the first ``released`` of ``rows`` (against the wall clock, with
+        :data:`PACED_LOW_WATER` values queued at least)."""
         self.released = released
+        paced = is_paced(self.machine.clock)
         for index, name in enumerate(self.axes):
             self.streams[name] = SetpointStream(
                 self.machine.axis(name).client, rows[:released, index],
                 period_s=self.period_s, verify=True, on_progress=self.on_progress,
-                dry_is_late=True)
+                dry_is_late=True, low_water=PACED_LOW_WATER if paced else VIRTUAL_LOW_WATER,
+                high_water=PACED_HIGH_WATER if paced else VIRTUAL_HIGH_WATER)
 
     # --- where the devices are ----------------------------------------------------------------
 
