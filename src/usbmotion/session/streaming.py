@@ -250,9 +250,7 @@ class RunStreams:
         if stream is None:
             return False
         now = math.floor(self.device_tick())
-        index = max(stream.sent, (now - self.start_tick) // self.scalar)
-        if index > stream.total:
-            return False
+        index = min(max(stream.sent, (now - self.start_tick) // self.scalar), stream.total)
         ahead = math.ceil(REJOIN_AHEAD_S / (self.tick_s * self.scalar))
         return stream.rejoin_at_rest(self.tick_of(index), index, ahead=ahead,
                                      most=REPLACE_BATCH)
