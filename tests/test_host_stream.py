@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from usbmotion.device import Device
-from usbmotion.errors import ArgumentError, OutOfRangeError, QueueFullError
+from usbmotion.errors import ArgumentError, OutOfRangeError, QueueFullError, QueueUnderrunError
 from usbmotion.host.device import DeviceClient
 from usbmotion.host.stream import SetpointStream, StreamProgress, run_streams, wait_until_drained
 from usbmotion.host.transport import LineTransport
@@ -285,3 +285,45 @@ def test_a_replacement_takes_what_the_queue_has_room_for(sim_rig: Rig,
     assert played[-1] == new[-1]
     steps = np.abs(np.diff(played))
     assert steps.max() <= 1, "kept values, then every new one in order: no jump"
+
+
+def _ran_dry(rig: Rig, values: np.ndarray) -> tuple[SetpointStream, int]:
+    """X's stream of ``values`` (dry_is_late) after its device ran its first batch and 1 s
+    more: the refill finds the queue empty. Returns the stream and the device tick its
+    value 0 was due on."""
+    client = rig.clients[0]
+    client.set_servo_enable(True)
+    stream = SetpointStream(client, values, period_s=0.001, dry_is_late=True)
+    start = client.clock()
+    stream.service()
+    client.link_clock.sleep(1.0)
+    with pytest.raises(QueueUnderrunError, match="motion queue ran dry with") as caught:
+        stream.service()
+    assert caught.value.confirmed == stream.sent == 600
+    return stream, start
+
+
+def test_a_stream_that_ran_dry_where_it_stands_still_is_taken_up_on_schedule(
+        sim_rig: Rig) -> None:
+    values = np.concatenate((np.zeros(2000, dtype=np.int64), np.arange(1000, dtype=np.int64)))
+    stream, start = _ran_dry(sim_rig, values)
+    index = (sim_rig.clients[0].clock() - start) - 5  # a row already due
+    assert stream.rejoin_at_rest(start + index, index, ahead=100, most=600)
+    assert stream.sent == index + 600
+    queued, _ = sim_rig.clients[0].queue_status()
+    assert queued == stream.sent - (sim_rig.clients[0].clock() - start), (
+        "the rows already past were skipped: the queue runs on the schedule")
+
+
+def test_a_stream_that_ran_dry_at_rest_to_its_end_is_done(sim_rig: Rig) -> None:
+    stream, start = _ran_dry(sim_rig, np.zeros(1200, dtype=np.int64))
+    assert stream.rejoin_at_rest(start + stream.total, stream.total, ahead=100, most=600)
+    assert stream.done_sending
+
+
+def test_a_stream_that_ran_dry_where_it_was_to_move_is_not_taken_up(sim_rig: Rig) -> None:
+    values = np.concatenate((np.zeros(900, dtype=np.int64), np.arange(1000, dtype=np.int64)))
+    stream, start = _ran_dry(sim_rig, values)
+    index = sim_rig.clients[0].clock() - start
+    assert not stream.rejoin_at_rest(start + index, index, ahead=100, most=600)
+    assert stream.sent == 600 and sim_rig.clients[0].queue_status()[0] == 0, "nothing sent"
