@@ -25,6 +25,7 @@ from usbmotion.errors import (
     LinkCorruptedError,
     LinkLostError,
     QueueUnderrunError,
+    StartMissedError,
     UsbMotionError,
 )
 from usbmotion.host.spindle import Spindle
@@ -148,16 +149,16 @@ class Run:
 
     def _guarded(self, step: Callable[[], Ending | None]) -> Ending | None:
         """``step``'s ending; a lost link (every axis stopped at once), a queue that ran dry
-        (every axis held where it stands) or an error on the way (every axis to rest along
-        the path if it can be), starting too, ends the run in Alarm, never with the state
-        left running."""
+        or a start armed too late (every axis held where it stands: its schedule is lost) or
+        an error on the way (every axis to rest along the path if it can be), starting too,
+        ends the run in Alarm, never with the state left running."""
         try:
             return step()
         except (LinkLostError, LinkCorruptedError, DeviceTimeoutError) as error:
             ending = link_lost(self.machine, self.axes, error, self.notes)
-        except QueueUnderrunError as error:  # the axes' schedule lost: held where they stand
+        except (QueueUnderrunError, StartMissedError) as error:
             ending = internal_error(error)
-            try:
+            try:  # no schedule to decelerate along: every axis held where it stands
                 self.streams.hold_where_they_stand()
             except UsbMotionError:
                 self.machine.stop()
@@ -166,10 +167,9 @@ class Run:
             if self.states.state is not MachineState.ALARM:
                 self.states.fire(Event.FAULT)
             try:
-                if self.streams.sync is not None:
-                    self._decelerate(asked_s=self.clock.now())
-                elif not self.streams.held:  # nothing started: nothing to decelerate
+                if self.streams.sync is None:  # nothing started: nothing to decelerate
                     raise ValueError("not started")
+                self._decelerate(asked_s=self.clock.now())
             except (UsbMotionError, ArithmeticError, LookupError, TypeError, ValueError):
                 self.machine.stop()
         if self.states.state is not MachineState.ALARM:

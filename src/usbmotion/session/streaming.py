@@ -68,9 +68,6 @@ class RunStreams:
         self.start_tick = 0
         """The device tick row 0 of the rows streamed is due on."""
         self.sync: SyncReport | None = None
-        self.held = False
-        """True once every device was held where it stood, its queue emptied, its servo on
-        (:meth:`hold_where_they_stand`): nothing to decelerate."""
         self.released = 0
         """How many rows the streams were given."""
 
@@ -90,16 +87,14 @@ class RunStreams:
 
         Raises:
             StartMissedError: a device confirmed the start only after its tick (the host was
-                held up): it may have started on its own, so every queue is emptied at once
-                (a device that had started stops taking values, its servo holding it where
-                its setpoint is; one that had not finds nothing to run at its tick).
+                held up): it may have started on its own, out of step, what it was given
+                still queued (:meth:`hold_where_they_stand` is the way out).
         """
         self.sync = None  # until armed: a run that fails here has nothing to decelerate
         try:
             self.sync = start_filled(self.clients, fill, zero=first,
                                      margin_s=START_MARGIN_S if first else RESUME_MARGIN_S)
         except StartMissedError as error:
-            self.hold_where_they_stand()
             raise held_up(error, what="axes", again="run it again") from error
         self.start_tick = self.sync.devices[0].start_tick
         return self.sync
@@ -110,7 +105,6 @@ class RunStreams:
         dry: the axes' schedule is lost, so there is no path to decelerate along)."""
         for client in self.clients:
             client.clear_queue()
-        self.held = True
 
     def fill(self) -> None:
         """Every stream's first values queued (their devices held: :meth:`start`)."""
