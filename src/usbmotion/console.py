@@ -531,20 +531,21 @@ class Console:
     def stop(self) -> bool:
         """Stop as Ctrl-X does: what waits for a homing dropped, then every axis to rest
         along its deceleration; False when nothing moved nor waited."""
-        self._drop_held()
+        dropped = self._drop_held()
         if not self.operator.busy:
-            return False
+            return dropped > 0
         self.operator.stop()
         self.write("stop: every axis to rest along its deceleration")
         return True
 
-    def _drop_held(self) -> None:
-        """A stop drops the lines held for a homing, saying how many."""
+    def _drop_held(self) -> int:
+        """A stop drops the lines held for a homing, saying how many; how many."""
         with self._held_lock:
             dropped = len(self._held)
             self._held.clear()
         if dropped:
             self.write(f"dropped {dropped} line{'s' if dropped > 1 else ''} held for the homing")
+        return dropped
 
     def _reset(self) -> None:
         self.write("reset: stopping every axis")
