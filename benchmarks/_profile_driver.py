@@ -129,12 +129,11 @@ def _install() -> None:
         importlib.import_module(module_name)
     from usbmotion.device import core0, kernel  # noqa: PLC0415
 
-    compiled = kernel.compile_kernel()  # numba imported (charged to imports)
     _switch("kernel load")
-    kernel.warm_up()  # the machine code loaded from numba's cache (or compiled)
+    compiled = kernel.block_function()  # the machine code loaded from its file (or made)
     _back()
     servo = charged("kernel", compiled)
-    core0.compile_kernel = lambda: servo  # type: ignore[attr-defined]
+    core0.block_function = lambda: servo
     for module_name, attribute, part in WRAPPED:
         _patch(module_name, attribute, part)
 

@@ -20,9 +20,10 @@ multiple of real time), each the median of ``--runs`` runs; the kernel's ratio t
 reference. Targets: one axis at least 5,000,000 ticks/s (500x real time at 10 kHz);
 three axes at least 300x real time.
 
-Compile cost: the first ``warm_up()`` of the kernel in a fresh interpreter with an empty
-numba cache (``NUMBA_CACHE_DIR`` pointing at a new temporary folder) and again with that
-cache filled, each also as the interpreter's whole run (start, imports, compile or load).
+Compile cost: the first ``block_function()`` (the kernel the devices run) in a fresh
+interpreter with an empty numba cache (``NUMBA_CACHE_DIR`` pointing at a new temporary
+folder, where the machine code's file goes too) and again with that cache filled, each also
+as the interpreter's whole run (start, imports, compile or load).
 """
 
 from __future__ import annotations
@@ -53,7 +54,7 @@ TARGET_ONE_AXIS_TICKS_S = 5_000_000
 TARGET_THREE_AXES_MULTIPLE = 300.0
 _COMPILE_SCRIPT = (
     "import time; started = time.perf_counter();"
-    " from usbmotion.device import kernel; kernel.warm_up();"
+    " from usbmotion.device import kernel; kernel.block_function();"
     " print(time.perf_counter() - started)"
 )
 
@@ -98,7 +99,7 @@ def devices_seconds(fast: bool, axes: int, device_s: float) -> float:
 def kernel_seconds(fast: bool, axes: int, device_s: float) -> float:
     """Wall seconds for ``servo_block`` alone to run ``device_s`` seconds on ``axes`` axes."""
     block: Callable[[IntArray, IntArray, IntArray, IntArray, int], int] = (
-        kernel.compile_kernel() if fast else core1.servo_block
+        kernel.block_function() if fast else core1.servo_block
     )
     arrays = []
     for _ in range(axes):
@@ -153,7 +154,7 @@ def compile_cost(runs: int) -> dict[str, float]:
 def measure(*, axes_counts: list[int], device_s: float, reference_s: float,
             runs: int, compile_runs: int) -> dict[str, Any]:
     """Every figure of the benchmark."""
-    kernel.warm_up()
+    kernel.block_function()
     tick_hz = 1_000_000 // TICK_US
     rows = []
     for scenario, timer in (("devices", devices_seconds), ("kernel", kernel_seconds)):

@@ -10,7 +10,7 @@ microsecond to exactly one part: the innermost one running (a part's own time, n
 calls). The parts:
 
 - interpreter start (the process's wall time before the first line of the command), the
-  Python modules imported, loading the compiled kernel (numba's cache);
+  Python modules imported, loading the compiled kernel (its machine code's file);
 - reading the machine file and the program, interpreting G-code, planning, the checks
   (travel, rapids into the stock), sampling the plan into setpoints;
 - the host's protocol text: formatting calls, parsing replies and diagnostics lines;

@@ -168,7 +168,7 @@ def anatomy(
     from usbmotion.sim.machine import connect_session  # noqa: PLC0415
     from usbmotion.sim.world import SimWorld  # noqa: PLC0415
 
-    compiled = kernel.compile_kernel()
+    compiled = kernel.block_function()
     counts = {"blocks": 0, "ticks": 0, "blocks_ended_by_full_records": 0, "lines_in": 0,
               "diagnostics_lines": 0, "alarm_lines": 0}
     kernel_s = {"main": 0.0, "helper": 0.0}
@@ -196,7 +196,7 @@ def anatomy(
         rounds["count"] += 1
         rounds["wall_s"] += time.perf_counter() - started
 
-    original_kernel = core0.compile_kernel  # type: ignore[attr-defined]
+    original_kernel = core0.block_function
     original_aside = DeviceClient.take_aside
     original_interpret = core0.Device._interpret
 
@@ -216,7 +216,7 @@ def anatomy(
         original_interpret(self, line)
 
     shipped_period_s, shipped_points = job.DIAGNOSTICS_PERIOD_S, job.TRACE_POINTS
-    core0.compile_kernel = lambda: counting  # type: ignore[attr-defined]
+    core0.block_function = lambda: counting
     DeviceClient.take_aside = take_aside  # type: ignore[method-assign]
     LiveModel.take_lines = take_lines  # type: ignore[method-assign]
     core0.Device._interpret = interpret  # type: ignore[method-assign]
@@ -235,7 +235,7 @@ def anatomy(
         elapsed = time.perf_counter() - started
     finally:
         job.DIAGNOSTICS_PERIOD_S, job.TRACE_POINTS = shipped_period_s, shipped_points
-        core0.compile_kernel = original_kernel  # type: ignore[attr-defined]
+        core0.block_function = original_kernel
         DeviceClient.take_aside = original_aside  # type: ignore[method-assign]
         LiveModel.take_lines = original_take_lines  # type: ignore[method-assign]
         core0.Device._interpret = original_interpret  # type: ignore[method-assign]
@@ -262,7 +262,7 @@ def measure(
     """Run the benchmark: kernel and reference runs taking turns, then the anatomy."""
     from usbmotion.device import kernel  # noqa: PLC0415
 
-    kernel.warm_up()  # the bare kernel's figures time running, not loading
+    kernel.block_function()  # the bare kernel's figures time running, not loading
     with tempfile.TemporaryDirectory(prefix="usbmotion-run-speed-") as folder:
         program = Path(folder) / "benchmark.ngc"
         program.write_text(benchmark_program(minutes=minutes, seed=seed), encoding="ascii")

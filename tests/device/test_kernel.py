@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 import sys
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,6 +24,7 @@ from hypothesis import strategies as st
 
 from usbmotion.device import Device, core0, core1, kernel
 from usbmotion.device.core1 import IntArray
+from usbmotion.device.kernel_code import MachineKernel
 from usbmotion.errors import DeviceParameterError
 from usbmotion.host.device import DeviceClient
 from usbmotion.host.stream import SetpointStream, run_streams, wait_until_drained
@@ -40,6 +42,14 @@ def compiled() -> kernel.BlockFunction:
     """The kernel, compiled (or loaded from numba's cache) once for the session."""
     kernel.warm_up()
     return kernel.compile_kernel()
+
+
+@pytest.fixture(scope="module")
+def machine_code(compiled: kernel.BlockFunction) -> kernel.BlockFunction:
+    """The kernel the devices run: its machine code loaded from its file (made first)."""
+    function = kernel.load()
+    assert isinstance(function, MachineKernel)
+    return function
 
 
 @pytest.fixture
@@ -162,31 +172,33 @@ def _between_blocks(state: IntArray, *, recover: bool) -> None:
 @given(configuration=configurations(), stream=blocks())
 def test_the_kernel_equals_core1_after_every_block(
     compiled: kernel.BlockFunction,
+    machine_code: kernel.BlockFunction,
     configuration: list[str],
     stream: list[tuple[list[int], list[int], int, bool]],
 ) -> None:
+    """numba's dispatcher and the machine code the devices run, both against core1."""
     device = Device(fast=False)
     send(device, *configuration)
     state, params, queue = _arrays(device)
-    fast_state, fast_queue = state.copy(), queue.copy()
+    fast = [(function, state.copy(), queue.copy()) for function in (compiled, machine_code)]
     for values, positions, ticks, recover in stream:
-        for array in (state, fast_state):
+        for array in (state, *(each[1] for each in fast)):
             _between_blocks(array, recover=recover)
-        _push(state, queue, values)
-        _push(fast_state, fast_queue, values)
+        for array, ring in ((state, queue), *((each[1], each[2]) for each in fast)):
+            _push(array, ring, values)
         curve = np.asarray(positions, dtype=np.int64)
         left = ticks
         while True:
             done = core1.servo_block(state, params, queue, curve, left)
-            fast_done = compiled(fast_state, params, fast_queue, curve, left)
-            assert fast_done == done
-            assert fast_state.tolist() == state.tolist()
-            assert fast_queue.tolist() == queue.tolist()
+            for function, fast_state, fast_queue in fast:
+                assert function(fast_state, params, fast_queue, curve, left) == done
+                assert fast_state.tolist() == state.tolist()
+                assert fast_queue.tolist() == queue.tolist()
             left -= done
             if left <= 0:
                 break
             curve = curve[done:]
-            for array in (state, fast_state):
+            for array in (state, *(each[1] for each in fast)):
                 _between_blocks(array, recover=False)
 
 
@@ -320,7 +332,7 @@ def test_streaming_into_sim_devices_runs_long_kernel_blocks(
     compiled: kernel.BlockFunction, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     counting = _Counting(compiled)
-    monkeypatch.setattr("usbmotion.device.core0.compile_kernel", lambda: counting)
+    monkeypatch.setattr("usbmotion.device.core0.block_function", lambda: counting)
     fast_devices, queries = _stream_in_virtual_time(fast=True, world_name="kernel-chain")
     monkeypatch.undo()
     # 3 axes x 3000 setpoints x 10 ticks: no per-tick (or per-setpoint) round trips
@@ -406,13 +418,16 @@ def test_without_numba_asking_for_the_kernel_is_an_error(
 
 
 def test_a_broken_numba_is_named_in_the_notice_and_the_error(
-    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture, no_environment: None
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture, no_environment: None,
+    tmp_path: Path,
 ) -> None:
-    """An installed numba is imported when a device first needs the kernel: one that does
-    not import then leaves the device on the reference path, the notice naming why."""
+    """An installed numba is imported when a device first needs the kernel and its machine
+    code has no file yet: one that does not import then leaves the device on the reference
+    path, the notice naming why."""
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
     monkeypatch.setattr(kernel, "_numba_problem", lambda: ImportError("llvmlite is too old"))
     monkeypatch.setattr(kernel, "_noticed", False)
-    monkeypatch.setattr(kernel, "_warm", False)
+    monkeypatch.setattr(kernel, "_loaded", None)
     with caplog.at_level(logging.WARNING, logger="usbmotion.device.kernel"):
         device = Device()
         assert device.fast is True, "numba is installed: not imported yet"
@@ -434,9 +449,9 @@ def test_short_blocks_run_the_reference_until_a_long_one_loads_the_kernel(
     """A device that takes the kernel for numba's presence answers queries and runs short
     blocks on the reference (a command that moves nothing never loads the kernel); its
     first long block loads it; its bytes and state stay the reference's throughout."""
-    monkeypatch.setattr(kernel, "_warm", False)  # as in a fresh process
+    monkeypatch.setattr(kernel, "_loaded", None)  # as in a fresh process
     blocks: list[int] = []
-    monkeypatch.setattr("usbmotion.device.core0.compile_kernel",
+    monkeypatch.setattr("usbmotion.device.core0.block_function",
                         lambda: lambda *args: blocks.append(args[-1]) or compiled(*args))
     lazy, reference = Device(), Device(fast=False)
     assert lazy.fast
@@ -460,7 +475,7 @@ def test_short_blocks_run_the_reference_until_a_long_one_loads_the_kernel(
 def test_short_blocks_load_the_kernel_once_they_add_up(
     compiled: kernel.BlockFunction, monkeypatch: pytest.MonkeyPatch, no_environment: None
 ) -> None:
-    monkeypatch.setattr(kernel, "_warm", False)
+    monkeypatch.setattr(kernel, "_loaded", None)
     device = Device()
     send(device, "3 1")
     while device.clock < core0.REFERENCE_TICKS:
@@ -476,10 +491,10 @@ def test_short_blocks_load_the_kernel_once_they_add_up(
 def test_asking_for_the_kernel_loads_it_with_the_device(
     compiled: kernel.BlockFunction, monkeypatch: pytest.MonkeyPatch, no_environment: None
 ) -> None:
-    monkeypatch.setattr(kernel, "_warm", False)
+    monkeypatch.setattr(kernel, "_loaded", None)
     Device(fast=True)
     assert kernel.loaded()
-    monkeypatch.setattr(kernel, "_warm", False)
+    monkeypatch.setattr(kernel, "_loaded", None)
     monkeypatch.setenv(kernel.ENVIRONMENT_VARIABLE, "1")
     Device()
     assert kernel.loaded()
@@ -489,7 +504,7 @@ def test_asking_for_the_kernel_loads_it_with_the_device(
 def test_a_world_in_real_time_loads_the_kernel_when_it_takes_a_device(
     compiled: kernel.BlockFunction, monkeypatch: pytest.MonkeyPatch, no_environment: None
 ) -> None:
-    monkeypatch.setattr(kernel, "_warm", False)
+    monkeypatch.setattr(kernel, "_loaded", None)
     SimWorld().add(Device())
     assert not kernel.loaded()
     SimWorld(realtime=True).add(Device())
@@ -506,7 +521,7 @@ def test_an_exception_in_the_kernel_faults_and_keeps_the_clock(
     def broken(*args: object) -> int:
         raise ZeroDivisionError("oops")
 
-    monkeypatch.setattr("usbmotion.device.core0.compile_kernel", lambda: broken)
+    monkeypatch.setattr("usbmotion.device.core0.block_function", lambda: broken)
     device.run(50)
     assert device.clock == 50
     assert send(device, "30 -1") == [

@@ -37,7 +37,7 @@ from usbmotion.device.core1 import (
 )
 from usbmotion.device.curve import CurvePlayer
 from usbmotion.device.flash import Flash, FlashContents, MemoryFlash
-from usbmotion.device.kernel import BlockFunction, compile_kernel, requested, use_kernel
+from usbmotion.device.kernel import BlockFunction, block_function, requested, use_kernel
 from usbmotion.device.kernel import load as load_kernel
 from usbmotion.device.kernel import loaded as kernel_loaded
 from usbmotion.device.motor import (
@@ -545,7 +545,7 @@ class Device:
                 self._reference_ticks += ticks
                 return servo_block
             self.load_kernel()
-        return compile_kernel() if self._fast else servo_block
+        return block_function() if self._fast else servo_block
 
     def _run_some(self, limit: int) -> int:
         state = self._state

@@ -20,14 +20,22 @@ that keeps pace with the wall clock and cannot stand still for it (:func:`preloa
 installed numba that fails to import is found then, and the device runs the reference
 path, with the notice.
 
-The compiled code is cached on disk (numba's ``cache=True``: ``__pycache__`` next to this
-module, or numba's user cache directory when that is not writable), so only the first run
-after an install or a change pays the compile (a few seconds; ``BENCHMARKS.md`` gives the
-figures). numba's cache only checks the file of the function it compiles, not the files of
-the functions it calls; the cache key here also carries a hash of ``core1.py``,
-``motor.py``, ``stepper.py``, ``scimath.py`` and ``protocol/table.py``, so an edit to any of
-them compiles afresh instead of loading stale machine code (when the sources cannot be read,
-nothing is cached).
+What the devices run (:func:`load`, :func:`block_function`) is that compilation's machine
+code, kept in a file and loaded without importing numba (:mod:`usbmotion.device.kernel_code`:
+importing numba and setting up its compiler take about 0.45 s of every process, loading the
+file about 0.07 s). numba is imported only to make the file, the first time a device needs
+the kernel after an install or a change (a few seconds; ``BENCHMARKS.md`` gives the
+figures), or where such a file cannot be used: then the devices run numba's dispatcher,
+:func:`compile_kernel`, as fast once loaded.
+
+The dispatcher's code is cached on disk too (numba's ``cache=True``: ``__pycache__`` next to
+this module, or numba's user cache directory when that is not writable). numba's cache only
+checks the file of the function it compiles, not the files of the functions it calls; the
+cache key here also carries a hash of ``core1.py``, ``motor.py``, ``stepper.py``,
+``scimath.py`` and ``protocol/table.py``, so an edit to any of them compiles afresh instead
+of loading stale machine code (when the sources cannot be read, nothing is cached); the
+machine code's file is named by a hash of the same sources, this module's and
+``kernel_code.py``'s.
 """
 
 from __future__ import annotations
@@ -43,7 +51,7 @@ from types import ModuleType
 from typing import Any, Final
 
 from usbmotion import scimath
-from usbmotion.device import core1, motor, stepper
+from usbmotion.device import core1, kernel_code, motor, stepper
 from usbmotion.device.core1 import IntArray
 from usbmotion.errors import DeviceParameterError
 from usbmotion.protocol import table
@@ -61,12 +69,13 @@ BlockFunction = Callable[[IntArray, IntArray, IntArray, IntArray, int], int]
 
 _log = logging.getLogger(__name__)
 _lock = threading.Lock()
+_load_lock = threading.Lock()
 _compiled: BlockFunction | None = None
 _jit_block: Any = None
 """``core1.servo_block`` jitted (not cached by itself): what the cached wrapper calls."""
 _noticed = False
-_warm = False
-"""Whether the kernel's machine code is loaded (:func:`warm_up` ran)."""
+_loaded: BlockFunction | None = None
+"""The kernel the devices run, once loaded (:func:`load`)."""
 
 
 def _numba_installed() -> bool:
@@ -122,9 +131,10 @@ def use_kernel(fast: bool | None = None) -> bool:
     """Whether a device should run the compiled kernel.
 
     Parameters:
-        fast: True requires the kernel, False chooses the reference path, None (the
+        fast: True requires the kernel (and loads it now: its machine code's file, numba
+            imported only when there is none), False chooses the reference path, None (the
             default) follows ``USBMOTION_KERNEL`` and otherwise takes the kernel when numba
-            is importable, printing :data:`NOTICE` once per process when it is not (with
+            is installed, printing :data:`NOTICE` once per process when it is not (with
             the import error when numba is installed but broken).
 
     Raises:
@@ -135,8 +145,8 @@ def use_kernel(fast: bool | None = None) -> bool:
     choice = requested(fast)
     if choice is False:
         return False
-    if choice is None and _numba_installed():
-        return True  # imported when a device first needs the kernel (load)
+    if _numba_installed() and (choice is None or _machine_code_loads()):
+        return True  # None: loaded when a device first needs the kernel (load)
     problem = _numba_problem()
     if problem is None:
         return True
@@ -164,21 +174,84 @@ def _notice(problem: BaseException) -> None:
 
 
 def loaded() -> bool:
-    """Whether the kernel is loaded in this process (:func:`load` or :func:`warm_up`)."""
-    return _warm
+    """Whether the kernel the devices run is loaded in this process (:func:`load`)."""
+    return _loaded is not None
 
 
 def load() -> BlockFunction | None:
-    """The compiled kernel, numba imported and the machine code loaded (from numba's cache,
-    or compiled) if that has not happened yet in this process; None when numba does not
-    import after all (the reference path runs then: the notice says so, once)."""
-    if not _warm:
-        problem = _numba_problem()
-        if problem is not None:
-            _notice(problem)
-            return None
-        warm_up()
-    return compile_kernel()
+    """The kernel the devices run, loaded if that has not happened yet in this process:
+    its machine code from its file (made first, numba imported, when there is none), or
+    numba's dispatcher where the file cannot serve; None when numba does not import after
+    all and there is no file (the reference path runs then: the notice says so, once)."""
+    global _loaded  # noqa: PLW0603 - one loaded kernel per process
+    if _loaded is None:
+        with _load_lock:
+            if _loaded is None:
+                function = _machine_code()
+                if function is None:
+                    problem = _numba_problem()
+                    if problem is not None:
+                        _notice(problem)
+                        return None
+                    warm_up()
+                    function = compile_kernel()
+                _loaded = function
+    return _loaded
+
+
+def block_function() -> BlockFunction:
+    """The kernel the devices run (:func:`load`).
+
+    Raises:
+        ImportError: the kernel cannot be loaded (numba does not import, and there is no
+            machine code to load).
+    """
+    function = _loaded if _loaded is not None else load()
+    if function is None:
+        raise ImportError("the compiled servo kernel cannot be loaded: numba does not import")
+    return function
+
+
+def _machine_code_loads() -> bool:
+    """Whether the kernel's machine code is loaded, loading it now if it was not (numba is
+    not imported when its file is there)."""
+    global _loaded  # noqa: PLW0603 - one loaded kernel per process
+    with _load_lock:
+        if _loaded is None:
+            _loaded = _machine_code()
+    return _loaded is not None
+
+
+def _machine_code() -> BlockFunction | None:
+    """The kernel's machine code, from its file, or made now (numba imported) and kept;
+    None when it cannot be had here (no numba and no file; sources that cannot be read;
+    an object format or a symbol this process lacks: :mod:`kernel_code`)."""
+    sources = _source_text((*SOURCES, kernel_code, _this_module()))
+    if sources is None:
+        return None
+    try:
+        path = kernel_code.cache_folder() / kernel_code.cache_key(sources)
+        code = kernel_code.read(path)
+        if code is None:
+            if _numba_problem() is not None:
+                return None
+            import numba  # noqa: PLC0415 - optional dependency, imported on first use
+
+            compile_kernel()
+            code = kernel_code.object_code(numba, _jit_block)
+            kernel_code.write(path, code)
+        return kernel_code.load(code)
+    except ImportError:  # llvmlite, numba's code generator, missing or broken
+        return None
+    except Exception as error:
+        _log.debug("the kernel's machine code is not used here: %s", error)
+        return None
+
+
+def _this_module() -> ModuleType:
+    import sys  # noqa: PLC0415
+
+    return sys.modules[__name__]
 
 
 def preload() -> None:
@@ -193,15 +266,24 @@ SOURCES: Final = (core1, motor, stepper, scimath, table)
 """The modules whose source the compiled kernel depends on (code and constants)."""
 
 
-def source_hash() -> int | None:
-    """A positive 62-bit hash of :data:`SOURCES`, or None when a source cannot be read."""
-    digest = hashlib.sha256()
-    for module in SOURCES:
+def _source_text(modules: tuple[ModuleType, ...]) -> bytes | None:
+    """The sources of ``modules``, one after the other, or None when one cannot be read."""
+    parts = []
+    for module in modules:
         try:
-            digest.update(inspect.getsource(module).encode("utf-8"))
+            parts.append(inspect.getsource(module).encode("utf-8"))
         except (OSError, TypeError):
             return None
-    return int.from_bytes(digest.digest()[:8], "little") >> 2 | 1
+    return b"\0".join(parts)
+
+
+def source_hash() -> int | None:
+    """A positive 62-bit hash of :data:`SOURCES`, or None when a source cannot be read."""
+    text = _source_text(SOURCES)
+    if text is None:
+        return None
+    digest = hashlib.sha256(text).digest()
+    return int.from_bytes(digest[:8], "little") >> 2 | 1
 
 
 def _cached_wrapper(numba: ModuleType, fingerprint: int) -> BlockFunction:
@@ -269,16 +351,15 @@ def compile_kernel() -> BlockFunction:
 
 
 def warm_up() -> None:
-    """Compile (or load from the cache) the kernel now, by running it on a 0-tick block.
+    """Compile (or load from numba's cache) the dispatcher's kernel now, by running it on a
+    0-tick block.
 
     Raises:
         ImportError: numba is not installed.
     """
-    global _warm  # noqa: PLW0603 - one compiled kernel per process
     function = compile_kernel()
     empty = core1.new_state()[:0]
     function(core1.new_state(), core1.new_params(), empty.copy(), empty, 0)
-    _warm = True
 
 
 def servo_block(

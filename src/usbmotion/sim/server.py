@@ -112,7 +112,7 @@ class DeviceServer:
     def warm_up(self, *, timeout_s: float = 1.0) -> None:
         """Ask every device for its name and run it a tick past the answer, in the world's
         virtual time, and load what a device loads at its first motion (the compiled servo
-        kernel, from numba's cache or compiled afresh: seconds), before any client
+        kernel, from its file or compiled afresh: seconds), before any client
         connects: a client's first exchange is answered at once, its first move on time.
 
         Parameters:

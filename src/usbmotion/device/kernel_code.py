@@ -1,0 +1,312 @@
+"""The compiled kernel's machine code, kept in a file and loaded without numba.
+
+numba's own cache gives back a compiled function only through numba: importing it and
+setting up its compiler take about 0.45 s of every process that runs a simulated device,
+more than the rest of a command that moves the simulated machine for a minute. So the
+kernel the devices run is numba's compilation of ``core1.servo_block`` behind a C entry
+point (``numba.cfunc``: each array as a pointer and a length, the ticks to run; the ticks
+run back, or :data:`RAISED`), its machine code written once to an object file and loaded
+into later processes by llvmlite, numba's own code generator, which imports in about
+0.06 s. ctypes calls it and lets go of the interpreter's lock while it runs, as numba's
+``nogil`` does.
+
+The code is numba's: the same source, compiled by the same compiler to the same
+instructions; ``tests/device/test_kernel.py`` proves it equal to the reference bit for bit,
+as it does numba's dispatcher. The file's name is a hash of everything the code depends on
+(:func:`cache_key`); the file holds a digest of the code, checked before loading. Every
+symbol the code needs from outside is resolved here, before llvmlite links it: a file that
+needs one this process lacks, or a platform whose objects are not ELF, is not used, and the
+devices run numba's dispatcher instead (:mod:`usbmotion.device.kernel`).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import struct
+import sys
+import tempfile
+import threading
+from pathlib import Path
+from types import ModuleType
+from typing import Any, Final
+
+import numpy as np
+
+from usbmotion.device.core1 import IntArray
+
+SYMBOL: Final = "usbmotion_servo_block"
+"""The entry point's name in the object file."""
+RAISED: Final = -1
+"""What the entry point returns when the block raised (the reference raises the same
+exception): never a count of ticks."""
+_MAGIC: Final = b"usbmotion servo kernel 1\n"
+_DIGEST_BYTES: Final = 32
+_ARRAYS: Final = 4
+
+_PROTOTYPE = ctypes.CFUNCTYPE(ctypes.c_int64,
+                              *((ctypes.c_void_p, ctypes.c_int64) * _ARRAYS), ctypes.c_int64)
+_DESTRUCTOR = ctypes.CFUNCTYPE(None, ctypes.c_void_p)
+
+
+def _no_destructor(_meminfo: int) -> None:
+    """``NRT_MemInfo_call_dtor``: numba's release of an array it allocated. The entry point
+    allocates none (its arrays view the caller's memory and own nothing), so nothing calls
+    this; the code refers to it from the release it never reaches."""
+
+
+_PROVIDED: Final = {"NRT_MemInfo_call_dtor": _DESTRUCTOR(_no_destructor)}
+_lock = threading.Lock()
+_engines: list[Any] = []
+"""The llvmlite engines holding loaded code: kept for the life of the process."""
+
+
+class KernelCodeError(Exception):
+    """The machine code cannot be made or loaded here (the dispatcher runs instead)."""
+
+
+def cache_folder() -> Path:
+    """Where the object file is kept: beside numba's own cache, ``NUMBA_CACHE_DIR`` when
+    set, else this package's ``__pycache__`` when writable, else the user's cache folder."""
+    chosen = os.environ.get("NUMBA_CACHE_DIR", "")
+    if chosen:
+        return Path(chosen) / "usbmotion"
+    beside = Path(__file__).with_name("__pycache__")
+    if os.access(beside if beside.is_dir() else beside.parent, os.W_OK):
+        return beside
+    base = os.environ.get("XDG_CACHE_HOME", "") or str(Path.home() / ".cache")
+    return Path(base) / "usbmotion"
+
+
+def _llvm() -> Any:
+    """llvmlite's binding to LLVM, ready to make and link code for this processor."""
+    import llvmlite.binding as llvm  # noqa: PLC0415 - numba's code generator, on first use
+
+    llvm.initialize_native_target()
+    llvm.initialize_native_asmprinter()
+    return llvm
+
+
+def _numba_version() -> bytes:
+    """The text of numba's version file (the compiler that made the code), found without
+    importing numba; empty when it cannot be read."""
+    import importlib.util  # noqa: PLC0415
+
+    try:
+        spec = importlib.util.find_spec("numba")
+        locations = list(spec.submodule_search_locations or []) if spec else []
+        return (Path(locations[0]) / "_version.py").read_bytes() if locations else b""
+    except (ImportError, ValueError, OSError):
+        return b""
+
+
+def cache_key(sources: bytes) -> str:
+    """The object file's name for the kernel of ``sources`` (the text of every module the
+    code is compiled from): with numba's and llvmlite's versions, the processor (the code
+    uses its instructions), the platform and Python's version."""
+    llvm = _llvm()
+    import llvmlite  # noqa: PLC0415
+
+    digest = hashlib.sha256(_MAGIC)
+    for part in (sources, _numba_version(), llvmlite.__version__.encode(),
+                 llvm.get_process_triple().encode(), llvm.get_host_cpu_name().encode(),
+                 llvm.get_host_cpu_features().flatten().encode(), sys.version.encode()):
+        digest.update(len(part).to_bytes(8, "little"))
+        digest.update(part)
+    return f"kernel-{digest.hexdigest()[:32]}.code"
+
+
+def read(path: Path) -> bytes | None:
+    """The object code kept at ``path``; None when there is none, or the file is not one
+    this module wrote whole (its digest does not match)."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None
+    head = len(_MAGIC) + _DIGEST_BYTES
+    if len(data) <= head or not data.startswith(_MAGIC):
+        return None
+    code = data[head:]
+    if hashlib.sha256(code).digest() != data[len(_MAGIC):head]:
+        return None
+    return code
+
+
+def write(path: Path, code: bytes) -> bool:
+    """Keep ``code`` at ``path`` (written aside, then renamed: a reader never sees half a
+    file). False when the folder cannot be written (the code is then made again next time)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=".kernel-", delete=False) as f:
+            f.write(_MAGIC + hashlib.sha256(code).digest() + code)
+        os.chmod(f.name, 0o644)  # as numba's own cache files: not private to one user
+        os.replace(f.name, path)
+    except OSError:
+        return False
+    return True
+
+
+def object_code(numba: ModuleType, block: Any) -> bytes:
+    """Compile the C entry point around ``block`` (``core1.servo_block`` as numba jits it)
+    and return its machine code as an ELF object file.
+
+    The entry point catches what the block raises and returns :data:`RAISED`, so the code
+    never calls into numba's exception machinery (which lives in numba's own extension
+    modules, not loaded without numba).
+
+    Raises:
+        KernelCodeError: the code needs something from outside this module can not provide.
+    """
+    carray = numba.carray
+    types = numba.types
+
+    def servo_entry(state: Any, state_n: int, params: Any, params_n: int, queue: Any,
+                    queue_n: int, curve: Any, curve_n: int, n_ticks: int) -> int:
+        try:
+            ticks: int = block(carray(state, (state_n,)), carray(params, (params_n,)),
+                               carray(queue, (queue_n,)), carray(curve, (curve_n,)), n_ticks)
+        except Exception:
+            return RAISED
+        return ticks
+
+    pointer = types.CPointer(types.int64)
+    signature = types.int64(*((pointer, types.int64) * _ARRAYS), types.int64)
+    entry = numba.cfunc(signature, nogil=True)(servo_entry)
+    llvm = _llvm()
+    module = llvm.parse_assembly(entry.inspect_llvm())
+    module.get_function(entry.native_name).name = SYMBOL
+    module.verify()
+    code: bytes = _target_machine(llvm).emit_object(module)
+    _resolve(code)
+    return code
+
+
+def _target_machine(llvm: Any) -> Any:
+    target = llvm.Target.from_triple(llvm.get_process_triple())
+    return target.create_target_machine(
+        cpu=llvm.get_host_cpu_name(), features=llvm.get_host_cpu_features().flatten(),
+        opt=3, reloc="pic", codemodel="default")
+
+
+def undefined_symbols(code: bytes) -> list[str]:
+    """The symbols an ELF64 little-endian object file ``code`` uses but does not define.
+
+    Raises:
+        KernelCodeError: ``code`` is not such a file.
+    """
+    if code[:6] != b"\x7fELF\x02\x01":
+        raise KernelCodeError("the object file is not 64-bit little-endian ELF")
+    try:
+        section_offset, = struct.unpack_from("<Q", code, 0x28)
+        entry_size, count = struct.unpack_from("<HH", code, 0x3A)
+        sections = [struct.unpack_from("<IIQQQQIIQQ", code, section_offset + i * entry_size)
+                    for i in range(count)]
+        names: list[str] = []
+        for section in sections:
+            if section[1] != 2:  # SHT_SYMTAB
+                continue
+            strings = sections[section[6]]  # sh_link: its string table
+            for offset in range(section[4], section[4] + section[5], 24):
+                name, _info, _other, index = struct.unpack_from("<IBBH", code, offset)
+                if name and index == 0:  # SHN_UNDEF
+                    start = strings[4] + name
+                    names.append(code[start:code.index(b"\0", start)].decode("ascii"))
+    except (struct.error, IndexError, ValueError, UnicodeDecodeError) as error:
+        raise KernelCodeError(f"the object file's symbol table is unreadable ({error})") from None
+    return names
+
+
+def _resolve(code: bytes) -> dict[str, int]:
+    """Each symbol ``code`` needs, with its address in this process.
+
+    Raises:
+        KernelCodeError: one of them is nowhere in this process.
+    """
+    process = ctypes.CDLL(None)
+    addresses: dict[str, int] = {}
+    for name in undefined_symbols(code):
+        provided = _PROVIDED.get(name)
+        try:
+            function = provided if provided is not None else getattr(process, name)
+        except AttributeError:
+            raise KernelCodeError(f"the kernel's code needs {name!r}, which this process"
+                                  " lacks") from None
+        address = ctypes.cast(function, ctypes.c_void_p).value
+        if not address:
+            raise KernelCodeError(f"the kernel's code needs {name!r}, at address 0 here")
+        addresses[name] = address
+    return addresses
+
+
+def load(code: bytes) -> MachineKernel:
+    """Link ``code`` (from :func:`object_code`) into this process.
+
+    Raises:
+        KernelCodeError: see :func:`undefined_symbols` and :func:`object_code`, or the
+            entry point is missing.
+    """
+    addresses = _resolve(code)
+    llvm = _llvm()
+    with _lock:
+        for name, address in addresses.items():
+            llvm.add_symbol(name, address)
+        engine = llvm.create_mcjit_compiler(llvm.parse_assembly(""), _target_machine(llvm))
+        engine.add_object_file(llvm.ObjectFileRef.from_data(code))
+        engine.finalize_object()
+        address = engine.get_function_address(SYMBOL)
+        if not address:
+            raise KernelCodeError(f"the object file has no {SYMBOL}")
+        _engines.append(engine)
+    return MachineKernel(_PROTOTYPE(address))
+
+
+class MachineKernel:
+    """The loaded entry point as a block function: called as ``core1.servo_block`` is,
+    ``(state, params, queue, curve, n_ticks)``, with C-contiguous writable ``int64``
+    arrays (``curve`` may be read-only).
+
+    The addresses of the arrays a device keeps (its state, parameters and queue) are
+    remembered, each with the array itself, so that the same array is looked up once.
+
+    Raises (on a call):
+        TypeError: an array is not 1-D C-contiguous ``int64`` (writable, but for ``curve``).
+        ArithmeticError: the block raised (:data:`RAISED`); the reference path names the
+            exception.
+    """
+
+    __slots__ = ("_addresses", "_function")
+    _REMEMBERED = 64
+
+    def __init__(self, function: Any) -> None:
+        self._function = function
+        self._addresses: dict[int, tuple[IntArray, int]] = {}
+
+    def _address(self, array: IntArray, writable: bool = True) -> int:
+        known = self._addresses.get(id(array))
+        if known is not None and known[0] is array:
+            return known[1]
+        if (not isinstance(array, np.ndarray) or array.dtype != np.int64 or array.ndim != 1
+                or not array.flags.c_contiguous or (writable and not array.flags.writeable)):
+            raise TypeError(
+                "the servo kernel takes 1-D C-contiguous int64 arrays"
+                f"{' it may write' if writable else ''}; got {type(array).__name__}"
+                f" {getattr(array, 'dtype', '')} {getattr(array, 'shape', '')}")
+        address: int = array.ctypes.data
+        if writable:
+            if len(self._addresses) >= self._REMEMBERED:
+                self._addresses.clear()
+            self._addresses[id(array)] = (array, address)
+        return address
+
+    def __call__(self, state: IntArray, params: IntArray, queue: IntArray, curve: IntArray,
+                 n_ticks: int) -> int:
+        curve_n = curve.size
+        done: int = self._function(
+            self._address(state), state.size, self._address(params), params.size,
+            self._address(queue), queue.size,
+            self._address(curve, writable=False) if curve_n else 0, curve_n, n_ticks)
+        if done == RAISED:
+            raise ArithmeticError("the servo kernel raised (the reference servo loop,"
+                                  " USBMOTION_KERNEL=0, names the exception)")
+        return done
