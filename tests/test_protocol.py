@@ -368,6 +368,22 @@ def test_a_counted_call_encodes_as_encode_call(number: int, items: list[int],
     assert _outcome(lambda: encode_counted(number, tuple(lead), items)) == expected
 
 
+def test_a_batch_just_encoded_parses_as_its_text_converted() -> None:
+    """A simulated device reads the batch its host encoded: recalled rather than converted,
+    the same call, kept whole when the host's array changes afterwards."""
+    values = np.arange(-300, 300, dtype=np.int64)
+    line = encode_counted(1, (), values).rstrip(b"\n")
+    remembered = parse_call(line)
+    assert remembered is codec._encoded_batches[line]
+    values[0] = 12345
+    codec._encoded_batches.clear()
+    converted = parse_call(line)
+    assert remembered == converted == Call(1, (600, *range(-300, 300)))
+    assert remembered.items is not None and converted.items is not None
+    assert remembered.items.tolist() == converted.items.tolist() == list(range(-300, 300))
+    assert parse_call(encode_counted(1, (), values).rstrip(b"\n")).items[0] == 12345
+
+
 @pytest.mark.parametrize(("tick_us", "pulse_ns", "setup_ns", "steps"),
                          [(1000, 100, 20, 4807), (1000, 2000, 1000, 249), (100, 2000, 1000, 24),
                           (100, 5000, 0, 10), (1000, 1_000_000, 0, 0), (250, 333, 17, 371)])

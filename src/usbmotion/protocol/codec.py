@@ -138,6 +138,17 @@ def _format(count: int) -> str:
     return " ".join(("%d",) * count)
 
 
+@functools.lru_cache(maxsize=64)
+def _bytes_format(count: int) -> bytes:
+    """:func:`_format` as bytes (a batch formatted straight to its line's bytes)."""
+    return b" ".join((b"%d",) * count)
+
+
+REMEMBERED_BATCHES = 16
+"""How many of the counted calls it encoded last :func:`parse_call` knows by their line."""
+_encoded_batches: dict[bytes, Call] = {}
+
+
 def encode_counted(number: int, lead: Sequence[int],
                    items: Sequence[int] | npt.NDArray[np.integer]) -> bytes:
     """A counted call (``number``, the inputs ``lead`` before the count, then the count
@@ -154,13 +165,28 @@ def encode_counted(number: int, lead: Sequence[int],
     if (spec is not None and array.ndim == 1 and array.dtype.kind in "iu"
             and all(type(value) is int for value in lead)
             and _counted_fits(spec, inputs, array)):
-        head = f"{int(number)} {_format(len(inputs)) % inputs}"
+        head = b"%d %b" % (number, _bytes_format(len(inputs)) % inputs)
         if not array.size:
-            return f"{head}\n".encode("ascii")
+            return head + b"\n"
         values = tuple(array.tolist())
-        return f"{head} {_format(len(values)) % values}\n".encode("ascii")
+        line = b"%b %b" % (head, _bytes_format(len(values)) % values)
+        if len(line) > BULK_BYTES:
+            _remember_batch(line, int(number), inputs + values, array)
+        return line + b"\n"
     listed = array.tolist() if isinstance(items, np.ndarray) else list(items)
     return encode_call(number, *lead, len(listed), *listed)
+
+
+def _remember_batch(line: bytes, number: int, args: tuple[int, ...],
+                   items: npt.NDArray[np.integer]) -> None:
+    """Keep the call as what ``line`` (without its newline) parses to: a simulated device
+    reads the batch its host just encoded, and need not convert its text back. The items
+    are kept as a read-only copy (the caller's array may change afterwards)."""
+    kept = items.astype(np.int64)  # a copy, whatever the caller's integer type
+    kept.flags.writeable = False
+    if len(_encoded_batches) >= REMEMBERED_BATCHES:
+        _encoded_batches.clear()
+    _encoded_batches[line] = Call(number, args, kept)
 
 
 def device_name_problem(name: object, *, allow_empty: bool = True) -> str | None:
@@ -218,8 +244,12 @@ def parse_call(line: bytes | str) -> Call:
         NonIntegerTokenError: a token is not a decimal integer (names it).
         UnknownCallError, WrongCountError, OutOfRangeError: see :func:`check_call`.
     """
-    if type(line) is bytes and len(line) <= BULK_BYTES:
-        return _short_call(line)
+    if type(line) is bytes:
+        if len(line) <= BULK_BYTES:
+            return _short_call(line)
+        known = _encoded_batches.get(line)
+        if known is not None:
+            return known
     return _parse_call(line)
 
 
