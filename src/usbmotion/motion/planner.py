@@ -966,7 +966,7 @@ def _fill_arc_vertices(
     ``_BLOCK`` vertices."""
     plane_of = np.array([axes[0] for axes in arc_planes], dtype=np.int64)
     axes_by_first = {axes[0]: axes for axes in arc_planes}
-    for first_axis in np.unique(plane_of).tolist():
+    for first_axis in sorted(axes_by_first):
         selected = arc_rows[plane_of == first_axis]
         inner = selected[:, 1].astype(np.int64) - 1
         ends = np.cumsum(inner)

@@ -280,7 +280,7 @@ def line_peaks(plan: Plan, trace: Trace,
         peaks[name] = by_segment
     if not peaks:
         return ()
-    lines, inverse = np.unique(plan.line[touched], return_inverse=True)
+    lines, inverse = _unique(plan.line[touched])
     by_line: dict[str, list[int]] = {}
     for name, by_segment in peaks.items():
         most = np.zeros(lines.size, dtype=np.int64)
@@ -288,6 +288,31 @@ def line_peaks(plan: Plan, trace: Trace,
         by_line[name] = most.tolist()
     return tuple(LinePeak(int(line), {name: values[i] for name, values in by_line.items()})
                  for i, line in enumerate(lines.tolist()))
+
+
+def _unique(values: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.intp]]:
+    """``numpy.unique(values, return_inverse=True)`` of a 1-D integer array, without
+    ``numpy.unique``'s import of ``numpy.ma`` (10 ms of a command's start)."""
+    order = np.argsort(values, kind="stable")
+    ordered = values[order]
+    first = np.empty(ordered.size, dtype=bool)
+    first[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=first[1:])
+    inverse = np.empty(values.size, dtype=np.intp)
+    inverse[order] = np.cumsum(first) - 1
+    return ordered[first], inverse
+
+
+def _intersection(first: npt.NDArray[np.int64],
+                  second: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """``numpy.intersect1d(first, second)`` of 1-D integer arrays (the sorted values in
+    both), without importing ``numpy.ma`` (:func:`_unique`)."""
+    ours, theirs = _unique(first)[0], _unique(second)[0]
+    if not theirs.size:
+        return theirs
+    at = np.minimum(np.searchsorted(theirs, ours), theirs.size - 1)
+    both: npt.NDArray[np.int64] = ours[theirs[at] == ours]
+    return both
 
 
 def line_at(plan: Plan, time_s: float) -> int:
@@ -459,7 +484,7 @@ def _actual_path_mm(trace: Trace, axes: str) -> npt.NDArray[np.float64]:
     clocks = [trace.column(trace.clock, n) for n in axes]
     common = clocks[0]
     for other in clocks[1:]:
-        common = np.intersect1d(common, other)
+        common = _intersection(common, other)
     columns = []
     for name, clock in zip(axes, clocks, strict=True):
         actual = trace.column(trace.actual, name).astype(np.float64)
@@ -493,7 +518,7 @@ def _endpoint_misses(program: GCodeProgram, trace: Trace, axes: str) -> tuple[in
         # sample's distance plus the longest segment: only those segments are measured.
         reach = float(np.sqrt(dist_sq.min())) + longest
         near = np.nonzero(dist_sq <= reach * reach)[0]
-        index = np.unique(np.clip(np.concatenate((near - 1, near)), 0, last))
+        index = _unique(np.clip(np.concatenate((near - 1, near)), 0, last))[0]
         seg_offsets = offsets[index]
         seg_spans = spans[index]
         seg_lengths = lengths_sq[index]

@@ -225,6 +225,10 @@ class SimLink:
         if self.faults.stalled:
             return b""
         now = self.world.time_us
+        outbox = self._outbox
+        if outbox and len(outbox[0][1]) <= size and outbox[0][0] <= now and (
+                len(outbox) == 1 or outbox[1][0] > now):  # one chunk, taken whole
+            return self.faults.incoming(outbox.popleft()[1])
         out = bytearray()
         while self._outbox and self._outbox[0][0] <= now and len(out) < size:
             due, data = self._outbox.popleft()
