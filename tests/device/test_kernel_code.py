@@ -125,3 +125,21 @@ def test_arrays_it_cannot_take_are_refused(code: bytes) -> None:
         function(read_only, params, empty.copy(), empty, 0)
     with pytest.raises(TypeError, match="1-D C-contiguous int64 arrays; got"):
         function(state, params, empty.copy(), np.arange(4.0), 0)
+
+
+def test_the_file_goes_beside_numba_s_cache(monkeypatch: pytest.MonkeyPatch,
+                                            tmp_path: Path) -> None:
+    """NUMBA_CACHE_DIR when set; else the package's __pycache__ when writable; else the
+    user's cache folder (an installed package in a folder the user cannot write)."""
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba"))
+    assert kernel_code.cache_folder() == tmp_path / "numba" / "usbmotion"
+    monkeypatch.delenv("NUMBA_CACHE_DIR")
+    beside = Path(kernel_code.__file__).with_name("__pycache__")
+    monkeypatch.setattr(os, "access", lambda path, mode: True)
+    assert kernel_code.cache_folder() == beside
+    monkeypatch.setattr(os, "access", lambda path, mode: False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    assert kernel_code.cache_folder() == tmp_path / "cache" / "usbmotion"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert kernel_code.cache_folder() == tmp_path / "home" / ".cache" / "usbmotion"
