@@ -23,10 +23,10 @@ path, with the notice.
 What the devices run (:func:`load`, :func:`block_function`) is that compilation's machine
 code, kept in a file and loaded without importing numba (:mod:`usbmotion.device.kernel_code`:
 importing numba and setting up its compiler take about 0.45 s of every process, loading the
-file about 0.07 s). numba is imported only to make the file, the first time a device needs
-the kernel after an install or a change (a few seconds; ``BENCHMARKS.md`` gives the
-figures), or where such a file cannot be used: then the devices run numba's dispatcher,
-:func:`compile_kernel`, as fast once loaded.
+file, llvmlite imported, about 0.05 s). numba is imported only to make the file, the first
+time a device needs the kernel after an install or a change (a few seconds;
+``BENCHMARKS.md`` gives the figures), or where such a file cannot be used: then the devices
+run numba's dispatcher, :func:`compile_kernel`, as fast once loaded.
 
 The dispatcher's code is cached on disk too (numba's ``cache=True``: ``__pycache__`` next to
 this module, or numba's user cache directory when that is not writable). numba's cache only
@@ -45,6 +45,7 @@ import importlib.util
 import inspect
 import logging
 import os
+import sys
 import threading
 from collections.abc import Callable
 from types import ModuleType
@@ -249,8 +250,6 @@ def _machine_code() -> BlockFunction | None:
 
 
 def _this_module() -> ModuleType:
-    import sys  # noqa: PLC0415
-
     return sys.modules[__name__]
 
 
