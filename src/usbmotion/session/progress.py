@@ -64,15 +64,22 @@ class RunProgress:
         segments[segments < 0] = max(0, len(self.legs.plan) - 1)
         return segments
 
+    def wanted(self, *, force: bool = False) -> bool:
+        """Whether :meth:`publish` may publish now: ``force``, a listener following the
+        live model, or :data:`~usbmotion.session.live.PUBLISH_S` passed since the last
+        snapshot (a caller skips gathering the fields when not)."""
+        live = self.live
+        return force or bool(live.on_publish) or live.due()
+
     def publish(self, state: MachineState, *, force: bool, at_rest: bool, hold_pending: bool,
                 pause: str, line: int = 0) -> None:
         """Publish the live model (at most every :data:`~usbmotion.session.live.PUBLISH_S`
         of wall time, and with a listener every :data:`PROGRESS_S` of device time, unless
         ``force``); ``line``: the line executing, when the run knows it better than the rows
         do (a pause's: its zero-second dwell ends where the next line begins)."""
-        live = self.live
-        if not (force or live.on_publish or live.due()):
+        if not self.wanted(force=force):
             return
+        live = self.live
         self.hear()
         ticks = live.ticks(self.axes)
         tick = min(ticks) if ticks else 0

@@ -527,9 +527,11 @@ class Run:
 
     def publish(self, *, force: bool = False, at_rest: bool | None = None) -> None:
         """The live model from the devices' last lines: the line they execute, progress."""
-        state = self.states.state
         if at_rest is not None:
             self.resting = at_rest
+        if not self.progress.wanted(force=force):
+            return
+        state = self.states.state
         self.progress.publish(
             state, force=force, hold_pending=self.requests.taken.hold,
             at_rest=self.resting or self.feeding.dry or state is MachineState.IDLE,
