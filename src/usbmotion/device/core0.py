@@ -83,6 +83,8 @@ DEFAULT_SCALAR = 1
 """Motion update interval scalar at power-up (seed 000)."""
 _CURVE_CHUNK = 4096
 _SETTLE_CHUNK = 256
+_DYNAMIC_INDEX = np.array(DYNAMIC_FIELDS, dtype=np.intp)
+"""``DYNAMIC_FIELDS`` as an index array (taken before and after a probing tick)."""
 _DIAGNOSTICS_LINE = DIAGNOSTICS.int_line_format()
 REFERENCE_BLOCK_TICKS = 64
 """Before the kernel is loaded, a fast device runs a block of at most this many ticks on the
@@ -570,11 +572,11 @@ class Device:
             self._settle_left = max(0, self._settle_left - done)
             self._after_block()
             return done
-        before = state[list(DYNAMIC_FIELDS)].copy()
+        before = state.take(_DYNAMIC_INDEX)
         done = self._servo_block(1)(state, self._params, self._queue, self._empty, 1)
         events = int(state[core1.S_EVENTS])
         self._after_block()
-        if (events != 0 or not np.array_equal(before, state[list(DYNAMIC_FIELDS)])
+        if (events != 0 or not (state.take(_DYNAMIC_INDEX) == before).all()
                 or not self._rings_settled()):
             self._settle_left = _SETTLE_CHUNK
             return done
@@ -598,12 +600,12 @@ class Device:
         state = self._state
         window = int(self._params[core1.P_WINDOW])
         counts = state[core1.S_COUNTS : core1.S_COUNTS + window]
-        if np.any(counts != counts[0]):
+        if not (counts == counts[0]).all():
             return False
         if state[core1.S_ENABLE] != 1:
             return True
         errors = state[core1.S_HISTORY : core1.S_HISTORY + window]
-        return not np.any(errors != errors[0])
+        return bool((errors == errors[0]).all())
 
     def _run_curve(self, n: int, tick_us: int) -> int:
         curve = self._curve
