@@ -146,7 +146,7 @@ def use_kernel(fast: bool | None = None) -> bool:
     choice = requested(fast)
     if choice is False:
         return False
-    if _numba_installed() and (choice is None or _machine_code_loads()):
+    if _numba_installed() and (choice is None or _loaded_or_machine_code()):
         return True  # None: loaded when a device first needs the kernel (load)
     problem = _numba_problem()
     if problem is None:
@@ -185,18 +185,15 @@ def load() -> BlockFunction | None:
     numba's dispatcher where the file cannot serve; None when numba does not import after
     all and there is no file (the reference path runs then: the notice says so, once)."""
     global _loaded  # noqa: PLW0603 - one loaded kernel per process
-    if _loaded is None:
+    if not _loaded_or_machine_code():
         with _load_lock:
             if _loaded is None:
-                function = _machine_code()
-                if function is None:
-                    problem = _numba_problem()
-                    if problem is not None:
-                        _notice(problem)
-                        return None
-                    warm_up()
-                    function = compile_kernel()
-                _loaded = function
+                problem = _numba_problem()
+                if problem is not None:
+                    _notice(problem)
+                    return None
+                warm_up()
+                _loaded = compile_kernel()
     return _loaded
 
 
@@ -207,19 +204,20 @@ def block_function() -> BlockFunction:
         ImportError: the kernel cannot be loaded (numba does not import, and there is no
             machine code to load).
     """
-    function = _loaded if _loaded is not None else load()
+    function = load()
     if function is None:
         raise ImportError("the compiled servo kernel cannot be loaded: numba does not import")
     return function
 
 
-def _machine_code_loads() -> bool:
-    """Whether the kernel's machine code is loaded, loading it now if it was not (numba is
-    not imported when its file is there)."""
+def _loaded_or_machine_code() -> bool:
+    """Whether a kernel is loaded, its machine code tried now when none is (numba is not
+    imported when its file is there)."""
     global _loaded  # noqa: PLW0603 - one loaded kernel per process
-    with _load_lock:
-        if _loaded is None:
-            _loaded = _machine_code()
+    if _loaded is None:
+        with _load_lock:
+            if _loaded is None:
+                _loaded = _machine_code()
     return _loaded is not None
 
 
