@@ -539,7 +539,7 @@ class Console:
         return True
 
     def _drop_held(self) -> int:
-        """A stop drops the lines held for a homing, saying how many; how many."""
+        """A stop drops the lines held for a homing, saying how many; returns how many."""
         with self._held_lock:
             dropped = len(self._held)
             self._held.clear()
