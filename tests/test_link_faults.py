@@ -231,6 +231,38 @@ def test_a_line_split_at_every_position_means_the_same() -> None:
                 parse_reply(x).key for x in expected.splitlines()]
 
 
+@pytest.mark.parametrize("corrupt_every", [0, 97])
+def test_the_sim_ports_one_call_read_reads_what_pyserial_reads(corrupt_every: int) -> None:
+    """A ``sim://`` port hands over what has arrived in one call; the same lines come as
+    through pyserial's ``in_waiting``, ``timeout`` and ``read``, damaged bytes and all."""
+    heard: dict[bool, list[bytes]] = {}
+    for one_call in (True, False):
+        world = SimWorld()
+        world.add(Device(), key="X")  # type: ignore[arg-type]
+        set_world("reads", world)
+        try:
+            client = DeviceClient.open("sim://X?world=reads", name="X")
+            transport = client.transport
+            assert (transport._read_arrived is not None) is True
+            if not one_call:
+                transport._read_arrived = None
+            transport.port.link.faults.corrupt_every = corrupt_every
+            client.set_diagnostics_interval(7)
+            client.set_servo_enable(True)
+            lines: list[bytes] = []
+            for step in range(40):
+                transport.write(b"2\n3 1\n" if step % 3 else b"2\n")
+                lines.append(transport.read_line(0.01))
+                world.advance(20_300)
+                lines += transport.poll_lines()
+            heard[one_call] = lines
+            client.close()
+        finally:
+            drop_world("reads")
+    assert len(heard[True]) > 100
+    assert heard[True] == heard[False]
+
+
 @pytest.fixture
 def served_pty(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], str]]:
     process = subprocess.Popen(

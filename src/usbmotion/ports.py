@@ -28,3 +28,15 @@ class ExactResetPort(Protocol):
     starts a line (the far end prints whole lines and none is left in flight)."""
 
     usbmotion_exact_reset: bool
+
+
+@runtime_checkable
+class ArrivedPort(Protocol):
+    """A port that hands over what has arrived in one call, waiting for it on its own
+    clock (a simulated device's port: pyserial's ``in_waiting``, ``timeout`` and ``read``
+    are three steps, each through the port's settings)."""
+
+    def usbmotion_read_arrived(self, timeout_s: float) -> bytes:
+        """Every byte that has arrived, waiting up to ``timeout_s`` (0: not at all) for the
+        first; empty when none came."""
+        ...

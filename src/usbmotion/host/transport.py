@@ -22,7 +22,7 @@ import serial
 
 from usbmotion.clock import WALL_CLOCK, Clock
 from usbmotion.errors import DeviceTimeoutError, LinkLostError
-from usbmotion.ports import ClockedPort, ExactResetPort
+from usbmotion.ports import ArrivedPort, ClockedPort, ExactResetPort
 from usbmotion.protocol import LineSplitter, Overlong
 
 _MAX_REPLY_LINE = 1 << 16
@@ -72,6 +72,8 @@ class LineTransport:
         self.bytes_written = 0
         self.bytes_read = 0
         self._closed = False
+        self._read_arrived = (port.usbmotion_read_arrived if isinstance(port, ArrivedPort)
+                              else None)
 
     @classmethod
     def open(cls, url: str, *, baudrate: int = 115200, label: str = "") -> LineTransport:
@@ -114,8 +116,9 @@ class LineTransport:
     def _pull(self, timeout_s: float) -> bool:
         """Read what has arrived, waiting up to ``timeout_s`` for the first byte."""
         try:
-            waiting = self.port.in_waiting
-            if waiting:
+            if self._read_arrived is not None:
+                chunk = self._read_arrived(max(0.0, timeout_s))
+            elif waiting := self.port.in_waiting:
                 chunk = self.port.read(waiting)
             elif timeout_s <= 0:
                 return False

@@ -12,6 +12,7 @@ import zlib
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
@@ -577,6 +578,12 @@ class LineSplitter:
     def feed(self, data: bytes) -> list[bytes | Overlong]:
         """Take a chunk and return the whole lines it completes (without ``\\n``/``\\r``)."""
         if not self._buffer and not self._discarding:
+            if data[-1:] == b"\n" and len(data) <= self._max:  # whole lines, none too long
+                pieces = data.split(b"\n")
+                pieces.pop()
+                if b"\r" in data:
+                    return [piece.rstrip(b"\r") for piece in pieces]
+                return cast("list[bytes | Overlong]", pieces)
             pieces = data.split(b"\n")
             rest = pieces.pop()
             if not pieces or max(map(len, pieces)) <= self._max:

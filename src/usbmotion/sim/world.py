@@ -239,6 +239,22 @@ class SimLink:
             out += data
         return self.faults.incoming(bytes(out))
 
+    def receive_all(self) -> bytes:
+        """Take every byte that has arrived by now."""
+        if self.faults.stalled:
+            return b""
+        now = self.world.time_us
+        outbox = self._outbox
+        if not outbox or outbox[0][0] > now:
+            return b""
+        data = outbox.popleft()[1]
+        if outbox and outbox[0][0] <= now:
+            parts = [data]
+            while outbox and outbox[0][0] <= now:
+                parts.append(outbox.popleft()[1])
+            data = b"".join(parts)
+        return self.faults.incoming(data)
+
     def discard_input(self) -> None:
         """Drop everything the device sent that the host has not read (what a device run
         ahead of the world's clock printed later than now stays to come)."""

@@ -5,9 +5,10 @@ The device ``NAME`` (URL-quoted: ``sim://X%20AXIS``) of the world ``W`` (default
 that name. Reading with a timeout advances the world's virtual clock instead of
 sleeping, so host code written for real ports runs in virtual time unchanged. The
 port is a :class:`~usbmotion.ports.ClockedPort` whose clock is the world's one
-:class:`VirtualClock`, and an :class:`~usbmotion.ports.ExactResetPort`: resetting its
+:class:`VirtualClock`, an :class:`~usbmotion.ports.ExactResetPort`: resetting its
 input buffer drops every byte the device has printed, in flight or not, and the device
-prints whole lines, so the next byte the host reads starts a line.
+prints whole lines, so the next byte the host reads starts a line; and an
+:class:`~usbmotion.ports.ArrivedPort`, read in one call.
 """
 
 from __future__ import annotations
@@ -92,6 +93,14 @@ class Serial(SerialBase):  # type: ignore[misc]
                           else max(1, math.ceil(self._timeout * 1e6)))
             link.world.wait_for(link, timeout_us)
         return link.receive(size)
+
+    def usbmotion_read_arrived(self, timeout_s: float) -> bytes:
+        """Every byte that has arrived, advancing virtual time up to ``timeout_s`` for the
+        first (:class:`~usbmotion.ports.ArrivedPort`)."""
+        link = self._link()
+        if timeout_s > 0 and not link.available():
+            link.world.wait_for(link, max(1, math.ceil(timeout_s * 1e6)))
+        return link.receive_all()
 
     def write(self, data: bytes | bytearray | memoryview) -> int:
         """Send bytes to the device."""
