@@ -277,8 +277,10 @@ def test_bad_command_lines_are_clear(args: tuple[str, ...], message: str) -> Non
     assert "Traceback" not in err
 
 
-def test_end_points_are_measured_against_the_whole_path() -> None:
-    """The pruned search equals a brute-force distance to every segment of the path."""
+@pytest.mark.parametrize("spread_mm", [0.3, 0.02])
+def test_end_points_are_measured_against_the_whole_path(spread_mm: float) -> None:
+    """The pruned search equals a brute-force distance to every segment of the path, for
+    end points well off it and close to it."""
     from array import array  # noqa: PLC0415
 
     import numpy as np  # noqa: PLC0415
@@ -294,7 +296,7 @@ def test_end_points_are_measured_against_the_whole_path() -> None:
     for index, name in enumerate("XYZ"):
         trace.clock[name] = array("q", range(len(path)))
         trace.actual[name] = array("q", np.round(path[:, index] * 1000).astype(np.int64))
-    ends = path[rng.integers(0, len(path), 40)] + rng.normal(0.0, 0.3, size=(40, 3))
+    ends = path[rng.integers(0, len(path), 40)] + rng.normal(0.0, spread_mm, size=(40, 3))
     program = parse_gcode("G21 G90\n" + "".join(
         f"G1 X{x:.3f} Y{y:.3f} Z{z:.3f} F600\n" for x, y, z in ends) + "M2\n")
     checked, worst = _endpoint_misses(program, trace, "XYZ")
@@ -309,6 +311,23 @@ def test_end_points_are_measured_against_the_whole_path() -> None:
         brute = max(brute, float(np.sqrt(np.einsum("ij,ij->i", gaps, gaps).min())))
     assert checked == 40
     assert worst == pytest.approx(brute, abs=1e-9)
+
+
+def test_the_worst_end_point_is_found_when_its_nearest_sample_is_not_the_farthest() -> None:
+    """An end point halfway along a long segment is far from every sample but close to the
+    path; one beside a sample is closer to the samples and farther from the path: the
+    second is the worst miss, though the search measures the first one first."""
+    from array import array  # noqa: PLC0415
+
+    from usbmotion.motion.gcode import parse_gcode  # noqa: PLC0415
+    from usbmotion.session.report import Trace, _endpoint_misses  # noqa: PLC0415
+
+    trace = Trace(tick_s=0.001, start_tick=0, counts_per_mm=dict.fromkeys("XYZ", 1000.0))
+    for name, values in (("X", [0, 10_000, 20_000]), ("Y", [0, 0, 0]), ("Z", [0, 0, 0])):
+        trace.clock[name] = array("q", range(3))
+        trace.actual[name] = array("q", values)
+    program = parse_gcode("G21 G90\nG1 X5 Y0.3 F600\nG1 X0 Y0.5\nM2\n")
+    assert _endpoint_misses(program, trace, "XYZ") == (2, pytest.approx(0.5, abs=1e-12))
 
 
 TOOL_CHANGES = "G21 G90\nT1 M6\nG0 X10 Y10 Z-5\nT2 M6\nG0 X20\nM2\n"

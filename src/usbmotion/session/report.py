@@ -493,6 +493,11 @@ def _actual_path_mm(trace: Trace, axes: str) -> npt.NDArray[np.float64]:
     return np.stack(columns, axis=1) if common.size else np.empty((0, len(axes)))
 
 
+_ENDS_AT_ONCE = 8
+"""End points measured against every sample in one product of matrices (their number
+times the samples: kept within the processor's cache)."""
+
+
 def _endpoint_misses(program: GCodeProgram, trace: Trace, axes: str) -> tuple[int, float]:
     """How many programmed end points, and how far the actual path passed from the worst.
 
@@ -510,8 +515,27 @@ def _endpoint_misses(program: GCodeProgram, trace: Trace, axes: str) -> tuple[in
     lengths_sq = np.einsum("ij,ij->i", spans, spans)
     longest = float(np.sqrt(lengths_sq.max()))
     last = len(starts) - 1
+    # The path passes no farther from an end point than its nearest sample. Those distances,
+    # squared, come for every end point at once from |p|^2 - 2 p.e + |e|^2 (a product of
+    # matrices; its rounding is far below ``slack``): the end points are measured farthest
+    # sample first, and one whose nearest sample is closer than the worst miss found so far
+    # cannot be the worst.
+    path_sq = np.einsum("ij,ij->i", path, path)
+    ends_sq = np.einsum("ij,ij->i", ends, ends)
+    across = np.ascontiguousarray(path.T)
+    nearest_sq = np.empty(len(ends))
+    for first in range(0, len(ends), _ENDS_AT_ONCE):
+        product = ends[first : first + _ENDS_AT_ONCE] @ across
+        product *= -2.0
+        product += path_sq
+        nearest_sq[first : first + _ENDS_AT_ONCE] = product.min(axis=1)
+    nearest_sq += ends_sq
+    slack = 1e-9 * (float(path_sq.max()) + float(ends_sq.max()) + 1.0)
     worst = 0.0
-    for end in ends:
+    for index_of_end in np.argsort(-nearest_sq, kind="stable"):
+        if nearest_sq[index_of_end] + slack < worst * worst:
+            break
+        end = ends[index_of_end]
         offsets = path - end
         dist_sq = np.einsum("ij,ij->i", offsets, offsets)
         # A segment can pass closer than its ends only if an end is within the nearest
