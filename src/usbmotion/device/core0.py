@@ -260,6 +260,9 @@ class Device:
         if gains is not None and not isinstance(gains, Gains):
             raise DeviceParameterError(f"gains {gains!r} is not a Gains")
         self._fast = use_kernel(fast)
+        self._block: BlockFunction | None = None
+        """The kernel's block function once this device has asked for it (it is the same
+        for the process's life)."""
         self._reference_ticks = 0
         """Ticks this fast device ran on the reference before the kernel was loaded."""
         if requested(fast):
@@ -542,12 +545,17 @@ class Device:
     def _servo_block(self, ticks: int) -> BlockFunction:
         """core1's block function for a block of ``ticks``: the kernel, once loaded; a short
         block before that runs the reference, bit for bit the same."""
+        if self._block is not None:
+            return self._block
         if self._fast and not kernel_loaded():
             if ticks <= REFERENCE_BLOCK_TICKS and self._reference_ticks < REFERENCE_TICKS:
                 self._reference_ticks += ticks
                 return servo_block
             self.load_kernel()
-        return block_function() if self._fast else servo_block
+        if not self._fast:
+            return servo_block
+        self._block = block_function()
+        return self._block
 
     def _run_some(self, limit: int) -> int:
         state = self._state

@@ -693,15 +693,24 @@ def run_streams(
     while True:
         if should_stop is not None and should_stop():
             return
-        wakes = [(stream.wake_time(), stream) for stream in streams if not stream.done_sending]
-        if not wakes:
-            return
         now = clock.now()
-        due = [stream for wake, stream in wakes if wake <= now]
+        wake = math.inf
+        due: list[SetpointStream | KeyframeStream] = []
+        pending = False
+        for stream in streams:
+            if stream.done_sending:
+                continue
+            pending = True
+            stream_wake = stream.wake_time()
+            if stream_wake <= now:
+                due.append(stream)
+            elif stream_wake < wake:
+                wake = stream_wake
+        if not pending:
+            return
         for stream in due:
             stream.service()
         if not due:
-            wake = min(wake for wake, _ in wakes)
             if should_stop is None:
                 clock.sleep(wake - now)
                 continue

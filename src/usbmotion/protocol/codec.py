@@ -450,6 +450,8 @@ class _Matcher:
     call: int | None
     template: Template
     pattern: re.Pattern[str]
+    integers: bool
+    """Every field is an integer (no text field)."""
 
 
 def _matchers() -> dict[str, list[_Matcher]]:
@@ -457,8 +459,9 @@ def _matchers() -> dict[str, list[_Matcher]]:
 
     def add(kind: ReplyKind, call: int | None, template: Template) -> None:
         first = template.text.split(" ", 1)[0]
+        integers = not any(name in REST_FIELDS for name in template.fields)
         table.setdefault(first, []).append(
-            _Matcher(kind, call, template, template.pattern())
+            _Matcher(kind, call, template, template.pattern(), integers)
         )
 
     for call_spec in CALLS:
@@ -540,6 +543,9 @@ def parse_reply(line: bytes | str) -> Reply:
         match = matcher.pattern.match(exact) or matcher.pattern.match(text)
         if match is None:
             continue
+        if matcher.integers:
+            return Reply(matcher.kind, matcher.call, matcher.template.head,
+                         tuple(map(int, match.groups())), "", text)
         values: list[int] = []
         rest = ""
         for name, group in zip(matcher.template.fields, match.groups(), strict=True):

@@ -451,10 +451,10 @@ class SimWorld:
                 time.sleep(lag)
             elif lag < -REALTIME_SLACK_S:  # the host was busy: the world stood still
                 self._wall_origin -= lag + REALTIME_SLACK_S
-        behind = deque(m for m in self._members.values() if m.time_us < target_us)
+        behind = [m for m in self._members.values() if m.time_us < target_us]
         if (len(behind) > 1 and quiet_until_us > target_us and self.run_ahead
                 and not self.realtime and all(m.parallel for m in behind)):
-            self._catch_up_together(behind, target_us, quiet_until_us)
+            self._catch_up_together(deque(behind), target_us, quiet_until_us)
         else:
             for member in behind:
                 self._catch_up(member, target_us, quiet_until_us)
