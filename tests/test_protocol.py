@@ -357,12 +357,16 @@ def test_the_bulk_path_is_taken_and_refuses_a_misplaced_sign(values: list[int]) 
 
 @given(st.sampled_from([1, 18, 38, 3]),
        st.lists(st.integers(-(2**33), 2**33), min_size=0, max_size=30),
-       st.lists(st.integers(-(2**31), 2**31), min_size=0, max_size=2))
+       st.lists(st.integers(-(2**31), 2**31), min_size=0, max_size=2),
+       st.sampled_from(["int64", "int32", "int16", "int8", "uint64", "uint32", "uint8"]))
 @settings(max_examples=300, deadline=None)
 def test_a_counted_call_encodes_as_encode_call(number: int, items: list[int],
-                                               lead: list[int]) -> None:
-    """``encode_counted`` gives the bytes (or the error) ``encode_call`` gives."""
-    array = np.asarray(items, dtype=np.int64)
+                                               lead: list[int], dtype: str) -> None:
+    """``encode_counted`` gives the bytes (or the error) ``encode_call`` gives, whatever
+    the items' integer type (one that holds only values in range is not scanned)."""
+    held = np.iinfo(dtype)
+    items = [value for value in items if held.min <= value <= held.max]
+    array = np.asarray(items, dtype=dtype)
     expected = _outcome(lambda: encode_call(number, *lead, len(items), *items))
     assert _outcome(lambda: encode_counted(number, tuple(lead), array)) == expected
     assert _outcome(lambda: encode_counted(number, tuple(lead), items)) == expected

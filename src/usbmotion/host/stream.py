@@ -157,7 +157,9 @@ class SetpointStream:
             raise ArgumentError(f"setpoints must be integers, got dtype {array.dtype}",
                                   reason="values")
         self.client = client
-        self._values = array.astype(np.int64)
+        self._values = array.astype(np.int32)
+        """The setpoints, held as 32-bit integers once checked (they fit the protocol's
+        range by their type: a batch's text is checked without a pass over its values)."""
         self._total = int(self._values.size)
         self.period_s = period_s
         self.low_water = low_water
@@ -342,6 +344,8 @@ class SetpointStream:
         if not 0 <= index <= self.total or not 0 <= sent <= array.size:
             raise ArgumentError(f"replace_future index {index!r} (of {self.total}) or sent"
                                 f" {sent!r} (of {array.size}) out of range", reason="index")
+        if not array.size or (array.min() >= INT32_MIN and array.max() <= INT32_MAX):
+            array = array.astype(np.int32)  # else kept as given: sending it names the value
         self._values = np.concatenate((self._values[:index], array))
         self._total = int(self._values.size)
         self.sent = index + sent
@@ -375,7 +379,7 @@ class SetpointStream:
             raise ArgumentError(
                 f"a setpoint is outside int32 ({int(array.min())}..{int(array.max())})",
                 reason="values")
-        self._values = np.concatenate((self._values, array))
+        self._values = np.concatenate((self._values, array.astype(np.int32)))
         self._total = int(self._values.size)
         if array.size:
             self._finished = None

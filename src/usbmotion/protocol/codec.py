@@ -342,11 +342,21 @@ def _counted_fits(spec: CallSpec, inputs: tuple[int, ...],
     valid, as ``spec.problem(inputs + items)`` would find it, the items checked as one
     array (:func:`encode_counted` and the bulk path of :func:`parse_call`)."""
     item = spec.item
-    return (item is not None and len(inputs) == len(spec.params) and inputs[-1] == items.size
+    if not (item is not None and len(inputs) == len(spec.params) and inputs[-1] == items.size
             and (spec.query is None or len(spec.query) != len(inputs) + items.size)
-            and all(p.check(v) is None for p, v in zip(spec.params, inputs, strict=True))
-            and (not items.size or (int(items.min()) >= item.minimum
-                                    and int(items.max()) <= item.maximum)))
+            and all(p.check(v) is None for p, v in zip(spec.params, inputs, strict=True))):
+        return False
+    lowest, highest = _TYPE_RANGES.get(items.dtype, (item.minimum - 1, item.maximum + 1))
+    return (not items.size or (lowest >= item.minimum and highest <= item.maximum)
+            or (int(items.min()) >= item.minimum and int(items.max()) <= item.maximum))
+
+
+_TYPE_RANGES: dict[np.dtype[np.integer], tuple[int, int]] = {
+    np.dtype(kind): (int(np.iinfo(kind).min), int(np.iinfo(kind).max))
+    for kind in (np.int8, np.int16, np.int32, np.int64, np.uint8, np.uint16, np.uint32,
+                 np.uint64)}
+"""The values each integer type can hold: items of a type that holds nothing outside an
+item's range need no pass over them."""
 
 
 HUGE_DIGITS = 18
