@@ -525,9 +525,13 @@ class Device:
 
     def queue_values(self) -> tuple[int, ...]:
         """The values in the motion queue, oldest first."""
+        return tuple(self._queued(int(self._state[core1.S_QUEUE_COUNT])))
+
+    def _queued(self, count: int) -> list[int]:
+        """The first ``count`` values in the motion queue, oldest first."""
         head = int(self._state[core1.S_QUEUE_HEAD])
-        count = int(self._state[core1.S_QUEUE_COUNT])
-        return tuple(int(self._queue[(head + i) % QUEUE_CAPACITY]) for i in range(count))
+        values: list[int] = self._queue.take(range(head, head + count), mode="wrap").tolist()
+        return values
 
     def keyframes(self) -> tuple[Keyframe, ...]:
         """The keyframes in the curve buffer, oldest first."""
@@ -953,7 +957,7 @@ class Device:
 
     def _keep_then_add(self, kept: int, added: Sequence[int]) -> None:
         """Calls 38 and 50: the queue becomes its first ``kept`` values, then ``added``."""
-        kept_values = self.queue_values()[:kept]
+        kept_values = self._queued(min(kept, int(self._state[core1.S_QUEUE_COUNT])))
         self._clear_queue()
         self._push((*kept_values, *added))
 
