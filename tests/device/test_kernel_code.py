@@ -9,6 +9,7 @@ exception inside the block reaches the caller.
 from __future__ import annotations
 
 import os
+import platform
 import subprocess
 import sys
 from pathlib import Path
@@ -16,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from usbmotion.device import core1, kernel, kernel_code
+from usbmotion.device import Device, core1, kernel, kernel_code
 from usbmotion.device.kernel_code import KernelCodeError, MachineKernel
 
 needs_numba = pytest.mark.skipif(not kernel.numba_available(), reason="numba is not installed")
@@ -24,16 +25,18 @@ needs_numba = pytest.mark.skipif(not kernel.numba_available(), reason="numba is 
 _LOAD = (
     "import sys; from usbmotion.device import kernel, kernel_code;"
     " function = kernel.load();"
-    " print(type(function).__name__, 'numba' in sys.modules,"
+    " print(type(function).__name__, 'numba' in sys.modules, 'llvmlite' in sys.modules,"
     " sorted(p.name for p in kernel_code.cache_folder().glob('kernel-*.code')))"
 )
+LINKED_HERE = sys.platform == "linux" and platform.machine() == "x86_64"
+"""Where :func:`kernel_code.link_here` links the code (elsewhere llvmlite does)."""
 
 
 def _fresh_process(cache: Path) -> list[str]:
     done = subprocess.run([sys.executable, "-c", _LOAD], capture_output=True, text=True,
                           env={**os.environ, "NUMBA_CACHE_DIR": str(cache)}, timeout=600,
                           check=True)
-    return done.stdout.strip().split(maxsplit=2)
+    return done.stdout.strip().split(maxsplit=3)
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +61,8 @@ def test_the_file_is_made_once_and_a_later_process_loads_it_without_numba(
     assert isinstance(kernel.load(), MachineKernel)
     made = sorted((tmp_path / "usbmotion").glob("kernel-*.code"))
     assert len(made) == 1 and kernel_code.read(made[0]) is not None
-    assert _fresh_process(tmp_path) == ["MachineKernel", "False", f"['{made[0].name}']"]
+    assert _fresh_process(tmp_path) == ["MachineKernel", "False", str(not LINKED_HERE),
+                                        f"['{made[0].name}']"]
 
 
 @needs_numba
@@ -143,3 +147,66 @@ def test_the_file_goes_beside_numba_s_cache(monkeypatch: pytest.MonkeyPatch,
     monkeypatch.delenv("XDG_CACHE_HOME")
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     assert kernel_code.cache_folder() == tmp_path / "home" / ".cache" / "usbmotion"
+
+
+def _moving(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A device's arrays in the middle of a motion: enabled, its queue full of a ramp."""
+    device = Device()
+    device.feed(b"3 1\n")
+    values = (np.arange(900) * (seed + 3)).astype(np.int64)
+    device.feed(b"1 900 " + b" ".join(b"%d" % v for v in values) + b"\n")
+    device.run(50)
+    return device._state.copy(), device._params.copy(), device._queue.copy()
+
+
+@needs_numba
+@pytest.mark.skipif(not LINKED_HERE, reason="linked by llvmlite on this platform")
+def test_code_linked_here_runs_as_llvmlite_links_it(code: bytes) -> None:
+    """The same blocks from the same arrays, linked in this process and by llvmlite: every
+    array equal after every block, and the ticks run."""
+    addresses = kernel_code._resolve(code)
+    here = MachineKernel(kernel_code._PROTOTYPE(kernel_code.link_here(code, addresses)))
+    llvmlite = kernel_code.link_by_llvmlite(code, addresses)
+    empty = np.zeros(0, dtype=np.int64)
+    for seed in range(4):
+        ours, theirs = _moving(seed), _moving(seed)
+        for ticks in (1, 7, 600, 3000):
+            assert here(*ours, empty, ticks) == llvmlite(*theirs, empty, ticks)
+            for mine, other in zip(ours, theirs, strict=True):
+                assert np.array_equal(mine, other)
+
+
+@needs_numba
+@pytest.mark.skipif(not LINKED_HERE, reason="linked by llvmlite on this platform")
+def test_an_object_the_linker_does_not_take_is_refused(code: bytes) -> None:
+    """A relocation of another type is refused; so is a file that is not an x86-64 object,
+    or is cut short."""
+    sections = kernel_code.struct.unpack_from("<Q", code, 0x28)[0]
+    entry_size, count = kernel_code.struct.unpack_from("<HH", code, 0x3A)
+    rela = next(offset for offset in (sections + i * entry_size for i in range(count))
+                if kernel_code.struct.unpack_from("<I", code, offset + 4)[0] == 4)
+    first = kernel_code.struct.unpack_from("<Q", code, rela + 24)[0]  # its first entry
+    changed = bytearray(code)
+    changed[first + 8] = 10  # R_X86_64_32
+    addresses = kernel_code._resolve(code)
+    with pytest.raises(KernelCodeError, match="relocation type 10 is not linked here"):
+        kernel_code.link_here(bytes(changed), addresses)
+    with pytest.raises(KernelCodeError, match="not a 64-bit x86 relocatable object"):
+        kernel_code.link_here(code[:18] + b"\xb7\x00" + code[20:], addresses)  # Arm64
+    with pytest.raises(KernelCodeError, match="unreadable"):
+        kernel_code.link_here(code[:0x200], addresses)
+
+
+@needs_numba
+def test_where_the_code_is_not_linked_here_llvmlite_links_it(
+        code: bytes, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    """Another processor or system: llvmlite's linker, and the same blocks."""
+    linked = kernel_code.load(code)
+    monkeypatch.setattr(kernel_code.platform, "machine", lambda: "aarch64")
+    with caplog.at_level("DEBUG", logger=kernel_code.__name__):
+        other = kernel_code.load(code)
+    assert "linked by llvmlite: no linker here for" in caplog.text
+    empty = np.zeros(0, dtype=np.int64)
+    ours, theirs = _moving(1), _moving(1)
+    assert linked(*ours, empty, 2000) == other(*theirs, empty, 2000)
+    assert all(np.array_equal(a, b) for a, b in zip(ours, theirs, strict=True))

@@ -5,25 +5,31 @@ setting up its compiler take about 0.45 s of every process that runs a simulated
 more than the rest of a command that moves the simulated machine for a minute. So the
 kernel the devices run is numba's compilation of ``core1.servo_block`` behind a C entry
 point (``numba.cfunc``: each array as a pointer and a length, the ticks to run; the ticks
-run back, or :data:`RAISED`), its machine code written once to an object file and loaded
-into later processes by llvmlite, numba's own code generator, which imports in about
-0.06 s. ctypes calls it and lets go of the interpreter's lock while it runs, as numba's
-``nogil`` does.
+run back, or :data:`RAISED`), its machine code written once to an object file and linked
+into later processes: on Linux x86-64 by :func:`link_here`, a few lines of relocation that
+take 2 ms; elsewhere by llvmlite, numba's own code generator, whose library takes about
+0.04 s to load. ctypes calls it and lets go of the interpreter's lock while it runs, as
+numba's ``nogil`` does.
 
 The code is numba's: the same source, compiled by the same compiler to the same
 instructions; ``tests/device/test_kernel.py`` proves it equal to the reference bit for bit,
-as it does numba's dispatcher. The file's name is a hash of everything the code depends on
-(:func:`cache_key`); the file holds a digest of the code, checked before loading. Every
-symbol the code needs from outside is resolved here, before llvmlite links it: a file that
-needs one this process lacks, or a platform whose objects are not ELF, is not used, and the
-devices run numba's dispatcher instead (:mod:`usbmotion.device.kernel`).
+as it does numba's dispatcher, and ``tests/device/test_kernel_code.py`` the code linked
+here equal to the code llvmlite links. The file's name is a hash of everything the code
+depends on (:func:`cache_key`: the sources, numba's and llvmlite's versions, the processor
+as the system describes it, Python); the file holds a digest of the code, checked before
+loading. Every symbol the code needs from outside is resolved here, before it is linked: a
+file that needs one this process lacks, or a platform whose objects are not ELF, is not
+used, and the devices run numba's dispatcher instead (:mod:`usbmotion.device.kernel`).
 """
 
 from __future__ import annotations
 
 import ctypes
 import hashlib
+import logging
+import mmap
 import os
+import platform
 import struct
 import sys
 import tempfile
@@ -58,6 +64,7 @@ def _no_destructor(_meminfo: int) -> None:
 
 _PROVIDED: Final = {"NRT_MemInfo_call_dtor": _DESTRUCTOR(_no_destructor)}
 _lock = threading.Lock()
+_log = logging.getLogger(__name__)
 _engines: list[Any] = []
 """The llvmlite engines holding loaded code: kept for the life of the process."""
 
@@ -88,30 +95,49 @@ def _llvm() -> Any:
     return llvm
 
 
-def _numba_version() -> bytes:
-    """The text of numba's version file (the compiler that made the code), found without
-    importing numba; empty when it cannot be read."""
+def _version_file(package: str) -> bytes:
+    """The text of ``package``'s version file (numba's: the compiler that made the code;
+    llvmlite's: its code generator), found without importing it; empty when it cannot be
+    read."""
     import importlib.util  # noqa: PLC0415
 
     try:
-        spec = importlib.util.find_spec("numba")
+        spec = importlib.util.find_spec(package)
         locations = list(spec.submodule_search_locations or []) if spec else []
         return (Path(locations[0]) / "_version.py").read_bytes() if locations else b""
     except (ImportError, ValueError, OSError):
         return b""
 
 
+_PROCESSOR_FIELDS: Final = frozenset({
+    "vendor_id", "cpu family", "model", "model name", "stepping", "flags",  # x86
+    "CPU implementer", "CPU architecture", "CPU variant", "CPU part", "Features"})  # Arm
+
+
+def processor() -> bytes:
+    """The processor the code is made for and run on (it uses the processor's own
+    instructions): on Linux, the first processor's identity and flags as the system lists
+    them, read without llvmlite; elsewhere llvmlite's name and features of it."""
+    try:
+        text = Path("/proc/cpuinfo").read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        text = ""
+    first = text.strip().split("\n\n", 1)[0]
+    kept = [line for line in first.splitlines()
+            if line.split(":", 1)[0].strip() in _PROCESSOR_FIELDS]
+    if kept:
+        return "\n".join(kept).encode("utf-8")
+    llvm = _llvm()
+    return f"llvm {llvm.get_host_cpu_name()} {llvm.get_host_cpu_features().flatten()}".encode()
+
+
 def cache_key(sources: bytes) -> str:
     """The object file's name for the kernel of ``sources`` (the text of every module the
     code is compiled from): with numba's and llvmlite's versions, the processor (the code
     uses its instructions), the platform and Python's version."""
-    llvm = _llvm()
-    import llvmlite  # noqa: PLC0415
-
     digest = hashlib.sha256(_MAGIC)
-    for part in (sources, _numba_version(), llvmlite.__version__.encode(),
-                 llvm.get_process_triple().encode(), llvm.get_host_cpu_name().encode(),
-                 llvm.get_host_cpu_features().flatten().encode(), sys.version.encode()):
+    for part in (sources, _version_file("numba"), _version_file("llvmlite"), processor(),
+                 f"{sys.platform} {platform.machine()}".encode(), sys.version.encode()):
         digest.update(len(part).to_bytes(8, "little"))
         digest.update(part)
     return f"kernel-{digest.hexdigest()[:32]}.code"
@@ -242,13 +268,27 @@ def _resolve(code: bytes) -> dict[str, int]:
 
 
 def load(code: bytes) -> MachineKernel:
-    """Link ``code`` (from :func:`object_code`) into this process.
+    """Link ``code`` (from :func:`object_code`) into this process: by :func:`link_here`
+    where it can, else by llvmlite's linker.
 
     Raises:
         KernelCodeError: see :func:`undefined_symbols` and :func:`object_code`, or the
             entry point is missing.
     """
     addresses = _resolve(code)
+    try:
+        return MachineKernel(_PROTOTYPE(link_here(code, addresses)))
+    except KernelCodeError as error:
+        _log.debug("the kernel's code is linked by llvmlite: %s", error)
+    return link_by_llvmlite(code, addresses)
+
+
+def link_by_llvmlite(code: bytes, addresses: dict[str, int]) -> MachineKernel:
+    """Link ``code`` with llvmlite's linker, ``addresses`` giving the symbols it needs.
+
+    Raises:
+        KernelCodeError: the entry point is missing.
+    """
     llvm = _llvm()
     with _lock:
         for name, address in addresses.items():
@@ -261,6 +301,144 @@ def load(code: bytes) -> MachineKernel:
             raise KernelCodeError(f"the object file has no {SYMBOL}")
         _engines.append(engine)
     return MachineKernel(_PROTOTYPE(address))
+
+
+_EM_X86_64: Final = 62
+_ET_REL: Final = 1
+_SHT_SYMTAB: Final = 2
+_SHT_RELA: Final = 4
+_SHT_NOBITS: Final = 8
+_SHT_X86_64_UNWIND: Final = 0x70000001
+_SHF_WRITE: Final = 1
+_SHF_ALLOC: Final = 2
+_SHN_UNDEF: Final = 0
+_SHN_ABS: Final = 0xFFF1
+_R_X86_64_64: Final = 1
+_R_X86_64_PC32: Final = 2
+_R_X86_64_PLT32: Final = 4
+_PAGE: Final = mmap.PAGESIZE
+_linked: list[int] = []
+"""The memory holding code linked here: mapped for the life of the process (a helper
+thread may still be running a block while the interpreter ends)."""
+
+
+def link_here(code: bytes, addresses: dict[str, int]) -> int:
+    """Link an x86-64 ELF object ``code`` into this process without llvmlite (whose
+    library takes about 40 ms to load, more than the devices of a short run take to
+    start): its code and constants laid out in one mapping, relocated, then made
+    executable and read-only. The entry point's address.
+
+    Only what numba's code generator gives in the JIT's code model is taken: sections that
+    are not written, 64-bit absolute relocations, and 32-bit relative ones within the
+    mapping; the unwinding tables are left out (the entry point catches every exception).
+
+    Raises:
+        KernelCodeError: not Linux on x86-64, or an object this linker does not take (a
+            written section, another relocation, a symbol it cannot place); llvmlite's
+            linker is the way then.
+    """
+    if sys.platform != "linux" or platform.machine() != "x86_64":
+        raise KernelCodeError(f"no linker here for {sys.platform} {platform.machine()}")
+    try:
+        kind, machine = struct.unpack_from("<HH", code, 0x10)
+        if code[:6] != b"\x7fELF\x02\x01" or (kind, machine) != (_ET_REL, _EM_X86_64):
+            raise KernelCodeError("the object file is not a 64-bit x86 relocatable object")
+        section_offset, = struct.unpack_from("<Q", code, 0x28)
+        entry_size, count = struct.unpack_from("<HH", code, 0x3A)
+        sections = [struct.unpack_from("<IIQQQQIIQQ", code, section_offset + i * entry_size)
+                    for i in range(count)]
+        # (name, type, flags, address, offset, size, link, info, alignment, entry size)
+        places: dict[int, int] = {}
+        end = 0
+        for index, section in enumerate(sections):
+            _, kind, flags, _, _, size, _, _, align, _ = section
+            if not flags & _SHF_ALLOC or kind == _SHT_X86_64_UNWIND or not size:
+                continue
+            if flags & _SHF_WRITE:
+                raise KernelCodeError("the object file has a section the code writes")
+            end = -(-end // max(1, align)) * max(1, align)
+            places[index] = end
+            end += size
+        image = bytearray(-(-max(end, 1) // _PAGE) * _PAGE)
+        for index, start in places.items():
+            _, kind, _, _, offset, size, _, _, _, _ = sections[index]
+            if kind != _SHT_NOBITS:
+                image[start : start + size] = code[offset : offset + size]
+        base = _map(len(image))
+        symtab = next(section for section in sections if section[1] == _SHT_SYMTAB)
+        strings = sections[symtab[6]]
+        symbols: list[int | None] = []
+        entry: int | None = None
+        for offset in range(symtab[4], symtab[4] + symtab[5], 24):
+            name_at, _, _, index, value = struct.unpack_from("<IBBHQ", code, offset)
+            name = ""
+            if name_at:
+                start = strings[4] + name_at
+                name = code[start : code.index(b"\0", start)].decode("ascii")
+            if index == _SHN_UNDEF:
+                symbols.append(addresses.get(name) if name else None)
+            elif index == _SHN_ABS:
+                symbols.append(value)
+            elif index in places:
+                symbols.append(base + places[index] + value)
+                if name == SYMBOL:
+                    entry = base + places[index] + value
+            else:
+                symbols.append(None)  # in a section left out: nothing loaded may use it
+        for section in sections:
+            target = places.get(section[7])
+            if section[1] != _SHT_RELA or target is None:
+                continue
+            for offset in range(section[4], section[4] + section[5], 24):
+                where, info, addend = struct.unpack_from("<QQq", code, offset)
+                symbol = symbols[info >> 32]
+                if symbol is None:
+                    raise KernelCodeError("a relocation names a symbol not placed here")
+                at = target + where
+                kind = info & 0xFFFFFFFF
+                if kind == _R_X86_64_64:
+                    struct.pack_into("<Q", image, at, (symbol + addend) % (1 << 64))
+                elif kind in (_R_X86_64_PC32, _R_X86_64_PLT32):
+                    distance = symbol + addend - (base + at)
+                    if not -(1 << 31) <= distance < 1 << 31:
+                        raise KernelCodeError("a 32-bit relative relocation out of reach")
+                    struct.pack_into("<i", image, at, distance)
+                else:
+                    raise KernelCodeError(f"relocation type {kind} is not linked here")
+        if entry is None:
+            raise KernelCodeError(f"the object file has no {SYMBOL}")
+    except (struct.error, IndexError, ValueError, UnicodeDecodeError, StopIteration) as error:
+        raise KernelCodeError(f"the object file is unreadable ({error})") from None
+    ctypes.memmove(base, bytes(image), len(image))
+    if _libc().mprotect(base, len(image), mmap.PROT_READ | mmap.PROT_EXEC) != 0:
+        raise KernelCodeError(f"the code's memory cannot be made executable (errno"
+                              f" {ctypes.get_errno()})")
+    return entry
+
+
+def _libc() -> Any:
+    """The C library's ``mmap`` and ``mprotect``, typed."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.mmap.restype = ctypes.c_void_p
+    libc.mmap.argtypes = (ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int, ctypes.c_int,
+                          ctypes.c_int, ctypes.c_long)
+    libc.mprotect.restype = ctypes.c_int
+    libc.mprotect.argtypes = (ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int)
+    return libc
+
+
+def _map(size: int) -> int:
+    """``size`` bytes of fresh memory, readable and writable, never unmapped.
+
+    Raises:
+        KernelCodeError: the system gives none.
+    """
+    address = _libc().mmap(None, size, mmap.PROT_READ | mmap.PROT_WRITE,
+                           mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS, -1, 0)
+    if not address or address == ctypes.c_void_p(-1).value:
+        raise KernelCodeError(f"no memory mapped for the code (errno {ctypes.get_errno()})")
+    _linked.append(address)
+    return int(address)
 
 
 class MachineKernel:
