@@ -17,7 +17,7 @@ import pytest
 from typer.testing import CliRunner
 
 from usbmotion.cli.machines import default_machine, load_machine, state_dir
-from usbmotion.cli.main import app
+from usbmotion.cli.main import app, app_for
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "usbmotion"
 
@@ -76,6 +76,26 @@ def test_a_usage_error_is_one_line_with_status_2(args: list[str], line: str,
         args = [*args[:-1], str(tmp_path / "x.ngc")]
     code, out, err = invoke(*args)
     assert (code, out, err) == (2, "", line + "\n")
+
+
+COMMANDS = ["version", "run", "play", "console", "tune", "sim", "grbl", "web", "zero",
+            "status", "home", "jog", "get", "set", "devices", "name", "gcode"]
+
+
+@pytest.mark.parametrize("args", [*([name, "--help"] for name in COMMANDS),
+                                  ["gcode", "moves", "--help"], ["gcode", "bogus"],
+                                  *(args for args, _ in USAGE_ERRORS)],
+                         ids=" ".join)
+def test_a_command_run_alone_says_what_the_whole_application_says(args: list[str]) -> None:
+    """``usbmotion`` builds only the command it is asked for (:func:`app_for`): its help
+    and its errors are those of the whole application."""
+    alone = app_for(args)
+    assert (alone is app) == (args[0] not in COMMANDS)
+    results = [CliRunner().invoke(whole, args, env={"COLUMNS": "120"})
+               for whole in (app, alone)]
+    assert [(r.exit_code, r.stdout, r.stderr) for r in results[1:]] == [
+        (results[0].exit_code, results[0].stdout, results[0].stderr)]
+    assert app_for(["--help"]) is app and app_for([]) is app
 
 
 @pytest.mark.parametrize("command", [
