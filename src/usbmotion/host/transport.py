@@ -117,7 +117,7 @@ class LineTransport:
         """Read what has arrived, waiting up to ``timeout_s`` for the first byte."""
         try:
             if self._read_arrived is not None:
-                chunk = self._read_arrived(max(0.0, timeout_s))
+                chunk = self._read_arrived(timeout_s if timeout_s > 0 else 0.0)
             elif waiting := self.port.in_waiting:
                 chunk = self.port.read(waiting)
             elif timeout_s <= 0:
@@ -161,6 +161,8 @@ class LineTransport:
     def poll_lines(self) -> list[bytes]:
         """Every whole line that has arrived, without waiting."""
         self._pull(0)
+        if not self._lines:
+            return []
         out = list(self._lines)
         self._lines.clear()
         return out

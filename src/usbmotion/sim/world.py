@@ -241,11 +241,12 @@ class SimLink:
 
     def receive_all(self) -> bytes:
         """Take every byte that has arrived by now."""
-        if self.faults.stalled:
-            return b""
-        now = self.world.time_us
         outbox = self._outbox
-        if not outbox or outbox[0][0] > now:
+        faults = self.faults
+        if not outbox or faults.stalled:
+            return b""
+        now = self.world._time_us
+        if outbox[0][0] > now:
             return b""
         data = outbox.popleft()[1]
         if outbox and outbox[0][0] <= now:
@@ -253,7 +254,7 @@ class SimLink:
             while outbox and outbox[0][0] <= now:
                 parts.append(outbox.popleft()[1])
             data = b"".join(parts)
-        return self.faults.incoming(data)
+        return faults.incoming(data) if faults.corrupt_every else data
 
     def discard_input(self) -> None:
         """Drop everything the device sent that the host has not read (what a device run
