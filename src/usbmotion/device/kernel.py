@@ -22,11 +22,12 @@ path, with the notice.
 
 What the devices run (:func:`load`, :func:`block_function`) is that compilation's machine
 code, kept in a file and loaded without importing numba (:mod:`usbmotion.device.kernel_code`:
-importing numba and setting up its compiler take about 0.45 s of every process, loading the
-file, llvmlite imported, about 0.05 s). numba is imported only to make the file, the first
-time a device needs the kernel after an install or a change (a few seconds;
-``BENCHMARKS.md`` gives the figures), or where such a file cannot be used: then the devices
-run numba's dispatcher, :func:`compile_kernel`, as fast once loaded.
+importing numba and setting up its compiler take about 0.45 s of every process; reading
+and linking the file take about 2 ms on Linux x86-64, where it is linked without
+llvmlite). numba is imported only to make the file, the first time a device needs the
+kernel after an install or a change (a few seconds; ``BENCHMARKS.md`` gives the figures),
+or where such a file cannot be used: then the devices run numba's dispatcher,
+:func:`compile_kernel`, as fast once loaded.
 
 The dispatcher's code is cached on disk too (numba's ``cache=True``: ``__pycache__`` next to
 this module, or numba's user cache directory when that is not writable). numba's cache only
