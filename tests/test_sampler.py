@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from usbmotion.errors import PlanningError
 from usbmotion.motion.moves import Arc, Dwell, Linear, Move, Plane, Rapid
@@ -185,3 +187,19 @@ def test_bad_axis_is_rejected() -> None:
     plan = plan_of(program())
     with pytest.raises(PlanningError, match="axis 3"):
         sample_axis(plan, 3, period_s=0.001, counts_per_mm=1.0)
+
+
+@given(st.lists(st.integers(0, 40), min_size=1, max_size=30),
+       st.lists(st.integers(-5, 50), min_size=0, max_size=200))
+@settings(max_examples=400, deadline=None)
+def test_ascending_times_find_the_segments_a_search_finds(starts: list[int],
+                                                          times: list[int]) -> None:
+    """A chunk of samples is placed by searching the segment starts among its times: the
+    same segment for every time as searching each time among the starts, equal starts
+    (segments of no length) and times before the first start or after the last included."""
+    from usbmotion.motion.sampler import _segments  # noqa: PLC0415
+
+    begun = np.asarray(sorted(starts), dtype=np.float64) / 4
+    ascending = np.asarray(sorted(times), dtype=np.float64) / 4
+    assert np.array_equal(_segments(begun, ascending, ascending=True),
+                          _segments(begun, ascending, ascending=False))

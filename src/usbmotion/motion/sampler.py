@@ -52,11 +52,15 @@ _COLUMNS = 9
 
 @dataclass(frozen=True)
 class _Table:
-    scalars: FloatArray  # (n, _COLUMNS)
+    """The plan as columns, each gathered by segment for every sample (a column gathered
+    whole is read once and lands contiguous: a row per segment made every later step
+    stride through nine values)."""
+
+    scalars: FloatArray  # (_COLUMNS, n)
     starts: FloatArray  # (n,) segment start times
-    origin: FloatArray  # (n, k) start vertices
-    finish: FloatArray  # (n, k) end vertices
-    unit: FloatArray  # (n, k)
+    origin: FloatArray  # (k, n) start vertices, an axis a row
+    finish: FloatArray  # (k, n) end vertices
+    unit: FloatArray  # (k, n)
     end: FloatArray  # (k,) the program's end
 
 
@@ -65,22 +69,22 @@ def _table(plan: Plan) -> _Table:
         raise PlanningError(f"plan {plan!r} is not a Plan")
     t_accel = plan.t_accel_s
     v_entry = plan.v_entry_mm_s
-    scalars = np.empty((len(plan), _COLUMNS), dtype=np.float64)
-    scalars[:, _START] = plan.start_time_s
-    scalars[:, _T_ACCEL] = t_accel
-    scalars[:, _T_DECEL_AT] = t_accel + plan.t_cruise_s
-    scalars[:, _T_END] = plan.segment_duration_s
-    scalars[:, _V_ENTRY] = v_entry
-    scalars[:, _V_CRUISE] = plan.v_cruise_mm_s
-    scalars[:, _V_EXIT] = plan.v_exit_mm_s
-    scalars[:, _ACCEL] = plan.accel_mm_s2
-    scalars[:, _S_ACCEL] = v_entry * t_accel + 0.5 * plan.accel_mm_s2 * t_accel * t_accel
+    scalars = np.empty((_COLUMNS, len(plan)), dtype=np.float64)
+    scalars[_START] = plan.start_time_s
+    scalars[_T_ACCEL] = t_accel
+    scalars[_T_DECEL_AT] = t_accel + plan.t_cruise_s
+    scalars[_T_END] = plan.segment_duration_s
+    scalars[_V_ENTRY] = v_entry
+    scalars[_V_CRUISE] = plan.v_cruise_mm_s
+    scalars[_V_EXIT] = plan.v_exit_mm_s
+    scalars[_ACCEL] = plan.accel_mm_s2
+    scalars[_S_ACCEL] = v_entry * t_accel + 0.5 * plan.accel_mm_s2 * t_accel * t_accel
     return _Table(
         scalars=scalars,
         starts=np.ascontiguousarray(plan.start_time_s),
-        origin=np.ascontiguousarray(plan.vertices_mm[:-1]),
-        finish=np.ascontiguousarray(plan.vertices_mm[1:]),
-        unit=np.ascontiguousarray(plan.unit),
+        origin=np.ascontiguousarray(plan.vertices_mm[:-1].T),
+        finish=np.ascontiguousarray(plan.vertices_mm[1:].T),
+        unit=np.ascontiguousarray(plan.unit.T),
         end=np.array(plan.vertices_mm[-1], dtype=np.float64),
     )
 
@@ -143,42 +147,58 @@ def sample_times(plan: Plan, period_s: float) -> FloatArray:
     return np.arange(count, dtype=np.float64) * float(period_s)
 
 
+def _segments(starts: FloatArray, times: FloatArray, *, ascending: bool) -> npt.NDArray[np.intp]:
+    """The segment of each time: the last whose start is at or before it (0 before the
+    first). ``ascending`` times (a chunk of samples) are placed by searching the few
+    segment starts among them, not each time among the starts: the same indices."""
+    if not ascending or not times.size:
+        segment = np.searchsorted(starts, times, side="right") - 1
+    else:
+        before = int(np.searchsorted(starts, times[0], side="right"))
+        within = int(np.searchsorted(starts, times[-1], side="right"))
+        reached = np.searchsorted(times, starts[before:within], side="left")
+        segment = np.cumsum(np.bincount(reached, minlength=times.size)[: times.size])
+        segment += before - 1
+    np.clip(segment, 0, starts.shape[0] - 1, out=segment)
+    return segment
+
+
 def _distance(
-    table: _Table, times: FloatArray
+    table: _Table, times: FloatArray, *, ascending: bool = False
 ) -> tuple[npt.NDArray[np.intp], FloatArray, FloatArray, npt.NDArray[np.bool_]]:
     """Segment index, distance from the start, distance to the end, decelerating flag."""
-    last = table.starts.shape[0] - 1
-    segment = np.searchsorted(table.starts, times, side="right") - 1
-    np.clip(segment, 0, last, out=segment)
-    rows = table.scalars[segment]
-    tau = np.maximum(times - rows[:, _START], 0.0)
-    t_accel = rows[:, _T_ACCEL]
-    accel = rows[:, _ACCEL]
-    half_a = 0.5 * accel
+    segment = _segments(table.starts, times, ascending=ascending)
+    columns = table.scalars
+    tau = times - columns[_START].take(segment)
+    np.maximum(tau, 0.0, out=tau)
+    t_accel = columns[_T_ACCEL].take(segment)
+    half_a = 0.5 * columns[_ACCEL].take(segment)
     in_accel = tau < t_accel
-    decelerating = tau >= rows[:, _T_DECEL_AT]
+    decelerating = tau >= columns[_T_DECEL_AT].take(segment)
     from_start = np.where(
         in_accel,
-        tau * (rows[:, _V_ENTRY] + half_a * tau),
-        rows[:, _S_ACCEL] + rows[:, _V_CRUISE] * (tau - t_accel),
+        tau * (columns[_V_ENTRY].take(segment) + half_a * tau),
+        columns[_S_ACCEL].take(segment) + columns[_V_CRUISE].take(segment) * (tau - t_accel),
     )
-    remaining = np.maximum(rows[:, _T_END] - tau, 0.0)
-    to_end = remaining * (rows[:, _V_EXIT] + half_a * remaining)
+    remaining = columns[_T_END].take(segment) - tau
+    np.maximum(remaining, 0.0, out=remaining)
+    to_end = remaining * (columns[_V_EXIT].take(segment) + half_a * remaining)
     return segment, from_start, to_end, decelerating
 
 
-def _positions(table: _Table, times: FloatArray, axes: tuple[int, ...]) -> FloatArray:
+def _positions(table: _Table, times: FloatArray, axes: tuple[int, ...], *,
+               ascending: bool = False) -> FloatArray:
     out = np.empty((times.shape[0], len(axes)), dtype=np.float64)
     if table.starts.shape[0] == 0:
         out[:] = table.end[list(axes)]
         return out
-    segment, from_start, to_end, decelerating = _distance(table, times)
+    segment, from_start, to_end, decelerating = _distance(table, times, ascending=ascending)
     for column, axis in enumerate(axes):
-        direction = table.unit[segment, axis]
+        direction = table.unit[axis].take(segment)
         out[:, column] = np.where(
             decelerating,
-            table.finish[segment, axis] - direction * to_end,
-            table.origin[segment, axis] + direction * from_start,
+            table.finish[axis].take(segment) - direction * to_end,
+            table.origin[axis].take(segment) + direction * from_start,
         )
     return out
 
@@ -208,7 +228,7 @@ def _chunks(
     for first in range(0, count, chunk_samples):
         stop = min(count, first + chunk_samples)
         times = np.arange(first, stop, dtype=np.float64) * period
-        positions = _positions(table, times, axes)
+        positions = _positions(table, times, axes, ascending=True)
         if stop == count:
             positions[-1] = table.end[list(axes)]
         yield positions
