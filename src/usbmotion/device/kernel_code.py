@@ -217,6 +217,49 @@ def _target_machine(llvm: Any) -> Any:
         opt=3, reloc="default", codemodel="jitdefault")
 
 
+_EM_X86_64: Final = 62
+_ET_REL: Final = 1
+_SHT_SYMTAB: Final = 2
+_SHT_RELA: Final = 4
+_SHT_NOBITS: Final = 8
+_SHT_X86_64_UNWIND: Final = 0x70000001
+_SHF_WRITE: Final = 1
+_SHF_ALLOC: Final = 2
+_SHN_UNDEF: Final = 0
+_SHN_ABS: Final = 0xFFF1
+_R_X86_64_64: Final = 1
+_R_X86_64_PC32: Final = 2
+_R_X86_64_PLT32: Final = 4
+_PAGE: Final = mmap.PAGESIZE
+
+
+def _sections(code: bytes) -> list[tuple[int, ...]]:
+    """The section headers of an ELF64 little-endian object file, in order: (name, type,
+    flags, address, offset, size, link, info, alignment, entry size)."""
+    section_offset, = struct.unpack_from("<Q", code, 0x28)
+    entry_size, count = struct.unpack_from("<HH", code, 0x3A)
+    return [struct.unpack_from("<IIQQQQIIQQ", code, section_offset + i * entry_size)
+            for i in range(count)]
+
+
+def _symbols(code: bytes, sections: list[tuple[int, ...]]) -> list[tuple[str, int, int]]:
+    """The symbol table of an object file, in order: each symbol's name (empty for none),
+    the index of its section and its value; empty without a symbol table."""
+    symtab = next((section for section in sections if section[1] == _SHT_SYMTAB), None)
+    if symtab is None:
+        return []
+    strings = sections[symtab[6]]  # sh_link: its string table
+    symbols: list[tuple[str, int, int]] = []
+    for offset in range(symtab[4], symtab[4] + symtab[5], 24):
+        name_at, _, _, index, value = struct.unpack_from("<IBBHQ", code, offset)
+        name = ""
+        if name_at:
+            start = strings[4] + name_at
+            name = code[start : code.index(b"\0", start)].decode("ascii")
+        symbols.append((name, index, value))
+    return symbols
+
+
 def undefined_symbols(code: bytes) -> list[str]:
     """The symbols an ELF64 little-endian object file ``code`` uses but does not define.
 
@@ -226,23 +269,10 @@ def undefined_symbols(code: bytes) -> list[str]:
     if code[:6] != b"\x7fELF\x02\x01":
         raise KernelCodeError("the object file is not 64-bit little-endian ELF")
     try:
-        section_offset, = struct.unpack_from("<Q", code, 0x28)
-        entry_size, count = struct.unpack_from("<HH", code, 0x3A)
-        sections = [struct.unpack_from("<IIQQQQIIQQ", code, section_offset + i * entry_size)
-                    for i in range(count)]
-        names: list[str] = []
-        for section in sections:
-            if section[1] != 2:  # SHT_SYMTAB
-                continue
-            strings = sections[section[6]]  # sh_link: its string table
-            for offset in range(section[4], section[4] + section[5], 24):
-                name, _info, _other, index = struct.unpack_from("<IBBH", code, offset)
-                if name and index == 0:  # SHN_UNDEF
-                    start = strings[4] + name
-                    names.append(code[start:code.index(b"\0", start)].decode("ascii"))
+        return [name for name, index, _ in _symbols(code, _sections(code))
+                if name and index == _SHN_UNDEF]
     except (struct.error, IndexError, ValueError, UnicodeDecodeError) as error:
         raise KernelCodeError(f"the object file's symbol table is unreadable ({error})") from None
-    return names
 
 
 def _resolve(code: bytes) -> dict[str, int]:
@@ -303,20 +333,6 @@ def link_by_llvmlite(code: bytes, addresses: dict[str, int]) -> MachineKernel:
     return MachineKernel(_PROTOTYPE(address))
 
 
-_EM_X86_64: Final = 62
-_ET_REL: Final = 1
-_SHT_SYMTAB: Final = 2
-_SHT_RELA: Final = 4
-_SHT_NOBITS: Final = 8
-_SHT_X86_64_UNWIND: Final = 0x70000001
-_SHF_WRITE: Final = 1
-_SHF_ALLOC: Final = 2
-_SHN_UNDEF: Final = 0
-_SHN_ABS: Final = 0xFFF1
-_R_X86_64_64: Final = 1
-_R_X86_64_PC32: Final = 2
-_R_X86_64_PLT32: Final = 4
-_PAGE: Final = mmap.PAGESIZE
 _linked: list[int] = []
 """The memory holding code linked here: mapped for the life of the process (a helper
 thread may still be running a block while the interpreter ends)."""
@@ -343,11 +359,7 @@ def link_here(code: bytes, addresses: dict[str, int]) -> int:
         kind, machine = struct.unpack_from("<HH", code, 0x10)
         if code[:6] != b"\x7fELF\x02\x01" or (kind, machine) != (_ET_REL, _EM_X86_64):
             raise KernelCodeError("the object file is not a 64-bit x86 relocatable object")
-        section_offset, = struct.unpack_from("<Q", code, 0x28)
-        entry_size, count = struct.unpack_from("<HH", code, 0x3A)
-        sections = [struct.unpack_from("<IIQQQQIIQQ", code, section_offset + i * entry_size)
-                    for i in range(count)]
-        # (name, type, flags, address, offset, size, link, info, alignment, entry size)
+        sections = _sections(code)
         places: dict[int, int] = {}
         end = 0
         for index, section in enumerate(sections):
@@ -365,16 +377,9 @@ def link_here(code: bytes, addresses: dict[str, int]) -> int:
             if kind != _SHT_NOBITS:
                 image[start : start + size] = code[offset : offset + size]
         base = _map(len(image))
-        symtab = next(section for section in sections if section[1] == _SHT_SYMTAB)
-        strings = sections[symtab[6]]
         symbols: list[int | None] = []
         entry: int | None = None
-        for offset in range(symtab[4], symtab[4] + symtab[5], 24):
-            name_at, _, _, index, value = struct.unpack_from("<IBBHQ", code, offset)
-            name = ""
-            if name_at:
-                start = strings[4] + name_at
-                name = code[start : code.index(b"\0", start)].decode("ascii")
+        for name, index, value in _symbols(code, sections):
             if index == _SHN_UNDEF:
                 symbols.append(addresses.get(name) if name else None)
             elif index == _SHN_ABS:
@@ -407,7 +412,7 @@ def link_here(code: bytes, addresses: dict[str, int]) -> int:
                     raise KernelCodeError(f"relocation type {kind} is not linked here")
         if entry is None:
             raise KernelCodeError(f"the object file has no {SYMBOL}")
-    except (struct.error, IndexError, ValueError, UnicodeDecodeError, StopIteration) as error:
+    except (struct.error, IndexError, ValueError, UnicodeDecodeError) as error:
         raise KernelCodeError(f"the object file is unreadable ({error})") from None
     ctypes.memmove(base, bytes(image), len(image))
     if _libc().mprotect(base, len(image), mmap.PROT_READ | mmap.PROT_EXEC) != 0:
